@@ -1,0 +1,506 @@
+"""The adapters for standard ROS 2 message types (sensor_msgs, geometry_msgs, nav_msgs, std_msgs).
+
+Conversions (REP-103/105 <-> marine, helpers from usv_predictor.frames):
+    body FLU -> FRD: (x, y, z) -> (x, -y, -z): v = -linear.y, r = -angular.z
+    ENU position (east, north) -> NED (x_n = north, y_e = east)
+    ENU yaw (CCW from east) -> heading psi = pi/2 - yaw (clockwise from north), wrapped
+REP-145: orientation_covariance[0] == -1 means "no orientation": heading decodes as NaN.
+Decoding uses numpy operations only, so it also accepts a structure of arrays over N messages;
+the exception is sensor_msgs/JointState (names are a per-message sequence): not vectorisable.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, ClassVar
+
+import numpy as np
+
+from msg_adapters import _codec as c
+from msg_adapters.registry import (
+    ROLE_FIELDS,
+    choice,
+    non_empty_string,
+    non_negative,
+    sign_option,
+    validate_options,
+)
+from usv_predictor.errors import AdapterError
+from usv_predictor.frames import enu_yaw_to_heading, heading_to_enu_yaw, quaternion_to_yaw, wrap_angle, yaw_to_quaternion
+
+RAD_PER_S_TO_RPM = 60.0 / (2.0 * math.pi)  # (rev/min) / (rad/s)
+
+# Documented default variances written by encode (what the simulator's sensors roughly are)
+DEFAULT_GYRO_VARIANCE = 1.0e-6  # (rad/s)^2, 0.06 deg/s standard deviation
+DEFAULT_ACCEL_VARIANCE = 1.0e-3  # (m/s^2)^2
+DEFAULT_HEADING_VARIANCE = 3.0e-4  # rad^2, 1 deg standard deviation
+DEFAULT_VELOCITY_VARIANCE = 1.0e-3  # (m/s)^2 and (rad/s)^2 on the twist diagonal
+DEFAULT_POSITION_VARIANCE = 1.0  # m^2 on each GNSS axis (DIAGONAL_KNOWN)
+
+NO_COVARIANCE = np.array([-1.0] + [0.0] * 8)  # REP-145: element 0 = -1 -> quantity not provided
+IDENTITY_QUATERNION = (0.0, 0.0, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class _Base:
+    role: str
+    ros_type: str
+
+    OPTIONS: ClassVar[Mapping[str, Callable[[object], object]]] = MappingProxyType({})
+    REQUIRED: ClassVar[tuple[str, ...]] = ()
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        return ROLE_FIELDS[self.role]
+
+    @classmethod
+    def build(cls, role: str, ros_type: str, options: Mapping[str, object]) -> _Base:
+        return cls(role, ros_type, **validate_options(role, ros_type, options, cls.OPTIONS, cls.REQUIRED))
+
+    def _values(self, values: Sequence[Any]) -> list[np.ndarray]:
+        return c.column_values(values, len(self.fields), self.ros_type)
+
+
+# ---------------------------------------------------------------- orientation / twist pieces
+
+
+def _heading_from_quaternion(q: Any, ros_type: str) -> np.ndarray:
+    yaw = quaternion_to_yaw(*(c.field(q, axis, ros_type) for axis in "xyzw"))
+    return enu_yaw_to_heading(np.asarray(yaw, dtype=np.float64))
+
+
+def _quaternion_from_heading(make: c.MakeFn, psi: np.ndarray) -> Any:
+    """Level-body orientation for heading psi; identity where psi is not finite."""
+    valid = np.isfinite(psi)
+    qx, qy, qz, qw = yaw_to_quaternion(heading_to_enu_yaw(np.where(valid, psi, 0.0)))
+    return c.quaternion(make, qx, qy, np.where(valid, qz, 0.0), np.where(valid, qw, 1.0))
+
+
+def _orientation_covariance(psi: np.ndarray, heading_variance: float) -> np.ndarray:
+    valid = np.isfinite(psi)[..., None]
+    return np.where(valid, c.diagonal_covariance([heading_variance] * 3), NO_COVARIANCE)
+
+
+def _decode_twist(twist: Any, ros_type: str) -> tuple[Any, Any, Any]:
+    u = c.field(twist, "linear.x", ros_type)
+    v = -np.asarray(c.field(twist, "linear.y", ros_type), dtype=np.float64)  # FLU left -> FRD starboard
+    r = -np.asarray(c.field(twist, "angular.z", ros_type), dtype=np.float64)  # FLU up -> FRD down
+    return u, v, r
+
+
+def _encode_twist(make: c.MakeFn, u: Any, v: Any, r: Any) -> Any:
+    return make("geometry_msgs/msg/Twist")(
+        linear=c.vector3(make, u, -v, 0.0), angular=c.vector3(make, 0.0, 0.0, -r)
+    )
+
+
+def _twist_covariance(variance: float) -> np.ndarray:
+    return c.diagonal_covariance([variance] * 6)
+
+
+def _encode_odometry(
+    make: c.MakeFn, t_ns: Any, frame_id: str, child_frame_id: str, eta: Sequence[Any], nu: Sequence[Any],
+    pose_variance: float, twist_variance: float,
+) -> Any:
+    x_n, y_e, psi = eta
+    pose = make("geometry_msgs/msg/Pose")(
+        position=c.vector3(make, y_e, x_n, 0.0, "geometry_msgs/msg/Point"),
+        orientation=_quaternion_from_heading(make, psi),
+    )
+    return make("nav_msgs/msg/Odometry")(
+        header=c.header(make, t_ns, frame_id),
+        child_frame_id=child_frame_id,
+        pose=make("geometry_msgs/msg/PoseWithCovariance")(
+            pose=pose, covariance=c.diagonal_covariance([pose_variance] * 6)
+        ),
+        twist=make("geometry_msgs/msg/TwistWithCovariance")(
+            twist=_encode_twist(make, *nu), covariance=_twist_covariance(twist_variance)
+        ),
+    )
+
+
+# ---------------------------------------------------------------- imu
+
+
+@dataclass(frozen=True)
+class ImuAdapter(_Base):
+    """sensor_msgs/Imu -> yaw rate, specific force (FRD) and heading (NaN if orientation absent).
+
+    Options: gyro_variance ((rad/s)^2, default 1e-6), accel_variance ((m/s^2)^2, default 1e-3),
+    heading_variance (rad^2, default 3e-4) - written on the covariance diagonals by encode.
+    """
+
+    gyro_variance: float = DEFAULT_GYRO_VARIANCE
+    accel_variance: float = DEFAULT_ACCEL_VARIANCE
+    heading_variance: float = DEFAULT_HEADING_VARIANCE
+
+    OPTIONS: ClassVar = MappingProxyType(
+        {"gyro_variance": non_negative, "accel_variance": non_negative, "heading_variance": non_negative}
+    )
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        t = self.ros_type
+        gyro_z = np.asarray(c.field(msg, "angular_velocity.z", t), dtype=np.float64)
+        ax = c.field(msg, "linear_acceleration.x", t)
+        ay = np.asarray(c.field(msg, "linear_acceleration.y", t), dtype=np.float64)
+        az = np.asarray(c.field(msg, "linear_acceleration.z", t), dtype=np.float64)
+        return c.stamp_ns(msg, t), c.values_out(-gyro_z, ax, -ay, -az, _imu_heading(msg, t))
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        r, ax, ay, az, psi = self._values(values)
+        return make(self.ros_type)(
+            header=c.header(make, t_ns, frame_id),
+            orientation=_quaternion_from_heading(make, psi),
+            orientation_covariance=_orientation_covariance(psi, self.heading_variance),
+            angular_velocity=c.vector3(make, 0.0, 0.0, -r),
+            angular_velocity_covariance=c.diagonal_covariance([self.gyro_variance] * 3),
+            linear_acceleration=c.vector3(make, ax, -ay, -az),
+            linear_acceleration_covariance=c.diagonal_covariance([self.accel_variance] * 3),
+        )
+
+
+def _imu_heading(msg: Any, ros_type: str) -> np.ndarray:
+    psi = _heading_from_quaternion(c.field(msg, "orientation", ros_type), ros_type)
+    covariance = np.asarray(c.field(msg, "orientation_covariance", ros_type), dtype=np.float64)
+    return np.where(covariance[..., 0] == -1.0, np.nan, psi)
+
+
+@dataclass(frozen=True)
+class ImuHeadingAdapter(_Base):
+    """sensor_msgs/Imu orientation -> heading (NaN when REP-145 says orientation is absent).
+
+    encode writes only the orientation; angular velocity and acceleration are marked absent
+    (covariance[0] = -1). Option heading_variance (rad^2, default 3e-4).
+    """
+
+    heading_variance: float = DEFAULT_HEADING_VARIANCE
+
+    OPTIONS: ClassVar = MappingProxyType({"heading_variance": non_negative})
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        return c.stamp_ns(msg, self.ros_type), c.values_out(_imu_heading(msg, self.ros_type))
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        (psi,) = self._values(values)
+        return make(self.ros_type)(
+            header=c.header(make, t_ns, frame_id),
+            orientation=_quaternion_from_heading(make, psi),
+            orientation_covariance=_orientation_covariance(psi, self.heading_variance),
+            angular_velocity=c.vector3(make, 0.0, 0.0, 0.0),
+            angular_velocity_covariance=NO_COVARIANCE.copy(),
+            linear_acceleration=c.vector3(make, 0.0, 0.0, 0.0),
+            linear_acceleration_covariance=NO_COVARIANCE.copy(),
+        )
+
+
+# ---------------------------------------------------------------- velocity
+
+
+@dataclass(frozen=True)
+class TwistStampedAdapter(_Base):
+    """geometry_msgs/TwistStamped (body FLU) -> [u, v, r] FRD."""
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        twist = c.field(msg, "twist", self.ros_type)
+        return c.stamp_ns(msg, self.ros_type), c.values_out(*_decode_twist(twist, self.ros_type))
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        return make(self.ros_type)(header=c.header(make, t_ns, frame_id), twist=_encode_twist(make, *self._values(values)))
+
+
+@dataclass(frozen=True)
+class TwistWithCovarianceStampedAdapter(_Base):
+    """geometry_msgs/TwistWithCovarianceStamped (body FLU) -> [u, v, r] FRD.
+
+    Option twist_variance (diagonal written by encode, default 1e-3).
+    """
+
+    twist_variance: float = DEFAULT_VELOCITY_VARIANCE
+
+    OPTIONS: ClassVar = MappingProxyType({"twist_variance": non_negative})
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        twist = c.field(msg, "twist.twist", self.ros_type)
+        return c.stamp_ns(msg, self.ros_type), c.values_out(*_decode_twist(twist, self.ros_type))
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        twist = make("geometry_msgs/msg/TwistWithCovariance")(
+            twist=_encode_twist(make, *self._values(values)), covariance=_twist_covariance(self.twist_variance)
+        )
+        return make(self.ros_type)(header=c.header(make, t_ns, frame_id), twist=twist)
+
+
+@dataclass(frozen=True)
+class OdometryVelocityAdapter(_Base):
+    """nav_msgs/Odometry twist part (FLU, child frame) -> [u, v, r] FRD.
+
+    encode writes a zero pose with identity orientation (pose unknown) and marks it so with a
+    negative pose covariance diagonal; options child_frame_id (default "base_link"), twist_variance.
+    """
+
+    child_frame_id: str = "base_link"
+    twist_variance: float = DEFAULT_VELOCITY_VARIANCE
+
+    OPTIONS: ClassVar = MappingProxyType({"child_frame_id": non_empty_string, "twist_variance": non_negative})
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        twist = c.field(msg, "twist.twist", self.ros_type)
+        return c.stamp_ns(msg, self.ros_type), c.values_out(*_decode_twist(twist, self.ros_type))
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        nu = self._values(values)
+        return _encode_odometry(make, t_ns, frame_id, self.child_frame_id, (0.0, 0.0, 0.0), nu, -1.0, self.twist_variance)
+
+
+# ---------------------------------------------------------------- odometry
+
+
+@dataclass(frozen=True)
+class OdometryAdapter(_Base):
+    """nav_msgs/Odometry: pose ENU in header.frame_id, twist FLU in child_frame_id -> eta NED, nu FRD.
+
+    Options child_frame_id (default "base_link"), pose_variance (m^2/rad^2, default 1.0),
+    twist_variance (default 1e-3).
+    """
+
+    child_frame_id: str = "base_link"
+    pose_variance: float = DEFAULT_POSITION_VARIANCE
+    twist_variance: float = DEFAULT_VELOCITY_VARIANCE
+
+    OPTIONS: ClassVar = MappingProxyType(
+        {"child_frame_id": non_empty_string, "pose_variance": non_negative, "twist_variance": non_negative}
+    )
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        t = self.ros_type
+        east = c.field(msg, "pose.pose.position.x", t)
+        north = c.field(msg, "pose.pose.position.y", t)
+        psi = _heading_from_quaternion(c.field(msg, "pose.pose.orientation", t), t)
+        u, v, r = _decode_twist(c.field(msg, "twist.twist", t), t)
+        return c.stamp_ns(msg, t), c.values_out(north, east, psi, u, v, r)
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        x_n, y_e, psi, u, v, r = self._values(values)
+        return _encode_odometry(
+            make, t_ns, frame_id, self.child_frame_id, (x_n, y_e, psi), (u, v, r), self.pose_variance, self.twist_variance
+        )
+
+
+# ---------------------------------------------------------------- heading
+
+
+@dataclass(frozen=True)
+class ScalarHeadingAdapter(_Base):
+    """std_msgs/Float64|Float32 heading (header-less: stamp None).
+
+    Options: units "deg" (default) | "rad"; convention "compass" (clockwise from north, default;
+    encode writes [0, 360) deg or [0, 2 pi) rad) | "enu" (counter-clockwise from east, wrapped).
+    """
+
+    units: str = "deg"
+    convention: str = "compass"
+
+    OPTIONS: ClassVar = MappingProxyType({"units": choice("deg", "rad"), "convention": choice("compass", "enu")})
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        angle = np.asarray(c.field(msg, "data", self.ros_type), dtype=np.float64)
+        angle = np.radians(angle) if self.units == "deg" else angle
+        psi = wrap_angle(angle) if self.convention == "compass" else enu_yaw_to_heading(angle)
+        return None, c.values_out(psi)
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        (psi,) = self._values(values)
+        angle = np.mod(psi, 2.0 * math.pi) if self.convention == "compass" else heading_to_enu_yaw(psi)
+        angle = np.degrees(angle) if self.units == "deg" else angle
+        return make(self.ros_type)(data=c.leaf(angle))
+
+
+@dataclass(frozen=True)
+class QuaternionHeadingAdapter(_Base):
+    """geometry_msgs/QuaternionStamped (ENU orientation of a level body) -> heading."""
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        psi = _heading_from_quaternion(c.field(msg, "quaternion", self.ros_type), self.ros_type)
+        return c.stamp_ns(msg, self.ros_type), c.values_out(psi)
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        (psi,) = self._values(values)
+        return make(self.ros_type)(header=c.header(make, t_ns, frame_id), quaternion=_quaternion_from_heading(make, psi))
+
+
+# ---------------------------------------------------------------- actuators
+
+
+@dataclass(frozen=True)
+class ScalarRudderAdapter(_Base):
+    """std_msgs/Float64|Float32 rudder angle. Options units "rad" (default) | "deg", sign 1 | -1
+    (-1 when the boat's positive rudder turns it to port)."""
+
+    units: str = "rad"
+    sign: int = 1
+
+    OPTIONS: ClassVar = MappingProxyType({"units": choice("rad", "deg"), "sign": sign_option})
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        angle = self.sign * np.asarray(c.field(msg, "data", self.ros_type), dtype=np.float64)
+        return None, c.values_out(np.radians(angle) if self.units == "deg" else angle)
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        (delta,) = self._values(values)
+        angle = np.degrees(delta) if self.units == "deg" else delta
+        return make(self.ros_type)(data=c.leaf(self.sign * angle))
+
+
+@dataclass(frozen=True)
+class ScalarRpmAdapter(_Base):
+    """std_msgs/Float64|Float32 engine speed in rev/min."""
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        return None, c.values_out(c.field(msg, "data", self.ros_type))
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        (rpm,) = self._values(values)
+        return make(self.ros_type)(data=c.leaf(rpm))
+
+
+def _joint_index(msg: Any, joint: str, ros_type: str) -> int:
+    names = c.field(msg, "name", ros_type)
+    if not all(isinstance(name, str) for name in names):
+        raise AdapterError(
+            f"{ros_type}: decode is not vectorisable (joint names are a per-message sequence); "
+            "decode messages one by one"
+        )
+    try:
+        return list(names).index(joint)
+    except ValueError:
+        raise AdapterError(f"{ros_type}: no joint {joint!r} in the message; names present: {list(names)}") from None
+
+
+def _joint_value(msg: Any, joint: str, ros_type: str, sequence: str) -> float:
+    index = _joint_index(msg, joint, ros_type)
+    column = c.field(msg, sequence, ros_type)
+    if len(column) <= index:
+        raise AdapterError(
+            f"{ros_type}: joint {joint!r} is entry {index} of name but {sequence} has only {len(column)} entries"
+        )
+    return float(column[index])
+
+
+@dataclass(frozen=True)
+class JointStateRudderAdapter(_Base):
+    """sensor_msgs/JointState position of joint `joint` (required option) -> rudder angle rad;
+    option sign 1 | -1. Decode handles one message at a time (not vectorisable)."""
+
+    joint: str = ""
+    sign: int = 1
+
+    OPTIONS: ClassVar = MappingProxyType({"joint": non_empty_string, "sign": sign_option})
+    REQUIRED: ClassVar = ("joint",)
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        position = _joint_value(msg, self.joint, self.ros_type, "position")
+        return c.stamp_ns(msg, self.ros_type), c.values_out(self.sign * position)
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        (delta,) = self._values(values)
+        return make(self.ros_type)(
+            header=c.header(make, t_ns, frame_id),
+            name=[self.joint],
+            position=(self.sign * delta)[..., None],
+            velocity=np.zeros(0),
+            effort=np.zeros(0),
+        )
+
+
+@dataclass(frozen=True)
+class JointStateRpmAdapter(_Base):
+    """sensor_msgs/JointState velocity (rad/s) of joint `joint` (required option) -> rpm.
+    Decode handles one message at a time (not vectorisable)."""
+
+    joint: str = ""
+
+    OPTIONS: ClassVar = MappingProxyType({"joint": non_empty_string})
+    REQUIRED: ClassVar = ("joint",)
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        omega = _joint_value(msg, self.joint, self.ros_type, "velocity")
+        return c.stamp_ns(msg, self.ros_type), c.values_out(omega * RAD_PER_S_TO_RPM)
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        (rpm,) = self._values(values)
+        return make(self.ros_type)(
+            header=c.header(make, t_ns, frame_id),
+            name=[self.joint],
+            position=np.zeros(0),
+            velocity=(rpm / RAD_PER_S_TO_RPM)[..., None],
+            effort=np.zeros(0),
+        )
+
+
+# ---------------------------------------------------------------- gnss
+
+
+@dataclass(frozen=True)
+class NavSatFixAdapter(_Base):
+    """sensor_msgs/NavSatFix -> lat, lon (deg), alt (m); NaN when status.status < 0 (no fix).
+
+    encode writes STATUS_FIX / SERVICE_GPS for finite rows and STATUS_NO_FIX otherwise, with a
+    DIAGONAL_KNOWN covariance; option position_variance (m^2, default 1.0).
+    """
+
+    position_variance: float = DEFAULT_POSITION_VARIANCE
+
+    OPTIONS: ClassVar = MappingProxyType({"position_variance": non_negative})
+
+    STATUS_NO_FIX: ClassVar[int] = -1
+    STATUS_FIX: ClassVar[int] = 0
+    SERVICE_GPS: ClassVar[int] = 1
+    COVARIANCE_TYPE_DIAGONAL_KNOWN: ClassVar[int] = 2
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        t = self.ros_type
+        no_fix = np.asarray(c.field(msg, "status.status", t)) < 0
+        position = [np.asarray(c.field(msg, name, t), dtype=np.float64) for name in ("latitude", "longitude", "altitude")]
+        return c.stamp_ns(msg, t), c.values_out(*(np.where(no_fix, np.nan, p) for p in position))
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        lat, lon, alt = self._values(values)
+        fix = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(alt)
+        status = make("sensor_msgs/msg/NavSatStatus")(
+            status=c.int_leaf(np.where(fix, self.STATUS_FIX, self.STATUS_NO_FIX)), service=self.SERVICE_GPS
+        )
+        return make(self.ros_type)(
+            header=c.header(make, t_ns, frame_id),
+            status=status,
+            latitude=c.leaf(lat),
+            longitude=c.leaf(lon),
+            altitude=c.leaf(alt),
+            position_covariance=c.diagonal_covariance([self.position_variance] * 3),
+            position_covariance_type=self.COVARIANCE_TYPE_DIAGONAL_KNOWN,
+        )
+
+
+# ---------------------------------------------------------------- the registry (immutable)
+
+ADAPTER_CLASSES: Mapping[tuple[str, str], type[_Base]] = MappingProxyType(
+    {
+        ("imu", "sensor_msgs/msg/Imu"): ImuAdapter,
+        ("velocity", "geometry_msgs/msg/TwistStamped"): TwistStampedAdapter,
+        ("velocity", "geometry_msgs/msg/TwistWithCovarianceStamped"): TwistWithCovarianceStampedAdapter,
+        ("velocity", "nav_msgs/msg/Odometry"): OdometryVelocityAdapter,
+        ("heading", "std_msgs/msg/Float64"): ScalarHeadingAdapter,
+        ("heading", "std_msgs/msg/Float32"): ScalarHeadingAdapter,
+        ("heading", "geometry_msgs/msg/QuaternionStamped"): QuaternionHeadingAdapter,
+        ("heading", "sensor_msgs/msg/Imu"): ImuHeadingAdapter,
+        ("rudder_angle", "std_msgs/msg/Float64"): ScalarRudderAdapter,
+        ("rudder_angle", "std_msgs/msg/Float32"): ScalarRudderAdapter,
+        ("rudder_angle", "sensor_msgs/msg/JointState"): JointStateRudderAdapter,
+        ("engine_rpm", "std_msgs/msg/Float64"): ScalarRpmAdapter,
+        ("engine_rpm", "std_msgs/msg/Float32"): ScalarRpmAdapter,
+        ("engine_rpm", "sensor_msgs/msg/JointState"): JointStateRpmAdapter,
+        ("gnss", "sensor_msgs/msg/NavSatFix"): NavSatFixAdapter,
+        ("odometry", "nav_msgs/msg/Odometry"): OdometryAdapter,
+    }
+)
