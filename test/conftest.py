@@ -1,0 +1,37 @@
+"""Shared pytest fixtures.
+
+`raw_data_dir`: the public raw data sets in ../shared/data/raw (relative to the repository root).
+Tests that use it are skipped with a clear reason when the folder is absent (a plain clone), but
+when the CI environment variable is set (CI=true in .ci/run) the absence is a test FAILURE, so a
+CI run can never pass by silently skipping the tests on real data.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+RAW_DATA_DIR = REPO_ROOT.parent / "shared" / "data" / "raw"
+
+
+def running_in_ci() -> bool:
+    """True when CI is set to anything but an explicit no (CI=true, CI=1, ...)."""
+    return os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")
+
+
+@pytest.fixture(scope="session")
+def repo_root() -> Path:
+    return REPO_ROOT
+
+
+@pytest.fixture(scope="session")
+def raw_data_dir() -> Path:
+    """Path of ../shared/data/raw; skip when absent, but fail under CI."""
+    if RAW_DATA_DIR.is_dir() and any(RAW_DATA_DIR.iterdir()):
+        return RAW_DATA_DIR
+    reason = f"raw data folder {RAW_DATA_DIR} is absent or empty (expected ../shared/data/raw beside the repo)"
+    if running_in_ci():
+        pytest.fail(f"{reason}; CI is set, so tests on real data must not be skipped", pytrace=False)
+    pytest.skip(reason)

@@ -1,0 +1,181 @@
+"""The `predictor` node in a real rclpy context over DDS loopback: inputs in, /diagnostics out.
+
+Each test process uses its own ROS_DOMAIN_ID (derived from the pid) and localhost-only discovery,
+so parallel runs on one machine do not hear each other.
+"""
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+import msg_adapters
+from usv_predictor import node as predictor_node
+from usv_predictor.config import load_predictor_config
+from usv_predictor.errors import ConfigError
+
+WAIT_S = 15.0  # upper bound on discovery + a few timer periods (s)
+
+
+@pytest.fixture()
+def ros_context(monkeypatch: pytest.MonkeyPatch) -> Iterator[Context]:
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    context = Context()
+    rclpy.init(context=context, domain_id=1 + os.getpid() % 100)
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def levels_by_input(report: DiagnosticArray) -> dict[str, Any]:
+    """{'imu': status, ..., 'model': status} from names like 'predictor: input imu'."""
+    return {status.name.split(": ", 1)[1].removeprefix("input "): status for status in report.status}
+
+
+def values_of(status: Any) -> dict[str, str]:
+    return {kv.key: kv.value for kv in status.values}
+
+
+class Harness:
+    """The node under test, a peer node that publishes inputs, and the latest /diagnostics."""
+
+    def __init__(self, context: Context, overrides: list[Parameter]) -> None:
+        self.node = predictor_node.PredictorNode(context=context, parameter_overrides=overrides)
+        self.peer = Node("smoke_peer", context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.peer)
+        self.latest: DiagnosticArray | None = None
+        self.peer.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+        self.make = msg_adapters.rclpy_factory()
+        self.publishers: dict[str, Any] = {}
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        self.latest = msg
+
+    def publish(self, role: str, values: tuple[float, ...]) -> None:
+        """Encode plain values with the role's configured adapter and publish them as ROS would."""
+        entry = self.node.config.input(role)
+        adapter = msg_adapters.get_adapter(entry.role, entry.ros_type, **entry.options)
+        if role not in self.publishers:
+            self.publishers[role] = self.peer.create_publisher(self.make(entry.ros_type), entry.topic, 10)
+        stamp = self.peer.get_clock().now().nanoseconds
+        self.publishers[role].publish(adapter.encode(stamp, values, self.make, entry.frame_id))
+
+    def spin_until(self, condition: Callable[[dict[str, Any]], bool], feed: Callable[[], None] = lambda: None):
+        """Spin (feeding inputs) until the latest report satisfies condition; return its statuses."""
+        deadline = time.monotonic() + WAIT_S
+        while time.monotonic() < deadline:
+            feed()
+            self.executor.spin_once(timeout_sec=0.02)
+            if self.latest is not None and condition(levels_by_input(self.latest)):
+                return levels_by_input(self.latest)
+        last = None if self.latest is None else {k: (s.level, s.message) for k, s in levels_by_input(self.latest).items()}
+        pytest.fail(f"no /diagnostics satisfied the condition within {WAIT_S} s; last report: {last}")
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.peer.destroy_node()
+
+
+@pytest.fixture()
+def harness(ros_context: Context) -> Iterator[Harness]:
+    fixture = Harness(ros_context, [Parameter("rate_hz", value=20.0)])
+    try:
+        yield fixture
+    finally:
+        fixture.close()
+
+
+def test_inputs_are_decoded_and_reported(harness: Harness) -> None:
+    heading_psi = math.radians(90.0)  # east, NED heading (rad)
+    rudder = math.radians(-10.0)  # port rudder (rad)
+
+    def feed() -> None:
+        harness.publish("heading", (heading_psi,))
+        harness.publish("rudder_angle", (rudder,))
+        harness.publish("engine_rpm", (1200.0,))
+
+    statuses = harness.spin_until(
+        lambda s: all(s[r].level[0] == predictor_node.OK for r in ("heading", "rudder_angle", "engine_rpm")), feed
+    )
+    # values went ROS message -> adapter -> plain numbers, and come back in the report
+    assert float(values_of(statuses["heading"])["psi"]) == pytest.approx(heading_psi, abs=1e-5)
+    assert float(values_of(statuses["rudder_angle"])["delta"]) == pytest.approx(rudder, abs=1e-5)
+    assert float(values_of(statuses["engine_rpm"])["rpm"]) == pytest.approx(1200.0)
+    assert int(values_of(statuses["heading"])["messages"]) >= 1
+    # inputs nobody published are errors; the model is not there yet, and says so
+    assert statuses["velocity"].level[0] == predictor_node.ERROR
+    assert statuses["velocity"].message == "no message received"
+    assert statuses["model"].level[0] == predictor_node.WARN
+    assert "no model loaded" in statuses["model"].message
+    configured = [i.role for i in harness.node.config.inputs]
+    assert sorted(statuses) == sorted([*configured, "model"])
+
+
+def test_stale_input_turns_to_warn_and_limit_is_live(harness: Harness) -> None:
+    harness.spin_until(lambda s: s["engine_rpm"].level[0] == predictor_node.OK,
+                       lambda: harness.publish("engine_rpm", (900.0,)))
+    # shrink the staleness limit at run time; with no more messages the input must go stale
+    result = harness.node.set_parameters([Parameter("inputs.engine_rpm.max_age_s", value=0.05)])
+    assert result[0].successful
+    statuses = harness.spin_until(lambda s: s["engine_rpm"].level[0] == predictor_node.WARN)
+    assert statuses["engine_rpm"].message.startswith("stale: last message")
+    assert values_of(statuses["engine_rpm"])["max_age_s"] == "0.05"
+
+
+def test_read_only_and_ranged_parameters(harness: Harness) -> None:
+    assert not harness.node.set_parameters([Parameter("inputs.imu.topic", value="other")])[0].successful
+    assert not harness.node.set_parameters([Parameter("inputs.imu.max_age_s", value=1e6)])[0].successful
+    descriptor = harness.node.describe_parameter("horizon_s")
+    assert descriptor.read_only
+    assert descriptor.floating_point_range[0].from_value <= load_predictor_config().horizon_s
+    assert harness.node.get_parameter("rate_hz").value == 20.0  # the override won over the file
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        (Parameter("dt", value=0.0), "out of range"),  # rejected by rclpy through the descriptor range
+        (Parameter("dt", value=0.7), "not a whole number of steps"),  # rejected by the shared loader
+    ],
+)
+def test_invalid_overrides_are_config_errors(ros_context: Context, override: Parameter, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        predictor_node.PredictorNode(context=ros_context, parameter_overrides=[override])
+
+
+def test_help_exits_before_ros_starts(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    def forbidden(**_: Any) -> None:
+        raise AssertionError("rclpy.init must not run for --help")
+
+    monkeypatch.setattr(predictor_node.rclpy, "init", forbidden)
+    with pytest.raises(SystemExit) as exited:
+        predictor_node.main(["predictor", "--help", "--ros-args", "-p", "rate_hz:=5.0"])
+    assert exited.value.code == 0
+    assert capsys.readouterr().out.startswith("usage: predictor")
+
+
+def test_missing_config_file_exits_1_with_its_name(tmp_path) -> None:
+    missing = tmp_path / "absent.yaml"
+    env = {**os.environ, "ROS_DOMAIN_ID": str(1 + os.getpid() % 100), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    done = subprocess.run(
+        [sys.executable, "-m", "usv_predictor.node", "--config", str(missing)],
+        capture_output=True, text=True, timeout=60, env=env,
+    )
+    assert done.returncode == 1
+    assert str(missing) in done.stderr
