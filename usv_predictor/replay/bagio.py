@@ -54,7 +54,7 @@ COMPRESSION_MODES = {"sqlite3": CompressionMode.FILE, "mcap": CompressionMode.ST
 
 CDR_LE_HEADER = b"\x00\x01\x00\x00"  # encapsulation: CDR, little endian
 PRIMITIVE_DTYPES = {
-    "bool": "u1", "byte": "u1", "char": "u1", "octet": "u1", "int8": "i1", "uint8": "u1",
+    "bool": "u1", "byte": "i1", "char": "u1", "octet": "u1", "int8": "i1", "uint8": "u1",
     "int16": "<i2", "uint16": "<u2", "int32": "<i4", "uint32": "<u4", "int64": "<i8", "uint64": "<u8",
     "float32": "<f4", "float64": "<f8",
 }  # fmt: skip
@@ -232,7 +232,10 @@ def _install(built: Path, target: Path) -> None:
         old = built.parent / f"{target.name}.old"
         target.rename(old)
         built.rename(target)
-        shutil.rmtree(old)
+        if old.is_dir():
+            shutil.rmtree(old)
+        else:
+            old.unlink()
     else:
         built.rename(target)
 
