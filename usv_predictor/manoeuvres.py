@@ -171,3 +171,35 @@ class RandomManoeuvre:
             return float(table[k, 1]), float(table[k, 2])
 
         return command
+
+
+def sea_trial_turns(duration_s: float = 180.0) -> list[TurningCircle]:
+    """Seed 000 Table 3: starboard turning tests, rudder 15/20/25 deg x engine 650/700 rpm, 3 min each."""
+    return [TurningCircle(rudder, rpm, duration_s=duration_s) for rudder in (15.0, 20.0, 25.0) for rpm in (650.0, 700.0)]
+
+
+def training_runs() -> list:
+    """Zig-zags both ways, a port turn and a persistently exciting random run, for model fitting."""
+    return [
+        ZigZag(10.0, 10.0, 650.0, duration_s=120.0),
+        ZigZag(20.0, 20.0, 700.0, duration_s=120.0, side=-1),
+        TurningCircle(20.0, 675.0, duration_s=120.0, side=-1),
+        RandomManoeuvre(seed=7, rpm=675.0, duration_s=180.0),
+    ]
+
+
+def diagnosis_runs() -> list:
+    """A trial programme that separates hypotheses: turns both ways and zig-zags both ways."""
+    return [
+        TurningCircle(20.0, 650.0, duration_s=150.0, side=1),
+        TurningCircle(20.0, 650.0, duration_s=150.0, side=-1),
+        ZigZag(20.0, 20.0, 650.0, duration_s=100.0, side=1),
+        ZigZag(20.0, 20.0, 650.0, duration_s=100.0, side=-1),
+    ]
+
+
+PROGRAMMES = {
+    "sea_trial": sea_trial_turns,
+    "training": training_runs,
+    "diagnosis": diagnosis_runs,
+}

@@ -27,6 +27,7 @@ from usv_predictor.errors import UsvPredictorError
 PROG = "replay"
 COMMANDS: tuple[str, ...] = (
     "usv_predictor.replay.cmd_info",
+    "usv_predictor.replay.cmd_simulate",
 )
 EXIT_ERROR = 2
 
