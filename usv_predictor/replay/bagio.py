@@ -314,11 +314,31 @@ def _select_connections(path: Path, reader: AnyReader, spec: TopicSpec) -> list[
     return connections
 
 
-def _to_signal(stamps: list[int], rows: list[tuple[float, ...]], fields: tuple[str, ...]) -> Signal:
+def _decode_topic(
+    path: Path, spec: TopicSpec, adapter: Any, reader: AnyReader, msgtype: str, raws: list, log_times: list[int]
+) -> Signal:
+    """Signal of one topic from its raw CDR messages, rows sorted by stamp.
+
+    One rosbags object per message; the place to switch to a bulk decoder (structure of arrays
+    -> adapter.decode once, message by message only for types that are not vectorisable).
+    """
+    stamps: list[int] = []
+    rows: list[tuple[float, ...]] = []
+    for raw, log_time in zip(raws, log_times):
+        try:
+            msg = reader.deserialize(raw, msgtype)
+        except _DESERIALIZE_ERRORS as err:
+            raise BagError(f"{path}: topic {spec.topic!r}: cannot deserialise a {msgtype}: {err}") from err
+        try:
+            stamp, values = adapter.decode(msg)
+        except AdapterError as err:
+            raise BagError(f"{path}: topic {spec.topic!r}: {err}") from err
+        stamps.append(log_time if stamp is None else stamp)
+        rows.append(values)
     t_ns = np.asarray(stamps, dtype=np.int64)
-    values = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(fields))
+    values = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(adapter.fields))
     order = np.argsort(t_ns, kind="stable")
-    return Signal(t_ns[order], values[order], fields)
+    return Signal(t_ns[order], values[order], adapter.fields)
 
 
 def read_bag(path: Path, topics: Sequence[TopicSpec]) -> dict[str, Signal]:
@@ -330,26 +350,22 @@ def read_bag(path: Path, topics: Sequence[TopicSpec]) -> dict[str, Signal]:
     path = Path(path)
     adapters = {spec.topic: spec.adapter() for spec in topics}
     with _open_reader(path) as reader:
-        by_connection = {}
+        topic_of = {}
         for spec in topics:
             for connection in _select_connections(path, reader, spec):
-                by_connection[connection.id] = spec.topic
-        stamps: dict[str, list[int]] = {spec.topic: [] for spec in topics}
-        rows: dict[str, list[tuple[float, ...]]] = {spec.topic: [] for spec in topics}
-        selected = [c for c in reader.connections if c.id in by_connection]
+                topic_of[connection.id] = spec.topic
+        raws: dict[str, list] = {spec.topic: [] for spec in topics}
+        log_times: dict[str, list[int]] = {spec.topic: [] for spec in topics}
+        selected = [c for c in reader.connections if c.id in topic_of]
         for connection, log_time, raw in reader.messages(connections=selected):
-            topic = by_connection[connection.id]
-            try:
-                msg = reader.deserialize(raw, connection.msgtype)
-            except _DESERIALIZE_ERRORS as err:
-                raise BagError(f"{path}: topic {topic!r}: cannot deserialise a {connection.msgtype}: {err}") from err
-            try:
-                stamp, values = adapters[topic].decode(msg)
-            except AdapterError as err:
-                raise BagError(f"{path}: topic {topic!r}: {err}") from err
-            stamps[topic].append(log_time if stamp is None else stamp)
-            rows[topic].append(values)
-    return {spec.topic: _to_signal(stamps[spec.topic], rows[spec.topic], adapters[spec.topic].fields) for spec in topics}
+            raws[topic_of[connection.id]].append(raw)
+            log_times[topic_of[connection.id]].append(log_time)
+        return {
+            spec.topic: _decode_topic(
+                path, spec, adapters[spec.topic], reader, spec.ros_type, raws[spec.topic], log_times[spec.topic]
+            )
+            for spec in topics
+        }
 
 
 def read_custom_data(path: Path) -> dict[str, str]:
