@@ -11,6 +11,7 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import shlex
 import sys
 import time
@@ -177,6 +178,12 @@ def run(args: argparse.Namespace) -> dict:
     jobs = [(args.output / m.name, m, scenario) for m in manoeuvres]
     if args.calm_twin:
         jobs += [(args.output / "calm" / m.name, m, scenario.calm_twin()) for m in manoeuvres]
+    try:
+        args.output.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise BagError(f"--output {args.output}: cannot create the output directory ({err.strerror})") from err
+    if not os.access(args.output, os.W_OK):
+        raise BagError(f"--output {args.output}: directory is not writable")
     if not args.overwrite:
         existing = [str(p) for p, _, _ in jobs if p.exists()]
         if existing:

@@ -1,0 +1,127 @@
+"""`replay simulate` end to end: bags that rosbags opens, what they contain, and bad input."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from usv_predictor.config import input_topics, load_predictor_config
+from usv_predictor.replay.bagio import TopicSpec, read_bag, read_custom_data
+from usv_predictor.replay.cli import main
+
+EXPECTED_TYPES = {
+    "imu/data": "sensor_msgs/msg/Imu",
+    "velocity": "geometry_msgs/msg/TwistStamped",
+    "heading": "std_msgs/msg/Float64",
+    "rudder_angle": "std_msgs/msg/Float64",
+    "engine_rpm": "std_msgs/msg/Float64",
+    "gps/fix": "sensor_msgs/msg/NavSatFix",
+    "ground_truth/odometry": "nav_msgs/msg/Odometry",
+}
+
+
+def specs() -> list[TopicSpec]:
+    cfg = load_predictor_config()
+    return [TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id) for t in input_topics(cfg, include_ground_truth=True)]
+
+
+def simulate(tmp_path: Path, *extra: str) -> tuple[int, dict]:
+    out = tmp_path / "result.json"
+    code = main(["simulate", "--output", str(tmp_path / "bags"), "--json", str(out), *extra])
+    return code, (json.loads(out.read_text()) if out.exists() else {})
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_simulated_bag_opens_with_anyreader_and_round_trips(tmp_path, storage):
+    code, result = simulate(tmp_path, "--manoeuvre", "turning-circle", "--rudder", "25", "--duration", "40",
+                            "--storage", storage, "--effect", "current", "--current-speed", "0.4", "--current-to", "135")
+    assert code == 0
+    bag = Path(result["bags"][0]["bag"])
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert types == EXPECTED_TYPES
+    assert counts["imu/data"] == 4001 and counts["gps/fix"] == 201 and counts["rudder_angle"] == 401
+    signals = read_bag(bag, specs())
+    truth = signals["ground_truth/odometry"]
+    # the recorded heading is the true heading plus noise, in the marine convention after the adapters
+    psi = np.interp(signals["heading"].t_ns, truth.t_ns, np.unwrap(truth.column("psi")))
+    err = np.angle(np.exp(1j * (signals["heading"].column("psi") - psi)))
+    assert np.std(err) < math.radians(1.5)
+    assert signals["rudder_angle"].column("delta")[-1] == pytest.approx(math.radians(25.0), abs=0.01)
+    meta = read_custom_data(bag)
+    assert json.loads(meta["scenario"])["effects"]["current"]["current_speed"] == 0.4
+    assert meta["generator"] == "usv_predictor replay simulate"
+
+
+def test_same_seed_same_bag_content(tmp_path):
+    args = ("--manoeuvre", "zigzag", "--duration", "30", "--sea", "rizhao", "--seed", "3")
+    simulate(tmp_path / "a", *args)
+    simulate(tmp_path / "b", *args)
+    simulate(tmp_path / "c", *args[:-1], "4")
+    read = lambda d: read_bag(next((d / "bags").iterdir()), specs())
+    a, b, c = read(tmp_path / "a"), read(tmp_path / "b"), read(tmp_path / "c")
+    assert all(np.array_equal(a[t].values, b[t].values, equal_nan=True) for t in a)
+    assert not np.array_equal(a["imu/data"].values, c["imu/data"].values, equal_nan=True)
+
+
+def test_programme_with_calm_twins_and_blind_metadata(tmp_path):
+    code, result = simulate(tmp_path, "--programme", "diagnosis", "--sea", "rizhao", "--calm-twin", "--blind",
+                            "--dt", "0.1")
+    assert code == 0
+    bags = [Path(b["bag"]) for b in result["bags"]]
+    assert len(bags) == 8 and sum(p.parent.name == "calm" for p in bags) == 4
+    meta = read_custom_data(bags[0])
+    assert "scenario" not in meta and len(meta["scenario_sha256"]) == 64
+    assert result["scenario"] is None
+    sea, calm = read_bag(bags[0], specs()), read_bag(bags[4], specs())
+    # the twin shares time, place, seed and manoeuvre, so only the sea makes the tracks differ
+    assert sea["gps/fix"].t_ns[0] == calm["gps/fix"].t_ns[0]
+    drift = np.hypot(*(sea["ground_truth/odometry"].values[-1, :2] - calm["ground_truth/odometry"].values[-1, :2]))
+    assert drift > 10.0  # 0.35 m/s current over 150 s
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--effect", "current", "--current-speed", "-0.4"], "current_speed=-0.4 m/s is outside the allowed range [0.0, 3.0]"),
+        (["--rudder", "60"], "--rudder 60 deg is outside the preset's range [0, 35] deg"),
+        (["--vessel", "titanic"], "unknown vessel preset 'titanic'"),
+        (["--current-speed", "0.3"], "--current-speed belongs to effect 'current': add --effect current"),
+        (["--rpm", "-5"], "--rpm -5 is outside"),
+        (["--effect", "gremlins"], "invalid choice: 'gremlins'"),
+        (["--wind-speed", "abc", "--effect", "wind"], "invalid float value: 'abc'"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2_and_no_bag(tmp_path, capsys, args, message):
+    code = main(["simulate", "--output", str(tmp_path / "bags"), "--duration", "5", *args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert err[-1].startswith("replay simulate: error:") and message in err[-1]
+    assert not (tmp_path / "bags").exists() or not any((tmp_path / "bags").iterdir())
+
+
+def test_existing_output_needs_overwrite_and_unwritable_output_fails(tmp_path, capsys):
+    args = ["--manoeuvre", "pullout", "--duration", "10"]
+    assert simulate(tmp_path, *args)[0] == 0
+    assert simulate(tmp_path, *args)[0] == 2
+    assert "use --overwrite" in capsys.readouterr().err
+    assert simulate(tmp_path, *args, "--overwrite")[0] == 0
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    code = main(["simulate", "--output", str(blocker / "bags"), "--duration", "5"])
+    assert code == 2
+    assert "replay simulate: error:" in capsys.readouterr().err
+
+
+def test_module_entry_point_help():
+    done = subprocess.run([sys.executable, "-m", "usv_predictor.replay", "simulate", "--help"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and "--current-to" in done.stdout and "--calm-twin" in done.stdout
