@@ -260,3 +260,14 @@ def test_unsorted_and_empty_streams(tmp_path: Path) -> None:
     np.testing.assert_array_equal(signals["velocity"].t_ns, np.sort(t_ns))  # sorted by stamp on read
     np.testing.assert_array_equal(signals["velocity"].column("u"), [1.0, 2.0, 3.0])
     assert len(signals["engine_rpm"]) == 0
+
+
+def test_bulk_read_equals_message_by_message_read(small_bag, monkeypatch: pytest.MonkeyPatch) -> None:
+    path, streams = small_bag
+    specs = [spec for spec, _ in streams]
+    bulk = read_bag(path, specs)
+    monkeypatch.setattr(bagio, "has_fast_layout", lambda *_: False)
+    one_by_one = read_bag(path, specs)
+    for spec in specs:
+        np.testing.assert_array_equal(bulk[spec.topic].t_ns, one_by_one[spec.topic].t_ns)
+        np.testing.assert_array_equal(bulk[spec.topic].values, one_by_one[spec.topic].values)  # NaN-aware

@@ -15,6 +15,9 @@ reaches 6.2 MB because single messages are too short for zstd to find redundancy
 slower); chunk ("storage") mode for mcap (2.7 MB vs 2.2 MB whole-file, but it is mcap's native
 compression that every mcap tool reads directly).
 Bags are written into a temporary directory beside the target and renamed at the end.
+
+Reading decodes each topic in bulk (cdr_fast.decode_many -> structure of arrays -> one vectorised
+adapter.decode); types without a fixed layout (JointState) go one rosbags message at a time.
 """
 from __future__ import annotations
 
@@ -41,6 +44,7 @@ from rosbags.typesys import Stores, get_typestore
 from msg_adapters import columnar_factory, get_adapter, rosbags_factory
 from usv_predictor.errors import AdapterError, BagError
 from usv_predictor.records import Signal
+from usv_predictor.replay.cdr_fast import decode_many, has_fast_layout
 
 if sys.version_info >= (3, 14):
     from compression.zstd import ZstdError
@@ -314,29 +318,47 @@ def _select_connections(path: Path, reader: AnyReader, spec: TopicSpec) -> list[
     return connections
 
 
-def _decode_topic(
-    path: Path, spec: TopicSpec, adapter: Any, reader: AnyReader, msgtype: str, raws: list, log_times: list[int]
-) -> Signal:
-    """Signal of one topic from its raw CDR messages, rows sorted by stamp.
-
-    One rosbags object per message; the place to switch to a bulk decoder (structure of arrays
-    -> adapter.decode once, message by message only for types that are not vectorisable).
-    """
+def _decode_one_by_one(
+    path: Path, spec: TopicSpec, adapter: Any, reader: AnyReader, raws: list, log_times: list[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """One rosbags object per message: for types the bulk decoder cannot lay out (JointState)."""
     stamps: list[int] = []
     rows: list[tuple[float, ...]] = []
     for raw, log_time in zip(raws, log_times):
         try:
-            msg = reader.deserialize(raw, msgtype)
+            msg = reader.deserialize(raw, spec.ros_type)
         except _DESERIALIZE_ERRORS as err:
-            raise BagError(f"{path}: topic {spec.topic!r}: cannot deserialise a {msgtype}: {err}") from err
+            raise BagError(f"{path}: topic {spec.topic!r}: cannot deserialise a {spec.ros_type}: {err}") from err
         try:
             stamp, values = adapter.decode(msg)
         except AdapterError as err:
             raise BagError(f"{path}: topic {spec.topic!r}: {err}") from err
         stamps.append(log_time if stamp is None else stamp)
         rows.append(values)
-    t_ns = np.asarray(stamps, dtype=np.int64)
-    values = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(adapter.fields))
+    return np.asarray(stamps, dtype=np.int64), np.asarray(rows, dtype=np.float64).reshape(len(rows), len(adapter.fields))
+
+
+def _decode_in_bulk(
+    path: Path, spec: TopicSpec, adapter: Any, raws: list, log_times: list[int], typestore: Any
+) -> tuple[np.ndarray, np.ndarray]:
+    """All messages at once: cdr_fast structure of arrays -> one vectorised adapter.decode."""
+    try:
+        stamp, columns = adapter.decode(decode_many(spec.ros_type, raws, typestore))
+    except (AdapterError, BagError) as err:
+        raise BagError(f"{path}: topic {spec.topic!r}: {err}") from err
+    t_ns = np.asarray(log_times, dtype=np.int64) if stamp is None else np.asarray(stamp, dtype=np.int64)
+    return t_ns, np.column_stack(columns).reshape(len(raws), len(adapter.fields))
+
+
+def _decode_topic(
+    path: Path, spec: TopicSpec, adapter: Any, reader: AnyReader, raws: list, log_times: list[int]
+) -> Signal:
+    """Signal of one topic from its raw CDR messages, rows sorted by stamp."""
+    typestore = reader.typestore  # built by AnyReader from the bag's own message definitions
+    if raws and spec.ros_type in typestore.fielddefs and has_fast_layout(spec.ros_type, typestore):
+        t_ns, values = _decode_in_bulk(path, spec, adapter, raws, log_times, typestore)
+    else:
+        t_ns, values = _decode_one_by_one(path, spec, adapter, reader, raws, log_times)
     order = np.argsort(t_ns, kind="stable")
     return Signal(t_ns[order], values[order], adapter.fields)
 
@@ -361,9 +383,7 @@ def read_bag(path: Path, topics: Sequence[TopicSpec]) -> dict[str, Signal]:
             raws[topic_of[connection.id]].append(raw)
             log_times[topic_of[connection.id]].append(log_time)
         return {
-            spec.topic: _decode_topic(
-                path, spec, adapters[spec.topic], reader, spec.ros_type, raws[spec.topic], log_times[spec.topic]
-            )
+            spec.topic: _decode_topic(path, spec, adapters[spec.topic], reader, raws[spec.topic], log_times[spec.topic])
             for spec in topics
         }
 
