@@ -1,0 +1,155 @@
+"""A manoeuvre as aligned, resampled time series: the common input of datasets, models and evaluation.
+
+Recording (marine convention, SI, uniform step dt):
+    t_s (T,)           seconds since t0_ns
+    nu (T, 3)          u, v (m/s, over ground, body FRD) from the velocity topic; r (rad/s) from the IMU gyro
+    psi (T,)           heading (rad, clockwise from north), continuous (unwrapped) so it can be averaged
+    controls (T, 2)    rudder angle delta (rad, + to starboard), engine speed (rpm)
+    position (T, 2)    x_n, y_e (m) from GNSS in the local tangent plane of `datum` (NaN without GNSS)
+    truth (T, 6) | None  ground truth x_n, y_e, psi, u, v, r: evaluation of simulated data only, never fitting
+
+Resampling (seed 000 down-sampled 200 Hz to 2 Hz): signals faster than the step are averaged over the
+window [t - dt/2, t + dt/2] (an anti-aliasing box filter, so noise drops by sqrt(samples)); slower ones
+are interpolated linearly. The grid spans the time where every required signal covers whole windows.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from usv_predictor.errors import UsvPredictorError
+from usv_predictor.frames import LocalTangentPlane
+from usv_predictor.records import Signal
+
+NS = 1_000_000_000
+REQUIRED_ROLES = ("imu", "velocity", "heading", "rudder_angle", "engine_rpm")
+
+
+class RecordingError(UsvPredictorError):
+    """Signals that cannot become a Recording (missing role, too short, gaps); the message says which."""
+
+
+@dataclass(frozen=True)
+class Recording:
+    name: str
+    source: str
+    t0_ns: int
+    dt: float
+    t_s: np.ndarray
+    nu: np.ndarray
+    psi: np.ndarray
+    controls: np.ndarray
+    position: np.ndarray
+    truth: np.ndarray | None = None
+    datum: tuple[float, float] | None = None  # (lat, lon) deg of the position plane
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0]) if len(self.t_s) else 0.0
+
+    def state(self) -> np.ndarray:
+        """(T, 4) [u, v, r, psi]: the state a model starts from and predicts."""
+        return np.column_stack([self.nu, self.psi])
+
+
+def window_resample(t_ns: np.ndarray, values: np.ndarray, grid_ns: np.ndarray, dt_ns: int) -> np.ndarray:
+    """Box-filtered (N,) or (N, k) values at grid_ns: mean over [t - dt/2, t + dt/2], else interpolated.
+
+    Where a window holds no sample (a signal slower than the step) the value is interpolated linearly.
+    """
+    values = np.asarray(values, dtype=float)
+    flat = values.reshape(len(values), -1)
+    half = dt_ns // 2
+    lo = np.searchsorted(t_ns, grid_ns - half, side="left")
+    hi = np.searchsorted(t_ns, grid_ns + half, side="right")  # closed window: symmetric about t
+    counts = hi - lo
+    sums = np.vstack([np.zeros((1, flat.shape[1])), np.cumsum(flat, axis=0)])
+    out = np.empty((len(grid_ns), flat.shape[1]))
+    has = counts > 0
+    out[has] = (sums[hi[has]] - sums[lo[has]]) / counts[has, None]
+    if not has.all():
+        rel_t = (t_ns - t_ns[0]).astype(float)
+        rel_g = (grid_ns[~has] - t_ns[0]).astype(float)
+        for k in range(flat.shape[1]):
+            out[~has, k] = np.interp(rel_g, rel_t, flat[:, k])
+    return out.reshape((len(grid_ns),) + values.shape[1:])
+
+
+def largest_gap(t_ns: np.ndarray, start_ns: int, end_ns: int) -> tuple[float, int]:
+    """(longest interval without a sample within [start, end] in s, where it starts in ns)."""
+    inside = t_ns[(t_ns >= start_ns) & (t_ns <= end_ns)]
+    edges = np.concatenate([[start_ns], inside, [end_ns]])
+    gaps = np.diff(edges)
+    k = int(np.argmax(gaps))
+    return float(gaps[k]) / NS, int(edges[k])
+
+
+def recording_from_signals(signals: dict[str, Signal], dt: float, *, name: str, source: str = "",
+                           max_gap_s: float | None = None, datum: tuple[float, float] | None = None) -> Recording:
+    """Align and resample role-keyed Signals (msg_adapters.ROLE_FIELDS) onto one grid of step dt.
+
+    Raises RecordingError naming the missing role, the gap (role, time, length) or the too-short span.
+    A gap longer than max_gap_s (default: the step dt) in any required signal is an error: the caller
+    decides whether to cut the recording there (see split_at_gaps in the dataset stage).
+    """
+    missing = [role for role in REQUIRED_ROLES if role not in signals or len(signals[role]) == 0]
+    if missing:
+        raise RecordingError(f"{source or name}: no data for role(s) {missing}; need {list(REQUIRED_ROLES)}")
+    if not dt > 0.0:
+        raise RecordingError(f"{source or name}: step dt={dt} s must be > 0")
+    dt_ns = int(round(dt * NS))
+    for role in REQUIRED_ROLES:
+        t = signals[role].t_ns
+        if np.any(np.diff(t) <= 0):
+            k = int(np.flatnonzero(np.diff(t) <= 0)[0])
+            raise RecordingError(f"{source or name}: {role} timestamps do not increase at "
+                                 f"t={(t[k + 1] - t[0]) / NS:.3f} s (sort or de-duplicate first)")
+    # whole windows only: a window cut by the end of the data would bias the mean of a trend
+    start = max(int(signals[r].t_ns[0]) for r in REQUIRED_ROLES) + dt_ns // 2
+    end = min(int(signals[r].t_ns[-1]) for r in REQUIRED_ROLES) - dt_ns // 2
+    steps = (end - start) // dt_ns
+    if steps < 1:
+        raise RecordingError(f"{source or name}: the signals overlap for {(end - start) / NS:.2f} s, less than one step")
+    grid = start + np.arange(steps + 1, dtype=np.int64) * dt_ns
+    limit = dt if max_gap_s is None else max_gap_s
+    for role in REQUIRED_ROLES:
+        gap, at = largest_gap(signals[role].t_ns, start, int(grid[-1]))
+        if gap > limit + 1e-9:
+            raise RecordingError(f"{source or name}: {role} has a {gap:.2f} s gap at t={(at - start) / NS:.2f} s, "
+                                 f"longer than {limit:.2f} s")
+
+    def resample(role: str, field: str) -> np.ndarray:
+        s = signals[role]
+        return window_resample(s.t_ns, s.column(field), grid, dt_ns)
+
+    heading = signals["heading"]
+    psi = window_resample(heading.t_ns, np.unwrap(heading.column("psi")), grid, dt_ns)
+    nu = np.column_stack([resample("velocity", "u"), resample("velocity", "v"), resample("imu", "yaw_rate")])
+    controls = np.column_stack([resample("rudder_angle", "delta"), resample("engine_rpm", "rpm")])
+    position = np.full((len(grid), 2), np.nan)
+    gnss = signals.get("gnss")
+    if gnss is not None and len(gnss) >= 2:
+        valid = np.isfinite(gnss.values[:, 0]) & np.isfinite(gnss.values[:, 1])
+        if valid.sum() >= 2:
+            lat, lon = gnss.values[valid, 0], gnss.values[valid, 1]
+            datum = datum or (float(lat[0]), float(lon[0]))
+            x_n, y_e = LocalTangentPlane(*datum).to_ned(lat, lon)
+            t_valid = gnss.t_ns[valid]
+            position = np.column_stack([window_resample(t_valid, x_n, grid, dt_ns), window_resample(t_valid, y_e, grid, dt_ns)])
+            outside = (grid < t_valid[0]) | (grid > t_valid[-1])
+            position[outside] = np.nan
+    truth = None
+    odom = signals.get("odometry")
+    if odom is not None and len(odom) >= 2:
+        vals = odom.values.copy()
+        vals[:, 2] = np.unwrap(vals[:, 2])
+        # point samples (not window means) so the truth is the state at the grid time
+        rel = (odom.t_ns - odom.t_ns[0]).astype(float)
+        g = (grid - odom.t_ns[0]).astype(float)
+        truth = np.column_stack([np.interp(g, rel, vals[:, k]) for k in range(6)])
+    return Recording(name=name, source=source, t0_ns=int(grid[0]), dt=dt, t_s=(grid - grid[0]) / NS,
+                     nu=nu, psi=psi, controls=controls, position=position, truth=truth, datum=datum)
