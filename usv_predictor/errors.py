@@ -16,3 +16,11 @@ class BagError(UsvPredictorError):
 
 class AdapterError(UsvPredictorError):
     """A ROS message cannot be converted to or from plain numbers."""
+
+
+class ModelError(UsvPredictorError):
+    """A model file is missing, corrupt, or does not match the configuration (the message says what differs)."""
+
+
+class DatasetError(UsvPredictorError):
+    """A dataset cannot be built or read (empty split, too-short manoeuvre, wrong format)."""
