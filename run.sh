@@ -63,7 +63,7 @@ make_venv() {
 setup_hash() {
     (
         cd "$REPO"
-        cat requirements.txt setup.py setup.cfg package.xml
+        cat requirements.txt setup.py setup.cfg package.xml run.sh
         "$VENV/bin/python" -VV
         ls -d -- */__init__.py 2>/dev/null || true  # new top-level packages need a new editable install
     ) | sha256sum | cut -d' ' -f1
@@ -93,8 +93,12 @@ setup() {
     # Editable: source edits take effect without a reinstall, console scripts land in .venv/bin,
     # and config/ is read from the source tree (data_files are only installed by colcon/pip install .).
     # --no-build-isolation builds with the pinned setuptools already in .venv (no extra download).
+    # --use-pep517: without it an older pip (Debian's 23.0) runs `setup.py develop`, which obeys
+    # setup.cfg's ROS script_dir and hides the scripts in .venv/lib/usv_predictor instead of .venv/bin.
     say "installing usv_predictor (editable) into .venv"
-    pip_install --no-deps --no-build-isolation -e "$REPO" || die "pip install -e . failed"
+    pip_install --no-deps --no-build-isolation --use-pep517 -e "$REPO" || die "pip install -e . failed"
+    [[ -x "$VENV/bin/predictor" && -x "$VENV/bin/replay" ]] ||
+        die "the editable install did not create .venv/bin/predictor and .venv/bin/replay"
     echo "$wanted" >"$STAMP"
 }
 

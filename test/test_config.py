@@ -144,7 +144,7 @@ def test_custom_file_with_frame_and_extra_input(tmp_path: Path) -> None:
         (lambda p: p.pop("vessel"), r"predictor.ros__parameters.vessel is missing"),
         (lambda p: p.update(vessel="../etc"), r"vessel = '../etc' is not valid"),
         (lambda p: p.update(rate_hzz=10.0), r"unknown key\(s\) \['rate_hzz'\]"),
-        (lambda p: p["inputs"]["imu"].update(type="sensor_msgs/Imu"), r"inputs.imu.type = 'sensor_msgs/Imu' is not valid"),
+        (lambda p: p["inputs"]["imu"].update(type="sensor_msgs/Imu"), r"imu.type = 'sensor_msgs/Imu' is not valid"),
         (lambda p: p["inputs"]["imu"].update(max_age_s=0.0), r"inputs.imu.max_age_s = 0.0 is out of range"),
         (lambda p: p["inputs"]["imu"].pop("topic"), r"inputs.imu.topic is missing"),
         (lambda p: p["inputs"]["imu"].update(units={"a": 1}), r"inputs.imu.units: adapter options must be plain"),
@@ -189,7 +189,8 @@ def test_missing_file_names_the_path(tmp_path: Path) -> None:
 
 
 def test_missing_share_file_lists_where_it_looked() -> None:
-    with pytest.raises(ConfigError, match=r"cannot find 'config/vessels/no_such_boat.yaml' of package usv_predictor; looked in: /"):
+    expected = r"cannot find 'config/vessels/no_such_boat.yaml' of package usv_predictor; looked in: /"
+    with pytest.raises(ConfigError, match=expected):
         vessel_preset_path("no_such_boat")
     with pytest.raises(ConfigError, match="not a preset name"):
         vessel_preset_path("../predictor")

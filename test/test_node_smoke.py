@@ -11,10 +11,12 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 import rclpy
+import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
@@ -83,7 +85,8 @@ class Harness:
             self.executor.spin_once(timeout_sec=0.02)
             if self.latest is not None and condition(levels_by_input(self.latest)):
                 return levels_by_input(self.latest)
-        last = None if self.latest is None else {k: (s.level, s.message) for k, s in levels_by_input(self.latest).items()}
+        last = None if self.latest is None else {k: (s.level, s.message)
+                                                 for k, s in levels_by_input(self.latest).items()}
         pytest.fail(f"no /diagnostics satisfied the condition within {WAIT_S} s; last report: {last}")
 
     def close(self) -> None:
@@ -159,6 +162,24 @@ def test_invalid_overrides_are_config_errors(ros_context: Context, override: Par
         predictor_node.PredictorNode(context=ros_context, parameter_overrides=[override])
 
 
+def test_config_option_file_becomes_the_defaults(ros_context: Context, tmp_path: Path) -> None:
+    """A custom file (integer rate, one input) is declared as typed, ranged parameters."""
+    params = yaml.safe_load(Path(load_predictor_config().source).read_text(encoding="utf-8"))
+    inner = params["predictor"]["ros__parameters"]
+    inner["rate_hz"] = 4  # an int in YAML: still the double parameter rate_hz
+    inner["inputs"] = {"engine_rpm": inner["inputs"]["engine_rpm"]}
+    path = tmp_path / "custom.yaml"
+    path.write_text(yaml.safe_dump(params), encoding="utf-8")
+    node = predictor_node.PredictorNode(config_path=path, context=ros_context)
+    try:
+        assert node.get_parameter("rate_hz").value == 4.0
+        assert node.describe_parameter("rate_hz").floating_point_range[0].to_value == 100.0
+        assert [i.role for i in node.config.inputs] == ["engine_rpm"]
+        assert not node.has_parameter("inputs.imu.topic")
+    finally:
+        node.destroy_node()
+
+
 def test_help_exits_before_ros_starts(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     def forbidden(**_: Any) -> None:
         raise AssertionError("rclpy.init must not run for --help")
@@ -170,7 +191,7 @@ def test_help_exits_before_ros_starts(monkeypatch: pytest.MonkeyPatch, capsys: p
     assert capsys.readouterr().out.startswith("usage: predictor")
 
 
-def test_missing_config_file_exits_1_with_its_name(tmp_path) -> None:
+def test_missing_config_file_exits_1_with_its_name(tmp_path: Path) -> None:
     missing = tmp_path / "absent.yaml"
     env = {**os.environ, "ROS_DOMAIN_ID": str(1 + os.getpid() % 100), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     done = subprocess.run(

@@ -65,6 +65,17 @@ _DESCRIPTIONS = {
 }
 
 
+def _is_float_parameter(name: str) -> bool:
+    return name in FLOAT_RANGES or name.endswith(".max_age_s")
+
+
+def _declared_value(name: str, value: Any) -> Any:
+    """`rate_hz: 10` in a YAML file is an int; declare it as the double it stands for."""
+    if _is_float_parameter(name) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
 def _descriptor(name: str, value: Any) -> ParameterDescriptor:
     """Descriptor of one declared parameter: ranges from usv_predictor.config, all but staleness read-only."""
     leaf = name.rsplit(".", 1)[-1]
@@ -73,7 +84,7 @@ def _descriptor(name: str, value: Any) -> ParameterDescriptor:
         description=_DESCRIPTIONS.get(name, f"{name.replace('.', ' ')} (see config/predictor.yaml)"),
         read_only=leaf != "max_age_s",  # topics, types and the model are fixed once subscribed
     )
-    float_range: Range | None = FLOAT_RANGES.get(name) or (MAX_AGE_RANGE if leaf == "max_age_s" else None)
+    float_range: Range | None = FLOAT_RANGES.get(name) or (MAX_AGE_RANGE if _is_float_parameter(name) else None)
     if float_range is not None and isinstance(value, float):
         descriptor.floating_point_range = [
             FloatingPointRange(from_value=float(float_range.low), to_value=float(float_range.high), step=0.0)
@@ -143,10 +154,13 @@ class PredictorNode(Node):
         """Declare every parameter of the defaults file; validate the effective values (with overrides)."""
         defaults = flatten_ros_parameters(read_ros_parameters(defaults_path))
         try:
-            for name, value in defaults.items():
+            for name, raw in defaults.items():
+                value = _declared_value(name, raw)
                 self.declare_parameter(name, value, _descriptor(name, value))
         except ParameterException as err:
-            raise ConfigError(f"node {self.get_name()}: parameter rejected ({err}); defaults from {defaults_path}") from err
+            raise ConfigError(
+                f"node {self.get_name()}: parameter rejected ({err}); defaults from {defaults_path}"
+            ) from err
         effective = {name: self.get_parameter(name).value for name in defaults}
         source = f"{defaults_path} (with the node's parameter overrides)"
         return parse_predictor_config(unflatten_ros_parameters(effective), source=source)
@@ -191,7 +205,7 @@ class PredictorNode(Node):
             values["age_s"] = f"{max(0.0, (now_ns - state.received_ns) * 1e-9):.3f}"
             if state.stamp_ns is not None:
                 values["latency_s"] = f"{(state.received_ns - state.stamp_ns) * 1e-9:.3f}"
-            values.update({name: f"{v:.6g}" for name, v in zip(state.adapter.fields, state.values)})
+            values.update({name: f"{v:.6g}" for name, v in zip(state.adapter.fields, state.values, strict=True)})
         if state.last_error:
             values["last_error"] = state.last_error
         return DiagnosticStatus(
