@@ -191,9 +191,9 @@ _SECTIONS = {
 
 def vessel_dir() -> Path:
     """config/vessels of the source tree or of the installed share/usv_predictor."""
-    from usv_predictor.resources import share_path  # local import: resources is optional at import time
+    from usv_predictor.config import package_share_path  # config imports nothing of ours at module level
 
-    return share_path("config", "vessels")
+    return package_share_path("config", "vessels")
 
 
 def available_vessels() -> list[str]:
