@@ -114,11 +114,12 @@ run_demo() {
     mkdir -p "$out"
     # ============================== DEMO: extend here ==============================
     # Each step is a `replay` command; results go to out/demo/.
-    "$VENV/bin/replay" simulate --out "$out/bags"
-    shopt -s nullglob
-    local bags=("$out"/bags/*/)
-    ((${#bags[@]})) || die "the demo simulation wrote no bag into $out/bags"
-    "$VENV/bin/replay" info "${bags[@]}"
+    local replay="$VENV/bin/replay"
+    say "1. simulate a 20/20 zig-zag in the Rizhao-like sea (current + wind + waves) and its calm twin"
+    "$replay" simulate --manoeuvre zigzag --rudder 20 --duration 120 --sea rizhao --calm-twin \
+        --output "$out/bags" --json "$out/simulate.json"
+    say "2. summarise the shipped sea-trial bags (seed 000 Table 3 turning tests)"
+    "$replay" info "$REPO"/bags/sea_trial/turning_circle_* --json "$out/shipped_bags.json"
     # ============================ end of DEMO section ==============================
     say "demo done: results in $out"
 }
