@@ -125,3 +125,16 @@ def test_module_entry_point_help():
     done = subprocess.run([sys.executable, "-m", "usv_predictor.replay", "simulate", "--help"],
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0 and "--current-to" in done.stdout and "--calm-twin" in done.stdout
+
+
+def test_shipped_bags_open_and_say_how_they_were_made():
+    from usv_predictor.config import package_share_path
+
+    bags = sorted(p.parent for p in package_share_path("bags").rglob("metadata.yaml"))
+    assert len(bags) == 20  # 6 turns + 4 training runs, each with its calm twin
+    for bag in bags:
+        with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+            assert {c.topic: c.msgtype for c in reader.connections} == EXPECTED_TYPES
+        meta = read_custom_data(bag)
+        effects = json.loads(meta["scenario"])["effects"]
+        assert (set(effects) == {"current", "wind", "wave_drift"}) == (bag.parent.name != "calm")
