@@ -28,6 +28,7 @@ PROG = "replay"
 COMMANDS: tuple[str, ...] = (
     "usv_predictor.replay.cmd_info",
     "usv_predictor.replay.cmd_simulate",
+    "usv_predictor.replay.cmd_convert",
 )
 EXIT_ERROR = 2
 

@@ -1,0 +1,640 @@
+"""Public measured manoeuvres -> plain numbers in the marine convention -> rosbag2 with the default topics.
+
+Readers return one `Manoeuvre` per file: SI units, NED earth frame, body FRD, heading psi clockwise
+from north (rad, wrapped), eta = [x_n, y_e, psi], nu = [u, v, r], rudder delta positive to starboard
+(r > 0), propeller speed in rpm. Everything here is pure except `write_manoeuvre_bag` (one bagio.write_bag).
+
+Sources (see docs/data.md for the evidence behind each convention; every check below raises
+DatasetError naming file, line and column):
+  hsva    KVLCC2 free-running zig-zags, HSVA for SIMMAN 2008, MODEL scale (1:45.714, L_pp 7 m, 0.05 s).
+          The data contradict SOURCE.txt's column header in two places, both detected from the data:
+          the 7th column (labelled p) is the yaw rate - it equals d(psi)/dt - and the 8th (labelled r)
+          is not; u, v are earth-fixed dx0/dt, dy0/dt. The reader picks the column that IS d(psi)/dt and
+          the velocity frame the positions prove, and refuses a file where neither fits.
+  marin   KVLCC2 zig-zags, MARIN for SIMMAN 2008, FULL scale (L_pp 320 m). 3 significant digits: the time
+          base is rebuilt as row * 0.13535 s (the time column must agree within its rounding); positions
+          (10 m steps at 4 km) are rebuilt by integrating the earth-fixed u, v from the first position.
+  fuzhou  3.6 m rudder-steered USV, 30 deg zig-zag at sea, 0.5 s interpolated. The `speed` column is in
+          KNOTS, not m/s as SOURCE.txt says: the GNSS track moves 0.51 m per second per unit of speed.
+          The reader detects the unit from the track (knots or m/s, else error). u, v: over-ground
+          velocity of the GNSS track (centred difference over 2 s) rotated into the body; r: centred
+          difference of the unwrapped heading over 1 s. No propeller data: no engine_rpm topic.
+The Dalian twin-thruster USV (.xlsx) has no rudder and no rpm: it is refused (UNSUPPORTED_FORMATS).
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from usv_predictor.errors import DatasetError
+from usv_predictor.frames import LocalTangentPlane, ned_to_body, wrap_angle
+from usv_predictor.records import Signal
+
+CONVERSION_VERSION = "1"
+GRAVITY = 9.81  # (m/s^2), the value the simulator writes as accel_z = -g
+NS = 1_000_000_000
+KNOT = 1852.0 / 3600.0  # (m/s per knot)
+MIN_ROWS = 20  # a manoeuvre shorter than this is a truncated file
+
+# Nominal epochs (UTC) - the files carry no date; only the time base within a file is measured.
+EPOCH_NS = {
+    "hsva": 1_136_073_600 * NS,  # 2006-01-01 00:00 UTC (year of the HSVA report)
+    "marin": 1_199_145_600 * NS,  # 2008-01-01 00:00 UTC (SIMMAN 2008)
+    "fuzhou": 1_640_995_200 * NS,  # 2022-01-01 00:00 UTC (year of the publication)
+}
+# Arbitrary GNSS datums of the tank data (nominal, NOT measured): lat/lon = datum + the tank track.
+DATUM_DEG = {
+    "hsva": (53.5680, 10.0110),  # HSVA, Hamburg (nominal)
+    "marin": (51.9700, 5.6650),  # MARIN, Wageningen (nominal)
+}
+LICENCE = {
+    "hsva": "no explicit data licence; research use. Cite SIMMAN 2008 (Stern et al. 2011) and the HSVA report "
+            "(A. Cura Hochbaum, 2006). Do not commit the raw files into a repository.",
+    "marin": "no explicit data licence; research use. Cite SIMMAN 2008 (Stern et al. 2011). Do not commit the raw "
+             "files into a repository.",
+    "fuzhou": "none stated; research use. Cite Alexandersson, Zhang, Mao, Ringsberg (2022), Ships and Offshore "
+              "Structures, doi:10.1080/17445302.2022.2067409. Do not commit the raw file into a repository.",
+}
+FORMATS = ("hsva", "marin", "fuzhou")
+UNSUPPORTED_FORMATS = {
+    "dalian": "the Dalian twin-thruster USV (.xlsx) steers by differential thrust: it has no rudder angle and no "
+              "rpm (only PWM commands), so it does not fit the default topics (rudder_angle, engine_rpm); "
+              "not converted (see docs/data.md)",
+}
+
+HSVA_LAMBDA = 45.714  # model scale 1:45.714 (SOURCE.txt)
+HSVA_DT_S = 0.05  # (s)
+MARIN_DT_S = 0.13535  # (s), full-scale sample interval (SOURCE.txt)
+KVLCC2_LPP_FULL_M = 320.0  # (m)
+KVLCC2_LPP_MODEL_M = 7.0  # (m)
+
+
+@dataclass(frozen=True)
+class ScaleInfo:
+    """Scale of the numbers in a Manoeuvre (they are never rescaled by the reader)."""
+
+    scale: str  # "model" or "full"
+    scale_factor: float  # lambda = full-scale length / this length (1 at full scale) (-)
+    L_pp_m: float  # length between perpendiculars at this scale (m)
+    full_scale_L_pp_m: float  # (m)
+
+
+@dataclass(frozen=True, eq=False)
+class Manoeuvre:
+    """One measured manoeuvre, marine convention, SI. Arrays are (N,) float64 on one time base.
+
+    rpm is the PROPELLER speed (rpm), None when not measured. lat_deg/lon_deg are the measured fixes
+    when the source has them, else None (then the bag's fixes are x_n, y_e about a nominal datum).
+    """
+
+    name: str  # bag name, e.g. hsva_z_10_05
+    source: str  # one of FORMATS
+    path: Path
+    t_s: np.ndarray  # (N,) s from the file's first row, strictly increasing
+    x_n: np.ndarray  # (N,) m
+    y_e: np.ndarray  # (N,) m
+    psi: np.ndarray  # (N,) rad, wrapped to (-pi, pi]
+    u: np.ndarray  # (N,) m/s, body forward
+    v: np.ndarray  # (N,) m/s, body starboard
+    r: np.ndarray  # (N,) rad/s, positive turning to starboard
+    delta: np.ndarray  # (N,) rad, positive turns the vessel to starboard
+    rpm: np.ndarray | None  # (N,) propeller rpm, or None
+    scale: ScaleInfo
+    rudder_amplitude_deg: float  # nominal rudder angle of the zig-zag (from the file name/header)
+    check_angle_deg: float  # nominal heading check angle (deg)
+    first_side: str  # "starboard" or "port": side of the first rudder execute
+    lat_deg: np.ndarray | None = None
+    lon_deg: np.ndarray | None = None
+    notes: Mapping[str, str] = field(default_factory=dict)  # conventions and conversions, for custom_data
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0])
+
+    @property
+    def rate_hz(self) -> float:
+        return float((len(self.t_s) - 1) / self.duration_s)
+
+
+# ----------------------------------------------------------------------------- numeric helpers
+
+
+def centred_derivative(t_s: np.ndarray, x: np.ndarray, half_width: int) -> np.ndarray:
+    """dx/dt by centred differences over +-half_width samples (one-sided, shorter, at the ends).
+
+    A difference over 2k samples is a smoothing differentiator: it removes the rounding/interpolation
+    noise that a 1-sample difference would amplify, at the cost of a 2k-sample low-pass.
+    """
+    n = len(x)
+    idx = np.arange(n)
+    hi = np.minimum(idx + half_width, n - 1)
+    lo = np.maximum(idx - half_width, 0)
+    return (x[hi] - x[lo]) / (t_s[hi] - t_s[lo])
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def _sig_half_unit(x: np.ndarray, digits: int = 3) -> np.ndarray:
+    """Half a unit of the last significant digit of each value (the rounding error of a 3-digit table)."""
+    ax = np.abs(x)
+    exponent = np.floor(np.log10(np.where(ax > 0.0, ax, 1.0)))
+    return 0.5 * 10.0 ** (exponent - (digits - 1))
+
+
+def _first_side(delta: np.ndarray, threshold: float) -> str:
+    """Side of the first rudder execute: sign of the first |delta - delta[0]| > threshold."""
+    moved = np.flatnonzero(np.abs(delta - delta[0]) > threshold)
+    if len(moved) == 0:
+        return "none"
+    return "starboard" if delta[moved[0]] - delta[0] > 0 else "port"
+
+
+# ----------------------------------------------------------------------------- parsing helpers
+
+
+def _read_text(path: Path, encoding: str) -> str:
+    try:
+        return Path(path).read_text(encoding=encoding)
+    except OSError as err:
+        raise DatasetError(f"{path}: cannot read ({err.strerror or err})") from err
+    except UnicodeDecodeError as err:
+        raise DatasetError(f"{path}: not {encoding} text ({err.reason} at byte {err.start})") from err
+
+
+def _parse_table(path: Path, lines: Sequence[str], first_line: int, columns: Sequence[str],
+                 split: Callable[[str], list[str]], allow_trailing_blank: bool) -> np.ndarray:
+    """Rows of numbers -> (N, len(columns)); errors name file, 1-based line and column."""
+    rows: list[list[float]] = []
+    blank_from: int | None = None
+    for offset, line in enumerate(lines):
+        number = first_line + offset
+        cells = split(line)
+        if not any(c.strip() for c in cells):
+            if blank_from is None:
+                blank_from = number
+            continue
+        if blank_from is not None:
+            raise DatasetError(f"{path}:{blank_from}: empty row inside the data (data continue on line {number})")
+        if len(cells) != len(columns):
+            raise DatasetError(f"{path}:{number}: expected {len(columns)} columns ({' '.join(columns)}), "
+                               f"found {len(cells)}")
+        row = []
+        for name, cell in zip(columns, cells):
+            try:
+                value = float(cell)
+            except ValueError:
+                raise DatasetError(f"{path}:{number}: column {name!r}: {cell.strip()!r} is not a number") from None
+            if not math.isfinite(value):
+                raise DatasetError(f"{path}:{number}: column {name!r}: {cell.strip()!r} is not finite")
+            row.append(value)
+        rows.append(row)
+    if blank_from is not None and not allow_trailing_blank:
+        raise DatasetError(f"{path}:{blank_from}: unexpected empty row")
+    if len(rows) < MIN_ROWS:
+        raise DatasetError(f"{path}: only {len(rows)} data rows, expected at least {MIN_ROWS} (truncated file?)")
+    return np.asarray(rows, dtype=np.float64)
+
+
+def _check_time(path: Path, t_s: np.ndarray, first_line: int, expected_dt: float | None, column: str) -> None:
+    """Strictly increasing time; a uniform step `expected_dt` (1 %) when given. Duplicates are refused."""
+    steps = np.diff(t_s)
+    bad = np.flatnonzero(steps <= 0.0)
+    if len(bad):
+        k = int(bad[0]) + 1
+        what = "repeats" if steps[bad[0]] == 0.0 else "goes back"
+        raise DatasetError(f"{path}:{first_line + k}: column {column!r}: time {t_s[k]:g} s {what} "
+                           f"(previous row {t_s[k - 1]:g} s); expected strictly increasing time")
+    if expected_dt is not None:
+        off = np.flatnonzero(np.abs(steps - expected_dt) > 0.01 * expected_dt)
+        if len(off):
+            k = int(off[0]) + 1
+            raise DatasetError(f"{path}:{first_line + k}: column {column!r}: step {steps[off[0]]:g} s, "
+                               f"expected a uniform {expected_dt:g} s")
+
+
+def _check_range(path: Path, column: str, values: np.ndarray, low: float, high: float, expected: str) -> None:
+    """The median of a column must be in [low, high] - catches wrong units and wrong columns."""
+    median = float(np.median(values))
+    if not low <= median <= high:
+        raise DatasetError(f"{path}: column {column!r}: median {median:g} is outside [{low:g}, {high:g}]; "
+                           f"expected {expected} (see SOURCE.txt)")
+
+
+def _yaw_rate_column(path: Path, t_s: np.ndarray, psi_deg: np.ndarray, candidates: Mapping[str, np.ndarray],
+                     half_width: int) -> str:
+    """The candidate column (deg/s) that is d(psi)/dt; error if none is within 30 % rms."""
+    dpsi = centred_derivative(t_s, np.unwrap(psi_deg, period=360.0), half_width)
+    scale = max(_rms(dpsi), 1e-6)
+    errors = {name: _rms(centred_derivative(t_s, np.cumsum(np.r_[0.0, 0.5 * (c[1:] + c[:-1]) * np.diff(t_s)]),
+                                            half_width) - dpsi) / scale for name, c in candidates.items()}
+    best = min(errors, key=errors.__getitem__)
+    if errors[best] > 0.3:
+        described = ", ".join(f"{n}: {e:.0%}" for n, e in errors.items())
+        raise DatasetError(f"{path}: no column is the yaw rate d(psi)/dt in deg/s (relative rms error {described}); "
+                           f"expected one within 30 %")
+    return best
+
+
+def _velocity_frame(path: Path, t_s: np.ndarray, x: np.ndarray, y: np.ndarray, psi: np.ndarray,
+                    c1: np.ndarray, c2: np.ndarray, half_width: int, tolerance_mps: float) -> str:
+    """'earth' if (c1, c2) = (dx/dt, dy/dt), 'body' if they are (u, v) of FRD; error if neither fits."""
+    vx, vy = centred_derivative(t_s, x, half_width), centred_derivative(t_s, y, half_width)
+    ub, vb = ned_to_body(vx, vy, psi)
+    misfit = {"earth": max(_rms(vx - c1), _rms(vy - c2)), "body": max(_rms(ub - c1), _rms(vb - c2))}
+    best = min(misfit, key=misfit.__getitem__)
+    if misfit[best] > tolerance_mps:
+        raise DatasetError(f"{path}: the velocity columns are neither the time derivative of the positions "
+                           f"(rms misfit {misfit['earth']:.3g} m/s) nor their body-axis components "
+                           f"({misfit['body']:.3g} m/s); expected one within {tolerance_mps:g} m/s "
+                           f"(positions in m, velocities in m/s, heading positive to starboard)")
+    return best
+
+
+def _check_track_follows_heading(path: Path, t_s: np.ndarray, x: np.ndarray, y: np.ndarray, psi: np.ndarray,
+                                 half_width: int, max_deg: float) -> float:
+    """Course over ground vs heading: a mirrored axis or a port-positive heading fails this."""
+    vx, vy = centred_derivative(t_s, x, half_width), centred_derivative(t_s, y, half_width)
+    moving = np.hypot(vx, vy) > 0.2 * np.median(np.hypot(vx, vy))
+    difference = np.degrees(np.abs(wrap_angle(np.arctan2(vy, vx) - psi)))[moving]
+    median = float(np.median(difference))
+    if median > max_deg:
+        raise DatasetError(f"{path}: the track (x north, y east) runs {median:.0f} deg off the heading in median; "
+                           f"expected < {max_deg:g} deg (psi positive to starboard, y positive to starboard)")
+    return median
+
+
+def _file_digest(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+# ----------------------------------------------------------------------------- HSVA
+
+HSVA_COLUMNS = ("time", "x0", "y0", "psi", "u", "v", "p", "r", "delta", "rev", "thrust", "torque")
+HSVA_HEADER_LINES = 4
+_HSVA_NAME = re.compile(r"HSVA_CPMC_KVLCC2_Z_(\d+)_(\d+)(?:_([SP]))?$", re.IGNORECASE)
+_HSVA_TITLE = re.compile(r"Z\s*(\d+)\D{1,3}?/\s*(\d+)")
+
+
+def read_hsva(path: Path) -> Manoeuvre:
+    """One HSVA KVLCC2 zig-zag (.dat, cp1252), model scale kept; see the module docstring for the columns."""
+    path = Path(path)
+    lines = _read_text(path, "cp1252").splitlines()
+    if len(lines) <= HSVA_HEADER_LINES or "HSVA" not in lines[0]:
+        raise DatasetError(f"{path}:1: expected the HSVA header ('HSVA, experimental data ...', 4 lines), "
+                           f"found {lines[0].strip()[:60]!r}" if lines else f"{path}: empty file")
+    title = _HSVA_TITLE.search(lines[2])
+    named = _HSVA_NAME.match(path.stem)
+    if title is None:
+        raise DatasetError(f"{path}:3: expected the zig-zag title like 'Z10°/5°', found {lines[2].strip()!r}")
+    rudder_deg, check_deg = float(title.group(1)), float(title.group(2))
+    if named and (float(named.group(1)), float(named.group(2))) != (rudder_deg, check_deg):
+        raise DatasetError(f"{path}:3: title says Z{rudder_deg:g}/{check_deg:g} but the file name says "
+                           f"Z_{named.group(1)}_{named.group(2)}")
+    a = _parse_table(path, lines[HSVA_HEADER_LINES:], HSVA_HEADER_LINES + 1, HSVA_COLUMNS, str.split,
+                     allow_trailing_blank=True)
+    first = HSVA_HEADER_LINES + 1
+    t_s = a[:, 0] - a[0, 0]
+    _check_time(path, a[:, 0], first, HSVA_DT_S, "time")
+    x, y, psi_deg, c_u, c_v = a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5]
+    _check_range(path, "u", np.hypot(c_u, c_v), 0.5, 2.0, "model-scale speed in m/s (~1.18)")
+    _check_range(path, "rev", a[:, 9], 5.0, 20.0, "propeller speed in rps (~10.23)")
+    _check_range(path, "delta", np.abs(a[:, 8]), 0.0, 40.0, "rudder angle in deg")
+    half = 5  # 0.25 s either side
+    yaw_column = _yaw_rate_column(path, t_s, psi_deg, {"p": a[:, 6], "r": a[:, 7]}, half)
+    psi_unwrapped = np.radians(np.unwrap(psi_deg, period=360.0))
+    frame = _velocity_frame(path, t_s, x, y, psi_unwrapped, c_u, c_v, half, tolerance_mps=0.02)
+    u, v = ned_to_body(c_u, c_v, psi_unwrapped) if frame == "earth" else (c_u, c_v)
+    course_deg = _check_track_follows_heading(path, t_s, x, y, psi_unwrapped, half, 30.0)
+    delta = -np.radians(a[:, 8])  # the file's delta is positive to PORT
+    side = named.group(3) if named and named.group(3) else None
+    first_side = _first_side(delta, math.radians(0.5))
+    if side and first_side != {"S": "starboard", "P": "port"}[side.upper()]:
+        raise DatasetError(f"{path}: file name says first rudder to {side}, the rudder column goes {first_side} first")
+    name = f"hsva_z_{int(rudder_deg):02d}_{int(check_deg):02d}" + (f"_{side.lower()}" if side else "")
+    return Manoeuvre(
+        name=name, source="hsva", path=path, t_s=t_s, x_n=x.copy(), y_e=y.copy(), psi=wrap_angle(psi_unwrapped),
+        u=u, v=v, r=np.radians(a[:, 6 if yaw_column == "p" else 7]), delta=delta, rpm=a[:, 9] * 60.0,
+        scale=ScaleInfo("model", HSVA_LAMBDA, KVLCC2_LPP_MODEL_M, KVLCC2_LPP_FULL_M),
+        rudder_amplitude_deg=rudder_deg, check_angle_deg=check_deg, first_side=first_side,
+        notes={
+            "columns": "time[s] x0[m] y0[m] psi[deg] u v col7 col8 delta[deg] rev[rps] thrust[N] torque[Nm]",
+            "yaw_rate_column": f"column labelled {yaw_column!r} in SOURCE.txt is d(psi)/dt and is used as r "
+                               "(the data contradict the SOURCE.txt labels p/r)",
+            "velocity_frame": f"u, v columns are {frame}-fixed"
+                              + (" (dx0/dt, dy0/dt), rotated into the body by psi" if frame == "earth" else ""),
+            "rudder_sign": "file delta positive to port; written delta = -file delta (positive to starboard)",
+            "rpm": "propeller rpm = rev[rps] * 60",
+            "axes": "tank x0 -> north, y0 -> east (y0 and psi both positive to starboard)",
+            "course_minus_heading_median_deg": f"{course_deg:.2f}",
+        },
+    )
+
+
+# ----------------------------------------------------------------------------- MARIN
+
+MARIN_COLUMNS = ("time", "x0", "y0", "phi", "psi", "u", "v", "p", "r", "delta", "rev")
+MARIN_HEADER_LINES = 3
+_MARIN_NAME = re.compile(r"MARIN_FREE_KVLCC2_zz_(-?\d+)_m$", re.IGNORECASE)
+_MARIN_TITLE = re.compile(r"(-?\d+)\s*/\s*(-?\d+)")
+
+
+def read_marin(path: Path) -> Manoeuvre:
+    """One MARIN KVLCC2 zig-zag (.dat, tab-separated, full scale, 3 significant digits)."""
+    path = Path(path)
+    lines = _read_text(path, "cp1252").splitlines()
+    if len(lines) <= MARIN_HEADER_LINES or "MARIN" not in lines[0]:
+        raise DatasetError(f"{path}:1: expected the MARIN header ('MARIN(Maritime Research Institute ...', 3 lines)")
+    title = _MARIN_TITLE.search(lines[1])
+    if "zig-zag" not in lines[1].lower() or title is None:
+        raise DatasetError(f"{path}:2: expected 'Zig-zag manoeuvring for KVLCC2 : A / -A', found {lines[1].strip()!r}")
+    first_rudder = float(title.group(1))  # file convention: positive to port
+    named = _MARIN_NAME.match(path.stem)
+    if named and float(named.group(1)) != first_rudder:
+        raise DatasetError(f"{path}:2: title says first rudder {first_rudder:g} but the file name says {named.group(1)}")
+    a = _parse_table(path, lines[MARIN_HEADER_LINES:], MARIN_HEADER_LINES + 1, MARIN_COLUMNS,
+                     lambda line: line.split("\t"), allow_trailing_blank=True)
+    first = MARIN_HEADER_LINES + 1
+    # Time: 3 significant digits repeat the column; rebuild, and prove the column agrees within its rounding.
+    t_s = np.arange(len(a)) * MARIN_DT_S
+    mismatch = np.abs(a[:, 0] - t_s) > _sig_half_unit(a[:, 0]) + 0.002 * t_s + 1e-9
+    if mismatch.any():
+        k = int(np.flatnonzero(mismatch)[0])
+        raise DatasetError(f"{path}:{first + k}: column 'time': {a[k, 0]:g} s disagrees with the rebuilt time "
+                           f"base row * {MARIN_DT_S:g} s = {t_s[k]:.4f} s beyond the 3-digit rounding")
+    _check_range(path, "u", np.hypot(a[:, 5], a[:, 6]), 4.0, 12.0, "full-scale speed in m/s (~7.97)")
+    _check_range(path, "rev", a[:, 10], 50.0, 150.0, "propeller speed in rpm (~91.7)")
+    _check_range(path, "delta", np.abs(a[:, 9]), 0.0, 40.0, "rudder angle in deg")
+    psi_unwrapped = np.radians(np.unwrap(a[:, 4], period=360.0))
+    half = 75  # +-10 s: the 10 m position steps need a long baseline
+    _yaw_rate_column(path, t_s, a[:, 4], {"r": a[:, 8]}, 15)
+    frame = _velocity_frame(path, t_s, a[:, 1], a[:, 2], psi_unwrapped, a[:, 5], a[:, 6], half, tolerance_mps=0.5)
+    if frame != "earth":
+        raise DatasetError(f"{path}: columns 'u', 'v' look body-fixed; SOURCE.txt says earth-fixed dx0/dt, dy0/dt")
+    # Positions: integrate the earth-fixed velocities (0.01 m/s digits) instead of the 10 m position steps.
+    step = 0.5 * np.diff(t_s)
+    x = a[0, 1] + np.r_[0.0, np.cumsum(step * (a[1:, 5] + a[:-1, 5]))]
+    y = a[0, 2] + np.r_[0.0, np.cumsum(step * (a[1:, 6] + a[:-1, 6]))]
+    run_m = np.r_[0.0, np.cumsum(np.hypot(np.diff(x), np.diff(y)))]
+    deviation = np.hypot(x - a[:, 1], y - a[:, 2])
+    too_far = deviation > 20.0 + 0.01 * run_m
+    if too_far.any():
+        k = int(np.flatnonzero(too_far)[0])
+        raise DatasetError(f"{path}:{first + k}: columns 'x0', 'y0' are {deviation[k]:.0f} m from the integral of "
+                           f"'u', 'v'; expected within 20 m + 1 % of the distance run (m and m/s)")
+    course_deg = _check_track_follows_heading(path, t_s, x, y, psi_unwrapped, 15, 30.0)
+    u, v = ned_to_body(a[:, 5], a[:, 6], psi_unwrapped)
+    delta = -np.radians(a[:, 9])  # file delta positive to PORT
+    amplitude = abs(first_rudder)
+    first_side = _first_side(delta, math.radians(0.5 * amplitude))
+    expected_side = "port" if first_rudder > 0 else "starboard"
+    if first_side != expected_side:
+        raise DatasetError(f"{path}: title says first rudder {first_rudder:g} (to {expected_side}, file delta "
+                           f"positive to port) but the rudder column goes {first_side} first")
+    return Manoeuvre(
+        name=f"marin_zz_{int(amplitude):02d}_{int(amplitude):02d}_{expected_side[0]}", source="marin", path=path,
+        t_s=t_s, x_n=x, y_e=y, psi=wrap_angle(psi_unwrapped), u=u, v=v, r=np.radians(a[:, 8]), delta=delta,
+        rpm=a[:, 10].copy(), scale=ScaleInfo("full", 1.0, KVLCC2_LPP_FULL_M, KVLCC2_LPP_FULL_M),
+        rudder_amplitude_deg=amplitude, check_angle_deg=amplitude, first_side=first_side,
+        notes={
+            "columns": "time[s] x0[m] y0[m] phi[deg] psi[deg] u[m/s] v[m/s] p[deg/s] r[deg/s] delta[deg] rev[rpm]",
+            "time_base": f"rebuilt as row * {MARIN_DT_S} s (3-digit time column agrees within its rounding)",
+            "positions": "integrated (trapezoid) from the earth-fixed u, v starting at the first x0, y0; max "
+                         f"deviation from the 3-digit x0, y0 {float(deviation.max()):.1f} m",
+            "velocity_frame": "u, v columns are earth-fixed (dx0/dt, dy0/dt), rotated into the body by psi",
+            "rudder_sign": "file delta positive to port; written delta = -file delta (positive to starboard)",
+            "rpm": "propeller rpm as given (full scale)",
+            "model_scale": "full scale as published; Froude-scale by lambda = 45.7 for the L7 model",
+            "course_minus_heading_median_deg": f"{course_deg:.2f}",
+        },
+    )
+
+
+# ----------------------------------------------------------------------------- Fuzhou USV
+
+FUZHOU_REQUIRED = ("time", "lon", "lat", "speed", "heading", "rudder", "psi")
+_FUZHOU_NAME = re.compile(r"zigzag_(\d+)", re.IGNORECASE)
+FUZHOU_VELOCITY_HALF_WIDTH = 2  # samples: +-1 s at 0.5 s
+FUZHOU_YAW_HALF_WIDTH = 1  # samples: +-0.5 s
+
+
+def read_fuzhou(path: Path) -> Manoeuvre:
+    """The Fuzhou USV sea-trial zig-zag (.csv with header); see the module docstring for u, v, r."""
+    path = Path(path)
+    lines = _read_text(path, "utf-8-sig").splitlines()
+    if not lines:
+        raise DatasetError(f"{path}: empty file, expected a CSV header with {', '.join(FUZHOU_REQUIRED)}")
+    header = [h.strip() for h in next(csv.reader([lines[0]]))]
+    missing = [c for c in FUZHOU_REQUIRED if c not in header]
+    if missing:
+        raise DatasetError(f"{path}:1: missing column(s) {', '.join(missing)}; header has {', '.join(header)}")
+    a = _parse_table(path, lines[1:], 2, header, lambda line: next(csv.reader([line]), []), allow_trailing_blank=True)
+    col = {name: a[:, header.index(name)] for name in header}
+    t_s = col["time"] - col["time"][0]
+    _check_time(path, col["time"], 2, None, "time")
+    lat, lon = col["lat"], col["lon"]
+    if not (np.all(np.abs(lat) < 90.0) and np.all(np.abs(lon) <= 180.0)):
+        raise DatasetError(f"{path}: columns 'lat', 'lon' are not latitude/longitude in degrees")
+    psi_unwrapped = col["psi"]
+    heading_gap = np.abs(wrap_angle(psi_unwrapped - np.radians(col["heading"])))
+    if heading_gap.max() > 1e-3:
+        k = int(np.argmax(heading_gap))
+        raise DatasetError(f"{path}:{k + 2}: columns 'psi' (rad) and 'heading' (deg) disagree by "
+                           f"{math.degrees(heading_gap[k]):.2f} deg; expected the same angle in rad and deg")
+    plane = LocalTangentPlane(float(lat[0]), float(lon[0]))
+    x, y = plane.to_ned(lat, lon)
+    if "x0" in col and "y0" in col:
+        gap = np.hypot(col["x0"] - x, col["y0"] - y)
+        if gap.max() > 10.0:
+            k = int(np.argmax(gap))
+            raise DatasetError(f"{path}:{k + 2}: columns 'x0', 'y0' are {gap[k]:.1f} m from lat/lon; expected "
+                               f"metres north/east of the first fix (within 10 m)")
+    if "delta" in col:
+        sign_gap = np.abs(col["delta"] + np.radians(col["rudder"]))
+        if sign_gap.max() > 1e-3:
+            k = int(np.argmax(sign_gap))
+            raise DatasetError(f"{path}:{k + 2}: column 'delta' is not -radians('rudder'); expected delta[rad] = -rudder")
+    _check_range(path, "rudder", np.abs(col["rudder"]), 0.0, 45.0, "rudder angle in deg")
+    # Speed units: SOURCE.txt says m/s; measure the GNSS track to decide between m/s and knots.
+    k = 4  # +-2 s
+    n = len(t_s)
+    track = np.hypot(x[2 * k:] - x[:n - 2 * k], y[2 * k:] - y[:n - 2 * k]) / (t_s[2 * k:] - t_s[:n - 2 * k])
+    ratio = float(np.mean(track) / np.mean(col["speed"][k:n - k]))
+    if abs(ratio - KNOT) < 0.1:
+        speed_unit = "kn"
+    elif abs(ratio - 1.0) < 0.15:
+        speed_unit = "m/s"
+    else:
+        raise DatasetError(f"{path}: column 'speed': the GNSS track moves {ratio:.3f} m/s per unit of speed; "
+                           f"expected 1 (m/s) or {KNOT:.4f} (knots)")
+    u_over_ground, v_over_ground = ned_to_body(
+        centred_derivative(t_s, x, FUZHOU_VELOCITY_HALF_WIDTH), centred_derivative(t_s, y, FUZHOU_VELOCITY_HALF_WIDTH),
+        psi_unwrapped)
+    course_deg = _check_track_follows_heading(path, t_s, x, y, psi_unwrapped, 4, 45.0)
+    named = _FUZHOU_NAME.search(path.stem)
+    nominal = float(named.group(1)) if named else float(np.round(np.percentile(np.abs(col["rudder"]), 90)))
+    delta = np.radians(col["rudder"])  # 'rudder' positive turns to starboard (delta = -rudder is the other sign)
+    first_side = "starboard" if delta[np.argmax(np.abs(delta) > math.radians(0.5 * nominal))] > 0 else "port"
+    return Manoeuvre(
+        name=f"fuzhou_zigzag_{int(nominal):02d}", source="fuzhou", path=path, t_s=t_s, x_n=x, y_e=y,
+        psi=wrap_angle(psi_unwrapped), u=u_over_ground, v=v_over_ground,
+        r=centred_derivative(t_s, psi_unwrapped, FUZHOU_YAW_HALF_WIDTH), delta=delta, rpm=None,
+        scale=ScaleInfo("full", 1.0, 3.6, 3.6), rudder_amplitude_deg=nominal, check_angle_deg=nominal,
+        first_side=first_side, lat_deg=lat.copy(), lon_deg=lon.copy(),
+        notes={
+            "speed_unit": f"column 'speed' is in {speed_unit} (GNSS track / speed = {ratio:.3f}); SOURCE.txt says m/s",
+            "velocity": "u, v = over-ground velocity of the GNSS track (centred difference over 2 s) rotated into "
+                        "the body by psi; includes the unmeasured current",
+            "yaw_rate": "r = centred difference of the unwrapped psi over 1 s (no gyro in the file)",
+            "rudder_sign": "delta = radians(rudder), positive to starboard (file 'delta' = -rudder is not used)",
+            "rpm": "no propeller data (thrust column all zero): no engine_rpm topic",
+            "unused": "xcourse, ycourse, zcourse, rudder_command (meaning unknown)",
+            "positions": "x_n, y_e from lat/lon, local tangent plane at the first fix",
+            "course_minus_heading_median_deg": f"{course_deg:.2f}",
+        },
+    )
+
+
+# ----------------------------------------------------------------------------- discovery
+
+READERS: dict[str, Callable[[Path], Manoeuvre]] = {"hsva": read_hsva, "marin": read_marin, "fuzhou": read_fuzhou}
+
+
+def detect_format(path: Path) -> str:
+    """hsva | marin | fuzhou | dalian from the file name (and suffix); DatasetError when unknown."""
+    name = Path(path).name
+    if name.upper().startswith("HSVA_") and name.lower().endswith(".dat"):
+        return "hsva"
+    if name.upper().startswith("MARIN_") and name.lower().endswith(".dat"):
+        return "marin"
+    if name.lower().endswith(".csv") and "zigzag" in name.lower():
+        return "fuzhou"
+    if name.lower().endswith(".xlsx"):
+        return "dalian"
+    raise DatasetError(f"{path}: unknown data format (expected HSVA_*.dat, MARIN_*.dat, a zigzag*.csv of the "
+                       f"Fuzhou USV; give --format)")
+
+
+def find_sources(inputs: Sequence[Path], fmt: str = "auto") -> list[tuple[Path, str]]:
+    """(file, format) for every manoeuvre file among `inputs` (files or directories, sorted).
+
+    Directories are searched (not recursively) for *.dat, *.csv and *.xlsx; other files (SOURCE.txt,
+    ship_data.yml, open_water_characteristics.csv) are skipped.
+    """
+    found: list[tuple[Path, str]] = []
+    for item in inputs:
+        item = Path(item)
+        if item.is_dir():
+            candidates = sorted(p for p in item.iterdir() if p.suffix.lower() in (".dat", ".csv", ".xlsx")
+                                and p.name != "open_water_characteristics.csv")
+            if not candidates:
+                raise DatasetError(f"{item}: no .dat, .csv or .xlsx manoeuvre files in this directory")
+            for p in candidates:
+                found.append((p, detect_format(p) if fmt == "auto" else fmt))
+        elif item.is_file():
+            found.append((item, detect_format(item) if fmt == "auto" else fmt))
+        else:
+            raise DatasetError(f"{item}: no such file or directory")
+    for p, f in found:
+        if f in UNSUPPORTED_FORMATS:
+            raise DatasetError(f"{p}: {UNSUPPORTED_FORMATS[f]}")
+        if f not in READERS:
+            raise DatasetError(f"{p}: unknown format {f!r}; formats: {', '.join(FORMATS)}")
+    return found
+
+
+def read_manoeuvre(path: Path, fmt: str) -> Manoeuvre:
+    return READERS[fmt](Path(path))
+
+
+# ----------------------------------------------------------------------------- conversion
+
+
+def time_ns(m: Manoeuvre) -> np.ndarray:
+    """Stamps: the source's nominal epoch + the file's time base, int ns, strictly increasing."""
+    t_ns = EPOCH_NS[m.source] + np.round(m.t_s * NS).astype(np.int64)
+    if np.any(np.diff(t_ns) <= 0):
+        raise DatasetError(f"{m.path}: time base is not strictly increasing at nanosecond resolution")
+    return t_ns
+
+
+def to_signals(m: Manoeuvre) -> dict[str, Signal]:
+    """role -> Signal for the default input topics (no ground truth: measured data have none).
+
+    imu: yaw_rate = r; accel_x/accel_y = specific force from a smoothing differentiation of u, v
+    (centred over +-0.5 s): a_x = du/dt - r v, a_y = dv/dt + r u; accel_z = -g; heading NaN (orientation
+    absent, REP-145), as the simulator writes it. gnss: measured fixes when the source has them, else
+    the track about the source's nominal datum (DATUM_DEG). engine_rpm only when rpm is measured.
+    """
+    t_ns = time_ns(m)
+    dt = float(np.median(np.diff(m.t_s)))
+    half = max(1, int(round(0.5 / dt)))
+    a_x = centred_derivative(m.t_s, m.u, half) - m.r * m.v
+    a_y = centred_derivative(m.t_s, m.v, half) + m.r * m.u
+    n = len(t_ns)
+    signals = {
+        "imu": Signal(t_ns, np.column_stack([m.r, a_x, a_y, np.full(n, -GRAVITY), np.full(n, np.nan)]),
+                      ("yaw_rate", "accel_x", "accel_y", "accel_z", "heading")),
+        "velocity": Signal(t_ns, np.column_stack([m.u, m.v, m.r]), ("u", "v", "r")),
+        "heading": Signal(t_ns, m.psi[:, None].copy(), ("psi",)),
+        "rudder_angle": Signal(t_ns, m.delta[:, None].copy(), ("delta",)),
+    }
+    if m.rpm is not None:
+        signals["engine_rpm"] = Signal(t_ns, m.rpm[:, None].copy(), ("rpm",))
+    if m.lat_deg is not None and m.lon_deg is not None:
+        lat, lon = m.lat_deg, m.lon_deg
+    else:
+        lat, lon = LocalTangentPlane(*DATUM_DEG[m.source]).to_geodetic(m.x_n, m.y_e)
+    signals["gnss"] = Signal(t_ns, np.column_stack([lat, lon, np.zeros(n)]), ("lat", "lon", "alt"))
+    return signals
+
+
+def custom_data(m: Manoeuvre, command: str = "replay convert") -> dict[str, str]:
+    """Provenance written into the bag's metadata (all strings)."""
+    from usv_predictor import __version__
+
+    datum = "measured fixes" if m.lat_deg is not None else "nominal datum %.4f,%.4f (arbitrary)" % DATUM_DEG[m.source]
+    return {
+        "generator": "usv_predictor replay convert", "version": __version__, "conversion_version": CONVERSION_VERSION,
+        "command": command, "source": m.source, "source_file": m.path.name, "source_sha256": _file_digest(m.path),
+        "licence": LICENCE[m.source], "manoeuvre": m.name,
+        "zigzag": json.dumps({"rudder_deg": m.rudder_amplitude_deg, "check_deg": m.check_angle_deg,
+                              "first_side": m.first_side}),
+        "scale": m.scale.scale, "scale_factor": repr(m.scale.scale_factor), "L_pp_m": repr(m.scale.L_pp_m),
+        "full_scale_L_pp_m": repr(m.scale.full_scale_L_pp_m),
+        "conventions": "NED, body FRD, psi clockwise from north, delta > 0 turns to starboard; engine_rpm carries "
+                       "PROPELLER rpm; no ground truth",
+        "epoch_ns": str(EPOCH_NS[m.source]), "gnss": datum, "notes": json.dumps(dict(m.notes), sort_keys=True),
+    }
+
+
+def summarise(m: Manoeuvre) -> dict:
+    speed = np.hypot(m.u, m.v)
+    return {
+        "manoeuvre": m.name, "source": m.source, "file": str(m.path), "samples": len(m.t_s),
+        "duration_s": m.duration_s, "rate_hz": m.rate_hz, "scale": m.scale.scale,
+        "speed_mps": [float(speed.min()), float(speed.max())],
+        "rudder_deg": [float(np.degrees(m.delta.min())), float(np.degrees(m.delta.max()))],
+        "rpm": None if m.rpm is None else [float(m.rpm.min()), float(m.rpm.max())],
+        "heading_range_deg": float(np.degrees(np.ptp(np.unwrap(m.psi)))),
+    }
+
+
+def write_manoeuvre_bag(path: Path, m: Manoeuvre, specs: Mapping[str, object], *, storage: str = "sqlite3",
+                        overwrite: bool = False, command: str = "replay convert") -> int:
+    """Write the bag of one manoeuvre (atomic, bagio); specs: role -> TopicSpec. Returns the message count."""
+    from usv_predictor.replay.bagio import write_bag
+
+    signals = to_signals(m)
+    streams = [(specs[role], signal) for role, signal in signals.items()]
+    write_bag(Path(path), streams, storage=storage, metadata=custom_data(m, command), overwrite=overwrite)
+    return int(sum(len(s) for _, s in streams))
