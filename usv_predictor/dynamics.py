@@ -10,7 +10,8 @@ M and C(nu) are the left-hand sides of Yasukawa & Yoshimura 2015 eq. 4 (rigid bo
 D(nu) nu = -[X_H, Y_H, N_H] is the MMG hull polynomial (eq. 8; linear + nonlinear damping, the Munk moment is in
 N_v as in captive-test derivatives); tau_R is the semi-empirical rudder model with propeller slipstream
 (eq. 13-16, 37-43), tau_P the propeller thrust from rpm (eq. 10-12); tau_wind is seed 000 eq. 12-18 on the
-apparent wind over ground; tau_wave the mean drift of seed 000 eq. 19.
+apparent wind over ground
+(the increment over still air); tau_wave the mean drift of seed 000 eq. 19.
 Positive rudder angle delta turns the vessel to starboard (r > 0).
 
 Everything is plain Python float arithmetic: one derivative is a few microseconds, which beats numpy on
@@ -166,15 +167,14 @@ class ManoeuvringModel:
 
         wind = (0.0, 0.0, 0.0)
         if sea.wind_speed > 0.0:
-            # wind velocity vector points away from wind_from; apparent wind over ground (seed 000 eq. 13-18)
+            # apparent wind over ground (seed 000 eq. 13-18); the still-air drag of the boat's own motion is
+            # part of the calm-water resistance R0 (as in trial analysis, ITTC 7.5-04-01-01.1), so the load is
+            # the increment over still air: zero without wind, and a current alone still drifts the boat exactly
             c, s = math.cos(psi), math.sin(psi)
             w_n, w_e = -sea.wind_speed * math.cos(sea.wind_from), -sea.wind_speed * math.sin(sea.wind_from)
-            u_w, v_w = w_n * c + w_e * s, -w_n * s + w_e * c
-            u_rw, v_rw = u - u_w, v - v_w
-            v2 = u_rw * u_rw + v_rw * v_rw
-            gamma_rw = -math.atan2(v_rw, u_rw)
-            wind = (-self.wind_x * v2 * math.cos(gamma_rw), self.wind_y * v2 * math.sin(gamma_rw),
-                    self.wind_n * v2 * math.sin(2.0 * gamma_rw))
+            wind_now = self._air_load(u - (w_n * c + w_e * s), v - (-w_n * s + w_e * c))
+            still = self._air_load(u, v)
+            wind = (wind_now[0] - still[0], wind_now[1] - still[1], wind_now[2] - still[2])
 
         waves = (0.0, 0.0, 0.0)
         if sea.wave_amplitude > 0.0:
@@ -183,6 +183,13 @@ class ManoeuvringModel:
             waves = (qw * fourier(self.drift_x, chi), qw * fourier(self.drift_y, chi),
                      qw * L * fourier(self.drift_n, chi))
         return Forces((x_h, y_h, n_h), (x_r, y_r, n_r), (x_p, 0.0, 0.0), wind, waves)
+
+    def _air_load(self, u_rw: float, v_rw: float) -> tuple[float, float, float]:
+        """Air load for the apparent wind (u_rw, v_rw) in the body frame (seed 000 eq. 12-14)."""
+        v2 = u_rw * u_rw + v_rw * v_rw
+        gamma = -math.atan2(v_rw, u_rw)
+        return (-self.wind_x * v2 * math.cos(gamma), self.wind_y * v2 * math.sin(gamma),
+                self.wind_n * v2 * math.sin(2.0 * gamma))
 
     # ---- equations of motion ------------------------------------------------------------------------
     def accelerations(self, psi: float, u_r: float, v_r: float, r: float, delta: float, rpm: float,
