@@ -265,11 +265,17 @@ def _check_track_follows_heading(path: Path, t_s: np.ndarray, x: np.ndarray, y: 
     """Course over ground vs heading: a mirrored axis or a port-positive heading fails this."""
     vx, vy = centred_derivative(t_s, x, half_width), centred_derivative(t_s, y, half_width)
     moving = np.hypot(vx, vy) > 0.2 * np.median(np.hypot(vx, vy))
-    difference = np.degrees(np.abs(wrap_angle(np.arctan2(vy, vx) - psi)))[moving]
+    course = np.unwrap(np.arctan2(vy, vx)[moving])
+    difference = np.degrees(np.abs(wrap_angle(course - psi[moving])))
     median = float(np.median(difference))
+    expected = f"(x north, y east, psi positive to starboard, y positive to starboard)"
     if median > max_deg:
-        raise DatasetError(f"{path}: the track (x north, y east) runs {median:.0f} deg off the heading in median; "
-                           f"expected < {max_deg:g} deg (psi positive to starboard, y positive to starboard)")
+        raise DatasetError(f"{path}: the track runs {median:.0f} deg off the heading in median; "
+                           f"expected < {max_deg:g} deg {expected}")
+    # A mirrored axis turns the course the other way than the heading: small offsets hide it, this does not.
+    if np.std(psi[moving]) > math.radians(2.0) and np.corrcoef(course, psi[moving])[0, 1] < 0.5:
+        raise DatasetError(f"{path}: the course over ground turns against the heading (correlation "
+                           f"{np.corrcoef(course, psi[moving])[0, 1]:.2f}); expected it to follow {expected}")
     return median
 
 
@@ -289,9 +295,11 @@ def read_hsva(path: Path) -> Manoeuvre:
     """One HSVA KVLCC2 zig-zag (.dat, cp1252), model scale kept; see the module docstring for the columns."""
     path = Path(path)
     lines = _read_text(path, "cp1252").splitlines()
-    if len(lines) <= HSVA_HEADER_LINES or "HSVA" not in lines[0]:
+    if not lines:
+        raise DatasetError(f"{path}: empty file, expected the HSVA header and data")
+    if "HSVA" not in lines[0] or len(lines) < HSVA_HEADER_LINES:
         raise DatasetError(f"{path}:1: expected the HSVA header ('HSVA, experimental data ...', 4 lines), "
-                           f"found {lines[0].strip()[:60]!r}" if lines else f"{path}: empty file")
+                           f"found {lines[0].strip()[:60]!r}")
     title = _HSVA_TITLE.search(lines[2])
     named = _HSVA_NAME.match(path.stem)
     if title is None:
@@ -352,7 +360,7 @@ def read_marin(path: Path) -> Manoeuvre:
     """One MARIN KVLCC2 zig-zag (.dat, tab-separated, full scale, 3 significant digits)."""
     path = Path(path)
     lines = _read_text(path, "cp1252").splitlines()
-    if len(lines) <= MARIN_HEADER_LINES or "MARIN" not in lines[0]:
+    if len(lines) < MARIN_HEADER_LINES or "MARIN" not in lines[0]:
         raise DatasetError(f"{path}:1: expected the MARIN header ('MARIN(Maritime Research Institute ...', 3 lines)")
     title = _MARIN_TITLE.search(lines[1])
     if "zig-zag" not in lines[1].lower() or title is None:

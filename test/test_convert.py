@@ -1,0 +1,342 @@
+"""replay convert: readers on the real public data, conventions, bag round trips, CLI, bad input.
+
+Real-data tests use the `raw_data_dir` fixture (skip when ../shared/data/raw is absent, fail under CI).
+Bad-input tests craft small synthetic files in tmp_path, so they run everywhere.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from usv_predictor.config import input_topics, load_predictor_config
+from usv_predictor.errors import DatasetError
+from usv_predictor.frames import LocalTangentPlane, wrap_angle
+from usv_predictor.replay import cli, convert
+from usv_predictor.replay.bagio import TopicSpec, read_bag, read_custom_data
+
+HSVA = "kvlcc2_hsva_simman2008"
+MARIN = "kvlcc2_marin_simman2008"
+FUZHOU = "usv_alexandersson2022_fuzhou"
+
+
+def _specs() -> dict[str, TopicSpec]:
+    cfg = load_predictor_config()
+    return {t.role: TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id or cfg.base_frame_id)
+            for t in input_topics(cfg, include_ground_truth=True)}
+
+
+def _all(raw: Path) -> list[convert.Manoeuvre]:
+    return [convert.read_manoeuvre(p, f) for p, f in convert.find_sources([raw / HSVA, raw / MARIN, raw / FUZHOU])]
+
+
+@pytest.fixture(scope="module")
+def manoeuvres(raw_data_dir: Path) -> dict[str, convert.Manoeuvre]:
+    return {m.name: m for m in _all(raw_data_dir)}
+
+
+# ----------------------------------------------------------------------------- real data
+
+
+def test_every_file_is_read_with_consistent_shapes(manoeuvres):
+    assert len([n for n in manoeuvres if n.startswith("hsva_")]) == 13
+    assert sorted(n for n in manoeuvres if n.startswith("marin_")) == [
+        "marin_zz_10_10_p", "marin_zz_10_10_s", "marin_zz_20_20_p", "marin_zz_20_20_s"]
+    assert "fuzhou_zigzag_30" in manoeuvres
+    for m in manoeuvres.values():
+        n = len(m.t_s)
+        assert n > 400, m.name
+        for name in ("x_n", "y_e", "psi", "u", "v", "r", "delta"):
+            values = getattr(m, name)
+            assert values.shape == (n,) and np.all(np.isfinite(values)), (m.name, name)
+        assert m.t_s[0] == 0.0 and np.all(np.diff(m.t_s) > 0), m.name
+        assert np.all(np.diff(convert.time_ns(m)) > 0), m.name
+        assert np.all(np.abs(m.psi) <= math.pi), m.name
+
+
+def test_hsva_model_scale_units(manoeuvres):
+    for m in (m for m in manoeuvres.values() if m.source == "hsva"):
+        assert m.scale.scale == "model" and m.scale.scale_factor == pytest.approx(45.714) and m.scale.L_pp_m == 7.0
+        assert m.rate_hz == pytest.approx(20.0)
+        speed = np.hypot(m.u, m.v)
+        assert speed[0] == pytest.approx(1.18, abs=0.02)  # approach speed ~1.18 m/s (SOURCE.txt)
+        assert 0.6 < speed.min() and speed.max() < 1.25
+        assert np.allclose(m.rpm, 10.2295 * 60.0)  # propeller 10.23 rps
+        assert np.max(np.abs(m.v)) < 0.25 * speed.max()  # body sway, not the earth-fixed dy/dt (up to 0.35 m/s)
+
+
+def test_marin_full_scale_units_and_rebuilt_time(manoeuvres):
+    for m in (m for m in manoeuvres.values() if m.source == "marin"):
+        assert m.scale.scale == "full" and m.scale.L_pp_m == 320.0
+        np.testing.assert_allclose(m.t_s, np.arange(len(m.t_s)) * 0.13535)
+        speed = np.hypot(m.u, m.v)
+        assert np.median(speed[:50]) == pytest.approx(7.97, abs=0.2)
+        assert 85.0 < np.median(m.rpm) < 100.0
+        assert np.max(np.abs(m.v)) < 2.0  # body sway; the file's earth-fixed v reaches 4 m/s
+
+
+def test_fuzhou_speed_is_knots_and_no_rpm(manoeuvres):
+    m = manoeuvres["fuzhou_zigzag_30"]
+    assert m.rpm is None and m.lat_deg is not None
+    assert m.rate_hz == pytest.approx(2.0) and m.duration_s == pytest.approx(209.5)
+    assert "kn" in m.notes["speed_unit"]
+    assert 0.4 < np.median(np.hypot(m.u, m.v)) < 0.8  # 1.0-1.3 knots over ground
+
+
+def test_rudder_amplitude_equals_the_angle_in_the_name(manoeuvres):
+    for m in manoeuvres.values():
+        # half the span of the hold angles: MARIN holds +10.7/-9.9 deg about a neutral offset (file row 1: -0.82)
+        amplitude = np.degrees(np.percentile(m.delta, 99) - np.percentile(m.delta, 1)) / 2.0
+        tolerance = 0.15 * m.rudder_amplitude_deg if m.source == "fuzhou" else 0.1 + 0.03 * m.rudder_amplitude_deg
+        assert amplitude == pytest.approx(m.rudder_amplitude_deg, abs=tolerance), m.name
+        assert np.degrees(m.delta.max()) > 0.9 * m.rudder_amplitude_deg, m.name  # both sides are used
+        assert np.degrees(m.delta.min()) < -0.9 * m.rudder_amplitude_deg, m.name
+
+
+@pytest.mark.parametrize("source, after_s", [("hsva", 6.0), ("marin", 40.0), ("fuzhou", 3.0)])
+def test_positive_rudder_turns_to_starboard(manoeuvres, source, after_s):
+    """After the first rudder execute the heading moves towards the rudder's side within a few seconds."""
+    for m in (m for m in manoeuvres.values() if m.source == source):
+        half = math.radians(0.5 * m.rudder_amplitude_deg)
+        k = int(np.flatnonzero(np.abs(m.delta) > half)[0])
+        side = np.sign(m.delta[k])
+        later = int(np.searchsorted(m.t_s, m.t_s[k] + after_s))
+        psi = np.unwrap(m.psi)
+        assert side * (psi[later] - psi[k]) > math.radians(0.5), m.name
+        assert side * m.r[later] > 0, m.name
+        assert m.first_side == ("starboard" if side > 0 else "port"), m.name
+
+
+def test_first_side_follows_the_file_name(manoeuvres):
+    assert manoeuvres["hsva_z_10_10_p"].first_side == "port"
+    assert manoeuvres["hsva_z_20_10_s"].first_side == "starboard"
+    assert manoeuvres["marin_zz_10_10_p"].path.name == "MARIN_FREE_KVLCC2_zz_10_m.dat"  # file delta > 0 = port
+
+
+def test_yaw_rate_is_the_derivative_of_heading(manoeuvres):
+    """Proves the choice of the HSVA yaw-rate column (labelled p in SOURCE.txt) and the units of r."""
+    for m in manoeuvres.values():
+        half = max(1, int(round(1.0 * m.rate_hz)))
+        dpsi = convert.centred_derivative(m.t_s, np.unwrap(m.psi), half)
+        r = convert.centred_derivative(m.t_s, np.cumsum(np.r_[0.0, 0.5 * (m.r[1:] + m.r[:-1]) * np.diff(m.t_s)]), half)
+        assert np.sqrt(np.mean((r - dpsi) ** 2)) < 0.25 * np.sqrt(np.mean(dpsi ** 2)), m.name
+
+
+def test_track_agrees_with_velocity(manoeuvres):
+    """Body u, v rotated back to NED integrate to the track (the velocity frame conversion is right)."""
+    for name in ("hsva_z_20_05", "marin_zz_20_20_s"):
+        m = manoeuvres[name]
+        c, s = np.cos(m.psi), np.sin(m.psi)
+        vn, ve = m.u * c - m.v * s, m.u * s + m.v * c
+        dt = np.diff(m.t_s)
+        x = m.x_n[0] + np.r_[0.0, np.cumsum(0.5 * (vn[1:] + vn[:-1]) * dt)]
+        y = m.y_e[0] + np.r_[0.0, np.cumsum(0.5 * (ve[1:] + ve[:-1]) * dt)]
+        run = np.sum(np.hypot(np.diff(m.x_n), np.diff(m.y_e)))
+        assert np.max(np.hypot(x - m.x_n, y - m.y_e)) < 0.005 * run, name
+
+
+# ----------------------------------------------------------------------------- round trip
+
+
+@pytest.mark.parametrize("name", ["hsva_z_10_10_s", "marin_zz_10_10_p", "fuzhou_zigzag_30"])
+def test_bag_round_trip(manoeuvres, tmp_path, name):
+    m = manoeuvres[name]
+    specs = _specs()
+    bag = tmp_path / name
+    count = convert.write_manoeuvre_bag(bag, m, {r: s for r, s in specs.items() if r != "odometry"})
+    signals = convert.to_signals(m)
+    assert count == sum(len(s) for s in signals.values())
+    back = read_bag(bag, [specs[role] for role in signals])
+    assert specs["odometry"].topic not in back
+    t_ns = convert.time_ns(m)
+    for role, written in signals.items():
+        got = back[specs[role].topic]
+        np.testing.assert_array_equal(got.t_ns, t_ns)
+        assert got.fields == written.fields
+        if role == "heading":
+            np.testing.assert_allclose(wrap_angle(got.values[:, 0] - m.psi), 0.0, atol=1e-9)
+        else:
+            np.testing.assert_allclose(got.values, written.values, rtol=1e-9, atol=1e-9, equal_nan=True)
+    np.testing.assert_allclose(back[specs["velocity"].topic].values, np.column_stack([m.u, m.v, m.r]), atol=1e-9)
+    np.testing.assert_allclose(back[specs["rudder_angle"].topic].values[:, 0], m.delta, atol=1e-12)
+    lat, lon = back[specs["gnss"].topic].values[:, 0], back[specs["gnss"].topic].values[:, 1]
+    if m.lat_deg is None:
+        x, y = LocalTangentPlane(*convert.DATUM_DEG[m.source]).to_ned(lat, lon)
+    else:
+        x, y = LocalTangentPlane(m.lat_deg[0], m.lon_deg[0]).to_ned(lat, lon)
+    np.testing.assert_allclose(x, m.x_n, atol=1e-3)
+    np.testing.assert_allclose(y, m.y_e, atol=1e-3)
+    assert ("engine_rpm" in signals) == (m.rpm is not None)
+    meta = read_custom_data(bag)
+    assert meta["source"] == m.source and meta["scale"] == m.scale.scale
+    assert meta["conversion_version"] == convert.CONVERSION_VERSION and meta["source_file"] == m.path.name
+    assert float(meta["scale_factor"]) == m.scale.scale_factor and "licence" in meta
+
+
+def test_cli_converts_refuses_overwrite_and_dalian(raw_data_dir, tmp_path, capsys):
+    out, result = tmp_path / "bags", tmp_path / "r.json"
+    args = ["convert", str(raw_data_dir / FUZHOU), str(raw_data_dir / HSVA / "HSVA_CPMC_KVLCC2_Z_10_10_P.dat"),
+            "--output", str(out), "--json", str(result)]
+    assert cli.main(args) == 0
+    summary = json.loads(result.read_text())
+    assert [b["manoeuvre"] for b in summary["bags"]] == ["fuzhou_zigzag_30", "hsva_z_10_10_p"]
+    hsva = summary["bags"][1]
+    assert hsva["rate_hz"] == pytest.approx(20.0) and hsva["rpm"] == [pytest.approx(613.77)] * 2
+    assert summary["bags"][0]["rpm"] is None
+    assert (out / "hsva_z_10_10_p" / "metadata.yaml").is_file()
+    assert "[2/2]" in capsys.readouterr().err
+    assert cli.main(args) == 2
+    assert "exists already; use --overwrite" in capsys.readouterr().err
+    assert cli.main([*args, "--overwrite"]) == 0
+    capsys.readouterr()
+    assert cli.main(["convert", str(raw_data_dir / "usv_2345vor_dalian"), "--output", str(out)]) == 2
+    assert "no rudder" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- bad input (synthetic files)
+
+
+def _turn(n: int, dt: float, speed: float, rate_deg_s: float):
+    """A steady turn to starboard: t, x, y, psi_deg, dx/dt, dy/dt (exact)."""
+    t = np.arange(n) * dt
+    w = math.radians(rate_deg_s)
+    psi = w * t
+    return t, speed / w * np.sin(psi), speed / w * (1.0 - np.cos(psi)), np.degrees(psi), speed * np.cos(psi), speed * np.sin(psi)
+
+
+def _hsva_text(n: int = 200) -> str:
+    t, x, y, psi, ue, ve = _turn(n, 0.05, 1.18, 2.0)
+    delta = np.where(t < 1.0, 0.0, -10.0)  # file convention: negative = starboard
+    rows = [" ".join(f"{v:18.9f}" for v in (t[i], x[i], y[i], psi[i], ue[i], ve[i], 2.0, 0.05, delta[i], 10.2295,
+                                            41.0, 1.02)) for i in range(n)]
+    return "\n".join([" HSVA, experimental data CPMC", " KVLCC2", " Z10°/5°", " Time series of motions", *rows]) + "\n"
+
+
+def _write(path: Path, text: str, encoding: str = "cp1252") -> Path:
+    path.write_text(text, encoding=encoding)
+    return path
+
+
+def test_synthetic_hsva_reads(tmp_path):
+    m = convert.read_hsva(_write(tmp_path / "HSVA_CPMC_KVLCC2_Z_10_05.dat", _hsva_text()))
+    assert m.name == "hsva_z_10_05" and m.first_side == "starboard"
+    np.testing.assert_allclose(m.r, math.radians(2.0))
+    np.testing.assert_allclose(m.u, 1.18, atol=1e-6)
+    np.testing.assert_allclose(m.v, 0.0, atol=1e-6)
+    assert "'p'" in m.notes["yaw_rate_column"]
+
+
+@pytest.mark.parametrize("corrupt, message", [
+    (lambda lines: lines[:14], "only 10 data rows"),
+    (lambda lines: lines[:10] + [lines[10].replace("10.229500000", "10.2x9500000")] + lines[11:], ":11: column 'rev'"),
+    (lambda lines: lines[:10] + [lines[10].rsplit(" ", 1)[0]] + lines[11:], ":11: expected 12 columns"),
+    (lambda lines: lines[:10] + [lines[9]] + lines[11:], ":11: column 'time': time 0.25 s repeats"),
+    (lambda lines: lines[:4] + [" ".join(["nan"] * 12)] + lines[5:], ":5: column 'time': 'nan' is not finite"),
+    (lambda lines: lines[:2] + [" Turning circle"] + lines[3:], ":3: expected the zig-zag title"),
+    (lambda lines: lines[:4], "only 0 data rows"),
+    (lambda lines: [" Some other tank"] + lines[1:], ":1: expected the HSVA header"),
+])
+def test_hsva_bad_input(tmp_path, corrupt, message):
+    path = _write(tmp_path / "HSVA_CPMC_KVLCC2_Z_10_05.dat", "\n".join(corrupt(_hsva_text().splitlines())) + "\n")
+    with pytest.raises(DatasetError, match=message.replace("(", r"\(")) as err:
+        convert.read_hsva(path)
+    assert str(path) in str(err.value)
+
+
+def test_hsva_wrong_units_and_wrong_columns(tmp_path):
+    lines = _hsva_text().splitlines()
+    cm = [lines[i] if i < 4 else " ".join(f"{float(c) * (100.0 if j in (4, 5) else 1.0):18.9f}"
+                                           for j, c in enumerate(lines[i].split())) for i in range(len(lines))]
+    with pytest.raises(DatasetError, match=r"column 'u': median 118 .* model-scale speed in m/s"):
+        convert.read_hsva(_write(tmp_path / "HSVA_CPMC_KVLCC2_Z_10_05.dat", "\n".join(cm)))
+    no_yaw = [lines[i] if i < 4 else " ".join(c if j != 6 else "0.5" for j, c in enumerate(lines[i].split()))
+              for i in range(len(lines))]
+    with pytest.raises(DatasetError, match="no column is the yaw rate"):
+        convert.read_hsva(_write(tmp_path / "HSVA_CPMC_KVLCC2_Z_10_05.dat", "\n".join(no_yaw)))
+    mirrored = [lines[i] if i < 4 else " ".join(f"{-float(c):18.9f}" if j in (2, 5) else c
+                                                 for j, c in enumerate(lines[i].split())) for i in range(len(lines))]
+    with pytest.raises(DatasetError, match="turns against the heading|off the heading"):
+        convert.read_hsva(_write(tmp_path / "HSVA_CPMC_KVLCC2_Z_10_05.dat", "\n".join(mirrored)))
+
+
+def _marin_text(n: int = 600, first: float = 10.0, file_delta: float | None = None) -> str:
+    t, x, y, psi, ue, ve = _turn(n, 0.13535, 7.97, 0.3)
+    delta = np.where(t < 5.0, 0.0, first if file_delta is None else file_delta)
+    cols = [t, x, y, 0.1 + 0 * t, psi, ue, ve, 0 * t, 0.3 + 0 * t, delta, 91.5 + 0 * t]
+    rows = ["\t".join(f"{c[i]:.2E}" for c in cols) for i in range(n)]
+    head = ["MARIN(Maritime Research Institute Netherlands)", f"Zig-zag manoeuvring for KVLCC2 : {first:g} / {-first:g}", ""]
+    return "\n".join([*head, *rows, "\t" * 10, "\t" * 10]) + "\n"
+
+
+def test_synthetic_marin_reads_and_checks_the_time_column(tmp_path):
+    m = convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat", _marin_text()))
+    assert m.name == "marin_zz_10_10_p" and m.first_side == "port"
+    np.testing.assert_allclose(m.u, 7.97, atol=0.02)
+    lines = _marin_text().splitlines()
+    cells = lines[103].split("\t")
+    cells[0] = "2.00E+01"  # row 100 is at 13.5 s
+    lines[103] = "\t".join(cells)
+    with pytest.raises(DatasetError, match=r":104: column 'time': 20 s disagrees with the rebuilt time base"):
+        convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat", "\n".join(lines)))
+    lines = _marin_text().splitlines()
+    with pytest.raises(DatasetError, match=r":204: empty row inside the data"):
+        convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat", "\n".join(lines[:203] + [""] + lines[203:])))
+    with pytest.raises(DatasetError, match="title says first rudder 10 .* goes starboard first"):
+        convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat",
+                                  _marin_text(file_delta=-10.0)))
+
+
+FUZHOU_HEADER = "time,lon,lat,speed,heading,rudder,delta,psi,x0,y0"
+
+
+def _fuzhou_text(speed_factor: float = 1.0 / convert.KNOT, n: int = 120, drop: str | None = None) -> str:
+    t, x, y, psi, _, _ = _turn(n, 0.5, 0.6, 3.0)
+    lat, lon = LocalTangentPlane(26.0666, 119.162).to_geodetic(x, y)
+    rudder = np.full(n, 30.0)
+    cols = {"time": t, "lon": lon, "lat": lat, "speed": 0.6 * speed_factor + 0 * t, "heading": psi, "rudder": rudder,
+            "delta": -np.radians(rudder), "psi": np.radians(psi), "x0": x, "y0": y}
+    names = [c for c in FUZHOU_HEADER.split(",") if c != drop]
+    return "\n".join([",".join(names), *(",".join(repr(float(cols[c][i])) for c in names) for i in range(n))]) + "\n"
+
+
+def test_fuzhou_speed_unit_detection_and_bad_input(tmp_path):
+    path = tmp_path / "zigzag_30_inter_xy.csv"
+    m = convert.read_fuzhou(_write(path, _fuzhou_text(), "utf-8"))
+    assert m.name == "fuzhou_zigzag_30" and "kn" in m.notes["speed_unit"]
+    np.testing.assert_allclose(np.median(m.u), 0.6, atol=0.01)
+    np.testing.assert_allclose(m.r[2:-2], math.radians(3.0), rtol=1e-3)
+    assert "m/s" in convert.read_fuzhou(_write(path, _fuzhou_text(speed_factor=1.0), "utf-8")).notes["speed_unit"]
+    with pytest.raises(DatasetError, match=r"column 'speed'.*expected 1 \(m/s\) or 0.5144 \(knots\)"):
+        convert.read_fuzhou(_write(path, _fuzhou_text(speed_factor=3.6), "utf-8"))  # km/h
+    with pytest.raises(DatasetError, match=r":1: missing column\(s\) rudder"):
+        convert.read_fuzhou(_write(path, _fuzhou_text(drop="rudder"), "utf-8"))
+    with pytest.raises(DatasetError, match="only 5 data rows"):
+        convert.read_fuzhou(_write(path, _fuzhou_text(n=5), "utf-8"))
+    lines = _fuzhou_text().splitlines()
+    lines[7] = lines[7].replace(",30.0,", ",thirty,")
+    with pytest.raises(DatasetError, match=r":8: column 'rudder': 'thirty' is not a number"):
+        convert.read_fuzhou(_write(path, "\n".join(lines), "utf-8"))
+    degrees_as_psi = _fuzhou_text().splitlines()
+    header = degrees_as_psi[0].split(",")
+    k = header.index("psi")
+    degrees_as_psi[1:] = [",".join(c if j != k else row.split(",")[header.index("heading")] for j, c in
+                                   enumerate(row.split(","))) for row in degrees_as_psi[1:]]
+    with pytest.raises(DatasetError, match=r"columns 'psi' \(rad\) and 'heading' \(deg\) disagree"):
+        convert.read_fuzhou(_write(path, "\n".join(degrees_as_psi), "utf-8"))
+
+
+def test_discovery_errors(tmp_path):
+    with pytest.raises(DatasetError, match="no such file or directory"):
+        convert.find_sources([tmp_path / "absent"])
+    with pytest.raises(DatasetError, match="unknown data format"):
+        convert.find_sources([_write(tmp_path / "notes.txt", "x")])
+    with pytest.raises(DatasetError, match="no rudder"):
+        convert.find_sources([_write(tmp_path / "boat1_2_sin.xlsx", "x")])
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DatasetError, match="no .dat, .csv or .xlsx"):
+        convert.find_sources([tmp_path / "empty"])
+    with pytest.raises(DatasetError, match="not cp1252 text|expected the HSVA header"):
+        convert.read_hsva(_write(tmp_path / "HSVA_x.dat", "garbage\n"))
