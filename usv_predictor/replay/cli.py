@@ -29,6 +29,7 @@ COMMANDS: tuple[str, ...] = (
     "usv_predictor.replay.cmd_info",
     "usv_predictor.replay.cmd_simulate",
     "usv_predictor.replay.cmd_convert",
+    "usv_predictor.replay.cmd_dataset",
 )
 EXIT_ERROR = 2
 

@@ -1,0 +1,397 @@
+"""Bags -> Recordings: the topics of config/predictor.yaml, cleaned, cut at gaps, optionally split into manoeuvres.
+
+    load_recordings(["bags/training"], dt=0.5) -> [Recording, ...]
+
+Bag arguments: a directory holding metadata.yaml (or a single bag file) is one bag; any other directory is
+searched recursively for bags, in sorted order, skipping sub-directories named `calm` (the calm-water twins of
+`replay simulate --calm-twin`) unless include_calm=True. A calm directory named explicitly is read in full.
+Recording names are the shortest trailing part of the bag path that is unique among the bags read
+(`zigzag_10_10_stbd_650rpm`, or `training/zigzag_...` next to `calm/zigzag_...`).
+
+What happens to imperfect input (warnings go through `warn`, by default to stderr):
+- missing or unreadable bag, unreadable metadata, a required topic missing or empty, a topic of another
+  message type: BagError naming the bag, the topic and what is present;
+- a missing optional topic (GNSS, ground truth): that role is left out, with a warning;
+- samples with NaN in a field the Recording uses (USED_FIELDS): dropped, warning with topic/field/count;
+- stamps: rows are sorted; a step backwards by more than the step dt in the given order is an error naming
+  the time (bagio.read_bag sorts by header stamp, so this guards Signals from elsewhere); exact duplicates
+  (same stamp, same values) are dropped and counted; same stamp with other values: the first is kept, counted;
+- a gap longer than the step dt in a required topic: the recording is cut there (pieces NAME#1, NAME#2, ...,
+  warning with topic, time and length); a gap does not end the manoeuvre, so the dataset keeps the pieces of
+  one bag in one split (dataset.manoeuvre_of);
+- a piece or segment shorter than min_duration_s, or with fewer than horizon_s / dt + 1 steps: skipped, warning.
+
+segment="steady" splits each bag into manoeuvres (NAME@1, NAME@2, ... numbered through the bag, gap pieces
+included; see steady_cuts for the rule); each is its own manoeuvre for the split.
+Bags are only read, never modified.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+import sys
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from usv_predictor.config import input_topics, load_predictor_config
+from usv_predictor.errors import BagError, ConfigError, DatasetError
+from usv_predictor.recording import NS, REQUIRED_ROLES, Recording, RecordingError, recording_from_signals
+from usv_predictor.records import Signal
+from usv_predictor.replay.bagio import TopicSpec, read_bag, read_custom_data
+
+OPTIONAL_ROLES = ("gnss", "odometry")
+# Fields of each role that recording_from_signals uses: a NaN there would poison a window mean.
+# (imu heading is NaN by design when the IMU has no orientation, REP-145, and is not used.)
+USED_FIELDS: Mapping[str, tuple[str, ...]] = {
+    "imu": ("yaw_rate",),
+    "velocity": ("u", "v"),
+    "heading": ("psi",),
+    "rudder_angle": ("delta",),
+    "engine_rpm": ("rpm",),
+    "gnss": ("lat", "lon"),
+    "odometry": ("x_n", "y_e", "psi", "u", "v", "r"),
+}
+SEGMENTS = ("bag", "steady")
+CALM_DIR = "calm"
+
+Warn = Callable[[str], None]
+
+
+def warn_stderr(message: str) -> None:
+    print(f"warning: {message}", file=sys.stderr)
+
+
+# ------------------------------------------------------------------ finding bags and their topics
+
+
+@dataclasses.dataclass(frozen=True)
+class BagSource:
+    path: Path
+    name: str  # unique among the bags read together
+
+
+def _is_bag(path: Path) -> bool:
+    return path.is_file() or (path / "metadata.yaml").is_file()
+
+
+def _bags_under(root: Path, include_calm: bool) -> list[Path]:
+    found: list[Path] = []
+    for child in sorted(root.iterdir()):
+        if not child.is_dir() or (child.name == CALM_DIR and not include_calm):
+            continue
+        found += [child] if _is_bag(child) else _bags_under(child, include_calm)
+    return found
+
+
+def unique_names(paths: Sequence[Path]) -> list[str]:
+    """The shortest trailing parts of each path that tell it apart from the others."""
+    parts = [p.resolve().parts for p in paths]
+    names = []
+    for mine in parts:
+        for k in range(1, len(mine) + 1):
+            tail = mine[-k:]
+            if sum(1 for other in parts if other[-k:] == tail) == 1:
+                break
+        names.append("/".join(tail))
+    return names
+
+
+def find_bags(paths: Iterable[str | Path], *, include_calm: bool = False) -> list[BagSource]:
+    """Bags named by `paths` (bags or directories searched recursively; see the module docstring)."""
+    bags: list[Path] = []
+    for arg in map(Path, paths):
+        if not arg.exists():
+            raise BagError(f"{arg}: no such bag or directory")
+        found = [arg] if _is_bag(arg) else _bags_under(arg, include_calm)
+        if not found:
+            hint = "" if include_calm else f" (sub-directories named {CALM_DIR!r} are skipped: name them or use --include-calm)"
+            raise BagError(f"{arg}: no rosbag2 bag (directory with metadata.yaml) found under it{hint}")
+        bags += [b for b in found if b.resolve() not in {x.resolve() for x in bags}]
+    return [BagSource(path, name) for path, name in zip(bags, unique_names(bags))]
+
+
+def bag_sha256(path: Path) -> str:
+    """SHA-256 of a bag: its files (metadata.yaml and storage files) in name order, each name then bytes."""
+    path = Path(path)
+    files = [path] if path.is_file() else sorted(f for f in path.iterdir() if f.is_file())
+    digest = hashlib.sha256()
+    try:
+        for file in files:
+            digest.update(file.name.encode() + b"\0")
+            with file.open("rb") as stream:
+                for block in iter(lambda: stream.read(1 << 20), b""):
+                    digest.update(block)
+    except OSError as err:
+        raise BagError(f"{path}: cannot read the bag to hash it: {err}") from err
+    return digest.hexdigest()
+
+
+def bag_topics(path: Path) -> dict[str, tuple[str, int]] | None:
+    """topic -> (type, message count) from a rosbag2 metadata.yaml; None for a bag without one."""
+    metadata = Path(path) / "metadata.yaml"
+    if not metadata.is_file():
+        return None
+    try:
+        info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
+        return {t["topic_metadata"]["name"]: (t["topic_metadata"]["type"], int(t.get("message_count", 0)))
+                for t in info.get("topics_with_message_count") or []}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, ValueError) as err:
+        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata} ({type(err).__name__}: {err})") from err
+
+
+def bag_datum(path: Path) -> tuple[float, float] | None:
+    """The position datum `replay simulate` records in custom_data ("lat,lon" deg), so pieces share a plane."""
+    if not (Path(path) / "metadata.yaml").is_file():
+        return None
+    text = read_custom_data(path).get("datum", "")
+    try:
+        lat, lon = (float(x) for x in text.split(","))
+    except ValueError:
+        return None
+    return (lat, lon) if -90.0 < lat < 90.0 and -180.0 <= lon <= 180.0 else None
+
+
+def topic_specs(config_path: str | Path | None = None, topics: Mapping[str, str] | None = None) -> list[TopicSpec]:
+    """TopicSpecs of the configured inputs and ground truth; `topics` overrides role -> topic name."""
+    cfg = load_predictor_config(config_path)
+    entries = input_topics(cfg, include_ground_truth=True)
+    roles = {e.role for e in entries}
+    unknown = sorted(set(topics or {}) - roles)
+    if unknown:
+        raise ConfigError(f"topic override for unknown role(s) {unknown}; roles of {cfg.source}: {sorted(roles)}")
+    overrides = dict(topics or {})
+    return [TopicSpec(overrides.get(e.role, e.topic), e.role, e.ros_type, e.options, e.frame_id) for e in entries]
+
+
+def _present_specs(path: Path, specs: Sequence[TopicSpec], warn: Warn) -> list[TopicSpec]:
+    """The specs to read: required topics must be there (BagError), absent optional ones are left out."""
+    present = bag_topics(path)
+    if present is None:  # not a rosbag2 directory: let read_bag name what is missing
+        return list(specs)
+    chosen = []
+    for spec in specs:
+        ros_type, count = present.get(spec.topic, (None, 0))
+        if spec.role in REQUIRED_ROLES:
+            if ros_type is None:
+                raise BagError(f"{path}: no topic {spec.topic!r} (role {spec.role}); topics present: {sorted(present)}")
+            if count == 0:
+                raise BagError(f"{path}: topic {spec.topic!r} (role {spec.role}) has no messages")
+        elif ros_type is None or count == 0:
+            warn(f"{path}: optional topic {spec.topic!r} (role {spec.role}) is absent; recording without it")
+            continue
+        if ros_type != spec.ros_type:
+            raise BagError(f"{path}: topic {spec.topic!r} has type {ros_type}, expected {spec.ros_type} "
+                           f"(set the type of role {spec.role!r} in the config)")
+        chosen.append(spec)
+    return chosen
+
+
+# ------------------------------------------------------------------ cleaning signals
+
+
+def clean_signal(signal: Signal, *, where: str, role: str, dt: float, t_ref_ns: int, warn: Warn) -> Signal:
+    """Drop NaN samples in used fields, sort, drop duplicate stamps; see the module docstring for the rules."""
+    t_ns, values = signal.t_ns, signal.values
+    used = [f for f in USED_FIELDS.get(role, ()) if f in signal.fields]
+    if used:
+        bad = np.zeros(len(t_ns), dtype=bool)
+        counts = []
+        for name in used:
+            nan = ~np.isfinite(values[:, signal.fields.index(name)])
+            bad |= nan
+            if nan.any():
+                counts.append(f"{name}: {int(nan.sum())}")
+        if bad.any():
+            warn(f"{where}: dropped {int(bad.sum())} of {len(t_ns)} samples with NaN/inf ({', '.join(counts)})")
+            t_ns, values = t_ns[~bad], values[~bad]
+    steps = np.diff(t_ns)
+    if len(steps) and steps.min() < 0:
+        k = int(np.argmin(steps))
+        back = -int(steps[k])
+        if back > dt * NS:
+            raise BagError(f"{where}: time goes back {back / NS:.3f} s at t={(t_ns[k] - t_ref_ns) / NS:.3f} s "
+                           f"(stamp {int(t_ns[k + 1])} ns after {int(t_ns[k])} ns), more than the step {dt:g} s")
+        warn(f"{where}: {int((steps < 0).sum())} samples out of order (at most {back / NS:.3f} s); sorted")
+    order = np.argsort(t_ns, kind="stable")
+    t_ns, values = t_ns[order], values[order]
+    repeat = np.concatenate([[False], np.diff(t_ns) == 0])
+    if repeat.any():
+        same = repeat & np.concatenate([[False], np.all((values[1:] == values[:-1]) | (np.isnan(values[1:]) & np.isnan(values[:-1])), axis=1)])
+        exact, differing = int(same.sum()), int((repeat & ~same).sum())
+        detail = f"{exact} exact duplicates" + (f", {differing} with other values (kept the first)" if differing else "")
+        warn(f"{where}: dropped {int(repeat.sum())} samples with a repeated stamp ({detail})")
+        t_ns, values = t_ns[~repeat], values[~repeat]
+    return Signal(t_ns, values, signal.fields)
+
+
+def gap_cuts(signals: Mapping[str, Signal], dt: float, *, where: str, topic_of: Mapping[str, str],
+             t_ref_ns: int, warn: Warn) -> list[tuple[int, int]]:
+    """Spans [start_ns, end_ns] of the required signals without a gap longer than dt (one warning per gap)."""
+    start = max(int(signals[r].t_ns[0]) for r in REQUIRED_ROLES)
+    end = min(int(signals[r].t_ns[-1]) for r in REQUIRED_ROLES)
+    holes: list[tuple[int, int]] = []
+    for role in REQUIRED_ROLES:
+        t = signals[role].t_ns
+        for k in np.flatnonzero(np.diff(t) > dt * NS + 1):
+            a, b = int(t[k]), int(t[k + 1])
+            if b > start and a < end:
+                warn(f"{where}: topic {topic_of[role]!r} has a {(b - a) / NS:.2f} s gap at t={(a - t_ref_ns) / NS:.2f} s "
+                     f"(longer than the step {dt:g} s); cutting the recording there")
+                holes.append((a, b))
+    spans, cursor = [], start
+    for a, b in sorted(holes):
+        if a > cursor:
+            spans.append((cursor, a))
+        cursor = max(cursor, b)
+    if cursor < end:
+        spans.append((cursor, end))
+    return spans
+
+
+def _slice_signals(signals: Mapping[str, Signal], start_ns: int, end_ns: int) -> dict[str, Signal]:
+    out = {}
+    for role, s in signals.items():
+        keep = (s.t_ns >= start_ns) & (s.t_ns <= end_ns)
+        out[role] = Signal(s.t_ns[keep], s.values[keep], s.fields)
+    return out
+
+
+# ------------------------------------------------------------------ manoeuvres within a long recording
+
+
+def steady_cuts(controls: np.ndarray, dt: float, *, settle_s: float = 30.0, lead_s: float = 10.0,
+                rudder_tol_rad: float = math.radians(1.0), rpm_tol: float = 15.0) -> list[int]:
+    """Step indices where a new manoeuvre starts, from the (T, 2) [delta rad, rpm] controls at step dt.
+
+    The rule: controls are *held* while rudder and rpm stay within rudder_tol_rad / rpm_tol of their value
+    when the hold began; any larger change starts a new hold. A change that ends a hold of at least settle_s
+    (the vessel has settled, so whatever came before is over) starts a new manoeuvre; the cut is placed
+    lead_s before that change, inside the hold, so every manoeuvre begins in a steady state. Zig-zags,
+    random steps and spirals change more often than settle_s and stay whole; a turning circle held for
+    minutes stays whole, and the return to straight running after it starts the next manoeuvre.
+    """
+    lead = int(round(lead_s / dt))
+    settle = settle_s / dt
+    cuts: list[int] = []
+    anchor = 0
+    for k in range(1, len(controls)):
+        moved = (abs(controls[k, 0] - controls[anchor, 0]) > rudder_tol_rad
+                 or abs(controls[k, 1] - controls[anchor, 1]) > rpm_tol)
+        if not moved:
+            continue
+        cut = k - lead
+        if k - anchor >= settle and cut > (cuts[-1] if cuts else 0):
+            cuts.append(cut)
+        anchor = k
+    return cuts
+
+
+def slice_recording(rec: Recording, start: int, stop: int, name: str) -> Recording:
+    """Steps [start, stop) of a Recording as a Recording of its own (time re-based at its first step)."""
+    dt_ns = int(round(rec.dt * NS))
+    n = stop - start
+    return dataclasses.replace(
+        rec, name=name, t0_ns=rec.t0_ns + start * dt_ns, t_s=(np.arange(n, dtype=np.int64) * dt_ns) / NS,
+        nu=rec.nu[start:stop], psi=rec.psi[start:stop], controls=rec.controls[start:stop],
+        position=rec.position[start:stop], truth=None if rec.truth is None else rec.truth[start:stop],
+    )
+
+
+# ------------------------------------------------------------------ the whole stage
+
+
+def _first_fix(gnss: Signal | None) -> tuple[float, float] | None:
+    """The bag's first GNSS fix as the position datum, so every piece of a bag shares one plane."""
+    if gnss is None or len(gnss) == 0:
+        return None
+    return float(gnss.column("lat")[0]), float(gnss.column("lon")[0])
+
+
+def _long_enough(rec: Recording, min_duration_s: float, horizon_s: float | None, warn: Warn) -> bool:
+    if rec.duration_s + 1e-9 < min_duration_s:
+        warn(f"{rec.source}: {rec.name} lasts {rec.duration_s:.1f} s, shorter than {min_duration_s:g} s; skipped")
+        return False
+    if horizon_s is not None and len(rec) < round(horizon_s / rec.dt) + 1:
+        warn(f"{rec.source}: {rec.name} has {len(rec)} steps, too few for the {horizon_s:g} s horizon "
+             f"({round(horizon_s / rec.dt) + 1} steps); skipped")
+        return False
+    return True
+
+
+def recordings_from_bag(source: BagSource, specs: Sequence[TopicSpec], dt: float, *, segment: str = "bag",
+                        min_duration_s: float = 10.0, horizon_s: float | None = None,
+                        warn: Warn = warn_stderr) -> list[Recording]:
+    """The Recordings of one bag (several when it has gaps or, with segment="steady", several manoeuvres)."""
+    if segment not in SEGMENTS:
+        raise DatasetError(f"unknown segment mode {segment!r}; use one of {list(SEGMENTS)}")
+    path = source.path
+    chosen = _present_specs(path, specs, warn)
+    raw = read_bag(path, chosen)
+    t_ref = min((int(s.t_ns[0]) for s in raw.values() if len(s)), default=0)
+    topic_of = {spec.role: spec.topic for spec in chosen}
+    signals = {}
+    for spec in chosen:
+        cleaned = clean_signal(raw[spec.topic], where=f"{path}: topic {spec.topic!r}", role=spec.role, dt=dt,
+                               t_ref_ns=t_ref, warn=warn)
+        if len(cleaned) == 0:
+            if spec.role in REQUIRED_ROLES:
+                raise BagError(f"{path}: topic {spec.topic!r} (role {spec.role}) has no usable samples")
+            continue
+        signals[spec.role] = cleaned
+    spans = gap_cuts(signals, dt, where=str(path), topic_of=topic_of, t_ref_ns=t_ref, warn=warn)
+    datum = bag_datum(path) or _first_fix(signals.get("gnss"))
+    pieces: list[Recording] = []
+    for k, (a, b) in enumerate(spans, start=1):
+        name = source.name if len(spans) == 1 else f"{source.name}#{k}"
+        if (b - a) / NS < max(min_duration_s, dt):
+            warn(f"{path}: piece {name} from t={(a - t_ref) / NS:.2f} s lasts {(b - a) / NS:.2f} s, "
+                 f"shorter than {min_duration_s:g} s; skipped")
+            continue
+        try:
+            pieces.append(recording_from_signals(_slice_signals(signals, a, b), dt, name=name, source=str(path),
+                                                 datum=datum))
+        except RecordingError as err:
+            warn(f"{path}: piece {name} skipped: {err}")
+    if segment == "steady":
+        pieces = _steady_segments(pieces, source.name)
+    return [rec for rec in pieces if _long_enough(rec, min_duration_s, horizon_s, warn)]
+
+
+def _steady_segments(pieces: Sequence[Recording], bag_name: str) -> list[Recording]:
+    """Manoeuvres NAME@1, NAME@2, ... numbered through the bag (a bag of one manoeuvre keeps its name)."""
+    bounds = [(rec, [0, *steady_cuts(rec.controls, rec.dt), len(rec)]) for rec in pieces]
+    if len(pieces) == 1 and len(bounds[0][1]) == 2:
+        return [dataclasses.replace(pieces[0], name=bag_name)]
+    out: list[Recording] = []
+    for rec, cuts in bounds:
+        for start, stop in zip(cuts[:-1], cuts[1:]):
+            out.append(slice_recording(rec, start, stop, f"{bag_name}@{len(out) + 1}"))
+    return out
+
+
+def load_recordings(bag_paths: Iterable[str | Path], dt: float, *, config_path: str | Path | None = None,
+                    topics: Mapping[str, str] | None = None, segment: str = "bag", min_duration_s: float = 10.0,
+                    horizon_s: float | None = None, include_calm: bool = False, warn: Warn = warn_stderr,
+                    progress: Callable[[str], None] | None = None) -> list[Recording]:
+    """Recordings of the bags (or directories of bags) in `bag_paths`, resampled to step dt.
+
+    topics: role -> topic name overrides of the config's input topics. May return [] when every piece was
+    skipped (each skip has its warning); errors in the input raise BagError naming the bag and topic.
+    """
+    if not dt > 0.0 or not math.isfinite(dt):
+        raise DatasetError(f"step dt={dt} s must be a positive number")
+    specs = topic_specs(config_path, topics)
+    sources = find_bags(bag_paths, include_calm=include_calm)
+    recordings: list[Recording] = []
+    for i, source in enumerate(sources, start=1):
+        found = recordings_from_bag(source, specs, dt, segment=segment, min_duration_s=min_duration_s,
+                                    horizon_s=horizon_s, warn=warn)
+        recordings += found
+        if progress is not None:
+            seconds = sum(r.duration_s for r in found)
+            progress(f"[{i}/{len(sources)}] {source.path}: {len(found)} recording(s), {seconds:.0f} s")
+    return recordings
