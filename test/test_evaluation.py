@@ -1,0 +1,289 @@
+"""Offline evaluation: closed loop, manoeuvre classification, seed 000 metrics plumbing, open-loop errors."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from usv_predictor import evaluation as ev
+from usv_predictor.dynamics import ManoeuvringModel
+from usv_predictor.environment import Environment
+from usv_predictor.errors import ModelError
+from usv_predictor.manoeuvres import PullOut, RandomManoeuvre, TurningCircle, ZigZag
+from usv_predictor.recording import Recording, recording_from_signals
+from usv_predictor.replay.cli import _jsonable
+from usv_predictor.sensors import SensorSpec, measure
+from usv_predictor.simulator import simulate
+from usv_predictor.vessel import load_vessel
+
+DT = 0.5  # s
+CURRENT = Environment(current_speed=0.4, current_to_deg=215.0)  # flows toward south-west (m/s, deg)
+
+
+@pytest.fixture(scope="module")
+def vessel_model() -> ManoeuvringModel:
+    return ManoeuvringModel(load_vessel("jari_usv"))
+
+
+def simulated(model: ManoeuvringModel, manoeuvre, env: Environment = Environment(), noisy: bool = False,
+              heading_deg: float = 30.0, dt: float = DT) -> Recording:
+    traj = simulate(model, manoeuvre, env, heading_deg=heading_deg)
+    spec = SensorSpec() if noisy else SensorSpec().noiseless()
+    return recording_from_signals(measure(traj, env, spec, seed=3), dt, name=manoeuvre.name, source="sim")
+
+
+@pytest.fixture(scope="module")
+def turn(vessel_model) -> Recording:
+    """A starboard turning circle drifting in a 0.4 m/s current: radius and drift are known by construction."""
+    return simulated(vessel_model, TurningCircle(25.0, 650.0, duration_s=100.0), CURRENT)
+
+
+class TruthReplay:
+    """A 'perfect' model: it finds its start state in the ground truth and replays what followed.
+
+    With `scale` != 1 it replays a track `scale` times larger about the start (same headings, u and v scaled),
+    so every length metric of the prediction is off by exactly that factor and every angle is exact.
+    """
+
+    def __init__(self, recording: Recording, scale: float = 1.0, dt: float = DT) -> None:
+        x_n, y_e, psi, u, v, r = recording.truth.T
+        self.truth = np.column_stack([u, v, r, x_n, y_e, np.unwrap(psi)])
+        self.scale = scale
+        self.metadata = {"dt": dt, "model_id": f"truth-replay-x{scale:g}", "model_type": "test replay",
+                         "feature_set": "none", "normalisation": list(range(100))}
+
+    def predict(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        horizon = controls.shape[1]
+        out = np.empty((1, len(state), horizon, 6))
+        for b, s in enumerate(state):
+            i = int(np.argmin(np.abs(self.truth[:, [0, 1, 2, 5]] - s).sum(axis=1)))
+            future = self.truth[i + 1:i + 1 + horizon].copy()
+            future[:, 3:5] = self.scale * (future[:, 3:5] - self.truth[i, 3:5])
+            future[:, 0:2] *= self.scale
+            out[0, b] = future
+        return out
+
+
+class StandStill:
+    """Predicts that the vessel stays where it is: open-loop errors must grow with the horizon."""
+
+    metadata = {"dt": DT, "model_id": "stand-still", "model_type": "test"}
+
+    def predict(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        out = np.zeros((2, len(state), controls.shape[1], 6))  # two identical members
+        out[..., 5] = state[None, :, None, 3]
+        return out
+
+
+# ------------------------------------------------------------------ closed loop
+
+
+def test_closed_loop_of_a_perfect_model_has_zero_error(turn):
+    prediction = ev.closed_loop(TruthReplay(turn), turn, reference="truth")
+    assert prediction.predicted.shape == prediction.measured.shape == (len(turn), 6)
+    np.testing.assert_allclose(prediction.predicted, prediction.measured, atol=1e-9)
+    assert np.all(prediction.predicted_std == 0.0)
+    rmse = ev.state_rmse(prediction)
+    assert all(value == pytest.approx(0.0, abs=1e-9) for value in rmse.values())
+
+
+def test_closed_loop_places_the_track_at_the_measured_start_and_uses_the_controls(turn, vessel_model):
+    physics = ev.PhysicsPredictor(vessel_model, DT)
+    prediction = ev.closed_loop(physics, turn, reference="gnss")
+    np.testing.assert_allclose(prediction.predicted[0], prediction.measured[0])
+    # in calm-water physics the turn happens (the recorded rudder drives it) but the current is unknown
+    assert np.degrees(prediction.predicted[-1, ev.PSI] - prediction.predicted[0, ev.PSI]) > 720.0
+    np.testing.assert_array_equal(prediction.controls, turn.controls)
+
+
+def test_model_with_another_dt_is_refused_with_both_steps_named(turn):
+    with pytest.raises(ModelError, match=r"dt=0.1 s but recording .* has dt=0.5 s"):
+        ev.closed_loop(TruthReplay(turn, dt=0.1), turn)
+
+
+def test_truth_reference_needs_ground_truth(turn):
+    import dataclasses
+
+    without = dataclasses.replace(turn, truth=None)
+    with pytest.raises(ev.EvaluationError, match="no ground truth"):
+        ev.closed_loop(TruthReplay(turn), without, reference="truth")
+
+
+def test_model_output_of_the_wrong_shape_is_a_model_error(turn):
+    class Broken:
+        metadata = {"dt": DT}
+
+        def predict(self, state, controls):
+            return np.zeros((len(state), controls.shape[1], 6))  # ensemble axis missing
+
+    with pytest.raises(ModelError, match=r"returned shape .* expected \(E, 1,"):
+        ev.closed_loop(Broken(), turn)
+
+
+# ------------------------------------------------------------------ classification
+
+
+def _controls_recording(delta_deg: np.ndarray, rpm: np.ndarray) -> Recording:
+    n = len(delta_deg)
+    noise = np.random.default_rng(0).normal(0.0, 0.1, n)  # feedback noise (deg)
+    return Recording(name="c", source="", t0_ns=0, dt=DT, t_s=np.arange(n) * DT, nu=np.zeros((n, 3)),
+                     psi=np.zeros(n), controls=np.column_stack([np.radians(delta_deg + noise), rpm]),
+                     position=np.zeros((n, 2)))
+
+
+@pytest.mark.parametrize(("manoeuvre", "kind", "side", "rudder"), [
+    (TurningCircle(15.0, 650.0, duration_s=60.0), "turning_circle", "starboard", 15.0),
+    (TurningCircle(20.0, 700.0, duration_s=60.0, side=-1), "turning_circle", "port", 20.0),
+    (ZigZag(20.0, 20.0, 650.0, duration_s=80.0), "zigzag", "starboard", 20.0),
+    (ZigZag(10.0, 10.0, 700.0, duration_s=80.0, side=-1), "zigzag", "port", 10.0),
+    (RandomManoeuvre(seed=7, rpm=675.0, duration_s=80.0), "other", None, None),
+    (PullOut(20.0, 650.0, duration_s=80.0), "other", None, None),
+])
+def test_classify_reads_the_manoeuvre_from_the_controls(vessel_model, manoeuvre, kind, side, rudder):
+    rec = simulated(vessel_model, manoeuvre, noisy=True)
+    found = ev.classify(rec)
+    assert found.kind == kind
+    if side is not None:
+        assert found.side == side
+        assert found.rudder_deg == pytest.approx(rudder, abs=0.5)
+        assert found.execute_time_s == pytest.approx(manoeuvre.approach_s, abs=1.0)
+
+
+def test_classify_straight_run_and_random_rudder_at_fixed_rpm_are_other():
+    n = 200
+    assert ev.classify(_controls_recording(np.zeros(n), np.full(n, 650.0))).kind == "other"
+    steps = np.repeat(np.random.default_rng(1).uniform(-25, 25, 20), 10)  # random amplitudes, both sides
+    assert ev.classify(_controls_recording(steps, np.full(n, 650.0))).kind == "other"
+
+
+# ------------------------------------------------------------------ seed 000 metrics plumbing
+
+
+def test_turning_metrics_are_exact_for_a_perfect_model(turn):
+    result = ev.evaluate_recording(TruthReplay(turn), turn, reference="truth")
+    assert result.manoeuvre.kind == "turning_circle"
+    measured, predicted, errors = result.turning.measured, result.turning.predicted, result.turning.errors
+    # the drift is the current: 0.4 m/s toward 215 deg (seed 000 eq. 27, 28)
+    assert measured["drift_direction_deg"] == pytest.approx(215.0, abs=1.0)
+    assert measured["drift_speed_mps"] == pytest.approx(0.4, abs=0.01)
+    # eq. 29 averages the first circle too, whose entry transient is wider than the steady circle
+    assert 1.0 < measured["turning_radius_m"] / measured["steady_turning_radius_m"] < 1.12
+    assert measured == predicted
+    assert all(value == pytest.approx(0.0, abs=1e-9) for value in errors.values())
+
+
+@pytest.mark.parametrize("scale", [1.1, 0.93])
+def test_a_model_off_by_a_radius_factor_shows_that_relative_error(turn, scale):
+    result = ev.evaluate_recording(TruthReplay(turn, scale), turn, reference="truth")
+    errors = result.turning.errors
+    expected_pct = 100.0 * (scale - 1.0)
+    for key in ("turning_radius_rel_pct", "steady_turning_radius_rel_pct", "drift_distance_rel_pct",
+                "advance_rel_pct", "tactical_diameter_rel_pct"):
+        assert errors[key] == pytest.approx(expected_pct, abs=1e-3), key
+    assert errors["drift_direction_abs_deg"] == pytest.approx(0.0, abs=1e-6)  # same shape, same direction
+
+
+def test_physics_baseline_misses_the_current_drift(turn, vessel_model):
+    result = ev.evaluate_recording(ev.PhysicsPredictor(vessel_model, DT), turn, reference="truth")
+    errors = result.turning.errors
+    assert errors["drift_distance_rel_pct"] < -80.0  # calm-water physics cannot know the current
+    assert abs(errors["steady_turning_radius_rel_pct"]) < 5.0  # but it knows the hull
+    assert any("not meaningful" in note for note in result.turning.notes)
+
+
+def test_zigzag_overshoots_are_compared(vessel_model):
+    rec = simulated(vessel_model, ZigZag(20.0, 20.0, 650.0, duration_s=80.0))
+    perfect = ev.evaluate_recording(TruthReplay(rec), rec, reference="truth")
+    assert perfect.zigzag is not None and perfect.turning is None
+    assert perfect.zigzag.measured["first_overshoot_deg"] > 1.0
+    assert perfect.zigzag.errors == {"first_overshoot_abs_deg": 0.0, "second_overshoot_abs_deg": 0.0}
+
+
+# ------------------------------------------------------------------ open loop
+
+
+def test_open_loop_shapes_horizons_and_start_points(turn):
+    loop = ev.open_loop(TruthReplay(turn), turn, reference="truth", horizons_s=(10.0, 30.0, 60.0), stride_s=5.0)
+    steps = int(60.0 / DT)
+    expected_starts = len(range(0, len(turn) - steps, int(5.0 / DT)))
+    assert loop.starts == expected_starts and loop.horizon_s == 60.0
+    assert [h.horizon_s for h in loop.horizons] == [10.0, 30.0, 60.0]
+    assert all(h.count == expected_starts and h.mean_m == pytest.approx(0.0, abs=1e-9) for h in loop.horizons)
+    assert loop.mean_error_by_step_m.shape == (steps,)
+
+
+def test_open_loop_error_grows_with_horizon_and_drops_horizons_that_do_not_fit(vessel_model):
+    rec = simulated(vessel_model, ZigZag(10.0, 10.0, 650.0, duration_s=80.0))  # makes way: ~5 m/s
+    loop = ev.open_loop(StandStill(), rec, reference="truth", horizons_s=(10.0, 30.0, 500.0), stride_s=10.0)
+    assert [h.horizon_s for h in loop.horizons] == [10.0, 30.0]  # 500 s does not fit in 80 s
+    ten, thirty = loop.horizons
+    assert thirty.mean_m > 2.5 * ten.mean_m > 2.5 * 40.0  # standing still misses the distance run
+    assert np.all(np.diff(loop.mean_error_by_step_m) > 0.0)
+    assert ev.open_loop(StandStill(), rec, horizons_s=(500.0,)) is None
+
+
+def test_gnss_reference_counts_only_start_points_with_a_fix(vessel_model):
+    rec = simulated(vessel_model, TurningCircle(25.0, 650.0, duration_s=100.0), CURRENT, noisy=True)
+    position = rec.position.copy()
+    position[40:60] = np.nan  # a GNSS outage of 10 s
+    import dataclasses
+
+    rec = dataclasses.replace(rec, position=position)
+    loop = ev.open_loop(TruthReplay(rec), rec, reference="gnss", horizons_s=(10.0,), stride_s=5.0)
+    all_starts = len(range(0, len(rec) - 20, 10))
+    assert loop.starts == all_starts - 2  # starts at steps 40 and 50 have no position
+    assert loop.horizons[0].count < loop.starts  # ends inside the outage are left out too
+    result = ev.evaluate_recording(TruthReplay(rec), rec, reference="gnss")
+    assert result.turning.measured["drift_distance_m"] is not None  # metrics skip the outage
+
+
+# ------------------------------------------------------------------ the whole evaluation
+
+
+def test_evaluate_summary_and_json_carry_units(turn, vessel_model):
+    zigzag = simulated(vessel_model, ZigZag(20.0, 20.0, 650.0, duration_s=80.0))
+    model = TruthReplay(turn, 1.05)
+    result = ev.evaluate(model, [turn], reference="truth")
+    assert result.summary["max_abs_turning_radius_rel_error_pct"] == pytest.approx(5.0, abs=1e-3)
+    assert result.summary["max_abs_drift_distance_rel_error_pct"] == pytest.approx(5.0, abs=1e-3)
+    assert result.summary["max_abs_drift_direction_error_deg"] == pytest.approx(0.0, abs=1e-6)
+    assert result.summary["mean_position_error_after_30s_m"] > 0.0
+    data = json.loads(json.dumps(_jsonable(result.to_json())))
+    assert data["model"]["model_id"] == "truth-replay-x1.05"
+    assert "normalisation" not in data["model"]  # long arrays of metadata stay out of the report
+    rec = data["recordings"][0]
+    assert set(rec["turning"]["errors"]) == {"turning_radius_rel_pct", "steady_turning_radius_rel_pct",
+                                             "drift_distance_rel_pct", "drift_direction_abs_deg",
+                                             "advance_rel_pct", "tactical_diameter_rel_pct"}
+    assert {"position_error_after_10s_m", "position_error_after_30s_m", "position_error_after_60s_m"} <= set(
+        rec["open_loop"])
+    assert set(rec["closed_loop_rmse"]) >= {"u_mps", "v_mps", "r_deg_s", "psi_deg", "position_m"}
+    # pooled open-loop means weigh recordings by their start points
+    both = ev.evaluate(StandStill(), [turn, zigzag], reference="truth")
+    loops = [r.open_loop.horizons[0] for r in both.recordings]
+    pooled = sum(h.mean_m * h.count for h in loops) / sum(h.count for h in loops)
+    assert both.summary["mean_position_error_after_10s_m"] == pytest.approx(pooled)
+    with pytest.raises(ev.EvaluationError, match="no recordings"):
+        ev.evaluate(model, [])
+
+
+def test_series_round_trip_for_the_report(turn):
+    result = ev.evaluate(TruthReplay(turn), [turn], reference="truth")
+    back = ev.predictions_from_arrays(ev.series_arrays(result), [turn.name], "truth")[0]
+    np.testing.assert_array_equal(back.predicted, result.recordings[0].prediction.predicted)
+    with pytest.raises(ev.EvaluationError, match="no array"):
+        ev.predictions_from_arrays({}, [turn.name], "truth")
+
+
+def test_physics_predictor_reproduces_calm_water(vessel_model):
+    """The simulator's own hull in calm water: what is left is the step-held controls, which vanish with dt."""
+    manoeuvre = ZigZag(20.0, 20.0, 650.0, duration_s=60.0)
+    errors = []
+    for dt in (0.5, 0.1):
+        rec = simulated(vessel_model, manoeuvre, dt=dt)
+        loop = ev.open_loop(ev.PhysicsPredictor(vessel_model, dt), rec, reference="truth", horizons_s=(10.0,))
+        errors.append(loop.horizons[0].mean_m)
+    assert errors[0] < 2.0 and errors[1] < 0.4 and errors[1] < errors[0] / 3.0  # ~50 m run in 10 s
+    assert math.isclose(ev.physics_predictor("jari_usv", 0.25).metadata["dt"], 0.25)

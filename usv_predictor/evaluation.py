@@ -1,0 +1,657 @@
+"""Offline evaluation of a motion predictor on recorded manoeuvres (seed 000 sec. 3.3, 3.4; pure numpy).
+
+A model is any object with
+    metadata: dict  (at least "dt" in s; "model_id", "model_type", "feature_set" are reported)
+    predict(state (B, 4) [u, v, r, psi], controls (B, H, 2) [delta, rpm]) -> (E, B, H, 6)
+        = [u, v, r, x_n, y_e, psi] at dt .. H dt after the start, positions relative to the start (NED),
+        psi continuous; controls[:, k] act from step k to k + 1; E ensemble members.
+
+Closed loop (seed 000 Fig. 3): the model starts from the recording's first state and is rolled out over the
+whole recording with the recorded controls and no measurement feedback; its integrated positions (seed 000
+eq. 9) are placed at the measured start position and set against the measured track. The reference is the
+GNSS track with the measured u, v, r, psi ("gnss", what a sea trial has) or, for simulated bags, the ground
+truth ("truth": the start state and the comparison both come from it).
+
+Open loop: the same rollout from many start points (every `stride_s`), position error at 10 / 30 / 60 s
+(metrics.open_loop_errors): what the online predictor is judged on.
+
+Manoeuvre metrics on measured vs predicted tracks (metrics.py for the definitions):
+    turning circles  turning radius eq. 29 and the steady circle fit, drift distance eq. 27, drift direction
+                     eq. 28 (compass, toward), IMO advance and tactical diameter;
+    zig-zags         first and second overshoot angles (ITTC);
+    every recording  RMSE of u, v, r, psi and of the position along the closed-loop rollout.
+Errors follow seed 000 Tables 7-8: relative (%) for lengths, absolute (deg) for angles, always
+predicted - measured (the paper's tables mix both signs; one sign here so a bias reads one way).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from usv_predictor import metrics
+from usv_predictor.errors import ModelError, UsvPredictorError
+from usv_predictor.recording import Recording
+
+U, V, R, X_N, Y_E, PSI = range(6)  # columns of predicted and measured series (model output order)
+COLUMNS = ("u_mps", "v_mps", "r_rad_s", "x_n_m", "y_e_m", "psi_rad")
+REFERENCES = ("gnss", "truth")
+DEFAULT_HORIZONS_S = (10.0, 30.0, 60.0)
+DT_TOLERANCE_S = 1e-6
+DRIFT_DIRECTION_MIN_M = 1.0  # below this drift distance (m) its direction is noise
+
+
+class EvaluationError(UsvPredictorError):
+    """A recording cannot be evaluated as asked (no reference track, no truth, too short); says which."""
+
+
+class Predictor(Protocol):
+    metadata: Mapping[str, Any]
+
+    def predict(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """(B, 4), (B, H, 2) -> (E, B, H, 6)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Results
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Prediction:
+    """A closed-loop rollout beside its reference, on the recording's time grid (row 0 = start)."""
+
+    name: str
+    reference: str  # "gnss" or "truth"
+    t_s: np.ndarray  # (T,) s since the start
+    controls: np.ndarray  # (T, 2) delta (rad), rpm
+    measured: np.ndarray  # (T, 6) u, v, r, x_n, y_e, psi (NaN where the GNSS had no fix)
+    predicted: np.ndarray  # (T, 6) ensemble mean, positions placed at the measured start
+    predicted_std: np.ndarray  # (T, 6) ensemble spread (zeros for a single member)
+
+
+@dataclass(frozen=True)
+class ManoeuvreKind:
+    """What the controls say the recording is."""
+
+    kind: str  # "turning_circle" | "zigzag" | "other"
+    side: str  # "starboard" | "port" | "" (first rudder side)
+    rudder_deg: float  # held rudder magnitude (deg); NaN for "other" without rudder
+    rpm: float  # median engine speed (rpm)
+    execute_time_s: float  # first rudder execute (s from the start); NaN without one
+
+    def label(self) -> str:
+        """'turning circle, starboard, 15 deg, 650 rpm' for titles and tables."""
+        if self.kind == "other":
+            return f"other manoeuvre, {self.rpm:.0f} rpm"
+        return f"{self.kind.replace('_', ' ')}, {self.side}, {self.rudder_deg:.0f} deg, {self.rpm:.0f} rpm"
+
+    def to_json(self) -> dict:
+        return {"kind": self.kind, "side": self.side, "rudder_deg": self.rudder_deg, "rpm": self.rpm,
+                "execute_time_s": self.execute_time_s}
+
+
+@dataclass(frozen=True)
+class OpenLoop:
+    """Open-loop position errors from many start points."""
+
+    stride_s: float
+    horizon_s: float  # longest rollout (s)
+    starts: int
+    horizons: tuple[metrics.HorizonError, ...]
+    mean_error_by_step_m: np.ndarray  # (H,) mean over starts of the error (k + 1) dt after the start
+
+    def to_json(self, dt: float) -> dict:
+        out: dict[str, Any] = {
+            "start_stride_s": self.stride_s,
+            "horizon_s": self.horizon_s,
+            "start_points": self.starts,
+            "horizons": [
+                {"horizon_s": h.horizon_s, "mean_m": h.mean_m, "p50_m": h.p50_m, "p95_m": h.p95_m,
+                 "max_m": h.max_m, "count": h.count}
+                for h in self.horizons
+            ],
+            "step_s": dt,
+            "mean_error_by_step_m": [float(x) for x in self.mean_error_by_step_m],
+        }
+        for h in self.horizons:
+            out[f"position_error_after_{h.horizon_s:g}s_m"] = h.mean_m
+        return out
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Measured and predicted values of one manoeuvre's metrics and their errors (JSON-ready floats)."""
+
+    measured: dict[str, float | None]
+    predicted: dict[str, float | None]
+    errors: dict[str, float | None]
+    notes: tuple[str, ...] = ()
+
+    def to_json(self) -> dict:
+        return {"measured": self.measured, "predicted": self.predicted, "errors": self.errors,
+                "notes": list(self.notes)}
+
+
+@dataclass(frozen=True)
+class RecordingEvaluation:
+    name: str
+    source: str
+    dt: float
+    duration_s: float
+    manoeuvre: ManoeuvreKind
+    prediction: Prediction
+    state_rmse: dict[str, float]
+    turning: Comparison | None
+    zigzag: Comparison | None
+    open_loop: OpenLoop | None
+    notes: tuple[str, ...] = ()
+
+    def to_json(self) -> dict:
+        return {
+            "name": self.name,
+            "source": self.source,
+            "dt_s": self.dt,
+            "duration_s": self.duration_s,
+            "manoeuvre": self.manoeuvre.to_json(),
+            "manoeuvre_label": self.manoeuvre.label(),
+            "closed_loop_rmse": self.state_rmse,
+            "turning": None if self.turning is None else self.turning.to_json(),
+            "zigzag": None if self.zigzag is None else self.zigzag.to_json(),
+            "open_loop": None if self.open_loop is None else self.open_loop.to_json(self.dt),
+            "notes": list(self.notes),
+        }
+
+
+@dataclass(frozen=True)
+class EvaluationResult:
+    model: dict[str, Any]
+    reference: str
+    recordings: tuple[RecordingEvaluation, ...]
+    summary: dict[str, float | None]
+    horizons_s: tuple[float, ...] = DEFAULT_HORIZONS_S
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {
+            "model": self.model,
+            "reference": self.reference,
+            "open_loop_horizons_s": list(self.horizons_s),
+            "recordings": [r.to_json() for r in self.recordings],
+            "summary": self.summary,
+            **self.extra,
+        }
+
+
+# --------------------------------------------------------------------------------------------
+# Model plumbing
+# --------------------------------------------------------------------------------------------
+def model_dt(model: Predictor) -> float:
+    """The model's step (s) from its metadata; ModelError when absent or not positive."""
+    try:
+        dt = float(model.metadata["dt"])
+    except (KeyError, TypeError, ValueError) as err:
+        raise ModelError(f"model metadata has no numeric 'dt' (s): {err}") from err
+    if not dt > 0.0:
+        raise ModelError(f"model metadata dt={dt} s must be > 0")
+    return dt
+
+
+def check_dt(model: Predictor, dt: float, what: str) -> None:
+    """ModelError when the model's step differs from the data's (a model only works at its own dt)."""
+    expected = model_dt(model)
+    if abs(expected - dt) > DT_TOLERANCE_S:
+        raise ModelError(f"model {model.metadata.get('model_id', '?')} has dt={expected:g} s but {what} "
+                         f"has dt={dt:g} s; resample the data at {expected:g} s or use a model trained at {dt:g} s")
+
+
+def rollout(model: Predictor, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+    """model.predict with its shapes checked: (B, 4), (B, H, 2) -> (E, B, H, 6)."""
+    state = np.asarray(state, dtype=float)
+    controls = np.asarray(controls, dtype=float)
+    out = np.asarray(model.predict(state, controls), dtype=float)
+    expected = (state.shape[0], controls.shape[1], 6)
+    if out.ndim != 4 or out.shape[1:] != expected:
+        raise ModelError(f"model.predict returned shape {out.shape}, expected (E, {expected[0]}, {expected[1]}, 6)")
+    return out
+
+
+def reference_series(recording: Recording, reference: str) -> np.ndarray:
+    """(T, 6) [u, v, r, x_n, y_e, psi] of the reference: measured + GNSS, or ground truth."""
+    if reference == "gnss":
+        return np.column_stack([recording.nu, recording.position, recording.psi])
+    if reference == "truth":
+        if recording.truth is None:
+            raise EvaluationError(f"{recording.source or recording.name}: no ground truth (simulated bags carry "
+                                  "it on ground_truth/odometry); use --reference gnss")
+        x_n, y_e, psi, u, v, r = recording.truth.T
+        return np.column_stack([u, v, r, x_n, y_e, np.unwrap(psi)])
+    raise EvaluationError(f"reference must be one of {REFERENCES}, got {reference!r}")
+
+
+# --------------------------------------------------------------------------------------------
+# Closed loop (seed 000 Fig. 3) and open loop
+# --------------------------------------------------------------------------------------------
+def closed_loop(model: Predictor, recording: Recording, reference: str = "gnss") -> Prediction:
+    """Roll the model out over the whole recording from its first state with the recorded controls.
+
+    Starts at the first sample with a reference position (GNSS may start late) so the predicted track
+    can be placed at the measured start.
+    """
+    check_dt(model, recording.dt, f"recording {recording.name}")
+    measured = reference_series(recording, reference)
+    finite = np.flatnonzero(np.isfinite(measured[:, X_N]) & np.isfinite(measured[:, Y_E]))
+    if len(finite) == 0:
+        raise EvaluationError(f"{recording.source or recording.name}: no position fix ({reference}); "
+                              "the closed-loop track needs a reference track")
+    first = int(finite[0])
+    measured = measured[first:]
+    if len(measured) < 2:
+        raise EvaluationError(f"{recording.name}: fewer than 2 samples after the first position fix")
+    controls = recording.controls[first:]
+    start = measured[0, [U, V, R, PSI]]
+    out = rollout(model, start[None, :], controls[None, :-1])[:, 0]  # (E, T - 1, 6)
+    out[..., X_N] += measured[0, X_N]
+    out[..., Y_E] += measured[0, Y_E]
+    mean = np.vstack([measured[:1], out.mean(axis=0)])
+    std = np.vstack([np.zeros((1, 6)), out.std(axis=0)])
+    return Prediction(name=recording.name, reference=reference, t_s=recording.t_s[first:] - recording.t_s[first],
+                      controls=controls, measured=measured, predicted=mean, predicted_std=std)
+
+
+def open_loop(model: Predictor, recording: Recording, reference: str = "gnss",
+              horizons_s: Sequence[float] = DEFAULT_HORIZONS_S, stride_s: float = 5.0) -> OpenLoop | None:
+    """Position errors of rollouts started every `stride_s` at the horizons that fit in the recording.
+
+    None when the recording is shorter than the shortest horizon plus one step.
+    """
+    dt = recording.dt
+    check_dt(model, dt, f"recording {recording.name}")
+    measured = reference_series(recording, reference)
+    fitting = [h for h in horizons_s if round(h / dt) <= len(recording) - 1]
+    if not fitting:
+        return None
+    steps = int(round(max(fitting) / dt))
+    stride = max(1, int(round(stride_s / dt)))
+    starts = np.arange(0, len(recording) - steps, stride)
+    starts = starts[np.isfinite(measured[starts, X_N]) & np.isfinite(measured[starts, Y_E])]
+    if len(starts) == 0:
+        return None
+    window = starts[:, None] + np.arange(steps)[None, :]  # (B, H) control indices
+    out = rollout(model, measured[starts][:, [U, V, R, PSI]], recording.controls[window])
+    predicted_xy = out.mean(axis=0)[..., [X_N, Y_E]] + measured[starts][:, None, [X_N, Y_E]]  # (B, H, 2)
+    measured_xy = measured[window + 1][..., [X_N, Y_E]]
+    errors = np.hypot(*(predicted_xy - measured_xy).transpose(2, 0, 1))  # (B, H)
+    known = np.isfinite(errors)
+    counts = known.sum(axis=0)
+    by_step = np.where(counts > 0, np.where(known, errors, 0.0).sum(axis=0) / np.maximum(counts, 1), np.nan)
+    return OpenLoop(stride_s=stride * dt, horizon_s=steps * dt, starts=int(len(starts)),
+                    horizons=metrics.open_loop_errors(predicted_xy, measured_xy, fitting, dt),
+                    mean_error_by_step_m=by_step)
+
+
+# --------------------------------------------------------------------------------------------
+# What manoeuvre is it (from the controls only)
+# --------------------------------------------------------------------------------------------
+RUDDER_MIN_RAD = math.radians(2.0)  # below this the run is straight
+RPM_STEADY_FRACTION = 0.03  # engine steady: 5-95 % spread within 3 % of its median
+HELD_FRACTION = 0.9  # a steady rudder holds its value for this share of the time after execute
+
+
+def _side_states(delta: np.ndarray, threshold: float) -> np.ndarray:
+    """+1 / -1 once past +-threshold, kept until the other side is reached (hysteresis); 0 before."""
+    side = np.where(delta >= threshold, 1, np.where(delta <= -threshold, -1, 0))
+    last = np.maximum.accumulate(np.where(side != 0, np.arange(len(side)), -1))
+    return np.where(last >= 0, side[np.maximum(last, 0)], 0)
+
+
+def classify(recording: Recording) -> ManoeuvreKind:
+    """turning circle (one steady rudder), zig-zag (reversals of one amplitude) or other, from the controls."""
+    delta, rpm = recording.controls[:, 0], recording.controls[:, 1]
+    rpm_median = float(np.median(rpm))
+    amplitude = float(np.percentile(np.abs(delta), 95.0))
+    if amplitude < RUDDER_MIN_RAD:
+        return ManoeuvreKind("other", "", float("nan"), rpm_median, float("nan"))
+    moved = np.flatnonzero(np.abs(delta) >= 0.1 * amplitude)
+    execute = int(moved[0])
+    after = slice(execute, None)
+    spread = np.percentile(rpm[after], 95.0) - np.percentile(rpm[after], 5.0)
+    rpm_steady = spread <= RPM_STEADY_FRACTION * max(abs(rpm_median), 1.0)
+    states = _side_states(delta, 0.5 * amplitude)
+    first_side = int(states[np.flatnonzero(states)[0]])
+    side = "starboard" if first_side > 0 else "port"
+    changes = np.flatnonzero(np.diff(states[states != 0]) != 0)
+    held = np.abs(delta[after])
+    tolerance = max(math.radians(1.5), 0.15 * amplitude)
+    t_execute = float(recording.t_s[execute])
+    if len(changes) == 0:
+        steady = np.mean(np.abs(held - np.median(held)) <= tolerance) >= HELD_FRACTION
+        kind = "turning_circle" if steady and rpm_steady else "other"
+        return ManoeuvreKind(kind, side, math.degrees(float(np.median(held))), rpm_median, t_execute)
+    # Zig-zag: every side segment holds about the same |rudder| (a spiral or random run does not).
+    bounds = np.flatnonzero(np.diff(states) != 0) + 1
+    segments = np.split(delta, bounds)
+    holds = [float(np.median(np.abs(s[np.abs(s) >= 0.75 * np.percentile(np.abs(s), 95.0)])))
+             for s, st in zip(segments, np.split(states, bounds)) if st[0] != 0 and len(s) >= 3]
+    same = bool(holds) and max(holds) - min(holds) <= tolerance
+    kind = "zigzag" if same and rpm_steady else "other"
+    return ManoeuvreKind(kind, side, math.degrees(float(np.median(holds))) if holds else float("nan"),
+                         rpm_median, t_execute)
+
+
+# --------------------------------------------------------------------------------------------
+# Manoeuvre metrics
+# --------------------------------------------------------------------------------------------
+def _finite_track(series: np.ndarray, t_s: np.ndarray) -> tuple[np.ndarray, ...]:
+    """t, x_n, y_e, psi where the position is known (GNSS drop-outs are left out)."""
+    keep = np.isfinite(series[:, X_N]) & np.isfinite(series[:, Y_E]) & np.isfinite(series[:, PSI])
+    return t_s[keep], series[keep, X_N], series[keep, Y_E], series[keep, PSI]
+
+
+def _attempt(notes: list[str], what: str, fn: Callable[[], Any]) -> Any:
+    """fn() or None with a note: one failing metric (a track that does not turn 720 deg) must not hide the rest."""
+    try:
+        return fn()
+    except ValueError as err:
+        notes.append(f"{what}: {err}")
+        return None
+
+
+def turning_metrics(t_s: np.ndarray, series: np.ndarray, execute_time_s: float, drift_axis_deg: float | None,
+                    notes: list[str], what: str) -> dict[str, float | None]:
+    """Seed 000 eq. 27-29, the steady circle fit and IMO criteria of one track (None where undefined)."""
+    t_all, x_all, y_all, psi_all = _finite_track(series, t_s)
+    # Eq. 27-29 count heading change from the execute: the straight approach would widen eq. 29's first circle.
+    turn = t_all >= execute_time_s if math.isfinite(execute_time_s) else np.ones(len(t_all), dtype=bool)
+    t, x_n, y_e, psi = t_all[turn], x_all[turn], y_all[turn], psi_all[turn]
+    drift = _attempt(notes, f"{what} drift (eq. 27, 28)", lambda: metrics.drift(t, x_n, y_e, psi))
+    axis = drift_axis_deg if drift_axis_deg is not None else (drift.direction_deg if drift else None)
+    radius = None
+    if axis is not None and math.isfinite(axis):
+        radius = _attempt(notes, f"{what} turning radius (eq. 29)",
+                          lambda: metrics.turning_radius(t, x_n, y_e, psi, drift_direction_deg=axis))
+    steady = _attempt(notes, f"{what} steady circle fit", lambda: metrics.steady_turning_radius(t, x_n, y_e, psi))
+    imo = None
+    if math.isfinite(execute_time_s):
+        imo = _attempt(notes, f"{what} IMO criteria",
+                       lambda: metrics.turning_circle_criteria(t_all, x_all, y_all, psi_all,
+                                                               max(execute_time_s, float(t_all[0]))))
+    return {
+        "turning_radius_m": radius.radius_m if radius else None,
+        "steady_turning_radius_m": steady.radius_m if steady else None,
+        "drift_distance_m": drift.distance_m if drift else None,
+        "drift_direction_deg": drift.direction_deg if drift else None,
+        "drift_angle_seed_eq28_deg": metrics.seed_drift_angle_deg(drift.direction_deg) if drift else None,
+        "drift_speed_mps": drift.speed_mps if drift else None,
+        "advance_m": imo.advance_m if imo else None,
+        "tactical_diameter_m": imo.tactical_diameter_m if imo else None,
+    }
+
+
+def relative_error_pct(predicted: float | None, measured: float | None) -> float | None:
+    """100 (predicted - measured) / measured; None when either is missing or measured is 0."""
+    if predicted is None or measured is None or measured == 0.0 or not math.isfinite(predicted + measured):
+        return None
+    return 100.0 * (predicted - measured) / measured
+
+
+def angle_error_deg(predicted: float | None, measured: float | None) -> float | None:
+    """predicted - measured wrapped to [-180, 180) deg; None when either is missing."""
+    if predicted is None or measured is None or not math.isfinite(predicted + measured):
+        return None
+    return float((predicted - measured + 180.0) % 360.0 - 180.0)
+
+
+def compare_turning(prediction: Prediction, execute_time_s: float) -> Comparison:
+    """Turning-circle metrics of the measured and predicted tracks; eq. 29 uses the measured drift axis
+    for both (seed 000 Fig. 11: the x axis is along the drift of the real track)."""
+    notes: list[str] = []
+    measured = turning_metrics(prediction.t_s, prediction.measured, execute_time_s, None, notes, "measured")
+    axis = measured["drift_direction_deg"]
+    predicted = turning_metrics(prediction.t_s, prediction.predicted, execute_time_s, axis, notes, "predicted")
+    for what, values in (("measured", measured), ("predicted", predicted)):
+        distance = values["drift_distance_m"]
+        if distance is not None and distance < DRIFT_DIRECTION_MIN_M:
+            # the direction of a drift of a few centimetres is noise: keep the number, say so
+            notes.append(f"{what} drift distance {distance:.2f} m is under {DRIFT_DIRECTION_MIN_M:g} m: "
+                         "its direction is not meaningful")
+    errors = {
+        "turning_radius_rel_pct": relative_error_pct(predicted["turning_radius_m"], measured["turning_radius_m"]),
+        "steady_turning_radius_rel_pct": relative_error_pct(predicted["steady_turning_radius_m"],
+                                                            measured["steady_turning_radius_m"]),
+        "drift_distance_rel_pct": relative_error_pct(predicted["drift_distance_m"], measured["drift_distance_m"]),
+        "drift_direction_abs_deg": angle_error_deg(predicted["drift_direction_deg"], measured["drift_direction_deg"]),
+        "advance_rel_pct": relative_error_pct(predicted["advance_m"], measured["advance_m"]),
+        "tactical_diameter_rel_pct": relative_error_pct(predicted["tactical_diameter_m"],
+                                                        measured["tactical_diameter_m"]),
+    }
+    return Comparison(measured, predicted, errors, tuple(notes))
+
+
+def compare_zigzag(prediction: Prediction) -> Comparison:
+    """First and second overshoot angles (ITTC) of the measured and predicted headings."""
+    notes: list[str] = []
+    values = {}
+    for what, series in (("measured", prediction.measured), ("predicted", prediction.predicted)):
+        zz = _attempt(notes, f"{what} zig-zag", lambda s=series: metrics.zigzag_overshoots(
+            prediction.t_s, s[:, PSI], prediction.controls[:, 0]))
+        values[what] = {
+            "first_overshoot_deg": _finite_or_none(zz.first_overshoot_deg) if zz else None,
+            "second_overshoot_deg": _finite_or_none(zz.second_overshoot_deg) if zz else None,
+        }
+    errors = {
+        f"{key.removesuffix('_deg')}_abs_deg": (
+            None if values["predicted"][key] is None or values["measured"][key] is None
+            else values["predicted"][key] - values["measured"][key]
+        )
+        for key in ("first_overshoot_deg", "second_overshoot_deg")
+    }
+    return Comparison(values["measured"], values["predicted"], errors, tuple(notes))
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def state_rmse(prediction: Prediction) -> dict[str, float]:
+    """Closed-loop RMSE of u, v (m/s), r (deg/s), psi (deg) and position (m) over the whole recording."""
+    m, p = prediction.measured, prediction.predicted
+    rm = metrics.rmse(p[:, [U, V, R, PSI]], m[:, [U, V, R, PSI]], angle_columns=(3,))
+    keep = np.isfinite(m[:, X_N]) & np.isfinite(m[:, Y_E])
+    position = metrics.position_error(p[keep, X_N], p[keep, Y_E], m[keep, X_N], m[keep, Y_E])
+    return {
+        "u_mps": float(rm[0]),
+        "v_mps": float(rm[1]),
+        "r_deg_s": math.degrees(float(rm[2])),
+        "psi_deg": math.degrees(float(rm[3])),
+        "position_m": float(np.sqrt(np.mean(position**2))) if len(position) else float("nan"),
+        "final_position_error_m": float(position[-1]) if len(position) else float("nan"),
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# Evaluate a set of recordings
+# --------------------------------------------------------------------------------------------
+def evaluate_recording(model: Predictor, recording: Recording, reference: str = "gnss",
+                       horizons_s: Sequence[float] = DEFAULT_HORIZONS_S, stride_s: float = 5.0) -> RecordingEvaluation:
+    kind = classify(recording)
+    prediction = closed_loop(model, recording, reference)
+    notes: list[str] = []
+    first = len(recording) - len(prediction.t_s)  # the rollout starts at the first position fix
+    execute = kind.execute_time_s - float(recording.t_s[first])
+    turning = compare_turning(prediction, execute) if kind.kind == "turning_circle" else None
+    zigzag = compare_zigzag(prediction) if kind.kind == "zigzag" else None
+    loop = open_loop(model, recording, reference, horizons_s, stride_s)
+    if loop is None:
+        notes.append(f"open loop: recording of {recording.duration_s:.1f} s is shorter than the shortest horizon "
+                     f"{min(horizons_s):g} s")
+    elif len(loop.horizons) < len(horizons_s):
+        notes.append(f"open loop: horizons beyond {loop.horizon_s:g} s do not fit in {recording.duration_s:.1f} s")
+    return RecordingEvaluation(
+        name=recording.name, source=recording.source, dt=recording.dt, duration_s=recording.duration_s,
+        manoeuvre=kind, prediction=prediction, state_rmse=state_rmse(prediction),
+        turning=turning, zigzag=zigzag, open_loop=loop, notes=tuple(notes),
+    )
+
+
+def _max_abs(values: Sequence[float | None]) -> float | None:
+    known = [abs(v) for v in values if v is not None and math.isfinite(v)]
+    return max(known) if known else None
+
+
+def summarise(evaluations: Sequence[RecordingEvaluation], horizons_s: Sequence[float]) -> dict[str, float | None]:
+    """Seed 000's headline numbers (max |errors| over the turning tests) and pooled open-loop errors."""
+    turning = [e.turning.errors for e in evaluations if e.turning is not None]
+    zigzag = [e.zigzag.errors for e in evaluations if e.zigzag is not None]
+    summary: dict[str, float | None] = {
+        "recordings": float(len(evaluations)),
+        "turning_circles": float(len(turning)),
+        "zigzags": float(len(zigzag)),
+        "max_abs_turning_radius_rel_error_pct": _max_abs([t["turning_radius_rel_pct"] for t in turning]),
+        "max_abs_steady_turning_radius_rel_error_pct": _max_abs([t["steady_turning_radius_rel_pct"] for t in turning]),
+        "max_abs_drift_direction_error_deg": _max_abs([t["drift_direction_abs_deg"] for t in turning]),
+        "max_abs_drift_distance_rel_error_pct": _max_abs([t["drift_distance_rel_pct"] for t in turning]),
+        "max_abs_tactical_diameter_rel_error_pct": _max_abs([t["tactical_diameter_rel_pct"] for t in turning]),
+        "max_abs_first_overshoot_error_deg": _max_abs([z["first_overshoot_abs_deg"] for z in zigzag]),
+        "mean_rmse_u_mps": _mean([e.state_rmse["u_mps"] for e in evaluations]),
+        "mean_rmse_v_mps": _mean([e.state_rmse["v_mps"] for e in evaluations]),
+        "mean_rmse_r_deg_s": _mean([e.state_rmse["r_deg_s"] for e in evaluations]),
+    }
+    for horizon in horizons_s:
+        # pooled over every start point of every recording, so long recordings weigh more
+        pairs = [(h.mean_m, h.count) for e in evaluations if e.open_loop is not None
+                 for h in e.open_loop.horizons if h.horizon_s == horizon and h.count > 0]
+        total = sum(c for _, c in pairs)
+        summary[f"mean_position_error_after_{horizon:g}s_m"] = (
+            sum(m * c for m, c in pairs) / total if total else None)
+    return summary
+
+
+def _mean(values: Sequence[float]) -> float | None:
+    known = [v for v in values if math.isfinite(v)]
+    return float(np.mean(known)) if known else None
+
+
+def model_description(model: Predictor) -> dict[str, Any]:
+    """The metadata entries worth reporting: scalars, strings and short lists (not normalisation arrays)."""
+    out: dict[str, Any] = {}
+    for key, value in dict(model.metadata).items():
+        if isinstance(value, (str, int, float, bool)) or value is None:
+            out[str(key)] = value
+        elif isinstance(value, (list, tuple)) and len(value) <= 16 and all(
+                isinstance(v, (str, int, float, bool)) for v in value):
+            out[str(key)] = list(value)
+    return out
+
+
+def evaluate(model: Predictor, recordings: Sequence[Recording], reference: str = "gnss",
+             horizons_s: Sequence[float] = DEFAULT_HORIZONS_S, stride_s: float = 5.0,
+             progress: Callable[[str], None] | None = None) -> EvaluationResult:
+    """Closed-loop, manoeuvre and open-loop evaluation of every recording, with the summary."""
+    if not recordings:
+        raise EvaluationError("no recordings to evaluate")
+    if reference not in REFERENCES:
+        raise EvaluationError(f"reference must be one of {REFERENCES}, got {reference!r}")
+    evaluations = []
+    for k, recording in enumerate(recordings):
+        if progress is not None:
+            progress(f"[{k + 1}/{len(recordings)}] evaluating {recording.name} ({recording.duration_s:.0f} s)")
+        evaluations.append(evaluate_recording(model, recording, reference, horizons_s, stride_s))
+    return EvaluationResult(model=model_description(model), reference=reference, recordings=tuple(evaluations),
+                            summary=summarise(evaluations, horizons_s), horizons_s=tuple(horizons_s))
+
+
+# --------------------------------------------------------------------------------------------
+# Physics baseline: the calm-water manoeuvring model as a predictor
+# --------------------------------------------------------------------------------------------
+class PhysicsPredictor:
+    """The vessel preset's MMG model (usv_predictor.dynamics) in calm water, driven by the recorded controls.
+
+    It knows nothing of current, wind or waves, so it is the baseline a learned model must beat at sea.
+    Over-ground velocities are taken as velocities through the water; the recorded rudder angle and engine
+    speed are applied as the actuator states (they are feedback, not commands). RK4 with substeps of at
+    most `max_substep_s` per model step, controls held over the step.
+    """
+
+    def __init__(self, model: Any, dt: float, max_substep_s: float = 0.05) -> None:
+        if not dt > 0.0:
+            raise ModelError(f"physics predictor step dt={dt} s must be > 0")
+        self._model = model
+        self._substeps = max(1, int(math.ceil(dt / max_substep_s - 1e-9)))
+        vessel = getattr(model.vessel, "name", "vessel")
+        self.metadata: dict[str, Any] = {
+            "dt": float(dt),
+            "model_type": "physics (calm-water MMG)",
+            "model_id": f"physics-{vessel}",
+            "feature_set": "u, v, r, psi, delta, rpm",
+            "vessel": vessel,
+        }
+
+    def _derivative(self, s: list[float], delta: float, rpm: float) -> list[float]:
+        _, _, psi, u, v, r = s
+        c, si = math.cos(psi), math.sin(psi)
+        du, dv, dr = self._model.accelerations(psi, u, v, r, delta, rpm)
+        return [u * c - v * si, u * si + v * c, r, du, dv, dr]
+
+    def _step(self, s: list[float], delta: float, rpm: float, h: float) -> list[float]:
+        k1 = self._derivative(s, delta, rpm)
+        k2 = self._derivative([a + 0.5 * h * b for a, b in zip(s, k1)], delta, rpm)
+        k3 = self._derivative([a + 0.5 * h * b for a, b in zip(s, k2)], delta, rpm)
+        k4 = self._derivative([a + h * b for a, b in zip(s, k3)], delta, rpm)
+        return [a + h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4) for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4)]
+
+    def predict(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        state = np.asarray(state, dtype=float)
+        controls = np.asarray(controls, dtype=float)
+        batch, horizon = controls.shape[0], controls.shape[1]
+        out = np.empty((1, batch, horizon, 6))
+        h = self.metadata["dt"] / self._substeps
+        for b in range(batch):
+            u, v, r, psi = (float(x) for x in state[b])
+            s = [0.0, 0.0, psi, u, v, r]
+            for k in range(horizon):
+                delta, rpm = float(controls[b, k, 0]), float(controls[b, k, 1])
+                for _ in range(self._substeps):
+                    s = self._step(s, delta, rpm, h)
+                if not all(map(math.isfinite, s)):
+                    raise ModelError(f"physics predictor diverged at step {k} of start {b}")
+                out[0, b, k] = (s[3], s[4], s[5], s[0], s[1], s[2])
+        return out
+
+
+def physics_predictor(vessel: str, dt: float) -> PhysicsPredictor:
+    """PhysicsPredictor of a vessel preset (config/vessels/<vessel>.yaml)."""
+    from usv_predictor.dynamics import ManoeuvringModel
+    from usv_predictor.vessel import load_vessel
+
+    return PhysicsPredictor(ManoeuvringModel(load_vessel(vessel)), dt)
+
+
+# --------------------------------------------------------------------------------------------
+# Series for plots (written beside the JSON so `report` can draw from an evaluation file)
+# --------------------------------------------------------------------------------------------
+def series_arrays(result: EvaluationResult) -> dict[str, np.ndarray]:
+    """Flat name -> array mapping for np.savez: rec<k>_<field>."""
+    arrays: dict[str, np.ndarray] = {}
+    for k, e in enumerate(result.recordings):
+        p = e.prediction
+        arrays.update({f"rec{k}_t_s": p.t_s, f"rec{k}_controls": p.controls, f"rec{k}_measured": p.measured,
+                       f"rec{k}_predicted": p.predicted, f"rec{k}_predicted_std": p.predicted_std})
+    return arrays
+
+
+def predictions_from_arrays(arrays: Mapping[str, np.ndarray], names: Sequence[str], reference: str) -> list[Prediction]:
+    """Inverse of series_arrays for recordings named in order; EvaluationError on a missing array."""
+    out = []
+    for k, name in enumerate(names):
+        try:
+            out.append(Prediction(name=name, reference=reference, t_s=np.asarray(arrays[f"rec{k}_t_s"]),
+                                  controls=np.asarray(arrays[f"rec{k}_controls"]),
+                                  measured=np.asarray(arrays[f"rec{k}_measured"]),
+                                  predicted=np.asarray(arrays[f"rec{k}_predicted"]),
+                                  predicted_std=np.asarray(arrays[f"rec{k}_predicted_std"])))
+        except KeyError as err:
+            raise EvaluationError(f"series file has no array {err} for recording {name}") from err
+    return out
+
