@@ -30,6 +30,8 @@ COMMANDS: tuple[str, ...] = (
     "usv_predictor.replay.cmd_simulate",
     "usv_predictor.replay.cmd_convert",
     "usv_predictor.replay.cmd_dataset",
+    "usv_predictor.replay.cmd_evaluate",
+    "usv_predictor.replay.cmd_report",
 )
 EXIT_ERROR = 2
 
