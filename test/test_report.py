@@ -33,14 +33,14 @@ def bags(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def evaluated(bags: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, str]:
+def evaluated(bags: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     out = tmp_path_factory.mktemp("evaluation")
     before = {b.name: bag_sha256(b) for b in bags.iterdir()}
     code = main(["evaluate", str(bags), "--model", "physics", "--dt", "0.5", "--reference", "truth",
                  "--output", str(out), "--json", str(out / "result.json")])
     assert code == 0
     assert before == {b.name: bag_sha256(b) for b in bags.iterdir()}  # bags are only read
-    return out, json.loads((out / "evaluation.json").read_text()), ""
+    return out, json.loads((out / "evaluation.json").read_text())
 
 
 def test_evaluate_writes_json_series_and_prints_the_table(bags, capsys):
@@ -71,7 +71,7 @@ def _md_row(markdown: str, label: str) -> list[str]:
 
 
 def test_report_from_an_evaluation_file_agrees_with_its_json(evaluated, tmp_path):
-    evaluation_dir, _, _ = evaluated
+    evaluation_dir, _ = evaluated
     out = tmp_path / "report"
     assert main(["report", str(evaluation_dir / "evaluation.json"), "--output", str(out)]) == 0
     markdown = (out / "report.md").read_text()
@@ -111,7 +111,7 @@ def test_report_evaluates_bags_itself(bags, tmp_path):
 
 
 def test_report_files_are_replaced_atomically(evaluated, tmp_path, monkeypatch, capsys):
-    evaluation_dir, _, _ = evaluated
+    evaluation_dir, _ = evaluated
     out = tmp_path / "atomic"
     out.mkdir()
     (out / "report.md").write_text("previous report\n")
@@ -130,7 +130,7 @@ def test_report_files_are_replaced_atomically(evaluated, tmp_path, monkeypatch, 
 
 
 def test_report_without_series_has_tables_but_no_track_figures(evaluated, tmp_path):
-    evaluation_dir, data, _ = evaluated
+    evaluation_dir, data = evaluated
     lonely = tmp_path / "evaluation.json"
     lonely.write_text(json.dumps({k: v for k, v in data.items() if k != "series_file"}))
     out = tmp_path / "tables_only"
