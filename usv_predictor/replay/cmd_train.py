@@ -1,0 +1,123 @@
+"""`replay train DATASET.npz --output model.pt`: train the seed 000 network and export the model artifact.
+
+Trains on the dataset's `train` split, early-stops on its `val` split (without one, the training loss
+picks the best epoch), and writes one TorchScript file with its metadata (usv_predictor.artifact).
+The recipe defaults are seed 000 Table 5 (usv_predictor.training). Progress (member, epoch, losses) goes
+to stderr at most every --progress-s seconds; the result (losses, best epoch, time, model_id) to stdout
+and --json.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+NAME = "train"
+HELP = "train the seed 000 motion network on a dataset and export the TorchScript model artifact"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("dataset", type=Path, metavar="DATASET.npz", help="dataset written by `replay dataset`")
+    parser.add_argument("--output", "-o", type=Path, required=True, metavar="MODEL.pt", help="model artifact to write")
+    parser.add_argument("--features", choices=("F0", "NAF", "NTF"), default=None,
+                        help="feature set (default: the dataset's; another set is recomputed from its recordings)")
+    parser.add_argument("--activation", choices=("tanh", "clipped_relu"), default="tanh",
+                        help="hidden activation, seed 000 eq. 2 / eq. 1 (default tanh)")
+    parser.add_argument("--ceiling", type=float, default=10.0, help="clippedReLU ceiling (default 10)")
+    parser.add_argument("--width", type=int, default=100, help="hidden units per layer (default 100)")
+    parser.add_argument("--depth", type=int, default=2, help="hidden layers (default 2)")
+    parser.add_argument("--no-batch-norm", action="store_true", help="leave out batch normalisation")
+    parser.add_argument("--absolute-target", action="store_true",
+                        help="predict [u, v, r] at the next step as in the paper instead of the increment")
+    parser.add_argument("--epochs", type=int, default=500, help="maximum epochs (default 500)")
+    parser.add_argument("--patience", type=int, default=50,
+                        help="stop after this many epochs without validation improvement; 0: never (default 50)")
+    parser.add_argument("--batch-size", type=int, default=128, help="mini-batch size (default 128)")
+    parser.add_argument("--lr", type=float, default=0.005, help="initial learning rate (default 0.005)")
+    parser.add_argument("--lr-schedule", choices=("step", "cosine", "constant"), default="step",
+                        help="learning-rate decay (default step: x0.5 every 100 epochs)")
+    parser.add_argument("--l2", type=float, default=1e-4, help="L2 regularisation (default 1e-4)")
+    parser.add_argument("--multi-step", type=int, default=1, metavar="K",
+                        help="train on closed-loop rollouts of K steps (default 1: one-step, as the paper)")
+    parser.add_argument("--ensemble", type=int, default=1, metavar="E", help="ensemble members (default 1)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads while training (default 1)")
+    parser.add_argument("--vessel", default=None, help="vessel recorded in the model (default: the config's)")
+    parser.add_argument("--horizon-steps", type=int, default=None,
+                        help="default prediction horizon in steps recorded in the model (default: the config's)")
+    parser.add_argument("--dtype", choices=("float32", "float64"), default="float32",
+                        help="arithmetic of the exported rollout (default float32)")
+    parser.add_argument("--progress-s", type=float, default=2.0, help="seconds between progress lines (default 2)")
+
+
+class _Throttled:
+    """Progress to stderr: at most one line per `every` seconds, and always the member's first epoch."""
+
+    def __init__(self, every: float, epochs: int) -> None:
+        self.every = every
+        self.epochs = epochs
+        self.last = -float("inf")
+
+    def __call__(self, member: int, epoch: int, train_loss: float, val_loss: float) -> None:
+        now = time.monotonic()
+        if epoch == 1 or now - self.last >= self.every:
+            self.last = now
+            print(f"member {member} epoch {epoch}/{self.epochs}: train {train_loss:.5g} val {val_loss:.5g}",
+                  file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    # heavy imports here: `replay --help` must not import torch
+    from usv_predictor.artifact import export
+    from usv_predictor.config import load_predictor_config
+    from usv_predictor.dataset import load_dataset
+    from usv_predictor.errors import ConfigError, DatasetError
+    from usv_predictor.models.dnn import DnnConfig
+    from usv_predictor.training import (
+        Samples, TrainingConfig, samples_from_recordings, train_dnn, windows_from_recordings,
+    )  # fmt: skip
+
+    dataset = load_dataset(args.dataset)
+    feature_set = args.features or dataset.feature_set
+    train_split, val_split = dataset.split("train"), dataset.split("val")
+    if len(train_split.X) == 0:
+        raise DatasetError(f"{args.dataset}: the train split has no samples "
+                           f"(splits: {dataset.split_sizes()}); build the dataset with training manoeuvres")
+    if feature_set == dataset.feature_set:
+        train, val = Samples(train_split.X, train_split.Y), Samples(val_split.X, val_split.Y)
+    else:  # the recordings are in the file: recompute the features of the other set
+        train = samples_from_recordings(train_split.recordings(), feature_set)
+        val = samples_from_recordings(val_split.recordings(), feature_set)
+    if args.patience < 0:
+        raise ConfigError(f"--patience {args.patience}: expected >= 0 (0: never stop early)")
+    recipe = TrainingConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr,
+                            lr_schedule=args.lr_schedule, weight_decay=args.l2, patience=args.patience or None,
+                            multi_step=args.multi_step, ensemble=args.ensemble, seed=args.seed, threads=args.threads)
+    config = DnnConfig.for_features(feature_set, width=args.width, depth=args.depth, activation=args.activation,
+                                    ceiling=args.ceiling, batch_norm=not args.no_batch_norm,
+                                    predict_increment=not args.absolute_target)
+    windows = {}
+    if recipe.multi_step > 1:
+        windows = {"train_windows": windows_from_recordings(train_split.recordings(), recipe.multi_step),
+                   "val_windows": windows_from_recordings(val_split.recordings(), recipe.multi_step)}
+    print(f"training {config.feature_set} {config.activation} {config.depth}x{config.width} on {len(train)} samples "
+          f"(val {len(val)}), {recipe.epochs} epochs max, ensemble {recipe.ensemble}", file=sys.stderr)
+    result = train_dnn(config, train, val if len(val) else None, recipe,
+                       progress=_Throttled(args.progress_s, recipe.epochs), **windows)
+    predictor = load_predictor_config()
+    artifact = export(args.output, result.models, config, dt=dataset.dt, vessel=args.vessel or predictor.vessel,
+                      training_data_sha256=dataset.digest(), training={**result.summary(), "dataset": str(args.dataset)},
+                      horizon_steps=args.horizon_steps or round(predictor.horizon_s / dataset.dt), dtype=args.dtype)
+    summary = {
+        "model": str(args.output), "model_id": artifact.model_id, "feature_set": feature_set,
+        "dt": dataset.dt, "ensemble_size": recipe.ensemble, "time_s": result.time_s,
+        "best_epoch": [m.best_epoch for m in result.members], "epochs_run": [m.epochs_run for m in result.members],
+        "train_loss": result.train_loss, "val_loss": result.val_loss, "monitor": result.monitor,
+        "n_train": result.n_train, "n_val": result.n_val, "architecture": config.to_dict(), "recipe": recipe.to_dict(),
+    }
+    print(f"wrote {args.output} (model_id {artifact.model_id}): best epoch {summary['best_epoch']}, "
+          f"train loss {result.train_loss:.5g}, {result.monitor} loss "
+          f"{result.val_loss if result.monitor == 'val' else result.train_loss:.5g}, {result.time_s:.1f} s")
+    return summary
