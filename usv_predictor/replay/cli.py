@@ -30,6 +30,7 @@ COMMANDS: tuple[str, ...] = (
     "usv_predictor.replay.cmd_simulate",
     "usv_predictor.replay.cmd_convert",
     "usv_predictor.replay.cmd_dataset",
+    "usv_predictor.replay.cmd_train",
     "usv_predictor.replay.cmd_evaluate",
     "usv_predictor.replay.cmd_report",
 )
