@@ -178,6 +178,15 @@ def test_stamps_out_of_order_are_sorted_but_a_jump_back_is_an_error(warnings):
                            role="heading", dt=0.5, t_ref_ns=T0, warn=warnings.append)
     assert np.array_equal(swapped.t_ns, sig.t_ns) and np.array_equal(swapped.values, sig.values)
     assert warnings == ["x: topic 'heading': 1 samples out of order (at most 0.050 s); sorted"]
+    warnings.clear()
+    rows = np.array([0, 1, 1, 2, 3, 3, 4])
+    values = sig.values[rows].copy()
+    values[5] += 0.1  # same stamp as row 4, another heading: ambiguous, the first is kept
+    deduped = clean_signal(Signal(sig.t_ns[rows], values, sig.fields), where="x: topic 'heading'", role="heading",
+                           dt=0.5, t_ref_ns=T0, warn=warnings.append)
+    assert np.array_equal(deduped.t_ns, sig.t_ns[:5]) and np.array_equal(deduped.values, sig.values[:5])
+    assert warnings == ["x: topic 'heading': dropped 2 samples with a repeated stamp "
+                        "(1 exact duplicates, 1 with other values (kept the first))"]
     jumped = sig.t_ns.copy()
     jumped[100:] -= 3 * NS  # the clock stepped back 3 s at t = 5 s
     with pytest.raises(BagError, match=r"topic 'heading': time goes back 2.950 s at t=4.950 s .* more than the step 0.5 s"):
@@ -251,6 +260,26 @@ def test_steady_segments_split_a_long_bag_into_manoeuvres(tmp_path, warnings):
     assert parts[1].t0_ns == whole[0].t0_ns + 59 * NS // 2 and parts[1].t_s[0] == 0.0
     rudder_deg = np.degrees(parts[1].controls[:, 0])
     assert np.abs(rudder_deg[:20]).max() < 1e-9 and rudder_deg[21:].min() > 19.9  # 10 s straight, then the turn
+
+
+def test_parallel_reading_gives_the_same_recordings_warnings_and_errors(tmp_path):
+    write(tmp_path / "bags" / "a_clean", crafted_signals(30.0))
+    gappy = crafted_signals(30.0)
+    gappy["heading"] = drop_window(gappy["heading"], 12.0, 14.0)
+    write(tmp_path / "bags" / "b_gappy", gappy)
+    write(tmp_path / "bags" / "c_clean", crafted_signals(20.0))
+    serial_warnings, parallel_warnings = [], []
+    serial = load_recordings([tmp_path / "bags"], 0.5, jobs=1, warn=serial_warnings.append)
+    parallel = load_recordings([tmp_path / "bags"], 0.5, jobs=3, warn=parallel_warnings.append)
+    assert [r.name for r in parallel] == ["a_clean", "b_gappy#1", "b_gappy#2", "c_clean"]
+    assert parallel_warnings == serial_warnings and len(serial_warnings) == 1
+    for a, b in zip(serial, parallel, strict=True):
+        assert a.name == b.name and a.t0_ns == b.t0_ns and np.array_equal(a.nu, b.nu) and np.array_equal(a.truth, b.truth)
+    broken = crafted_signals(20.0)
+    del broken["engine_rpm"]
+    write(tmp_path / "bags" / "d_broken", broken)
+    with pytest.raises(BagError, match=r"d_broken: no topic 'engine_rpm'"):
+        load_recordings([tmp_path / "bags"], 0.5, jobs=2, warn=parallel_warnings.append)
 
 
 # ------------------------------------------------------------------ the command

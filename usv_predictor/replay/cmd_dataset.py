@@ -46,6 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="read ROLE from TOPIC instead of the config's (repeatable), e.g. velocity=ins/twist")
     data.add_argument("--include-calm", action="store_true", help="also read calm/ twins found under directories")
     data.add_argument("--min-duration", type=float, default=10.0, help="skip pieces shorter than this (s, default 10)")
+    data.add_argument("--jobs", type=int, default=0,
+                      help="processes reading bags in parallel (default 0: one per CPU, at most one per bag)")
     data.add_argument("--horizon", type=float, default=None,
                       help="skip recordings with fewer than HORIZON/dt + 1 steps (s; default: no such check)")
 
@@ -113,7 +115,7 @@ def run(args: argparse.Namespace) -> dict:
     test_fraction, test_globs = _fraction_or_globs(args.test, "--test", 0.0)
     recordings = load_recordings(args.bags, dt, config_path=args.config, topics=_topics(args.topic),
                                  segment=args.segment, min_duration_s=args.min_duration, horizon_s=args.horizon,
-                                 include_calm=args.include_calm, warn=warn, progress=progress)
+                                 include_calm=args.include_calm, jobs=args.jobs, warn=warn, progress=progress)
     if not recordings:
         raise DatasetError(f"no usable recording in {[str(b) for b in args.bags]} (see the warnings above)")
     splits = split_by_manoeuvre([r.name for r in recordings], val_fraction=val_fraction, test_fraction=test_fraction,
