@@ -23,7 +23,8 @@ What happens to imperfect input (warnings go through `warn`, by default to stder
 
 segment="steady" splits each bag into manoeuvres (NAME@1, NAME@2, ... numbered through the bag, gap pieces
 included; see steady_cuts for the rule); each is its own manoeuvre for the split.
-Bags are only read, never modified.
+Bags are only read, never modified. With jobs > 1 bags are read by worker processes; the result, warnings
+included, is the same as with one.
 """
 from __future__ import annotations
 
