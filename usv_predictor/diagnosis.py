@@ -1,0 +1,365 @@
+"""Diagnosis: what the calm-water model gets wrong on measured data, the physical cause, and the gain.
+
+Method (simulation error, multiple shooting): every recording is cut into segments (default 20 s every
+5 s); from each segment's measured start state the grey box (usv_predictor.greybox) is rolled out with the
+measured controls and compared with what was measured, channel by channel, in units of the channel's noise:
+    residual = (predicted - measured) / sigma,  channels u, v, r, x_n, y_e, psi (positions from the start).
+Each hypothesis of the DESIGN.md vocabulary is one small term of the grey box (greybox.TERM_NAMES); its
+parameters are fitted by Levenberg-Marquardt on the residuals of the FIT manoeuvres and the hypotheses are
+compared on HELD-OUT manoeuvres (two folds by manoeuvre, each fitted on the other). The comparison is paired
+per held-out segment: d_i = loss_none_i - loss_h_i, z = mean(d) / (std(d) / sqrt(n_eff)) with
+n_eff = segments * stride / horizon (overlapping segments are not independent). A cause is named only when
+z >= Z_CAUSE and it removes at least MIN_GAIN of the calm-water model's held-out loss; a runner-up that is
+itself a cause and that the winner does not beat by z >= Z_CONFOUND is reported as confounded with it.
+Otherwise the answer is `none`: weak evidence is not a diagnosis.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+
+from usv_predictor.errors import UsvPredictorError
+from usv_predictor.greybox import TERM_NAMES, GreyBoxRollout
+from usv_predictor.recording import Recording
+from usv_predictor.vessel import Vessel
+
+SIGMA = (0.05, 0.05, 0.005, 1.0, 1.0, 0.01)  # u, v (m/s), r (rad/s), x_n, y_e (m), psi (rad): noise scales
+Z_CAUSE = 4.0  # evidence (paired z on held-out segments) needed to name a cause
+MIN_GAIN = 0.02  # ... and the share of the calm-water model's held-out loss it must remove
+Z_CONFOUND = 2.0  # a winner not beating a runner-up cause by this much is confounded with it
+
+
+class DiagnosisError(UsvPredictorError):
+    """The data cannot support a diagnosis; the message says what data would be needed."""
+
+
+@dataclass(frozen=True)
+class Term:
+    """One parameter block of a hypothesis: the grey-box term, its scale (for conditioning) and bounds."""
+
+    name: str  # greybox attribute
+    scale: float  # typical size, in SI units
+    low: float
+    high: float
+    start: tuple[float, ...]  # initial value (SI)
+
+
+HYPOTHESES: dict[str, tuple[Term, ...]] = {
+    "none": (),
+    "current": (Term("current_ne", 0.1, -3.0, 3.0, (0.0, 0.0)),),
+    "wind": (Term("wind_ne", 2.0, -40.0, 40.0, (0.5, 0.5)),),
+    "wave_drift": (Term("wave_ne", 0.02, -4.0, 4.0, (0.01, 0.01)),),
+    "rudder_offset": (Term("rudder_offset", 0.01, -0.2, 0.2, (0.0,)),),
+    "yaw_rate_bias": (Term("yaw_rate_bias", 0.002, -0.1, 0.1, (0.0,)),),
+    "heading_offset": (Term("heading_offset", 0.01, -0.6, 0.6, (0.0,)),),
+    "actuator_delay": (Term("actuator_delay", 0.1, 0.0, 5.0, (0.2,)),),
+}
+
+
+@dataclass(frozen=True)
+class Segments:
+    """A batch of multiple-shooting segments (torch float64)."""
+
+    state: torch.Tensor  # (B, 4) measured u, v, r, psi at the segment start
+    controls: torch.Tensor  # (B, H, 2) measured delta, rpm
+    target: torch.Tensor  # (B, H, 6) measured u, v, r, x_n, y_e (from the start), psi
+    weight: torch.Tensor  # (B, H, 6) 1/sigma where measured, 0 where missing (no GNSS)
+    recording: np.ndarray  # (B,) index of the recording each segment comes from
+
+    def select(self, mask: np.ndarray) -> "Segments":
+        m = torch.as_tensor(mask)
+        return Segments(self.state[m], self.controls[m], self.target[m], self.weight[m], self.recording[mask])
+
+    def __len__(self) -> int:
+        return int(self.state.shape[0])
+
+
+def make_segments(recordings: Sequence[Recording], horizon_s: float = 20.0, stride_s: float = 5.0,
+                  sigma: Sequence[float] = SIGMA) -> Segments:
+    """Cut every recording into segments of horizon_s starting every stride_s."""
+    states, controls, targets, weights, index = [], [], [], [], []
+    for i, rec in enumerate(recordings):
+        h, stride = int(round(horizon_s / rec.dt)), max(1, int(round(stride_s / rec.dt)))
+        for k in range(0, len(rec) - h, stride):
+            pos = rec.position[k + 1:k + h + 1] - rec.position[k]
+            target = np.column_stack([rec.nu[k + 1:k + h + 1], pos, rec.psi[k + 1:k + h + 1]])
+            finite = np.isfinite(target)
+            states.append([*rec.nu[k], rec.psi[k]])
+            controls.append(rec.controls[k:k + h])
+            targets.append(np.where(finite, target, 0.0))
+            weights.append(finite / np.asarray(sigma))
+            index.append(i)
+    if not states:
+        raise DiagnosisError(f"no recording is longer than the {horizon_s:.0f} s segment horizon; record longer manoeuvres")
+    as_t = lambda a: torch.tensor(np.array(a), dtype=torch.float64)  # noqa: E731
+    return Segments(as_t(states), as_t(controls), as_t(targets), as_t(weights), np.array(index))
+
+
+def residuals(model: GreyBoxRollout, seg: Segments) -> torch.Tensor:
+    """Weighted residuals (B, H, 6) of the rollout against the measurements."""
+    with torch.no_grad():
+        predicted = model(seg.state, seg.controls)[0]  # (B, H, 6)
+    return (predicted - seg.target) * seg.weight
+
+
+def loss(model: GreyBoxRollout, seg: Segments) -> float:
+    """Mean squared weighted residual (1.0 = errors at the noise scale)."""
+    r = residuals(model, seg)
+    return float((r * r).sum() / torch.count_nonzero(seg.weight))
+
+
+def segment_losses(model: GreyBoxRollout, seg: Segments) -> np.ndarray:
+    """(B,) mean squared weighted residual of each segment."""
+    r = residuals(model, seg)
+    return ((r * r).sum(dim=(1, 2)) / torch.count_nonzero(seg.weight, dim=(1, 2)).clamp(min=1)).numpy()
+
+
+def set_terms(model: GreyBoxRollout, values: dict[str, Sequence[float]]) -> None:
+    """Zero every extension term, then set the given ones (SI)."""
+    with torch.no_grad():
+        for name in TERM_NAMES:
+            getattr(model, name).zero_()
+        for name, value in values.items():
+            getattr(model, name)[:] = torch.as_tensor(value, dtype=torch.float64)
+
+
+@dataclass(frozen=True)
+class Fit:
+    hypothesis: str
+    terms: dict[str, tuple[float, ...]]  # SI values per grey-box term
+    loss: float  # on the data it was fitted on
+    std: dict[str, tuple[float, ...]]  # standard errors (SI), conservative (see fit_hypothesis)
+    iterations: int
+    seconds: float
+
+
+def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str, *, max_iter: int = 12) -> Fit:
+    """Levenberg-Marquardt on the weighted residuals, finite-difference Jacobian in scaled parameters.
+
+    Standard errors come from (J^T J)^-1 s^2, inflated by the steps per segment because the residuals of
+    one segment are strongly correlated (a conservative effective sample size: one per segment).
+    """
+    started = time.perf_counter()
+    terms = HYPOTHESES[hypothesis]
+    sizes = [len(t.start) for t in terms]
+    scale = np.concatenate([[t.scale] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
+    low = np.concatenate([[t.low] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
+    high = np.concatenate([[t.high] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
+    theta = np.concatenate([t.start for t in terms]) / scale if terms else np.zeros(0)
+
+    def unpack(p: np.ndarray) -> dict[str, tuple[float, ...]]:
+        values, k = {}, 0
+        for t, n in zip(terms, sizes):
+            values[t.name] = tuple(float(x) for x in np.clip(p[k:k + n] * scale[k:k + n], low[k:k + n], high[k:k + n]))
+            k += n
+        return values
+
+    def res(p: np.ndarray) -> np.ndarray:
+        set_terms(model, unpack(p))
+        return residuals(model, seg).flatten().numpy()
+
+    count = max(int(torch.count_nonzero(seg.weight)), 1)
+    r = res(theta)
+    cost = float(r @ r)
+    lam, it = 1e-2, 0
+    jac = np.zeros((len(r), len(theta)))
+    for it in range(1, max_iter + 1 if len(theta) else 1):
+        eps = 1e-3
+        for j in range(len(theta)):
+            step = theta.copy()
+            step[j] += eps
+            jac[:, j] = (res(step) - r) / eps
+        jtj, jtr = jac.T @ jac, jac.T @ r
+        improved = False
+        for _ in range(8):
+            delta = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-9), -jtr)
+            trial = np.clip(theta + delta, low / scale, high / scale)
+            r_trial = res(trial)
+            c_trial = float(r_trial @ r_trial)
+            if c_trial < cost:
+                theta, r, improved = trial, r_trial, True
+                converged = (cost - c_trial) < 1e-6 * cost
+                cost, lam = c_trial, lam * 0.3
+                break
+            lam *= 10.0
+        if not improved or converged:
+            break
+    values = unpack(theta)
+    std: dict[str, tuple[float, ...]] = {}
+    if len(theta):
+        steps = seg.target.shape[1]
+        s2 = cost / max(count - len(theta), 1)
+        try:
+            cov = np.linalg.inv(jac.T @ jac) * s2 * steps
+        except np.linalg.LinAlgError:
+            cov = np.full((len(theta), len(theta)), np.inf)
+        sd = np.sqrt(np.abs(np.diag(cov))) * scale
+        k = 0
+        for t, n in zip(terms, sizes):
+            std[t.name] = tuple(float(x) for x in sd[k:k + n])
+            k += n
+    set_terms(model, values)
+    return Fit(hypothesis, values, cost / count, std, it, time.perf_counter() - started)
+
+
+# ---- from grey-box terms to the DESIGN.md vocabulary -------------------------------------------------
+
+def _compass(north: float, east: float) -> float:
+    return math.degrees(math.atan2(east, north)) % 360.0
+
+
+def physical_parameters(hypothesis: str, terms: dict[str, Sequence[float]]) -> dict[str, float]:
+    """Grey-box terms (SI) -> the diagnosis vocabulary: speeds, compass directions, degrees, seconds."""
+    if hypothesis == "current":
+        n, e = terms["current_ne"]
+        return {"speed_mps": math.hypot(n, e), "direction_to_deg": _compass(n, e)}
+    if hypothesis == "wind":
+        n, e = terms["wind_ne"]  # velocity toward; the vocabulary says where it blows FROM
+        return {"speed_mps": math.hypot(n, e), "direction_from_deg": _compass(-n, -e)}
+    if hypothesis == "wave_drift":
+        n, e = terms["wave_ne"]  # zeta_a^2 along the direction the waves come from
+        return {"significant_height_m": 2.0 * math.sqrt(math.hypot(n, e)), "direction_from_deg": _compass(n, e)}
+    if hypothesis == "rudder_offset":
+        return {"offset_deg": math.degrees(terms["rudder_offset"][0])}
+    if hypothesis == "yaw_rate_bias":
+        return {"bias_deg_s": math.degrees(terms["yaw_rate_bias"][0])}
+    if hypothesis == "heading_offset":
+        return {"offset_deg": math.degrees(terms["heading_offset"][0])}
+    if hypothesis == "actuator_delay":
+        return {"delay_s": terms["actuator_delay"][0]}
+    return {}
+
+
+# ---- the diagnosis -----------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Evidence:
+    hypothesis: str
+    heldout_loss: float  # mean over the held-out segments of both folds, each fold fitted on the other
+    gain_vs_none: float  # relative reduction of the calm-water model's held-out loss
+    z_vs_none: float  # paired evidence on held-out segments (module docstring)
+    z_vs_best: float  # how clearly the winner beats this hypothesis (0 for the winner)
+    fold_parameters: tuple[dict[str, float], ...]  # the physical parameters fitted on each fold
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    cause: str
+    parameters: dict[str, float]
+    uncertainty: dict[str, float]
+    confounded_with: tuple[str, ...]
+    evidence: tuple[Evidence, ...]  # every hypothesis, best first
+    fit: Fit  # the winner refitted on all manoeuvres (for `none`: the calm-water model)
+    folds: tuple[tuple[str, ...], tuple[str, ...]]  # manoeuvre names of the two folds
+    message: str
+    seconds: float = 0.0
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+
+def check_data(recordings: Sequence[Recording]) -> list[str]:
+    """Refuse what cannot be diagnosed; return notes on what limits the answer."""
+    if len(recordings) < 2:
+        raise DiagnosisError(
+            f"{len(recordings)} manoeuvre(s): a diagnosis needs at least two (it fits on one and checks on the "
+            "other); add a turning circle each way and a zig-zag")
+    notes = []
+    turns = [float(np.sign(np.nanmean(rec.controls[:, 0]))) for rec in recordings]
+    if not (any(t > 0 for t in turns) and any(t < 0 for t in turns)):
+        notes.append("all manoeuvres turn the same way: rudder offset and current/wind can be confounded; "
+                     "turn both ways to separate them")
+    headings = np.concatenate([np.mod(rec.psi, 2 * math.pi) for rec in recordings])
+    coverage = len(np.unique(np.floor(headings / (math.pi / 4)))) / 8.0
+    if coverage < 0.75:
+        notes.append(f"headings cover {coverage * 100:.0f} % of the compass: heading-dependent causes (current, "
+                     "wind, waves, heading offset) are poorly separated; add a full turning circle")
+    return notes
+
+
+def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Sequence[str] | None = None,
+             horizon_s: float = 20.0, stride_s: float = 5.0, substeps: int = 1,
+             progress: Callable[[str], None] = lambda _: None) -> Diagnosis:
+    """Name the cause of what the calm-water grey box gets wrong on these recordings."""
+    started = time.perf_counter()
+    notes = check_data(recordings)
+    names = list(hypotheses or HYPOTHESES)
+    if "none" not in names:
+        names.insert(0, "none")
+    dt = recordings[0].dt
+    seg = make_segments(recordings, horizon_s, stride_s)
+    folds = _folds(recordings)
+    model = GreyBoxRollout(vessel, dt=dt, substeps=substeps)
+    per_segment: dict[str, np.ndarray] = {}
+    fold_params: dict[str, tuple[dict[str, float], ...]] = {}
+    for name in names:
+        losses, params = [], []
+        for fit_fold, test_fold in ((0, 1), (1, 0)):
+            fit = fit_hypothesis(model, seg.select(np.isin(seg.recording, folds[fit_fold])), name)
+            losses.append(segment_losses(model, seg.select(np.isin(seg.recording, folds[test_fold]))))
+            params.append(physical_parameters(name, fit.terms))
+        per_segment[name], fold_params[name] = np.concatenate(losses), tuple(params)
+        progress(f"{name:15s} held-out loss {per_segment[name].mean():9.3f}")
+    n_eff = max(len(per_segment["none"]) * stride_s / horizon_s, 2.0)
+
+    def z(a: np.ndarray, b: np.ndarray) -> float:
+        d = a - b
+        sd = float(np.std(d, ddof=1))
+        return float(np.mean(d)) / (sd / math.sqrt(n_eff)) if sd > 0 else (math.inf if np.mean(d) > 0 else 0.0)
+
+    base = per_segment["none"]
+    ranked = sorted(names, key=lambda n: per_segment[n].mean())
+    best = ranked[0]
+    evidence = tuple(Evidence(n, float(per_segment[n].mean()), float(1.0 - per_segment[n].mean() / base.mean()),
+                              z(base, per_segment[n]), 0.0 if n == best else z(per_segment[n], per_segment[best]),
+                              fold_params[n]) for n in ranked)
+    top = evidence[0]
+    cause, confounded, message = "none", (), "the calm-water model explains the held-out data within the noise"
+    if top.hypothesis != "none" and top.z_vs_none >= Z_CAUSE and top.gain_vs_none >= MIN_GAIN:
+        cause = top.hypothesis
+        confounded = tuple(e.hypothesis for e in evidence[1:] if e.hypothesis != "none"
+                           and e.z_vs_none >= Z_CAUSE and e.z_vs_best < Z_CONFOUND)
+        message = (f"{cause} removes {top.gain_vs_none * 100:.0f} % of the calm-water model's held-out error "
+                   f"(z = {top.z_vs_none:.1f})")
+        if confounded:
+            message += f"; {', '.join(confounded)} explain(s) it almost as well: the data cannot tell them apart"
+    elif top.hypothesis != "none":
+        message = (f"best hypothesis {top.hypothesis} removes {top.gain_vs_none * 100:.1f} % of the held-out error "
+                   f"with z = {top.z_vs_none:.1f} (a cause needs z >= {Z_CAUSE:g} and >= {MIN_GAIN * 100:.0f} %): "
+                   "no cause named")
+    final = fit_hypothesis(model, seg, cause)
+    parameters = physical_parameters(cause, final.terms)
+    uncertainty = _physical_uncertainty(cause, final)
+    return Diagnosis(cause, parameters, uncertainty, confounded, tuple(evidence), final,
+                     (tuple(recordings[i].name for i in folds[0]), tuple(recordings[i].name for i in folds[1])),
+                     message, time.perf_counter() - started, tuple(notes))
+
+
+def _folds(recordings: Sequence[Recording]) -> tuple[list[int], list[int]]:
+    """Two folds by manoeuvre, alternating in order of the mean rudder so both folds turn both ways."""
+    order = sorted(range(len(recordings)), key=lambda i: float(np.nanmean(recordings[i].controls[:, 0])))
+    return order[0::2], order[1::2]
+
+
+def _physical_uncertainty(cause: str, fit: Fit) -> dict[str, float]:
+    """Standard errors in the vocabulary's units (first-order propagation for vectors)."""
+    if cause in ("current", "wind", "wave_drift"):
+        term = HYPOTHESES[cause][0].name
+        n, e = fit.terms[term]
+        sn, se = fit.std[term]
+        magnitude = math.hypot(n, e)
+        direction_sd = math.degrees(math.hypot(sn, se) / max(magnitude, 1e-9))
+        if cause == "wave_drift":
+            # H_s = 2 sqrt(|w|): dH = dw / sqrt(|w|)
+            return {"significant_height_m": math.hypot(sn, se) / max(math.sqrt(magnitude), 1e-9),
+                    "direction_deg": min(direction_sd, 180.0)}
+        return {"speed_mps": math.hypot(sn, se), "direction_deg": min(direction_sd, 180.0)}
+    if cause == "none":
+        return {}
+    term = HYPOTHESES[cause][0].name
+    sd = fit.std[term][0]
+    key = next(iter(physical_parameters(cause, fit.terms)))
+    return {key: math.degrees(sd) if key.endswith("_deg") or key.endswith("_deg_s") else sd}
