@@ -142,10 +142,11 @@ class DnnRollout(nn.Module):
             "hidden_b": torch.stack([b[None, :] for _, b in hidden]) if hidden else torch.zeros(0, 1, width, dtype=torch.float64),
         }
 
-    def _activation(self, h: torch.Tensor) -> torch.Tensor:
+    def _activation_(self, h: torch.Tensor) -> torch.Tensor:
+        """In place: h is a fresh intermediate, so no new tensor is needed."""
         if self.clipped:
-            return torch.clamp(h, 0.0, self.ceiling)
-        return torch.tanh(h)
+            return h.clamp_(0.0, self.ceiling)
+        return h.tanh_()
 
     def _psi_features_(self, s: torch.Tensor) -> None:
         """In place: the last T columns of s, psi + phase, become the psi features."""
@@ -175,9 +176,9 @@ class DnnRollout(nn.Module):
         steps: List[torch.Tensor] = []
         for k in range(horizon):
             s_lin, pre = torch.baddbmm(per_step[k], s, self.m_s).split(sections, dim=2)  # (E, B, S), (E, B, W)
-            h = self._activation(pre)
+            h = self._activation_(pre)
             for i in range(len(hidden_w)):
-                h = self._activation(torch.baddbmm(hidden_b[i], h, hidden_w[i]))  # (E, B, W)
+                h = self._activation_(torch.baddbmm(hidden_b[i], h, hidden_w[i]))  # (E, B, W)
             s = torch.baddbmm(s_lin, h, self.head)  # (E, B, S): [u, v, r, psi] at k+1, psi-feature arguments
             self._psi_features_(s)
             steps.append(s)
