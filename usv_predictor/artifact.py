@@ -135,11 +135,12 @@ class DnnRollout(nn.Module):
             first_bias = first_bias - math.pi * w1[:, col["psi"]]
         bias[0, s:] = first_bias
         hidden = layers[1:-1]
+        no_hidden = torch.zeros(0, width, width, dtype=torch.float64), torch.zeros(0, 1, width, dtype=torch.float64)
         return {
             "m_s": m_s, "w_c": w_c, "bias": bias, "head": head,
             "phase": torch.tensor(phase, dtype=torch.float64).reshape(1, n_trig),
-            "hidden_w": torch.stack([w.T for w, _ in hidden]) if hidden else torch.zeros(0, width, width, dtype=torch.float64),
-            "hidden_b": torch.stack([b[None, :] for _, b in hidden]) if hidden else torch.zeros(0, 1, width, dtype=torch.float64),
+            "hidden_w": torch.stack([w.T for w, _ in hidden]) if hidden else no_hidden[0],  # (depth-1, W, W)
+            "hidden_b": torch.stack([b[None, :] for _, b in hidden]) if hidden else no_hidden[1],  # (depth-1, 1, W)
         }
 
     def _activation_(self, h: torch.Tensor) -> torch.Tensor:
@@ -300,7 +301,7 @@ def export(path: str | Path, members: Sequence[DnnModel], config: DnnConfig, *, 
     norm = members[0].normalisation()
     for m in members[1:]:
         other = m.normalisation()
-        if not all(np.allclose(getattr(norm, k), getattr(other, k)) for k in ("feature_mean", "feature_std", "target_mean", "target_std")):
+        if not all(np.allclose(a, b) for a, b in zip(norm.to_dict().values(), other.to_dict().values())):
             raise ModelError(f"model {path}: ensemble members were trained with different normalisations")
     module = DnnRollout([m.eval() for m in members], dt, getattr(torch, dtype))
     metadata = {

@@ -256,7 +256,8 @@ class _Objective:
         self.multi = recipe.multi_step > 1
         if self.multi:
             assert windows is not None
-            self.tensors = [torch.as_tensor(a, dtype=torch.float32) for a in (windows.state0, windows.controls, windows.targets)]
+            arrays = (windows.state0, windows.controls, windows.targets)
+            self.tensors = [torch.as_tensor(a, dtype=torch.float32) for a in arrays]
             self.dt = windows.dt
         else:
             assert samples is not None
@@ -275,7 +276,8 @@ class _Objective:
 
 
 def _train_member(config: DnnConfig, recipe: TrainingConfig, norm: Normalisation, train: _Objective,
-                  val: _Objective | None, seed: int, member: int, progress: Progress | None) -> tuple[DnnModel, MemberResult]:
+                  val: _Objective | None, seed: int, member: int,
+                  progress: Progress | None) -> tuple[DnnModel, MemberResult]:
     with reproducible(seed, recipe.threads):
         model = DnnModel(config, norm)
         optimizer = _optimizer(model, recipe)
@@ -337,9 +339,8 @@ def train_dnn(config: DnnConfig, train: Samples, val: Samples | None = None, rec
                 raise ConfigError(f"{name} windows have {w.controls.shape[1]} steps, multi_step is {recipe.multi_step}")
     norm = fit_normalisation(train.x, train.y, config.predict_increment)
     train_obj = _Objective(config, recipe, train, train_windows)
-    val_obj = _Objective(config, recipe, val, val_windows) if (val_windows if recipe.multi_step > 1 else val) is not None else None
-    if val_obj is not None and val_obj.n == 0:
-        val_obj = None
+    val_data = val_windows if recipe.multi_step > 1 else val  # validation uses the training objective
+    val_obj = _Objective(config, recipe, val, val_windows) if val_data is not None and len(val_data) else None
     started = time.perf_counter()
     models, members = [], []
     for m in range(recipe.ensemble):

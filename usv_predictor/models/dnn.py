@@ -97,7 +97,8 @@ class Normalisation:
     target_std: np.ndarray  # (3,)
 
     def to_dict(self) -> dict[str, list[float]]:
-        return {k: [float(x) for x in getattr(self, k)] for k in ("feature_mean", "feature_std", "target_mean", "target_std")}
+        names = ("feature_mean", "feature_std", "target_mean", "target_std")
+        return {k: [float(x) for x in getattr(self, k)] for k in names}
 
 
 def fit_normalisation(x: np.ndarray, y: np.ndarray, predict_increment: bool) -> Normalisation:
