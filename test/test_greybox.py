@@ -41,12 +41,18 @@ def float_rollout(model: ManoeuvringModel, sea: SeaLoads, state, controls, dt: f
 
     h = dt / substeps
     out = []
-    for delta, rpm in controls:
-        for _ in range(substeps):
-            k1 = f(x, delta, rpm)
-            k2 = f([a + 0.5 * h * b for a, b in zip(x, k1)], delta, rpm)
-            k3 = f([a + 0.5 * h * b for a, b in zip(x, k2)], delta, rpm)
-            k4 = f([a + h * b for a, b in zip(x, k3)], delta, rpm)
+    for k, (delta, rpm) in enumerate(controls):
+        nxt = controls[min(k + 1, len(controls) - 1)]
+
+        def at(a):  # first-order hold between the samples
+            return delta + a * (nxt[0] - delta), rpm + a * (nxt[1] - rpm)
+
+        for j in range(substeps):
+            c0, c1, c2 = at(j / substeps), at((j + 0.5) / substeps), at((j + 1) / substeps)
+            k1 = f(x, *c0)
+            k2 = f([a + 0.5 * h * b for a, b in zip(x, k1)], *c1)
+            k3 = f([a + 0.5 * h * b for a, b in zip(x, k2)], *c1)
+            k4 = f([a + h * b for a, b in zip(x, k3)], *c2)
             x = [a + h / 6 * (b1 + 2 * b2 + 2 * b3 + b4) for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4)]
         c, s = math.cos(x[2]), math.sin(x[2])
         out.append([x[3] + sea.current_n * c + sea.current_e * s, x[4] - sea.current_n * s + sea.current_e * c,

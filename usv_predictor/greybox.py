@@ -9,7 +9,9 @@ Interface (the model artifact's, see usv_predictor/artifact.py):
     forward(state (B, 4) [u, v, r, psi] as MEASURED, controls (B, H, 2) [delta rad, rpm] as REPORTED)
       -> (1, B, H, 6) [u, v, r, x_n, y_e, psi] as they will be MEASURED at dt, 2 dt, ... H dt,
          positions relative to the start (NED, m), psi continuous.
-Controls are held over each step (controls[:, k] from step k to k+1), integrated by RK4 with `substeps`.
+controls[:, k] is the reported control at step k; between samples the actuators move linearly (first-order
+hold: the rudder of a recording changes during a step, and holding it would lag the response by half a step);
+the last sample is held. RK4 with `substeps` per step.
 
 Extension terms (all zero for the calm-water model; each is one diagnosis hypothesis, DESIGN.md):
     current_ne (2,) current velocity north/east (m/s);     wind_ne (2,) wind velocity (toward) north/east (m/s)
@@ -186,14 +188,23 @@ class GreyBoxRollout(nn.Module):
                            state[:, 2] - self.yaw_rate_bias[0]]
         h = self.dt / self.substeps
         outputs: List[Tensor] = []
-        for k in range(controls.shape[1]):
-            delta = controls[:, k, 0] + self.rudder_offset[0]
-            rpm = controls[:, k, 1]
-            for _ in range(self.substeps):
-                k1 = self._derivative(x, delta, rpm)
-                k2 = self._derivative([a + 0.5 * h * b for a, b in zip(x, k1)], delta, rpm)
-                k3 = self._derivative([a + 0.5 * h * b for a, b in zip(x, k2)], delta, rpm)
-                k4 = self._derivative([a + h * b for a, b in zip(x, k3)], delta, rpm)
+        steps = controls.shape[1]
+        for k in range(steps):
+            # first-order hold: the reported controls are samples, the actuators move between them
+            c0 = controls[:, k]
+            dc = controls[:, min(k + 1, steps - 1)] - c0
+            for j in range(self.substeps):
+                a0 = float(j) / self.substeps
+                a1 = (float(j) + 0.5) / self.substeps
+                a2 = (float(j) + 1.0) / self.substeps
+                u0 = c0 + a0 * dc
+                u1 = c0 + a1 * dc
+                u2 = c0 + a2 * dc
+                d0, d1, d2 = u0[:, 0] + self.rudder_offset[0], u1[:, 0] + self.rudder_offset[0], u2[:, 0] + self.rudder_offset[0]
+                k1 = self._derivative(x, d0, u0[:, 1])
+                k2 = self._derivative([a + 0.5 * h * b for a, b in zip(x, k1)], d1, u1[:, 1])
+                k3 = self._derivative([a + 0.5 * h * b for a, b in zip(x, k2)], d1, u1[:, 1])
+                k4 = self._derivative([a + h * b for a, b in zip(x, k3)], d2, u2[:, 1])
                 x = [a + h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4) for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4)]
             c, s = torch.cos(x[2]), torch.sin(x[2])
             u_g = x[3] + self.current_ne[0] * c + self.current_ne[1] * s
@@ -205,3 +216,42 @@ class GreyBoxRollout(nn.Module):
     @torch.jit.ignore
     def terms(self) -> Dict[str, List[float]]:
         return {name: getattr(self, name).detach().tolist() for name in TERM_NAMES}
+
+
+class GreyBoxPredictor:
+    """A GreyBoxRollout behind the artifact's predict/metadata interface (numpy in, numpy out)."""
+
+    def __init__(self, rollout: GreyBoxRollout, metadata: Dict[str, object]) -> None:
+        self.rollout = rollout
+        self.metadata = dict(metadata)
+
+    def predict(self, state, controls):  # (B, 4), (B, H, 2) -> (1, B, H, 6)
+        with torch.no_grad():
+            return self.rollout(torch.as_tensor(state, dtype=torch.float64),
+                                torch.as_tensor(controls, dtype=torch.float64)).numpy()
+
+
+def greybox_metadata(vessel: Vessel, rollout: GreyBoxRollout, *, model_type: str = "greybox",
+                     training_data_sha256: str = "", horizon_steps: int = 120, training: Dict[str, object] | None = None
+                     ) -> Dict[str, object]:
+    """The artifact metadata of a grey box (usv_predictor/artifact.py REQUIRED_KEYS)."""
+    from usv_predictor.artifact import UNITS
+
+    return {
+        "model_type": model_type, "feature_set": "physics", "feature_names": [],
+        "state_layout": ["u", "v", "r", "psi"], "control_layout": ["delta", "rpm"],
+        "output_layout": ["u", "v", "r", "x_n", "y_e", "psi"], "dt": rollout.dt, "horizon_steps": int(horizon_steps),
+        "normalisation": {}, "vessel": vessel.name, "training_data_sha256": training_data_sha256,
+        "ensemble_size": 1,
+        "architecture": {"structure": "MMG (Yasukawa & Yoshimura 2015)", "substeps": rollout.substeps,
+                         "hull": dict(zip(HULL_NAMES, rollout.hull.detach().tolist())), "terms": rollout.terms()},
+        "training": dict(training or {}), "units": dict(UNITS),
+    }
+
+
+def greybox_predictor(vessel: Vessel, dt: float, substeps: int = 2) -> GreyBoxPredictor:
+    """The calm-water grey box of a vessel as a predictor (the physics baseline of evaluations)."""
+    rollout = GreyBoxRollout(vessel, dt=dt, substeps=substeps)
+    meta = greybox_metadata(vessel, rollout, model_type="greybox (calm-water preset)")
+    meta["model_id"] = f"physics-{vessel.name}"
+    return GreyBoxPredictor(rollout, meta)
