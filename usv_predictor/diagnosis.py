@@ -371,3 +371,109 @@ def _physical_uncertainty(cause: str, fit: Fit) -> dict[str, float]:
     sd = fit.std[term][0]
     key = next(iter(physical_parameters(cause, fit.terms)))
     return {key: math.degrees(sd) if key.endswith("_deg") or key.endswith("_deg_s") else sd}
+
+
+# ---- what the calm-water model gets wrong, in a naval architect's terms -------------------------------
+
+def discrepancy(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments,
+                recordings: Sequence[Recording]) -> dict[str, object]:
+    """Structure of the calm-water model's segment errors: track drift, asymmetry, dependence on heading.
+
+    - track drift: the end-of-segment position error divided by the horizon, averaged as a vector
+      (a current shows as a steady drift toward a fixed direction);
+    - port/starboard asymmetry: mean yaw-rate error (measured - predicted) in port and starboard turns
+      (a rudder offset turns one way better than the other);
+    - heading dependence: the first harmonic in the heading of the along/cross-track error rates
+      (heading-dependent loads such as wind and waves, or a misaligned compass).
+    """
+    set_terms(model, {})
+    with torch.no_grad():
+        predicted = model(seg.state, seg.controls)[0].numpy()  # (B, H, 6)
+    target = seg.target.numpy()
+    valid = seg.weight.numpy()[:, -1, 3] > 0
+    horizon = target.shape[1] * recordings[0].dt
+    err = (target[:, -1, 3:5] - predicted[:, -1, 3:5]) / horizon  # (B, 2) m/s, measured minus predicted
+    rate = err[valid]
+    drift = rate.mean(axis=0) if len(rate) else np.zeros(2)
+    yaw_err = (target[:, :, 2] - predicted[:, :, 2]).mean(axis=1)
+    side = np.sign(seg.controls[:, :, 0].mean(dim=1).numpy())
+    psi0 = seg.state[:, 3].numpy()[valid]
+    along = rate[:, 0] * np.cos(psi0) + rate[:, 1] * np.sin(psi0)
+    cross = -rate[:, 0] * np.sin(psi0) + rate[:, 1] * np.cos(psi0)
+    design = np.column_stack([np.ones_like(psi0), np.cos(psi0), np.sin(psi0)])
+
+    def harmonic(values: np.ndarray) -> dict[str, float]:
+        if len(values) < 4:
+            return {"mean_mps": float("nan"), "amplitude_mps": float("nan"), "phase_deg": float("nan")}
+        (mean, a, b), *_ = np.linalg.lstsq(design, values, rcond=None)
+        return {"mean_mps": float(mean), "amplitude_mps": float(math.hypot(a, b)),
+                "phase_deg": _compass(a, b)}
+
+    return {
+        "track_drift_speed_mps": float(math.hypot(*drift)),
+        "track_drift_direction_to_deg": _compass(drift[0], drift[1]),
+        "yaw_rate_error_starboard_turns_deg_s": float(np.degrees(yaw_err[side > 0].mean())) if (side > 0).any() else None,
+        "yaw_rate_error_port_turns_deg_s": float(np.degrees(yaw_err[side < 0].mean())) if (side < 0).any() else None,
+        "along_track_error_rate_vs_heading": harmonic(along),
+        "cross_track_error_rate_vs_heading": harmonic(cross),
+        "segments": int(len(seg)),
+        "segment_horizon_s": horizon,
+    }
+
+
+# ---- the extended model and its gain on held-out manoeuvres --------------------------------------------
+
+def extended_rollout(vessel: Vessel, dt: float, terms: dict[str, Sequence[float]], substeps: int = 2) -> GreyBoxRollout:
+    rollout = GreyBoxRollout(vessel, dt=dt, substeps=substeps)
+    set_terms(rollout, terms)
+    return rollout
+
+
+def measure_gain(recordings: Sequence[Recording], vessel: Vessel, diagnosis: Diagnosis, *,
+                 horizons_s: Sequence[float] = (10.0, 30.0, 60.0), stride_s: float = 5.0,
+                 horizon_s: float = 20.0, segment_stride_s: float = 5.0) -> dict[str, object]:
+    """Every evaluation metric of the calm-water and the extended model on manoeuvres held out from the fit.
+
+    Each fold's manoeuvres are predicted by the extension fitted on the other fold only.
+    """
+    from usv_predictor import evaluation
+    from usv_predictor.greybox import GreyBoxPredictor, greybox_metadata
+
+    dt = recordings[0].dt
+    base_rollout = GreyBoxRollout(vessel, dt=dt, substeps=2)
+    baseline = GreyBoxPredictor(base_rollout, {**greybox_metadata(vessel, base_rollout), "model_id": "calm-water"})
+    names = [r.name for r in recordings]
+    before, after = [], []
+    seg = make_segments(recordings, horizon_s, segment_stride_s)
+    fitter = scripted_rollout(vessel, dt)
+    for fit_fold, test_fold in ((0, 1), (1, 0)):
+        fit_names, test_names = diagnosis.folds[fit_fold], diagnosis.folds[test_fold]
+        fit_idx = [names.index(n) for n in fit_names]
+        held_out = [recordings[names.index(n)] for n in test_names]
+        fit = fit_hypothesis(fitter, seg.select(np.isin(seg.recording, fit_idx)), diagnosis.cause)
+        extended = extended_rollout(vessel, dt, fit.terms)
+        predictor = GreyBoxPredictor(extended, {**greybox_metadata(vessel, extended), "model_id": "extended"})
+        before += evaluation.evaluate(baseline, held_out, horizons_s=horizons_s, stride_s=stride_s).recordings
+        after += evaluation.evaluate(predictor, held_out, horizons_s=horizons_s, stride_s=stride_s).recordings
+    base_summary = evaluation.summarise(before, horizons_s)
+    ext_summary = evaluation.summarise(after, horizons_s)
+    gain = {}
+    for key, b in base_summary.items():
+        a = ext_summary.get(key)
+        if key in ("recordings", "turning_circles", "zigzags") or a is None or b is None or not b:
+            continue
+        gain[key] = (b - a) / abs(b)  # relative improvement: + is better (every summary metric is an error)
+    return {"baseline": base_summary, "extended": ext_summary, "relative_improvement": gain,
+            "per_recording": {"baseline": [e.to_json() for e in before], "extended": [e.to_json() for e in after]}}
+
+
+def export_extended(path, vessel: Vessel, diagnosis: Diagnosis, dt: float, *, data_digest: str = ""):
+    """The extended grey box (calm-water model + the named cause, refitted on all manoeuvres) as an artifact."""
+    from usv_predictor.artifact import export_module
+    from usv_predictor.greybox import greybox_metadata
+
+    rollout = extended_rollout(vessel, dt, diagnosis.fit.terms)
+    meta = greybox_metadata(vessel, rollout, model_type=f"greybox+{diagnosis.cause}", training_data_sha256=data_digest,
+                            training={"method": "diagnosis (usv_predictor.diagnosis)", "cause": diagnosis.cause,
+                                      "parameters": diagnosis.parameters})
+    return export_module(path, rollout, meta)

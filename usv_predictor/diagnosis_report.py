@@ -1,0 +1,151 @@
+"""The diagnosis report: Markdown + PNG plots of the evidence, the tracks and the errors before/after."""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from usv_predictor.recording import Recording
+from usv_predictor.vessel import Vessel
+
+
+def _fmt(value: Any, digits: int = 3) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "—"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}"
+    return str(value)
+
+
+def _evidence_plot(out: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    from usv_predictor.plots import save_figure
+
+    evidence = out["evidence"]
+    fig = Figure(figsize=(7.0, 3.2))
+    ax = fig.add_subplot()
+    names = [e["hypothesis"] for e in evidence]
+    losses = [e["heldout_loss"] for e in evidence]
+    colours = ["tab:red" if n == out["cause"] else ("tab:gray" if n == "none" else "tab:blue") for n in names]
+    ax.barh(names[::-1], losses[::-1], color=colours[::-1])
+    ax.set_xscale("log")
+    ax.set_xlabel("held-out loss (mean squared error in noise units, log scale)")
+    ax.set_title(f"Evidence: cause = {out['cause']}")
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def _track_plots(recordings: Sequence[Recording], vessel: Vessel, fit_terms: dict, path_tracks: Path,
+                 path_errors: Path) -> list[dict]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    from usv_predictor import evaluation
+    from usv_predictor.diagnosis import extended_rollout
+    from usv_predictor.greybox import GreyBoxPredictor, greybox_metadata
+    from usv_predictor.plots import save_figure
+
+    dt = recordings[0].dt
+    models = {}
+    for label, terms in (("calm-water model", {}), ("extended model", fit_terms)):
+        rollout = extended_rollout(vessel, dt, terms)
+        models[label] = GreyBoxPredictor(rollout, {**greybox_metadata(vessel, rollout), "model_id": label})
+    n = len(recordings)
+    cols = min(n, 3)
+    rows = math.ceil(n / cols)
+    tracks = Figure(figsize=(4.2 * cols, 4.0 * rows))
+    errors = Figure(figsize=(7.0, 3.4))
+    ax_err = errors.add_subplot()
+    summary = []
+    for i, rec in enumerate(recordings):
+        ax = tracks.add_subplot(rows, cols, i + 1)
+        row = {"name": rec.name}
+        for (label, model), style in zip(models.items(), ("--", "-")):
+            pred = evaluation.closed_loop(model, rec)
+            if label == "calm-water model":
+                ax.plot(pred.measured[:, 4], pred.measured[:, 3], "k.", ms=1.5, label="measured (GNSS)")
+            ax.plot(pred.predicted[:, 4], pred.predicted[:, 3], style, lw=1.2, label=label)
+            err = np.hypot(*(pred.predicted[:, 3:5] - pred.measured[:, 3:5]).T)
+            ax_err.plot(pred.t_s, err, style, lw=1.0, label=f"{rec.name}: {label}" if n <= 4 else None)
+            row[f"{label.split()[0]}_final_position_error_m"] = float(err[np.isfinite(err)][-1]) if np.isfinite(err).any() else None
+        ax.set_title(rec.name, fontsize=9)
+        ax.set_xlabel("east (m)")
+        ax.set_ylabel("north (m)")
+        ax.set_aspect("equal", adjustable="datalim")
+        if i == 0:
+            ax.legend(fontsize=7)
+        summary.append(row)
+    tracks.tight_layout()
+    ax_err.set_xlabel("time (s)")
+    ax_err.set_ylabel("closed-loop position error (m)")
+    ax_err.set_title("Position error, calm-water (dashed) vs extended (solid)")
+    if n <= 4:
+        ax_err.legend(fontsize=6)
+    errors.tight_layout()
+    save_figure(tracks, path_tracks)
+    save_figure(errors, path_errors)
+    return summary
+
+
+def write_report(directory: Path, out: dict, recordings: Sequence[Recording], vessel: Vessel, result: Any,
+                 per_recording: dict | None) -> Path:
+    """report.md + evidence.png, tracks.png, errors.png in `directory`; report.md written last, atomically."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    _evidence_plot(out, directory / "evidence.png")
+    closed = _track_plots(recordings, vessel, result.fit.terms, directory / "tracks.png", directory / "errors.png")
+    lines = [f"# Diagnosis: {out['cause']}", "", out["message"] + ".", ""]
+    if out["confounded_with"]:
+        lines += [f"**Confounded with:** {', '.join(out['confounded_with'])}.", ""]
+    for note in out["notes"]:
+        lines += [f"> {note}", ""]
+    lines += ["## Named cause", "", "| parameter | estimate | standard error |", "|---|---|---|"]
+    for key, value in out["parameters"].items():
+        lines.append(f"| {key} | {_fmt(value, 4)} | {_fmt(out['uncertainty'].get(key.replace('direction_to_deg', 'direction_deg').replace('direction_from_deg', 'direction_deg')), 2)} |")
+    lines += ["", "## Evidence (held-out manoeuvres, two folds)", "",
+              f"Folds: {' / '.join(', '.join(f) for f in out['folds'])}.", "",
+              "| hypothesis | held-out loss | share of the calm-water error removed | evidence over calm water | "
+              "winner's evidence over it | parameters fitted on fold 1 / fold 2 |", "|---|---|---|---|---|---|"]
+    for e in out["evidence"]:
+        params = " / ".join(", ".join(f"{k} {_fmt(v, 3)}" for k, v in p.items()) or "—" for p in e["fold_parameters"])
+        lines.append(f"| {e['hypothesis']} | {_fmt(e['heldout_loss'])} | {e['gain_vs_none'] * 100:.1f} % | "
+                     f"{_fmt(e['evidence_vs_none'])} | {_fmt(e['evidence_of_best'])} | {params} |")
+    lines += ["", "![evidence](evidence.png)", "", "## What the calm-water model gets wrong", "",
+              "| quantity | value |", "|---|---|"]
+    for key, value in out["discrepancy"].items():
+        if isinstance(value, dict):
+            value = ", ".join(f"{k} {_fmt(v)}" for k, v in value.items())
+        lines.append(f"| {key} | {_fmt(value)} |")
+    lines += ["", "![tracks](tracks.png)", "", "![errors](errors.png)", ""]
+    lines += ["| manoeuvre | closed-loop final position error, calm-water (m) | extended (m) |", "|---|---|---|"]
+    for row in closed:
+        lines.append(f"| {row['name']} | {_fmt(row.get('calm-water_final_position_error_m'))} | "
+                     f"{_fmt(row.get('extended_final_position_error_m'))} |")
+    if out.get("baseline"):
+        lines += ["", "## Gain on held-out manoeuvres", "",
+                  "Each fold predicted by the extension fitted on the other fold only.", "",
+                  "| metric | calm-water | extended | relative improvement |", "|---|---|---|---|"]
+        for key, before in out["baseline"].items():
+            if key in out["gain"]:
+                lines.append(f"| {key} | {_fmt(before)} | {_fmt(out['extended'][key])} | {out['gain'][key] * 100:.0f} % |")
+    text = "\n".join(lines) + "\n"
+    target = directory / "report.md"
+    fd, tmp = tempfile.mkstemp(prefix=".report.md.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return target
