@@ -1,0 +1,98 @@
+"""Confusion matrix of `diagnose` over random hidden effects (the README's figures).
+
+Each draw: one effect of the vocabulary (or none) with random parameters (usv_predictor.hidden_effects),
+the `diagnosis` trial programme (turning circles and 20/20 zig-zags both ways) simulated with sensor noise,
+resampled like the replay tool does, and diagnosed. Prints the confusion matrix (rows: truth, columns: named
+cause; `?` marks answers that name the truth only as confounded), the parameter errors per effect, how many
+draws met the acceptance tolerances, and the time per diagnosis. Deterministic for --seed.
+Run: .venv/bin/python benchmarks/bench_diagnosis.py --draws 100 [--jobs 2] [--json out.json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+
+def one_draw(index: int, seed: int) -> dict:
+    import torch
+
+    from usv_predictor.diagnosis import diagnose
+    from usv_predictor.dynamics import ManoeuvringModel
+    from usv_predictor.hidden_effects import EFFECTS, draw, within_tolerance
+    from usv_predictor.manoeuvres import diagnosis_runs
+    from usv_predictor.recording import recording_from_signals
+    from usv_predictor.scenario import make_scenario
+    from usv_predictor.sensors import measure
+    from usv_predictor.simulator import simulate
+    from usv_predictor.vessel import load_vessel
+
+    torch.set_num_threads(1)
+    rng = np.random.default_rng([seed, index])
+    truth = draw(rng, EFFECTS[index % len(EFFECTS)])  # balanced over the effects
+    vessel = load_vessel("jari_usv")
+    model = ManoeuvringModel(vessel)
+    scenario = make_scenario("jari_usv", {truth.effect: truth.parameters} if truth.effect != "none" else {})
+    recordings = []
+    heading0 = rng.uniform(0.0, 360.0)
+    for k, manoeuvre in enumerate(diagnosis_runs()):
+        traj = simulate(model, manoeuvre, scenario.environment, heading_deg=heading0 + 37.0 * k,
+                        faults=scenario.faults, seed=1000 * index + k)
+        signals = measure(traj, scenario.environment, scenario.sensor_spec, scenario.faults, seed=1000 * index + 100 + k)
+        recordings.append(recording_from_signals(signals, 0.5, name=manoeuvre.name))
+    started = time.perf_counter()
+    result = diagnose(recordings, vessel)
+    seconds = time.perf_counter() - started
+    ok, errors = within_tolerance(truth, result.parameters) if result.cause == truth.effect else (False, {})
+    return {"index": index, "truth": truth.effect, "truth_parameters": truth.parameters, "cause": result.cause,
+            "confounded_with": list(result.confounded_with), "parameters": result.parameters, "errors": errors,
+            "within_tolerance": ok, "seconds": seconds, "message": result.message}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--draws", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--jobs", type=int, default=1)
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args()
+    from usv_predictor.hidden_effects import EFFECTS
+
+    with ProcessPoolExecutor(args.jobs) as pool:
+        results = []
+        for r in pool.map(one_draw, range(args.draws), [args.seed] * args.draws):
+            results.append(r)
+            print(f"[{len(results)}/{args.draws}] {r['truth']:15s} -> {r['cause']:15s} "
+                  f"{'ok' if r['within_tolerance'] or r['truth'] == r['cause'] == 'none' else '  '} {r['errors']} "
+                  f"({r['seconds']:.0f} s)", flush=True)
+    causes = list(EFFECTS)
+    matrix = np.zeros((len(EFFECTS), len(causes)), dtype=int)
+    for r in results:
+        matrix[EFFECTS.index(r["truth"]), causes.index(r["cause"])] += 1
+    width = max(len(c) for c in causes) + 1
+    print("\nconfusion matrix (rows: hidden effect, columns: named cause)")
+    print(" " * width + "".join(f"{c[:9]:>10s}" for c in causes))
+    for i, effect in enumerate(EFFECTS):
+        print(f"{effect:{width}s}" + "".join(f"{n:10d}" for n in matrix[i]))
+    correct = sum(r["truth"] == r["cause"] for r in results)
+    print(f"\ncorrect cause: {correct}/{len(results)}")
+    for effect in EFFECTS[1:]:
+        rows = [r for r in results if r["truth"] == effect and r["cause"] == effect]
+        if not rows:
+            continue
+        keys = rows[0]["errors"].keys()
+        spread = ", ".join(f"{k} median |err| {np.median([abs(r['errors'][k]) for r in rows]):.3g}, "
+                           f"max {np.max([abs(r['errors'][k]) for r in rows]):.3g}" for k in keys)
+        tol = sum(r["within_tolerance"] for r in rows)
+        print(f"{effect:15s} {tol}/{len(rows)} within tolerance; {spread}")
+    print(f"time per diagnosis: median {np.median([r['seconds'] for r in results]):.1f} s")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"results": results, "matrix": matrix.tolist(), "effects": list(EFFECTS)}, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
