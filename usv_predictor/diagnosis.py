@@ -61,6 +61,7 @@ HYPOTHESES: dict[str, tuple[Term, ...]] = {
     "yaw_rate_bias": (Term("yaw_rate_bias", 0.002, -0.1, 0.1, (0.0,)),),
     "heading_offset": (Term("heading_offset", 0.01, -0.6, 0.6, (0.0,)),),
     "actuator_delay": (Term("actuator_delay", 0.1, 0.0, 5.0, (0.2,)),),
+    "resistance": (Term("resistance_change", 0.05, -0.8, 3.0, (0.0,)),),
 }
 
 
@@ -242,6 +243,8 @@ def physical_parameters(hypothesis: str, terms: dict[str, Sequence[float]]) -> d
         return {"offset_deg": math.degrees(terms["heading_offset"][0])}
     if hypothesis == "actuator_delay":
         return {"delay_s": terms["actuator_delay"][0]}
+    if hypothesis == "resistance":
+        return {"resistance_change_pct": 100.0 * terms["resistance_change"][0]}
     return {}
 
 
@@ -370,6 +373,8 @@ def _physical_uncertainty(cause: str, fit: Fit) -> dict[str, float]:
     term = HYPOTHESES[cause][0].name
     sd = fit.std[term][0]
     key = next(iter(physical_parameters(cause, fit.terms)))
+    if key.endswith("_pct"):
+        return {key: 100.0 * sd}
     return {key: math.degrees(sd) if key.endswith("_deg") or key.endswith("_deg_s") else sd}
 
 

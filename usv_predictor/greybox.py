@@ -17,7 +17,8 @@ Extension terms (all zero for the calm-water model; each is one diagnosis hypoth
     current_ne (2,) current velocity north/east (m/s);     wind_ne (2,) wind velocity (toward) north/east (m/s)
     wave_ne (2,) zeta_a^2 (m^2) along the direction the waves come FROM; rudder_offset (rad, true - reported)
     yaw_rate_bias (rad/s, measured - true); heading_offset (rad, measured - true);
-    actuator_delay (s, the hull feels the reported controls this much later).
+    actuator_delay (s, the hull feels the reported controls this much later);
+    resistance_change (-, relative change of the calm-water resistance R0: fouling, loading, a preset off).
 """
 from __future__ import annotations
 
@@ -32,7 +33,8 @@ from usv_predictor.vessel import RHO_WATER, Vessel
 
 HULL_NAMES = ("R0", "X_vv", "X_vr", "X_rr", "X_vvvv", "Y_v", "Y_r", "Y_vvv", "Y_vvr", "Y_vrr", "Y_rrr",
               "N_v", "N_r", "N_vvv", "N_vvr", "N_vrr", "N_rrr")
-TERM_NAMES = ("current_ne", "wind_ne", "wave_ne", "rudder_offset", "yaw_rate_bias", "heading_offset", "actuator_delay")
+TERM_NAMES = ("current_ne", "wind_ne", "wave_ne", "rudder_offset", "yaw_rate_bias", "heading_offset", "actuator_delay",
+              "resistance_change")
 
 
 def _fourier_table(series: tuple[float, tuple[tuple[int, float, float], ...]]) -> List[List[float]]:
@@ -79,6 +81,7 @@ class GreyBoxRollout(nn.Module):
         self.yaw_rate_bias = zeros(1)
         self.heading_offset = zeros(1)
         self.actuator_delay = zeros(1)
+        self.resistance_change = zeros(1)
 
     # ---- forces ---------------------------------------------------------------------------------
     def _fourier(self, table: List[List[float]], chi: Tensor) -> Tensor:
@@ -102,7 +105,7 @@ class GreyBoxRollout(nn.Module):
         vp = v_r / U
         rp = r * L / U
         q = self.q_force * U * U
-        x_h = q * (-h[0] * u_r * torch.abs(u_r) / (U * U) + h[1] * vp * vp + h[2] * vp * rp + h[3] * rp * rp
+        x_h = q * (-h[0] * (1.0 + self.resistance_change[0]) * u_r * torch.abs(u_r) / (U * U) + h[1] * vp * vp + h[2] * vp * rp + h[3] * rp * rp
                    + h[4] * vp ** 4)
         y_h = q * (h[5] * vp + h[6] * rp + h[7] * vp ** 3 + h[8] * vp * vp * rp + h[9] * vp * rp * rp
                    + h[10] * rp ** 3)

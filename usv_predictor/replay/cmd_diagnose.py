@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dt", type=float, default=0.5, help="model step (s, default 0.5)")
     parser.add_argument("--hypotheses", nargs="+", default=None, metavar="H",
                         help="hypotheses to test (default: all of " "none current wind wave_drift rudder_offset "
-                             "yaw_rate_bias heading_offset actuator_delay)")
+                             "yaw_rate_bias heading_offset actuator_delay resistance)")
     parser.add_argument("--horizon", type=float, default=20.0, help="segment horizon (s, default 20)")
     parser.add_argument("--stride", type=float, default=5.0, help="time between segment starts (s, default 5)")
     parser.add_argument("--no-gain", action="store_true", help="skip the held-out evaluation of the extended model")

@@ -1,0 +1,62 @@
+"""Diagnosis internals: vocabulary conversions, data checks, discrepancy structure, a model-error hypothesis."""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from usv_predictor.diagnosis import (DiagnosisError, check_data, diagnose, discrepancy, make_segments,
+                                     physical_parameters, scripted_rollout)
+from usv_predictor.dynamics import ManoeuvringModel
+from usv_predictor.environment import Environment
+from usv_predictor.manoeuvres import diagnosis_runs
+from usv_predictor.recording import recording_from_signals
+from usv_predictor.sensors import measure
+from usv_predictor.simulator import simulate
+from usv_predictor.vessel import load_vessel
+
+VESSEL = load_vessel("jari_usv")
+
+
+def trial(vessel=VESSEL, env=Environment(), runs=None):
+    model = ManoeuvringModel(vessel)
+    recordings = []
+    for k, manoeuvre in enumerate(runs or diagnosis_runs()):
+        traj = simulate(model, manoeuvre, env, heading_deg=40.0 * k, seed=k)
+        recordings.append(recording_from_signals(measure(traj, env, seed=10 + k), 0.5, name=manoeuvre.name))
+    return recordings
+
+
+def test_vectors_become_the_design_vocabulary():
+    # a current flowing toward the east; wind blowing toward the south comes FROM the north
+    assert physical_parameters("current", {"current_ne": (0.0, 0.3)}) == pytest.approx(
+        {"speed_mps": 0.3, "direction_to_deg": 90.0})
+    wind = physical_parameters("wind", {"wind_ne": (-8.0, 0.0)})
+    assert wind["speed_mps"] == pytest.approx(8.0) and wind["direction_from_deg"] == pytest.approx(0.0)
+    waves = physical_parameters("wave_drift", {"wave_ne": (0.0, 0.25)})  # zeta_a^2 = 0.25 -> H_s = 1 m from the east
+    assert waves == pytest.approx({"significant_height_m": 1.0, "direction_from_deg": 90.0})
+    assert physical_parameters("rudder_offset", {"rudder_offset": (math.radians(2.0),)}) == pytest.approx({"offset_deg": 2.0})
+    assert physical_parameters("resistance", {"resistance_change": (0.2,)}) == pytest.approx({"resistance_change_pct": 20.0})
+
+
+def test_a_single_manoeuvre_is_refused():
+    with pytest.raises(DiagnosisError, match="at least two"):
+        check_data(trial(runs=diagnosis_runs()[:1]))
+
+
+def test_current_shows_as_a_steady_track_drift():
+    recordings = trial(env=Environment(current_speed=0.3, current_to_deg=60.0))
+    seg = make_segments(recordings)
+    found = discrepancy(scripted_rollout(VESSEL, 0.5), seg, recordings)
+    assert found["track_drift_speed_mps"] == pytest.approx(0.3, abs=0.05)
+    assert found["track_drift_direction_to_deg"] == pytest.approx(60.0, abs=10.0)
+
+
+def test_a_resistance_error_of_the_model_is_named_as_such():
+    """Data from a fouled hull (+30 % resistance) against the clean preset: not a current, not wind."""
+    fouled = dataclasses.replace(VESSEL, hull=dataclasses.replace(VESSEL.hull, R0=VESSEL.hull.R0 * 1.3))
+    result = diagnose(trial(vessel=fouled), VESSEL, hypotheses=["current", "wind", "resistance", "rudder_offset"])
+    assert result.cause == "resistance"
+    assert result.parameters["resistance_change_pct"] == pytest.approx(30.0, abs=3.0)
