@@ -565,67 +565,19 @@ def evaluate(model: Predictor, recordings: Sequence[Recording], reference: str =
 # --------------------------------------------------------------------------------------------
 # Physics baseline: the calm-water manoeuvring model as a predictor
 # --------------------------------------------------------------------------------------------
-class PhysicsPredictor:
-    """The vessel preset's MMG model (usv_predictor.dynamics) in calm water, driven by the recorded controls.
+def physics_predictor(vessel: Any, dt: float) -> Predictor:
+    """The calm-water physics baseline: the vessel preset's grey box (usv_predictor.greybox) with no sea terms.
 
-    It knows nothing of current, wind or waves, so it is the baseline a learned model must beat at sea.
-    Over-ground velocities are taken as velocities through the water; the recorded rudder angle and engine
-    speed are applied as the actuator states (they are feedback, not commands). RK4 with substeps of at
-    most `max_substep_s` per model step, controls held over the step.
+    It knows nothing of current, wind or waves, so it is the baseline a learned model must beat at sea. The
+    recorded rudder angle and engine speed drive it as the actuator states (they are feedback, not commands).
+    `vessel` is a preset name or a Vessel.
     """
-
-    def __init__(self, model: Any, dt: float, max_substep_s: float = 0.05) -> None:
-        if not dt > 0.0:
-            raise ModelError(f"physics predictor step dt={dt} s must be > 0")
-        self._model = model
-        self._substeps = max(1, int(math.ceil(dt / max_substep_s - 1e-9)))
-        vessel = getattr(model.vessel, "name", "vessel")
-        self.metadata: dict[str, Any] = {
-            "dt": float(dt),
-            "model_type": "physics (calm-water MMG)",
-            "model_id": f"physics-{vessel}",
-            "feature_set": "u, v, r, psi, delta, rpm",
-            "vessel": vessel,
-        }
-
-    def _derivative(self, s: list[float], delta: float, rpm: float) -> list[float]:
-        _, _, psi, u, v, r = s
-        c, si = math.cos(psi), math.sin(psi)
-        du, dv, dr = self._model.accelerations(psi, u, v, r, delta, rpm)
-        return [u * c - v * si, u * si + v * c, r, du, dv, dr]
-
-    def _step(self, s: list[float], delta: float, rpm: float, h: float) -> list[float]:
-        k1 = self._derivative(s, delta, rpm)
-        k2 = self._derivative([a + 0.5 * h * b for a, b in zip(s, k1)], delta, rpm)
-        k3 = self._derivative([a + 0.5 * h * b for a, b in zip(s, k2)], delta, rpm)
-        k4 = self._derivative([a + h * b for a, b in zip(s, k3)], delta, rpm)
-        return [a + h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4) for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4)]
-
-    def predict(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        state = np.asarray(state, dtype=float)
-        controls = np.asarray(controls, dtype=float)
-        batch, horizon = controls.shape[0], controls.shape[1]
-        out = np.empty((1, batch, horizon, 6))
-        h = self.metadata["dt"] / self._substeps
-        for b in range(batch):
-            u, v, r, psi = (float(x) for x in state[b])
-            s = [0.0, 0.0, psi, u, v, r]
-            for k in range(horizon):
-                delta, rpm = float(controls[b, k, 0]), float(controls[b, k, 1])
-                for _ in range(self._substeps):
-                    s = self._step(s, delta, rpm, h)
-                if not all(map(math.isfinite, s)):
-                    raise ModelError(f"physics predictor diverged at step {k} of start {b}")
-                out[0, b, k] = (s[3], s[4], s[5], s[0], s[1], s[2])
-        return out
-
-
-def physics_predictor(vessel: str, dt: float) -> PhysicsPredictor:
-    """PhysicsPredictor of a vessel preset (config/vessels/<vessel>.yaml)."""
-    from usv_predictor.dynamics import ManoeuvringModel
+    from usv_predictor.greybox import greybox_predictor
     from usv_predictor.vessel import load_vessel
 
-    return PhysicsPredictor(ManoeuvringModel(load_vessel(vessel)), dt)
+    if not dt > 0.0:
+        raise ModelError(f"physics predictor step dt={dt} s must be > 0")
+    return greybox_predictor(load_vessel(vessel) if isinstance(vessel, str) else vessel, dt)
 
 
 # --------------------------------------------------------------------------------------------
