@@ -33,6 +33,7 @@ COMMANDS: tuple[str, ...] = (
     "usv_predictor.replay.cmd_train",
     "usv_predictor.replay.cmd_evaluate",
     "usv_predictor.replay.cmd_report",
+    "usv_predictor.replay.cmd_identify",
     "usv_predictor.replay.cmd_diagnose",
 )
 EXIT_ERROR = 2

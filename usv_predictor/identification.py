@@ -1,0 +1,599 @@
+"""Grey-box identification of the hull derivatives by inverse-dynamics regression (seed 001 sec. 3.2).
+
+Pipeline (one Recording = one manoeuvre):
+ 1. accelerations nu_dot by the EKF + RTS smoother (usv_predictor.smoother), not by finite differences;
+ 2. inverse dynamics, the left-hand side of the MMG equations of motion (Yasukawa & Yoshimura 2015 eq. 4;
+    Fossen 2021 eq. 6.5 with the hull on the right):
+        X = m11 u_dot - m22 v r - x_G m r^2
+        Y = m22 v_dot + m23 r_dot + m11 u r
+        N = m32 v_dot + m33 r_dot + x_G m u r
+    with M = M_RB + M_A from the vessel description (Vessel.mass_matrix(): rigid body from displacement, x_G and
+    k_zz; added mass m_x', m_y', J_z' of the preset, whose provenance names the source, e.g. Yasukawa & Yoshimura
+    2015 Table 3 for the KVLCC2);
+ 3. minus the known parts: propeller thrust (MMG eq. 10-12) and the semi-empirical MMG rudder model (eq. 13-16,
+    37-43) held as PRIOR knowledge -- seed 001 sec. 4: identifying hull and rudder together from free-running
+    data splits the yaw moment wrongly between them (multicollinearity, seed 001 Fig. 4, 13); the
+    semi-empirical rudder guides the regression to a physically right split;
+ 4. what remains is the hull force; non-dimensionalised (X' = X / (0.5 rho L d U^2), N' = N / (0.5 rho L^2 d U^2))
+    it is linear in the hull derivatives of a candidate structure:
+        mmg       the MMG hull polynomial (Yasukawa & Yoshimura 2015 eq. 8), the 17 derivatives of vessel.Hull;
+        abkowitz  an Abkowitz-type Taylor expansion about the approach speed (Abkowitz 1964): the MMG terms plus
+                  bias (Y_0, N_0) and speed-coupling terms (X_du, Y_duv, Y_dur, N_duv, N_dur; du' = (u - u0) / U);
+    solved by linear least squares for each equation;
+ 5. diagnostics: 95 % confidence intervals (with the sample count reduced to an effective count by the lag-1
+    autocorrelation of the residuals, because time-series residuals are not independent), the correlation
+    matrix of the regressors (pairs with |rho| > 0.9 are reported as multicollinear), the condition number of
+    the column-scaled regressor matrix, variance inflation factors;
+ 6. a coefficient whose 95 % CI half-width exceeds `rel_ci_limit` of its magnitude (max of estimate and prior)
+    is NOT identifiable from these data. Then, by `prior`:
+        "none"  NotIdentifiableError naming them, with the options below (never silent nonsense);
+        "fix"   fix them to the preset's values (prior knowledge) and refit the others, until all are identifiable;
+        "ridge" ridge regression towards the preset's values for all coefficients, penalty chosen by
+                cross-validation across manoeuvres;
+ 7. candidate structures are compared by leave-one-manoeuvre-out cross-validation of the hull forces.
+Result: the vessel with its hull replaced (usable by GreyBoxRollout) and, for "abkowitz", the extra terms.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass, field, replace
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from usv_predictor.dynamics import ManoeuvringModel
+from usv_predictor.errors import ConfigError, DatasetError, ModelError
+from usv_predictor.greybox import HULL_NAMES
+from usv_predictor.recording import Recording
+from usv_predictor.smoother import Smoothed, SmootherConfig, smooth_recording
+from usv_predictor.vessel import Hull, Vessel
+
+EQUATIONS = ("X", "Y", "N")
+STRUCTURES = ("mmg", "abkowitz")
+PRIORS = ("none", "fix", "ridge")
+EXTRA_NAMES = ("X_du", "Y_0", "Y_duv", "Y_dur", "N_0", "N_duv", "N_dur")  # abkowitz terms beyond the MMG hull
+COLLINEAR_RHO = 0.9  # |rho| above which a regressor pair is reported as multicollinear
+REL_CI_LIMIT = 0.5  # a 95 % CI half-width above this fraction of the magnitude: not identifiable
+MAGNITUDE_FLOOR = 1e-3  # non-dimensional magnitude below which a coefficient counts as zero
+MIN_MANOEUVRES = 2  # cross-validation needs at least one manoeuvre to hold out
+SPEED_RATIO_RANGE = (0.6, 1.6)  # measured / preset straight-running speed accepted as "the same vessel and scale"
+RIDGE_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # penalty weights (relative to the data term) tried by CV
+Z95 = 1.959964
+
+
+class NotIdentifiableError(ModelError):
+    """The data cannot determine some coefficients; the message names them and the options."""
+
+
+# ------------------------------------------------------------------------------------------ structures
+
+
+def _terms(structure: str) -> dict[str, tuple[str, ...]]:
+    """Coefficient names per equation of a structure, MMG names in HULL_NAMES order."""
+    if structure not in STRUCTURES:
+        raise ConfigError(f"unknown model structure {structure!r}; use one of {list(STRUCTURES)}")
+    mmg = {eq: tuple(n for n in HULL_NAMES if (n[0] == eq or (eq == "X" and n == "R0"))) for eq in EQUATIONS}
+    if structure == "mmg":
+        return mmg
+    extra = {eq: tuple(n for n in EXTRA_NAMES if n[0] == eq) for eq in EQUATIONS}
+    return {eq: mmg[eq] + extra[eq] for eq in EQUATIONS}
+
+
+def coefficient_names(structure: str) -> tuple[str, ...]:
+    terms = _terms(structure)
+    return tuple(n for eq in EQUATIONS for n in terms[eq])
+
+
+def regressor(name: str, u: np.ndarray, vp: np.ndarray, rp: np.ndarray, U: np.ndarray, u0: float) -> np.ndarray:
+    """Column of the non-dimensional regressor of coefficient `name` (v' = v/U, r' = r L/U)."""
+    du = (u - u0) / U
+    body = name.split("_", 1)[1] if "_" in name else name
+    if name == "R0":
+        return -u * np.abs(u) / (U * U)
+    table: dict[str, Callable[[], np.ndarray]] = {
+        "vv": lambda: vp**2, "vr": lambda: vp * rp, "rr": lambda: rp**2, "vvvv": lambda: vp**4,
+        "v": lambda: vp, "r": lambda: rp, "vvv": lambda: vp**3, "vvr": lambda: vp * vp * rp,
+        "vrr": lambda: vp * rp * rp, "rrr": lambda: rp**3,
+        "du": lambda: du, "0": lambda: np.ones_like(u), "duv": lambda: du * vp, "dur": lambda: du * rp,
+    }
+    if body not in table:
+        raise ConfigError(f"no regressor for coefficient {name!r}")
+    return table[body]()
+
+
+# ------------------------------------------------------------------------------------------ data
+
+
+@dataclass(frozen=True)
+class ForceData:
+    """Inverse dynamics of one manoeuvre: forces (N, N, N m) at midship, body frame, on the recording grid."""
+
+    name: str
+    t_s: np.ndarray  # (T,)
+    nu: np.ndarray  # (T, 3) smoothed u, v, r
+    nu_dot: np.ndarray  # (T, 3) smoothed accelerations
+    nu_dot_std: np.ndarray  # (T, 3)
+    controls: np.ndarray  # (T, 2) delta (rad), rpm
+    total: np.ndarray  # (T, 3) M nu_dot + C(nu) nu: all external forces
+    rudder: np.ndarray  # (T, 3) semi-empirical rudder model (prior)
+    propeller: np.ndarray  # (T, 3) propeller thrust (prior)
+    keep: np.ndarray  # (T,) bool: samples used for regression (speed, smoother edges)
+
+    @property
+    def hull(self) -> np.ndarray:
+        return self.total - self.rudder - self.propeller
+
+
+def inverse_dynamics_forces(vessel: Vessel, nu: np.ndarray, nu_dot: np.ndarray) -> np.ndarray:
+    """(T, 3) [X, Y, N] = M nu_dot + C(nu) nu (module docstring, step 2)."""
+    m = ManoeuvringModel(vessel)
+    u, v, r = nu[:, 0], nu[:, 1], nu[:, 2]
+    ud, vd, rd = nu_dot[:, 0], nu_dot[:, 1], nu_dot[:, 2]
+    x = m.m11 * ud - m.m22 * v * r - m.x_G * m.m * r * r
+    y = m.m22 * vd + m.m23 * rd + m.m11 * u * r
+    n = m.m32 * vd + m.m33 * rd + m.x_G * m.m * u * r
+    return np.column_stack([x, y, n])
+
+
+def known_forces(vessel: Vessel, nu: np.ndarray, controls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rudder (T, 3), propeller (T, 3)) of the preset's semi-empirical models (calm water, nu through water)."""
+    model = ManoeuvringModel(vessel)
+    rudder = np.empty((len(nu), 3))
+    propeller = np.empty((len(nu), 3))
+    for k, ((u, v, r), (delta, rpm)) in enumerate(zip(nu, controls)):
+        loads = model.loads(float(u), float(v), float(r), 0.0, float(u), float(v), float(delta), float(rpm))
+        rudder[k] = loads.rudder
+        propeller[k] = loads.propeller
+    return rudder, propeller
+
+
+def check_vessel_matches(vessel: Vessel, recording: Recording) -> None:
+    """ConfigError when the data cannot come from this vessel description (scale, speed, rpm)."""
+    rpm = recording.controls[:, 1]
+    if not np.all(np.isfinite(rpm)) or float(np.median(rpm)) <= 0.0:
+        raise DatasetError(f"{recording.name}: no engine speed (rpm) in the data: the propeller thrust, the "
+                           "rudder inflow and with them R0 and every speed-dependent term cannot be separated; "
+                           "identification needs the engine_rpm topic")
+    start = slice(0, max(2, int(round(5.0 / recording.dt))))
+    rpm0 = float(np.median(rpm[start]))
+    speed0 = float(np.median(np.hypot(recording.nu[start, 0], recording.nu[start, 1])))
+    expected = ManoeuvringModel(vessel).straight_speed(rpm0)
+    L = vessel.geometry.L_pp
+    froude = speed0 / math.sqrt(9.81 * L)
+    low, high = SPEED_RATIO_RANGE
+    ratio = speed0 / expected if expected > 0.0 else math.inf
+    if not low <= ratio <= high:
+        raise ConfigError(
+            f"vessel description {vessel.name!r} (L_pp {L:g} m) is inconsistent with the data of {recording.name}: "
+            f"at {rpm0:.1f} rpm the preset runs straight at {expected:.2f} m/s, the data show {speed0:.2f} m/s "
+            f"(ratio {ratio:.2f}, accepted {low}-{high}; Froude number {froude:.2f} for this L_pp). A recording of "
+            "another scale (model vs full) or another vessel? Use the preset of that vessel and scale, or "
+            "Froude-scale the data first")
+
+
+def force_data(vessel: Vessel, recording: Recording, smoothed: Smoothed, *, edge_s: float = 2.0,
+               min_speed_fraction: float = 0.3) -> ForceData:
+    """Inverse dynamics and the known forces of one smoothed manoeuvre."""
+    nu, nu_dot = smoothed.nu, smoothed.nu_dot
+    total = inverse_dynamics_forces(vessel, nu, nu_dot)
+    rudder, propeller = known_forces(vessel, nu, recording.controls)
+    speed = np.hypot(nu[:, 0], nu[:, 1])
+    edge = int(round(edge_s / recording.dt))
+    keep = speed >= min_speed_fraction * float(np.median(speed))
+    keep[:edge] = False
+    keep[len(keep) - edge:] = False
+    return ForceData(recording.name, recording.t_s, nu, nu_dot, smoothed.nu_dot_std, recording.controls, total,
+                     rudder, propeller, keep)
+
+
+def prepare(vessel: Vessel, recordings: Sequence[Recording], *, smoother: SmootherConfig = SmootherConfig(),
+            progress: Callable[[str], None] | None = None) -> list[ForceData]:
+    """Check, smooth and invert every recording."""
+    out = []
+    for k, rec in enumerate(recordings):
+        check_vessel_matches(vessel, rec)
+        if progress is not None:
+            progress(f"[{k + 1}/{len(recordings)}] smoothing {rec.name} ({rec.duration_s:.0f} s at {rec.dt:g} s)")
+        out.append(force_data(vessel, rec, smooth_recording(rec, smoother)))
+    return out
+
+
+# ------------------------------------------------------------------------------------------ regression
+
+
+@dataclass(frozen=True)
+class Design:
+    """Non-dimensional regression problem of one equation over several manoeuvres."""
+
+    equation: str
+    names: tuple[str, ...]
+    matrix: np.ndarray  # (n, p)
+    target: np.ndarray  # (n,)
+    groups: np.ndarray  # (n,) manoeuvre index of each row
+    scale: np.ndarray  # (n,) force per unit non-dimensional value (q U^2 or q L U^2)
+
+
+def design(vessel: Vessel, data: Sequence[ForceData], structure: str, equation: str, u0: float) -> Design:
+    names = _terms(structure)[equation]
+    g = vessel.geometry
+    q = 0.5 * 1025.0 * g.L_pp * g.d
+    column = EQUATIONS.index(equation)
+    rows, targets, groups, scales = [], [], [], []
+    for k, d in enumerate(data):
+        nu = d.nu[d.keep]
+        u, v, r = nu[:, 0], nu[:, 1], nu[:, 2]
+        U = np.maximum(np.hypot(u, v), 1e-3)
+        vp, rp = v / U, r * g.L_pp / U
+        scale = q * U * U * (g.L_pp if equation == "N" else 1.0)
+        rows.append(np.column_stack([regressor(n, u, vp, rp, U, u0) for n in names]))
+        targets.append(d.hull[d.keep, column] / scale)
+        groups.append(np.full(len(u), k))
+        scales.append(scale)
+    if not rows or sum(len(t) for t in targets) == 0:
+        raise DatasetError("no samples left for regression (all below the speed limit or inside the smoother edges)")
+    return Design(equation, names, np.vstack(rows), np.concatenate(targets), np.concatenate(groups),
+                  np.concatenate(scales))
+
+
+@dataclass(frozen=True)
+class Collinearity:
+    equation: str
+    names: tuple[str, ...]
+    correlation: np.ndarray  # (p, p) of the regressors (NaN for a constant column)
+    condition_number: float  # of the column-scaled regressor matrix
+    vif: dict[str, float]  # variance inflation factors
+    pairs: tuple[tuple[str, str, float], ...]  # |rho| > COLLINEAR_RHO
+
+    def to_json(self) -> dict:
+        return {"equation": self.equation, "condition_number": self.condition_number, "vif": self.vif,
+                "multicollinear_pairs": [{"a": a, "b": b, "rho": rho} for a, b, rho in self.pairs],
+                "names": list(self.names),
+                "correlation": [[None if not math.isfinite(x) else x for x in row] for row in self.correlation.tolist()]}
+
+
+def collinearity(d: Design) -> Collinearity:
+    """Correlation matrix, condition number and VIFs of a design's regressors."""
+    a = d.matrix
+    std = a.std(axis=0)
+    centred = (a - a.mean(axis=0)) / np.where(std > 0, std, 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = (centred.T @ centred) / len(a)
+    corr[:, std == 0] = np.nan
+    corr[std == 0, :] = np.nan
+    norms = np.linalg.norm(a, axis=0)
+    s = np.linalg.svd(a / np.where(norms > 0, norms, 1.0), compute_uv=False)
+    cond = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
+    vif: dict[str, float] = {}
+    varying = std > 0
+    sub = corr[np.ix_(varying, varying)]
+    try:
+        inv = np.linalg.inv(sub)
+        diag = iter(np.diag(inv))
+        for name, var in zip(d.names, varying):
+            vif[name] = float(next(diag)) if var else math.nan
+    except np.linalg.LinAlgError:
+        vif = {name: math.inf for name in d.names}
+    pairs = tuple((d.names[i], d.names[j], float(corr[i, j])) for i in range(len(d.names))
+                  for j in range(i + 1, len(d.names)) if math.isfinite(corr[i, j]) and abs(corr[i, j]) > COLLINEAR_RHO)
+    return Collinearity(d.equation, d.names, corr, cond, vif, pairs)
+
+
+@dataclass(frozen=True)
+class Coefficient:
+    name: str
+    estimate: float
+    ci95: tuple[float, float]
+    prior: float
+    status: str  # "identified" | "fixed to prior" | "ridge towards prior"
+    rel_ci: float  # 95 % CI half-width / max(|estimate|, |prior|, floor)
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "estimate": self.estimate, "ci95": list(self.ci95), "prior": self.prior,
+                "status": self.status, "rel_ci": self.rel_ci}
+
+
+@dataclass(frozen=True)
+class EquationFit:
+    equation: str
+    coefficients: tuple[Coefficient, ...]
+    collinearity: Collinearity
+    residual_rms: float  # non-dimensional
+    effective_samples: float
+    ridge_weight: float = 0.0
+
+    def values(self) -> dict[str, float]:
+        return {c.name: c.estimate for c in self.coefficients}
+
+
+def effective_samples(residual: np.ndarray, groups: np.ndarray) -> float:
+    """n (1 - rho1) / (1 + rho1) with rho1 the lag-1 autocorrelation of the residuals within manoeuvres."""
+    num, den = 0.0, 0.0
+    for g in np.unique(groups):
+        e = residual[groups == g]
+        e = e - e.mean()
+        num += float(np.sum(e[1:] * e[:-1]))
+        den += float(np.sum(e * e))
+    rho = min(max(num / den, 0.0), 0.999) if den > 0 else 0.0
+    return max(len(residual) * (1.0 - rho) / (1.0 + rho), 2.0)
+
+
+def _solve(a: np.ndarray, y: np.ndarray, prior: np.ndarray, free: np.ndarray, ridge: float,
+           penalty_scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(theta (p,), unscaled covariance factor (p_free, p_free)) of LS on the free columns, the rest at prior;
+    ridge > 0 adds ridge * n * sum(((theta - prior) / penalty_scale)^2) on the free columns."""
+    theta = prior.copy()
+    y_free = y - a[:, ~free] @ prior[~free]
+    af = a[:, free]
+    norms = np.linalg.norm(af, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)
+    scaled = af / norms  # column scaling keeps the normal equations well conditioned
+    gram = scaled.T @ scaled
+    rhs = scaled.T @ y_free
+    if ridge > 0.0:
+        weight = ridge * len(y) / (penalty_scale[free] * norms) ** 2
+        gram = gram + np.diag(weight)
+        rhs = rhs + weight * prior[free] * norms
+    cov = np.linalg.pinv(gram)
+    theta[free] = (cov @ rhs) / norms
+    return theta, cov / np.outer(norms, norms)
+
+
+def fit_equation(d: Design, prior: Mapping[str, float], *, fixed: Sequence[str] = (),
+                 ridge: float = 0.0) -> EquationFit:
+    """Least squares (or ridge) of one equation; CIs with the effective sample count."""
+    names = d.names
+    prior_vec = np.array([prior.get(n, 0.0) for n in names])
+    free = np.array([n not in fixed for n in names])
+    scale = np.maximum(np.abs(prior_vec), 10 * MAGNITUDE_FLOOR)
+    theta, cov = _solve(d.matrix, d.target, prior_vec, free, ridge, scale)
+    residual = d.target - d.matrix @ theta
+    n_eff = effective_samples(residual, d.groups)
+    n, p_free = len(residual), int(free.sum())
+    sigma2 = float(residual @ residual) / max(n - p_free, 1)
+    # OLS covariance sigma^2 (A^T A)^-1, inflated by n / n_eff for the autocorrelated residuals
+    var = np.zeros(len(names))
+    var[free] = np.diag(cov) * sigma2 * n / n_eff
+    coefficients = []
+    for k, name in enumerate(names):
+        half = Z95 * math.sqrt(max(var[k], 0.0))
+        magnitude = max(abs(theta[k]), abs(prior_vec[k]), MAGNITUDE_FLOOR)
+        if not free[k]:
+            status = "fixed to prior"
+        elif ridge > 0.0:
+            status = "ridge towards prior"
+        else:
+            status = "identified"
+        coefficients.append(Coefficient(name, float(theta[k]), (float(theta[k] - half), float(theta[k] + half)),
+                                        float(prior_vec[k]), status, half / magnitude))
+    return EquationFit(d.equation, tuple(coefficients), collinearity(d),
+                       float(np.sqrt(np.mean(residual**2))), n_eff, ridge)
+
+
+def not_identifiable(fit: EquationFit, rel_ci_limit: float = REL_CI_LIMIT) -> list[str]:
+    return [c.name for c in fit.coefficients if c.status == "identified" and c.rel_ci > rel_ci_limit]
+
+
+# ------------------------------------------------------------------------------------------ prior policies
+
+
+@dataclass(frozen=True)
+class HullFit:
+    structure: str
+    prior_policy: str
+    equations: tuple[EquationFit, ...]
+    not_identifiable: tuple[str, ...]  # before any prior was applied
+    u0: float  # reference speed of the abkowitz du' terms (m/s)
+
+    def values(self) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for e in self.equations:
+            out.update(e.values())
+        return out
+
+    def coefficients(self) -> list[Coefficient]:
+        return [c for e in self.equations for c in e.coefficients]
+
+
+def prior_values(vessel: Vessel, structure: str) -> dict[str, float]:
+    values = {n: float(getattr(vessel.hull, n)) for n in HULL_NAMES}
+    values.update({n: 0.0 for n in coefficient_names(structure) if n not in values})
+    return values
+
+
+def _message(names: Sequence[str], fits: Sequence[EquationFit], data_names: Sequence[str]) -> str:
+    pairs = [f"{a}~{b} (rho {rho:+.2f})" for f in fits for a, b, rho in f.collinearity.pairs]
+    conds = ", ".join(f"{f.equation}: {f.collinearity.condition_number:.3g}" for f in fits)
+    return (f"coefficients not identifiable from {len(data_names)} manoeuvre(s) ({', '.join(data_names)}): "
+            f"{', '.join(names)} (95 % CI wider than {REL_CI_LIMIT:.0%} of their size); condition numbers {conds}"
+            + (f"; multicollinear regressors: {', '.join(pairs)}" if pairs else "")
+            + ". Options: prior='fix' (--prior fix) holds them at the vessel preset's values, prior='ridge' "
+              "(--prior ridge) pulls every coefficient towards the preset; or record more informative manoeuvres "
+              "(turning circles, larger zig-zags, random rudder and rpm)")
+
+
+def _ridge_by_cv(designs: Sequence[Design], prior: Mapping[str, float]) -> float:
+    """Ridge weight of RIDGE_GRID with the lowest leave-one-manoeuvre-out error (all equations)."""
+    best, best_score = RIDGE_GRID[-1], math.inf
+    for weight in RIDGE_GRID:
+        score = sum(_cv_error(d, prior, (), weight) for d in designs)
+        if score < best_score:
+            best, best_score = weight, score
+    return best
+
+
+def fit_hull(vessel: Vessel, data: Sequence[ForceData], structure: str = "mmg", prior: str = "none", *,
+             rel_ci_limit: float = REL_CI_LIMIT, u0: float | None = None) -> HullFit:
+    """Regression of every equation with the prior policy of the module docstring (step 6)."""
+    if prior not in PRIORS:
+        raise ConfigError(f"unknown prior policy {prior!r}; use one of {list(PRIORS)}")
+    u0 = float(np.median(np.concatenate([d.nu[:, 0] for d in data]))) if u0 is None else u0
+    priors = prior_values(vessel, structure)
+    designs = [design(vessel, data, structure, eq, u0) for eq in EQUATIONS]
+    fits = [fit_equation(d, priors) for d in designs]
+    flagged = [n for f in fits for n in not_identifiable(f, rel_ci_limit)]
+    if flagged and prior == "none":
+        raise NotIdentifiableError(_message(flagged, fits, [d.name for d in data]))
+    if flagged and prior == "fix":
+        # one at a time, the widest CI of each equation first: fixing one of a collinear pair often makes the
+        # other identifiable, so fixing the whole flagged set at once would throw information away
+        fixed: set[str] = set()
+        for _ in range(len(coefficient_names(structure))):
+            worst = [max((c for c in f.coefficients if c.name in not_identifiable(f, rel_ci_limit)),
+                         key=lambda c: c.rel_ci) for f in fits if not_identifiable(f, rel_ci_limit)]
+            if not worst:
+                break
+            fixed.update(c.name for c in worst)
+            fits = [fit_equation(d, priors, fixed=tuple(fixed)) for d in designs]
+    elif flagged and prior == "ridge":
+        weight = _ridge_by_cv(designs, priors) if len({int(g) for g in designs[0].groups}) >= 2 else 1e-2
+        fits = [fit_equation(d, priors, ridge=weight) for d in designs]
+    return HullFit(structure, prior, tuple(fits), tuple(flagged), u0)
+
+
+# ------------------------------------------------------------------------------------------ cross-validation
+
+
+def _cv_error(d: Design, prior: Mapping[str, float], fixed: Sequence[str], ridge: float) -> float:
+    """Held-out mean squared error / variance of the target, leave one manoeuvre out."""
+    groups = np.unique(d.groups)
+    if len(groups) < 2:
+        raise DatasetError("cross-validation needs at least two manoeuvres")
+    sq, count = 0.0, 0
+    for g in groups:
+        train, test = d.groups != g, d.groups == g
+        sub = Design(d.equation, d.names, d.matrix[train], d.target[train], d.groups[train], d.scale[train])
+        prior_vec = np.array([prior.get(n, 0.0) for n in d.names])
+        free = np.array([n not in fixed for n in d.names])
+        scale = np.maximum(np.abs(prior_vec), 10 * MAGNITUDE_FLOOR)
+        theta, _ = _solve(sub.matrix, sub.target, prior_vec, free, ridge, scale)
+        err = d.target[test] - d.matrix[test] @ theta
+        sq += float(err @ err)
+        count += len(err)
+    return sq / count / max(float(np.var(d.target)), 1e-30)
+
+
+@dataclass(frozen=True)
+class CrossValidation:
+    structure: str
+    per_equation: dict[str, float]  # held-out MSE / variance of the hull force
+    score: float  # mean over the equations
+
+    def to_json(self) -> dict:
+        return {"structure": self.structure, "per_equation_nmse": self.per_equation, "score": self.score}
+
+
+def cross_validate(vessel: Vessel, data: Sequence[ForceData], fit: HullFit) -> CrossValidation:
+    """Leave-one-manoeuvre-out error of a structure with the same fixed coefficients / ridge as `fit`."""
+    priors = prior_values(vessel, fit.structure)
+    per = {}
+    for e in fit.equations:
+        d = design(vessel, data, fit.structure, e.equation, fit.u0)
+        fixed = [c.name for c in e.coefficients if c.status == "fixed to prior"]
+        per[e.equation] = _cv_error(d, priors, fixed, e.ridge_weight)
+    return CrossValidation(fit.structure, per, float(np.mean(list(per.values()))))
+
+
+# ------------------------------------------------------------------------------------------ the whole job
+
+
+@dataclass(frozen=True)
+class IdentificationResult:
+    vessel: Vessel  # the preset with the identified MMG hull
+    fit: HullFit  # of the chosen structure, on all data
+    cross_validation: tuple[CrossValidation, ...]  # every candidate structure
+    extra_terms: dict[str, float]  # abkowitz terms beyond the MMG hull (empty for mmg)
+    data: tuple[ForceData, ...] = field(repr=False)
+    notes: tuple[str, ...] = ()
+
+    @property
+    def structure(self) -> str:
+        return self.fit.structure
+
+    def to_json(self) -> dict:
+        return {
+            "structure": self.structure,
+            "prior": self.fit.prior_policy,
+            "u0_mps": self.fit.u0,
+            "coefficients": [c.to_json() for c in self.fit.coefficients()],
+            "not_identifiable_without_prior": list(self.fit.not_identifiable),
+            "collinearity": [e.collinearity.to_json() for e in self.fit.equations],
+            "residual_rms": {e.equation: e.residual_rms for e in self.fit.equations},
+            "effective_samples": {e.equation: e.effective_samples for e in self.fit.equations},
+            "cross_validation": [cv.to_json() for cv in self.cross_validation],
+            "extra_terms": self.extra_terms,
+            "manoeuvres": [d.name for d in self.data],
+            "notes": list(self.notes),
+        }
+
+
+def identified_vessel(vessel: Vessel, fit: HullFit) -> Vessel:
+    values = fit.values()
+    hull = Hull(**{n: values[n] for n in HULL_NAMES})
+    return replace(vessel, name=f"{vessel.name}_identified", hull=hull,
+                   provenance=f"{vessel.provenance.strip()} Hull derivatives identified by inverse-dynamics regression "
+                              f"(structure {fit.structure}, prior {fit.prior_policy}; usv_predictor.identification).")
+
+
+def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str = "auto", prior: str = "none",
+             smoother: SmootherConfig = SmootherConfig(), rel_ci_limit: float = REL_CI_LIMIT,
+             data: Sequence[ForceData] | None = None,
+             progress: Callable[[str], None] | None = None) -> IdentificationResult:
+    """Smoother -> inverse dynamics -> regression of each candidate structure -> CV -> identified vessel.
+
+    structure "auto" fits mmg and abkowitz and keeps abkowitz only if its CV error is lower by more than 5 %
+    (the simpler structure wins ties: its coefficients are those the grey box and the preset share).
+    """
+    if structure not in STRUCTURES + ("auto",):
+        raise ConfigError(f"unknown model structure {structure!r}; use one of {list(STRUCTURES) + ['auto']}")
+    names = sorted({r.name.split("#")[0].split("@")[0] for r in recordings})
+    if len(names) < MIN_MANOEUVRES:
+        raise DatasetError(f"identification needs at least {MIN_MANOEUVRES} manoeuvres (one is held out in turn "
+                           f"for cross-validation); got {len(names)}: {', '.join(names) or 'none'}")
+    forces = list(data) if data is not None else prepare(vessel, recordings, smoother=smoother, progress=progress)
+    candidates = STRUCTURES if structure == "auto" else (structure,)
+    fits, cvs = {}, []
+    for s in candidates:
+        if progress is not None:
+            progress(f"fitting structure {s} (prior {prior})")
+        fits[s] = fit_hull(vessel, forces, s, prior, rel_ci_limit=rel_ci_limit)
+        cvs.append(cross_validate(vessel, forces, fits[s]))
+    chosen = candidates[0]
+    notes = []
+    if structure == "auto":
+        by = {cv.structure: cv.score for cv in cvs}
+        chosen = "abkowitz" if by["abkowitz"] < 0.95 * by["mmg"] else "mmg"
+        notes.append(f"auto: CV error mmg {by['mmg']:.4f}, abkowitz {by['abkowitz']:.4f} -> {chosen}")
+    fit = fits[chosen]
+    if fit.not_identifiable:
+        notes.append(f"not identifiable without the prior: {', '.join(fit.not_identifiable)} -> {prior}")
+    values = fit.values()
+    extra = {n: values[n] for n in EXTRA_NAMES if n in values}
+    return IdentificationResult(identified_vessel(vessel, fit), fit, tuple(cvs), extra, tuple(forces), tuple(notes))
+
+
+def hull_forces(vessel: Vessel, values: Mapping[str, float], nu: np.ndarray, u0: float,
+                names: Sequence[str] | None = None) -> np.ndarray:
+    """(T, 3) hull [X, Y, N] of coefficient `values` (any structure) at velocities nu (N, N, N m)."""
+    g = vessel.geometry
+    q = 0.5 * 1025.0 * g.L_pp * g.d
+    u, v, r = nu[:, 0], nu[:, 1], nu[:, 2]
+    U = np.maximum(np.hypot(u, v), 1e-3)
+    vp, rp = v / U, r * g.L_pp / U
+    out = np.zeros((len(nu), 3))
+    for name, value in values.items():
+        if names is not None and name not in names:
+            continue
+        eq = 0 if name == "R0" else EQUATIONS.index(name[0])
+        out[:, eq] += value * regressor(name, u, vp, rp, U, u0) * q * U * U * (g.L_pp if eq == 2 else 1.0)
+    return out
+
+
+def data_digest(recordings: Sequence[Recording]) -> str:
+    """sha256 over the names and arrays the identification used."""
+    h = hashlib.sha256()
+    for r in recordings:
+        h.update(r.name.encode())
+        for array in (r.nu, r.psi, r.controls, r.position):
+            h.update(np.ascontiguousarray(array, dtype=np.float64).tobytes())
+    return h.hexdigest()

@@ -1,0 +1,264 @@
+"""Accelerations from measured motions: an extended Kalman filter and Rauch-Tung-Striebel smoother (seed 001 sec. 3.2).
+
+Inverse dynamics needs nu_dot, which no sensor here measures (the IMU's specific force carries gravity, wave
+motion and mounting errors). Finite differences of noisy velocities amplify the noise by sqrt(2)/dt; seed 001
+estimates the accelerations with an extended Kalman filter instead. This module does that, followed by the RTS
+smoother (Rauch, Tung & Striebel 1965; Saerkkae 2013, "Bayesian Filtering and Smoothing", eq. 8.3 and
+Algorithm 9.3) so every estimate uses the whole record.
+
+State (marine convention, SI):      x = [x_n, y_e, psi, u, v, r, u_dot, v_dot, r_dot]   (9,)
+Kinematic constant-acceleration model, white jerk w (Fossen 2021 eq. 2.40 for the position rates):
+    [x_n, y_e]' = R(psi) [u, v],  psi' = r,  [u, v, r]' = [u_dot, v_dot, r_dot],  [u_dot, v_dot, r_dot]' = w
+Discretised over a step h with the second-order Taylor term (the acceleration enters the position exactly to
+h^2/2); the Jacobian F = df/dx is taken numerically (9 columns at once). Process noise of the white jerk
+(spectral density q per axis, Bar-Shalom et al. 2001 eq. 6.2.3-9):
+    Q_axis = q [[h^5/20, h^4/8, h^3/6], [h^4/8, h^3/3, h^2/2], [h^3/6, h^2/2, h]]  on (velocity integral, velocity,
+    acceleration) -- here used on (velocity, acceleration) as the lower 2x2 block, plus a small q_pose on x, y, psi
+    for the model error of the position kinematics.
+Measurement: z = [x_n, y_e, psi, u, v, r] (GNSS, compass, INS/DVL, gyro), H a selection; any NaN component of
+z (GNSS drop-out) is left out of that update (NaN-tolerant).
+
+Measurement noise: given, or estimated from the data by the second difference of each signal
+(var(d2 z) = 6 sigma^2 for white noise on a signal smooth at the sample rate). Jerk spectral densities: given,
+or tuned by the innovation log-likelihood over a grid of multipliers of a data-derived scale.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from usv_predictor.errors import DatasetError
+from usv_predictor.recording import Recording
+
+STATE_NAMES = ("x_n", "y_e", "psi", "u", "v", "r", "u_dot", "v_dot", "r_dot")
+MEASURED_NAMES = ("x_n", "y_e", "psi", "u", "v", "r")
+NOISE_FLOOR = np.array([1e-3, 1e-3, 1e-4, 1e-4, 1e-4, 1e-5])  # m, m, rad, m/s, m/s, rad/s: a quantisation floor
+JERK_GRID = (0.01, 0.1, 1.0, 10.0, 100.0)  # multipliers of the data-derived jerk scale tried by tune()
+
+
+@dataclass(frozen=True)
+class SmootherConfig:
+    """Noise model of the EKF/RTS smoother; None = estimate from the data."""
+
+    measurement_std: tuple[float, ...] | None = None  # std of x_n, y_e (m), psi (rad), u, v (m/s), r (rad/s)
+    jerk_psd: tuple[float, float, float] | None = None  # q of u, v (m^2/s^5) and r (rad^2/s^5)
+    pose_psd: tuple[float, float, float] = (1e-4, 1e-4, 1e-8)  # model error of x_n, y_e (m^2/s), psi (rad^2/s)
+
+
+@dataclass(frozen=True)
+class Smoothed:
+    """Smoothed states on the recording's grid with their standard deviations."""
+
+    t_s: np.ndarray  # (T,)
+    state: np.ndarray  # (T, 9) STATE_NAMES
+    std: np.ndarray  # (T, 9)
+    log_likelihood: float  # innovation log-likelihood of the forward pass
+    config: SmootherConfig  # the noise model used (estimated values filled in)
+
+    @property
+    def nu(self) -> np.ndarray:
+        return self.state[:, 3:6]  # (T, 3)
+
+    @property
+    def nu_dot(self) -> np.ndarray:
+        return self.state[:, 6:9]  # (T, 3)
+
+    @property
+    def nu_dot_std(self) -> np.ndarray:
+        return self.std[:, 6:9]
+
+
+def measurements(recording: Recording) -> np.ndarray:
+    """(T, 6) [x_n, y_e, psi, u, v, r] of a Recording (NaN where GNSS had no fix)."""
+    return np.column_stack([recording.position, recording.psi, recording.nu])
+
+
+def estimate_measurement_std(z: np.ndarray) -> np.ndarray:
+    """(6,) white-noise std per column from second differences: robust (median) version of var(d2z) = 6 sigma^2."""
+    out = np.empty(z.shape[1])
+    for k in range(z.shape[1]):
+        col = z[:, k]
+        d2 = col[2:] - 2.0 * col[1:-1] + col[:-2]
+        d2 = d2[np.isfinite(d2)]
+        if len(d2) < 10:
+            out[k] = NOISE_FLOOR[k] * 100.0  # too few samples to tell: weak but finite
+            continue
+        mad = np.median(np.abs(d2 - np.median(d2))) * 1.4826
+        out[k] = max(mad / math.sqrt(6.0), NOISE_FLOOR[k])
+    return out
+
+
+def jerk_scale(z: np.ndarray, dt: float) -> np.ndarray:
+    """(3,) data-derived jerk spectral density scale of u, v, r: (rms of the acceleration)^2 / (10 s)."""
+    window = max(1, int(round(2.0 / dt)))  # 2 s moving average, then centred difference: a rough acceleration
+    out = np.empty(3)
+    for k in range(3):
+        col = z[:, 3 + k]
+        if len(col) < 2 * window + 3:
+            out[k] = 1e-6
+            continue
+        smooth = np.convolve(col, np.ones(window) / window, mode="valid")
+        acc = np.gradient(smooth, dt)
+        out[k] = max(float(np.mean(acc**2)) / 10.0, 1e-12)
+    return out
+
+
+def _transition(x: np.ndarray, h: float) -> np.ndarray:
+    """x_{k+1} for state columns x (9, n): constant acceleration over h, second-order position update."""
+    psi, u, v, r, au, av, ar = x[2], x[3], x[4], x[5], x[6], x[7], x[8]
+    c, s = np.cos(psi), np.sin(psi)
+    vn, ve = u * c - v * s, u * s + v * c
+    # d/dt of R(psi)[u, v] = R(psi)[u_dot - r v, v_dot + r u]
+    bu, bv = au - r * v, av + r * u
+    an, ae = bu * c - bv * s, bu * s + bv * c
+    out = np.empty_like(x)
+    out[0] = x[0] + h * vn + 0.5 * h * h * an
+    out[1] = x[1] + h * ve + 0.5 * h * h * ae
+    out[2] = psi + h * r + 0.5 * h * h * ar
+    out[3] = u + h * au
+    out[4] = v + h * av
+    out[5] = r + h * ar
+    out[6:9] = x[6:9]
+    return out
+
+
+def _jacobian(x: np.ndarray, h: float) -> np.ndarray:
+    """(9, 9) numerical dF/dx at x (central differences, all columns in one call)."""
+    eps = 1e-6 * np.maximum(1.0, np.abs(x))
+    plus = x[:, None] + np.diag(eps)
+    minus = x[:, None] - np.diag(eps)
+    return (_transition(plus, h) - _transition(minus, h)) / (2.0 * eps)[None, :]
+
+
+def process_noise(h: float, jerk_psd: np.ndarray, pose_psd: np.ndarray) -> np.ndarray:
+    """(9, 9) Q for one step of length h."""
+    q = np.zeros((9, 9))
+    for k in range(3):
+        q[k, k] = pose_psd[k] * h
+        i, j = 3 + k, 6 + k
+        q[i, i] += jerk_psd[k] * h**3 / 3.0
+        q[i, j] = q[j, i] = jerk_psd[k] * h**2 / 2.0
+        q[j, j] = jerk_psd[k] * h
+    return q
+
+
+def _initial(z: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First state from the first finite measurements, with a wide covariance."""
+    x0 = np.zeros(9)
+    p0 = np.zeros(9)
+    for k in range(6):
+        finite = np.flatnonzero(np.isfinite(z[:, k]))
+        x0[k] = z[finite[0], k] if len(finite) else 0.0
+        p0[k] = (10.0 * std[k]) ** 2 if len(finite) else 1e6
+    p0[6:9] = [1.0, 1.0, 0.1]  # accelerations unknown: (1 m/s^2)^2, (0.3 rad/s^2)^2
+    return x0, np.diag(p0)
+
+
+def _forward(z: np.ndarray, dt: float, std: np.ndarray, jerk: np.ndarray, pose: np.ndarray):
+    """EKF over the record: filtered/predicted means and covariances, Jacobians, log-likelihood."""
+    n = len(z)
+    x, p = _initial(z, std)
+    q = process_noise(dt, jerk, pose)
+    r_full = np.diag(std**2)
+    xf, pf = np.empty((n, 9)), np.empty((n, 9, 9))
+    xp, pp = np.empty((n, 9)), np.empty((n, 9, 9))
+    jac = np.empty((n, 9, 9))
+    loglik = 0.0
+    for k in range(n):
+        if k > 0:
+            f = _jacobian(xf[k - 1], dt)
+            jac[k - 1] = f
+            x = _transition(xf[k - 1][:, None], dt)[:, 0]
+            p = f @ pf[k - 1] @ f.T + q
+        xp[k], pp[k] = x, p
+        seen = np.flatnonzero(np.isfinite(z[k]))
+        if len(seen):
+            innov = z[k, seen] - x[seen]
+            s = p[np.ix_(seen, seen)] + r_full[np.ix_(seen, seen)]
+            gain = np.linalg.solve(s, p[seen, :]).T  # (9, m) = P H^T S^-1 (S symmetric)
+            x = x + gain @ innov
+            ikh = np.eye(9)
+            ikh[:, seen] -= gain
+            # Joseph form keeps P symmetric positive definite over thousands of steps
+            p = ikh @ p @ ikh.T + gain @ r_full[np.ix_(seen, seen)] @ gain.T
+            sign, logdet = np.linalg.slogdet(s)
+            loglik -= 0.5 * (logdet + innov @ np.linalg.solve(s, innov) + len(seen) * math.log(2.0 * math.pi))
+        xf[k], pf[k] = x, p
+    return xf, pf, xp, pp, jac, loglik
+
+
+def _backward(xf: np.ndarray, pf: np.ndarray, xp: np.ndarray, pp: np.ndarray, jac: np.ndarray):
+    """RTS smoother: G_k = P_k F_k^T P_{k+1|k}^-1; x_k^s = x_k + G_k (x_{k+1}^s - x_{k+1|k})."""
+    n = len(xf)
+    xs, ps = xf.copy(), pf.copy()
+    for k in range(n - 2, -1, -1):
+        g = np.linalg.solve(pp[k + 1], (pf[k] @ jac[k].T).T).T
+        xs[k] = xf[k] + g @ (xs[k + 1] - xp[k + 1])
+        ps[k] = pf[k] + g @ (ps[k + 1] - pp[k + 1]) @ g.T
+    return xs, ps
+
+
+def smooth_measurements(z: np.ndarray, dt: float, config: SmootherConfig = SmootherConfig()) -> Smoothed:
+    """EKF + RTS smoother on (T, 6) measurements [x_n, y_e, psi (continuous), u, v, r] at step dt."""
+    z = np.asarray(z, dtype=float)
+    if z.ndim != 2 or z.shape[1] != 6:
+        raise DatasetError(f"smoother needs (T, 6) measurements {MEASURED_NAMES}, got shape {z.shape}")
+    if len(z) < 10:
+        raise DatasetError(f"smoother needs at least 10 samples, got {len(z)}")
+    missing = [MEASURED_NAMES[k] for k in range(2, 6) if not np.isfinite(z[:, k]).any()]
+    if missing:
+        raise DatasetError(f"smoother: no finite samples of {missing} (heading and velocities are required; "
+                           "only GNSS may be missing)")
+    if not dt > 0.0:
+        raise DatasetError(f"smoother step dt={dt} s must be > 0")
+    std = np.asarray(config.measurement_std, dtype=float) if config.measurement_std else estimate_measurement_std(z)
+    jerk = np.asarray(config.jerk_psd, dtype=float) if config.jerk_psd else jerk_scale(z, dt)
+    pose = np.asarray(config.pose_psd, dtype=float)
+    xf, pf, xp, pp, jac, loglik = _forward(z, dt, std, jerk, pose)
+    xs, ps = _backward(xf, pf, xp, pp, jac)
+    used = replace(config, measurement_std=tuple(float(s) for s in std), jerk_psd=tuple(float(q) for q in jerk))
+    std_states = np.sqrt(np.clip(np.diagonal(ps, axis1=1, axis2=2), 0.0, None))
+    return Smoothed(np.arange(len(z)) * dt, xs, std_states, float(loglik), used)
+
+
+def tune(z: np.ndarray, dt: float, config: SmootherConfig = SmootherConfig(),
+         grid: tuple[float, ...] = JERK_GRID) -> Smoothed:
+    """Smooth with the jerk scale multiplier of `grid` that maximises the innovation log-likelihood.
+
+    A too-small jerk density lags the accelerations, a too-large one passes noise: the likelihood of the
+    one-step predictions balances the two without ground truth.
+    """
+    z = np.asarray(z, dtype=float)
+    std = config.measurement_std or tuple(float(s) for s in estimate_measurement_std(z))
+    jerk = np.asarray(config.jerk_psd, dtype=float) if config.jerk_psd else jerk_scale(z, dt)
+    best: Smoothed | None = None
+    # coordinate-wise: the three axes interact only weakly through the kinematics
+    for axis in range(3):
+        base = jerk.copy()
+        for factor in grid:
+            trial_jerk = base.copy()
+            trial_jerk[axis] *= factor
+            trial = smooth_measurements(z, dt, replace(config, measurement_std=std,
+                                                       jerk_psd=tuple(float(q) for q in trial_jerk)))
+            if best is None or trial.log_likelihood > best.log_likelihood:
+                best, jerk = trial, trial_jerk
+    assert best is not None  # grid is non-empty
+    return best
+
+
+def smooth_recording(recording: Recording, config: SmootherConfig = SmootherConfig(), *,
+                     tune_noise: bool = True) -> Smoothed:
+    """Smoothed states and accelerations of a Recording (jerk density tuned by likelihood unless given)."""
+    z = measurements(recording)
+    if tune_noise and config.jerk_psd is None:
+        smoothed = tune(z, recording.dt, config)
+    else:
+        smoothed = smooth_measurements(z, recording.dt, config)
+    return replace(smoothed, t_s=recording.t_s.copy())
+
+
+def finite_difference_accelerations(recording: Recording) -> np.ndarray:
+    """(T, 3) centred differences of the measured u, v, r: the baseline the smoother must beat."""
+    return np.gradient(recording.nu, recording.dt, axis=0)
