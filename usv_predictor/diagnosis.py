@@ -142,14 +142,18 @@ class Fit:
     seconds: float
 
 
-def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str, *, max_iter: int = 12) -> Fit:
+def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Sequence[str], *, max_iter: int = 12) -> Fit:
     """Levenberg-Marquardt on the weighted residuals, finite-difference Jacobian in scaled parameters.
+
+    `hypothesis` is one name of HYPOTHESES or several, fitted together (a cause and the ones added to it).
 
     Standard errors come from (J^T J)^-1 s^2, inflated by the steps per segment because the residuals of
     one segment are strongly correlated (a conservative effective sample size: one per segment).
     """
     started = time.perf_counter()
-    terms = HYPOTHESES[hypothesis]
+    names = (hypothesis,) if isinstance(hypothesis, str) else tuple(hypothesis)
+    terms = tuple(term for name in names for term in HYPOTHESES[name])
+    hypothesis = "+".join(names)
     sizes = [len(t.start) for t in terms]
     scale = np.concatenate([[t.scale] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
     low = np.concatenate([[t.low] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
@@ -261,6 +265,18 @@ class Evidence:
 
 
 @dataclass(frozen=True)
+class AddedCause:
+    """A further cause found after the primary one, with its evidence over the model without it."""
+
+    cause: str
+    parameters: dict[str, float]
+    uncertainty: dict[str, float]
+    heldout_loss: float
+    evidence: float  # held-out log-likelihood ratio over the model with the causes before it
+    gain: float  # share of that model's held-out loss it removes
+
+
+@dataclass(frozen=True)
 class Diagnosis:
     cause: str
     parameters: dict[str, float]
@@ -272,6 +288,12 @@ class Diagnosis:
     message: str
     seconds: float = 0.0
     notes: tuple[str, ...] = field(default_factory=tuple)
+    additional_causes: tuple[AddedCause, ...] = ()
+
+    @property
+    def hypotheses(self) -> tuple[str, ...]:
+        """Every named cause, primary first (what the extended model contains)."""
+        return () if self.cause == "none" else (self.cause, *(a.cause for a in self.additional_causes))
 
 
 def check_data(recordings: Sequence[Recording]) -> list[str]:
@@ -294,9 +316,13 @@ def check_data(recordings: Sequence[Recording]) -> list[str]:
 
 
 def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Sequence[str] | None = None,
-             horizon_s: float = 20.0, stride_s: float = 5.0, substeps: int = 1,
+             horizon_s: float = 20.0, stride_s: float = 5.0, substeps: int = 1, max_causes: int = 2,
              progress: Callable[[str], None] = lambda _: None) -> Diagnosis:
-    """Name the cause of what the calm-water grey box gets wrong on these recordings."""
+    """Name the cause of what the calm-water grey box gets wrong on these recordings.
+
+    After the primary cause, up to max_causes - 1 further ones are added one at a time (forward selection)
+    while each passes the same held-out evidence test against the model with the causes before it.
+    """
     started = time.perf_counter()
     notes = check_data(recordings)
     names = list(hypotheses or HYPOTHESES)
@@ -341,12 +367,41 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         message = (f"best hypothesis {top.hypothesis} removes {top.gain_vs_none * 100:.1f} % of the held-out error "
                    f"with evidence {top.evidence_vs_none:.1f} (a cause needs >= {EVIDENCE_CAUSE:g} and "
                    f">= {MIN_GAIN * 100:.0f} %): no cause named")
-    final = fit_hypothesis(model, seg, cause)
+    chosen = [] if cause == "none" else [cause]
+    current_loss = per_segment.get(cause, base)
+    added_raw: list[tuple[str, float, float, float]] = []
+    while chosen and len(chosen) < max_causes:
+        trials = {}
+        for name in names:
+            if name == "none" or name in chosen or name in confounded:
+                continue
+            losses = []
+            for fit_fold, test_fold in ((0, 1), (1, 0)):
+                fit_hypothesis(model, seg.select(np.isin(seg.recording, folds[fit_fold])), (*chosen, name))
+                losses.append(segment_losses(model, seg.select(np.isin(seg.recording, folds[test_fold]))))
+            trials[name] = np.concatenate(losses)
+            progress(f"{'+'.join((*chosen, name)):30s} held-out loss {trials[name].mean():9.3f}")
+        if not trials:
+            break
+        name = min(trials, key=lambda n: trials[n].mean())
+        gain = 1.0 - trials[name].mean() / current_loss.mean()
+        evidence_added = 0.5 * n_eff * math.log(max(current_loss.mean(), 1e-12) / max(trials[name].mean(), 1e-12))
+        if evidence_added < EVIDENCE_CAUSE or gain < MIN_GAIN:
+            break
+        chosen.append(name)
+        added_raw.append((name, float(trials[name].mean()), evidence_added, gain))
+        current_loss = trials[name]
+    final = fit_hypothesis(model, seg, chosen or "none")
     parameters = physical_parameters(cause, final.terms)
     uncertainty = _physical_uncertainty(cause, final)
+    added = tuple(AddedCause(n, physical_parameters(n, final.terms), _physical_uncertainty(n, final), loss_, ev, g)
+                  for n, loss_, ev, g in added_raw)
+    if added:
+        message += "; further: " + ", ".join(f"{a.cause} (removes {a.gain * 100:.0f} % more, evidence {a.evidence:.1f})"
+                                            for a in added)
     return Diagnosis(cause, parameters, uncertainty, confounded, tuple(evidence), final,
                      (tuple(recordings[i].name for i in folds[0]), tuple(recordings[i].name for i in folds[1])),
-                     message, time.perf_counter() - started, tuple(notes))
+                     message, time.perf_counter() - started, tuple(notes), added)
 
 
 def _folds(recordings: Sequence[Recording]) -> tuple[list[int], list[int]]:
@@ -356,18 +411,19 @@ def _folds(recordings: Sequence[Recording]) -> tuple[list[int], list[int]]:
 
 
 def _physical_uncertainty(cause: str, fit: Fit) -> dict[str, float]:
-    """Standard errors in the vocabulary's units (first-order propagation for vectors)."""
+    """Standard errors, keyed like physical_parameters (first-order propagation for vectors)."""
     if cause in ("current", "wind", "wave_drift"):
         term = HYPOTHESES[cause][0].name
         n, e = fit.terms[term]
         sn, se = fit.std[term]
         magnitude = math.hypot(n, e)
         direction_sd = math.degrees(math.hypot(sn, se) / max(magnitude, 1e-9))
+        direction_key = "direction_to_deg" if cause == "current" else "direction_from_deg"
         if cause == "wave_drift":
             # H_s = 2 sqrt(|w|): dH = dw / sqrt(|w|)
             return {"significant_height_m": math.hypot(sn, se) / max(math.sqrt(magnitude), 1e-9),
-                    "direction_deg": min(direction_sd, 180.0)}
-        return {"speed_mps": math.hypot(sn, se), "direction_deg": min(direction_sd, 180.0)}
+                    direction_key: min(direction_sd, 180.0)}
+        return {"speed_mps": math.hypot(sn, se), direction_key: min(direction_sd, 180.0)}
     if cause == "none":
         return {}
     term = HYPOTHESES[cause][0].name
@@ -455,7 +511,7 @@ def measure_gain(recordings: Sequence[Recording], vessel: Vessel, diagnosis: Dia
         fit_names, test_names = diagnosis.folds[fit_fold], diagnosis.folds[test_fold]
         fit_idx = [names.index(n) for n in fit_names]
         held_out = [recordings[names.index(n)] for n in test_names]
-        fit = fit_hypothesis(fitter, seg.select(np.isin(seg.recording, fit_idx)), diagnosis.cause)
+        fit = fit_hypothesis(fitter, seg.select(np.isin(seg.recording, fit_idx)), diagnosis.hypotheses)
         extended = extended_rollout(vessel, dt, fit.terms)
         predictor = GreyBoxPredictor(extended, {**greybox_metadata(vessel, extended), "model_id": "extended"})
         before += evaluation.evaluate(baseline, held_out, horizons_s=horizons_s, stride_s=stride_s).recordings
@@ -480,5 +536,6 @@ def export_extended(path, vessel: Vessel, diagnosis: Diagnosis, dt: float, *, da
     rollout = extended_rollout(vessel, dt, diagnosis.fit.terms)
     meta = greybox_metadata(vessel, rollout, model_type=f"greybox+{diagnosis.cause}", training_data_sha256=data_digest,
                             training={"method": "diagnosis (usv_predictor.diagnosis)", "cause": diagnosis.cause,
-                                      "parameters": diagnosis.parameters})
+                                      "parameters": diagnosis.parameters,
+                                      "additional_causes": [a.cause for a in diagnosis.additional_causes]})
     return export_module(path, rollout, meta)

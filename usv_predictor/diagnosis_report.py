@@ -111,7 +111,12 @@ def write_report(directory: Path, out: dict, recordings: Sequence[Recording], ve
         lines += [f"> {note}", ""]
     lines += ["## Named cause", "", "| parameter | estimate | standard error |", "|---|---|---|"]
     for key, value in out["parameters"].items():
-        lines.append(f"| {key} | {_fmt(value, 4)} | {_fmt(out['uncertainty'].get(key.replace('direction_to_deg', 'direction_deg').replace('direction_from_deg', 'direction_deg')), 2)} |")
+        lines.append(f"| {key} | {_fmt(value, 4)} | {_fmt(out['uncertainty'].get(key), 2)} |")
+    for extra in out.get("additional_causes", []):
+        lines += ["", f"**Further cause: {extra['cause']}** — removes {extra['gain'] * 100:.0f} % more of the held-out "
+                  f"error (evidence {extra['evidence']:.1f}): " + ", ".join(
+                      f"{k} {_fmt(v, 4)} ± {_fmt(extra['uncertainty'].get(k), 2)}"
+                      for k, v in extra["parameters"].items())]
     lines += ["", "## Evidence (held-out manoeuvres, two folds)", "",
               f"Folds: {' / '.join(', '.join(f) for f in out['folds'])}.", "",
               "| hypothesis | held-out loss | share of the calm-water error removed | evidence over calm water | "

@@ -1,7 +1,8 @@
 """`replay diagnose`: what the calm-water model gets wrong on measured bags, the named cause, the extended
 model and its measured gain on held-out manoeuvres (usv_predictor.diagnosis).
 
-JSON result: cause, parameters (DESIGN.md vocabulary and units), uncertainty, confounded_with, evidence (every
+JSON result: cause, parameters (DESIGN.md vocabulary and units), uncertainty, confounded_with, additional_causes
+(further causes added one at a time while the evidence holds, with their parameters), evidence (every
 hypothesis: held-out loss, gain, log-likelihood evidence, per-fold parameters), discrepancy (what the calm-water
 model gets wrong), baseline / extended / gain (evaluation metrics on held-out manoeuvres), notes.
 """
@@ -25,6 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hypotheses", nargs="+", default=None, metavar="H",
                         help="hypotheses to test (default: all of " "none current wind wave_drift rudder_offset "
                              "yaw_rate_bias heading_offset actuator_delay resistance)")
+    parser.add_argument("--max-causes", type=int, default=2,
+                        help="name up to this many causes, added one at a time while each passes the evidence test "
+                             "(default 2)")
     parser.add_argument("--horizon", type=float, default=20.0, help="segment horizon (s, default 20)")
     parser.add_argument("--stride", type=float, default=5.0, help="time between segment starts (s, default 5)")
     parser.add_argument("--no-gain", action="store_true", help="skip the held-out evaluation of the extended model")
@@ -78,14 +82,17 @@ def run(args: argparse.Namespace) -> dict:
     if missing:
         raise DatasetError(f"no engine speed in {missing}: the calm-water model needs rudder and rpm; record engine_rpm")
     _log(f"diagnosing {len(recordings)} manoeuvre(s) against the {source} calm-water model of {vessel.name}")
+    if args.max_causes < 1:
+        raise DatasetError(f"--max-causes {args.max_causes} must be >= 1")
     result = dg.diagnose(recordings, vessel, hypotheses=args.hypotheses, horizon_s=args.horizon, stride_s=args.stride,
-                         progress=_log)
+                         max_causes=args.max_causes, progress=_log)
     seg = dg.make_segments(recordings, args.horizon, args.stride)
     discrepancy = dg.discrepancy(dg.scripted_rollout(vessel, args.dt), seg, recordings)
     _log(f"cause: {result.cause} {result.parameters} — {result.message}")
     out = {
         "cause": result.cause, "parameters": result.parameters, "uncertainty": result.uncertainty,
         "confounded_with": list(result.confounded_with), "message": result.message, "notes": list(result.notes),
+        "additional_causes": [dataclasses.asdict(a) for a in result.additional_causes],
         "evidence": [dataclasses.asdict(e) for e in result.evidence],
         "folds": [list(f) for f in result.folds], "discrepancy": discrepancy,
         "calm_water_model": {"vessel": vessel.name, "source": source},
