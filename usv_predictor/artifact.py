@@ -37,8 +37,6 @@ import datetime
 import hashlib
 import json
 import math
-import os
-import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,6 +47,7 @@ import torch
 from torch import nn
 
 import usv_predictor
+from usv_predictor.atomic import atomic_path
 from usv_predictor.errors import ModelError
 from usv_predictor.features import CONTROL_NAMES, FEATURE_UNITS, STATE_NAMES
 from usv_predictor.models.dnn import DnnConfig, DnnModel
@@ -271,19 +270,8 @@ def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, An
     with _quiet_jit():
         scripted = module if isinstance(module, torch.jit.ScriptModule) else torch.jit.script(module.eval())
     text = json.dumps(meta, indent=2, sort_keys=True, allow_nan=False)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        os.close(fd)
-        try:
-            with _quiet_jit():
-                torch.jit.save(scripted, tmp, _extra_files={METADATA_FILE: text})
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as err:
-        raise ModelError(f"cannot write model {path}: {err}") from err
+    with atomic_path(path, ModelError, "model") as tmp, _quiet_jit():
+        torch.jit.save(scripted, str(tmp), _extra_files={METADATA_FILE: text})
     return load_artifact(path)
 
 

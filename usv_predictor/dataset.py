@@ -26,7 +26,6 @@ import fnmatch
 import hashlib
 import json
 import os
-import tempfile
 import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -35,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from usv_predictor.atomic import atomic_open
 from usv_predictor.errors import DatasetError
 from usv_predictor.features import (
     CONTROL_NAMES, CONTROL_UNITS, STATE_NAMES, STATE_UNITS, TARGET_NAMES, TARGET_UNITS, feature_names,
@@ -277,20 +277,9 @@ def build_dataset(recordings: Sequence[Recording], feature_set: str, *, splits: 
 def save_dataset(path: str | os.PathLike[str], dataset: Dataset) -> Path:
     """Write one compressed .npz (temp file beside it, then os.replace: never a half-written file)."""
     path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as out:  # a file object: numpy does not append ".npz"
-                np.savez_compressed(out, metadata=np.array(json.dumps(dict(dataset.metadata), sort_keys=True)),
-                                    **{name: np.asarray(dataset.arrays[name]) for name in ARRAYS})
-            os.chmod(tmp, 0o644)  # mkstemp made it private; a dataset is shared like any output
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as err:
-        raise DatasetError(f"{path}: cannot write the dataset: {err}") from err
+    with atomic_open(path, "wb", DatasetError, "the dataset") as out:  # a file object: numpy adds no ".npz"
+        np.savez_compressed(out, metadata=np.array(json.dumps(dict(dataset.metadata), sort_keys=True)),
+                            **{name: np.asarray(dataset.arrays[name]) for name in ARRAYS})
     return path
 
 

@@ -2,13 +2,12 @@
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from usv_predictor.atomic import atomic_open
 from usv_predictor.recording import Recording
 from usv_predictor.vessel import Vessel
 
@@ -145,12 +144,6 @@ def write_report(directory: Path, out: dict, recordings: Sequence[Recording], ve
                 lines.append(f"| {key} | {_fmt(before)} | {_fmt(out['extended'][key])} | {out['gain'][key] * 100:.0f} % |")
     text = "\n".join(lines) + "\n"
     target = directory / "report.md"
-    fd, tmp = tempfile.mkstemp(prefix=".report.md.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_open(target, "w", what="report") as f:
+        f.write(text)
     return target

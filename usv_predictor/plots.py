@@ -17,8 +17,6 @@ temporary name in the target directory and renamed, so a reader never sees half 
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +25,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from usv_predictor.atomic import atomic_open
 from usv_predictor.errors import UsvPredictorError
 from usv_predictor.evaluation import R, U, V, X_N, Y_E, Prediction
 
@@ -49,18 +48,8 @@ def new_figure(width_in: float, height_in: float) -> Figure:
 def save_figure(fig: Figure, path: Path) -> Path:
     """Write fig as PNG to path via a temporary file in the same directory and os.replace."""
     path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as out:
-                fig.savefig(out, format="png")
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as err:
-        raise PlotError(f"cannot write figure {path}: {err}") from err
+    with atomic_open(path, "wb", PlotError, "figure") as out:
+        fig.savefig(out, format="png")
     return path
 
 

@@ -13,15 +13,14 @@ import argparse
 import importlib
 import json
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 from types import ModuleType
 from typing import Any, NoReturn
 
 import numpy as np
 
+from usv_predictor.atomic import atomic_open
 from usv_predictor.errors import UsvPredictorError
 
 PROG = "replay"
@@ -103,20 +102,9 @@ def _jsonable(value: Any) -> Any:
 
 def write_json_atomic(path: Path, result: dict) -> None:
     """Write `result` as JSON to `path` via a temp file in the same directory and os.replace."""
-    path = Path(path)
     text = json.dumps(_jsonable(result), indent=2, sort_keys=True) + "\n"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as out:
-                out.write(text)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as err:
-        raise UsvPredictorError(f"cannot write --json {path}: {err}") from err
+    with atomic_open(path, "w", UsvPredictorError, "--json") as out:
+        out.write(text)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -12,9 +12,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -183,20 +181,10 @@ def write_series_atomic(path: Path, arrays: dict) -> None:
     """np.savez to a temporary file beside `path`, then os.replace."""
     import numpy as np
 
-    from usv_predictor.errors import UsvPredictorError
+    from usv_predictor.atomic import atomic_open
 
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as out:
-                np.savez_compressed(out, **arrays)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as err:
-        raise UsvPredictorError(f"cannot write {path}: {err}") from err
+    with atomic_open(path, "wb") as out:
+        np.savez_compressed(out, **arrays)
 
 
 def save_evaluation(result: Any, directory: Path) -> dict:

@@ -12,10 +12,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import re
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -241,20 +239,10 @@ def _open_loop_section(data: dict, letters: dict[str, str], figure: str | None) 
 
 
 def write_text_atomic(path: Path, text: str) -> None:
-    from usv_predictor.errors import UsvPredictorError
+    from usv_predictor.atomic import atomic_open
 
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as out:
-                out.write(text)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as err:
-        raise UsvPredictorError(f"cannot write {path}: {err}") from err
+    with atomic_open(path, "w") as out:
+        out.write(text)
 
 
 def draw_figures(data: dict, predictions: list | None, out: Path, title: str) -> tuple[dict[str, list[str]], list[str]]:
