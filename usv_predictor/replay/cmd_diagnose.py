@@ -56,16 +56,30 @@ def baseline_vessel(args: argparse.Namespace):
 
     artifact = load_artifact(args.model)
     meta = artifact.metadata
-    hull = meta.get("architecture", {}).get("hull") if isinstance(meta.get("architecture"), dict) else None
-    if not str(meta.get("model_type", "")).startswith("greybox") or not isinstance(hull, dict):
-        raise ModelError(f"model {args.model}: diagnose needs a grey-box model (model_type greybox..., from "
-                         f"`replay identify`), not {meta.get('model_type')!r}; compare learned models with `replay evaluate`")
+    hull = _hull_of(meta)
+    if not str(meta.get("model_type", "")).startswith("greybox") or hull is None:
+        raise ModelError(f"model {args.model}: diagnose needs an MMG grey box without learned or extra terms "
+                         f"(`replay identify --structure mmg`), not model_type {meta.get('model_type')!r}; "
+                         "compare other models with `replay evaluate`")
     vessel = load_vessel(args.vessel or str(meta.get("vessel")))
     missing = [n for n in HULL_NAMES if n not in hull]
     if missing:
         raise ModelError(f"model {args.model}: hull coefficients {missing} missing from its metadata")
     vessel = dataclasses.replace(vessel, hull=dataclasses.replace(vessel.hull, **{n: float(hull[n]) for n in HULL_NAMES}))
     return vessel, f"identified ({meta.get('model_id')})"
+
+
+def _hull_of(meta: dict) -> dict | None:
+    """The MMG hull derivatives of a grey-box artifact: from `replay identify` (identification.coefficients)
+    or from `replay diagnose --export` (architecture.hull); None for anything the grey box cannot carry."""
+    ident = meta.get("identification")
+    arch = meta.get("architecture")
+    if isinstance(ident, dict):
+        residual = arch.get("residual", "ZeroResidual") if isinstance(arch, dict) else "ZeroResidual"
+        if ident.get("structure") != "mmg" or ident.get("extra_terms") or residual != "ZeroResidual":
+            return None
+        return {c["name"]: c["estimate"] for c in ident.get("coefficients", []) if isinstance(c, dict)}
+    return arch.get("hull") if isinstance(arch, dict) and isinstance(arch.get("hull"), dict) else None
 
 
 def run(args: argparse.Namespace) -> dict:
