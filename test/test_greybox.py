@@ -65,7 +65,9 @@ def test_accelerations_match_the_float_model_everywhere():
     rng = np.random.default_rng(0)
     for _ in range(50):
         current, wind, wave = rng.normal(0, 0.3, 2), rng.normal(0, 6.0, 2), np.abs(rng.normal(0, 0.05, 2))
-        set_terms(g, current_ne=current, wind_ne=wind, wave_ne=wave)
+        side = rng.normal(0, 0.03)
+        set_terms(g, current_ne=current, wind_ne=wind, wave_ne=wave, propeller_side_force=[side])
+        model = ManoeuvringModel(VESSEL, propeller_side_force=side)
         psi, u, v, r = rng.uniform(-3, 3), rng.uniform(0.5, 8), rng.uniform(-1.5, 1.5), rng.uniform(-0.4, 0.4)
         delta, rpm = rng.uniform(-0.6, 0.6), rng.uniform(300, 900)
         expected = model.accelerations(psi, u, v, r, delta, rpm, sea_of(current, wind, wave))

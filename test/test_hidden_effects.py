@@ -69,6 +69,20 @@ def test_heading_offset_and_current_are_told_apart(tmp_path):
     assert current["evidence_of_best"] > 5.0  # decisively worse, not a close call
 
 
+@pytest.mark.parametrize("effect, flags", [
+    ("rudder_offset", ["--effect", "rudder_offset", "--rudder-offset", "2"]),
+    ("propeller_asymmetry", ["--effect", "propeller_asymmetry", "--propeller-side-force-pct", "4"]),
+])
+def test_rudder_offset_and_propeller_asymmetry_are_told_apart(tmp_path, effect, flags):
+    """Both turn a boat with a centred rudder; with turns and zig-zags both ways their scalings differ
+    (rudder inflow against thrust) and the tool names the right one decisively."""
+    bags = simulate_trial(tmp_path, flags, 23)
+    result = diagnose(tmp_path, bags, "--no-gain", "--hypotheses", "rudder_offset", "propeller_asymmetry")
+    assert result["cause"] == effect and result["confounded_with"] == []
+    other = next(e for e in result["evidence"] if e["hypothesis"] not in (effect, "none"))
+    assert other["evidence_of_best"] > 5.0
+
+
 def test_one_manoeuvre_is_refused_with_what_to_add(tmp_path, capsys):
     bags = tmp_path / "one"
     run_cli("simulate", "--manoeuvre", "turning-circle", "--duration", "60", "--output", str(bags))

@@ -62,6 +62,7 @@ HYPOTHESES: dict[str, tuple[Term, ...]] = {
     "heading_offset": (Term("heading_offset", 0.01, -0.6, 0.6, (0.0,)),),
     "actuator_delay": (Term("actuator_delay", 0.1, 0.0, 5.0, (0.2,)),),
     "resistance": (Term("resistance_change", 0.05, -0.8, 3.0, (0.0,)),),
+    "propeller_asymmetry": (Term("propeller_side_force", 0.01, -0.3, 0.3, (0.0,)),),
 }
 
 
@@ -249,6 +250,8 @@ def physical_parameters(hypothesis: str, terms: dict[str, Sequence[float]]) -> d
         return {"delay_s": terms["actuator_delay"][0]}
     if hypothesis == "resistance":
         return {"resistance_change_pct": 100.0 * terms["resistance_change"][0]}
+    if hypothesis == "propeller_asymmetry":
+        return {"side_force_pct": 100.0 * terms["propeller_side_force"][0]}
     return {}
 
 

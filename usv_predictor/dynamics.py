@@ -39,7 +39,8 @@ class Forces(NamedTuple):
 
     def total(self) -> tuple[float, float, float]:
         h, rd, p, w, wv = self
-        return (h[0] + rd[0] + p[0] + w[0] + wv[0], h[1] + rd[1] + w[1] + wv[1], h[2] + rd[2] + w[2] + wv[2])
+        return (h[0] + rd[0] + p[0] + w[0] + wv[0], h[1] + rd[1] + p[1] + w[1] + wv[1],
+                h[2] + rd[2] + p[2] + w[2] + wv[2])
 
 
 @dataclass(frozen=True)
@@ -77,8 +78,11 @@ def fourier(series: tuple[float, tuple[tuple[int, float, float], ...]], chi: flo
 class ManoeuvringModel:
     """The vessel's equations of motion, with every constant precomputed in SI units."""
 
-    def __init__(self, vessel: Vessel) -> None:
+    def __init__(self, vessel: Vessel, propeller_side_force: float = 0.0) -> None:
+        """propeller_side_force: transverse propeller force / thrust (-), + to starboard at the propeller
+        (the 'paddle-wheel' effect of a single screw, or a bent shaft); 0 for a symmetric propulsor."""
         self.vessel = vessel
+        self.propeller_side_force = float(propeller_side_force)
         g, h, p, rd = vessel.geometry, vessel.hull, vessel.propeller, vessel.rudder
         self.L = g.L_pp
         self.m = vessel.mass
@@ -182,7 +186,8 @@ class ManoeuvringModel:
             qw = self.q_wave * sea.wave_amplitude**2
             waves = (qw * fourier(self.drift_x, chi), qw * fourier(self.drift_y, chi),
                      qw * L * fourier(self.drift_n, chi))
-        return Forces((x_h, y_h, n_h), (x_r, y_r, n_r), (x_p, 0.0, 0.0), wind, waves)
+        y_p = self.propeller_side_force * x_p / (1.0 - self.t_P)  # share of the thrust, at the propeller
+        return Forces((x_h, y_h, n_h), (x_r, y_r, n_r), (x_p, y_p, y_p * self.x_P * L), wind, waves)
 
     def _air_load(self, u_rw: float, v_rw: float) -> tuple[float, float, float]:
         """Air load for the apparent wind (u_rw, v_rw) in the body frame (seed 000 eq. 12-14)."""

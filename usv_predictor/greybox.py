@@ -18,7 +18,8 @@ Extension terms (all zero for the calm-water model; each is one diagnosis hypoth
     wave_ne (2,) zeta_a^2 (m^2) along the direction the waves come FROM; rudder_offset (rad, true - reported)
     yaw_rate_bias (rad/s, measured - true); heading_offset (rad, measured - true);
     actuator_delay (s, the hull feels the reported controls this much later);
-    resistance_change (-, relative change of the calm-water resistance R0: fouling, loading, a preset off).
+    resistance_change (-, relative change of the calm-water resistance R0: fouling, loading, a preset off);
+    propeller_side_force (-, transverse propeller force / thrust, + to starboard: propeller walk).
 """
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ from usv_predictor.vessel import RHO_WATER, Vessel
 HULL_NAMES = ("R0", "X_vv", "X_vr", "X_rr", "X_vvvv", "Y_v", "Y_r", "Y_vvv", "Y_vvr", "Y_vrr", "Y_rrr",
               "N_v", "N_r", "N_vvv", "N_vvr", "N_vrr", "N_rrr")
 TERM_NAMES = ("current_ne", "wind_ne", "wave_ne", "rudder_offset", "yaw_rate_bias", "heading_offset", "actuator_delay",
-              "resistance_change")
+              "resistance_change", "propeller_side_force")
 
 
 def _fourier_table(series: tuple[float, tuple[tuple[int, float, float], ...]]) -> List[List[float]]:
@@ -82,6 +83,7 @@ class GreyBoxRollout(nn.Module):
         self.heading_offset = zeros(1)
         self.actuator_delay = zeros(1)
         self.resistance_change = zeros(1)
+        self.propeller_side_force = zeros(1)
 
     # ---- forces ---------------------------------------------------------------------------------
     def _fourier(self, table: List[List[float]], chi: Tensor) -> Tensor:
@@ -146,9 +148,10 @@ class GreyBoxRollout(nn.Module):
         x_wv = qw * self._fourier(self.drift_x, chi)
         y_wv = qw * self._fourier(self.drift_y, chi)
         n_wv = qw * L * self._fourier(self.drift_n, chi)
+        y_p = self.propeller_side_force[0] * x_p / (1.0 - self.t_P)
         x = x_h + x_r + x_p + x_w + x_wv
-        y = y_h + y_r + y_w + y_wv
-        n = n_h + n_r + n_w + n_wv
+        y = y_h + y_r + y_p + y_w + y_wv
+        n = n_h + n_r + y_p * self.x_P * L + n_w + n_wv
         rhs_x = x + self.m22 * v_r * r + self.x_G * self.mass * r * r
         rhs_y = y - self.m11 * u_r * r
         rhs_n = n - self.x_G * self.mass * u_r * r

@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-EFFECTS = ("none", "current", "wind", "wave_drift", "rudder_offset", "yaw_rate_bias", "heading_offset", "actuator_delay")
+EFFECTS = ("none", "current", "wind", "wave_drift", "rudder_offset", "yaw_rate_bias", "heading_offset", "actuator_delay",
+           "propeller_asymmetry")
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,8 @@ def draw(rng: np.random.Generator, effect: str | None = None) -> Draw:
         p = {"heading_offset_deg": sign * rng.uniform(2.0, 8.0)}
     elif effect == "actuator_delay":
         p = {"actuator_delay_s": rng.uniform(0.3, 1.5)}
+    elif effect == "propeller_asymmetry":
+        p = {"propeller_side_force_pct": sign * rng.uniform(2.0, 6.0)}
     elif effect == "none":
         p = {}
     else:
@@ -73,7 +76,8 @@ def parameter_errors(truth: Draw, found: dict[str, float]) -> dict[str, float]:
         return {"significant_height_m": found["significant_height_m"] - p["wave_height"],
                 "direction_deg": _angle_error(found["direction_from_deg"], p["wave_from_deg"])}
     key = {"rudder_offset": ("offset_deg", "rudder_offset_deg"), "yaw_rate_bias": ("bias_deg_s", "yaw_rate_bias_deg_s"),
-           "heading_offset": ("offset_deg", "heading_offset_deg"), "actuator_delay": ("delay_s", "actuator_delay_s")}
+           "heading_offset": ("offset_deg", "heading_offset_deg"), "actuator_delay": ("delay_s", "actuator_delay_s"),
+           "propeller_asymmetry": ("side_force_pct", "propeller_side_force_pct")}
     if truth.effect in key:
         out, given = key[truth.effect]
         return {out: found[out] - p[given]}
@@ -89,6 +93,7 @@ TOLERANCES = {
     "yaw_rate_bias": {"bias_deg_s": 0.1},
     "heading_offset": {"offset_deg": 1.0},
     "actuator_delay": {"delay_s": 0.2},
+    "propeller_asymmetry": {"side_force_pct": 0.5},
     "none": {},
 }
 

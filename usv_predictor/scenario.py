@@ -9,6 +9,7 @@ Effect names and their parameters (units in the name, directions as compass degr
   yaw_rate_bias   yaw_rate_bias_deg_s (gyro bias)
   heading_offset  heading_offset_deg (compass misalignment, reported = true + offset)
   actuator_delay  actuator_delay_s (the hull responds this long after the reported rudder/rpm)
+  propeller_asymmetry  propeller_side_force_pct (transverse propeller force in % of thrust, + to starboard)
 """
 from __future__ import annotations
 
@@ -55,6 +56,8 @@ EFFECTS: dict[str, tuple[EffectParameter, ...]] = {
     "yaw_rate_bias": (EffectParameter("yaw_rate_bias_deg_s", 0.5, -5.0, 5.0, "deg/s", "gyro bias"),),
     "heading_offset": (EffectParameter("heading_offset_deg", 3.0, -30.0, 30.0, "deg", "compass misalignment"),),
     "actuator_delay": (EffectParameter("actuator_delay_s", 0.5, 0.0, 5.0, "s", "response delay of the hull"),),
+    "propeller_asymmetry": (EffectParameter("propeller_side_force_pct", 3.0, -20.0, 20.0, "%",
+                                            "transverse propeller force in % of thrust, + to starboard"),),
 }
 
 # The sea of seed 000's trial day (Table 2: sea state 2, H 0.5 m, wind 4.5 m/s from the south-east) with a
@@ -85,7 +88,8 @@ class Scenario:
     @property
     def faults(self) -> ActuatorFaults:
         offset = self.effects.get("rudder_offset", {}).get("rudder_offset_deg", 0.0)
-        return ActuatorFaults(rudder_offset_rad=math.radians(offset))
+        side = self.effects.get("propeller_asymmetry", {}).get("propeller_side_force_pct", 0.0)
+        return ActuatorFaults(rudder_offset_rad=math.radians(offset), propeller_side_force=side / 100.0)
 
     @property
     def sensor_spec(self) -> SensorSpec:

@@ -43,6 +43,7 @@ class ActuatorFaults:
     """Faults between command and hull; the sensors still report what the crew believes."""
 
     rudder_offset_rad: float = 0.0  # true rudder = reported rudder + offset (mechanical misalignment)
+    propeller_side_force: float = 0.0  # transverse propeller force / thrust (-), + to starboard (propeller walk)
 
 
 @dataclass(frozen=True)
@@ -97,6 +98,8 @@ def simulate(model: ManoeuvringModel, manoeuvre: Manoeuvre, env: Environment | N
     x = initial_state(model, manoeuvre.rpm, math.radians(heading_deg))
     states, derivs, commands = [], [], []
     offset = faults.rudder_offset_rad
+    if faults.propeller_side_force != model.propeller_side_force:
+        model = ManoeuvringModel(model.vessel, propeller_side_force=faults.propeller_side_force)
     f = model.derivative
     command = manoeuvre.controller()
     for i in range(steps + 1):

@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dt", type=float, default=0.5, help="model step (s, default 0.5)")
     parser.add_argument("--hypotheses", nargs="+", default=None, metavar="H",
                         help="hypotheses to test (default: all of " "none current wind wave_drift rudder_offset "
-                             "yaw_rate_bias heading_offset actuator_delay resistance)")
+                             "yaw_rate_bias heading_offset actuator_delay resistance propeller_asymmetry)")
     parser.add_argument("--max-causes", type=int, default=2,
                         help="name up to this many causes, added one at a time while each passes the evidence test "
                              "(default 2)")
