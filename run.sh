@@ -120,6 +120,10 @@ run_demo() {
         --output "$out/bags" --json "$out/simulate.json"
     say "2. summarise the shipped sea-trial bags (seed 000 Table 3 turning tests)"
     "$replay" info "$REPO"/bags/sea_trial/turning_circle_* --json "$out/shipped_bags.json"
+    say "3. the predictor node fed from a shipped bag over DDS (use_sim_time + /clock): what it published"
+    ROS_DOMAIN_ID=$((100 + $$ % 100)) ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST "$VENV/bin/python" \
+        "$REPO/tools/play_bag.py" "$REPO/bags/sea_trial/turning_circle_stbd_20deg_700rpm" \
+        --start 20 --seconds 8 --rate 1 --run-node | tee "$out/node_demo.txt"
     # ============================ end of DEMO section ==============================
     say "demo done: results in $out"
 }

@@ -121,13 +121,14 @@ def test_inputs_are_decoded_and_reported(harness: Harness) -> None:
     assert float(values_of(statuses["rudder_angle"])["delta"]) == pytest.approx(rudder, abs=1e-5)
     assert float(values_of(statuses["engine_rpm"])["rpm"]) == pytest.approx(1200.0)
     assert int(values_of(statuses["heading"])["messages"]) >= 1
-    # inputs nobody published are errors; the model is not there yet, and says so
+    # inputs nobody published are errors; the shipped model is loaded, but without inputs nothing is predicted
     assert statuses["velocity"].level[0] == predictor_node.ERROR
     assert statuses["velocity"].message == "no message received"
-    assert statuses["model"].level[0] == predictor_node.WARN
-    assert "no model loaded" in statuses["model"].message
+    assert statuses["model"].level[0] == predictor_node.OK
+    assert statuses["prediction"].level[0] == predictor_node.WARN
+    assert "no message yet" in statuses["prediction"].message
     configured = [i.role for i in harness.node.config.inputs]
-    assert sorted(statuses) == sorted([*configured, "model"])
+    assert sorted(statuses) == sorted([*configured, "model", "prediction"])
 
 
 def test_stale_input_turns_to_warn_and_limit_is_live(harness: Harness) -> None:

@@ -1,0 +1,188 @@
+"""usv_predictor.live without ROS: the online state equals the replay tool's Recording; every bad input is refused."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import msg_adapters
+from usv_predictor import live
+from usv_predictor.artifact import load_artifact
+from usv_predictor.config import load_predictor_config, package_share_path
+from usv_predictor.errors import ModelError
+from usv_predictor.recording import NS
+from usv_predictor.replay.bagio import read_bag
+from usv_predictor.replay.recordings import load_recordings, topic_specs
+
+BAG = Path(__file__).resolve().parents[1] / "bags" / "sea_trial" / "turning_circle_stbd_20deg_700rpm"
+DT = 0.5
+CHECKED_S = 40.0  # seconds of the bag compared step by step (s)
+
+
+def fields_by_role() -> dict[str, tuple[str, ...]]:
+    return {entry.role: msg_adapters.ROLE_FIELDS[entry.role] for entry in load_predictor_config().inputs}
+
+
+def make_inputs(**settings: object) -> live.InputSet:
+    cfg = load_predictor_config()
+    options = {"dt": DT, "horizon_steps": 120, **settings}
+    return live.InputSet(fields_by_role(), {e.role: e.max_age_s for e in cfg.inputs}, live.LiveSettings(**options))
+
+
+@pytest.fixture(scope="module")
+def bag_samples() -> list[tuple[int, str, tuple[float, ...]]]:
+    """Every input sample of the bag, as the replay tool reads it, in stamp order (role order within a stamp)."""
+    specs = [s for s in topic_specs() if s.role != "odometry"]
+    signals = read_bag(BAG, specs)
+    rows = []
+    for spec in specs:
+        sig = signals[spec.topic]
+        rows += [(int(t), spec.role, tuple(v)) for t, v in zip(sig.t_ns, sig.values)]
+    return sorted(rows, key=lambda row: row[0])
+
+
+@pytest.fixture(scope="module")
+def recording():
+    return load_recordings([BAG], DT, jobs=1, warn=lambda _: None)[0]
+
+
+def test_online_state_equals_the_recording_at_every_grid_time(bag_samples, recording) -> None:
+    """Fed message by message, the live state at t_c is Recording.state()/controls/position at t_c."""
+    inputs = make_inputs(datum=recording.datum)
+    dt_ns = int(DT * NS)
+    grid_end = recording.t0_ns + dt_ns // 2  # window end of the recording's first grid point
+    n, checked = 0, 0
+    for stamp, role, values in bag_samples:
+        while stamp > grid_end and n < len(recording):  # every sample <= grid_end is in: evaluate there
+            state = inputs.assemble(grid_end)
+            assert state.t_c_ns == recording.t0_ns + n * dt_ns
+            np.testing.assert_allclose(state.state[:3], recording.state()[n, :3], rtol=0, atol=1e-12)
+            assert math.remainder(state.state[3] - recording.psi[n], 2 * math.pi) == pytest.approx(0, abs=1e-12)
+            np.testing.assert_allclose(state.controls, recording.controls[n], rtol=1e-12, atol=1e-9)
+            np.testing.assert_allclose(state.position, recording.position[n], rtol=0, atol=1e-6)
+            n, checked, grid_end = n + 1, checked + 1, grid_end + dt_ns
+        if n * DT > CHECKED_S:
+            break
+        inputs.add(role, stamp, values, now_ns=stamp)
+    assert checked >= CHECKED_S / DT
+
+
+def test_prediction_equals_the_artifact_on_the_recording_state(bag_samples, recording) -> None:
+    artifact = load_artifact(package_share_path("models", "default.pt"))
+    rollout = live.Rollout(artifact, horizon_steps=120)
+    inputs = make_inputs(datum=recording.datum)
+    n = 40  # 20 s into the turn
+    end = recording.t0_ns + n * int(DT * NS) + int(DT * NS) // 2
+    for stamp, role, values in bag_samples:
+        if stamp > end:
+            break
+        inputs.add(role, stamp, values, now_ns=stamp)
+    prediction = live.predict(inputs, rollout, end)
+    reference = artifact.predict(recording.state()[n:n + 1], np.repeat(recording.controls[n:n + 1, None], 120, axis=1))
+    mean = reference.mean(axis=0)[0]  # (H, 6)
+    np.testing.assert_allclose(prediction.eta[:, :2], mean[:, 3:5] + recording.position[n], atol=1e-3)
+    np.testing.assert_allclose(prediction.nu, mean[:, :3], atol=1e-5)
+    assert prediction.anchored and prediction.eta_members.shape == (artifact.ensemble_size, 120, 3)
+    assert prediction.t_ns[0] == recording.t0_ns + (n + 1) * int(DT * NS)
+    cov = live.enu_covariance(prediction.eta_members)
+    assert cov.shape == (120, 3, 3) and np.all(np.diagonal(cov, axis1=1, axis2=2) >= 0)
+    assert cov[-1, 0, 0] > cov[0, 0, 0]  # the members drift apart with the horizon
+
+
+# ----------------------------------------------------------------------------- refusals
+
+
+def feed_all(inputs: live.InputSet, t0: int, seconds: float, heading: float = 0.3) -> int:
+    """Plausible inputs at 20 Hz for `seconds`; returns the last stamp."""
+    stamp = t0
+    for k in range(int(seconds * 20)):
+        stamp = t0 + k * 50_000_000
+        inputs.add("imu", stamp, (0.01, 0.0, 0.0, -9.81, math.nan), stamp)
+        inputs.add("velocity", stamp, (5.0, 0.1, 0.01), stamp)
+        inputs.add("heading", stamp, (heading,), stamp)
+        inputs.add("rudder_angle", stamp, (0.1,), stamp)
+        inputs.add("engine_rpm", stamp, (650.0,), stamp)
+    return stamp
+
+
+def test_no_input_and_stale_input_skip_the_cycle() -> None:
+    inputs = make_inputs()
+    with pytest.raises(live.CycleSkipped, match="no message yet"):
+        inputs.assemble(10 * NS)
+    last = feed_all(inputs, 10 * NS, 2.0)
+    assert inputs.assemble(last).position is None  # no GNSS: relative path
+    with pytest.raises(live.CycleSkipped, match="stale"):
+        inputs.assemble(last + 5 * NS)
+
+
+@pytest.mark.parametrize(
+    ("role", "values", "kind"),
+    [
+        ("velocity", (math.nan, 0.0, 0.0), "non_finite"),
+        ("imu", (math.inf, 0.0, 0.0, -9.81, math.nan), "non_finite"),
+        ("engine_rpm", (65000.0,), "range"),  # absurd rpm
+        ("rudder_angle", (20.0,), "range"),  # degrees read as radians
+        ("gnss", (math.nan, math.nan, math.nan), "no_fix"),
+    ],
+)
+def test_bad_values_are_refused_and_counted(role: str, values: tuple[float, ...], kind: str) -> None:
+    inputs = make_inputs()
+    with pytest.raises(live.InputRejected) as refused:
+        inputs.add(role, NS, values, NS)
+    assert refused.value.kind == kind
+    assert inputs.tracks[role].rejected == {kind: 1}
+    assert len(inputs.tracks[role].buffer) == 0
+
+
+def test_heading_in_degrees_configured_as_rad_is_refused() -> None:
+    with pytest.raises(live.InputRejected, match="degrees configured as rad"):
+        live.check_raw_heading(215.0, "rad")
+    live.check_raw_heading(215.0, "deg")
+    live.check_raw_heading(-3.0, "rad")
+
+
+def test_backwards_duplicate_and_future_stamps_are_refused() -> None:
+    inputs = make_inputs(max_future_s=0.5)
+    inputs.add("heading", 2 * NS, (0.1,), 2 * NS)
+    for stamp, kind in ((2 * NS, "duplicate"), (NS, "backwards"), (4 * NS, "future")):
+        with pytest.raises(live.InputRejected) as refused:
+            inputs.add("heading", stamp, (0.2,), 2 * NS)
+        assert refused.value.kind == kind
+    assert len(inputs.tracks["heading"].buffer) == 1
+
+
+def test_clock_jump_back_clears_the_buffers() -> None:
+    inputs = make_inputs()
+    last = feed_all(inputs, 100 * NS, 1.0)
+    assert not inputs.observe_clock(last)
+    assert inputs.observe_clock(NS)
+    assert all(len(track.buffer) == 0 for track in inputs.tracks.values())
+
+
+def test_a_1khz_burst_keeps_memory_bounded_and_the_state_right() -> None:
+    inputs = make_inputs(capacity=1024)
+    nbytes = {role: track.buffer.nbytes for role, track in inputs.tracks.items()}
+    last = feed_all(inputs, 100 * NS, 3.0)
+    t0 = last + 1_000_000
+    for k in range(3000):  # 3 s of IMU at 1 kHz, yaw rate 0.05 rad/s
+        inputs.add("imu", t0 + k * 1_000_000, (0.05, 0.0, 0.0, -9.81, math.nan), t0 + k * 1_000_000)
+    imu = inputs.tracks["imu"].buffer
+    assert len(imu) == 1024 and imu.overwritten == 60 + 3000 - 1024
+    assert {role: track.buffer.nbytes for role, track in inputs.tracks.items()} == nbytes  # nothing grew
+    now = t0 + 2999 * 1_000_000
+    assert imu.rate_hz(now) == pytest.approx(1000.0, rel=1e-3)
+    with pytest.raises(live.CycleSkipped, match="stale"):  # the 20 Hz inputs stopped 3 s ago
+        inputs.assemble(now)
+    inputs.tracks["velocity"].max_age_s = inputs.tracks["heading"].max_age_s = 60.0
+    inputs.tracks["rudder_angle"].max_age_s = inputs.tracks["engine_rpm"].max_age_s = 60.0
+    with pytest.raises(live.CycleSkipped, match="no sample in the averaging window"):
+        inputs.assemble(now)  # stale data is never averaged into a state either
+
+
+def test_rollout_refuses_more_members_than_the_model_has() -> None:
+    artifact = load_artifact(package_share_path("models", "default.pt"))
+    with pytest.raises(ModelError, match="ensemble_size 9 requested"):
+        live.Rollout(artifact, 120, ensemble_size=9)
+    assert live.Rollout(artifact, 120, ensemble_size=2)(np.array([5.0, 0, 0, 0]), np.array([0.0, 650.0])).shape == (2, 120, 6)

@@ -1,0 +1,263 @@
+"""The `predictor` node in a real rclpy context over DDS loopback: robustness and the model's life cycle.
+
+Each case feeds crafted messages from a peer node and checks what the node publishes: never a Path from
+bad input, always a reason on /diagnostics. Localhost-only discovery and a pid-derived ROS_DOMAIN_ID.
+"""
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+import msg_adapters
+from usv_predictor import node as predictor_node
+from usv_predictor.config import package_share_path
+from usv_predictor.errors import ModelError
+
+WAIT_S = 15.0
+DEFAULT_MODEL = package_share_path("models", "default.pt")
+
+
+@pytest.fixture()
+def ros_context(monkeypatch: pytest.MonkeyPatch) -> Iterator[Context]:
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    context = Context()
+    rclpy.init(context=context, domain_id=1 + (os.getpid() + 37) % 100)
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def statuses(report: DiagnosticArray) -> dict[str, Any]:
+    return {s.name.split(": ", 1)[1].removeprefix("input "): s for s in report.status}
+
+
+def values_of(status: Any) -> dict[str, str]:
+    return {kv.key: kv.value for kv in status.values}
+
+
+GOOD = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), "heading": (0.5,),
+        "rudder_angle": (0.1,), "engine_rpm": (650.0,), "gnss": (35.38, 119.56, 0.0)}
+
+
+class Harness:
+    """The node (wall clock), a peer publishing inputs, and what comes back."""
+
+    def __init__(self, context: Context, overrides: list[Parameter]) -> None:
+        self.node = predictor_node.PredictorNode(context=context, parameter_overrides=overrides)
+        self.peer = Node("robustness_peer", context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.peer)
+        self.make = msg_adapters.rclpy_factory()
+        self.paths: list[Any] = []
+        self.latest: DiagnosticArray | None = None
+        self.peer.create_subscription(self.make("nav_msgs/msg/Path"), "predicted_path", self.paths.append, 10)
+        self.peer.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+        self.publishers: dict[str, Any] = {}
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        self.latest = msg
+
+    def publish(self, role: str, values: tuple[float, ...], stamp_offset_s: float = 0.0, raw: Any = None) -> None:
+        entry = self.node.config.input(role)
+        if role not in self.publishers:
+            self.publishers[role] = self.peer.create_publisher(self.make(entry.ros_type), entry.topic, 100)
+        if raw is None:
+            adapter = msg_adapters.get_adapter(entry.role, entry.ros_type, **entry.options)
+            stamp = self.peer.get_clock().now().nanoseconds + int(stamp_offset_s * 1e9)
+            raw = adapter.encode(stamp, values, self.make, entry.frame_id)
+        self.publishers[role].publish(raw)
+
+    def feed(self, skip: tuple[str, ...] = (), **override: tuple[float, ...]) -> None:
+        for role, values in GOOD.items():
+            if role not in skip:
+                self.publish(role, override.get(role, values))
+
+    def spin(self, seconds: float, feed: Callable[[], None] | None = None) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            if feed is not None:
+                feed()
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def spin_until(self, condition: Callable[[dict[str, Any]], bool], feed: Callable[[], None] | None = None) -> dict:
+        deadline = time.monotonic() + WAIT_S
+        while time.monotonic() < deadline:
+            if feed is not None:
+                feed()
+            self.executor.spin_once(timeout_sec=0.02)
+            if self.latest is not None and condition(statuses(self.latest)):
+                return statuses(self.latest)
+        last = None if self.latest is None else {k: s.message for k, s in statuses(self.latest).items()}
+        pytest.fail(f"no /diagnostics satisfied the condition within {WAIT_S} s; last: {last}")
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.peer.destroy_node()
+
+
+@pytest.fixture()
+def harness(ros_context: Context) -> Iterator[Harness]:
+    fixture = Harness(ros_context, [Parameter("rate_hz", value=20.0), Parameter("dt", value=0.5),
+                                    Parameter("horizon_s", value=10.0)])
+    try:
+        yield fixture
+    finally:
+        fixture.close()
+
+
+def level(status: Any) -> int:
+    return status.level[0]
+
+
+def test_no_input_yet_reports_why_and_publishes_nothing(harness: Harness) -> None:
+    found = harness.spin_until(lambda s: "prediction" in s)
+    assert level(found["prediction"]) == predictor_node.WARN and "no message yet" in found["prediction"].message
+    assert level(found["model"]) == predictor_node.OK and values_of(found["model"])["model_id"]
+    assert harness.paths == []
+
+
+def test_good_input_gives_anchored_paths_then_a_stale_topic_stops_them(harness: Harness) -> None:
+    harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, harness.feed)
+    harness.spin(0.3, harness.feed)
+    assert harness.paths and len(harness.paths[-1].poses) == 20  # 10 s / 0.5 s
+    found = statuses(harness.latest)
+    assert values_of(found["prediction"])["anchored"] == "gnss"
+    assert float(values_of(found["imu"])["rate_hz"]) > 10.0
+    assert harness.paths[-1].header.frame_id == "odom"
+    # the velocity topic goes away: the prediction stops with the reason, the input turns WARN
+    found = harness.spin_until(lambda s: "velocity: stale" in s["prediction"].message,
+                               lambda: harness.feed(skip=("velocity",)))
+    assert level(found["velocity"]) == predictor_node.WARN
+    count = len(harness.paths)
+    harness.spin(0.3, lambda: harness.feed(skip=("velocity",)))
+    assert len(harness.paths) == count
+
+
+@pytest.mark.parametrize(
+    ("role", "values", "reason"),
+    [
+        ("velocity", (math.nan, 0.0, 0.0), "is nan"),
+        ("imu", (math.inf, 0.0, 0.0, -9.81, math.nan), "is inf"),
+        ("engine_rpm", (90000.0,), "outside the plausible"),
+        ("rudder_angle", (20.0,), "outside the plausible"),  # degrees sent, rad configured
+    ],
+)
+def test_bad_values_never_reach_a_path(harness: Harness, role: str, values: tuple[float, ...], reason: str) -> None:
+    found = harness.spin_until(lambda s: level(s[role]) != predictor_node.OK and "refused" in s[role].message,
+                               lambda: harness.feed(**{role: values}))
+    assert reason in found[role].message
+    assert harness.paths == []  # the bad input's buffer is empty: no state, no Path
+    assert int(values_of(found[role])["rejected"]) >= 1
+
+
+def test_heading_in_degrees_configured_as_rad_is_refused(ros_context: Context) -> None:
+    fixture = Harness(ros_context, [Parameter("rate_hz", value=20.0), Parameter("inputs.heading.units", value="rad")])
+    try:
+        degrees = fixture.make("std_msgs/msg/Float64")(data=215.0)  # raw: the adapter would wrap it
+
+        def feed() -> None:
+            fixture.feed(skip=("heading",))
+            fixture.publish("heading", (), raw=degrees)
+
+        found = fixture.spin_until(lambda s: "more than one turn" in s["heading"].message, feed)
+        assert "degrees configured as rad" in found["heading"].message
+        assert fixture.paths == []
+    finally:
+        fixture.close()
+
+
+def test_stamps_backwards_and_from_the_future_are_refused(harness: Harness) -> None:
+    harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, harness.feed)
+
+    def feed_with_future_imu() -> None:
+        harness.feed(skip=("imu",))
+        harness.publish("imu", GOOD["imu"], stamp_offset_s=30.0)
+
+    found = harness.spin_until(lambda s: "ahead of the clock" in s["imu"].message, feed_with_future_imu)
+    assert int(values_of(found["imu"])["rejected_future"]) >= 1
+    found = harness.spin_until(lambda s: "before the previous one" in s["velocity"].message,
+                               lambda: harness.publish("velocity", GOOD["velocity"], stamp_offset_s=-5.0))
+    assert int(values_of(found["velocity"])["rejected_backwards"]) >= 1
+    for path in harness.paths:  # nothing published was built from the future
+        assert all(math.isfinite(p.pose.position.x) for p in path.poses)
+
+
+def test_a_1khz_imu_burst_keeps_buffers_bounded(harness: Harness) -> None:
+    capacity = harness.node.inputs.tracks["imu"].buffer.capacity
+    nbytes = harness.node.inputs.tracks["imu"].buffer.nbytes
+    end = time.monotonic() + 3.0
+    sent = 0
+    while time.monotonic() < end:  # ~1 kHz for 3 s (as fast as the loop runs, at most 1 per ms)
+        harness.publish("imu", GOOD["imu"])
+        sent += 1
+        harness.executor.spin_once(timeout_sec=0.0)
+        if sent % 50 == 0:
+            harness.feed(skip=("imu",))
+    harness.spin(0.2, harness.feed)
+    imu = harness.node.inputs.tracks["imu"].buffer
+    assert sent > capacity and len(imu) <= capacity and imu.nbytes == nbytes
+    assert all(len(t.buffer) <= t.buffer.capacity for t in harness.node.inputs.tracks.values())
+    assert harness.paths  # it kept predicting through the burst
+
+
+def test_invalid_parameter_values_are_rejected_with_the_range(harness: Harness) -> None:
+    result = harness.node.set_parameters([Parameter("inputs.imu.max_age_s", value=-1.0)])[0]
+    assert not result.successful
+    descriptor = harness.node.describe_parameter("state_delay_s")
+    assert descriptor.read_only and descriptor.floating_point_range[0].to_value == 5.0
+    assert "0 <= state_delay_s <= 5" in descriptor.additional_constraints
+
+
+def write_bad_models(tmp_path: Path) -> dict[str, Path]:
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(DEFAULT_MODEL.read_bytes()[:5000])  # truncated
+    return {"missing": tmp_path / "absent.pt", "corrupt": corrupt}
+
+
+def test_model_swap_validates_first_and_keeps_the_old_model(harness: Harness, tmp_path: Path) -> None:
+    old = harness.node.rollout
+    for name, path in write_bad_models(tmp_path).items():
+        result = harness.node.set_parameters([Parameter("model_path", value=str(path))])[0]
+        assert not result.successful and str(path) in result.reason, name
+        assert harness.node.rollout is old
+    result = harness.node.set_parameters([Parameter("model_path", value=str(DEFAULT_MODEL))])[0]
+    assert result.successful and harness.node.rollout is not old
+    harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, harness.feed)
+
+
+def test_an_incompatible_model_at_start_is_a_model_error_naming_the_mismatch(ros_context: Context) -> None:
+    with pytest.raises(ModelError, match=r"dt: model 0.5 s, config 0.25 s"):
+        predictor_node.PredictorNode(context=ros_context, parameter_overrides=[
+            Parameter("dt", value=0.25), Parameter("model_path", value=str(DEFAULT_MODEL))])
+    with pytest.raises(ModelError, match="ensemble_size 8 requested"):
+        predictor_node.PredictorNode(context=ros_context, parameter_overrides=[Parameter("ensemble_size", value=8)])
+
+
+@pytest.mark.parametrize("case", ["missing", "corrupt", "vessel"])
+def test_a_bad_model_at_start_exits_nonzero_naming_the_file(tmp_path: Path, case: str) -> None:
+    models = write_bad_models(tmp_path)
+    args = ["-p", f"model_path:={models[case]}"] if case in models else ["-p", "vessel:=kvlcc2_model"]
+    env = {**os.environ, "ROS_DOMAIN_ID": str(1 + (os.getpid() + 41) % 100), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    done = subprocess.run([sys.executable, "-m", "usv_predictor.node", "--ros-args", *args],
+                          capture_output=True, text=True, timeout=60, env=env)
+    assert done.returncode == 1, done.stderr[-2000:]
+    assert "predictor: error: " in done.stderr
+    expected = str(models[case]) if case in models else 'vessel: model "jari_usv", config "kvlcc2_model"'
+    assert expected in done.stderr

@@ -1,0 +1,204 @@
+"""The `predictor` node over real DDS, fed from a shipped bag with /clock (use_sim_time).
+
+1. In process, lock-step: the bag's messages go out over DDS one stamp at a time; every Path the node
+   publishes equals the artifact's prediction on the state of the Recording that `replay evaluate`
+   builds from the same bag (load_recordings), at the same time, with the controls held.
+2. Across processes: `python -m usv_predictor.node` with use_sim_time, the bag played free-running;
+   Paths arrive at rate_hz (sim time) with H poses in frame odom, stamped in the future.
+3. The ament-index executable of a colcon build starts with the shipped model and publishes a Path.
+Unique ROS_DOMAIN_IDs (from the pid) and localhost-only discovery, as test_node_smoke.py.
+"""
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+import msg_adapters
+from msg_adapters.outputs import decode_predicted_velocities
+from usv_predictor import node as predictor_node
+from usv_predictor.recording import NS
+from usv_predictor.replay.recordings import load_recordings
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tools"))
+import play_bag  # noqa: E402  (tools/ is not a package)
+
+BAG = REPO / "bags" / "sea_trial" / "turning_circle_stbd_20deg_700rpm"
+DT = 0.5
+WAIT_S = 20.0
+
+
+def domain_id(offset: int) -> int:
+    return 101 + (os.getpid() * 3 + offset) % 100
+
+
+@pytest.fixture()
+def ros_context(monkeypatch: pytest.MonkeyPatch) -> Iterator[Context]:
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id(0))
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def spin_until(executor: SingleThreadedExecutor, condition: Callable[[], bool], what: str,
+               also: SingleThreadedExecutor | None = None) -> None:
+    deadline = time.monotonic() + WAIT_S
+    while not condition():
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out waiting for {what}")
+        executor.spin_once(timeout_sec=0.005)
+        if also is not None:
+            also.spin_once(timeout_sec=0.0)
+
+
+def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Context) -> None:
+    recording = load_recordings([BAG], DT, jobs=1, warn=lambda _: None)[0]  # what `replay evaluate` reads
+    node = predictor_node.PredictorNode(context=ros_context, parameter_overrides=[
+        Parameter("use_sim_time", value=True), Parameter("rate_hz", value=2.0),
+        # windows end on whole half-seconds of the bag, like the Recording's (t0 = first stamp + dt/2)
+        Parameter("state_delay_s", value=DT),
+        Parameter("datum_lat_deg", value=recording.datum[0]), Parameter("datum_lon_deg", value=recording.datum[1]),
+    ])
+    peer = Node("lockstep_player", context=ros_context)
+    node_executor, peer_executor = SingleThreadedExecutor(context=ros_context), SingleThreadedExecutor(context=ros_context)
+    node_executor.add_node(node)
+    peer_executor.add_node(peer)
+    try:
+        player = play_bag.BagPlayer(peer, play_bag.read_messages(BAG, 0.0, 10.0))
+        listener = play_bag.PathListener(peer)
+        velocities: list = []
+        peer.create_subscription(msg_adapters.rclpy_factory()("trajectory_msgs/msg/MultiDOFJointTrajectory"),
+                                 "predicted_velocities", velocities.append, 10)
+        spin_until(node_executor, lambda: peer.count_subscribers("imu/data") > 0
+                   and peer.count_publishers("predicted_path") > 0, "discovery", also=peer_executor)
+
+        def received() -> int:
+            return sum(t.received for t in node.inputs.tracks.values())
+
+        # Header-less inputs (Float64) are stamped by the node on arrival, as the recorder stamped them: the
+        # clock must read their log time when they arrive. So the clock steps to each of their stamps, then
+        # every message up to that stamp goes out (stamped ones carry their own time).
+        headerless = {"heading", "rudder_angle", "engine_rpm"}
+        ticks = sorted({m.log_time_ns for m in player.messages if m.topic in headerless})
+        for stamp in ticks:
+            player.publish_clock(stamp)
+            spin_until(node_executor, lambda: node.get_clock().now().nanoseconds == stamp, "the clock")
+            before = received()
+            sent = player.publish_until(stamp)
+            spin_until(node_executor, lambda: received() == before + sent, "the messages", also=peer_executor)
+        spin_until(peer_executor, lambda: len(velocities) >= node.published, "the last outputs")
+    finally:
+        node_executor.shutdown()
+        peer_executor.shutdown()
+        node.destroy_node()
+        peer.destroy_node()
+
+    artifact = node.rollout.artifact
+    assert node.published >= 16 and len(listener.paths) == node.published
+    assert sum(track.received for track in node.inputs.tracks.values()) == player.published
+    assert all(not track.rejected for track in node.inputs.tracks.values())
+    dt_ns = int(DT * NS)
+    first_n = []
+    for (stamp, t_ns, eta, frame), trajectory in zip(listener.paths, velocities, strict=True):
+        n = (stamp - dt_ns - dt_ns // 2 - recording.t0_ns) // dt_ns  # the Recording's step at the state time
+        first_n.append(n)
+        assert recording.t0_ns + n * dt_ns == stamp - dt_ns - dt_ns // 2
+        controls = np.repeat(recording.controls[n:n + 1, None], 120, axis=1)
+        reference = artifact.predict(recording.state()[n:n + 1], controls).mean(axis=0)[0]  # (H, 6)
+        np.testing.assert_allclose(eta[:, :2], reference[:, 3:5] + recording.position[n], rtol=0, atol=1e-4)
+        yaw_error = np.remainder(eta[:, 2] - reference[:, 5] + math.pi, 2 * math.pi) - math.pi
+        np.testing.assert_allclose(yaw_error, 0.0, atol=1e-6)
+        t_v, nu = decode_predicted_velocities(trajectory)
+        np.testing.assert_allclose(nu, reference[:, :3], rtol=0, atol=1e-6)
+        expected_t = recording.t0_ns + (n + 1 + np.arange(120)) * dt_ns
+        assert np.array_equal(t_ns, expected_t) and np.array_equal(t_v, expected_t)
+        assert frame == "odom"
+    assert first_n[0] == 0  # the first whole window, as the Recording's first step
+
+
+def node_environment(offset: int) -> dict[str, str]:
+    return {**os.environ, "ROS_DOMAIN_ID": str(domain_id(offset)), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+
+
+def play_to(command: list[str], env: dict[str, str], seconds: float, rate: float) -> play_bag.PathListener:
+    """Start the node process, play `seconds` of the bag to it at `rate` x real time, return what it published."""
+    process = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    context = Context()
+    rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
+    peer = Node("bag_player", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(peer)
+    try:
+        player = play_bag.BagPlayer(peer, play_bag.read_messages(BAG, 30.0, seconds))
+        listener = play_bag.PathListener(peer)
+        deadline = time.monotonic() + 60.0  # the node's start-up (torch import, model load) and discovery
+        while peer.count_publishers("predicted_path") == 0 or peer.count_subscribers("imu/data") == 0:
+            assert process.poll() is None, f"the node exited: {process.communicate()[1][-2000:]}"
+            assert time.monotonic() < deadline, "the node did not come up within 60 s"
+            executor.spin_once(timeout_sec=0.05)
+        play_bag.play(player, executor, rate)
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+        return listener
+    finally:
+        executor.shutdown()
+        peer.destroy_node()
+        rclpy.try_shutdown(context=context)
+        process.terminate()
+        try:
+            process.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            process.kill()
+
+
+def check_paths(listener: play_bag.PathListener, rate_hz: float, seconds: float) -> None:
+    paths = listener.paths
+    assert len(paths) >= 0.6 * rate_hz * seconds, listener.summary()
+    stamps = np.array([p[0] for p in paths])
+    spacing = np.diff(stamps) / NS
+    assert np.median(spacing) == pytest.approx(1.0 / rate_hz, abs=0.011)  # at rate_hz in sim time (10 ms clock)
+    for stamp, t_ns, eta, frame in paths:
+        assert frame == "odom" and len(t_ns) == 120 and eta.shape == (120, 3)
+        assert np.all(np.diff(t_ns) == int(DT * NS)) and t_ns[0] > stamp - int(DT * NS)  # future poses
+        assert t_ns[-1] - stamp >= 59 * NS
+        assert np.all(np.isfinite(eta))
+
+
+def test_across_processes_paths_arrive_at_rate_hz(tmp_path: Path) -> None:
+    command = [sys.executable, "-m", "usv_predictor.node", "--ros-args", "-p", "use_sim_time:=true",
+               "-p", "rate_hz:=5.0"]
+    listener = play_to(command, node_environment(1), seconds=6.0, rate=2.0)
+    check_paths(listener, rate_hz=5.0, seconds=6.0)
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from test_package_layout import installed as build  # the colcon build of the layout test
+
+    return build.__wrapped__(tmp_path_factory)
+
+
+def test_installed_executable_publishes_a_path_with_the_default_model(installed: Path) -> None:
+    from test_package_layout import installed_env
+
+    executable = installed / "lib" / "usv_predictor" / "predictor"
+    env = {**installed_env(installed), "ROS_DOMAIN_ID": str(domain_id(2))}
+    listener = play_to([str(executable), "--ros-args", "-p", "use_sim_time:=true"], env, seconds=4.0, rate=1.0)
+    check_paths(listener, rate_hz=10.0, seconds=4.0)

@@ -1,0 +1,376 @@
+"""Live prediction without ROS: input buffers, state assembly, staleness and range checks, the rollout.
+
+The `predictor` node (node.py) is a thin rclpy shell around this module; tests and benchmarks drive it
+directly. Everything here is in SI units and marine frames (NED earth, FRD body, heading clockwise from
+north); stamps are int nanoseconds of the node's clock (sim time under use_sim_time).
+
+State assembly is the replay tool's Recording (recording.py), taken online:
+
+    window     W(now) = [t_end - dt, t_end],  t_end = now - state_delay_s (closed, as Recording's windows)
+    state      x = [u, v, r, psi] at t_c = t_end - dt/2: u, v box-averaged from `velocity`, r from the `imu`
+               gyro, psi from `heading` unwrapped then averaged; controls [delta, rpm] the same way from
+               `rudder_angle` and `engine_rpm`, held for the whole horizon (the current actuator commands)
+    position   GNSS lat/lon -> NED in the local tangent plane of the datum (parameter, or the first fix),
+               box-averaged like the rest; without a fix the path starts at (0, 0)
+
+Each average is recording.window_resample on the buffered samples with grid [t_c], so a state here equals
+Recording.state() at the grid time t_c of the same samples (test_live.py proves it on a shipped bag).
+Prediction k (k = 1 .. H) is the model's output at t_c + k dt.
+
+Samples are checked on arrival (reject reasons are counted per input and reported): non-finite values in
+a field the state uses, a stamp not after the previous one (backwards or duplicate), a stamp more than
+max_future_s ahead of the clock, values outside PLAUSIBLE (wrong units configuration, e.g. heading
+configured as rad but > 2 pi, rudder degrees read as radians, absurd rpm). Buffers are fixed-size rings:
+memory does not grow with the message rate.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from usv_predictor.artifact import ModelArtifact
+from usv_predictor.errors import ModelError, UsvPredictorError
+from usv_predictor.frames import LocalTangentPlane
+from usv_predictor.recording import NS, REQUIRED_ROLES, window_resample
+
+POSITION_ROLE = "gnss"
+# role -> the fields the state uses, in the order of recording_from_signals
+STATE_FIELDS: Mapping[str, tuple[str, ...]] = {
+    "velocity": ("u", "v"),
+    "imu": ("yaw_rate",),
+    "heading": ("psi",),
+    "rudder_angle": ("delta",),
+    "engine_rpm": ("rpm",),
+    POSITION_ROLE: ("lat", "lon"),
+}
+# Plausible values (SI after the adapter; rpm in rev/min). Outside them the configuration is the likelier culprit.
+PLAUSIBLE: Mapping[str, tuple[float, float]] = {
+    "u": (-10.0, 30.0),  # m/s, surge over ground of a USV
+    "v": (-15.0, 15.0),  # m/s
+    "yaw_rate": (-3.0, 3.0),  # rad/s (170 deg/s)
+    "delta": (-math.radians(60.0), math.radians(60.0)),  # rad; a rudder in degrees read as rad exceeds it
+    "rpm": (-5000.0, 5000.0),  # rev/min
+    "lat": (-90.0, 90.0),  # deg
+    "lon": (-180.0, 180.0),  # deg
+}
+RAW_HEADING_LIMIT = {"rad": 2.0 * math.pi + 1e-6, "deg": 360.0 + 1e-6}  # |raw heading| per configured unit
+RATE_WINDOW_S = 1.0  # input rates are counted over this much of the latest samples (s)
+WARM_UP_CALLS = 3  # rollouts run when a model is loaded
+STEADY_SPEED_LIMIT = 50.0  # m/s: a predicted speed beyond this is a diverged model, not a prediction
+
+
+class InputRejected(UsvPredictorError):
+    """One sample was refused (reason in the message; `kind` is its counter key)."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+class CycleSkipped(UsvPredictorError):
+    """No prediction this cycle; the message says why (no input yet, stale input, bad model output)."""
+
+
+def check_raw_heading(raw: float, units: str) -> None:
+    """A scalar heading in its configured unit must lie within one turn; the adapter wraps, so check before it."""
+    limit = RAW_HEADING_LIMIT.get(units)
+    if limit is not None and math.isfinite(raw) and abs(raw) > limit:
+        hint = " (degrees configured as rad?)" if units == "rad" else ""
+        raise InputRejected("range", f"heading {raw:g} {units} is more than one turn{hint}; check the units option")
+
+
+def check_values(role: str, fields: Sequence[str], values: Sequence[float]) -> None:
+    """Used fields must be finite and plausible (InputRejected 'non_finite' or 'range' naming the field)."""
+    used = STATE_FIELDS.get(role, ())
+    for name, value in zip(fields, values):
+        if name not in used:
+            continue
+        if not math.isfinite(value):
+            if role == POSITION_ROLE:
+                raise InputRejected("no_fix", "GNSS reports no fix")
+            raise InputRejected("non_finite", f"{role}.{name} is {value}")
+        low, high = PLAUSIBLE.get(name, (-math.inf, math.inf))
+        if not low <= value <= high:
+            raise InputRejected("range", f"{role}.{name} = {value:g} outside the plausible [{low:g}, {high:g}]: "
+                                         f"wrong units or sign configuration?")
+
+
+class SampleBuffer:
+    """The latest `capacity` samples of one input as a ring (oldest overwritten): bounded memory.
+
+    Samples must arrive in increasing stamp order (push rejects the others), so the ring is sorted.
+    """
+
+    def __init__(self, fields: Sequence[str], capacity: int) -> None:
+        if capacity < 2:
+            raise ValueError(f"buffer capacity {capacity} must be >= 2")
+        self.fields = tuple(fields)
+        self.capacity = int(capacity)
+        self._t = np.zeros(self.capacity, dtype=np.int64)
+        self._v = np.zeros((self.capacity, len(self.fields)), dtype=np.float64)
+        self._next = 0  # index the next sample goes to
+        self.size = 0
+        self.overwritten = 0  # samples pushed out by newer ones
+
+    def __len__(self) -> int:
+        return self.size
+
+    @property
+    def latest_ns(self) -> int | None:
+        return int(self._t[(self._next - 1) % self.capacity]) if self.size else None
+
+    @property
+    def oldest_ns(self) -> int | None:
+        return int(self._t[(self._next - self.size) % self.capacity]) if self.size else None
+
+    @property
+    def nbytes(self) -> int:
+        return self._t.nbytes + self._v.nbytes
+
+    def push(self, stamp_ns: int, values: Sequence[float]) -> None:
+        self._t[self._next] = stamp_ns
+        self._v[self._next] = values
+        self._next = (self._next + 1) % self.capacity
+        if self.size == self.capacity:
+            self.overwritten += 1
+        else:
+            self.size += 1
+
+    def clear(self) -> None:
+        self._next = self.size = 0
+
+    def samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """(t_ns (N,), values (N, k)) oldest first (copies)."""
+        idx = (np.arange(self.size) + self._next - self.size) % self.capacity
+        return self._t[idx], self._v[idx]
+
+    def rate_hz(self, now_ns: int, span_s: float = RATE_WINDOW_S) -> float:
+        """Samples per second over the last span_s before now (0 when fewer than two)."""
+        t, _ = self.samples()
+        recent = t[t >= now_ns - int(span_s * NS)]
+        if len(recent) < 2 or recent[-1] <= recent[0]:
+            return 0.0
+        return (len(recent) - 1) * NS / float(recent[-1] - recent[0])
+
+
+@dataclass
+class InputTrack:
+    """One input: its ring, its staleness limit and what was rejected (counts and the latest reason)."""
+
+    role: str
+    buffer: SampleBuffer
+    max_age_s: float
+    received: int = 0
+    rejected: dict[str, int] = field(default_factory=dict)
+    last_reject: str = ""
+    last_reject_ns: int | None = None
+    last_accept_ns: int | None = None  # clock when the latest good sample was accepted
+
+    def reject(self, kind: str, message: str, now_ns: int) -> None:
+        self.rejected[kind] = self.rejected.get(kind, 0) + 1
+        self.last_reject, self.last_reject_ns = message, now_ns
+
+    def age_s(self, now_ns: int) -> float | None:
+        """Age of the newest sample (by its stamp) on the clock now; None before the first sample."""
+        latest = self.buffer.latest_ns
+        return None if latest is None else (now_ns - latest) / NS
+
+
+@dataclass(frozen=True)
+class LiveSettings:
+    dt: float  # model and window step (s)
+    horizon_steps: int  # H
+    state_delay_s: float = 0.0  # window end = now - state_delay_s (s): room for late messages
+    max_future_s: float = 0.5  # stamps further ahead of the clock are refused (s)
+    capacity: int = 2048  # samples per input ring
+    datum: tuple[float, float] | None = None  # (lat, lon) deg of the NED plane; None: the first fix
+
+    @property
+    def dt_ns(self) -> int:
+        return int(round(self.dt * NS))
+
+
+class LiveState(NamedTuple):
+    """What a prediction starts from (marine frames, SI)."""
+
+    t_c_ns: int  # centre of the averaging window: the state's time
+    state: np.ndarray  # (4,) u, v, r, psi (psi continuous within the window, not wrapped)
+    controls: np.ndarray  # (2,) delta rad, rpm: held over the horizon
+    position: np.ndarray | None  # (2,) x_n, y_e (m) in the datum's plane; None without GNSS
+    samples: Mapping[str, int]  # samples averaged per role
+
+
+class InputSet:
+    """The buffers of every configured input and the checks between a message and the state."""
+
+    def __init__(self, fields_by_role: Mapping[str, Sequence[str]], max_age_s: Mapping[str, float],
+                 settings: LiveSettings) -> None:
+        # a configuration without them still runs (and reports); it just never predicts
+        self.missing = [role for role in REQUIRED_ROLES if role not in fields_by_role]
+        self.settings = settings
+        self.tracks = {role: InputTrack(role, SampleBuffer(fields, settings.capacity), float(max_age_s[role]))
+                       for role, fields in fields_by_role.items()}
+        self.datum: tuple[float, float] | None = settings.datum
+        self._plane = None if self.datum is None else LocalTangentPlane(*self.datum)
+        self._last_now_ns: int | None = None
+
+    # --------------------------------------------------------------- messages in
+    def add(self, role: str, stamp_ns: int, values: Sequence[float], now_ns: int) -> None:
+        """Check and buffer one decoded sample (InputRejected says why it was refused; it is also counted)."""
+        track = self.tracks[role]
+        track.received += 1
+        try:
+            check_values(role, track.buffer.fields, values)
+            latest = track.buffer.latest_ns
+            if latest is not None and stamp_ns <= latest:
+                if stamp_ns == latest:
+                    raise InputRejected("duplicate", f"{role}: stamp repeats the previous one")
+                raise InputRejected("backwards", f"{role}: stamp {(latest - stamp_ns) / NS:.3f} s before the previous one")
+            ahead = (stamp_ns - now_ns) / NS
+            if ahead > self.settings.max_future_s:
+                raise InputRejected("future", f"{role}: stamp {ahead:.3f} s ahead of the clock "
+                                              f"(limit {self.settings.max_future_s:g} s; clock or use_sim_time mismatch?)")
+        except InputRejected as err:
+            track.reject(err.kind, str(err), now_ns)
+            raise
+        if role == POSITION_ROLE and self.datum is None:
+            fields = track.buffer.fields
+            self.datum = (float(values[fields.index("lat")]), float(values[fields.index("lon")]))
+            self._plane = LocalTangentPlane(*self.datum)
+        track.buffer.push(stamp_ns, values)
+        track.last_accept_ns = now_ns
+
+    def observe_clock(self, now_ns: int) -> bool:
+        """Clear every buffer when the clock jumped back (a replay restarted); True if it did."""
+        jumped = self._last_now_ns is not None and now_ns < self._last_now_ns
+        self._last_now_ns = now_ns
+        if jumped:
+            for track in self.tracks.values():
+                track.buffer.clear()
+        return jumped
+
+    # --------------------------------------------------------------- state out
+    def _window_mean(self, role: str, columns: Sequence[str], t_c_ns: int) -> tuple[np.ndarray, int]:
+        track = self.tracks[role]
+        t, values = track.buffer.samples()
+        half = self.settings.dt_ns // 2
+        inside = int(np.count_nonzero((t >= t_c_ns - half) & (t <= t_c_ns + half)))
+        if t[0] > t_c_ns - half:  # as Recording: whole windows only (a cut window would bias the mean)
+            raise CycleSkipped(f"input {role}: the averaging window starts before its first buffered sample")
+        if inside == 0:
+            raise CycleSkipped(f"input {role}: no sample in the averaging window "
+                               f"(latest {(t_c_ns + half - int(t[-1])) / NS:.2f} s before its end)")
+        cols = [track.buffer.fields.index(c) for c in columns]
+        chosen = values[:, cols]
+        if role == "heading":
+            chosen = np.unwrap(chosen, axis=0)  # as Recording: unwrap, then average
+        mean = window_resample(t, chosen, np.array([t_c_ns], dtype=np.int64), self.settings.dt_ns)[0]
+        return mean, inside
+
+    def assemble(self, now_ns: int) -> LiveState:
+        """The state at now (see the module docstring); CycleSkipped naming the missing or stale input."""
+        if self.missing:
+            raise CycleSkipped(f"inputs {self.missing} are not configured; a prediction needs {list(REQUIRED_ROLES)}")
+        for role in REQUIRED_ROLES:
+            track = self.tracks[role]
+            age = track.age_s(now_ns)
+            if age is None:
+                raise CycleSkipped(f"input {role}: no message yet")
+            if age > track.max_age_s:
+                raise CycleSkipped(f"input {role}: stale, newest sample {age:.2f} s old (limit {track.max_age_s:g} s)")
+        t_end = now_ns - int(round(self.settings.state_delay_s * NS))
+        t_c = t_end - self.settings.dt_ns // 2
+        means, counts = {}, {}
+        for role in REQUIRED_ROLES:
+            means[role], counts[role] = self._window_mean(role, STATE_FIELDS[role], t_c)
+        state = np.array([means["velocity"][0], means["velocity"][1], means["imu"][0], means["heading"][0]])
+        controls = np.array([means["rudder_angle"][0], means["engine_rpm"][0]])
+        position = self._position(t_c, now_ns, counts)
+        return LiveState(t_c, state, controls, position, counts)
+
+    def _position(self, t_c_ns: int, now_ns: int, counts: dict[str, int]) -> np.ndarray | None:
+        track = self.tracks.get(POSITION_ROLE)
+        if track is None or self._plane is None or len(track.buffer) == 0:
+            return None
+        age = track.age_s(now_ns)
+        if age is None or age > track.max_age_s:
+            return None
+        t, values = track.buffer.samples()
+        fields = track.buffer.fields
+        x_n, y_e = self._plane.to_ned(values[:, fields.index("lat")], values[:, fields.index("lon")])
+        half = self.settings.dt_ns // 2
+        counts[POSITION_ROLE] = int(np.count_nonzero((t >= t_c_ns - half) & (t <= t_c_ns + half)))
+        grid = np.array([t_c_ns], dtype=np.int64)
+        return np.array([window_resample(t, x_n, grid, self.settings.dt_ns)[0],
+                         window_resample(t, y_e, grid, self.settings.dt_ns)[0]])
+
+
+class Prediction(NamedTuple):
+    """One published prediction (NED/FRD, SI). Row k is the time t_ns[k] = t_c + (k + 1) dt."""
+
+    stamp_ns: int  # the clock when it was made
+    t_ns: np.ndarray  # (H,) future times
+    eta: np.ndarray  # (H, 3) ensemble mean x_n, y_e (m, anchored), psi (rad, continuous)
+    nu: np.ndarray  # (H, 3) ensemble mean u, v, r
+    eta_members: np.ndarray  # (E, H, 3) every member, anchored
+    anchored: bool  # positions in the datum's plane (GNSS) or relative to (0, 0)
+    state: LiveState
+    compute_s: float  # wall time of the rollout (s)
+
+
+class Rollout:
+    """The TorchScript model with preallocated inputs: one (1, 4) state and (1, H, 2) held controls."""
+
+    def __init__(self, artifact: ModelArtifact, horizon_steps: int, ensemble_size: int | None = None) -> None:
+        available = artifact.ensemble_size
+        self.members = available if ensemble_size is None else int(ensemble_size)
+        if self.members > available:
+            raise ModelError(f"model {artifact.path}: ensemble_size {self.members} requested, the model has "
+                             f"{available} member(s)")
+        self.artifact = artifact
+        self.horizon_steps = int(horizon_steps)
+        dtype = artifact.module.m_s.dtype if hasattr(artifact.module, "m_s") else torch.float64
+        self._state = torch.zeros(1, 4, dtype=dtype)
+        self._controls = torch.zeros(1, self.horizon_steps, 2, dtype=dtype)
+        for _ in range(WARM_UP_CALLS):  # TorchScript profiles and optimises its first calls: not in a live cycle
+            self(np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.0, 0.0]))
+
+    def __call__(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """(E, H, 6) [u, v, r, x_n, y_e, psi] relative to the start, controls (2,) held for every step."""
+        self._state[0].copy_(torch.from_numpy(np.asarray(state, dtype=np.float64)))
+        self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)).expand(self.horizon_steps, 2))
+        with torch.inference_mode():
+            out = self.artifact.module(self._state, self._controls)  # (E, 1, H, 6)
+        return out[: self.members, 0].double().numpy()
+
+
+def predict(inputs: InputSet, rollout: Rollout, now_ns: int) -> Prediction:
+    """State at now -> rollout -> anchored, checked prediction (CycleSkipped when it cannot be trusted)."""
+    live = inputs.assemble(now_ns)
+    started = time.perf_counter()
+    out = rollout(live.state, live.controls)  # (E, H, 6)
+    compute_s = time.perf_counter() - started
+    if not np.all(np.isfinite(out)):
+        raise CycleSkipped("model output is not finite (NaN/inf): nothing published")
+    speed = np.hypot(out[..., 0], out[..., 1])
+    if float(speed.max()) > STEADY_SPEED_LIMIT:
+        raise CycleSkipped(f"model output diverged (speed {float(speed.max()):.1f} m/s > {STEADY_SPEED_LIMIT:g} m/s)")
+    origin = live.position if live.position is not None else np.zeros(2)
+    eta_members = np.concatenate([out[..., 3:5] + origin, out[..., 5:6]], axis=-1)  # (E, H, 3)
+    dt_ns = inputs.settings.dt_ns
+    t_ns = live.t_c_ns + dt_ns * np.arange(1, rollout.horizon_steps + 1, dtype=np.int64)
+    return Prediction(now_ns, t_ns, eta_members.mean(axis=0), out[..., 0:3].mean(axis=0), eta_members,
+                      live.position is not None, live, compute_s)
+
+
+def enu_covariance(eta_members: np.ndarray) -> np.ndarray:
+    """(H, 3, 3) ensemble covariance (population) of [x east (m), y north (m), yaw ENU (rad)] per step."""
+    enu = np.stack([eta_members[..., 1], eta_members[..., 0], -eta_members[..., 2]], axis=-1)  # (E, H, 3)
+    centred = enu - enu.mean(axis=0, keepdims=True)
+    return np.einsum("ehi,ehj->hij", centred, centred) / max(1, enu.shape[0])
