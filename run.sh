@@ -118,14 +118,21 @@ run_demo() {
     say "1. simulate a 20/20 zig-zag in the Rizhao-like sea (current + wind + waves) and its calm twin"
     "$replay" simulate --manoeuvre zigzag --rudder 20 --duration 120 --sea rizhao --calm-twin \
         --output "$out/bags" --json "$out/simulate.json"
-    say "2. summarise the shipped sea-trial bags (seed 000 Table 3 turning tests)"
-    "$replay" info "$REPO"/bags/sea_trial/turning_circle_* --json "$out/shipped_bags.json"
-    say "3. the predictor node fed from a shipped bag over DDS (use_sim_time + /clock): what it published"
+    say "2. seed 000's learned predictor on the shipped bags: dataset -> train -> export -> evaluate -> report"
+    "$replay" dataset "$REPO"/bags/training "$REPO"/bags/sea_trial --val random_7_675rpm --output "$out/dataset.npz"
+    "$replay" train "$out/dataset.npz" --features NTF --activation tanh --output "$out/model.pt" \
+        --json "$out/train.json"
+    "$replay" evaluate --model "$out/model.pt" --output "$out/evaluation"
+    "$replay" report "$out/evaluation/evaluation.json" --output "$out/report"
+    say "3. diagnosis of the shipped sea trial: the cause, the extended model and its gain on held-out manoeuvres"
+    "$replay" diagnose "$REPO"/bags/sea_trial "$REPO"/bags/training --report "$out/diagnosis" \
+        --export "$out/extended.pt" --json "$out/diagnosis.json"
+    say "4. the predictor node fed from a shipped bag over DDS (use_sim_time + /clock): what it published"
     ROS_DOMAIN_ID=$((100 + $$ % 100)) ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST "$VENV/bin/python" \
         "$REPO/tools/play_bag.py" "$REPO/bags/sea_trial/turning_circle_stbd_20deg_700rpm" \
         --start 20 --seconds 8 --rate 1 --run-node | tee "$out/node_demo.txt"
     # ============================ end of DEMO section ==============================
-    say "demo done: results in $out"
+    say "demo done: evaluation report $out/report/report.md, diagnosis $out/diagnosis/report.md, all in $out"
 }
 
 main() {
