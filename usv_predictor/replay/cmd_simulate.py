@@ -52,8 +52,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="add a hidden effect (repeatable); its parameters below")
     for effect, params in EFFECTS.items():
         for p in params:
-            sea.add_argument(_flag(p.name), dest=p.name, type=float, default=None, metavar=p.unit.upper().replace("/", "_"),
-                             help=f"{effect}: {p.help} ({p.unit}, default {p.default:g}, range {p.low:g}..{p.high:g})")
+            unit = "PCT" if p.unit == "%" else p.unit.upper().replace("/", "_")
+            text = f"{effect}: {p.help} ({p.unit}, default {p.default:g}, range {p.low:g}..{p.high:g})"
+            sea.add_argument(_flag(p.name), dest=p.name, type=float, default=None, metavar=unit,
+                             help=text.replace("%", "%%"))  # argparse %-formats help texts
     out = parser.add_argument_group("output")
     out.add_argument("--output", type=Path, default=Path("out/simulated"), help="directory for the bags (default out/simulated)")
     out.add_argument("--calm-twin", action="store_true", help="also write the calm-water twin of each bag into OUTPUT/calm")
