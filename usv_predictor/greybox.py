@@ -165,8 +165,13 @@ class GreyBoxRollout(nn.Module):
         c, sn = torch.cos(psi), torch.sin(psi)
         u = u_r + self.current_ne[0] * c + self.current_ne[1] * sn
         v = v_r - self.current_ne[0] * sn + self.current_ne[1] * c
-        acc = self._accelerations(psi, u_r, v_r, r, delta, rpm)
+        acc = self._model_accelerations(psi, u_r, v_r, r, delta, rpm)
         return [u * c - v * sn, u * sn + v * c, r, acc[0], acc[1], acc[2]]
+
+    def _model_accelerations(self, psi: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor, delta: Tensor,
+                             rpm: Tensor) -> List[Tensor]:
+        """The accelerations the rollout integrates; a hybrid model adds its learned residual here."""
+        return self._accelerations(psi, u_r, v_r, r, delta, rpm)
 
     def _delayed(self, controls: Tensor) -> Tensor:
         """Controls shifted later by actuator_delay (linear interpolation, the first value held before)."""

@@ -94,14 +94,11 @@ class ResidualGreyBox(GreyBoxRollout):
         super().__init__(vessel, dt, substeps)
         self.residual = residual
 
-    def _derivative(self, s: List[Tensor], delta: Tensor, rpm: Tensor) -> List[Tensor]:
-        psi, u_r, v_r, r = s[2], s[3], s[4], s[5]
-        c, sn = torch.cos(psi), torch.sin(psi)
-        u = u_r + self.current_ne[0] * c + self.current_ne[1] * sn
-        v = v_r - self.current_ne[0] * sn + self.current_ne[1] * c
+    def _model_accelerations(self, psi: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor, delta: Tensor,
+                             rpm: Tensor) -> List[Tensor]:
         acc = self._accelerations(psi, u_r, v_r, r, delta, rpm)
         extra = self.residual(u_r, v_r, r, delta, rpm)  # (B, 3)
-        return [u * c - v * sn, u * sn + v * c, r, acc[0] + extra[:, 0], acc[1] + extra[:, 1], acc[2] + extra[:, 2]]
+        return [acc[0] + extra[:, 0], acc[1] + extra[:, 1], acc[2] + extra[:, 2]]
 
     def accelerations(self, nu: Tensor, controls: Tensor) -> Tensor:
         """(N, 3) model accelerations at (N, 3) nu and (N, 2) controls (heading irrelevant in calm water)."""

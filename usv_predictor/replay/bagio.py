@@ -21,6 +21,7 @@ adapter.decode); types without a fixed layout (JointState) go one rosbags messag
 """
 from __future__ import annotations
 
+import os
 import shutil
 import sqlite3
 import struct
@@ -242,6 +243,20 @@ def _install(built: Path, target: Path) -> None:
             old.unlink()
     else:
         built.rename(target)
+
+
+def prepare_outputs(directory: Path, bags: Sequence[Path], overwrite: bool) -> None:
+    """Before any work: create the output directory, check it is writable, refuse existing bags without overwrite."""
+    directory = Path(directory)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise BagError(f"--output {directory}: cannot create the output directory ({err.strerror})") from err
+    if not os.access(directory, os.W_OK):
+        raise BagError(f"--output {directory}: directory is not writable")
+    existing = [str(p) for p in bags if Path(p).exists()]
+    if existing and not overwrite:
+        raise BagError(f"{existing[0]} exists already; use --overwrite to replace it")
 
 
 def write_bag(

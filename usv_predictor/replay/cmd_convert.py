@@ -7,7 +7,6 @@ and the conversion live in usv_predictor.replay.convert; docs/data.md says what 
 from __future__ import annotations
 
 import argparse
-import os
 import shlex
 import sys
 import time
@@ -29,9 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> dict:
     from usv_predictor.config import input_topics, load_predictor_config
-    from usv_predictor.errors import BagError, DatasetError
+    from usv_predictor.errors import DatasetError
     from usv_predictor.replay import convert
-    from usv_predictor.replay.bagio import TopicSpec
+    from usv_predictor.replay.bagio import TopicSpec, prepare_outputs
 
     sources = convert.find_sources(args.sources, args.format)
     manoeuvres = [convert.read_manoeuvre(path, fmt) for path, fmt in sources]  # read all first: fail before writing
@@ -40,16 +39,7 @@ def run(args: argparse.Namespace) -> dict:
         if m.name in names:
             raise DatasetError(f"{m.path} and {names[m.name]} both convert to bag {m.name!r}; convert them separately")
         names[m.name] = m.path
-    try:
-        args.output.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise BagError(f"--output {args.output}: cannot create the output directory ({err.strerror})") from err
-    if not os.access(args.output, os.W_OK):
-        raise BagError(f"--output {args.output}: directory is not writable")
-    if not args.overwrite:
-        existing = [str(args.output / m.name) for m in manoeuvres if (args.output / m.name).exists()]
-        if existing:
-            raise BagError(f"{existing[0]} exists already; use --overwrite to replace it")
+    prepare_outputs(args.output, [args.output / m.name for m in manoeuvres], args.overwrite)
     cfg = load_predictor_config()
     specs = {t.role: TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id or cfg.base_frame_id)
              for t in input_topics(cfg, include_ground_truth=False)}

@@ -11,7 +11,6 @@ import argparse
 import dataclasses
 import json
 import math
-import os
 import shlex
 import sys
 import time
@@ -170,7 +169,7 @@ def simulate_bag(path: Path, manoeuvre, scenario, *, seed: int, index: int, args
 
 def run(args: argparse.Namespace) -> dict:
     from usv_predictor.dynamics import ManoeuvringModel
-    from usv_predictor.errors import BagError
+    from usv_predictor.replay.bagio import prepare_outputs
     from usv_predictor.scenario import make_scenario
     from usv_predictor.vessel import load_vessel
 
@@ -180,16 +179,7 @@ def run(args: argparse.Namespace) -> dict:
     jobs = [(args.output / m.name, m, scenario) for m in manoeuvres]
     if args.calm_twin:
         jobs += [(args.output / "calm" / m.name, m, scenario.calm_twin()) for m in manoeuvres]
-    try:
-        args.output.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise BagError(f"--output {args.output}: cannot create the output directory ({err.strerror})") from err
-    if not os.access(args.output, os.W_OK):
-        raise BagError(f"--output {args.output}: directory is not writable")
-    if not args.overwrite:
-        existing = [str(p) for p, _, _ in jobs if p.exists()]
-        if existing:
-            raise BagError(f"{existing[0]} exists already; use --overwrite to replace it")
+    prepare_outputs(args.output, [p for p, _, _ in jobs], args.overwrite)
     model = ManoeuvringModel(vessel)
     results = []
     for k, (path, manoeuvre, scen) in enumerate(jobs):
