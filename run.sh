@@ -124,13 +124,13 @@ run_demo() {
         --json "$out/train.json"
     "$replay" evaluate --model "$out/model.pt" --output "$out/evaluation"
     "$replay" report "$out/evaluation/evaluation.json" --output "$out/report"
-    say "3. diagnosis of the shipped sea trial: the cause, the extended model and its gain on held-out manoeuvres"
-    "$replay" diagnose "$REPO"/bags/sea_trial "$REPO"/bags/training --report "$out/diagnosis" \
-        --export "$out/extended.pt" --json "$out/diagnosis.json"
-    say "4. the predictor node fed from a shipped bag over DDS (use_sim_time + /clock): what it published"
+    say "3. the predictor node fed from a shipped bag over DDS (use_sim_time + /clock): what it published"
     ROS_DOMAIN_ID=$((100 + $$ % 100)) ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST "$VENV/bin/python" \
         "$REPO/tools/play_bag.py" "$REPO/bags/sea_trial/turning_circle_stbd_20deg_700rpm" \
         --start 20 --seconds 8 --rate 1 --run-node | tee "$out/node_demo.txt"
+    say "4. diagnosis of the shipped sea trial: the cause, the extended model and its gain on held-out manoeuvres"
+    "$replay" diagnose "$REPO"/bags/sea_trial "$REPO"/bags/training --report "$out/diagnosis" \
+        --export "$out/extended.pt" --json "$out/diagnosis.json"
     # ============================ end of DEMO section ==============================
     say "demo done: evaluation report $out/report/report.md, diagnosis $out/diagnosis/report.md, all in $out"
 }
