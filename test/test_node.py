@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
@@ -23,6 +22,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 import msg_adapters
+from ros_helpers import ros_context, statuses, values_of  # noqa: F401 (ros_context is a fixture)
 from usv_predictor import node as predictor_node
 from usv_predictor.config import package_share_path
 from usv_predictor.errors import ModelError
@@ -31,23 +31,6 @@ WAIT_S = 15.0
 DEFAULT_MODEL = package_share_path("models", "default.pt")
 
 
-@pytest.fixture()
-def ros_context(monkeypatch: pytest.MonkeyPatch) -> Iterator[Context]:
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    context = Context()
-    rclpy.init(context=context, domain_id=1 + (os.getpid() + 37) % 100)
-    try:
-        yield context
-    finally:
-        rclpy.try_shutdown(context=context)
-
-
-def statuses(report: DiagnosticArray) -> dict[str, Any]:
-    return {s.name.split(": ", 1)[1].removeprefix("input "): s for s in report.status}
-
-
-def values_of(status: Any) -> dict[str, str]:
-    return {kv.key: kv.value for kv in status.values}
 
 
 GOOD = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), "heading": (0.5,),

@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import rclpy
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
@@ -24,6 +23,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 import msg_adapters
+from ros_helpers import ros_context, statuses, values_of  # noqa: F401 (ros_context is a fixture)
 from usv_predictor import node as predictor_node
 from usv_predictor.config import load_predictor_config
 from usv_predictor.errors import ConfigError
@@ -31,24 +31,6 @@ from usv_predictor.errors import ConfigError
 WAIT_S = 15.0  # upper bound on discovery + a few timer periods (s)
 
 
-@pytest.fixture()
-def ros_context(monkeypatch: pytest.MonkeyPatch) -> Iterator[Context]:
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    context = Context()
-    rclpy.init(context=context, domain_id=1 + os.getpid() % 100)
-    try:
-        yield context
-    finally:
-        rclpy.try_shutdown(context=context)
-
-
-def levels_by_input(report: DiagnosticArray) -> dict[str, Any]:
-    """{'imu': status, ..., 'model': status} from names like 'predictor: input imu'."""
-    return {status.name.split(": ", 1)[1].removeprefix("input "): status for status in report.status}
-
-
-def values_of(status: Any) -> dict[str, str]:
-    return {kv.key: kv.value for kv in status.values}
 
 
 class Harness:
@@ -83,10 +65,10 @@ class Harness:
         while time.monotonic() < deadline:
             feed()
             self.executor.spin_once(timeout_sec=0.02)
-            if self.latest is not None and condition(levels_by_input(self.latest)):
-                return levels_by_input(self.latest)
+            if self.latest is not None and condition(statuses(self.latest)):
+                return statuses(self.latest)
         last = None if self.latest is None else {k: (s.level, s.message)
-                                                 for k, s in levels_by_input(self.latest).items()}
+                                                 for k, s in statuses(self.latest).items()}
         pytest.fail(f"no /diagnostics satisfied the condition within {WAIT_S} s; last report: {last}")
 
     def close(self) -> None:
