@@ -75,7 +75,8 @@ def _track_plots(recordings: Sequence[Recording], vessel: Vessel, fit_terms: dic
                 ax.plot(pred.measured[:, 4], pred.measured[:, 3], "k.", ms=1.5, label="measured (GNSS)")
             ax.plot(pred.predicted[:, 4], pred.predicted[:, 3], style, lw=1.2, label=label)
             err = np.hypot(*(pred.predicted[:, 3:5] - pred.measured[:, 3:5]).T)
-            ax_err.plot(pred.t_s, err, style, lw=1.0, label=f"{rec.name}: {label}" if n <= 4 else None)
+            ax_err.plot(pred.t_s, err, style, lw=1.0, color=f"C{i % 10}",  # one colour per manoeuvre
+                        label=(f"{rec.name}" if label != "calm-water model" else None) if n <= 10 else None)
             row[f"{label.split()[0]}_final_position_error_m"] = float(err[np.isfinite(err)][-1]) if np.isfinite(err).any() else None
         ax.set_title(rec.name, fontsize=9)
         ax.set_xlabel("east (m)")
@@ -88,8 +89,8 @@ def _track_plots(recordings: Sequence[Recording], vessel: Vessel, fit_terms: dic
     ax_err.set_xlabel("time (s)")
     ax_err.set_ylabel("closed-loop position error (m)")
     ax_err.set_title("Position error, calm-water (dashed) vs extended (solid)")
-    if n <= 4:
-        ax_err.legend(fontsize=6)
+    if n <= 10:
+        ax_err.legend(fontsize=6, ncol=2)
     errors.tight_layout()
     save_figure(tracks, path_tracks)
     save_figure(errors, path_errors)
