@@ -20,8 +20,9 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
+
+from timing import best_seconds  # benchmarks/timing.py (the script folder is on sys.path)
 
 from rosbags.highlevel import AnyReader
 
@@ -32,16 +33,6 @@ from usv_predictor.replay.recordings import default_jobs, find_bags, topic_specs
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_MSG_S = 250_000
-
-
-def best_seconds(work: Callable[[], object], repeats: int) -> float:
-    """Fastest of `repeats` runs: the least disturbed by the rest of the machine."""
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        work()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def per_message(bags: list[Path], specs: list) -> int:

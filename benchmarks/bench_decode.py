@@ -11,8 +11,9 @@ from __future__ import annotations
 import argparse
 import random
 import tempfile
-import time
 from pathlib import Path
+
+from timing import best_seconds  # benchmarks/timing.py (the script folder is on sys.path)
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -24,8 +25,6 @@ from rosbags.typesys import Stores, get_typestore
 from usv_predictor.replay.cdr_fast import decode_many, supported_types
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
-
     from rosbags.typesys.store import Typestore
 
 IMU = "sensor_msgs/msg/Imu"
@@ -62,16 +61,6 @@ def sample_raws(
         for _ in range(min(count, 1000))
     ]
     return [distinct[i % len(distinct)] for i in range(count)]
-
-
-def best_seconds(work: Callable[[], object], repeats: int) -> float:
-    """Fastest of `repeats` runs: the least disturbed by the rest of the machine."""
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        work()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def rosbags_decode(raws: list[bytes], ros_type: str, typestore: Typestore) -> list[object]:

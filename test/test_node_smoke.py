@@ -31,8 +31,6 @@ from usv_predictor.errors import ConfigError
 WAIT_S = 15.0  # upper bound on discovery + a few timer periods (s)
 
 
-
-
 class Harness:
     """The node under test, a peer node that publishes inputs, and the latest /diagnostics."""
 
