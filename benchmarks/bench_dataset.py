@@ -22,14 +22,14 @@ import tempfile
 import time
 from pathlib import Path
 
-from timing import best_seconds  # benchmarks/timing.py (the script folder is on sys.path)
-
 from rosbags.highlevel import AnyReader
 
 from usv_predictor.replay.bagio import jazzy_typestore, read_bag
 from usv_predictor.replay.cdr_fast import decode_many
 from usv_predictor.replay.cli import main as replay_main
 from usv_predictor.replay.recordings import default_jobs, find_bags, topic_specs
+
+from timing import best_seconds  # benchmarks/timing.py (the script folder is on sys.path)
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_MSG_S = 250_000

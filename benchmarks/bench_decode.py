@@ -12,8 +12,6 @@ import argparse
 import random
 import tempfile
 from pathlib import Path
-
-from timing import best_seconds  # benchmarks/timing.py (the script folder is on sys.path)
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -23,6 +21,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from usv_predictor.replay.cdr_fast import decode_many, supported_types
+
+from timing import best_seconds  # benchmarks/timing.py (the script folder is on sys.path)
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore

@@ -1,6 +1,6 @@
 """Confusion matrix of `diagnose` over random hidden effects (the README's figures).
 
-Each draw: one effect of the vocabulary (or none) with random parameters (usv_predictor.hidden_effects),
+Each draw: one effect of the vocabulary (or none) with random parameters (usv_predictor.analysis.hidden_effects),
 the `diagnosis` trial programme (turning circles and 20/20 zig-zags both ways) simulated with sensor noise,
 resampled like the replay tool does, and diagnosed. Prints the confusion matrix (rows: truth, columns: named
 cause; `?` marks answers that name the truth only as confounded), the parameter errors per effect, how many
@@ -20,15 +20,15 @@ import numpy as np
 def one_draw(index: int, seed: int) -> dict:
     import torch
 
-    from usv_predictor.diagnosis import diagnose
-    from usv_predictor.dynamics import ManoeuvringModel
-    from usv_predictor.hidden_effects import EFFECTS, draw, within_tolerance
-    from usv_predictor.manoeuvres import diagnosis_runs
-    from usv_predictor.recording import recording_from_signals
-    from usv_predictor.scenario import make_scenario
-    from usv_predictor.sensors import measure
-    from usv_predictor.simulator import simulate
-    from usv_predictor.vessel import load_vessel
+    from usv_predictor.analysis.diagnosis import diagnose
+    from usv_predictor.analysis.hidden_effects import EFFECTS, draw, within_tolerance
+    from usv_predictor.data.recording import recording_from_signals
+    from usv_predictor.physics.dynamics import ManoeuvringModel
+    from usv_predictor.physics.manoeuvres import diagnosis_runs
+    from usv_predictor.physics.scenario import make_scenario
+    from usv_predictor.physics.sensors import measure
+    from usv_predictor.physics.simulator import simulate
+    from usv_predictor.physics.vessel import load_vessel
 
     torch.set_num_threads(1)
     rng = np.random.default_rng([seed, index])
@@ -59,7 +59,7 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
-    from usv_predictor.hidden_effects import EFFECTS
+    from usv_predictor.analysis.hidden_effects import EFFECTS
 
     with ProcessPoolExecutor(args.jobs) as pool:
         results = []

@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from usv_predictor import live
-from usv_predictor.artifact import DnnRollout, export_module, load_artifact
 from usv_predictor.config import package_share_path
-from usv_predictor.models.dnn import DnnConfig, DnnModel
+from usv_predictor.models.artifact import export_module, load_artifact
+from usv_predictor.models.dnn import DnnConfig, DnnModel, DnnRollout
+from usv_predictor.node import live
 
 H = 120
 

@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from usv_predictor.dynamics import ManoeuvringModel
-from usv_predictor.manoeuvres import TurningCircle, ZigZag
-from usv_predictor.scenario import RIZHAO_SEA, make_scenario
-from usv_predictor.sensors import measure
-from usv_predictor.simulator import simulate
-from usv_predictor.vessel import load_vessel
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.manoeuvres import TurningCircle, ZigZag
+from usv_predictor.physics.scenario import RIZHAO_SEA, make_scenario
+from usv_predictor.physics.sensors import measure
+from usv_predictor.physics.simulator import simulate
+from usv_predictor.physics.vessel import load_vessel
 
 
 def timed(fn, repeat: int):
@@ -53,8 +53,8 @@ def main() -> None:
     traj = simulate(model, TurningCircle(20.0, 650.0, duration_s=240.0), env)
     sense_t, signals = timed(lambda: measure(traj, env, scenario.sensor_spec), args.repeat)
     messages = sum(len(s) for s in signals.values())
-    from usv_predictor.replay.cmd_simulate import _topic_specs
     from usv_predictor.replay.bagio import write_bag
+    from usv_predictor.replay.cmd_simulate import _topic_specs
 
     specs, _ = _topic_specs()
     streams = [(specs[role], signals[role]) for role in specs]

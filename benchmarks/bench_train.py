@@ -4,7 +4,7 @@
 
 Builds the dataset from bags/sea_trial (6 turning circles, 2 Hz, NTF; val = 1 manoeuvre) unless one is
 given, then times in the same run:
-  ours, 500 epochs        usv_predictor.training.train_dnn, patience off (all epochs)
+  ours, 500 epochs        usv_predictor.fitting.training.train_dnn, patience off (all epochs)
   ours, early stopping    the same with patience 50 (restores the best epoch)
   ours, absolute target   the paper's target [u, v, r]_{k+1} instead of the increment (accuracy check)
   reference               a plain eager loop: DataLoader(TensorDataset, shuffle), torch's default
@@ -75,9 +75,9 @@ def main() -> None:
     parser.add_argument("--dataset", type=Path, default=None)
     args = parser.parse_args()
 
-    from usv_predictor.dataset import load_dataset
+    from usv_predictor.data.dataset import load_dataset
+    from usv_predictor.fitting.training import Samples, TrainingConfig, train_dnn
     from usv_predictor.models.dnn import DnnConfig
-    from usv_predictor.training import Samples, TrainingConfig, train_dnn
 
     with tempfile.TemporaryDirectory() as tmp:
         path = args.dataset or build_dataset(Path(tmp) / "sea_trial.npz")

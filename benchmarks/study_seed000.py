@@ -24,7 +24,7 @@ call (member m is trained exactly as a single network of seed m) and each member
 closed-loop metrics of one network vary a lot with its seed, so tables show the mean and spread over seeds.
 The ensemble mean track is not used: averaging tracks of slightly different phase shrinks the circle.
 
-Metrics: usv_predictor.evaluation (GNSS reference): turning radius eq. 29 (drift axis of the measured track),
+Metrics: usv_predictor.analysis.evaluation (GNSS reference): turning radius eq. 29 (drift axis of the measured track),
 steady circle fit, drift distance eq. 27, drift angle eq. 28 (X east, Y north, as seed 000 Table 8).
 Errors predicted - measured: relative (%) for lengths, absolute (deg) for angles.
 
@@ -129,8 +129,8 @@ def turning_row(evaluation: Any) -> dict[str, Any]:
 
 def evaluate_members(artifact_path: Path, recordings: list, seeds: int) -> list[list[dict]]:
     """[member][recording] turning rows of every member of an ensemble artifact."""
-    from usv_predictor import evaluation
-    from usv_predictor.artifact import load_artifact
+    from usv_predictor.analysis import evaluation
+    from usv_predictor.models.artifact import load_artifact
 
     artifact = load_artifact(artifact_path)
     return [[turning_row(evaluation.evaluate_recording(Member(artifact, k), rec, "gnss", (30.0,), 5.0))
@@ -275,9 +275,9 @@ def tables(study: dict) -> str:
 
 def figures(study: dict, recordings: dict, paths: dict, directory: Path) -> list[str]:
     """Two small PNGs: rotated tracks of test (a) (held-out, seed 0) and the held-out drift errors per test."""
-    from usv_predictor import evaluation
-    from usv_predictor.artifact import load_artifact
-    from usv_predictor.plots import new_figure, rotate_to_drift, save_figure
+    from usv_predictor.analysis import evaluation
+    from usv_predictor.analysis.plots import new_figure, rotate_to_drift, save_figure
+    from usv_predictor.models.artifact import load_artifact
 
     directory.mkdir(parents=True, exist_ok=True)
     written = []
@@ -337,7 +337,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--figures", type=Path, default=REPO / "docs" / "study", help="PNG directory ('' for none)")
     args = parser.parse_args(argv)
     started = time.perf_counter()
-    from usv_predictor import evaluation
+    from usv_predictor.analysis import evaluation
     from usv_predictor.replay.recordings import load_recordings
 
     out: Path = args.out

@@ -28,7 +28,13 @@ from msg_adapters.registry import (
     validate_options,
 )
 from usv_predictor.errors import AdapterError
-from usv_predictor.frames import enu_yaw_to_heading, heading_to_enu_yaw, quaternion_to_yaw, wrap_angle, yaw_to_quaternion
+from usv_predictor.frames import (
+    enu_yaw_to_heading,
+    heading_to_enu_yaw,
+    quaternion_to_yaw,
+    wrap_angle,
+    yaw_to_quaternion,
+)
 
 RAD_PER_S_TO_RPM = 60.0 / (2.0 * math.pi)  # (rev/min) / (rad/s)
 

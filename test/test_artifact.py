@@ -14,12 +14,17 @@ import pytest
 import torch
 
 import usv_predictor
-from usv_predictor.artifact import (
-    FORMAT, METADATA_FILE, REQUIRED_KEYS, export, export_module, load_artifact, metadata_differences,
-)  # fmt: skip
+from usv_predictor.data.features import FEATURE_SETS, features
 from usv_predictor.errors import ModelError
-from usv_predictor.features import FEATURE_SETS, features
-from usv_predictor.models.dnn import DnnConfig, DnnModel, fit_normalisation
+from usv_predictor.models.artifact import (
+    FORMAT,
+    METADATA_FILE,
+    REQUIRED_KEYS,
+    export_module,
+    load_artifact,
+    metadata_differences,
+)
+from usv_predictor.models.dnn import DnnConfig, DnnModel, export, fit_normalisation
 
 DT = 0.5
 
@@ -206,7 +211,7 @@ def test_missing_corrupt_and_foreign_files(tmp_path: Path) -> None:
 
 
 def test_export_refuses_incomplete_metadata_and_leaves_no_file(tmp_path: Path) -> None:
-    from usv_predictor.artifact import DnnRollout
+    from usv_predictor.models.dnn import DnnRollout
 
     with pytest.raises(ModelError, match="lacks"):
         export_module(tmp_path / "m.pt", DnnRollout([_member("F0", 1)], DT), {"model_type": "dnn"})

@@ -8,12 +8,19 @@ import zipfile
 import numpy as np
 import pytest
 
-from usv_predictor.dataset import (
-    ARRAYS, FORMAT, build_dataset, load_dataset, make_samples, manoeuvre_of, save_dataset, split_by_manoeuvre,
+from usv_predictor.data.dataset import (
+    ARRAYS,
+    FORMAT,
+    build_dataset,
+    load_dataset,
+    make_samples,
+    manoeuvre_of,
+    save_dataset,
+    split_by_manoeuvre,
 )  # fmt: skip
+from usv_predictor.data.features import features
+from usv_predictor.data.recording import Recording
 from usv_predictor.errors import DatasetError
-from usv_predictor.features import features
-from usv_predictor.recording import Recording
 
 DT = 0.5
 

@@ -7,15 +7,22 @@ import math
 import numpy as np
 import pytest
 
-from usv_predictor.diagnosis import (DiagnosisError, check_data, diagnose, discrepancy, make_segments,
-                                     physical_parameters, scripted_rollout)
-from usv_predictor.dynamics import ManoeuvringModel
-from usv_predictor.environment import Environment
-from usv_predictor.manoeuvres import diagnosis_runs
-from usv_predictor.recording import recording_from_signals
-from usv_predictor.sensors import measure
-from usv_predictor.simulator import simulate
-from usv_predictor.vessel import load_vessel
+from usv_predictor.analysis.diagnosis import (
+    DiagnosisError,
+    check_data,
+    diagnose,
+    discrepancy,
+    make_segments,
+    physical_parameters,
+    scripted_rollout,
+)
+from usv_predictor.data.recording import recording_from_signals
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.manoeuvres import diagnosis_runs
+from usv_predictor.physics.sensors import measure
+from usv_predictor.physics.simulator import simulate
+from usv_predictor.physics.vessel import load_vessel
 
 VESSEL = load_vessel("jari_usv")
 

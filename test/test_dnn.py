@@ -7,10 +7,15 @@ import numpy as np
 import pytest
 import torch
 
+from usv_predictor.data.features import FEATURE_SETS, features
 from usv_predictor.errors import ConfigError
-from usv_predictor.features import FEATURE_SETS, features
 from usv_predictor.models.dnn import (
-    ClippedReLU, DnnConfig, DnnModel, features_torch, fit_normalisation, wrap_angle_torch,
+    ClippedReLU,
+    DnnConfig,
+    DnnModel,
+    features_torch,
+    fit_normalisation,
+    wrap_angle_torch,
 )  # fmt: skip
 
 

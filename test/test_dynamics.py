@@ -7,13 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from usv_predictor.dynamics import CALM, ManoeuvringModel, SeaLoads
-from usv_predictor.environment import Environment
+from usv_predictor.analysis.metrics import steady_turning_radius
 from usv_predictor.errors import ConfigError
-from usv_predictor.manoeuvres import PullOut, RandomManoeuvre, Spiral, TurningCircle, ZigZag, sea_trial_turns
-from usv_predictor.metrics import steady_turning_radius
-from usv_predictor.simulator import ActuatorFaults, simulate
-from usv_predictor.vessel import load_vessel, vessel_from_dict
+from usv_predictor.physics.dynamics import CALM, ManoeuvringModel, SeaLoads
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.manoeuvres import PullOut, RandomManoeuvre, Spiral, TurningCircle, ZigZag, sea_trial_turns
+from usv_predictor.physics.simulator import ActuatorFaults, simulate
+from usv_predictor.physics.vessel import load_vessel, vessel_from_dict
 
 
 @pytest.fixture(scope="module")

@@ -7,16 +7,16 @@ import math
 import numpy as np
 import pytest
 
-from usv_predictor import evaluation as ev
-from usv_predictor.dynamics import ManoeuvringModel
-from usv_predictor.environment import Environment
+from usv_predictor.analysis import evaluation as ev
+from usv_predictor.data.recording import Recording, recording_from_signals
 from usv_predictor.errors import ModelError
-from usv_predictor.manoeuvres import PullOut, RandomManoeuvre, TurningCircle, ZigZag
-from usv_predictor.recording import Recording, recording_from_signals
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.manoeuvres import PullOut, RandomManoeuvre, TurningCircle, ZigZag
+from usv_predictor.physics.sensors import SensorSpec, measure
+from usv_predictor.physics.simulator import simulate
+from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.replay.cli import _jsonable
-from usv_predictor.sensors import SensorSpec, measure
-from usv_predictor.simulator import simulate
-from usv_predictor.vessel import load_vessel
 
 DT = 0.5  # s
 CURRENT = Environment(current_speed=0.4, current_to_deg=215.0)  # flows toward south-west (m/s, deg)

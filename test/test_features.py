@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
+from usv_predictor.data.features import FEATURE_SETS, FEATURE_UNITS, feature_names, feature_units, features
 from usv_predictor.errors import DatasetError
-from usv_predictor.features import FEATURE_SETS, FEATURE_UNITS, feature_names, feature_units, features
 
 STATE = np.array([5.0, -0.3, 0.02, 0.0])  # u m/s, v m/s, r rad/s, psi rad
 CONTROLS = np.array([math.radians(20.0), 650.0])  # delta rad, rpm

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from usv_predictor.dynamics import ManoeuvringModel, SeaLoads
-from usv_predictor.greybox import GreyBoxRollout
-from usv_predictor.vessel import load_vessel
+from usv_predictor.models.greybox import GreyBoxRollout
+from usv_predictor.physics.dynamics import ManoeuvringModel, SeaLoads
+from usv_predictor.physics.vessel import load_vessel
 
 VESSEL = load_vessel("jari_usv")
 T64 = dict(dtype=torch.float64)

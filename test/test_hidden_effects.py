@@ -2,7 +2,7 @@
 
 Each case draws an effect's parameters from a seed this module keeps to itself; the bags are written with
 --blind, so the only way to the answer is through the data. `replay diagnose` must name the cause, estimate
-the parameters within the stated tolerances (usv_predictor.hidden_effects.TOLERANCES) and, for a real cause,
+the parameters within the stated tolerances (usv_predictor.analysis.hidden_effects.TOLERANCES) and, for a real cause,
 improve the held-out track error. The clean control must come out `none`.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from usv_predictor.hidden_effects import EFFECTS, draw, within_tolerance
+from usv_predictor.analysis.hidden_effects import EFFECTS, draw, within_tolerance
 from usv_predictor.replay.bagio import read_custom_data
 from usv_predictor.replay.cli import main
 

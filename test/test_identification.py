@@ -15,17 +15,18 @@ import numpy as np
 import pytest
 import torch
 
-from usv_predictor import hybrid, identification as idf
-from usv_predictor.artifact import load_artifact
-from usv_predictor.dynamics import ManoeuvringModel
-from usv_predictor.environment import Environment
+from usv_predictor.data.recording import recording_from_signals
 from usv_predictor.errors import ConfigError, DatasetError
-from usv_predictor.greybox import GreyBoxRollout, HULL_NAMES
-from usv_predictor.manoeuvres import RandomManoeuvre, TurningCircle, ZigZag
-from usv_predictor.recording import recording_from_signals
-from usv_predictor.sensors import SensorSpec, measure
-from usv_predictor.simulator import simulate
-from usv_predictor.vessel import load_vessel
+from usv_predictor.fitting import hybrid_fit as hybrid
+from usv_predictor.fitting import identification as idf
+from usv_predictor.models.artifact import load_artifact
+from usv_predictor.models.greybox import HULL_NAMES, GreyBoxRollout
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.manoeuvres import RandomManoeuvre, TurningCircle, ZigZag
+from usv_predictor.physics.sensors import SensorSpec, measure
+from usv_predictor.physics.simulator import simulate
+from usv_predictor.physics.vessel import load_vessel
 
 DT = 0.2
 LINEAR = ("Y_v", "Y_r", "N_v", "N_r")

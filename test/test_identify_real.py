@@ -15,13 +15,13 @@ from pathlib import Path
 
 import pytest
 
-from usv_predictor import metrics
-from usv_predictor.dynamics import ManoeuvringModel
-from usv_predictor.greybox import HULL_NAMES
-from usv_predictor.manoeuvres import TurningCircle
+from usv_predictor.analysis import metrics
+from usv_predictor.models.greybox import HULL_NAMES
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.manoeuvres import TurningCircle
+from usv_predictor.physics.simulator import simulate
+from usv_predictor.physics.vessel import Hull, load_vessel
 from usv_predictor.replay import cli
-from usv_predictor.simulator import simulate
-from usv_predictor.vessel import Hull, load_vessel
 
 TRAIN = ("hsva_z_10_10_s", "hsva_z_20_10_s", "hsva_z_15_05", "hsva_z_25_05", "hsva_z_35_05", "hsva_z_10_05",
          "hsva_z_05_01", "hsva_z_15_01")

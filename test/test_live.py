@@ -1,4 +1,4 @@
-"""usv_predictor.live without ROS: the online state equals the replay tool's Recording; every bad input is refused."""
+"""usv_predictor.node.live without ROS: the online state equals the replay tool's Recording; every bad input is refused."""
 from __future__ import annotations
 
 import math
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import msg_adapters
-from usv_predictor import live
-from usv_predictor.artifact import load_artifact
 from usv_predictor.config import load_predictor_config, package_share_path
+from usv_predictor.data.recording import NS
 from usv_predictor.errors import ModelError
-from usv_predictor.recording import NS
+from usv_predictor.models.artifact import load_artifact
+from usv_predictor.node import live
 from usv_predictor.replay.bagio import read_bag
 from usv_predictor.replay.recordings import load_recordings, topic_specs
 

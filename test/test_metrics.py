@@ -13,8 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from usv_predictor.frames import wrap_angle
-from usv_predictor.metrics import (
+from usv_predictor.analysis.metrics import (
     drift,
     heading_change_positions,
     open_loop_errors,
@@ -27,6 +26,7 @@ from usv_predictor.metrics import (
     unwrap_heading,
     zigzag_overshoots,
 )
+from usv_predictor.frames import wrap_angle
 
 
 @dataclass(frozen=True)

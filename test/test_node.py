@@ -22,10 +22,11 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 import msg_adapters
-from ros_helpers import ros_context, statuses, values_of  # noqa: F401 (ros_context is a fixture)
-from usv_predictor import node as predictor_node
 from usv_predictor.config import package_share_path
 from usv_predictor.errors import ModelError
+from usv_predictor.node import node as predictor_node
+
+from ros_helpers import ros_context, statuses, values_of  # noqa: F401 (ros_context is a fixture)
 
 WAIT_S = 15.0
 DEFAULT_MODEL = package_share_path("models", "default.pt")

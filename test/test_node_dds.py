@@ -28,8 +28,8 @@ from rclpy.parameter import Parameter
 
 import msg_adapters
 from msg_adapters.outputs import decode_predicted_velocities
-from usv_predictor import node as predictor_node
-from usv_predictor.recording import NS
+from usv_predictor.data.recording import NS
+from usv_predictor.node import node as predictor_node
 from usv_predictor.replay.recordings import load_recordings
 
 REPO = Path(__file__).resolve().parents[1]

@@ -23,10 +23,11 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 import msg_adapters
-from ros_helpers import ros_context, statuses, values_of  # noqa: F401 (ros_context is a fixture)
-from usv_predictor import node as predictor_node
 from usv_predictor.config import load_predictor_config
 from usv_predictor.errors import ConfigError
+from usv_predictor.node import node as predictor_node
+
+from ros_helpers import ros_context, statuses, values_of  # noqa: F401 (ros_context is a fixture)
 
 WAIT_S = 15.0  # upper bound on discovery + a few timer periods (s)
 

@@ -6,14 +6,14 @@ import math
 import numpy as np
 import pytest
 
-from usv_predictor.dynamics import ManoeuvringModel
-from usv_predictor.environment import Environment
-from usv_predictor.manoeuvres import TurningCircle
-from usv_predictor.recording import RecordingError, recording_from_signals, window_resample
+from usv_predictor.data.recording import RecordingError, recording_from_signals, window_resample
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.manoeuvres import TurningCircle
+from usv_predictor.physics.sensors import SensorSpec, measure
+from usv_predictor.physics.simulator import simulate
+from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.records import Signal
-from usv_predictor.sensors import SensorSpec, measure
-from usv_predictor.simulator import simulate
-from usv_predictor.vessel import load_vessel
 
 NS = 1_000_000_000
 

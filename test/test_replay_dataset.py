@@ -12,13 +12,18 @@ import numpy as np
 import pytest
 
 from msg_adapters import ROLE_FIELDS
-from usv_predictor.dataset import load_dataset
+from usv_predictor.data.dataset import load_dataset
 from usv_predictor.errors import BagError
 from usv_predictor.records import Signal
 from usv_predictor.replay.bagio import TopicSpec, write_bag
 from usv_predictor.replay.cli import main
 from usv_predictor.replay.recordings import (
-    bag_sha256, clean_signal, find_bags, load_recordings, steady_cuts, topic_specs,
+    bag_sha256,
+    clean_signal,
+    find_bags,
+    load_recordings,
+    steady_cuts,
+    topic_specs,
 )  # fmt: skip
 
 NS = 1_000_000_000

@@ -168,9 +168,9 @@ def test_model_whose_dt_differs_from_the_requested_one_is_refused(bags, tmp_path
         def predict(self, state, controls):  # pragma: no cover - refused before use
             raise AssertionError
 
-    fake = types.ModuleType("usv_predictor.artifact")
+    fake = types.ModuleType("usv_predictor.models.artifact")
     fake.load_artifact = lambda path, expect=None: Loaded()
-    monkeypatch.setitem(sys.modules, "usv_predictor.artifact", fake)
+    monkeypatch.setitem(sys.modules, "usv_predictor.models.artifact", fake)
     assert main(["evaluate", str(bags), "--model", str(model_file), "--dt", "0.5"]) == 2
     err = capsys.readouterr().err
     assert "model m25 has dt=0.25 s" in err and "dt=0.5 s" in err
@@ -195,8 +195,8 @@ def test_unknown_reference_is_a_usage_error(bags, capsys):
 
 
 def test_shipped_artifact_format_is_evaluated(bags, tmp_path):
-    """A real artifact file (usv_predictor.artifact): a constant-velocity rollout scripted with its metadata."""
-    artifact = pytest.importorskip("usv_predictor.artifact")
+    """A real artifact file (usv_predictor.models.artifact): a constant-velocity rollout scripted with its metadata."""
+    artifact = pytest.importorskip("usv_predictor.models.artifact")
     torch = pytest.importorskip("torch")
 
     class ConstantVelocity(torch.nn.Module):

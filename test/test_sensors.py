@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from usv_predictor.dynamics import ManoeuvringModel
-from usv_predictor.environment import Environment
 from usv_predictor.errors import ConfigError
 from usv_predictor.frames import LocalTangentPlane, wrap_angle
-from usv_predictor.manoeuvres import TurningCircle, ZigZag
-from usv_predictor.sensors import SensorSpec, measure
-from usv_predictor.simulator import ActuatorFaults, simulate
-from usv_predictor.vessel import GRAVITY, load_vessel
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.manoeuvres import TurningCircle, ZigZag
+from usv_predictor.physics.sensors import SensorSpec, measure
+from usv_predictor.physics.simulator import ActuatorFaults, simulate
+from usv_predictor.physics.vessel import GRAVITY, load_vessel
 
 CLEAN = SensorSpec().noiseless()
 

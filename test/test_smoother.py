@@ -9,15 +9,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from usv_predictor.dynamics import ManoeuvringModel
-from usv_predictor.environment import Environment
+from usv_predictor.data.recording import recording_from_signals
+from usv_predictor.data.smoother import (
+    finite_difference_accelerations,
+    measurements,
+    smooth_measurements,
+    smooth_recording,
+)
 from usv_predictor.errors import DatasetError
-from usv_predictor.manoeuvres import ZigZag
-from usv_predictor.recording import recording_from_signals
-from usv_predictor.sensors import SensorSpec, measure
-from usv_predictor.simulator import NS, simulate
-from usv_predictor.smoother import finite_difference_accelerations, measurements, smooth_measurements, smooth_recording
-from usv_predictor.vessel import load_vessel
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.manoeuvres import ZigZag
+from usv_predictor.physics.sensors import SensorSpec, measure
+from usv_predictor.physics.simulator import NS, simulate
+from usv_predictor.physics.vessel import load_vessel
 
 DT = 0.1
 

@@ -10,21 +10,26 @@ import numpy as np
 import pytest
 import torch
 
-from usv_predictor.artifact import load_artifact
-from usv_predictor.dataset import build_dataset, save_dataset
-from usv_predictor.dynamics import ManoeuvringModel
-from usv_predictor.environment import Environment
+from usv_predictor.data.dataset import build_dataset, save_dataset
+from usv_predictor.data.recording import Recording, recording_from_signals
 from usv_predictor.errors import ConfigError, DatasetError
-from usv_predictor.manoeuvres import TurningCircle, ZigZag
-from usv_predictor.models.dnn import DnnConfig
-from usv_predictor.recording import Recording, recording_from_signals
-from usv_predictor.replay import cli
-from usv_predictor.sensors import measure
-from usv_predictor.simulator import simulate
-from usv_predictor.training import (
-    Samples, TrainingConfig, rollout_nu, samples_from_recordings, train_dnn, windows_from_recordings,
+from usv_predictor.fitting.training import (
+    Samples,
+    TrainingConfig,
+    rollout_nu,
+    samples_from_recordings,
+    train_dnn,
+    windows_from_recordings,
 )  # fmt: skip
-from usv_predictor.vessel import load_vessel
+from usv_predictor.models.artifact import load_artifact
+from usv_predictor.models.dnn import DnnConfig
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.manoeuvres import TurningCircle, ZigZag
+from usv_predictor.physics.sensors import measure
+from usv_predictor.physics.simulator import simulate
+from usv_predictor.physics.vessel import load_vessel
+from usv_predictor.replay import cli
 
 TINY = DnnConfig.for_features("NTF", width=16)
 
@@ -103,7 +108,7 @@ def test_without_validation_the_training_loss_is_monitored(splits: tuple[Samples
 
 
 def test_learning_rate_decays_stepwise() -> None:
-    from usv_predictor.training import _learning_rate
+    from usv_predictor.fitting.training import _learning_rate
 
     recipe = TrainingConfig()
     assert [_learning_rate(recipe, e) for e in (0, 99, 100, 250)] == pytest.approx([0.005, 0.005, 0.0025, 0.00125])

@@ -1,2 +1,3 @@
-"""Learned and grey-box motion models (torch). `dnn`: the feed-forward network of seed 000 Fig. 1."""
+"""Motion models (torch): the artifact file format and one file per model family
+(`dnn`: seed 000's network; `greybox`: the MMG grey box; `hybrid`: grey box + learned residual)."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""`replay dataset`: bags -> one training set file (usv_predictor.dataset format, a compressed .npz).
+"""`replay dataset`: bags -> one training set file (usv_predictor.data.dataset format, a compressed .npz).
 
     replay dataset bags/training bags/sea_trial --output out/ds.npz
     replay dataset bags/training --test 'zigzag_20*' --val 0.25 --features NAF --output out/naf.npz
@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from usv_predictor.features import FEATURE_SETS
+from usv_predictor.data.features import FEATURE_SETS
 
 NAME = "dataset"
 HELP = "build a training set (one-step samples, split by manoeuvre) from bags into one .npz file"
@@ -96,7 +96,7 @@ def _command_line(args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> dict:
     from usv_predictor.config import load_predictor_config
-    from usv_predictor.dataset import build_dataset, save_dataset, split_by_manoeuvre
+    from usv_predictor.data.dataset import build_dataset, save_dataset, split_by_manoeuvre
     from usv_predictor.errors import DatasetError
     from usv_predictor.replay.recordings import bag_sha256, load_recordings
 

@@ -1,5 +1,5 @@
 """`replay diagnose`: what the calm-water model gets wrong on measured bags, the named cause, the extended
-model and its measured gain on held-out manoeuvres (usv_predictor.diagnosis).
+model and its measured gain on held-out manoeuvres (usv_predictor.analysis.diagnosis).
 
 JSON result: cause, parameters (DESIGN.md vocabulary and units), uncertainty, confounded_with, additional_causes
 (further causes added one at a time while the evidence holds, with their parameters), evidence (every
@@ -47,12 +47,12 @@ def baseline_vessel(args: argparse.Namespace):
     """The calm-water model: a vessel preset, or the identified hull of a grey-box artifact."""
     from usv_predictor.config import load_predictor_config
     from usv_predictor.errors import ModelError
-    from usv_predictor.greybox import HULL_NAMES
-    from usv_predictor.vessel import load_vessel
+    from usv_predictor.models.greybox import HULL_NAMES
+    from usv_predictor.physics.vessel import load_vessel
 
     if args.model is None:
         return load_vessel(args.vessel or load_predictor_config(args.config).vessel), "preset"
-    from usv_predictor.artifact import load_artifact
+    from usv_predictor.models.artifact import load_artifact
 
     artifact = load_artifact(args.model)
     meta = artifact.metadata
@@ -83,7 +83,7 @@ def _hull_of(meta: dict) -> dict | None:
 
 
 def run(args: argparse.Namespace) -> dict:
-    from usv_predictor import diagnosis as dg
+    from usv_predictor.analysis import diagnosis as dg
     from usv_predictor.errors import DatasetError
     from usv_predictor.replay.recordings import load_recordings
 
@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> dict:
         out["exported_model"] = {"path": str(args.export), "model_id": artifact.model_id}
         _log(f"extended model written to {args.export} ({artifact.model_id})")
     if args.report is not None:
-        from usv_predictor.diagnosis_report import write_report
+        from usv_predictor.analysis.diagnosis_report import write_report
 
         out["report"] = str(write_report(args.report, out, recordings, vessel, result, per_recording))
         _log(f"report written to {out['report']}")

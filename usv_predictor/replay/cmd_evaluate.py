@@ -70,7 +70,7 @@ def default_model_path() -> Path:
 
 def load_model(spec: str | None, dt: float | None) -> Any:
     """The model named by --model, checked against --dt (ModelError naming the file and what differs)."""
-    from usv_predictor import evaluation
+    from usv_predictor.analysis import evaluation
     from usv_predictor.config import load_predictor_config
     from usv_predictor.errors import ModelError
 
@@ -82,9 +82,9 @@ def load_model(spec: str | None, dt: float | None) -> Any:
     if not path.is_file():
         raise ModelError(f"--model {path}: no such model file")
     try:
-        from usv_predictor.artifact import load_artifact
+        from usv_predictor.models.artifact import load_artifact
     except ImportError as err:
-        raise ModelError(f"{path}: cannot load model artifacts, usv_predictor.artifact is unavailable ({err})") from err
+        raise ModelError(f"{path}: cannot load model artifacts, usv_predictor.models.artifact is unavailable ({err})") from err
     model = load_artifact(path)
     if dt is not None:
         evaluation.check_dt(model, dt, f"--dt for {path}")
@@ -105,7 +105,7 @@ def run_evaluation(args: argparse.Namespace) -> tuple[Any, list[Path]]:
     """(EvaluationResult, bag arguments) for the command-line options shared by evaluate and report."""
     import numpy as np
 
-    from usv_predictor import evaluation
+    from usv_predictor.analysis import evaluation
     from usv_predictor.errors import BagError
     from usv_predictor.replay.recordings import load_recordings
 
@@ -189,7 +189,7 @@ def write_series_atomic(path: Path, arrays: dict) -> None:
 
 def save_evaluation(result: Any, directory: Path) -> dict:
     """DIR/evaluation.json + DIR/evaluation_series.npz; returns the JSON written."""
-    from usv_predictor.evaluation import series_arrays
+    from usv_predictor.analysis.evaluation import series_arrays
     from usv_predictor.replay.cli import write_json_atomic
 
     write_series_atomic(directory / SERIES_FILE, series_arrays(result))

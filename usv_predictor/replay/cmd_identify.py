@@ -2,8 +2,8 @@
 
 EKF/RTS smoother -> inverse dynamics minus the preset's propeller and semi-empirical rudder (prior) -> linear
 regression of each candidate structure -> leave-one-manoeuvre-out CV -> export of the grey box (model_type
-"greybox", or "hybrid" with --hybrid: grey box + MLP residual) through usv_predictor.artifact, with the
-coefficients, their 95 % CIs, the structure and the data digest in the metadata. See usv_predictor.identification
+"greybox", or "hybrid" with --hybrid: grey box + MLP residual) through usv_predictor.models.artifact, with the
+coefficients, their 95 % CIs, the structure and the data digest in the metadata. See usv_predictor.fitting.identification
 and docs/identification.md. Coefficients the data cannot determine are an error naming them unless --prior says
 what to do (fix: hold at the preset's value; ridge: pull towards it). --val GLOB: bags (or directories) whose
 manoeuvres are only evaluated, never fitted. --report DIR: summary.md and force-decomposition plots
@@ -55,10 +55,11 @@ def _load(paths: list[Path], dt: float) -> list:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from usv_predictor import hybrid, identification
+    from usv_predictor.analysis.evaluation import evaluate
     from usv_predictor.errors import DatasetError
-    from usv_predictor.evaluation import evaluate
-    from usv_predictor.vessel import load_vessel
+    from usv_predictor.fitting import hybrid_fit as hybrid
+    from usv_predictor.fitting import identification
+    from usv_predictor.physics.vessel import load_vessel
 
     vessel = load_vessel(args.vessel)
     recordings = _load(list(args.bags), args.dt)
@@ -104,7 +105,7 @@ def _plot_forces(path: Path, result: Any, k: int) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from usv_predictor.identification import hull_forces
+    from usv_predictor.fitting.identification import hull_forces
 
     d = result.data[k]
     values = result.fit.values()

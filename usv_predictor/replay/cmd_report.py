@@ -50,7 +50,7 @@ def load_evaluation_file(path: Path) -> tuple[dict, list | None]:
     """(evaluation JSON, predictions or None when its series file is absent)."""
     import numpy as np
 
-    from usv_predictor.evaluation import EvaluationError, predictions_from_arrays
+    from usv_predictor.analysis.evaluation import EvaluationError, predictions_from_arrays
 
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -247,7 +247,7 @@ def write_text_atomic(path: Path, text: str) -> None:
 
 def draw_figures(data: dict, predictions: list | None, out: Path, title: str) -> tuple[dict[str, list[str]], list[str]]:
     """PNG figures in `out`; returns ({recording name: [file, ...]}, [summary files])."""
-    from usv_predictor import plots
+    from usv_predictor.analysis import plots
 
     per_recording: dict[str, list[str]] = {}
     if predictions is not None:

@@ -25,13 +25,9 @@ GAP_S = 60.0  # time between consecutive manoeuvres of a programme (s)
 SPACING_M = 400.0  # distance between the start points of consecutive manoeuvres (m)
 
 
-def _flag(name: str) -> str:
-    return "--" + name.removesuffix("_deg").removesuffix("_deg_s").removesuffix("_s").replace("_", "-")
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from usv_predictor.manoeuvres import PROGRAMMES
-    from usv_predictor.scenario import EFFECTS
+    from usv_predictor.physics.manoeuvres import PROGRAMMES
+    from usv_predictor.physics.scenario import EFFECTS
 
     what = parser.add_argument_group("what to simulate")
     what.add_argument("--programme", choices=sorted(PROGRAMMES),
@@ -53,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         for p in params:
             unit = "PCT" if p.unit == "%" else p.unit.upper().replace("/", "_")
             text = f"{effect}: {p.help} ({p.unit}, default {p.default:g}, range {p.low:g}..{p.high:g})"
-            sea.add_argument(_flag(p.name), dest=p.name, type=float, default=None, metavar=unit,
+            sea.add_argument(p.flag, dest=p.name, type=float, default=None, metavar=unit,
                              help=text.replace("%", "%%"))  # argparse %-formats help texts
     out = parser.add_argument_group("output")
     out.add_argument("--output", type=Path, default=Path("out/simulated"), help="directory for the bags (default out/simulated)")
@@ -69,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _effects(args: argparse.Namespace) -> dict[str, dict[str, float]]:
     """Effects from --sea and --effect with their flags; a flag without its effect is an error."""
     from usv_predictor.errors import ConfigError
-    from usv_predictor.scenario import EFFECTS, RIZHAO_SEA
+    from usv_predictor.physics.scenario import EFFECTS, RIZHAO_SEA
 
     chosen = {name: dict(values) for name, values in (RIZHAO_SEA.items() if args.sea == "rizhao" else ())}
     for name in args.effect:
@@ -80,14 +76,14 @@ def _effects(args: argparse.Namespace) -> dict[str, dict[str, float]]:
             if value is None:
                 continue
             if effect not in chosen:
-                raise ConfigError(f"{_flag(p.name)} belongs to effect {effect!r}: add --effect {effect}")
+                raise ConfigError(f"{p.flag} belongs to effect {effect!r}: add --effect {effect}")
             chosen[effect][p.name] = value
     return chosen
 
 
 def _manoeuvres(args: argparse.Namespace, vessel) -> list:
     from usv_predictor.errors import ConfigError
-    from usv_predictor import manoeuvres as mv
+    from usv_predictor.physics import manoeuvres as mv
 
     if args.programme and args.manoeuvre:
         raise ConfigError("give either --programme or --manoeuvre, not both")
@@ -132,11 +128,11 @@ def simulate_bag(path: Path, manoeuvre, scenario, *, seed: int, index: int, args
                  model=None) -> dict:
     """Simulate one manoeuvre under `scenario` and write its bag; returns a summary."""
     from usv_predictor import __version__
-    from usv_predictor.dynamics import ManoeuvringModel
+    from usv_predictor.physics.dynamics import ManoeuvringModel
+    from usv_predictor.physics.sensors import measure
+    from usv_predictor.physics.simulator import NS, simulate
+    from usv_predictor.physics.vessel import load_vessel
     from usv_predictor.replay.bagio import write_bag
-    from usv_predictor.sensors import measure
-    from usv_predictor.simulator import NS, simulate
-    from usv_predictor.vessel import load_vessel
 
     model = model or ManoeuvringModel(load_vessel(scenario.vessel))
     start_ns = EPOCH_NS + int(index * (GAP_S + 300.0) * NS)
@@ -168,10 +164,10 @@ def simulate_bag(path: Path, manoeuvre, scenario, *, seed: int, index: int, args
 
 
 def run(args: argparse.Namespace) -> dict:
-    from usv_predictor.dynamics import ManoeuvringModel
+    from usv_predictor.physics.dynamics import ManoeuvringModel
+    from usv_predictor.physics.scenario import make_scenario
+    from usv_predictor.physics.vessel import load_vessel
     from usv_predictor.replay.bagio import prepare_outputs
-    from usv_predictor.scenario import make_scenario
-    from usv_predictor.vessel import load_vessel
 
     vessel = load_vessel(args.vessel)
     manoeuvres = _manoeuvres(args, vessel)

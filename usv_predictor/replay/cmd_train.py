@@ -1,8 +1,8 @@
 """`replay train DATASET.npz --output model.pt`: train the seed 000 network and export the model artifact.
 
 Trains on the dataset's `train` split, early-stops on its `val` split (without one, the training loss
-picks the best epoch), and writes one TorchScript file with its metadata (usv_predictor.artifact).
-The recipe defaults are seed 000 Table 5 (usv_predictor.training). Progress (member, epoch, losses) goes
+picks the best epoch), and writes one TorchScript file with its metadata (usv_predictor.models.artifact).
+The recipe defaults are seed 000 Table 5 (usv_predictor.fitting.training). Progress (member, epoch, losses) goes
 to stderr at most every --progress-s seconds; the result (losses, best epoch, time, model_id) to stdout
 and --json.
 """
@@ -70,14 +70,17 @@ class _Throttled:
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     # heavy imports here: `replay --help` must not import torch
-    from usv_predictor.artifact import export
     from usv_predictor.config import load_predictor_config
-    from usv_predictor.dataset import load_dataset
+    from usv_predictor.data.dataset import load_dataset
     from usv_predictor.errors import ConfigError, DatasetError
-    from usv_predictor.models.dnn import DnnConfig
-    from usv_predictor.training import (
-        Samples, TrainingConfig, samples_from_recordings, train_dnn, windows_from_recordings,
+    from usv_predictor.fitting.training import (
+        Samples,
+        TrainingConfig,
+        samples_from_recordings,
+        train_dnn,
+        windows_from_recordings,
     )  # fmt: skip
+    from usv_predictor.models.dnn import DnnConfig, export
 
     dataset = load_dataset(args.dataset)
     feature_set = args.features or dataset.feature_set

@@ -42,8 +42,8 @@ import numpy as np
 import yaml
 
 from usv_predictor.config import input_topics, load_predictor_config
+from usv_predictor.data.recording import NS, REQUIRED_ROLES, Recording, RecordingError, recording_from_signals
 from usv_predictor.errors import BagError, ConfigError, DatasetError
-from usv_predictor.recording import NS, REQUIRED_ROLES, Recording, RecordingError, recording_from_signals
 from usv_predictor.records import Signal
 from usv_predictor.replay.bagio import TopicSpec, read_bag
 

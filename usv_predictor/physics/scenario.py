@@ -19,10 +19,10 @@ import math
 from dataclasses import asdict, dataclass, field, replace
 from typing import Mapping
 
-from usv_predictor.environment import Environment
 from usv_predictor.errors import ConfigError
-from usv_predictor.sensors import SensorSpec
-from usv_predictor.simulator import ActuatorFaults
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.sensors import SensorSpec
+from usv_predictor.physics.simulator import ActuatorFaults
 
 
 @dataclass(frozen=True)
@@ -33,6 +33,12 @@ class EffectParameter:
     high: float
     unit: str
     help: str
+
+    @property
+    def flag(self) -> str:
+        """The `replay simulate` option that sets it: current_to_deg -> --current-to."""
+        name = self.name.removesuffix("_deg").removesuffix("_deg_s").removesuffix("_s")
+        return "--" + name.replace("_", "-")
 
 
 EFFECTS: dict[str, tuple[EffectParameter, ...]] = {

@@ -1,6 +1,6 @@
 """The `predictor` rclpy node: live 3-DOF motion prediction from a TorchScript model artifact.
 
-The only module of the package that imports rclpy; the work is done by usv_predictor.live (pure).
+The only module of the package that imports rclpy; the work is done by usv_predictor.node.live (pure).
 Inputs arrive as ROS messages (REP-103/105: ENU, FLU, yaw counter-clockwise from east) and are turned
 into plain numbers in SI units and marine frames (NED, FRD, heading clockwise from north) by
 msg_adapters, checked and buffered (live.InputSet). Every 1 / rate_hz a timer builds the state the way
@@ -43,8 +43,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 import msg_adapters
 from msg_adapters.outputs import encode_path, encode_predicted_velocities
-from usv_predictor import __version__, live
-from usv_predictor.artifact import ModelArtifact, load_artifact
+from usv_predictor import __version__
 from usv_predictor.config import (
     ENSEMBLE_RANGE,
     FLOAT_RANGES,
@@ -61,6 +60,8 @@ from usv_predictor.config import (
     unflatten_ros_parameters,
 )
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredictorError
+from usv_predictor.models.artifact import ModelArtifact, load_artifact
+from usv_predictor.node import live
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
 COVARIANCE_TOPIC = "predicted_path_covariance"

@@ -1,7 +1,7 @@
 """Diagnosis: what the calm-water model gets wrong on measured data, the physical cause, and the gain.
 
 Method (simulation error, multiple shooting): every recording is cut into segments (default 20 s every
-5 s); from each segment's measured start state the grey box (usv_predictor.greybox) is rolled out with the
+5 s); from each segment's measured start state the grey box (usv_predictor.models.greybox) is rolled out with the
 measured controls and compared with what was measured, channel by channel, in units of the channel's noise:
     residual = (predicted - measured) / sigma,  channels u, v, r, x_n, y_e, psi (positions from the start).
 Each hypothesis of the DESIGN.md vocabulary is one small term of the grey box (greybox.TERM_NAMES); its
@@ -26,10 +26,10 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
+from usv_predictor.data.recording import Recording
 from usv_predictor.errors import UsvPredictorError
-from usv_predictor.greybox import TERM_NAMES, GreyBoxRollout
-from usv_predictor.recording import Recording
-from usv_predictor.vessel import Vessel
+from usv_predictor.models.greybox import TERM_NAMES, GreyBoxRollout
+from usv_predictor.physics.vessel import Vessel
 
 SIGMA = (0.05, 0.05, 0.005, 1.0, 1.0, 0.01)  # u, v (m/s), r (rad/s), x_n, y_e (m), psi (rad): noise scales
 EVIDENCE_CAUSE = 5.0  # held-out log-likelihood ratio over the calm-water model needed to name a cause
@@ -500,8 +500,8 @@ def measure_gain(recordings: Sequence[Recording], vessel: Vessel, diagnosis: Dia
 
     Each fold's manoeuvres are predicted by the extension fitted on the other fold only.
     """
-    from usv_predictor import evaluation
-    from usv_predictor.greybox import GreyBoxPredictor, greybox_metadata
+    from usv_predictor.analysis import evaluation
+    from usv_predictor.models.greybox import GreyBoxPredictor, greybox_metadata
 
     dt = recordings[0].dt
     base_rollout = GreyBoxRollout(vessel, dt=dt, substeps=2)
@@ -533,12 +533,12 @@ def measure_gain(recordings: Sequence[Recording], vessel: Vessel, diagnosis: Dia
 
 def export_extended(path, vessel: Vessel, diagnosis: Diagnosis, dt: float, *, data_digest: str = ""):
     """The extended grey box (calm-water model + the named cause, refitted on all manoeuvres) as an artifact."""
-    from usv_predictor.artifact import export_module
-    from usv_predictor.greybox import greybox_metadata
+    from usv_predictor.models.artifact import export_module
+    from usv_predictor.models.greybox import greybox_metadata
 
     rollout = extended_rollout(vessel, dt, diagnosis.fit.terms)
     meta = greybox_metadata(vessel, rollout, model_type=f"greybox+{diagnosis.cause}", training_data_sha256=data_digest,
-                            training={"method": "diagnosis (usv_predictor.diagnosis)", "cause": diagnosis.cause,
+                            training={"method": "diagnosis (usv_predictor.analysis.diagnosis)", "cause": diagnosis.cause,
                                       "parameters": diagnosis.parameters,
                                       "additional_causes": [a.cause for a in diagnosis.additional_causes]})
     return export_module(path, rollout, meta)

@@ -16,10 +16,10 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from usv_predictor.dynamics import ManoeuvringModel, SeaLoads
-from usv_predictor.environment import Environment, gust_series
 from usv_predictor.errors import ConfigError
 from usv_predictor.frames import wrap_angle
+from usv_predictor.physics.dynamics import ManoeuvringModel, SeaLoads
+from usv_predictor.physics.environment import Environment, gust_series
 
 NS = 1_000_000_000  # nanoseconds per second
 

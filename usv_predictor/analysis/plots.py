@@ -25,9 +25,9 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from usv_predictor.analysis.evaluation import X_N, Y_E, Prediction, R, U, V
 from usv_predictor.atomic import atomic_open
 from usv_predictor.errors import UsvPredictorError
-from usv_predictor.evaluation import R, U, V, X_N, Y_E, Prediction
 
 MEASURED = {"color": "black", "linewidth": 1.0, "label": "measured"}
 PREDICTED = {"color": "tab:blue", "linewidth": 1.4, "label": "predicted"}

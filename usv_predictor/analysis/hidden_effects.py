@@ -24,11 +24,12 @@ class Draw:
         """The `replay simulate` flags that create this effect."""
         if self.effect == "none":
             return []
-        from usv_predictor.replay.cmd_simulate import _flag
+        from usv_predictor.physics.scenario import EFFECTS as SIMULATOR_EFFECTS
 
+        flag = {p.name: p.flag for p in SIMULATOR_EFFECTS[self.effect]}
         flags = ["--effect", self.effect]
         for name, value in self.parameters.items():
-            flags += [_flag(name), f"{value:.6g}"]
+            flags += [flag[name], f"{value:.6g}"]
         return flags
 
 

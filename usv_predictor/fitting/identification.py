@@ -1,7 +1,7 @@
 """Grey-box identification of the hull derivatives by inverse-dynamics regression (seed 001 sec. 3.2).
 
 Pipeline (one Recording = one manoeuvre):
- 1. accelerations nu_dot by the EKF + RTS smoother (usv_predictor.smoother), not by finite differences;
+ 1. accelerations nu_dot by the EKF + RTS smoother (usv_predictor.data.smoother), not by finite differences;
  2. inverse dynamics, the left-hand side of the MMG equations of motion (Yasukawa & Yoshimura 2015 eq. 4;
     Fossen 2021 eq. 6.5 with the hull on the right):
         X = m11 u_dot - m22 v r - x_G m r^2
@@ -42,17 +42,17 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from usv_predictor.dynamics import ManoeuvringModel
+from usv_predictor.data.recording import Recording
+from usv_predictor.data.smoother import Smoothed, SmootherConfig, smooth_recording
 from usv_predictor.errors import ConfigError, DatasetError, ModelError
-from usv_predictor.greybox import HULL_NAMES
-from usv_predictor.recording import Recording
-from usv_predictor.smoother import Smoothed, SmootherConfig, smooth_recording
-from usv_predictor.vessel import Hull, Vessel
+from usv_predictor.models.greybox import HULL_NAMES
+from usv_predictor.models.hybrid import EXTRA_NAMES
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.vessel import Hull, Vessel
 
 EQUATIONS = ("X", "Y", "N")
 STRUCTURES = ("mmg", "abkowitz")
 PRIORS = ("none", "fix", "ridge")
-EXTRA_NAMES = ("X_du", "Y_0", "Y_duv", "Y_dur", "N_0", "N_duv", "N_dur")  # abkowitz terms beyond the MMG hull
 COLLINEAR_RHO = 0.9  # |rho| above which a regressor pair is reported as multicollinear
 REL_CI_LIMIT = 0.5  # a 95 % CI half-width above this fraction of the magnitude: not identifiable
 MAGNITUDE_FLOOR = 1e-3  # non-dimensional magnitude below which a coefficient counts as zero
@@ -532,7 +532,7 @@ def identified_vessel(vessel: Vessel, fit: HullFit) -> Vessel:
     hull = Hull(**{n: values[n] for n in HULL_NAMES})
     return replace(vessel, name=f"{vessel.name}_identified", hull=hull,
                    provenance=f"{vessel.provenance.strip()} Hull derivatives identified by inverse-dynamics regression "
-                              f"(structure {fit.structure}, prior {fit.prior_policy}; usv_predictor.identification).")
+                              f"(structure {fit.structure}, prior {fit.prior_policy}; usv_predictor.fitting.identification).")
 
 
 def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str = "auto", prior: str = "none",

@@ -34,10 +34,10 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from usv_predictor.artifact import ModelArtifact
+from usv_predictor.data.recording import NS, REQUIRED_ROLES, window_resample
 from usv_predictor.errors import ModelError, UsvPredictorError
 from usv_predictor.frames import LocalTangentPlane
-from usv_predictor.recording import NS, REQUIRED_ROLES, window_resample
+from usv_predictor.models.artifact import ModelArtifact
 
 POSITION_ROLE = "gnss"
 # role -> the fields the state uses, in the order of recording_from_signals

@@ -29,8 +29,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from usv_predictor.data.recording import Recording
 from usv_predictor.errors import DatasetError
-from usv_predictor.recording import Recording
 
 STATE_NAMES = ("x_n", "y_e", "psi", "u", "v", "r", "u_dot", "v_dot", "r_dot")
 MEASURED_NAMES = ("x_n", "y_e", "psi", "u", "v", "r")

@@ -23,7 +23,7 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from usv_predictor.vessel import GRAVITY, RHO_AIR, RHO_WATER, Vessel
+from usv_predictor.physics.vessel import GRAVITY, RHO_AIR, RHO_WATER, Vessel
 
 SPEED_FLOOR = 0.05  # speed below which non-dimensional hull terms are regularised (m/s)
 

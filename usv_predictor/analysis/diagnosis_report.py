@@ -8,8 +8,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from usv_predictor.atomic import atomic_open
-from usv_predictor.recording import Recording
-from usv_predictor.vessel import Vessel
+from usv_predictor.data.recording import Recording
+from usv_predictor.physics.vessel import Vessel
 
 
 def _fmt(value: Any, digits: int = 3) -> str:
@@ -26,7 +26,7 @@ def _evidence_plot(out: dict, path: Path) -> None:
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    from usv_predictor.plots import save_figure
+    from usv_predictor.analysis.plots import save_figure
 
     evidence = out["evidence"]
     fig = Figure(figsize=(7.0, 3.2))
@@ -49,10 +49,10 @@ def _track_plots(recordings: Sequence[Recording], vessel: Vessel, fit_terms: dic
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    from usv_predictor import evaluation
-    from usv_predictor.diagnosis import extended_rollout
-    from usv_predictor.greybox import GreyBoxPredictor, greybox_metadata
-    from usv_predictor.plots import save_figure
+    from usv_predictor.analysis import evaluation
+    from usv_predictor.analysis.diagnosis import extended_rollout
+    from usv_predictor.analysis.plots import save_figure
+    from usv_predictor.models.greybox import GreyBoxPredictor, greybox_metadata
 
     dt = recordings[0].dt
     models = {}

@@ -37,10 +37,10 @@ import numpy as np
 import torch
 from torch import nn
 
+from usv_predictor.data.features import features
+from usv_predictor.data.recording import Recording
 from usv_predictor.errors import ConfigError, DatasetError
-from usv_predictor.features import features
 from usv_predictor.models.dnn import DnnConfig, DnnModel, Normalisation, features_torch, fit_normalisation
-from usv_predictor.recording import Recording
 
 LR_SCHEDULES = ("step", "cosine", "constant")
 

@@ -19,12 +19,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from usv_predictor.environment import Environment, wave_components
 from usv_predictor.errors import ConfigError
 from usv_predictor.frames import LocalTangentPlane, wrap_angle
+from usv_predictor.physics.environment import Environment, wave_components
+from usv_predictor.physics.simulator import NS, ActuatorFaults, Trajectory
+from usv_predictor.physics.vessel import GRAVITY
 from usv_predictor.records import Signal
-from usv_predictor.simulator import NS, ActuatorFaults, Trajectory
-from usv_predictor.vessel import GRAVITY
 
 
 @dataclass(frozen=True)

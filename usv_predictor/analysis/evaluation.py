@@ -32,9 +32,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from usv_predictor import metrics
+from usv_predictor.analysis import metrics
+from usv_predictor.data.recording import Recording
 from usv_predictor.errors import ModelError, UsvPredictorError
-from usv_predictor.recording import Recording
 
 U, V, R, X_N, Y_E, PSI = range(6)  # columns of predicted and measured series (model output order)
 COLUMNS = ("u_mps", "v_mps", "r_rad_s", "x_n_m", "y_e_m", "psi_rad")
@@ -566,14 +566,14 @@ def evaluate(model: Predictor, recordings: Sequence[Recording], reference: str =
 # Physics baseline: the calm-water manoeuvring model as a predictor
 # --------------------------------------------------------------------------------------------
 def physics_predictor(vessel: Any, dt: float) -> Predictor:
-    """The calm-water physics baseline: the vessel preset's grey box (usv_predictor.greybox) with no sea terms.
+    """The calm-water physics baseline: the vessel preset's grey box (usv_predictor.models.greybox) with no sea terms.
 
     It knows nothing of current, wind or waves, so it is the baseline a learned model must beat at sea. The
     recorded rudder angle and engine speed drive it as the actuator states (they are feedback, not commands).
     `vessel` is a preset name or a Vessel.
     """
-    from usv_predictor.greybox import greybox_predictor
-    from usv_predictor.vessel import load_vessel
+    from usv_predictor.models.greybox import greybox_predictor
+    from usv_predictor.physics.vessel import load_vessel
 
     if not dt > 0.0:
         raise ModelError(f"physics predictor step dt={dt} s must be > 0")

@@ -35,12 +35,19 @@ from typing import Any
 import numpy as np
 
 from usv_predictor.atomic import atomic_open
-from usv_predictor.errors import DatasetError
-from usv_predictor.features import (
-    CONTROL_NAMES, CONTROL_UNITS, STATE_NAMES, STATE_UNITS, TARGET_NAMES, TARGET_UNITS, feature_names,
-    feature_units, features,
+from usv_predictor.data.features import (
+    CONTROL_NAMES,
+    CONTROL_UNITS,
+    STATE_NAMES,
+    STATE_UNITS,
+    TARGET_NAMES,
+    TARGET_UNITS,
+    feature_names,
+    feature_units,
+    features,
 )  # fmt: skip
-from usv_predictor.recording import Recording
+from usv_predictor.data.recording import Recording
+from usv_predictor.errors import DatasetError
 
 FORMAT = "usv_predictor.dataset/1"
 SPLITS = ("train", "val", "test")

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from usv_predictor.errors import ConfigError
-from usv_predictor.simulator import Controller
+from usv_predictor.physics.simulator import Controller
 
 
 def _check(name: str, **ranges: tuple[float, float, float]) -> None:

@@ -1,11 +1,11 @@
 """The MMG manoeuvring model as a batched, differentiable, TorchScript-able closed-loop rollout.
 
-Same equations as usv_predictor.dynamics (Yasukawa & Yoshimura 2015 in Fossen's matrix form, seed 000
+Same equations as usv_predictor.physics.dynamics (Yasukawa & Yoshimura 2015 in Fossen's matrix form, seed 000
 eq. 12-22 for the sea), written once more in torch because the two serve different needs: the float
 version simulates one boat at 100 Hz output in well under a second, this one rolls out hundreds of
 segments at once and gives gradients for identification and diagnosis. test_greybox.py proves they agree.
 
-Interface (the model artifact's, see usv_predictor/artifact.py):
+Interface (the model artifact's, see usv_predictor/models/artifact.py):
     forward(state (B, 4) [u, v, r, psi] as MEASURED, controls (B, H, 2) [delta rad, rpm] as REPORTED)
       -> (1, B, H, 6) [u, v, r, x_n, y_e, psi] as they will be MEASURED at dt, 2 dt, ... H dt,
          positions relative to the start (NED, m), psi continuous.
@@ -29,8 +29,8 @@ from typing import Dict, List
 import torch
 from torch import Tensor, nn
 
-from usv_predictor.dynamics import ManoeuvringModel, SPEED_FLOOR
-from usv_predictor.vessel import RHO_WATER, Vessel
+from usv_predictor.physics.dynamics import SPEED_FLOOR, ManoeuvringModel
+from usv_predictor.physics.vessel import RHO_WATER, Vessel
 
 HULL_NAMES = ("R0", "X_vv", "X_vr", "X_rr", "X_vvvv", "Y_v", "Y_r", "Y_vvv", "Y_vvr", "Y_vrr", "Y_rrr",
               "N_v", "N_r", "N_vvv", "N_vvr", "N_vrr", "N_rrr")
@@ -245,8 +245,8 @@ class GreyBoxPredictor:
 def greybox_metadata(vessel: Vessel, rollout: GreyBoxRollout, *, model_type: str = "greybox",
                      training_data_sha256: str = "", horizon_steps: int = 120, training: Dict[str, object] | None = None
                      ) -> Dict[str, object]:
-    """The artifact metadata of a grey box (usv_predictor/artifact.py REQUIRED_KEYS)."""
-    from usv_predictor.artifact import UNITS
+    """The artifact metadata of a grey box (usv_predictor/models/artifact.py REQUIRED_KEYS)."""
+    from usv_predictor.models.artifact import UNITS
 
     return {
         "model_type": model_type, "feature_set": "physics", "feature_names": [],

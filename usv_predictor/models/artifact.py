@@ -1,0 +1,208 @@
+"""The model artifact: ONE TorchScript file (a closed-loop rollout) whose extra file carries the metadata.
+
+This module is the file format only; each model family (models/dnn.py, models/greybox.py, models/hybrid.py)
+builds its rollout module and its metadata and writes them through export_module(). Every family's scripted
+module has the same interface (what the node, evaluate and diagnose call; loading needs torch only):
+
+    forward(state (B, 4) [u, v, r, psi], controls (B, H, C) in the vessel's control layout) -> (E, B, H, 6)
+
+    out[e, b, k] = [u, v, r, x_n, y_e, psi] at time (k+1) dt after the start, by ensemble member e;
+    positions in NED relative to the start position (0, 0), psi continuous (not wrapped).
+    controls[:, k] is the control at step k (physics/actuators.py names its columns: `control_layout`).
+    E = ensemble size (1 for a single model).
+
+Metadata (extra file `metadata.json`, format `usv_predictor.model/1`): see REQUIRED_KEYS and export_module().
+"""
+from __future__ import annotations
+
+import contextlib
+import datetime
+import hashlib
+import json
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator, Mapping
+
+import numpy as np
+import torch
+from torch import nn
+
+import usv_predictor
+from usv_predictor.atomic import atomic_path
+from usv_predictor.errors import ModelError
+
+FORMAT = "usv_predictor.model/1"
+METADATA_FILE = "metadata.json"
+OUTPUT_LAYOUT = ("u", "v", "r", "x_n", "y_e", "psi")
+DEFAULT_HORIZON_STEPS = 120
+REQUIRED_KEYS = ("format", "model_type", "model_id", "feature_set", "feature_names", "state_layout", "control_layout",
+                 "output_layout", "dt", "horizon_steps", "normalisation", "vessel", "training_data_sha256",
+                 "software_version", "created_utc", "ensemble_size", "architecture", "training", "units")
+UNITS = {"u": "m/s", "v": "m/s", "r": "rad/s", "psi": "rad", "x_n": "m", "y_e": "m", "delta": "rad", "rpm": "rpm",
+         "dt": "s", "time": "s"}
+EXPECT_UNITS = {"dt": "s"}  # units shown in mismatch messages
+# ----------------------------------------------------------------------------- file
+
+@contextlib.contextmanager
+def _quiet_jit() -> Iterator[None]:
+    """TorchScript is the artifact format on purpose (DESIGN.md: one file, torch-only loading);
+    torch >= 2.9 warns on every script/save/load call that it is deprecated."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r".*torch\.jit.*deprecated", category=DeprecationWarning)
+        yield
+
+
+@dataclass(frozen=True)
+class ModelArtifact:
+    path: Path
+    metadata: dict[str, Any]
+    module: torch.jit.ScriptModule
+
+    @property
+    def dt(self) -> float:
+        return float(self.metadata["dt"])
+
+    @property
+    def model_id(self) -> str:
+        return str(self.metadata["model_id"])
+
+    @property
+    def ensemble_size(self) -> int:
+        return int(self.metadata["ensemble_size"])
+
+    def predict(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """(E, B, H, 6) [u, v, r, x_n, y_e, psi] from state (B, 4) and controls (B, H, 2), float64 numpy."""
+        state = np.asarray(state, dtype=np.float64)
+        controls = np.asarray(controls, dtype=np.float64)
+        if state.ndim != 2 or state.shape[1] != 4 or controls.ndim != 3 or controls.shape[2] != 2 \
+                or controls.shape[0] != state.shape[0]:
+            raise ModelError(f"model {self.path}: predict needs state (B, 4) and controls (B, H, 2), "
+                             f"got {state.shape} and {controls.shape}")
+        with torch.inference_mode():
+            out = self.module(torch.from_numpy(state), torch.from_numpy(controls))
+        return out.double().numpy()
+
+
+def weights_digest(module: nn.Module) -> str:
+    """sha256 over the module's tensors (name, dtype, shape, bytes), in name order."""
+    h = hashlib.sha256()
+    for name, tensor in sorted(module.state_dict().items()):
+        t = tensor.detach().cpu().contiguous()
+        h.update(f"{name}|{t.dtype}|{tuple(t.shape)}|".encode())
+        h.update(t.numpy().tobytes())
+    return h.hexdigest()
+
+
+def model_id(module: nn.Module, metadata: Mapping[str, Any]) -> str:
+    """Short sha256 of the weights and the metadata (without model_id and created_utc: reproducible)."""
+    stable = {k: v for k, v in metadata.items() if k not in ("model_id", "created_utc")}
+    h = hashlib.sha256(weights_digest(module).encode())
+    h.update(json.dumps(stable, sort_keys=True).encode())
+    return h.hexdigest()[:16]
+
+
+def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, Any]) -> ModelArtifact:
+    """Script `module` (any rollout with the forward contract above) and write it with its metadata.
+
+    Fills format, software_version, created_utc and model_id; the other REQUIRED_KEYS must be given.
+    Written atomically (temporary file in the target folder, then os.replace).
+    """
+    path = Path(path)
+    meta = dict(metadata)
+    meta.update(format=FORMAT, software_version=usv_predictor.__version__,
+                created_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"))
+    meta["model_id"] = model_id(module, meta)
+    missing = [k for k in REQUIRED_KEYS if k not in meta]
+    if missing:
+        raise ModelError(f"model {path}: metadata lacks {missing}")
+    with _quiet_jit():
+        scripted = module if isinstance(module, torch.jit.ScriptModule) else torch.jit.script(module.eval())
+    text = json.dumps(meta, indent=2, sort_keys=True, allow_nan=False)
+    with atomic_path(path, ModelError, "model") as tmp, _quiet_jit():
+        torch.jit.save(scripted, str(tmp), _extra_files={METADATA_FILE: text})
+    return load_artifact(path)
+
+
+# ----------------------------------------------------------------------------- loading
+
+def _lookup(metadata: Mapping[str, Any], dotted: str) -> Any:
+    value: Any = metadata
+    for part in dotted.split("."):
+        if not isinstance(value, Mapping) or part not in value:
+            raise KeyError(dotted)
+        value = value[part]
+    return value
+
+
+def _same(have: Any, want: Any) -> bool:
+    if isinstance(have, bool) or isinstance(want, bool):
+        return have == want
+    if isinstance(have, (int, float)) and isinstance(want, (int, float)):
+        return math.isclose(float(have), float(want), rel_tol=1e-9, abs_tol=1e-12)
+    if isinstance(have, (list, tuple)) and isinstance(want, (list, tuple)):
+        return len(have) == len(want) and all(_same(a, b) for a, b in zip(have, want))
+    if isinstance(have, Mapping) and isinstance(want, Mapping):
+        return have.keys() == want.keys() and all(_same(have[k], want[k]) for k in have)
+    return have == want
+
+
+def _show(key: str, value: Any) -> str:
+    unit = EXPECT_UNITS.get(key)
+    if unit and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return f"{value:g} {unit}"
+    return json.dumps(value) if isinstance(value, str) else str(value)
+
+
+def metadata_differences(metadata: Mapping[str, Any], expect: Mapping[str, Any]) -> list[str]:
+    """['dt: model 0.25 s, config 0.5 s', ...] for each expected key (dotted for nested) that differs."""
+    out = []
+    for key, want in expect.items():
+        try:
+            have = _lookup(metadata, key)
+        except KeyError:
+            out.append(f"{key}: model has none, config {_show(key, want)}")
+            continue
+        if not _same(have, want):
+            out.append(f"{key}: model {_show(key, have)}, config {_show(key, want)}")
+    return out
+
+
+def read_metadata(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any]]:
+    """The scripted module and its metadata, checked for format and required keys (ModelError otherwise)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"model file {path} does not exist")
+    extra = {METADATA_FILE: ""}
+    try:
+        with _quiet_jit():
+            module = torch.jit.load(str(path), map_location="cpu", _extra_files=extra)
+    except (RuntimeError, ValueError, OSError, EOFError) as err:
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise ModelError(f"model file {path} is not a readable TorchScript model (corrupt or truncated?): {first}") from err
+    text = extra[METADATA_FILE]
+    if not text:
+        raise ModelError(f"model file {path} has no {METADATA_FILE} (not a usv_predictor model?)")
+    try:
+        metadata = json.loads(text)
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise ModelError(f"model file {path}: {METADATA_FILE} is not valid JSON: {err}") from err
+    if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
+        found = metadata.get("format") if isinstance(metadata, dict) else type(metadata).__name__
+        raise ModelError(f"model file {path}: format {found!r}, expected {FORMAT!r}")
+    missing = [k for k in REQUIRED_KEYS if k not in metadata]
+    if missing:
+        raise ModelError(f"model file {path}: {METADATA_FILE} lacks {missing}")
+    return module, metadata
+
+
+def load_artifact(path: str | Path, expect: Mapping[str, Any] | None = None) -> ModelArtifact:
+    """Load a model file; ModelError naming the file and every field that differs from `expect`."""
+    module, metadata = read_metadata(path)
+    if expect:
+        diffs = metadata_differences(metadata, expect)
+        if diffs:
+            raise ModelError(f"model {path} does not match the configuration: {'; '.join(diffs)}")
+    module.eval()
+    return ModelArtifact(Path(path), metadata, module)

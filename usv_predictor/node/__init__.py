@@ -1,0 +1,15 @@
+"""The online predictor: `node` is the rclpy shell (the package's only rclpy import), `live` the pure
+buffers, checks, state and rollout it drives.
+
+`main` is the entry point of `ros2 run usv_predictor predictor` (setup.py: `usv_predictor.node:main`). It
+imports the rclpy shell only when called, so `usv_predictor.node.live` stays importable without ROS.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    from usv_predictor.node.node import main as node_main
+
+    return node_main(args)
