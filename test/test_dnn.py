@@ -1,4 +1,4 @@
-"""The seed 000 network: shapes, activations (eq. 1-2), batch-norm folding, torch features == features.py."""
+"""The seed 000 network: shapes, activations (eq. 1-2), batch-norm folding, features on tensors == on arrays."""
 from __future__ import annotations
 
 import math
@@ -9,14 +9,8 @@ import torch
 
 from usv_predictor.data.features import FEATURE_SETS, features
 from usv_predictor.errors import ConfigError
-from usv_predictor.models.dnn import (
-    ClippedReLU,
-    DnnConfig,
-    DnnModel,
-    features_torch,
-    fit_normalisation,
-    wrap_angle_torch,
-)  # fmt: skip
+from usv_predictor.frames import wrap_angle
+from usv_predictor.models.dnn import ClippedReLU, DnnConfig, DnnModel, fit_normalisation
 
 
 def _data(feature_set: str, n: int = 256, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -132,21 +126,22 @@ def test_constant_feature_is_centred_not_divided_by_zero() -> None:
 
 
 @pytest.mark.parametrize("feature_set", sorted(FEATURE_SETS))
-def test_torch_features_equal_features_py(feature_set: str) -> None:
+def test_features_of_tensors_equal_features_of_arrays(feature_set: str) -> None:
+    """One implementation, two array types: the training loss (torch) sees what the dataset (numpy) saw."""
     rng = np.random.default_rng(3)
     state = np.column_stack([rng.normal(5, 1, 64), rng.normal(0, .3, 64), rng.normal(0, .1, 64), rng.uniform(-40, 40, 64)])
     state[:6, 3] = [math.pi, -math.pi, 3 * math.pi, 0.0, -1e-12, 2 * math.pi]  # the wrap boundaries
     controls = np.column_stack([rng.normal(0, .3, 64), rng.normal(650, 30, 64)])
     expected = features(feature_set, state, controls)
-    got = features_torch(feature_set, torch.from_numpy(state), torch.from_numpy(controls)).numpy()
+    got = features(feature_set, torch.from_numpy(state), torch.from_numpy(controls)).numpy()
     assert got.shape == expected.shape
     np.testing.assert_array_max_ulp(got, expected, maxulp=2)
-    batched = features_torch(feature_set, torch.from_numpy(state).reshape(8, 8, 4), torch.from_numpy(controls).reshape(8, 8, 2))
+    batched = features(feature_set, torch.from_numpy(state).reshape(8, 8, 4), torch.from_numpy(controls).reshape(8, 8, 2))
     assert batched.shape == (8, 8, len(FEATURE_SETS[feature_set]))
 
 
-def test_wrap_angle_torch_is_half_open() -> None:
-    wrapped = wrap_angle_torch(torch.tensor([math.pi, -math.pi, 3 * math.pi, 0.5], dtype=torch.float64))
+def test_the_one_wrap_helper_is_half_open_on_tensors() -> None:
+    wrapped = wrap_angle(torch.tensor([math.pi, -math.pi, 3 * math.pi, 0.5], dtype=torch.float64))
     assert wrapped.tolist() == pytest.approx([-math.pi, -math.pi, -math.pi, 0.5])
 
 

@@ -35,6 +35,7 @@ import numpy as np
 from usv_predictor.analysis import metrics
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import ModelError, UsvPredictorError
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, actuator_layout
 
 U, V, R, X_N, Y_E, PSI = range(6)  # columns of predicted and measured series (model output order)
 COLUMNS = ("u_mps", "v_mps", "r_rad_s", "x_n_m", "y_e_m", "psi_rad")
@@ -65,10 +66,16 @@ class Prediction:
     name: str
     reference: str  # "gnss" or "truth"
     t_s: np.ndarray  # (T,) s since the start
-    controls: np.ndarray  # (T, 2) delta (rad), rpm
+    controls: np.ndarray  # (T, C) the layout's controls, e.g. delta (rad), rpm
     measured: np.ndarray  # (T, 6) u, v, r, x_n, y_e, psi (NaN where the GNSS had no fix)
     predicted: np.ndarray  # (T, 6) ensemble mean, positions placed at the measured start
     predicted_std: np.ndarray  # (T, 6) ensemble spread (zeros for a single member)
+    layout: str = DEFAULT_LAYOUT.name  # actuator layout of the controls (physics/actuators.py)
+
+    @property
+    def steering(self) -> np.ndarray:
+        """(T,) the turn command (the rudder angle of a rudder boat), + to starboard."""
+        return actuator_layout(self.layout).steering_signal(self.controls)
 
 
 @dataclass(frozen=True)
@@ -257,7 +264,7 @@ def closed_loop(model: Predictor, recording: Recording, reference: str = "gnss")
     mean = np.vstack([measured[:1], out.mean(axis=0)])
     std = np.vstack([np.zeros((1, 6)), out.std(axis=0)])
     return Prediction(name=recording.name, reference=reference, t_s=recording.t_s[first:] - recording.t_s[first],
-                      controls=controls, measured=measured, predicted=mean, predicted_std=std)
+                      controls=controls, measured=measured, predicted=mean, predicted_std=std, layout=recording.layout)
 
 
 def open_loop(model: Predictor, recording: Recording, reference: str = "gnss",
@@ -294,9 +301,10 @@ def open_loop(model: Predictor, recording: Recording, reference: str = "gnss",
 # --------------------------------------------------------------------------------------------
 # What manoeuvre is it (from the controls only)
 # --------------------------------------------------------------------------------------------
-RUDDER_MIN_RAD = math.radians(2.0)  # below this the run is straight
-RPM_STEADY_FRACTION = 0.03  # engine steady: 5-95 % spread within 3 % of its median
-HELD_FRACTION = 0.9  # a steady rudder holds its value for this share of the time after execute
+# A turn is a held turn command of the vessel's actuator layout (physics/actuators.py): a rudder angle, or a
+# thrust difference; "straight" and "held" thresholds are the layout's (straight_below, hold_tolerance).
+RPM_STEADY_FRACTION = 0.03  # propulsion steady: 5-95 % spread within 3 % of its median
+HELD_FRACTION = 0.9  # a steady turn command holds its value for this share of the time after execute
 
 
 def _side_states(delta: np.ndarray, threshold: float) -> np.ndarray:
@@ -307,11 +315,15 @@ def _side_states(delta: np.ndarray, threshold: float) -> np.ndarray:
 
 
 def classify(recording: Recording) -> ManoeuvreKind:
-    """turning circle (one steady rudder), zig-zag (reversals of one amplitude) or other, from the controls."""
-    delta, rpm = recording.controls[:, 0], recording.controls[:, 1]
+    """turning circle (one steady turn command), zig-zag (reversals of one amplitude) or other, from the controls.
+
+    delta below is the layout's turn command (the rudder angle of rudder_propeller), rpm its propulsion level.
+    """
+    layout = recording.actuator_layout
+    delta, rpm = layout.steering_signal(recording.controls), layout.propulsion_signal(recording.controls)
     rpm_median = float(np.median(rpm))
     amplitude = float(np.percentile(np.abs(delta), 95.0))
-    if amplitude < RUDDER_MIN_RAD:
+    if amplitude < layout.straight_below:
         return ManoeuvreKind("other", "", float("nan"), rpm_median, float("nan"))
     moved = np.flatnonzero(np.abs(delta) >= 0.1 * amplitude)
     execute = int(moved[0])
@@ -323,7 +335,7 @@ def classify(recording: Recording) -> ManoeuvreKind:
     side = "starboard" if first_side > 0 else "port"
     changes = np.flatnonzero(np.diff(states[states != 0]) != 0)
     held = np.abs(delta[after])
-    tolerance = max(math.radians(1.5), 0.15 * amplitude)
+    tolerance = max(layout.hold_tolerance, 0.15 * amplitude)
     t_execute = float(recording.t_s[execute])
     if len(changes) == 0:
         steady = np.mean(np.abs(held - np.median(held)) <= tolerance) >= HELD_FRACTION
@@ -435,7 +447,7 @@ def compare_zigzag(prediction: Prediction) -> Comparison:
     values = {}
     for what, series in (("measured", prediction.measured), ("predicted", prediction.predicted)):
         zz = _attempt(notes, f"{what} zig-zag", lambda s=series: metrics.zigzag_overshoots(
-            prediction.t_s, s[:, PSI], prediction.controls[:, 0]))
+            prediction.t_s, s[:, PSI], prediction.steering))
         values[what] = {
             "first_overshoot_deg": _finite_or_none(zz.first_overshoot_deg) if zz else None,
             "second_overshoot_deg": _finite_or_none(zz.second_overshoot_deg) if zz else None,

@@ -4,7 +4,8 @@ Recording (marine convention, SI, uniform step dt):
     t_s (T,)           seconds since t0_ns
     nu (T, 3)          u, v (m/s, over ground, body FRD) from the velocity topic; r (rad/s) from the IMU gyro
     psi (T,)           heading (rad, clockwise from north), continuous (unwrapped) so it can be averaged
-    controls (T, 2)    rudder angle delta (rad, + to starboard), engine speed (rpm)
+    controls (T, C)    the columns of the vessel's actuator layout (physics/actuators.py, `layout`), e.g.
+                       rudder angle delta (rad, + to starboard) and engine speed (rpm) for rudder_propeller
     position (T, 2)    x_n, y_e (m) from GNSS in the local tangent plane of `datum` (NaN without GNSS)
     truth (T, 6) | None  ground truth x_n, y_e, psi, u, v, r: evaluation of simulated data only, never fitting
 
@@ -14,16 +15,26 @@ are interpolated linearly. The grid spans the time where every required signal c
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from usv_predictor.errors import UsvPredictorError
 from usv_predictor.frames import LocalTangentPlane
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
 from usv_predictor.records import Signal
 
 NS = 1_000_000_000
-REQUIRED_ROLES = ("imu", "velocity", "heading", "rudder_angle", "engine_rpm")
+MOTION_ROLES = ("imu", "velocity", "heading")  # the state [u, v, r, psi]; the controls' roles come from the layout
+
+
+def required_roles(layout: ActuatorLayout = DEFAULT_LAYOUT) -> tuple[str, ...]:
+    """The input roles a Recording (and the node's state) needs: the motion, then the layout's controls."""
+    return MOTION_ROLES + layout.roles
+
+
+REQUIRED_ROLES = required_roles(DEFAULT_LAYOUT)
 
 
 class RecordingError(UsvPredictorError):
@@ -43,6 +54,7 @@ class Recording:
     position: np.ndarray
     truth: np.ndarray | None = None
     datum: tuple[float, float] | None = None  # (lat, lon) deg of the position plane
+    layout: str = DEFAULT_LAYOUT.name  # actuator layout: the names and units of the controls columns
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -54,6 +66,18 @@ class Recording:
     def state(self) -> np.ndarray:
         """(T, 4) [u, v, r, psi]: the state a model starts from and predicts."""
         return np.column_stack([self.nu, self.psi])
+
+    @property
+    def actuator_layout(self) -> ActuatorLayout:
+        return actuator_layout(self.layout)
+
+
+def recording_layout(recordings: Sequence[Recording]) -> ActuatorLayout:
+    """The one actuator layout of these recordings (RecordingError when they mix layouts)."""
+    layouts = sorted({rec.layout for rec in recordings})
+    if len(layouts) > 1:
+        raise RecordingError(f"recordings of different actuator layouts {layouts} cannot be used together")
+    return actuator_layout(layouts[0]) if layouts else DEFAULT_LAYOUT
 
 
 def window_resample(t_ns: np.ndarray, values: np.ndarray, grid_ns: np.ndarray, dt_ns: int) -> np.ndarray:
@@ -89,34 +113,36 @@ def largest_gap(t_ns: np.ndarray, start_ns: int, end_ns: int) -> tuple[float, in
 
 
 def recording_from_signals(signals: dict[str, Signal], dt: float, *, name: str, source: str = "",
-                           max_gap_s: float | None = None, datum: tuple[float, float] | None = None) -> Recording:
+                           max_gap_s: float | None = None, datum: tuple[float, float] | None = None,
+                           layout: ActuatorLayout = DEFAULT_LAYOUT) -> Recording:
     """Align and resample role-keyed Signals (msg_adapters.ROLE_FIELDS) onto one grid of step dt.
 
     Raises RecordingError naming the missing role, the gap (role, time, length) or the too-short span.
     A gap longer than max_gap_s (default: the step dt) in any required signal is an error: the caller
     decides whether to cut the recording there (see split_at_gaps in the dataset stage).
     """
-    missing = [role for role in REQUIRED_ROLES if role not in signals or len(signals[role]) == 0]
+    roles = required_roles(layout)
+    missing = [role for role in roles if role not in signals or len(signals[role]) == 0]
     if missing:
-        raise RecordingError(f"{source or name}: no data for role(s) {missing}; need {list(REQUIRED_ROLES)}")
+        raise RecordingError(f"{source or name}: no data for role(s) {missing}; need {list(roles)}")
     if not dt > 0.0:
         raise RecordingError(f"{source or name}: step dt={dt} s must be > 0")
     dt_ns = int(round(dt * NS))
-    for role in REQUIRED_ROLES:
+    for role in roles:
         t = signals[role].t_ns
         if np.any(np.diff(t) <= 0):
             k = int(np.flatnonzero(np.diff(t) <= 0)[0])
             raise RecordingError(f"{source or name}: {role} timestamps do not increase at "
                                  f"t={(t[k + 1] - t[0]) / NS:.3f} s (sort or de-duplicate first)")
     # whole windows only: a window cut by the end of the data would bias the mean of a trend
-    start = max(int(signals[r].t_ns[0]) for r in REQUIRED_ROLES) + dt_ns // 2
-    end = min(int(signals[r].t_ns[-1]) for r in REQUIRED_ROLES) - dt_ns // 2
+    start = max(int(signals[r].t_ns[0]) for r in roles) + dt_ns // 2
+    end = min(int(signals[r].t_ns[-1]) for r in roles) - dt_ns // 2
     steps = (end - start) // dt_ns
     if steps < 1:
         raise RecordingError(f"{source or name}: the signals overlap for {(end - start) / NS:.2f} s, less than one step")
     grid = start + np.arange(steps + 1, dtype=np.int64) * dt_ns
     limit = dt if max_gap_s is None else max_gap_s
-    for role in REQUIRED_ROLES:
+    for role in roles:
         gap, at = largest_gap(signals[role].t_ns, start, int(grid[-1]))
         if gap > limit + 1e-9:
             raise RecordingError(f"{source or name}: {role} has a {gap:.2f} s gap at t={(at - start) / NS:.2f} s, "
@@ -129,7 +155,7 @@ def recording_from_signals(signals: dict[str, Signal], dt: float, *, name: str, 
     heading = signals["heading"]
     psi = window_resample(heading.t_ns, np.unwrap(heading.column("psi")), grid, dt_ns)
     nu = np.column_stack([resample("velocity", "u"), resample("velocity", "v"), resample("imu", "yaw_rate")])
-    controls = np.column_stack([resample("rudder_angle", "delta"), resample("engine_rpm", "rpm")])
+    controls = np.column_stack([resample(c.role, c.field) for c in layout.controls])  # (T, C)
     position = np.full((len(grid), 2), np.nan)
     gnss = signals.get("gnss")
     if gnss is not None and len(gnss) >= 2:
@@ -152,4 +178,5 @@ def recording_from_signals(signals: dict[str, Signal], dt: float, *, name: str, 
         g = (grid - odom.t_ns[0]).astype(float)
         truth = np.column_stack([np.interp(g, rel, vals[:, k]) for k in range(6)])
     return Recording(name=name, source=source, t0_ns=int(grid[0]), dt=dt, t_s=(grid - grid[0]) / NS,
-                     nu=nu, psi=psi, controls=controls, position=position, truth=truth, datum=datum)
+                     nu=nu, psi=psi, controls=controls, position=position, truth=truth, datum=datum,
+                     layout=layout.name)

@@ -15,7 +15,7 @@ Recipe (TrainingConfig defaults = seed 000 Table 5):
 One-step training (the paper, eq. 7): features X (N, F) -> next [u, v, r] Y (N, 3).
 Multi-step training (extension, `multi_step=k > 1`): windows of k steps are rolled out closed loop
 as in Fig. 3 (teacher forcing off): the predicted [u, v, r] is fed back, psi is integrated from r by
-the trapezoidal rule, features are recomputed in torch (models.dnn.features_torch), and the loss is
+the trapezoidal rule, features are recomputed in torch (data.features.features takes tensors), and the loss is
 the mean normalised MSE over the k predicted [u, v, r].
 Ensembles (`ensemble=E`): E members trained alike from seeds seed, seed+1, ... (different
 initialisation and batch order); their spread is the prediction uncertainty.
@@ -37,10 +37,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from usv_predictor.data.features import features
-from usv_predictor.data.recording import Recording
+from usv_predictor.data.features import feature_names, features
+from usv_predictor.data.recording import Recording, recording_layout
 from usv_predictor.errors import ConfigError, DatasetError
-from usv_predictor.models.dnn import DnnConfig, DnnModel, Normalisation, features_torch, fit_normalisation
+from usv_predictor.models.dnn import DnnConfig, DnnModel, Normalisation, fit_normalisation
 
 LR_SCHEDULES = ("step", "cosine", "constant")
 
@@ -164,13 +164,14 @@ Progress = Callable[[int, int, float, float], None]  # (member, epoch, train los
 def samples_from_recordings(recordings: Sequence[Recording], feature_set: str) -> Samples:
     """One-step samples (features at t, [u, v, r] at t+1) of each recording, skipping non-finite rows."""
     xs, ys = [], []
+    layout = recording_layout(recordings)
     for rec in recordings:
-        x = features(feature_set, rec.state()[:-1], rec.controls[:-1])  # (T-1, F)
+        x = features(feature_set, rec.state()[:-1], rec.controls[:-1], layout)  # (T-1, F)
         y = rec.nu[1:]  # (T-1, 3)
         ok = np.isfinite(x).all(axis=1) & np.isfinite(y).all(axis=1)
         xs.append(x[ok])
         ys.append(y[ok])
-    width = len(features(feature_set, np.zeros(4), np.zeros(2)))
+    width = len(feature_names(feature_set, layout))
     return Samples(np.concatenate(xs) if xs else np.zeros((0, width)), np.concatenate(ys) if ys else np.zeros((0, 3)))
 
 
@@ -192,7 +193,8 @@ def windows_from_recordings(recordings: Sequence[Recording], k: int, stride: int
                 targets.append(rec.nu[s + 1:s + k + 1])
     dt = float(recordings[0].dt) if recordings else float("nan")
     if not starts:
-        return Windows(np.zeros((0, 4)), np.zeros((0, k, 2)), np.zeros((0, k, 3)), dt)
+        width = len(recording_layout(recordings).controls)
+        return Windows(np.zeros((0, 4)), np.zeros((0, k, width)), np.zeros((0, k, 3)), dt)
     return Windows(np.stack(starts), np.stack(ctrls), np.stack(targets), dt)
 
 
@@ -217,12 +219,13 @@ def reproducible(seed: int, threads: int) -> Iterator[None]:
 def rollout_nu(model: DnnModel, feature_set: str, state0: torch.Tensor, controls: torch.Tensor, dt: float) -> torch.Tensor:
     """Closed-loop k-step prediction (seed 000 Fig. 3), differentiable: returns nu (N, k, 3).
 
-    state0 (N, 4) [u, v, r, psi]; controls (N, k, 2); psi_{j+1} = psi_j + dt/2 (r_j + r_{j+1}).
+    state0 (N, 4) [u, v, r, psi]; controls (N, k, C) in the model's layout; psi_{j+1} = psi_j + dt/2 (r_j + r_{j+1}).
     """
     nu, psi = state0[:, :3], state0[:, 3:4]  # (N, 3), (N, 1)
+    layout = model.config.actuator_layout
     out = []
     for j in range(controls.shape[1]):
-        x = features_torch(feature_set, torch.cat([nu, psi], dim=1), controls[:, j])  # (N, F)
+        x = features(feature_set, torch.cat([nu, psi], dim=1), controls[:, j], layout)  # (N, F)
         nxt = model(x)  # (N, 3)
         psi = psi + 0.5 * dt * (nu[:, 2:3] + nxt[:, 2:3])
         nu = nxt

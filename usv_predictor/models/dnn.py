@@ -53,9 +53,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from usv_predictor.data.features import CONTROL_NAMES, FEATURE_SETS, FEATURE_UNITS, STATE_NAMES
+from usv_predictor.data.features import HEADING_COLUMNS, HEADING_SETS, STATE_NAMES, feature_names, feature_units
 from usv_predictor.errors import ConfigError, ModelError
 from usv_predictor.models.artifact import DEFAULT_HORIZON_STEPS, OUTPUT_LAYOUT, UNITS, ModelArtifact, export_module
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
 
 ACTIVATIONS = ("tanh", "clipped_relu")
 MIN_STD = 1e-6  # a (nearly) constant input, e.g. one engine speed in the data, is centred, not scaled
@@ -73,13 +74,15 @@ class DnnConfig:
     ceiling: float = 10.0  # clippedReLU ceiling (eq. 1), in normalised units
     batch_norm: bool = True
     predict_increment: bool = True
+    layout: str = DEFAULT_LAYOUT.name  # actuator layout of the control columns (physics/actuators.py)
 
     def __post_init__(self) -> None:
-        if self.feature_set not in FEATURE_SETS:
-            raise ConfigError(f"DnnConfig.feature_set={self.feature_set!r}; known: {sorted(FEATURE_SETS)}")
-        if self.n_features != len(FEATURE_SETS[self.feature_set]):
+        if self.feature_set not in HEADING_SETS:
+            raise ConfigError(f"DnnConfig.feature_set={self.feature_set!r}; known: {sorted(HEADING_SETS)}")
+        expected = len(feature_names(self.feature_set, self.actuator_layout))
+        if self.n_features != expected:
             raise ConfigError(f"DnnConfig.n_features={self.n_features} but feature set {self.feature_set} has "
-                              f"{len(FEATURE_SETS[self.feature_set])} features")
+                              f"{expected} features")
         if self.activation not in ACTIVATIONS:
             raise ConfigError(f"DnnConfig.activation={self.activation!r}; expected one of {list(ACTIVATIONS)}")
         if not (1 <= self.width <= 4096 and 1 <= self.depth <= 16):
@@ -88,14 +91,19 @@ class DnnConfig:
             raise ConfigError(f"DnnConfig.ceiling={self.ceiling}: expected a finite value > 0")
 
     @classmethod
-    def for_features(cls, feature_set: str, **kwargs: Any) -> "DnnConfig":
-        if feature_set not in FEATURE_SETS:
-            raise ConfigError(f"feature set {feature_set!r}; known: {sorted(FEATURE_SETS)}")
-        return cls(feature_set=feature_set, n_features=len(FEATURE_SETS[feature_set]), **kwargs)
+    def for_features(cls, feature_set: str, layout: ActuatorLayout = DEFAULT_LAYOUT, **kwargs: Any) -> "DnnConfig":
+        if feature_set not in HEADING_SETS:
+            raise ConfigError(f"feature set {feature_set!r}; known: {sorted(HEADING_SETS)}")
+        return cls(feature_set=feature_set, n_features=len(feature_names(feature_set, layout)), layout=layout.name,
+                   **kwargs)
+
+    @property
+    def actuator_layout(self) -> ActuatorLayout:
+        return actuator_layout(self.layout)
 
     @property
     def feature_names(self) -> tuple[str, ...]:
-        return FEATURE_SETS[self.feature_set]
+        return feature_names(self.feature_set, self.actuator_layout)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -229,48 +237,46 @@ class DnnModel(nn.Module):
         return layers
 
 
-def wrap_angle_torch(angle: torch.Tensor) -> torch.Tensor:
-    """frames.wrap_angle in torch: [-pi, pi), the same floor-modulo operations."""
-    return torch.remainder(angle + math.pi, 2.0 * math.pi) - math.pi
-
-
-def features_torch(feature_set: str, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
-    """features.features in torch (differentiable): state (..., 4), controls (..., 2) -> (..., F)."""
-    columns = [state[..., 0:3], controls]  # u, v, r, delta, rpm
-    psi = state[..., 3:4]
-    if feature_set == "NAF":
-        columns.append(wrap_angle_torch(psi))
-    elif feature_set == "NTF":
-        columns += [torch.sin(psi), torch.cos(psi)]
-    elif feature_set != "F0":
-        raise ConfigError(f"unknown feature set {feature_set!r}; known: {sorted(FEATURE_SETS)}")
-    return torch.cat(columns, dim=-1)
-
-
 # ----------------------------------------------------------------------------- the closed-loop rollout
 
-_TRIG = {"F0": 0, "NAF": 1, "NTF": 2}  # how psi enters the features: not, wrapped (1 column), sin/cos (2)
+# how the heading columns of a feature set (data/features.py HEADING_COLUMNS) are folded: each column is an
+# argument psi + phase updated in the step matrices, then sin() of it, or its remainder modulo 2 pi
+_FOLD = {"sin": ("sin", 0.0), "cos": ("sin", 0.5 * math.pi), "wrap": ("wrap", math.pi)}  # cos x = sin(x + pi/2)
+_HEADING_MODE = {"none": 0, "wrap": 1, "sin": 2}  # TorchScript constant: how _psi_features_ treats the columns
+
+
+def _heading_fold(feature_set: str) -> tuple[int, list[float]]:
+    """(mode, phases (rad)) of the heading columns of a feature set, for DnnRollout."""
+    folds = [_FOLD[HEADING_COLUMNS[name]] for name in HEADING_SETS[feature_set]]
+    kinds = {kind for kind, _ in folds}
+    if len(kinds) > 1:
+        raise ModelError(f"feature set {feature_set}: heading columns {HEADING_SETS[feature_set]} mix sin and wrap; "
+                         "the folded rollout takes one kind")
+    return _HEADING_MODE[kinds.pop() if kinds else "none"], [phase for _, phase in folds]
 
 
 class DnnRollout(nn.Module):
     """Closed-loop rollout of an ensemble of folded seed-000 networks (see the module docstring).
 
-    Step state s = [u, v, r, psi, t] (E, B, 4 + T) where t are the psi features (T = 0 for F0,
-    1 wrapped psi for NAF, 2 sin/cos psi for NTF). One step is three batched products:
+    Step state s = [u, v, r, psi, t] (E, B, 4 + T) where t are the heading columns (T = 0 for F0,
+    1 wrapped psi for NAF, 2 sin/cos psi for NTF). Controls (B, H, C) in the layout's columns. One step is
+    three batched products:
         [s_lin | pre] = s M + per_step[k]        s_lin: the linear part of the next s (4 + T)
         h = act(pre); h = act(h W_i + b_i) ...   hidden layers (W units)
         s' = s_lin + h head                      next [u, v, r, psi] and the psi-feature argument
         t' = sin(.) or remainder(., 2 pi)        in place on the last T columns
     """
 
-    __constants__ = ["trig_mode", "clipped", "ceiling", "dt", "ensemble_size"]  # TorchScript constants
+    __constants__ = ["trig_mode", "n_trig", "n_controls", "clipped", "ceiling", "dt", "ensemble_size"]
 
     def __init__(self, members: Sequence[DnnModel], dt: float, dtype: torch.dtype = torch.float32) -> None:
         super().__init__()
         config = members[0].config
         if any(m.config != config for m in members):
             raise ModelError("ensemble members must share one architecture (DnnConfig)")
-        self.trig_mode = _TRIG[config.feature_set]  # = T, the number of psi feature columns
+        self.trig_mode, phases = _heading_fold(config.feature_set)  # 0 none, 1 wrapped psi, 2 sin(psi + phase)
+        self.n_trig = len(phases)  # = T, the number of heading columns
+        self.n_controls = len(config.actuator_layout.controls)  # = C
         self.clipped = config.activation == "clipped_relu"
         self.ceiling = float(config.ceiling)
         self.dt = float(dt)
@@ -286,12 +292,14 @@ class DnnRollout(nn.Module):
         w1, b1 = layers[0]  # (W, F), (W,)
         w_out, b_out = layers[-1]  # (3, W), (3,)
         width = w1.shape[0]
-        n_trig = _TRIG[config.feature_set]
+        mode, phase = _heading_fold(config.feature_set)
+        n_trig = len(phase)
+        controls = config.actuator_layout.control_names
         s = 4 + n_trig
         inc = 1.0 if config.predict_increment else 0.0
         m_s = torch.zeros(s, s + width, dtype=torch.float64)  # s (1, S) @ m_s -> [s_lin (S) | pre (W)]
         bias = torch.zeros(1, s + width, dtype=torch.float64)
-        w_c = torch.zeros(2, s + width, dtype=torch.float64)  # controls (1, 2) @ w_c: their share of pre
+        w_c = torch.zeros(len(controls), s + width, dtype=torch.float64)  # controls (1, C) @ w_c: share of pre
         head = torch.zeros(width, s, dtype=torch.float64)
         # next nu = inc * nu + b_out + h w_out; next psi = psi + dt/2 (r + next r)
         m_s[0, 0] = m_s[1, 1] = m_s[2, 2] = inc
@@ -301,8 +309,7 @@ class DnnRollout(nn.Module):
         bias[0, 3] = 0.5 * dt * b_out[2]
         head[:, :3] = w_out.T
         head[:, 3] = 0.5 * dt * w_out[2]
-        # the psi-feature arguments: copies of the next psi (+ a phase)
-        phase = {0: [], 1: [math.pi], 2: [0.0, 0.5 * math.pi]}[n_trig]  # NAF: psi + pi; NTF: sin(psi + [0, pi/2])
+        # the heading-column arguments: copies of the next psi (+ a phase): NAF psi + pi; NTF sin(psi + [0, pi/2])
         for j, p in enumerate(phase):
             m_s[:, 4 + j] = m_s[:, 3]
             bias[0, 4 + j] = bias[0, 3] + p
@@ -311,14 +318,12 @@ class DnnRollout(nn.Module):
         first_bias = b1.clone()
         for i, name in enumerate(("u", "v", "r")):
             m_s[i, s:] = w1[:, col[name]]
-        for i, name in enumerate(CONTROL_NAMES):
+        for i, name in enumerate(controls):
             w_c[i, s:] = w1[:, col[name]]
-        if config.feature_set == "NTF":
-            m_s[4, s:] = w1[:, col["sin_psi"]]
-            m_s[5, s:] = w1[:, col["cos_psi"]]
-        elif config.feature_set == "NAF":  # wrapped psi = remainder(psi + pi, 2 pi) - pi: the -pi goes to the bias
-            m_s[4, s:] = w1[:, col["psi"]]
-            first_bias = first_bias - math.pi * w1[:, col["psi"]]
+        for j, name in enumerate(HEADING_SETS[config.feature_set]):
+            m_s[4 + j, s:] = w1[:, col[name]]
+            if mode == _HEADING_MODE["wrap"]:  # wrapped psi = remainder(psi + pi, 2 pi) - pi: the -pi to the bias
+                first_bias = first_bias - math.pi * w1[:, col[name]]
         bias[0, s:] = first_bias
         hidden = layers[1:-1]
         no_hidden = torch.zeros(0, width, width, dtype=torch.float64), torch.zeros(0, 1, width, dtype=torch.float64)
@@ -338,23 +343,23 @@ class DnnRollout(nn.Module):
     def _psi_features_(self, s: torch.Tensor) -> None:
         """In place: the last T columns of s, psi + phase, become the psi features."""
         if self.trig_mode == 2:
-            s.narrow(2, 4, 2).sin_()
+            s.narrow(2, 4, self.n_trig).sin_()
         elif self.trig_mode == 1:
-            s.narrow(2, 4, 1).remainder_(2.0 * math.pi)
+            s.narrow(2, 4, self.n_trig).remainder_(2.0 * math.pi)
 
     def forward(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
         if state.dim() != 2 or state.size(1) != 4:
             raise ValueError("state must be (B, 4) [u, v, r, psi]")
-        if controls.dim() != 3 or controls.size(2) != 2 or controls.size(0) != state.size(0):
-            raise ValueError("controls must be (B, H, 2) [delta, rpm] with the B of state")
+        if controls.dim() != 3 or controls.size(2) != self.n_controls or controls.size(0) != state.size(0):
+            raise ValueError("controls must be (B, H, C) in the model's control_layout, with the B of state")
         e = self.ensemble_size
         b = state.size(0)
         horizon = controls.size(1)
-        n_s = 4 + self.trig_mode
+        n_s = 4 + self.n_trig
         z0 = state.to(self.m_s.dtype).unsqueeze(0).expand(e, b, 4)  # (E, B, 4)
         s = torch.cat([z0, z0[:, :, 3:4] + self.phase], dim=2)  # (E, B, S)
         self._psi_features_(s)
-        ctrl = controls.to(self.m_s.dtype).reshape(1, b * horizon, 2)
+        ctrl = controls.to(self.m_s.dtype).reshape(1, b * horizon, self.n_controls)
         # the controls' share of every step's first layer, before the loop: H x (E, B, S + W)
         per_step = (torch.matmul(ctrl, self.w_c).reshape(e, b, horizon, -1) + self.bias.unsqueeze(2)).unbind(2)
         hidden_w = self.hidden_w.unbind(1)  # buffers are (E, depth-1, ...): one (E, W, W) per hidden layer
@@ -401,9 +406,10 @@ def export(path: str | Path, members: Sequence[DnnModel], config: DnnConfig, *, 
         "model_type": "dnn",
         "feature_set": config.feature_set,
         "feature_names": list(config.feature_names),
-        "feature_units": [FEATURE_UNITS[n] for n in config.feature_names],
+        "feature_units": list(feature_units(config.feature_set, config.actuator_layout)),
         "state_layout": list(STATE_NAMES),
-        "control_layout": list(CONTROL_NAMES),
+        "control_layout": list(config.actuator_layout.control_names),
+        "actuator_layout": config.layout,
         "output_layout": list(OUTPUT_LAYOUT),
         "dt": float(dt),
         "horizon_steps": int(horizon_steps),

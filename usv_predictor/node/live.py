@@ -8,8 +8,9 @@ State assembly is the replay tool's Recording (recording.py), taken online:
 
     window     W(now) = [t_end - dt, t_end],  t_end = now - state_delay_s (closed, as Recording's windows)
     state      x = [u, v, r, psi] at t_c = t_end - dt/2: u, v box-averaged from `velocity`, r from the `imu`
-               gyro, psi from `heading` unwrapped then averaged; controls [delta, rpm] the same way from
-               `rudder_angle` and `engine_rpm`, held for the whole horizon (the current actuator commands)
+               gyro, psi from `heading` unwrapped then averaged; the controls of the vessel's actuator layout
+               (physics/actuators.py, e.g. [delta, rpm] from `rudder_angle` and `engine_rpm`) the same way,
+               held for the whole horizon (the current actuator commands)
     position   GNSS lat/lon -> NED in the local tangent plane of the datum (parameter, or the first fix),
                box-averaged like the rest; without a fix the path starts at (0, 0)
 
@@ -19,8 +20,8 @@ Prediction k (k = 1 .. H) is the model's output at t_c + k dt.
 
 Samples are checked on arrival (reject reasons are counted per input and reported): non-finite values in
 a field the state uses, a stamp not after the previous one (backwards or duplicate), a stamp more than
-max_future_s ahead of the clock, values outside PLAUSIBLE (wrong units configuration, e.g. heading
-configured as rad but > 2 pi, rudder degrees read as radians, absurd rpm). Buffers are fixed-size rings:
+max_future_s ahead of the clock, values outside PLAUSIBLE or a control's plausible range (wrong units
+configuration, e.g. heading configured as rad but > 2 pi, rudder degrees read as radians, absurd rpm). Buffers are fixed-size rings:
 memory does not grow with the message rate.
 """
 from __future__ import annotations
@@ -34,31 +35,45 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from usv_predictor.data.recording import NS, REQUIRED_ROLES, window_resample
+from usv_predictor.data.recording import NS, required_roles, window_resample
 from usv_predictor.errors import ModelError, UsvPredictorError
 from usv_predictor.frames import LocalTangentPlane
 from usv_predictor.models.artifact import ModelArtifact
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
 
 POSITION_ROLE = "gnss"
-# role -> the fields the state uses, in the order of recording_from_signals
-STATE_FIELDS: Mapping[str, tuple[str, ...]] = {
+# role -> the fields the state uses, in the order of recording_from_signals (the controls' roles: the layout's)
+MOTION_FIELDS: Mapping[str, tuple[str, ...]] = {
     "velocity": ("u", "v"),
     "imu": ("yaw_rate",),
     "heading": ("psi",),
-    "rudder_angle": ("delta",),
-    "engine_rpm": ("rpm",),
     POSITION_ROLE: ("lat", "lon"),
 }
-# Plausible values (SI after the adapter; rpm in rev/min). Outside them the configuration is the likelier culprit.
+# Plausible values (SI after the adapter). Outside them the configuration is the likelier culprit. The
+# controls' ranges are their Control.plausible in the actuator layout.
 PLAUSIBLE: Mapping[str, tuple[float, float]] = {
     "u": (-10.0, 30.0),  # m/s, surge over ground of a USV
     "v": (-15.0, 15.0),  # m/s
     "yaw_rate": (-3.0, 3.0),  # rad/s (170 deg/s)
-    "delta": (-math.radians(60.0), math.radians(60.0)),  # rad; a rudder in degrees read as rad exceeds it
-    "rpm": (-5000.0, 5000.0),  # rev/min
     "lat": (-90.0, 90.0),  # deg
     "lon": (-180.0, 180.0),  # deg
 }
+
+
+def state_fields(layout: ActuatorLayout = DEFAULT_LAYOUT) -> dict[str, tuple[str, ...]]:
+    """role -> the fields the state uses: the motion and position fields, then each control's role and field."""
+    fields = dict(MOTION_FIELDS)
+    for role in layout.roles:
+        fields[role] = layout.fields_of(role)
+    return fields
+
+
+def plausible_ranges(layout: ActuatorLayout = DEFAULT_LAYOUT) -> dict[str, tuple[float, float]]:
+    """field -> plausible (low, high): PLAUSIBLE and the layout's controls (by their role's field name)."""
+    return {**PLAUSIBLE, **{c.field: c.plausible for c in layout.controls}}
+
+
+STATE_FIELDS: Mapping[str, tuple[str, ...]] = state_fields(DEFAULT_LAYOUT)
 RAW_HEADING_LIMIT = {"rad": 2.0 * math.pi + 1e-6, "deg": 360.0 + 1e-6}  # |raw heading| per configured unit
 RATE_WINDOW_S = 1.0  # input rates are counted over this much of the latest samples (s)
 WARM_UP_CALLS = 3  # rollouts run when a model is loaded
@@ -85,9 +100,11 @@ def check_raw_heading(raw: float, units: str) -> None:
         raise InputRejected("range", f"heading {raw:g} {units} is more than one turn{hint}; check the units option")
 
 
-def check_values(role: str, fields: Sequence[str], values: Sequence[float]) -> None:
+def check_values(role: str, fields: Sequence[str], values: Sequence[float],
+                 layout: ActuatorLayout = DEFAULT_LAYOUT) -> None:
     """Used fields must be finite and plausible (InputRejected 'non_finite' or 'range' naming the field)."""
-    used = STATE_FIELDS.get(role, ())
+    used = state_fields(layout).get(role, ())
+    plausible = plausible_ranges(layout)
     for name, value in zip(fields, values):
         if name not in used:
             continue
@@ -95,7 +112,7 @@ def check_values(role: str, fields: Sequence[str], values: Sequence[float]) -> N
             if role == POSITION_ROLE:
                 raise InputRejected("no_fix", "GNSS reports no fix")
             raise InputRejected("non_finite", f"{role}.{name} is {value}")
-        low, high = PLAUSIBLE.get(name, (-math.inf, math.inf))
+        low, high = plausible.get(name, (-math.inf, math.inf))
         if not low <= value <= high:
             raise InputRejected("range", f"{role}.{name} = {value:g} outside the plausible [{low:g}, {high:g}]: "
                                          f"wrong units or sign configuration?")
@@ -201,7 +218,7 @@ class LiveState(NamedTuple):
 
     t_c_ns: int  # centre of the averaging window: the state's time
     state: np.ndarray  # (4,) u, v, r, psi (psi continuous within the window, not wrapped)
-    controls: np.ndarray  # (2,) delta rad, rpm: held over the horizon
+    controls: np.ndarray  # (C,) the layout's controls (e.g. delta rad, rpm): held over the horizon
     position: np.ndarray | None  # (2,) x_n, y_e (m) in the datum's plane; None without GNSS
     samples: Mapping[str, int]  # samples averaged per role
 
@@ -210,9 +227,12 @@ class InputSet:
     """The buffers of every configured input and the checks between a message and the state."""
 
     def __init__(self, fields_by_role: Mapping[str, Sequence[str]], max_age_s: Mapping[str, float],
-                 settings: LiveSettings) -> None:
+                 settings: LiveSettings, layout: ActuatorLayout = DEFAULT_LAYOUT) -> None:
+        self.layout = layout
+        self.required = required_roles(layout)
+        self.fields = state_fields(layout)
         # a configuration without them still runs (and reports); it just never predicts
-        self.missing = [role for role in REQUIRED_ROLES if role not in fields_by_role]
+        self.missing = [role for role in self.required if role not in fields_by_role]
         self.settings = settings
         self.tracks = {role: InputTrack(role, SampleBuffer(fields, settings.capacity), float(max_age_s[role]))
                        for role, fields in fields_by_role.items()}
@@ -226,7 +246,7 @@ class InputSet:
         track = self.tracks[role]
         track.received += 1
         try:
-            check_values(role, track.buffer.fields, values)
+            check_values(role, track.buffer.fields, values, self.layout)
             latest = track.buffer.latest_ns
             if latest is not None and stamp_ns <= latest:
                 if stamp_ns == latest:
@@ -276,8 +296,8 @@ class InputSet:
     def assemble(self, now_ns: int) -> LiveState:
         """The state at now (see the module docstring); CycleSkipped naming the missing or stale input."""
         if self.missing:
-            raise CycleSkipped(f"inputs {self.missing} are not configured; a prediction needs {list(REQUIRED_ROLES)}")
-        for role in REQUIRED_ROLES:
+            raise CycleSkipped(f"inputs {self.missing} are not configured; a prediction needs {list(self.required)}")
+        for role in self.required:
             track = self.tracks[role]
             age = track.age_s(now_ns)
             if age is None:
@@ -287,10 +307,10 @@ class InputSet:
         t_end = now_ns - int(round(self.settings.state_delay_s * NS))
         t_c = t_end - self.settings.dt_ns // 2
         means, counts = {}, {}
-        for role in REQUIRED_ROLES:
-            means[role], counts[role] = self._window_mean(role, STATE_FIELDS[role], t_c)
+        for role in self.required:
+            means[role], counts[role] = self._window_mean(role, self.fields[role], t_c)
         state = np.array([means["velocity"][0], means["velocity"][1], means["imu"][0], means["heading"][0]])
-        controls = np.array([means["rudder_angle"][0], means["engine_rpm"][0]])
+        controls = np.array([means[c.role][self.layout.fields_of(c.role).index(c.field)] for c in self.layout.controls])
         position = self._position(t_c, now_ns, counts)
         return LiveState(t_c, state, controls, position, counts)
 
@@ -325,7 +345,7 @@ class Prediction(NamedTuple):
 
 
 class Rollout:
-    """The TorchScript model with preallocated inputs: one (1, 4) state and (1, H, 2) held controls."""
+    """The TorchScript model with preallocated inputs: one (1, 4) state and (1, H, C) held controls."""
 
     def __init__(self, artifact: ModelArtifact, horizon_steps: int, ensemble_size: int | None = None) -> None:
         available = artifact.ensemble_size
@@ -337,14 +357,15 @@ class Rollout:
         self.horizon_steps = int(horizon_steps)
         dtype = artifact.module.m_s.dtype if hasattr(artifact.module, "m_s") else torch.float64
         self._state = torch.zeros(1, 4, dtype=dtype)
-        self._controls = torch.zeros(1, self.horizon_steps, 2, dtype=dtype)
+        self.n_controls = len(artifact.metadata["control_layout"])  # C, the model's control columns
+        self._controls = torch.zeros(1, self.horizon_steps, self.n_controls, dtype=dtype)
         for _ in range(WARM_UP_CALLS):  # TorchScript profiles and optimises its first calls: not in a live cycle
-            self(np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.0, 0.0]))
+            self(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(self.n_controls))
 
     def __call__(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        """(E, H, 6) [u, v, r, x_n, y_e, psi] relative to the start, controls (2,) held for every step."""
+        """(E, H, 6) [u, v, r, x_n, y_e, psi] relative to the start, controls (C,) held for every step."""
         self._state[0].copy_(torch.from_numpy(np.asarray(state, dtype=np.float64)))
-        self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)).expand(self.horizon_steps, 2))
+        self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)).expand(self.horizon_steps, self.n_controls))
         with torch.inference_mode():
             out = self.artifact.module(self._state, self._controls)  # (E, 1, H, 6)
         return out[: self.members, 0].double().numpy()

@@ -62,6 +62,7 @@ from usv_predictor.config import (
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredictorError
 from usv_predictor.models.artifact import ModelArtifact, load_artifact
 from usv_predictor.node import live
+from usv_predictor.physics.vessel import load_vessel
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
 COVARIANCE_TOPIC = "predicted_path_covariance"
@@ -185,11 +186,12 @@ class PredictorNode(Node):
         super().__init__(NODE_NAME, **node_options)
         defaults_path = Path(config_path) if config_path is not None else default_config_path()
         self.config = self._declare_parameters(defaults_path)
+        self.layout = load_vessel(self.config.vessel).actuator_layout  # ConfigError: fatal at start-up
         self.rollout = load_model(self.config.model_path, self.config)  # ModelError: fatal at start-up
         self.inputs = live.InputSet(
             {entry.role: msg_adapters.ROLE_FIELDS[entry.role] for entry in self.config.inputs},
             {entry.role: float(self.get_parameter(f"inputs.{entry.role}.max_age_s").value) for entry in self.config.inputs},
-            self._live_settings(),
+            self._live_settings(), self.layout,
         )
         make = msg_adapters.rclpy_factory()
         self._entries: dict[str, InputConfig] = {entry.role: entry for entry in self.config.inputs}

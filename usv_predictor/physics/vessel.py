@@ -16,6 +16,7 @@ from typing import Any, Mapping
 import yaml
 
 from usv_predictor.errors import ConfigError
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
 
 RHO_WATER = 1025.0  # sea water density (kg/m^3)
 RHO_AIR = 1.225  # air density at 15 degC (kg/m^3)
@@ -148,6 +149,11 @@ class Vessel:
     actuators: Actuators
     windage: Windage
     wave_drift: WaveDrift
+    layout: str = DEFAULT_LAYOUT.name  # actuator layout (physics/actuators.py); YAML key `actuator_layout`
+
+    @property
+    def actuator_layout(self) -> ActuatorLayout:
+        return actuator_layout(self.layout)
 
     @property
     def mass(self) -> float:
@@ -240,11 +246,17 @@ def vessel_from_dict(raw: Mapping[str, Any], source: str = "<dict>") -> Vessel:
                 value = float(value)
             values[name] = value
         sections[key] = cls(**values)
+    layout = raw.get("actuator_layout", DEFAULT_LAYOUT.name)
+    try:
+        actuator_layout(layout)
+    except ConfigError as err:
+        raise ConfigError(f"{source}: actuator_layout: {err}") from None
     vessel = Vessel(
         name=str(raw.get("name", Path(source).stem)),
         description=str(raw.get("description", "")),
         provenance=str(raw.get("provenance", "")),
         **sections,
+        layout=str(layout),
     )
     _check_physical(vessel, source)
     return vessel

@@ -42,23 +42,31 @@ import numpy as np
 import yaml
 
 from usv_predictor.config import input_topics, load_predictor_config
-from usv_predictor.data.recording import NS, REQUIRED_ROLES, Recording, RecordingError, recording_from_signals
+from usv_predictor.data.recording import NS, Recording, RecordingError, recording_from_signals, required_roles
 from usv_predictor.errors import BagError, ConfigError, DatasetError
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
 from usv_predictor.records import Signal
 from usv_predictor.replay.bagio import TopicSpec, read_bag
 
 OPTIONAL_ROLES = ("gnss", "odometry")
 # Fields of each role that recording_from_signals uses: a NaN there would poison a window mean.
-# (imu heading is NaN by design when the IMU has no orientation, REP-145, and is not used.)
-USED_FIELDS: Mapping[str, tuple[str, ...]] = {
+# (imu heading is NaN by design when the IMU has no orientation, REP-145, and is not used.) The controls'
+# roles and fields come from the actuator layout (used_fields).
+MOTION_USED_FIELDS: Mapping[str, tuple[str, ...]] = {
     "imu": ("yaw_rate",),
     "velocity": ("u", "v"),
     "heading": ("psi",),
-    "rudder_angle": ("delta",),
-    "engine_rpm": ("rpm",),
     "gnss": ("lat", "lon"),
     "odometry": ("x_n", "y_e", "psi", "u", "v", "r"),
 }
+
+
+def used_fields(layout: ActuatorLayout = DEFAULT_LAYOUT) -> dict[str, tuple[str, ...]]:
+    """role -> the fields a Recording uses: the motion's, the position's and the layout's controls'."""
+    return {**MOTION_USED_FIELDS, **{role: layout.fields_of(role) for role in layout.roles}}
+
+
+USED_FIELDS: Mapping[str, tuple[str, ...]] = used_fields(DEFAULT_LAYOUT)
 SEGMENTS = ("bag", "steady")
 CALM_DIR = "calm"
 
@@ -174,14 +182,15 @@ def topic_specs(config_path: str | Path | None = None, topics: Mapping[str, str]
 
 
 def _present_specs(path: Path, present: Mapping[str, tuple[str, int]] | None, specs: Sequence[TopicSpec],
-                   warn: Warn) -> list[TopicSpec]:
+                   warn: Warn, layout: ActuatorLayout = DEFAULT_LAYOUT) -> list[TopicSpec]:
     """The specs to read: required topics must be there (BagError), absent optional ones are left out."""
     if present is None:  # not a rosbag2 directory: let read_bag name what is missing
         return list(specs)
+    required = required_roles(layout)
     chosen = []
     for spec in specs:
         ros_type, count = present.get(spec.topic, (None, 0))
-        if spec.role in REQUIRED_ROLES:
+        if spec.role in required:
             if ros_type is None:
                 raise BagError(f"{path}: no topic {spec.topic!r} (role {spec.role}); topics present: {sorted(present)}")
             if count == 0:
@@ -199,10 +208,11 @@ def _present_specs(path: Path, present: Mapping[str, tuple[str, int]] | None, sp
 # ------------------------------------------------------------------ cleaning signals
 
 
-def clean_signal(signal: Signal, *, where: str, role: str, dt: float, t_ref_ns: int, warn: Warn) -> Signal:
+def clean_signal(signal: Signal, *, where: str, role: str, dt: float, t_ref_ns: int, warn: Warn,
+                 layout: ActuatorLayout = DEFAULT_LAYOUT) -> Signal:
     """Drop NaN samples in used fields, sort, drop duplicate stamps; see the module docstring for the rules."""
     t_ns, values = signal.t_ns, signal.values
-    used = [f for f in USED_FIELDS.get(role, ()) if f in signal.fields]
+    used = [f for f in used_fields(layout).get(role, ()) if f in signal.fields]
     if used:
         bad = np.zeros(len(t_ns), dtype=bool)
         counts = []
@@ -236,12 +246,13 @@ def clean_signal(signal: Signal, *, where: str, role: str, dt: float, t_ref_ns: 
 
 
 def gap_cuts(signals: Mapping[str, Signal], dt: float, *, where: str, topic_of: Mapping[str, str],
-             t_ref_ns: int, warn: Warn) -> list[tuple[int, int]]:
+             t_ref_ns: int, warn: Warn, layout: ActuatorLayout = DEFAULT_LAYOUT) -> list[tuple[int, int]]:
     """Spans [start_ns, end_ns] of the required signals without a gap longer than dt (one warning per gap)."""
-    start = max(int(signals[r].t_ns[0]) for r in REQUIRED_ROLES)
-    end = min(int(signals[r].t_ns[-1]) for r in REQUIRED_ROLES)
+    required = required_roles(layout)
+    start = max(int(signals[r].t_ns[0]) for r in required)
+    end = min(int(signals[r].t_ns[-1]) for r in required)
     holes: list[tuple[int, int]] = []
-    for role in REQUIRED_ROLES:
+    for role in required:
         t = signals[role].t_ns
         for k in np.flatnonzero(np.diff(t) > dt * NS + 1):
             a, b = int(t[k]), int(t[k + 1])
@@ -331,26 +342,31 @@ def _long_enough(rec: Recording, min_duration_s: float, horizon_s: float | None,
 
 def recordings_from_bag(source: BagSource, specs: Sequence[TopicSpec], dt: float, *, segment: str = "bag",
                         min_duration_s: float = 10.0, horizon_s: float | None = None,
-                        warn: Warn = warn_stderr) -> list[Recording]:
-    """The Recordings of one bag (several when it has gaps or, with segment="steady", several manoeuvres)."""
+                        warn: Warn = warn_stderr, layout: str = DEFAULT_LAYOUT.name) -> list[Recording]:
+    """The Recordings of one bag (several when it has gaps or, with segment="steady", several manoeuvres).
+
+    layout: the actuator layout's name (physics/actuators.py): which roles carry the controls.
+    """
     if segment not in SEGMENTS:
         raise DatasetError(f"unknown segment mode {segment!r}; use one of {list(SEGMENTS)}")
+    actuators = actuator_layout(layout)
+    required = required_roles(actuators)
     path = source.path
     metadata = bag_metadata(path)
-    chosen = _present_specs(path, None if metadata is None else metadata[0], specs, warn)
+    chosen = _present_specs(path, None if metadata is None else metadata[0], specs, warn, actuators)
     raw = read_bag(path, chosen)
     t_ref = min((int(s.t_ns[0]) for s in raw.values() if len(s)), default=0)
     topic_of = {spec.role: spec.topic for spec in chosen}
     signals = {}
     for spec in chosen:
         cleaned = clean_signal(raw[spec.topic], where=f"{path}: topic {spec.topic!r}", role=spec.role, dt=dt,
-                               t_ref_ns=t_ref, warn=warn)
+                               t_ref_ns=t_ref, warn=warn, layout=actuators)
         if len(cleaned) == 0:
-            if spec.role in REQUIRED_ROLES:
+            if spec.role in required:
                 raise BagError(f"{path}: topic {spec.topic!r} (role {spec.role}) has no usable samples")
             continue
         signals[spec.role] = cleaned
-    spans = gap_cuts(signals, dt, where=str(path), topic_of=topic_of, t_ref_ns=t_ref, warn=warn)
+    spans = gap_cuts(signals, dt, where=str(path), topic_of=topic_of, t_ref_ns=t_ref, warn=warn, layout=actuators)
     datum = parse_datum(metadata[1].get("datum", "")) if metadata else None
     datum = datum or _first_fix(signals.get("gnss"))
     pieces: list[Recording] = []
@@ -362,7 +378,7 @@ def recordings_from_bag(source: BagSource, specs: Sequence[TopicSpec], dt: float
             continue
         try:
             pieces.append(recording_from_signals(_slice_signals(signals, a, b), dt, name=name, source=str(path),
-                                                 datum=datum))
+                                                 datum=datum, layout=actuators))
         except RecordingError as err:
             warn(f"{path}: piece {name} skipped: {err}")
     if segment == "steady":
@@ -420,11 +436,12 @@ def default_jobs(bags: int) -> int:
 def load_recordings(bag_paths: Iterable[str | Path], dt: float, *, config_path: str | Path | None = None,
                     topics: Mapping[str, str] | None = None, segment: str = "bag", min_duration_s: float = 10.0,
                     horizon_s: float | None = None, include_calm: bool = False, jobs: int = 1,
-                    warn: Warn = warn_stderr, progress: Callable[[str], None] | None = None) -> list[Recording]:
+                    warn: Warn = warn_stderr, progress: Callable[[str], None] | None = None,
+                    layout: ActuatorLayout = DEFAULT_LAYOUT) -> list[Recording]:
     """Recordings of the bags (or directories of bags) in `bag_paths`, resampled to step dt.
 
     topics: role -> topic name overrides of the config's input topics. jobs: processes reading bags in
-    parallel (0: default_jobs). May return [] when every piece was skipped (each skip has its warning);
+    parallel (0: default_jobs). layout: the vessel's actuator layout (which roles carry the controls). May return [] when every piece was skipped (each skip has its warning);
     errors in the input raise BagError naming the bag and topic.
     """
     if not dt > 0.0 or not math.isfinite(dt):
@@ -433,7 +450,7 @@ def load_recordings(bag_paths: Iterable[str | Path], dt: float, *, config_path: 
         raise DatasetError(f"unknown segment mode {segment!r}; use one of {list(SEGMENTS)}")
     specs = topic_specs(config_path, topics)
     sources = find_bags(bag_paths, include_calm=include_calm)
-    options = {"segment": segment, "min_duration_s": min_duration_s, "horizon_s": horizon_s}
+    options = {"segment": segment, "min_duration_s": min_duration_s, "horizon_s": horizon_s, "layout": layout.name}
     recordings: list[Recording] = []
     jobs = default_jobs(len(sources)) if jobs == 0 else jobs
     for i, (source, found, messages) in enumerate(_map_bags(sources, specs, dt, options, jobs), start=1):
