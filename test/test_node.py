@@ -6,94 +6,23 @@ bad input, always a reason on /diagnostics. Localhost-only discovery and a pid-d
 from __future__ import annotations
 
 import math
-import os
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-import msg_adapters
 from usv_predictor.config import package_share_path
 from usv_predictor.errors import ModelError
 from usv_predictor.node import node as predictor_node
 
-from ros_helpers import ros_context, statuses, values_of  # noqa: F401 (ros_context is a fixture)
+from ros_helpers import GOOD, Harness, level, localhost_env, ros_context, statuses, values_of  # noqa: F401 (ros_context is a fixture)
 
-WAIT_S = 15.0
 DEFAULT_MODEL = package_share_path("models", "default.pt")
-
-
-
-
-GOOD = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), "heading": (0.5,),
-        "rudder_angle": (0.1,), "engine_rpm": (650.0,), "gnss": (35.38, 119.56, 0.0)}
-
-
-class Harness:
-    """The node (wall clock), a peer publishing inputs, and what comes back."""
-
-    def __init__(self, context: Context, overrides: list[Parameter]) -> None:
-        self.node = predictor_node.PredictorNode(context=context, parameter_overrides=overrides)
-        self.peer = Node("robustness_peer", context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
-        self.executor.add_node(self.peer)
-        self.make = msg_adapters.rclpy_factory()
-        self.paths: list[Any] = []
-        self.latest: DiagnosticArray | None = None
-        self.peer.create_subscription(self.make("nav_msgs/msg/Path"), "predicted_path", self.paths.append, 10)
-        self.peer.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
-        self.publishers: dict[str, Any] = {}
-
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        self.latest = msg
-
-    def publish(self, role: str, values: tuple[float, ...], stamp_offset_s: float = 0.0, raw: Any = None) -> None:
-        entry = self.node.config.input(role)
-        if role not in self.publishers:
-            self.publishers[role] = self.peer.create_publisher(self.make(entry.ros_type), entry.topic, 100)
-        if raw is None:
-            adapter = msg_adapters.get_adapter(entry.role, entry.ros_type, **entry.options)
-            stamp = self.peer.get_clock().now().nanoseconds + int(stamp_offset_s * 1e9)
-            raw = adapter.encode(stamp, values, self.make, entry.frame_id)
-        self.publishers[role].publish(raw)
-
-    def feed(self, skip: tuple[str, ...] = (), **override: tuple[float, ...]) -> None:
-        for role, values in GOOD.items():
-            if role not in skip:
-                self.publish(role, override.get(role, values))
-
-    def spin(self, seconds: float, feed: Callable[[], None] | None = None) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            if feed is not None:
-                feed()
-            self.executor.spin_once(timeout_sec=0.01)
-
-    def spin_until(self, condition: Callable[[dict[str, Any]], bool], feed: Callable[[], None] | None = None) -> dict:
-        deadline = time.monotonic() + WAIT_S
-        while time.monotonic() < deadline:
-            if feed is not None:
-                feed()
-            self.executor.spin_once(timeout_sec=0.02)
-            if self.latest is not None and condition(statuses(self.latest)):
-                return statuses(self.latest)
-        last = None if self.latest is None else {k: s.message for k, s in statuses(self.latest).items()}
-        pytest.fail(f"no /diagnostics satisfied the condition within {WAIT_S} s; last: {last}")
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.peer.destroy_node()
 
 
 @pytest.fixture()
@@ -104,10 +33,6 @@ def harness(ros_context: Context) -> Iterator[Harness]:
         yield fixture
     finally:
         fixture.close()
-
-
-def level(status: Any) -> int:
-    return status.level[0]
 
 
 def test_no_input_yet_reports_why_and_publishes_nothing(harness: Harness) -> None:
@@ -238,7 +163,7 @@ def test_an_incompatible_model_at_start_is_a_model_error_naming_the_mismatch(ros
 def test_a_bad_model_at_start_exits_nonzero_naming_the_file(tmp_path: Path, case: str) -> None:
     models = write_bad_models(tmp_path)
     args = ["-p", f"model_path:={models[case]}"] if case in models else ["-p", "vessel:=kvlcc2_model"]
-    env = {**os.environ, "ROS_DOMAIN_ID": str(1 + (os.getpid() + 41) % 100), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    env = localhost_env(41)
     done = subprocess.run([sys.executable, "-m", "usv_predictor.node", "--ros-args", *args],
                           capture_output=True, text=True, timeout=60, env=env)
     assert done.returncode == 1, done.stderr[-2000:]

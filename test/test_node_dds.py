@@ -6,16 +6,15 @@
 2. Across processes: `python -m usv_predictor.node` with use_sim_time, the bag played free-running;
    Paths arrive at rate_hz (sim time) with H poses in frame odom, stamped in the future.
 3. The ament-index executable of a colcon build starts with the shipped model and publishes a Path.
-Unique ROS_DOMAIN_IDs (from the pid) and localhost-only discovery, as test_node_smoke.py.
+Unique ROS_DOMAIN_IDs (from the pid) and localhost-only discovery (ros_helpers), as test_node_smoke.py.
 """
 from __future__ import annotations
 
 import math
-import os
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -35,25 +34,11 @@ from usv_predictor.replay.recordings import load_recordings
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
 import play_bag  # noqa: E402  (tools/ is not a package)
+from ros_helpers import domain_id, localhost_env, ros_context  # noqa: E402,F401 (ros_context is a fixture)
 
 BAG = REPO / "bags" / "sea_trial" / "turning_circle_stbd_20deg_700rpm"
 DT = 0.5
 WAIT_S = 20.0
-
-
-def domain_id(offset: int) -> int:
-    return 101 + (os.getpid() * 3 + offset) % 100
-
-
-@pytest.fixture()
-def ros_context(monkeypatch: pytest.MonkeyPatch) -> Iterator[Context]:
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    context = Context()
-    rclpy.init(context=context, domain_id=domain_id(0))
-    try:
-        yield context
-    finally:
-        rclpy.try_shutdown(context=context)
 
 
 def spin_until(executor: SingleThreadedExecutor, condition: Callable[[], bool], what: str,
@@ -133,7 +118,7 @@ def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Co
 
 
 def node_environment(offset: int) -> dict[str, str]:
-    return {**os.environ, "ROS_DOMAIN_ID": str(domain_id(offset)), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    return localhost_env(offset)
 
 
 def play_to(command: list[str], env: dict[str, str], seconds: float, rate: float) -> play_bag.PathListener:
@@ -199,6 +184,6 @@ def test_installed_executable_publishes_a_path_with_the_default_model(installed:
     from test_package_layout import installed_env
 
     executable = installed / "lib" / "usv_predictor" / "predictor"
-    env = {**installed_env(installed), "ROS_DOMAIN_ID": str(domain_id(2))}
+    env = {**installed_env(installed), "ROS_DOMAIN_ID": str(domain_id(2))}  # (ros_helpers.domain_id)
     listener = play_to([str(executable), "--ros-args", "-p", "use_sim_time:=true"], env, seconds=4.0, rate=1.0)
     check_paths(listener, rate_hz=10.0, seconds=4.0)

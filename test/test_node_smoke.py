@@ -6,79 +6,26 @@ so parallel runs on one machine do not hear each other.
 from __future__ import annotations
 
 import math
-import os
 import subprocess
 import sys
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
-from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-import msg_adapters
 from usv_predictor.config import load_predictor_config
 from usv_predictor.errors import ConfigError
 from usv_predictor.node import node as predictor_node
 
-from ros_helpers import ros_context, statuses, values_of  # noqa: F401 (ros_context is a fixture)
-
-WAIT_S = 15.0  # upper bound on discovery + a few timer periods (s)
-
-
-class Harness:
-    """The node under test, a peer node that publishes inputs, and the latest /diagnostics."""
-
-    def __init__(self, context: Context, overrides: list[Parameter]) -> None:
-        self.node = predictor_node.PredictorNode(context=context, parameter_overrides=overrides)
-        self.peer = Node("smoke_peer", context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
-        self.executor.add_node(self.peer)
-        self.latest: DiagnosticArray | None = None
-        self.peer.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
-        self.make = msg_adapters.rclpy_factory()
-        self.publishers: dict[str, Any] = {}
-
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        self.latest = msg
-
-    def publish(self, role: str, values: tuple[float, ...]) -> None:
-        """Encode plain values with the role's configured adapter and publish them as ROS would."""
-        entry = self.node.config.input(role)
-        adapter = msg_adapters.get_adapter(entry.role, entry.ros_type, **entry.options)
-        if role not in self.publishers:
-            self.publishers[role] = self.peer.create_publisher(self.make(entry.ros_type), entry.topic, 10)
-        stamp = self.peer.get_clock().now().nanoseconds
-        self.publishers[role].publish(adapter.encode(stamp, values, self.make, entry.frame_id))
-
-    def spin_until(self, condition: Callable[[dict[str, Any]], bool], feed: Callable[[], None] = lambda: None):
-        """Spin (feeding inputs) until the latest report satisfies condition; return its statuses."""
-        deadline = time.monotonic() + WAIT_S
-        while time.monotonic() < deadline:
-            feed()
-            self.executor.spin_once(timeout_sec=0.02)
-            if self.latest is not None and condition(statuses(self.latest)):
-                return statuses(self.latest)
-        last = None if self.latest is None else {k: (s.level, s.message)
-                                                 for k, s in statuses(self.latest).items()}
-        pytest.fail(f"no /diagnostics satisfied the condition within {WAIT_S} s; last report: {last}")
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.peer.destroy_node()
-
+from ros_helpers import Harness, localhost_env, ros_context, values_of  # noqa: F401 (ros_context is a fixture)
 
 @pytest.fixture()
 def harness(ros_context: Context) -> Iterator[Harness]:
-    fixture = Harness(ros_context, [Parameter("rate_hz", value=20.0)])
+    fixture = Harness(ros_context, [Parameter("rate_hz", value=20.0)], peer_name="smoke_peer")
     try:
         yield fixture
     finally:
@@ -175,7 +122,7 @@ def test_help_exits_before_ros_starts(monkeypatch: pytest.MonkeyPatch, capsys: p
 
 def test_missing_config_file_exits_1_with_its_name(tmp_path: Path) -> None:
     missing = tmp_path / "absent.yaml"
-    env = {**os.environ, "ROS_DOMAIN_ID": str(1 + os.getpid() % 100), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    env = localhost_env(0)
     done = subprocess.run(
         [sys.executable, "-m", "usv_predictor.node", "--config", str(missing)],
         capture_output=True, text=True, timeout=60, env=env,
