@@ -21,8 +21,8 @@ import torch
 from torch import Tensor, nn
 
 from usv_predictor.models.greybox import GreyBoxRollout
-from usv_predictor.physics.dynamics import ManoeuvringModel
-from usv_predictor.physics.vessel import RHO_WATER, Vessel
+from usv_predictor.physics.dynamics import HullConstants
+from usv_predictor.physics.vessel import Vessel
 
 RESIDUAL_INPUTS = ("u", "v", "r", "delta", "rpm")
 EXTRA_NAMES = ("X_du", "Y_0", "Y_duv", "Y_dur", "N_0", "N_duv", "N_dur")  # abkowitz terms beyond the MMG hull
@@ -38,13 +38,12 @@ class PolynomialResidual(nn.Module):
 
     def __init__(self, vessel: Vessel, terms: Mapping[str, float], u0: float) -> None:
         super().__init__()
-        m = ManoeuvringModel(vessel)
         self.coef = nn.Parameter(torch.tensor([float(terms.get(n, 0.0)) for n in EXTRA_NAMES], dtype=torch.float64),
                                  requires_grad=False)
         self.u0 = float(u0)
-        self.L = m.L
-        self.q_force = 0.5 * RHO_WATER * vessel.geometry.L_pp * vessel.geometry.d
-        self.m11, self.m22, self.m23, self.m32, self.m33 = m.m11, m.m22, m.m23, m.m32, m.m33
+        constants = HullConstants.of(vessel)  # the grey box's own record: the same L, q_force and mass matrix
+        for name in ("L", "q_force", "m11", "m22", "m23", "m32", "m33"):
+            setattr(self, name, getattr(constants, name))
 
     def forward(self, u: Tensor, v: Tensor, r: Tensor, delta: Tensor, rpm: Tensor) -> Tensor:
         c = self.coef

@@ -20,10 +20,10 @@ scalars by an order of magnitude (see benchmarks/bench_simulator.py).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import NamedTuple
 
-from usv_predictor.physics.vessel import GRAVITY, RHO_AIR, RHO_WATER, Vessel
+from usv_predictor.physics.vessel import GRAVITY, RHO_AIR, RHO_WATER, Hull, Vessel
 
 SPEED_FLOOR = 0.05  # speed below which non-dimensional hull terms are regularised (m/s)
 
@@ -75,51 +75,105 @@ def fourier(series: tuple[float, tuple[tuple[int, float, float], ...]], chi: flo
     return value
 
 
+@dataclass(frozen=True)
+class HullConstants:
+    """The rigid body, added mass, hull, windage and wave-drift constants of a vessel in SI units.
+
+    Computed once from a Vessel; both twins of the physics (ManoeuvringModel here, GreyBoxRollout in torch)
+    read their constants from this record and its actuator twin (RudderPropellerConstants), field by field
+    under the same names, so they cannot drift apart.
+    """
+
+    L: float  # length between perpendiculars L_pp (m)
+    m: float  # mass (kg)
+    x_G: float  # centre of gravity from midship, + forward (m)
+    m11: float  # M = M_RB + M_A about midship (kg, kg m, kg m^2), MMG eq. 1-3 left-hand sides
+    m22: float
+    m23: float
+    m32: float
+    m33: float
+    det_vr: float  # m22 m33 - m23 m32 (kg^2 m^2)
+    q_force: float  # 0.5 rho L d: times U^2 gives the hull force scale (kg/m)
+    hull: Hull  # MMG hull polynomial coefficients (-)
+    wind_x: float  # 0.5 rho_air A_F c_x (kg/m)
+    wind_y: float  # 0.5 rho_air A_L c_y (kg/m)
+    wind_n: float  # 0.5 rho_air A_L L_oa c_n (kg)
+    q_wave: float  # 0.5 rho g L: times zeta_a^2 gives the wave-drift force scale (N/m^2)
+    drift_x: tuple[float, tuple[tuple[int, float, float], ...]]  # wave-drift Fourier series (fourier_terms)
+    drift_y: tuple[float, tuple[tuple[int, float, float], ...]]
+    drift_n: tuple[float, tuple[tuple[int, float, float], ...]]
+
+    @classmethod
+    def of(cls, vessel: Vessel) -> "HullConstants":
+        g, w, d = vessel.geometry, vessel.windage, vessel.wave_drift
+        ((m11, _, _), (_, m22, m23), (_, m32, m33)) = vessel.mass_matrix()
+        return cls(
+            L=g.L_pp, m=vessel.mass, x_G=g.x_G, m11=m11, m22=m22, m23=m23, m32=m32, m33=m33,
+            det_vr=m22 * m33 - m23 * m32, q_force=0.5 * RHO_WATER * g.L_pp * g.d, hull=vessel.hull,
+            wind_x=0.5 * RHO_AIR * w.A_F * w.c_x, wind_y=0.5 * RHO_AIR * w.A_L * w.c_y,
+            wind_n=0.5 * RHO_AIR * w.A_L * g.L_oa * w.c_n, q_wave=0.5 * RHO_WATER * GRAVITY * g.L_pp,
+            drift_x=fourier_terms(d.a_x, d.b_x), drift_y=fourier_terms(d.a_y, d.b_y), drift_n=fourier_terms(d.a_n, d.b_n),
+        )
+
+
+@dataclass(frozen=True)
+class RudderPropellerConstants:
+    """The propeller, rudder and actuator constants of the rudder_propeller layout in SI units (see HullConstants)."""
+
+    D_P: float  # propeller diameter (m)
+    gear: float  # engine rpm / propeller rpm (-)
+    k0: float  # K_T(J) = k0 + k1 J + k2 J^2 (-)
+    k1: float
+    k2: float
+    t_P: float  # thrust deduction factor (-)
+    w_P0: float  # wake fraction at the propeller in straight motion (-)
+    x_P: float  # propeller position x_P' = x_P / L_pp (-)
+    A_R: float  # rudder area (m^2)
+    f_alpha: float  # rudder lift gradient (Fujii) (-)
+    t_R: float  # steering resistance deduction (-)
+    a_H: float  # rudder force increase factor (-)
+    x_H: float  # position of the additional lateral force (m)
+    x_R: float  # rudder position (m)
+    eps_R: float  # wake ratio propeller / rudder (-)
+    kappa: float  # slipstream correction (-)
+    eta_R: float  # propeller diameter / rudder span (-)
+    l_R: float  # effective longitudinal rudder position (m)
+    gamma_minus: float  # flow straightening for beta_R < 0 (-)
+    gamma_plus: float  # flow straightening for beta_R > 0 (-)
+    rudder_max: float  # mechanical rudder limit (rad)
+    rudder_rate: float  # steering gear rate limit (rad/s)
+    t_rudder: float  # steering gear time constant (s)
+    t_engine: float  # engine time constant (s)
+
+    @classmethod
+    def of(cls, vessel: Vessel) -> "RudderPropellerConstants":
+        g, p, rd, a = vessel.geometry, vessel.propeller, vessel.rudder, vessel.actuators
+        return cls(
+            D_P=p.D_P, gear=p.gear_ratio, k0=p.k0, k1=p.k1, k2=p.k2, t_P=p.t_P, w_P0=p.w_P0, x_P=p.x_P,
+            A_R=rd.A_R, f_alpha=rd.f_alpha, t_R=rd.t_R, a_H=rd.a_H, x_H=rd.x_H * g.L_pp, x_R=rd.x_R * g.L_pp,
+            eps_R=rd.epsilon, kappa=rd.kappa, eta_R=rd.eta, l_R=rd.l_R * g.L_pp, gamma_minus=rd.gamma_R_minus,
+            gamma_plus=rd.gamma_R_plus, rudder_max=math.radians(a.rudder_max_deg),
+            rudder_rate=math.radians(a.rudder_rate_deg_s), t_rudder=a.rudder_time_constant_s,
+            t_engine=a.engine_time_constant_s,
+        )
+
+
+def constants_of(vessel: Vessel) -> dict[str, object]:
+    """Every constant of the vessel's equations of motion by name: HullConstants and its actuator constants."""
+    records = (HullConstants.of(vessel), RudderPropellerConstants.of(vessel))
+    return {f.name: getattr(record, f.name) for record in records for f in fields(record)}
+
+
 class ManoeuvringModel:
-    """The vessel's equations of motion, with every constant precomputed in SI units."""
+    """The vessel's equations of motion, with every constant precomputed in SI units (constants_of)."""
 
     def __init__(self, vessel: Vessel, propeller_side_force: float = 0.0) -> None:
         """propeller_side_force: transverse propeller force / thrust (-), + to starboard at the propeller
         (the 'paddle-wheel' effect of a single screw, or a bent shaft); 0 for a symmetric propulsor."""
         self.vessel = vessel
         self.propeller_side_force = float(propeller_side_force)
-        g, h, p, rd = vessel.geometry, vessel.hull, vessel.propeller, vessel.rudder
-        self.L = g.L_pp
-        self.m = vessel.mass
-        self.x_G = g.x_G
-        ((self.m11, _, _), (_, self.m22, self.m23), (_, self.m32, self.m33)) = vessel.mass_matrix()
-        self.det_vr = self.m22 * self.m33 - self.m23 * self.m32
-        self.q_force = 0.5 * RHO_WATER * g.L_pp * g.d  # times U^2 gives force scale (N)
-        self.hull = h
-        # propeller
-        self.D_P = p.D_P
-        self.gear = p.gear_ratio
-        self.k0, self.k1, self.k2 = p.k0, p.k1, p.k2
-        self.t_P, self.w_P0 = p.t_P, p.w_P0
-        self.x_P = p.x_P
-        # rudder
-        self.A_R = rd.A_R
-        self.f_alpha = rd.f_alpha
-        self.t_R, self.a_H = rd.t_R, rd.a_H
-        self.x_H, self.x_R = rd.x_H * g.L_pp, rd.x_R * g.L_pp
-        self.eps_R, self.kappa, self.eta_R = rd.epsilon, rd.kappa, rd.eta
-        self.l_R = rd.l_R * g.L_pp
-        self.gamma_minus, self.gamma_plus = rd.gamma_R_minus, rd.gamma_R_plus
-        # windage
-        w = vessel.windage
-        self.wind_x = 0.5 * RHO_AIR * w.A_F * w.c_x
-        self.wind_y = 0.5 * RHO_AIR * w.A_L * w.c_y
-        self.wind_n = 0.5 * RHO_AIR * w.A_L * g.L_oa * w.c_n
-        d = vessel.wave_drift
-        self.drift_x = fourier_terms(d.a_x, d.b_x)
-        self.drift_y = fourier_terms(d.a_y, d.b_y)
-        self.drift_n = fourier_terms(d.a_n, d.b_n)
-        self.q_wave = 0.5 * RHO_WATER * GRAVITY * g.L_pp
-        a = vessel.actuators
-        self.rudder_max = math.radians(a.rudder_max_deg)
-        self.rudder_rate = math.radians(a.rudder_rate_deg_s)
-        self.t_rudder = a.rudder_time_constant_s
-        self.t_engine = a.engine_time_constant_s
+        for name, value in constants_of(vessel).items():  # attributes: the float hot path reads self.<name>
+            setattr(self, name, value)
 
     # ---- forces -------------------------------------------------------------------------------------
     def propeller(self, u_r: float, v_r: float, r: float, rpm: float) -> tuple[float, float, float, float]:
