@@ -27,6 +27,16 @@ def wrap_angle(angle: ArrayOrFloat) -> ArrayOrFloat:
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
+def angle_difference_deg(a: float, b: float) -> float:
+    """a - b wrapped to [-180, 180) deg: the one difference of two compass directions (or headings) in degrees."""
+    return (a - b + 180.0) % 360.0 - 180.0
+
+
+def compass_deg(north: float, east: float) -> float:
+    """Compass direction (deg clockwise from north, [0, 360) up to rounding) a (north, east) vector points to."""
+    return math.degrees(math.atan2(east, north)) % 360.0
+
+
 def heading_to_enu_yaw(psi: ArrayOrFloat) -> ArrayOrFloat:
     """NED heading (clockwise from north) -> ENU yaw (counter-clockwise from east), rad."""
     return wrap_angle(math.pi / 2.0 - psi)

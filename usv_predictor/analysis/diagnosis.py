@@ -4,7 +4,7 @@ Method (simulation error, multiple shooting): every recording is cut into segmen
 5 s); from each segment's measured start state the grey box (usv_predictor.models.greybox) is rolled out with the
 measured controls and compared with what was measured, channel by channel, in units of the channel's noise:
     residual = (predicted - measured) / sigma,  channels u, v, r, x_n, y_e, psi (positions from the start).
-Each hypothesis of the DESIGN.md vocabulary is one small term of the grey box (greybox.TERM_NAMES); its
+Each hypothesis of the DESIGN.md vocabulary is one small term of the grey box (its physics.effects record); its
 parameters are fitted by Levenberg-Marquardt on the residuals of the FIT manoeuvres and the hypotheses are
 compared on HELD-OUT manoeuvres (two folds by manoeuvre, each fitted on the other) by the Gaussian
 log-likelihood ratio of their held-out losses L (mean squared weighted residual):
@@ -21,14 +21,17 @@ import math
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 import torch
 
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import UsvPredictorError
-from usv_predictor.models.greybox import TERM_NAMES, GreyBoxRollout
+from usv_predictor.frames import compass_deg
+from usv_predictor.models.greybox import GreyBoxRollout
+from usv_predictor.physics import effects as fx
+from usv_predictor.physics.effects import Term
 from usv_predictor.physics.vessel import Vessel
 
 SIGMA = (0.05, 0.05, 0.005, 1.0, 1.0, 0.01)  # u, v (m/s), r (rad/s), x_n, y_e (m), psi (rad): noise scales
@@ -41,29 +44,9 @@ class DiagnosisError(UsvPredictorError):
     """The data cannot support a diagnosis; the message says what data would be needed."""
 
 
-@dataclass(frozen=True)
-class Term:
-    """One parameter block of a hypothesis: the grey-box term, its scale (for conditioning) and bounds."""
-
-    name: str  # greybox attribute
-    scale: float  # typical size, in SI units
-    low: float
-    high: float
-    start: tuple[float, ...]  # initial value (SI)
-
-
-HYPOTHESES: dict[str, tuple[Term, ...]] = {
-    "none": (),
-    "current": (Term("current_ne", 0.1, -3.0, 3.0, (0.0, 0.0)),),
-    "wind": (Term("wind_ne", 2.0, -40.0, 40.0, (0.5, 0.5)),),
-    "wave_drift": (Term("wave_ne", 0.02, -4.0, 4.0, (0.01, 0.01)),),
-    "rudder_offset": (Term("rudder_offset", 0.01, -0.2, 0.2, (0.0,)),),
-    "yaw_rate_bias": (Term("yaw_rate_bias", 0.002, -0.1, 0.1, (0.0,)),),
-    "heading_offset": (Term("heading_offset", 0.01, -0.6, 0.6, (0.0,)),),
-    "actuator_delay": (Term("actuator_delay", 0.1, 0.0, 5.0, (0.2,)),),
-    "resistance": (Term("resistance_change", 0.05, -0.8, 3.0, (0.0,)),),
-    "propeller_asymmetry": (Term("propeller_side_force", 0.01, -0.3, 0.3, (0.0,)),),
-}
+# Every hypothesis and the grey-box terms (physics.effects.Term) it fits: `none` (none) and each effect record.
+HYPOTHESES: Mapping[str, tuple[Term, ...]] = fx.RegistryView(
+    lambda: {name: () if name == fx.NONE else fx.EFFECTS[name].terms for name in fx.hypothesis_names()})
 
 
 @dataclass(frozen=True)
@@ -127,7 +110,7 @@ def segment_losses(model: GreyBoxRollout, seg: Segments) -> np.ndarray:
 def set_terms(model: GreyBoxRollout, values: dict[str, Sequence[float]]) -> None:
     """Zero every extension term, then set the given ones (SI)."""
     with torch.no_grad():
-        for name in TERM_NAMES:
+        for name in fx.grey_box_terms():
             getattr(model, name).zero_()
         for name, value in values.items():
             getattr(model, name)[:] = torch.as_tensor(value, dtype=torch.float64)
@@ -225,34 +208,11 @@ def scripted_rollout(vessel: Vessel, dt: float, substeps: int = 1) -> torch.jit.
 
 # ---- from grey-box terms to the DESIGN.md vocabulary -------------------------------------------------
 
-def _compass(north: float, east: float) -> float:
-    return math.degrees(math.atan2(east, north)) % 360.0
-
-
-def physical_parameters(hypothesis: str, terms: dict[str, Sequence[float]]) -> dict[str, float]:
-    """Grey-box terms (SI) -> the diagnosis vocabulary: speeds, compass directions, degrees, seconds."""
-    if hypothesis == "current":
-        n, e = terms["current_ne"]
-        return {"speed_mps": math.hypot(n, e), "direction_to_deg": _compass(n, e)}
-    if hypothesis == "wind":
-        n, e = terms["wind_ne"]  # velocity toward; the vocabulary says where it blows FROM
-        return {"speed_mps": math.hypot(n, e), "direction_from_deg": _compass(-n, -e)}
-    if hypothesis == "wave_drift":
-        n, e = terms["wave_ne"]  # zeta_a^2 along the direction the waves come from
-        return {"significant_height_m": 2.0 * math.sqrt(math.hypot(n, e)), "direction_from_deg": _compass(n, e)}
-    if hypothesis == "rudder_offset":
-        return {"offset_deg": math.degrees(terms["rudder_offset"][0])}
-    if hypothesis == "yaw_rate_bias":
-        return {"bias_deg_s": math.degrees(terms["yaw_rate_bias"][0])}
-    if hypothesis == "heading_offset":
-        return {"offset_deg": math.degrees(terms["heading_offset"][0])}
-    if hypothesis == "actuator_delay":
-        return {"delay_s": terms["actuator_delay"][0]}
-    if hypothesis == "resistance":
-        return {"resistance_change_pct": 100.0 * terms["resistance_change"][0]}
-    if hypothesis == "propeller_asymmetry":
-        return {"side_force_pct": 100.0 * terms["propeller_side_force"][0]}
-    return {}
+def physical_parameters(hypothesis: str, terms: Mapping[str, Sequence[float]]) -> dict[str, float]:
+    """Grey-box terms (SI) -> the diagnosis vocabulary (speeds, compass directions, degrees, seconds), as the
+    hypothesis' record reads them; {} for `none`."""
+    effect = fx.EFFECTS.get(hypothesis)
+    return {} if effect is None else effect.readout.read(terms)
 
 
 # ---- the diagnosis -----------------------------------------------------------------------------------
@@ -414,27 +374,9 @@ def _folds(recordings: Sequence[Recording]) -> tuple[list[int], list[int]]:
 
 
 def _physical_uncertainty(cause: str, fit: Fit) -> dict[str, float]:
-    """Standard errors, keyed like physical_parameters (first-order propagation for vectors)."""
-    if cause in ("current", "wind", "wave_drift"):
-        term = HYPOTHESES[cause][0].name
-        n, e = fit.terms[term]
-        sn, se = fit.std[term]
-        magnitude = math.hypot(n, e)
-        direction_sd = math.degrees(math.hypot(sn, se) / max(magnitude, 1e-9))
-        direction_key = "direction_to_deg" if cause == "current" else "direction_from_deg"
-        if cause == "wave_drift":
-            # H_s = 2 sqrt(|w|): dH = dw / sqrt(|w|)
-            return {"significant_height_m": math.hypot(sn, se) / max(math.sqrt(magnitude), 1e-9),
-                    direction_key: min(direction_sd, 180.0)}
-        return {"speed_mps": math.hypot(sn, se), direction_key: min(direction_sd, 180.0)}
-    if cause == "none":
-        return {}
-    term = HYPOTHESES[cause][0].name
-    sd = fit.std[term][0]
-    key = next(iter(physical_parameters(cause, fit.terms)))
-    if key.endswith("_pct"):
-        return {key: 100.0 * sd}
-    return {key: math.degrees(sd) if key.endswith("_deg") or key.endswith("_deg_s") else sd}
+    """Standard errors, keyed like physical_parameters (first-order propagation for vectors); {} for `none`."""
+    effect = fx.EFFECTS.get(cause)
+    return {} if effect is None else effect.readout.uncertainty(fit.terms, fit.std)
 
 
 # ---- what the calm-water model gets wrong, in a naval architect's terms -------------------------------
@@ -471,11 +413,11 @@ def discrepancy(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments,
             return {"mean_mps": float("nan"), "amplitude_mps": float("nan"), "phase_deg": float("nan")}
         (mean, a, b), *_ = np.linalg.lstsq(design, values, rcond=None)
         return {"mean_mps": float(mean), "amplitude_mps": float(math.hypot(a, b)),
-                "phase_deg": _compass(a, b)}
+                "phase_deg": compass_deg(a, b)}
 
     return {
         "track_drift_speed_mps": float(math.hypot(*drift)),
-        "track_drift_direction_to_deg": _compass(drift[0], drift[1]),
+        "track_drift_direction_to_deg": compass_deg(drift[0], drift[1]),
         "yaw_rate_error_starboard_turns_deg_s": float(np.degrees(yaw_err[side > 0].mean())) if (side > 0).any() else None,
         "yaw_rate_error_port_turns_deg_s": float(np.degrees(yaw_err[side < 0].mean())) if (side < 0).any() else None,
         "along_track_error_rate_vs_heading": harmonic(along),

@@ -35,6 +35,7 @@ import numpy as np
 from usv_predictor.analysis import metrics
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import ModelError, UsvPredictorError
+from usv_predictor.frames import angle_difference_deg
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, actuator_layout
 
 U, V, R, X_N, Y_E, PSI = range(6)  # columns of predicted and measured series (model output order)
@@ -412,7 +413,7 @@ def angle_error_deg(predicted: float | None, measured: float | None) -> float | 
     """predicted - measured wrapped to [-180, 180) deg; None when either is missing."""
     if predicted is None or measured is None or not math.isfinite(predicted + measured):
         return None
-    return float((predicted - measured + 180.0) % 360.0 - 180.0)
+    return float(angle_difference_deg(predicted, measured))
 
 
 def compare_turning(prediction: Prediction, execute_time_s: float) -> Comparison:

@@ -64,7 +64,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from usv_predictor.frames import wrap_angle
+from usv_predictor.frames import compass_deg, wrap_angle
 
 DRIFT_CHANGES_DEG = (180.0, 360.0, 540.0, 720.0)  # heading changes used by eq. 27, 28 (deg)
 
@@ -181,11 +181,6 @@ def _as_series(t: Sequence[float] | np.ndarray, **columns: Sequence[float] | np.
     return tuple(out)
 
 
-def _compass_deg(north: float, east: float) -> float:
-    """Compass direction (deg clockwise from north, [0, 360)) of a (north, east) vector."""
-    return float(np.degrees(math.atan2(east, north)) % 360.0)
-
-
 def _interp_crossing(t: np.ndarray, values: np.ndarray, level: float, i: int) -> float:
     """Time where `values` crosses `level` between samples i and i + 1 (linear)."""
     v0, v1 = values[i], values[i + 1]
@@ -280,7 +275,7 @@ def drift(
     units = disp[lengths > 0.0] / lengths[lengths > 0.0, None]
     resultant = units.sum(axis=0)
     direction = (
-        _compass_deg(resultant[0], resultant[1]) if np.hypot(*resultant) > 1e-12 else float("nan")
+        compass_deg(resultant[0], resultant[1]) if np.hypot(*resultant) > 1e-12 else float("nan")
     )
     period = float(durations.mean())
     return Drift(distance_m=distance, direction_deg=direction, speed_mps=distance / period, period_s=period)

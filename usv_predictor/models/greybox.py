@@ -13,7 +13,8 @@ controls[:, k] is the reported control at step k; between samples the actuators 
 hold: the rudder of a recording changes during a step, and holding it would lag the response by half a step);
 the last sample is held. RK4 with `substeps` per step.
 
-Extension terms (all zero for the calm-water model; each is one diagnosis hypothesis, DESIGN.md):
+Extension terms (all zero for the calm-water model; one attribute per Term of the effect records in
+usv_predictor.physics.effects, which say which diagnosis hypothesis fits them; their equations are here):
     current_ne (2,) current velocity north/east (m/s);     wind_ne (2,) wind velocity (toward) north/east (m/s)
     wave_ne (2,) zeta_a^2 (m^2) along the direction the waves come FROM; rudder_offset (rad, true - reported)
     yaw_rate_bias (rad/s, measured - true); heading_offset (rad, measured - true);
@@ -29,13 +30,12 @@ from typing import Dict, List
 import torch
 from torch import Tensor, nn
 
+from usv_predictor.physics import effects
 from usv_predictor.physics.dynamics import SPEED_FLOOR, ManoeuvringModel
 from usv_predictor.physics.vessel import RHO_WATER, Vessel
 
 HULL_NAMES = ("R0", "X_vv", "X_vr", "X_rr", "X_vvvv", "Y_v", "Y_r", "Y_vvv", "Y_vvr", "Y_vrr", "Y_rrr",
               "N_v", "N_r", "N_vvv", "N_vvr", "N_vrr", "N_rrr")
-TERM_NAMES = ("current_ne", "wind_ne", "wave_ne", "rudder_offset", "yaw_rate_bias", "heading_offset", "actuator_delay",
-              "resistance_change", "propeller_side_force")
 
 
 def _fourier_table(series: tuple[float, tuple[tuple[int, float, float], ...]]) -> List[List[float]]:
@@ -74,16 +74,11 @@ class GreyBoxRollout(nn.Module):
         h = vessel.hull
         self.hull = nn.Parameter(torch.tensor([getattr(h, n) for n in HULL_NAMES], dtype=torch.float64),
                                  requires_grad=False)
-        zeros = lambda k: nn.Parameter(torch.zeros(k, dtype=torch.float64), requires_grad=False)  # noqa: E731
-        self.current_ne = zeros(2)
-        self.wind_ne = zeros(2)
-        self.wave_ne = zeros(2)
-        self.rudder_offset = zeros(1)
-        self.yaw_rate_bias = zeros(1)
-        self.heading_offset = zeros(1)
-        self.actuator_delay = zeros(1)
-        self.resistance_change = zeros(1)
-        self.propeller_side_force = zeros(1)
+        # the extension terms of the effect records, all zero: current_ne, wind_ne, wave_ne, rudder_offset, ...
+        terms = effects.grey_box_terms()
+        self.term_names = tuple(terms)
+        for term in terms.values():
+            setattr(self, term.name, nn.Parameter(torch.zeros(term.size, dtype=torch.float64), requires_grad=False))
 
     # ---- forces ---------------------------------------------------------------------------------
     def _fourier(self, table: List[List[float]], chi: Tensor) -> Tensor:
@@ -226,7 +221,7 @@ class GreyBoxRollout(nn.Module):
 
     @torch.jit.ignore
     def terms(self) -> Dict[str, List[float]]:
-        return {name: getattr(self, name).detach().tolist() for name in TERM_NAMES}
+        return {name: getattr(self, name).detach().tolist() for name in self.term_names}
 
 
 class GreyBoxPredictor:

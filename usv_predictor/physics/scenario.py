@@ -1,15 +1,7 @@
 """Scenarios: a vessel, a sea and the hidden effects, in the diagnosis vocabulary of DESIGN.md.
 
-Effect names and their parameters (units in the name, directions as compass degrees):
-  none
-  current         current_speed (m/s), current_to_deg (flows TOWARD), current_turn_rate_deg_s
-  wind            wind_speed (m/s), wind_from_deg (blows FROM), gust_std (m/s)
-  wave_drift      wave_height (m, H_s), wave_from_deg, wave_period_s
-  rudder_offset   rudder_offset_deg (true rudder = reported + offset)
-  yaw_rate_bias   yaw_rate_bias_deg_s (gyro bias)
-  heading_offset  heading_offset_deg (compass misalignment, reported = true + offset)
-  actuator_delay  actuator_delay_s (the hull responds this long after the reported rudder/rpm)
-  propeller_asymmetry  propeller_side_force_pct (transverse propeller force in % of thrust, + to starboard)
+The effects, their parameters and how each reaches the simulator (Environment, ActuatorFaults or SensorSpec)
+are the records of usv_predictor.physics.effects; a Scenario applies them generically.
 """
 from __future__ import annotations
 
@@ -17,54 +9,20 @@ import hashlib
 import json
 import math
 from dataclasses import asdict, dataclass, field, replace
-from typing import Mapping
+from typing import Mapping, TypeVar
 
 from usv_predictor.errors import ConfigError
+from usv_predictor.physics import effects as fx
+from usv_predictor.physics.effects import EffectParameter
 from usv_predictor.physics.environment import Environment
 from usv_predictor.physics.sensors import SensorSpec
 from usv_predictor.physics.simulator import ActuatorFaults
 
+__all__ = ["EFFECTS", "RIZHAO_SEA", "EffectParameter", "Scenario", "effect_parameters", "make_scenario"]
 
-@dataclass(frozen=True)
-class EffectParameter:
-    name: str
-    default: float
-    low: float
-    high: float
-    unit: str
-    help: str
-
-    @property
-    def flag(self) -> str:
-        """The `replay simulate` option that sets it: current_to_deg -> --current-to."""
-        name = self.name.removesuffix("_deg").removesuffix("_deg_s").removesuffix("_s")
-        return "--" + name.replace("_", "-")
-
-
-EFFECTS: dict[str, tuple[EffectParameter, ...]] = {
-    "none": (),
-    "current": (
-        EffectParameter("current_speed", 0.3, 0.0, 3.0, "m/s", "current speed"),
-        EffectParameter("current_to_deg", 90.0, 0.0, 360.0, "deg", "direction the current flows toward"),
-        EffectParameter("current_turn_rate_deg_s", 0.0, -0.5, 0.5, "deg/s", "slow turning of the current"),
-    ),
-    "wind": (
-        EffectParameter("wind_speed", 8.0, 0.0, 30.0, "m/s", "mean true wind speed"),
-        EffectParameter("wind_from_deg", 0.0, 0.0, 360.0, "deg", "direction the wind blows from"),
-        EffectParameter("gust_std", 1.0, 0.0, 10.0, "m/s", "gust standard deviation"),
-    ),
-    "wave_drift": (
-        EffectParameter("wave_height", 0.5, 0.0, 4.0, "m", "significant wave height"),
-        EffectParameter("wave_from_deg", 0.0, 0.0, 360.0, "deg", "direction the waves come from"),
-        EffectParameter("wave_period_s", 3.0, 1.0, 15.0, "s", "peak period"),
-    ),
-    "rudder_offset": (EffectParameter("rudder_offset_deg", 2.0, -10.0, 10.0, "deg", "true minus reported rudder"),),
-    "yaw_rate_bias": (EffectParameter("yaw_rate_bias_deg_s", 0.5, -5.0, 5.0, "deg/s", "gyro bias"),),
-    "heading_offset": (EffectParameter("heading_offset_deg", 3.0, -30.0, 30.0, "deg", "compass misalignment"),),
-    "actuator_delay": (EffectParameter("actuator_delay_s", 0.5, 0.0, 5.0, "s", "response delay of the hull"),),
-    "propeller_asymmetry": (EffectParameter("propeller_side_force_pct", 3.0, -20.0, 20.0, "%",
-                                            "transverse propeller force in % of thrust, + to starboard"),),
-}
+# The effects the simulator can make and their parameters, `none` first (derived from the records).
+EFFECTS: Mapping[str, tuple[EffectParameter, ...]] = fx.RegistryView(
+    lambda: {fx.NONE: (), **{name: effect.parameters for name, effect in fx.simulated().items()}})
 
 # The sea of seed 000's trial day (Table 2: sea state 2, H 0.5 m, wind 4.5 m/s from the south-east) with a
 # tidal current of the size that reproduces Table 4's 5-13 m drift per circle.
@@ -73,6 +31,8 @@ RIZHAO_SEA = {
     "wind": {"wind_speed": 4.5, "wind_from_deg": 135.0, "gust_std": 0.8},
     "wave_drift": {"wave_height": 0.5, "wave_from_deg": 140.0, "wave_period_s": 3.0},
 }
+
+T = TypeVar("T", Environment, ActuatorFaults, SensorSpec)
 
 
 @dataclass(frozen=True)
@@ -83,33 +43,33 @@ class Scenario:
     effects: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
     sensors: SensorSpec = field(default_factory=SensorSpec)
 
+    def _applied(self, base: T) -> T:
+        """`base` with every field an effect parameter sets: the chosen effect's value (converted as its record
+        says), or the field's default when that effect or parameter is not chosen."""
+        values = fx.governed_defaults(type(base))
+        for name, effect in fx.simulated().items():
+            given = self.effects.get(name, {})
+            for p in effect.parameters:
+                if p.sets.target is type(base) and p.name in given:
+                    values[p.sets.name] = p.sets.value(given[p.name])
+        return replace(base, **values)
+
     @property
     def environment(self) -> Environment:
-        values: dict[str, float] = {}
-        for name in ("current", "wind", "wave_drift"):
-            for key, value in self.effects.get(name, {}).items():
-                values[key] = value
-        return Environment(**values)
+        return self._applied(Environment())
 
     @property
     def faults(self) -> ActuatorFaults:
-        offset = self.effects.get("rudder_offset", {}).get("rudder_offset_deg", 0.0)
-        side = self.effects.get("propeller_asymmetry", {}).get("propeller_side_force_pct", 0.0)
-        return ActuatorFaults(rudder_offset_rad=math.radians(offset), propeller_side_force=side / 100.0)
+        return self._applied(ActuatorFaults())
 
     @property
     def sensor_spec(self) -> SensorSpec:
-        e = self.effects
-        return replace(
-            self.sensors,
-            gyro_bias=math.radians(e.get("yaw_rate_bias", {}).get("yaw_rate_bias_deg_s", 0.0)),
-            heading_offset=math.radians(e.get("heading_offset", {}).get("heading_offset_deg", 0.0)),
-            actuator_delay_s=e.get("actuator_delay", {}).get("actuator_delay_s", 0.0),
-        )
+        return self._applied(self.sensors)
 
     def calm_twin(self) -> "Scenario":
-        """Same vessel, sensors and faults; no current, wind or waves."""
-        return replace(self, effects={k: v for k, v in self.effects.items() if k not in ("current", "wind", "wave_drift")})
+        """Same vessel, sensors and faults; no current, wind or waves (no effect that sets the Environment)."""
+        sea = {name for name, effect in fx.simulated().items() if effect.acts_on(Environment)}
+        return replace(self, effects={k: v for k, v in self.effects.items() if k not in sea})
 
     def describe(self) -> dict:
         return {"vessel": self.vessel, "effects": {k: dict(v) for k, v in self.effects.items()},
@@ -138,5 +98,5 @@ def effect_parameters(name: str, given: Mapping[str, float]) -> dict[str, float]
 
 
 def make_scenario(vessel: str, effects: Mapping[str, Mapping[str, float]], sensors: SensorSpec | None = None) -> Scenario:
-    checked = {name: effect_parameters(name, params) for name, params in effects.items() if name != "none"}
+    checked = {name: effect_parameters(name, params) for name, params in effects.items() if name != fx.NONE}
     return Scenario(vessel=vessel, effects=checked, sensors=sensors or SensorSpec())

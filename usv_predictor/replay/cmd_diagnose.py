@@ -18,14 +18,15 @@ HELP = "name the physical cause of what the calm-water model gets wrong, extend 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from usv_predictor.physics.effects import hypothesis_names
+
     parser.add_argument("bags", nargs="+", type=Path, metavar="BAG", help="bags or directories of bags (a trial programme)")
     parser.add_argument("--vessel", default=None, help="vessel preset of the calm-water model (default: config's vessel)")
     parser.add_argument("--model", type=Path, default=None, metavar="M",
                         help="a grey-box model artifact (from `replay identify`) as the calm-water model instead of the preset")
     parser.add_argument("--dt", type=float, default=0.5, help="model step (s, default 0.5)")
     parser.add_argument("--hypotheses", nargs="+", default=None, metavar="H",
-                        help="hypotheses to test (default: all of " "none current wind wave_drift rudder_offset "
-                             "yaw_rate_bias heading_offset actuator_delay resistance propeller_asymmetry)")
+                        help=f"hypotheses to test (default: all of {' '.join(hypothesis_names())})")
     parser.add_argument("--max-causes", type=int, default=2,
                         help="name up to this many causes, added one at a time while each passes the evidence test "
                              "(default 2)")

@@ -1,0 +1,488 @@
+"""The hidden effects: one Effect record per physical cause, read by the simulator, the grey box, the diagnosis
+and the acceptance suite (DESIGN.md "one record per concept": adding a hypothesis = one record here + the
+equations of its term in models/greybox.py).
+
+An Effect holds
+  name, help      its name in the DESIGN.md diagnosis vocabulary and what it is;
+  parameters      its `replay simulate` parameters (EffectParameter; units in the name, directions as compass
+                  degrees), each with the simulator field it sets (SimulatorField: a field of Environment,
+                  ActuatorFaults or SensorSpec and the unit conversion) and the range the hidden-effect suite
+                  draws it from (Uniform, Fixed, or None: left at its default);
+  terms           the grey-box terms (Term: GreyBoxRollout attribute, size, scale, bounds, start; SI) fitted
+                  when it is a diagnosis hypothesis;
+  readout         fitted terms (SI) -> the vocabulary (speeds, compass degrees, ...), their standard errors,
+                  the terms a simulated truth implies (the inverse) and estimate-minus-truth errors;
+  tolerance       the acceptance suite's absolute error bounds, keyed like the readout's errors.
+
+The vocabulary (simulator parameters):
+  current              current_speed (m/s), current_to_deg (flows TOWARD), current_turn_rate_deg_s
+  wind                 wind_speed (m/s), wind_from_deg (blows FROM), gust_std (m/s)
+  wave_drift           wave_height (m, H_s), wave_from_deg, wave_period_s
+  rudder_offset        rudder_offset_deg (true rudder = reported + offset)
+  yaw_rate_bias        yaw_rate_bias_deg_s (gyro bias)
+  heading_offset       heading_offset_deg (compass misalignment, reported = true + offset)
+  actuator_delay       actuator_delay_s (the hull responds this long after the reported rudder/rpm)
+  resistance           (diagnosis only: a model error, not simulated)
+  propeller_asymmetry  propeller_side_force_pct (transverse propeller force in % of thrust, + to starboard)
+plus `none`, the calm-water model, which is no record.
+
+Consumers never bind EFFECTS at import: they read `effects.EFFECTS` (or the functions below) when they run, and
+what they derive from it is a RegistryView, so a record added to the registry shows everywhere.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from types import MappingProxyType
+from typing import Callable, Iterator, Mapping, Protocol, Sequence, TypeVar
+
+import numpy as np
+
+from usv_predictor.frames import angle_difference_deg, compass_deg
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.sensors import SensorSpec
+from usv_predictor.physics.simulator import ActuatorFaults
+
+NONE = "none"  # the calm-water model: a hypothesis and a draw of the suite, but no record
+DEG_TO_RAD = math.pi / 180.0  # (rad/deg), exactly what math.radians multiplies by
+RAD_TO_DEG = 180.0 / math.pi  # (deg/rad), exactly what math.degrees multiplies by
+SIMULATOR_TARGETS = (Environment, ActuatorFaults, SensorSpec)  # the dataclasses an effect parameter can set
+
+
+# ---- the simulator side ---------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class SimulatorField:
+    """Where a parameter enters the simulator: field `name` of `target`, value = parameter * multiply / divide."""
+
+    target: type  # one of SIMULATOR_TARGETS
+    name: str  # its field
+    unit: str  # the field's unit
+    multiply: float = 1.0  # e.g. DEG_TO_RAD
+    divide: float = 1.0  # e.g. 100 for % -> fraction
+
+    def value(self, parameter: float) -> float:
+        return parameter * self.multiply / self.divide
+
+
+@dataclass(frozen=True)
+class Uniform:
+    """The suite draws the parameter uniformly from [low, high], times a random sign if random_sign."""
+
+    low: float
+    high: float
+    random_sign: bool = False
+
+    def sample(self, rng: np.random.Generator, sign: float) -> float:
+        value = rng.uniform(self.low, self.high)
+        return sign * value if self.random_sign else value
+
+    @property
+    def extremes(self) -> tuple[float, ...]:
+        """The smallest and largest values it can give (both signs if the sign is random)."""
+        return (-self.high, -self.low, self.low, self.high) if self.random_sign else (self.low, self.high)
+
+
+@dataclass(frozen=True)
+class Fixed:
+    """The suite sets the parameter to this value (no random number is used)."""
+
+    value: float
+
+    def sample(self, rng: np.random.Generator, sign: float) -> float:
+        return self.value
+
+    @property
+    def extremes(self) -> tuple[float, ...]:
+        return (self.value,)
+
+
+@dataclass(frozen=True)
+class EffectParameter:
+    """One `replay simulate` parameter of an effect: default and allowed range in `unit`."""
+
+    name: str
+    default: float
+    low: float
+    high: float
+    unit: str
+    help: str
+    sets: SimulatorField  # how the simulator applies it
+    draw: Uniform | Fixed | None = None  # the hidden-effect suite's range; None: left at the default
+
+    @property
+    def flag(self) -> str:
+        """The `replay simulate` option that sets it: current_to_deg -> --current-to."""
+        name = self.name.removesuffix("_deg").removesuffix("_deg_s").removesuffix("_s")
+        return "--" + name.replace("_", "-")
+
+
+# ---- the grey-box side ----------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Term:
+    """One parameter block of a hypothesis: the grey-box term, its scale (for conditioning) and bounds (SI)."""
+
+    name: str  # GreyBoxRollout attribute (models/greybox.py gives its equations)
+    size: int  # number of values
+    scale: float  # typical size, in SI units
+    low: float
+    high: float
+    start: tuple[float, ...]  # initial value of the fit (SI)
+    unit: str = ""
+
+    def __post_init__(self) -> None:
+        if len(self.start) != self.size:
+            raise ValueError(f"term {self.name}: start {self.start} has {len(self.start)} values, size is {self.size}")
+
+
+# ---- readouts: grey-box terms (SI) <-> the vocabulary <-> the simulated truth ----------------------------
+
+@dataclass(frozen=True)
+class Comparison:
+    """error[error_key] = estimate[key] - truth[parameter]; for an angle the absolute wrapped difference (deg)."""
+
+    error_key: str
+    key: str  # vocabulary key of the estimate
+    parameter: str  # simulator parameter of the truth
+    angle: bool = False
+
+
+class Readout(Protocol):
+    terms: tuple[str, ...]  # the grey-box terms it reads
+    keys: tuple[str, ...]  # the vocabulary keys it gives
+    comparisons: tuple[Comparison, ...]  # against the simulated truth (empty: nothing simulated to compare with)
+    error_keys: tuple[str, ...]  # the keys of errors(), those of the effect's tolerance
+
+    def read(self, terms: Mapping[str, Sequence[float]]) -> dict[str, float]: ...
+
+    def uncertainty(self, terms: Mapping[str, Sequence[float]], std: Mapping[str, Sequence[float]]) -> dict[str, float]: ...
+
+    def terms_from_truth(self, parameters: Mapping[str, float]) -> dict[str, tuple[float, ...]]: ...
+
+    def errors(self, found: Mapping[str, float], truth: Mapping[str, float]) -> dict[str, float]: ...
+
+
+class _Compared:
+    """errors() and error_keys from the readout's comparisons."""
+
+    @property
+    def error_keys(self) -> tuple[str, ...]:
+        return tuple(c.error_key for c in self.comparisons)
+
+    def errors(self, found: Mapping[str, float], truth: Mapping[str, float]) -> dict[str, float]:
+        return {c.error_key: abs(angle_difference_deg(found[c.key], truth[c.parameter])) if c.angle
+                else found[c.key] - truth[c.parameter] for c in self.comparisons}
+
+
+@dataclass(frozen=True)
+class ScalarReadout(_Compared):
+    """A one-value term read as factor * term (rad -> deg: RAD_TO_DEG; fraction -> %: 100; s -> s: 1)."""
+
+    term: str
+    key: str  # vocabulary key (unit in the name)
+    factor: float
+    parameter: str | None = None  # the simulator parameter it estimates (same unit as key); None: not simulated
+
+    @property
+    def terms(self) -> tuple[str, ...]:
+        return (self.term,)
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        return (self.key,)
+
+    @property
+    def comparisons(self) -> tuple[Comparison, ...]:
+        return () if self.parameter is None else (Comparison(self.key, self.key, self.parameter),)
+
+    def read(self, terms: Mapping[str, Sequence[float]]) -> dict[str, float]:
+        return {self.key: self.factor * terms[self.term][0]}
+
+    def uncertainty(self, terms: Mapping[str, Sequence[float]], std: Mapping[str, Sequence[float]]) -> dict[str, float]:
+        return {self.key: abs(self.factor) * std[self.term][0]}
+
+    def terms_from_truth(self, parameters: Mapping[str, float]) -> dict[str, tuple[float, ...]]:
+        if self.parameter is None:
+            return {}
+        return {self.term: (parameters[self.parameter] / self.factor,)}
+
+
+def _direction_sd_deg(spread: float, magnitude: float) -> float:
+    """First-order standard error (deg) of the direction of a vector of this magnitude and spread, at most 180."""
+    return min(math.degrees(spread / max(magnitude, 1e-9)), 180.0)
+
+
+@dataclass(frozen=True)
+class VelocityReadout(_Compared):
+    """A (north, east) velocity term (m/s) read as a speed and a compass direction: where it flows TOWARD
+    (toward=True: a current) or where it comes FROM (toward=False: a wind, whose term is the velocity toward)."""
+
+    term: str
+    speed_parameter: str  # (m/s)
+    direction_parameter: str  # (deg), TOWARD or FROM like the key
+    toward: bool
+
+    @property
+    def terms(self) -> tuple[str, ...]:
+        return (self.term,)
+
+    @property
+    def direction_key(self) -> str:
+        return "direction_to_deg" if self.toward else "direction_from_deg"
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        return ("speed_mps", self.direction_key)
+
+    @property
+    def comparisons(self) -> tuple[Comparison, ...]:
+        return (Comparison("speed_mps", "speed_mps", self.speed_parameter),
+                Comparison("direction_deg", self.direction_key, self.direction_parameter, angle=True))
+
+    def read(self, terms: Mapping[str, Sequence[float]]) -> dict[str, float]:
+        n, e = terms[self.term]
+        return {"speed_mps": math.hypot(n, e),
+                self.direction_key: compass_deg(n, e) if self.toward else compass_deg(-n, -e)}
+
+    def uncertainty(self, terms: Mapping[str, Sequence[float]], std: Mapping[str, Sequence[float]]) -> dict[str, float]:
+        spread = math.hypot(*std[self.term])
+        return {"speed_mps": spread, self.direction_key: _direction_sd_deg(spread, math.hypot(*terms[self.term]))}
+
+    def terms_from_truth(self, parameters: Mapping[str, float]) -> dict[str, tuple[float, ...]]:
+        speed, direction = parameters[self.speed_parameter], math.radians(parameters[self.direction_parameter])
+        sign = 1.0 if self.toward else -1.0  # the term is the velocity toward
+        return {self.term: (sign * speed * math.cos(direction), sign * speed * math.sin(direction))}
+
+
+@dataclass(frozen=True)
+class WaveReadout(_Compared):
+    """The wave term zeta_a^2 (m^2) along the direction the waves come FROM, read as H_s = 2 sqrt(|term|) (m,
+    zeta_a = H_s / 2 as in physics/environment.py) and that direction (deg)."""
+
+    term: str
+    height_parameter: str  # H_s (m)
+    direction_parameter: str  # waves come FROM (deg)
+
+    @property
+    def terms(self) -> tuple[str, ...]:
+        return (self.term,)
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        return ("significant_height_m", "direction_from_deg")
+
+    @property
+    def comparisons(self) -> tuple[Comparison, ...]:
+        return (Comparison("significant_height_m", "significant_height_m", self.height_parameter),
+                Comparison("direction_deg", "direction_from_deg", self.direction_parameter, angle=True))
+
+    def read(self, terms: Mapping[str, Sequence[float]]) -> dict[str, float]:
+        n, e = terms[self.term]
+        return {"significant_height_m": 2.0 * math.sqrt(math.hypot(n, e)), "direction_from_deg": compass_deg(n, e)}
+
+    def uncertainty(self, terms: Mapping[str, Sequence[float]], std: Mapping[str, Sequence[float]]) -> dict[str, float]:
+        spread, magnitude = math.hypot(*std[self.term]), math.hypot(*terms[self.term])
+        # H_s = 2 sqrt(|w|): dH = d|w| / sqrt(|w|)
+        return {"significant_height_m": spread / max(math.sqrt(magnitude), 1e-9),
+                "direction_from_deg": _direction_sd_deg(spread, magnitude)}
+
+    def terms_from_truth(self, parameters: Mapping[str, float]) -> dict[str, tuple[float, ...]]:
+        amplitude2 = (parameters[self.height_parameter] / 2.0) ** 2  # zeta_a^2 (m^2)
+        direction = math.radians(parameters[self.direction_parameter])
+        return {self.term: (amplitude2 * math.cos(direction), amplitude2 * math.sin(direction))}
+
+
+# ---- the record -----------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Effect:
+    name: str
+    help: str
+    terms: tuple[Term, ...]  # grey-box terms fitted for this hypothesis
+    readout: Readout
+    parameters: tuple[EffectParameter, ...] = ()  # `replay simulate` parameters; () = the simulator cannot make it
+    tolerance: Mapping[str, float] = field(default_factory=dict)  # acceptance suite, absolute errors
+    not_simulated: str = ""  # why the simulator has no such effect (required when parameters is empty)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "tolerance", MappingProxyType(dict(self.tolerance)))
+        if not self.parameters and not self.not_simulated:
+            raise ValueError(f"effect {self.name}: no simulator parameters; say why in not_simulated")
+
+    @property
+    def simulated(self) -> bool:
+        return bool(self.parameters)
+
+    def acts_on(self, target: type) -> bool:
+        """Whether any of its parameters sets a field of `target` (e.g. Environment: it is part of the sea)."""
+        return any(p.sets.target is target for p in self.parameters)
+
+
+def _registry(*effects: Effect) -> Mapping[str, Effect]:
+    names = [e.name for e in effects]
+    duplicates = sorted({n for n in names if names.count(n) > 1} | ({NONE} & set(names)))
+    if duplicates:
+        raise ValueError(f"effect names {duplicates} are taken")
+    return MappingProxyType({e.name: e for e in effects})
+
+
+EFFECTS: Mapping[str, Effect] = _registry(
+    Effect(
+        "current", "a water current: the hull moves with the water, the track drifts toward the current",
+        terms=(Term("current_ne", 2, 0.1, -3.0, 3.0, (0.0, 0.0), "m/s"),),  # velocity north/east
+        readout=VelocityReadout("current_ne", "current_speed", "current_to_deg", toward=True),
+        parameters=(
+            EffectParameter("current_speed", 0.3, 0.0, 3.0, "m/s", "current speed",
+                            SimulatorField(Environment, "current_speed", "m/s"), Uniform(0.1, 0.6)),
+            EffectParameter("current_to_deg", 90.0, 0.0, 360.0, "deg", "direction the current flows toward",
+                            SimulatorField(Environment, "current_to_deg", "deg"), Uniform(0.0, 360.0)),
+            EffectParameter("current_turn_rate_deg_s", 0.0, -0.5, 0.5, "deg/s", "slow turning of the current",
+                            SimulatorField(Environment, "current_turn_rate_deg_s", "deg/s")),
+        ),
+        tolerance={"speed_mps": 0.05, "direction_deg": 10.0},  # (m/s), (deg)
+    ),
+    Effect(
+        "wind", "wind: air loads on the superstructure from the apparent wind",
+        terms=(Term("wind_ne", 2, 2.0, -40.0, 40.0, (0.5, 0.5), "m/s"),),  # velocity (toward) north/east
+        readout=VelocityReadout("wind_ne", "wind_speed", "wind_from_deg", toward=False),
+        parameters=(
+            EffectParameter("wind_speed", 8.0, 0.0, 30.0, "m/s", "mean true wind speed",
+                            SimulatorField(Environment, "wind_speed", "m/s"), Uniform(5.0, 15.0)),
+            EffectParameter("wind_from_deg", 0.0, 0.0, 360.0, "deg", "direction the wind blows from",
+                            SimulatorField(Environment, "wind_from_deg", "deg"), Uniform(0.0, 360.0)),
+            EffectParameter("gust_std", 1.0, 0.0, 10.0, "m/s", "gust standard deviation",
+                            SimulatorField(Environment, "gust_std", "m/s"), Fixed(1.0)),
+        ),
+        tolerance={"speed_mps": 2.0, "direction_deg": 20.0},  # (m/s), (deg)
+    ),
+    Effect(
+        "wave_drift", "waves: the mean second-order wave drift force and moment",
+        terms=(Term("wave_ne", 2, 0.02, -4.0, 4.0, (0.01, 0.01), "m^2"),),  # zeta_a^2 along the direction FROM
+        readout=WaveReadout("wave_ne", "wave_height", "wave_from_deg"),
+        parameters=(
+            EffectParameter("wave_height", 0.5, 0.0, 4.0, "m", "significant wave height",
+                            SimulatorField(Environment, "wave_height", "m"), Uniform(0.8, 1.5)),
+            EffectParameter("wave_from_deg", 0.0, 0.0, 360.0, "deg", "direction the waves come from",
+                            SimulatorField(Environment, "wave_from_deg", "deg"), Uniform(0.0, 360.0)),
+            EffectParameter("wave_period_s", 3.0, 1.0, 15.0, "s", "peak period",
+                            SimulatorField(Environment, "wave_period_s", "s"), Fixed(3.0)),
+        ),
+        tolerance={"significant_height_m": 0.4, "direction_deg": 30.0},  # (m), (deg)
+    ),
+    Effect(
+        "rudder_offset", "a misaligned rudder: the true rudder is the reported one plus an offset",
+        terms=(Term("rudder_offset", 1, 0.01, -0.2, 0.2, (0.0,), "rad"),),
+        readout=ScalarReadout("rudder_offset", "offset_deg", RAD_TO_DEG, "rudder_offset_deg"),
+        parameters=(
+            EffectParameter("rudder_offset_deg", 2.0, -10.0, 10.0, "deg", "true minus reported rudder",
+                            SimulatorField(ActuatorFaults, "rudder_offset_rad", "rad", multiply=DEG_TO_RAD),
+                            Uniform(1.0, 4.0, random_sign=True)),
+        ),
+        tolerance={"offset_deg": 0.5},  # (deg)
+    ),
+    Effect(
+        "yaw_rate_bias", "a gyro bias: the measured yaw rate is the true one plus a constant",
+        terms=(Term("yaw_rate_bias", 1, 0.002, -0.1, 0.1, (0.0,), "rad/s"),),
+        readout=ScalarReadout("yaw_rate_bias", "bias_deg_s", RAD_TO_DEG, "yaw_rate_bias_deg_s"),
+        parameters=(
+            EffectParameter("yaw_rate_bias_deg_s", 0.5, -5.0, 5.0, "deg/s", "gyro bias",
+                            SimulatorField(SensorSpec, "gyro_bias", "rad/s", multiply=DEG_TO_RAD),
+                            Uniform(0.2, 1.0, random_sign=True)),
+        ),
+        tolerance={"bias_deg_s": 0.1},  # (deg/s)
+    ),
+    Effect(
+        "heading_offset", "a misaligned compass: the reported heading is the true one plus an offset",
+        terms=(Term("heading_offset", 1, 0.01, -0.6, 0.6, (0.0,), "rad"),),
+        readout=ScalarReadout("heading_offset", "offset_deg", RAD_TO_DEG, "heading_offset_deg"),
+        parameters=(
+            EffectParameter("heading_offset_deg", 3.0, -30.0, 30.0, "deg", "compass misalignment",
+                            SimulatorField(SensorSpec, "heading_offset", "rad", multiply=DEG_TO_RAD),
+                            Uniform(2.0, 8.0, random_sign=True)),
+        ),
+        tolerance={"offset_deg": 1.0},  # (deg)
+    ),
+    Effect(
+        "actuator_delay", "a delay: the hull responds this long after the reported rudder and engine speed",
+        terms=(Term("actuator_delay", 1, 0.1, 0.0, 5.0, (0.2,), "s"),),
+        readout=ScalarReadout("actuator_delay", "delay_s", 1.0, "actuator_delay_s"),
+        parameters=(
+            EffectParameter("actuator_delay_s", 0.5, 0.0, 5.0, "s", "response delay of the hull",
+                            SimulatorField(SensorSpec, "actuator_delay_s", "s"), Uniform(0.3, 1.5)),
+        ),
+        tolerance={"delay_s": 0.2},  # (s)
+    ),
+    Effect(
+        "resistance", "a resistance change: fouling, loading or a preset off (relative change of R0)",
+        terms=(Term("resistance_change", 1, 0.05, -0.8, 3.0, (0.0,), "-"),),
+        readout=ScalarReadout("resistance_change", "resistance_change_pct", 100.0),
+        not_simulated="a model error, not a hidden effect: simulate it with a vessel whose hull R0 differs",
+    ),
+    Effect(
+        "propeller_asymmetry", "propeller walk: a transverse propeller force in proportion to the thrust",
+        terms=(Term("propeller_side_force", 1, 0.01, -0.3, 0.3, (0.0,), "-"),),  # side force / thrust
+        readout=ScalarReadout("propeller_side_force", "side_force_pct", 100.0, "propeller_side_force_pct"),
+        parameters=(
+            EffectParameter("propeller_side_force_pct", 3.0, -20.0, 20.0, "%",
+                            "transverse propeller force in % of thrust, + to starboard",
+                            SimulatorField(ActuatorFaults, "propeller_side_force", "-", divide=100.0),
+                            Uniform(2.0, 6.0, random_sign=True)),
+        ),
+        tolerance={"side_force_pct": 0.5},  # (%)
+    ),
+)
+
+
+# ---- what consumers derive -------------------------------------------------------------------------------
+
+def hypothesis_names() -> tuple[str, ...]:
+    """The diagnosis vocabulary: none, then every effect in registry order."""
+    return (NONE, *EFFECTS)
+
+
+def simulated() -> dict[str, Effect]:
+    """The effects the simulator can make, in registry order."""
+    return {name: effect for name, effect in EFFECTS.items() if effect.simulated}
+
+
+def grey_box_terms() -> dict[str, Term]:
+    """Every grey-box term of the registry once, in registry order (effects may share a term of one size)."""
+    terms: dict[str, Term] = {}
+    for effect in EFFECTS.values():
+        for term in effect.terms:
+            if term.name in terms and terms[term.name].size != term.size:
+                raise ValueError(f"grey-box term {term.name} has size {term.size} in effect {effect.name} "
+                                 f"and {terms[term.name].size} elsewhere")
+            terms.setdefault(term.name, term)
+    return terms
+
+
+def governed_defaults(target: type) -> dict[str, float]:
+    """Defaults of the fields of `target` that some effect parameter sets (the value when the effect is absent)."""
+    governed = {p.sets.name for e in EFFECTS.values() for p in e.parameters if p.sets.target is target}
+    return {f.name: f.default for f in fields(target) if f.name in governed}
+
+
+K = TypeVar("K")
+V = TypeVar("V")
+
+
+class RegistryView(Mapping[K, V]):
+    """A read-only mapping derived from the registry on every access: what a consumer derives from the records
+    (diagnosis.HYPOTHESES, scenario.EFFECTS, hidden_effects.TOLERANCES) never goes stale."""
+
+    def __init__(self, derive: Callable[[], Mapping[K, V]]) -> None:
+        self._derive = derive
+
+    def __getitem__(self, key: K) -> V:
+        return self._derive()[key]
+
+    def __iter__(self) -> Iterator[K]:
+        return iter(self._derive())
+
+    def __len__(self) -> int:
+        return len(self._derive())
+
+    def __repr__(self) -> str:
+        return f"RegistryView({dict(self._derive())!r})"
