@@ -31,7 +31,7 @@ import torch
 from torch import Tensor, nn
 
 from usv_predictor.physics import effects
-from usv_predictor.physics.dynamics import SPEED_FLOOR, ManoeuvringModel
+from usv_predictor.physics.dynamics import SPEED_FLOOR, constants_of
 from usv_predictor.physics.vessel import RHO_WATER, Vessel
 
 HULL_NAMES = ("R0", "X_vv", "X_vr", "X_rr", "X_vvvv", "Y_v", "Y_r", "Y_vvv", "Y_vvr", "Y_vrr", "Y_rrr",
@@ -47,30 +47,17 @@ def _fourier_table(series: tuple[float, tuple[tuple[int, float, float], ...]]) -
 class GreyBoxRollout(nn.Module):
     def __init__(self, vessel: Vessel, dt: float, substeps: int = 2) -> None:
         super().__init__()
-        m = ManoeuvringModel(vessel)  # the SI constants, computed once, in one place
         self.dt = float(dt)
         # module constants as attributes: TorchScript does not capture Python globals
         self.speed_floor = SPEED_FLOOR
         self.rho = RHO_WATER
         self.pi = math.pi
         self.substeps = int(substeps)
-        self.L = m.L
-        self.mass = m.m
-        self.x_G = m.x_G
-        self.m11, self.m22, self.m23, self.m32, self.m33 = m.m11, m.m22, m.m23, m.m32, m.m33
-        self.q_force = m.q_force
-        self.D_P, self.gear = m.D_P, m.gear
-        self.k0, self.k1, self.k2 = m.k0, m.k1, m.k2
-        self.t_P, self.w_P0, self.x_P = m.t_P, m.w_P0, m.x_P
-        self.A_R, self.f_alpha, self.t_R, self.a_H = m.A_R, m.f_alpha, m.t_R, m.a_H
-        self.x_H, self.x_R = m.x_H, m.x_R
-        self.eps_R, self.kappa, self.eta_R, self.l_R = m.eps_R, m.kappa, m.eta_R, m.l_R
-        self.gamma_minus, self.gamma_plus = m.gamma_minus, m.gamma_plus
-        self.wind_x, self.wind_y, self.wind_n = m.wind_x, m.wind_y, m.wind_n
-        self.q_wave = m.q_wave
-        self.drift_x = _fourier_table(m.drift_x)
-        self.drift_y = _fourier_table(m.drift_y)
-        self.drift_n = _fourier_table(m.drift_n)
+        # the SI constants of the equations of motion, from the one record both twins read (physics/dynamics.py)
+        for name, value in constants_of(vessel).items():
+            if name == "hull":
+                continue  # a tensor below: identification and diagnosis set it
+            setattr(self, name, _fourier_table(value) if name.startswith("drift_") else value)
         h = vessel.hull
         self.hull = nn.Parameter(torch.tensor([getattr(h, n) for n in HULL_NAMES], dtype=torch.float64),
                                  requires_grad=False)
@@ -147,12 +134,11 @@ class GreyBoxRollout(nn.Module):
         x = x_h + x_r + x_p + x_w + x_wv
         y = y_h + y_r + y_p + y_w + y_wv
         n = n_h + n_r + y_p * self.x_P * L + n_w + n_wv
-        rhs_x = x + self.m22 * v_r * r + self.x_G * self.mass * r * r
+        rhs_x = x + self.m22 * v_r * r + self.x_G * self.m * r * r
         rhs_y = y - self.m11 * u_r * r
-        rhs_n = n - self.x_G * self.mass * u_r * r
-        det = self.m22 * self.m33 - self.m23 * self.m32
-        return [rhs_x / self.m11, (self.m33 * rhs_y - self.m23 * rhs_n) / det,
-                (self.m22 * rhs_n - self.m32 * rhs_y) / det]
+        rhs_n = n - self.x_G * self.m * u_r * r
+        return [rhs_x / self.m11, (self.m33 * rhs_y - self.m23 * rhs_n) / self.det_vr,
+                (self.m22 * rhs_n - self.m32 * rhs_y) / self.det_vr]
 
     def _derivative(self, s: List[Tensor], delta: Tensor, rpm: Tensor) -> List[Tensor]:
         """d/dt of [x_n, y_e, psi, u_r, v_r, r]; positions move with the current (over ground)."""
