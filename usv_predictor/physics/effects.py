@@ -327,18 +327,31 @@ def _registry(*effects: Effect) -> Mapping[str, Effect]:
     return MappingProxyType({e.name: e for e in effects})
 
 
+def sea_parameter(name: str, default: float, low: float, high: float, unit: str, help: str,
+                  draw: Uniform | Fixed | None = None) -> EffectParameter:
+    """A parameter of the sea: it sets the Environment field of the same name, in the same unit."""
+    return EffectParameter(name, default, low, high, unit, help, SimulatorField(Environment, name, unit), draw)
+
+
+def scalar_effect(name: str, help: str, term: Term, vocabulary: tuple[str, float], tolerance: float,
+                  parameter: EffectParameter | None = None, not_simulated: str = "") -> Effect:
+    """An effect of one scalar term read as one vocabulary value: vocabulary = (key, factor), see ScalarReadout."""
+    key, factor = vocabulary
+    readout = ScalarReadout(term.name, key, factor, None if parameter is None else parameter.name)
+    return Effect(name, help, terms=(term,), readout=readout, parameters=() if parameter is None else (parameter,),
+                  tolerance={key: tolerance} if parameter is not None else {}, not_simulated=not_simulated)
+
+
 EFFECTS: Mapping[str, Effect] = _registry(
     Effect(
         "current", "a water current: the hull moves with the water, the track drifts toward the current",
         terms=(Term("current_ne", 2, 0.1, -3.0, 3.0, (0.0, 0.0), "m/s"),),  # velocity north/east
         readout=VelocityReadout("current_ne", "current_speed", "current_to_deg", toward=True),
         parameters=(
-            EffectParameter("current_speed", 0.3, 0.0, 3.0, "m/s", "current speed",
-                            SimulatorField(Environment, "current_speed", "m/s"), Uniform(0.1, 0.6)),
-            EffectParameter("current_to_deg", 90.0, 0.0, 360.0, "deg", "direction the current flows toward",
-                            SimulatorField(Environment, "current_to_deg", "deg"), Uniform(0.0, 360.0)),
-            EffectParameter("current_turn_rate_deg_s", 0.0, -0.5, 0.5, "deg/s", "slow turning of the current",
-                            SimulatorField(Environment, "current_turn_rate_deg_s", "deg/s")),
+            sea_parameter("current_speed", 0.3, 0.0, 3.0, "m/s", "current speed", Uniform(0.1, 0.6)),
+            sea_parameter("current_to_deg", 90.0, 0.0, 360.0, "deg", "direction the current flows toward",
+                          Uniform(0.0, 360.0)),
+            sea_parameter("current_turn_rate_deg_s", 0.0, -0.5, 0.5, "deg/s", "slow turning of the current"),
         ),
         tolerance={"speed_mps": 0.05, "direction_deg": 10.0},  # (m/s), (deg)
     ),
@@ -347,12 +360,10 @@ EFFECTS: Mapping[str, Effect] = _registry(
         terms=(Term("wind_ne", 2, 2.0, -40.0, 40.0, (0.5, 0.5), "m/s"),),  # velocity (toward) north/east
         readout=VelocityReadout("wind_ne", "wind_speed", "wind_from_deg", toward=False),
         parameters=(
-            EffectParameter("wind_speed", 8.0, 0.0, 30.0, "m/s", "mean true wind speed",
-                            SimulatorField(Environment, "wind_speed", "m/s"), Uniform(5.0, 15.0)),
-            EffectParameter("wind_from_deg", 0.0, 0.0, 360.0, "deg", "direction the wind blows from",
-                            SimulatorField(Environment, "wind_from_deg", "deg"), Uniform(0.0, 360.0)),
-            EffectParameter("gust_std", 1.0, 0.0, 10.0, "m/s", "gust standard deviation",
-                            SimulatorField(Environment, "gust_std", "m/s"), Fixed(1.0)),
+            sea_parameter("wind_speed", 8.0, 0.0, 30.0, "m/s", "mean true wind speed", Uniform(5.0, 15.0)),
+            sea_parameter("wind_from_deg", 0.0, 0.0, 360.0, "deg", "direction the wind blows from",
+                          Uniform(0.0, 360.0)),
+            sea_parameter("gust_std", 1.0, 0.0, 10.0, "m/s", "gust standard deviation", Fixed(1.0)),
         ),
         tolerance={"speed_mps": 2.0, "direction_deg": 20.0},  # (m/s), (deg)
     ),
@@ -361,76 +372,42 @@ EFFECTS: Mapping[str, Effect] = _registry(
         terms=(Term("wave_ne", 2, 0.02, -4.0, 4.0, (0.01, 0.01), "m^2"),),  # zeta_a^2 along the direction FROM
         readout=WaveReadout("wave_ne", "wave_height", "wave_from_deg"),
         parameters=(
-            EffectParameter("wave_height", 0.5, 0.0, 4.0, "m", "significant wave height",
-                            SimulatorField(Environment, "wave_height", "m"), Uniform(0.8, 1.5)),
-            EffectParameter("wave_from_deg", 0.0, 0.0, 360.0, "deg", "direction the waves come from",
-                            SimulatorField(Environment, "wave_from_deg", "deg"), Uniform(0.0, 360.0)),
-            EffectParameter("wave_period_s", 3.0, 1.0, 15.0, "s", "peak period",
-                            SimulatorField(Environment, "wave_period_s", "s"), Fixed(3.0)),
+            sea_parameter("wave_height", 0.5, 0.0, 4.0, "m", "significant wave height", Uniform(0.8, 1.5)),
+            sea_parameter("wave_from_deg", 0.0, 0.0, 360.0, "deg", "direction the waves come from",
+                          Uniform(0.0, 360.0)),
+            sea_parameter("wave_period_s", 3.0, 1.0, 15.0, "s", "peak period", Fixed(3.0)),
         ),
         tolerance={"significant_height_m": 0.4, "direction_deg": 30.0},  # (m), (deg)
     ),
-    Effect(
-        "rudder_offset", "a misaligned rudder: the true rudder is the reported one plus an offset",
-        terms=(Term("rudder_offset", 1, 0.01, -0.2, 0.2, (0.0,), "rad"),),
-        readout=ScalarReadout("rudder_offset", "offset_deg", RAD_TO_DEG, "rudder_offset_deg"),
-        parameters=(
-            EffectParameter("rudder_offset_deg", 2.0, -10.0, 10.0, "deg", "true minus reported rudder",
-                            SimulatorField(ActuatorFaults, "rudder_offset_rad", "rad", multiply=DEG_TO_RAD),
-                            Uniform(1.0, 4.0, random_sign=True)),
-        ),
-        tolerance={"offset_deg": 0.5},  # (deg)
-    ),
-    Effect(
-        "yaw_rate_bias", "a gyro bias: the measured yaw rate is the true one plus a constant",
-        terms=(Term("yaw_rate_bias", 1, 0.002, -0.1, 0.1, (0.0,), "rad/s"),),
-        readout=ScalarReadout("yaw_rate_bias", "bias_deg_s", RAD_TO_DEG, "yaw_rate_bias_deg_s"),
-        parameters=(
-            EffectParameter("yaw_rate_bias_deg_s", 0.5, -5.0, 5.0, "deg/s", "gyro bias",
-                            SimulatorField(SensorSpec, "gyro_bias", "rad/s", multiply=DEG_TO_RAD),
-                            Uniform(0.2, 1.0, random_sign=True)),
-        ),
-        tolerance={"bias_deg_s": 0.1},  # (deg/s)
-    ),
-    Effect(
-        "heading_offset", "a misaligned compass: the reported heading is the true one plus an offset",
-        terms=(Term("heading_offset", 1, 0.01, -0.6, 0.6, (0.0,), "rad"),),
-        readout=ScalarReadout("heading_offset", "offset_deg", RAD_TO_DEG, "heading_offset_deg"),
-        parameters=(
-            EffectParameter("heading_offset_deg", 3.0, -30.0, 30.0, "deg", "compass misalignment",
-                            SimulatorField(SensorSpec, "heading_offset", "rad", multiply=DEG_TO_RAD),
-                            Uniform(2.0, 8.0, random_sign=True)),
-        ),
-        tolerance={"offset_deg": 1.0},  # (deg)
-    ),
-    Effect(
-        "actuator_delay", "a delay: the hull responds this long after the reported rudder and engine speed",
-        terms=(Term("actuator_delay", 1, 0.1, 0.0, 5.0, (0.2,), "s"),),
-        readout=ScalarReadout("actuator_delay", "delay_s", 1.0, "actuator_delay_s"),
-        parameters=(
-            EffectParameter("actuator_delay_s", 0.5, 0.0, 5.0, "s", "response delay of the hull",
-                            SimulatorField(SensorSpec, "actuator_delay_s", "s"), Uniform(0.3, 1.5)),
-        ),
-        tolerance={"delay_s": 0.2},  # (s)
-    ),
-    Effect(
-        "resistance", "a resistance change: fouling, loading or a preset off (relative change of R0)",
-        terms=(Term("resistance_change", 1, 0.05, -0.8, 3.0, (0.0,), "-"),),
-        readout=ScalarReadout("resistance_change", "resistance_change_pct", 100.0),
-        not_simulated="a model error, not a hidden effect: simulate it with a vessel whose hull R0 differs",
-    ),
-    Effect(
-        "propeller_asymmetry", "propeller walk: a transverse propeller force in proportion to the thrust",
-        terms=(Term("propeller_side_force", 1, 0.01, -0.3, 0.3, (0.0,), "-"),),  # side force / thrust
-        readout=ScalarReadout("propeller_side_force", "side_force_pct", 100.0, "propeller_side_force_pct"),
-        parameters=(
-            EffectParameter("propeller_side_force_pct", 3.0, -20.0, 20.0, "%",
-                            "transverse propeller force in % of thrust, + to starboard",
-                            SimulatorField(ActuatorFaults, "propeller_side_force", "-", divide=100.0),
-                            Uniform(2.0, 6.0, random_sign=True)),
-        ),
-        tolerance={"side_force_pct": 0.5},  # (%)
-    ),
+    scalar_effect("rudder_offset", "a misaligned rudder: the true rudder is the reported one plus an offset",
+                  Term("rudder_offset", 1, 0.01, -0.2, 0.2, (0.0,), "rad"), ("offset_deg", RAD_TO_DEG), 0.5,  # (deg)
+                  EffectParameter("rudder_offset_deg", 2.0, -10.0, 10.0, "deg", "true minus reported rudder",
+                                  SimulatorField(ActuatorFaults, "rudder_offset_rad", "rad", multiply=DEG_TO_RAD),
+                                  Uniform(1.0, 4.0, random_sign=True))),
+    scalar_effect("yaw_rate_bias", "a gyro bias: the measured yaw rate is the true one plus a constant",
+                  Term("yaw_rate_bias", 1, 0.002, -0.1, 0.1, (0.0,), "rad/s"), ("bias_deg_s", RAD_TO_DEG), 0.1,
+                  EffectParameter("yaw_rate_bias_deg_s", 0.5, -5.0, 5.0, "deg/s", "gyro bias",  # tolerance (deg/s)
+                                  SimulatorField(SensorSpec, "gyro_bias", "rad/s", multiply=DEG_TO_RAD),
+                                  Uniform(0.2, 1.0, random_sign=True))),
+    scalar_effect("heading_offset", "a misaligned compass: the reported heading is the true one plus an offset",
+                  Term("heading_offset", 1, 0.01, -0.6, 0.6, (0.0,), "rad"), ("offset_deg", RAD_TO_DEG), 1.0,  # (deg)
+                  EffectParameter("heading_offset_deg", 3.0, -30.0, 30.0, "deg", "compass misalignment",
+                                  SimulatorField(SensorSpec, "heading_offset", "rad", multiply=DEG_TO_RAD),
+                                  Uniform(2.0, 8.0, random_sign=True))),
+    scalar_effect("actuator_delay", "a delay: the hull responds this long after the reported rudder and engine speed",
+                  Term("actuator_delay", 1, 0.1, 0.0, 5.0, (0.2,), "s"), ("delay_s", 1.0), 0.2,  # tolerance (s)
+                  EffectParameter("actuator_delay_s", 0.5, 0.0, 5.0, "s", "response delay of the hull",
+                                  SimulatorField(SensorSpec, "actuator_delay_s", "s"), Uniform(0.3, 1.5))),
+    scalar_effect("resistance", "a resistance change: fouling, loading or a preset off (relative change of R0)",
+                  Term("resistance_change", 1, 0.05, -0.8, 3.0, (0.0,), "-"), ("resistance_change_pct", 100.0), 0.0,
+                  not_simulated="a model error, not a hidden effect: simulate it with a vessel whose hull R0 differs"),
+    scalar_effect("propeller_asymmetry", "propeller walk: a transverse propeller force in proportion to the thrust",
+                  Term("propeller_side_force", 1, 0.01, -0.3, 0.3, (0.0,), "-"),  # side force / thrust
+                  ("side_force_pct", 100.0), 0.5,  # tolerance (%)
+                  EffectParameter("propeller_side_force_pct", 3.0, -20.0, 20.0, "%",
+                                  "transverse propeller force in % of thrust, + to starboard",
+                                  SimulatorField(ActuatorFaults, "propeller_side_force", "-", divide=100.0),
+                                  Uniform(2.0, 6.0, random_sign=True))),
 )
 
 
