@@ -99,23 +99,23 @@ class GreyBoxRollout(nn.Module):
         speed = torch.sqrt(u_r * u_r + v_r * v_r) + 1e-9
         beta_p = torch.atan2(-v_r, torch.clamp(u_r, min=1e-9)) - self.x_P * r * L / speed
         u_p = u_r * (1.0 - self.w_P0 * torch.exp(-4.0 * beta_p * beta_p))
-        n_p = torch.clamp(rpm / 60.0 / self.gear, min=1e-6)
+        n_p = torch.clamp(rpm / 60.0 / self.gear_ratio, min=1e-6)
         j = u_p / (n_p * self.D_P)
         k_t = self.k0 + self.k1 * j + self.k2 * j * j
-        running = (rpm / 60.0 / self.gear > 1e-6).to(u_r.dtype)
+        running = (rpm / 60.0 / self.gear_ratio > 1e-6).to(u_r.dtype)
         x_p = running * (1.0 - self.t_P) * self.rho * n_p * n_p * self.D_P ** 4 * k_t
         # rudder
         slip = torch.sqrt(u_p * u_p + running * 8.0 * torch.clamp(k_t, min=0.0) * n_p * n_p * self.D_P ** 2 / self.pi)
-        u_rud = self.eps_R * torch.sqrt(self.eta_R * (u_p + self.kappa * (slip - u_p)) ** 2
-                                        + (1.0 - self.eta_R) * u_p * u_p)
-        beta_r = -(v_r + self.l_R * r)
-        v_rud = torch.where(beta_r < 0.0, self.gamma_minus * beta_r, self.gamma_plus * beta_r)
+        u_rud = self.epsilon * torch.sqrt(self.eta * (u_p + self.kappa * (slip - u_p)) ** 2
+                                        + (1.0 - self.eta) * u_p * u_p)
+        beta_r = -(v_r + self.l_R_m * r)
+        v_rud = torch.where(beta_r < 0.0, self.gamma_R_minus * beta_r, self.gamma_R_plus * beta_r)
         alpha = delta - torch.atan2(v_rud, torch.clamp(u_rud, min=1e-9))
         f_n = 0.5 * self.rho * self.A_R * (u_rud * u_rud + v_rud * v_rud) * self.f_alpha * torch.sin(alpha)
         cos_d = torch.cos(delta)
         x_r = -(1.0 - self.t_R) * f_n * torch.sin(delta)
         y_r = -(1.0 + self.a_H) * f_n * cos_d
-        n_r = -(self.x_R + self.a_H * self.x_H) * f_n * cos_d
+        n_r = -(self.x_R_m + self.a_H * self.x_H_m) * f_n * cos_d
         # sea: apparent wind over ground, mean wave drift
         c, s = torch.cos(psi), torch.sin(psi)
         u_g = u_r + self.current_ne[0] * c + self.current_ne[1] * s

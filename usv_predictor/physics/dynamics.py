@@ -23,7 +23,7 @@ import math
 from dataclasses import dataclass, fields
 from typing import NamedTuple
 
-from usv_predictor.physics.vessel import GRAVITY, RHO_AIR, RHO_WATER, Hull, Vessel
+from usv_predictor.physics.vessel import GRAVITY, RHO_AIR, RHO_WATER, Hull, Propeller, Rudder, Vessel
 
 SPEED_FLOOR = 0.05  # speed below which non-dimensional hull terms are regularised (m/s)
 
@@ -118,28 +118,18 @@ class HullConstants:
 
 @dataclass(frozen=True)
 class RudderPropellerConstants:
-    """The propeller, rudder and actuator constants of the rudder_propeller layout in SI units (see HullConstants)."""
+    """The propeller, rudder and actuator constants of the rudder_propeller layout (see HullConstants).
 
-    D_P: float  # propeller diameter (m)
-    gear: float  # engine rpm / propeller rpm (-)
-    k0: float  # K_T(J) = k0 + k1 J + k2 J^2 (-)
-    k1: float
-    k2: float
-    t_P: float  # thrust deduction factor (-)
-    w_P0: float  # wake fraction at the propeller in straight motion (-)
-    x_P: float  # propeller position x_P' = x_P / L_pp (-)
-    A_R: float  # rudder area (m^2)
+    The vessel file's propeller and rudder sections as they are (their fields become the attributes of the
+    same names), plus what is derived from them in SI units.
+    """
+
+    propeller: Propeller  # D_P (m), gear_ratio, K_T(J) coefficients, t_P, w_P0, x_P' (-)
+    rudder: Rudder  # A_R (m^2), interaction factors, non-dimensional positions (-)
     f_alpha: float  # rudder lift gradient (Fujii) (-)
-    t_R: float  # steering resistance deduction (-)
-    a_H: float  # rudder force increase factor (-)
-    x_H: float  # position of the additional lateral force (m)
-    x_R: float  # rudder position (m)
-    eps_R: float  # wake ratio propeller / rudder (-)
-    kappa: float  # slipstream correction (-)
-    eta_R: float  # propeller diameter / rudder span (-)
-    l_R: float  # effective longitudinal rudder position (m)
-    gamma_minus: float  # flow straightening for beta_R < 0 (-)
-    gamma_plus: float  # flow straightening for beta_R > 0 (-)
+    x_H_m: float  # position of the additional lateral force x_H' L (m)
+    x_R_m: float  # rudder position x_R' L (m)
+    l_R_m: float  # effective longitudinal rudder position l_R' L (m)
     rudder_max: float  # mechanical rudder limit (rad)
     rudder_rate: float  # steering gear rate limit (rad/s)
     t_rudder: float  # steering gear time constant (s)
@@ -147,21 +137,27 @@ class RudderPropellerConstants:
 
     @classmethod
     def of(cls, vessel: Vessel) -> "RudderPropellerConstants":
-        g, p, rd, a = vessel.geometry, vessel.propeller, vessel.rudder, vessel.actuators
+        g, rd, a = vessel.geometry, vessel.rudder, vessel.actuators
         return cls(
-            D_P=p.D_P, gear=p.gear_ratio, k0=p.k0, k1=p.k1, k2=p.k2, t_P=p.t_P, w_P0=p.w_P0, x_P=p.x_P,
-            A_R=rd.A_R, f_alpha=rd.f_alpha, t_R=rd.t_R, a_H=rd.a_H, x_H=rd.x_H * g.L_pp, x_R=rd.x_R * g.L_pp,
-            eps_R=rd.epsilon, kappa=rd.kappa, eta_R=rd.eta, l_R=rd.l_R * g.L_pp, gamma_minus=rd.gamma_R_minus,
-            gamma_plus=rd.gamma_R_plus, rudder_max=math.radians(a.rudder_max_deg),
+            propeller=vessel.propeller, rudder=rd, f_alpha=rd.f_alpha, x_H_m=rd.x_H * g.L_pp, x_R_m=rd.x_R * g.L_pp,
+            l_R_m=rd.l_R * g.L_pp, rudder_max=math.radians(a.rudder_max_deg),
             rudder_rate=math.radians(a.rudder_rate_deg_s), t_rudder=a.rudder_time_constant_s,
             t_engine=a.engine_time_constant_s,
         )
 
 
 def constants_of(vessel: Vessel) -> dict[str, object]:
-    """Every constant of the vessel's equations of motion by name: HullConstants and its actuator constants."""
-    records = (HullConstants.of(vessel), RudderPropellerConstants.of(vessel))
-    return {f.name: getattr(record, f.name) for record in records for f in fields(record)}
+    """Every constant of the vessel's equations of motion by name: HullConstants and its actuator constants,
+    with the vessel sections they carry (propeller, rudder; not the hull polynomial) opened into their fields."""
+    out: dict[str, object] = {}
+    for record in (HullConstants.of(vessel), RudderPropellerConstants.of(vessel)):
+        for f in fields(record):
+            value = getattr(record, f.name)
+            if isinstance(value, (Propeller, Rudder)):
+                out.update({g.name: getattr(value, g.name) for g in fields(value)})
+            else:
+                out[f.name] = value
+    return out
 
 
 class ManoeuvringModel:
@@ -182,7 +178,7 @@ class ManoeuvringModel:
         beta_p = math.atan2(-v_r, max(u_r, 1e-9)) - self.x_P * r * self.L / speed  # beta - x_P' r'
         w_p = self.w_P0 * math.exp(-4.0 * beta_p * beta_p)
         u_p = u_r * (1.0 - w_p)
-        n_p = rpm / 60.0 / self.gear
+        n_p = rpm / 60.0 / self.gear_ratio
         if n_p <= 1e-6:
             return 0.0, u_p, 0.0, 0.0
         j = u_p / (n_p * self.D_P)
@@ -211,17 +207,17 @@ class ManoeuvringModel:
 
         # rudder inflow with propeller slipstream (MMG eq. 38, written without the 1/J^2 singularity)
         slip = math.sqrt(u_p * u_p + 8.0 * max(k_t, 0.0) * n_p * n_p * self.D_P**2 / math.pi)
-        u_rudder = self.eps_R * math.sqrt(
-            self.eta_R * (u_p + self.kappa * (slip - u_p)) ** 2 + (1.0 - self.eta_R) * u_p * u_p
+        u_rudder = self.epsilon * math.sqrt(
+            self.eta * (u_p + self.kappa * (slip - u_p)) ** 2 + (1.0 - self.eta) * u_p * u_p
         )
-        beta_r = -(v_r + self.l_R * r)  # U * beta_R (m/s)
-        gamma = self.gamma_minus if beta_r < 0.0 else self.gamma_plus
+        beta_r = -(v_r + self.l_R_m * r)  # U * beta_R (m/s)
+        gamma = self.gamma_R_minus if beta_r < 0.0 else self.gamma_R_plus
         v_rudder = gamma * beta_r
         alpha_r = delta - math.atan2(v_rudder, max(u_rudder, 1e-9))
         f_n = 0.5 * RHO_WATER * self.A_R * (u_rudder * u_rudder + v_rudder * v_rudder) * self.f_alpha * math.sin(alpha_r)
         x_r = -(1.0 - self.t_R) * f_n * math.sin(delta)
         y_r = -(1.0 + self.a_H) * f_n * math.cos(delta)
-        n_r = -(self.x_R + self.a_H * self.x_H) * f_n * math.cos(delta)
+        n_r = -(self.x_R_m + self.a_H * self.x_H_m) * f_n * math.cos(delta)
 
         wind = (0.0, 0.0, 0.0)
         if sea.wind_speed > 0.0:
