@@ -70,15 +70,15 @@ def test_a_resistance_error_of_the_model_is_named_as_such():
 
 
 def test_the_calm_water_model_can_come_from_an_identified_grey_box():
-    from usv_predictor.replay.cmd_diagnose import _hull_of
+    from usv_predictor.models.greybox import hull_from_metadata
 
     identified = {"identification": {"structure": "mmg", "extra_terms": {},
                                      "coefficients": [{"name": "R0", "estimate": 0.02}, {"name": "Y_v", "estimate": -0.3}]},
                   "architecture": {"residual": "ZeroResidual"}}
-    assert _hull_of(identified) == {"R0": 0.02, "Y_v": -0.3}
+    assert hull_from_metadata(identified) == {"R0": 0.02, "Y_v": -0.3}
     exported = {"architecture": {"hull": {"R0": 0.03}}}  # `replay diagnose --export`
-    assert _hull_of(exported) == {"R0": 0.03}
+    assert hull_from_metadata(exported) == {"R0": 0.03}
     # what the MMG grey box cannot carry is refused rather than silently dropped
-    assert _hull_of({**identified, "architecture": {"residual": "MlpResidual"}}) is None
-    assert _hull_of({"identification": {"structure": "abkowitz", "coefficients": []}}) is None
-    assert _hull_of({"architecture": {"width": 100}}) is None  # a DNN
+    assert hull_from_metadata({**identified, "architecture": {"residual": "MlpResidual"}}) is None
+    assert hull_from_metadata({"identification": {"structure": "abkowitz", "coefficients": []}}) is None
+    assert hull_from_metadata({"architecture": {"width": 100}}) is None  # a DNN

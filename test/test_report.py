@@ -13,7 +13,7 @@ import pytest
 
 from msg_adapters import ROLE_FIELDS
 from usv_predictor.records import Signal
-from usv_predictor.replay import cmd_report
+from usv_predictor.analysis import reports
 from usv_predictor.replay.bagio import TopicSpec, write_bag
 from usv_predictor.replay.cli import main
 from usv_predictor.replay.recordings import bag_sha256
@@ -89,9 +89,9 @@ def test_report_from_an_evaluation_file_agrees_with_its_json(evaluated, tmp_path
         ("Absolute error of angle (deg)", "errors", "drift_direction_abs_deg", ""),
         ("Relative error of drift distance", "errors", "drift_distance_rel_pct", "%"),
     ):
-        assert _md_row(markdown, label) == [cmd_report.num(r["turning"][section][key], 2, suffix) for r in turning]
+        assert _md_row(markdown, label) == [reports.num(r["turning"][section][key], 2, suffix) for r in turning]
     summary_value = data["summary"]["mean_position_error_after_30s_m"]
-    assert _md_row(markdown, "mean_position_error_after_30s_m") == [cmd_report.num(summary_value, 3)]
+    assert _md_row(markdown, "mean_position_error_after_30s_m") == [reports.num(summary_value, 3)]
     # figures: per test track / position / states, plus the open-loop and turning summaries, all real PNGs
     pngs = sorted(p.name for p in out.glob("*.png"))
     assert len(pngs) == 3 * len(data["recordings"]) + 2

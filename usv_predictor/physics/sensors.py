@@ -22,9 +22,9 @@ import numpy as np
 from usv_predictor.errors import ConfigError
 from usv_predictor.frames import LocalTangentPlane, wrap_angle
 from usv_predictor.physics.environment import Environment, wave_components
-from usv_predictor.physics.simulator import NS, ActuatorFaults, Trajectory
+from usv_predictor.physics.simulator import ActuatorFaults, Trajectory
 from usv_predictor.physics.vessel import GRAVITY
-from usv_predictor.records import Signal
+from usv_predictor.records import NS_PER_S, Signal
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ def _quantise(x: np.ndarray, lsb: float) -> np.ndarray:
 def _grid(traj: Trajectory, rate_hz: float) -> np.ndarray:
     """Sample times (ns) at rate_hz over the trajectory span, starting at its first sample."""
     span = int(traj.t_ns[-1] - traj.t_ns[0])
-    step = NS / rate_hz
+    step = NS_PER_S / rate_hz
     return traj.t_ns[0] + np.round(np.arange(int(span // step) + 1) * step).astype(np.int64)
 
 
@@ -200,7 +200,7 @@ def measure(traj: Trajectory, env: Environment, spec: SensorSpec = SensorSpec(),
 
     # Actuator feedback leads the hull's response by actuator_delay_s (sampled that much later in truth).
     t = _grid(traj, spec.actuator_rate_hz)
-    t_true = t + int(round(spec.actuator_delay_s * NS))
+    t_true = t + int(round(spec.actuator_delay_s * NS_PER_S))
     rudder = _at(traj, t_true, traj.rudder) - faults.rudder_offset_rad + rng.normal(0, spec.rudder_noise_std, len(t))
     out["rudder_angle"] = Signal(t, _quantise(rudder, spec.rudder_lsb)[:, None], ("delta",))
     rpm = _at(traj, t_true, traj.rpm) + rng.normal(0, spec.rpm_noise_std, len(t))
