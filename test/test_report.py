@@ -226,3 +226,17 @@ def test_shipped_artifact_format_is_evaluated(bags, tmp_path):
     assert data["model"]["model_id"] == loaded.model_id and data["model"]["model_type"] == "constant-velocity test"
     assert data["recordings"][0]["open_loop"]["position_error_after_10s_m"] > 0.0
     assert main(["evaluate", str(bags), "--model", str(path), "--dt", "0.25"]) == 2
+
+
+def test_the_evaluation_request_refuses_what_cannot_be_evaluated(capsys):
+    from usv_predictor.errors import EvaluationError
+    from usv_predictor.replay.evaluate import EvaluationRequest
+
+    for fields in ({"stride_s": 0.0}, {"horizons_s": (10.0, -30.0)}):
+        with pytest.raises(EvaluationError, match=r"--stride and --horizons must be positive \(s\)"):
+            EvaluationRequest(**fields)
+    with pytest.raises(EvaluationError, match="--reference 'radar': expected one of gnss, truth"):
+        EvaluationRequest(reference="radar")
+    assert main(["evaluate", "--model", "physics", "--stride", "-5"]) == 2  # refused before any bag is read
+    err = capsys.readouterr().err
+    assert err.startswith("replay evaluate: error: --stride and --horizons must be positive") and "reading" not in err

@@ -15,7 +15,6 @@ import datetime
 import json
 import math
 import re
-import sys
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -32,10 +31,6 @@ if TYPE_CHECKING:
 REPORT_MD = "report.md"
 REPORT_JSON = "report.json"
 LETTERS = "abcdefghijklmnopqrstuvwxyz"
-
-
-def _stderr(message: str) -> None:
-    print(message, file=sys.stderr)
 
 
 # ------------------------------------------------------------------ formatting
@@ -233,7 +228,7 @@ def evaluation_table(result: dict) -> str:
 # ------------------------------------------------------------------ evaluation files and reports
 
 
-def load_evaluation_file(path: Path, warn: Callable[[str], None] = _stderr) -> tuple[dict, list | None]:
+def load_evaluation_file(path: Path, warn: Callable[[str], None] = lambda _: None) -> tuple[dict, list | None]:
     """(evaluation JSON, predictions or None when its series file is absent: `warn` says so)."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -318,7 +313,7 @@ def render_markdown(data: dict, title: str, figures: dict[str, list[str]], summa
 
 
 def write_report(data: Mapping[str, Any], predictions: Sequence[Prediction] | None, out: Path, title: str,
-                 progress: Callable[[str], None] = _stderr) -> dict:
+                 progress: Callable[[str], None] = lambda _: None) -> dict:
     """report.md, report.json and the figures of an evaluation (JSON of EvaluationResult.to_json) in `out`.
 
     predictions: the time series of the recordings (None: no track figures). Returns the command's result.

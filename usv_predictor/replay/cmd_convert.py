@@ -11,6 +11,8 @@ import shlex
 import sys
 from pathlib import Path
 
+from usv_predictor.replay.options import log
+
 NAME = "convert"
 HELP = "convert public measured manoeuvres (HSVA/MARIN KVLCC2 zig-zags, Fuzhou USV zig-zag) to rosbag2 bags"
 
@@ -30,4 +32,4 @@ def run(args: argparse.Namespace) -> dict:
 
     command = shlex.join(["replay", *sys.argv[1:]]) if sys.argv else "replay convert"
     return convert(args.sources, args.output, fmt=args.format, storage=args.storage, overwrite=args.overwrite,
-                   command=command, progress=lambda message: print(message, file=sys.stderr))
+                   command=command, progress=log)

@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from usv_predictor.data.features import FEATURE_SETS
+from usv_predictor.replay.options import log
 
 NAME = "dataset"
 HELP = "build a training set (one-step samples, split by manoeuvre) from bags into one .npz file"
@@ -103,7 +104,7 @@ def run(args: argparse.Namespace) -> dict:
         train=args.train, seed=args.seed, config=args.config, topics=_topics(args.topic),
         include_calm=args.include_calm, min_duration_s=args.min_duration, jobs=args.jobs, horizon_s=args.horizon,
         provenance=_command_line(args), warn=lambda message: print(f"replay {NAME}: warning: {message}", file=sys.stderr),
-        progress=lambda message: print(message, file=sys.stderr))
+        progress=log)
     _print_table(result)
     return result
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from usv_predictor.replay.options import log
+
 NAME = "diagnose"
 HELP = "name the physical cause of what the calm-water model gets wrong, extend the model, measure the gain"
 
@@ -44,4 +46,4 @@ def run(args: argparse.Namespace) -> dict:
     return diagnose_bags(args.bags, vessel=args.vessel, model=args.model, dt=args.dt, hypotheses=args.hypotheses,
                          max_causes=args.max_causes, horizon_s=args.horizon, stride_s=args.stride,
                          gain=not args.no_gain, export=args.export, report=args.report,
-                         include_calm=args.include_calm, config=args.config)
+                         include_calm=args.include_calm, config=args.config, progress=log)

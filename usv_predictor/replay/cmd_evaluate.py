@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 
 from usv_predictor.replay.evaluate import EVALUATION_FILE, SERIES_FILE
-from usv_predictor.replay.options import add_model_arguments, evaluation_request
+from usv_predictor.replay.options import add_model_arguments, evaluation_request, log
 
 NAME = "evaluate"
 HELP = "evaluate a model on bags: closed-loop tracks, turning-circle and zig-zag metrics, open-loop errors"
@@ -33,6 +33,6 @@ def run(args: argparse.Namespace) -> dict:
     from usv_predictor.atomic import jsonable
     from usv_predictor.replay.evaluate import evaluate
 
-    data = evaluate(evaluation_request(args, args.bags), args.output)
+    data = evaluate(evaluation_request(args, args.bags), args.output, progress=log)
     print(evaluation_table(jsonable(data)))
     return data

@@ -15,6 +15,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from usv_predictor.replay.options import log
+
 NAME = "identify"
 HELP = "identify the grey-box hull coefficients from bags (EKF/RTS + inverse-dynamics regression) and export the model"
 
@@ -38,4 +40,4 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from usv_predictor.replay.identify import identify_bags
 
     return identify_bags(args.bags, args.output, vessel=args.vessel, structure=args.structure, prior=args.prior,
-                         hybrid=args.hybrid, dt=args.dt, validation=args.val, report=args.report)
+                         hybrid=args.hybrid, dt=args.dt, validation=args.val, report=args.report, progress=log)

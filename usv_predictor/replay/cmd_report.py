@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from usv_predictor.replay.options import add_model_arguments, evaluation_request
+from usv_predictor.replay.options import add_model_arguments, evaluation_request, log
 
 NAME = "report"
 HELP = "write a Markdown report (report.md, report.json, PNG figures) of an evaluation file or of bags"
@@ -31,4 +31,4 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> dict:
     from usv_predictor.replay.evaluate import report
 
-    return report(evaluation_request(args, args.inputs), args.output, args.title)
+    return report(evaluation_request(args, args.inputs), args.output, args.title, progress=log)

@@ -12,6 +12,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from usv_predictor.replay.options import log
 from usv_predictor.replay.simulate import KINDS, SEAS, SIDES, STORAGES, SimulationRequest
 
 NAME = "simulate"
@@ -83,4 +84,4 @@ def run(args: argparse.Namespace) -> dict:
         heading_deg=args.heading, sea=args.sea, effects=_effects(args), calm_twin=args.calm_twin,
         storage=args.storage, compress=not args.no_compress, overwrite=args.overwrite, blind=args.blind,
         seed=args.seed, dt=args.dt, command=shlex.join(["replay", *sys.argv[1:]]) if sys.argv else "replay simulate")
-    return simulate(request)
+    return simulate(request, progress=log)

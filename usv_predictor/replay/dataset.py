@@ -5,15 +5,10 @@ the split by manoeuvre: usv_predictor.data.dataset.split_by_manoeuvre.
 """
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
-
-
-def _stderr(message: str) -> None:
-    print(message, file=sys.stderr)
 
 
 def dataset_from_bags(bags: Sequence[Path], output: Path, *, features: str = "NTF", dt: float | None = None,
@@ -21,8 +16,8 @@ def dataset_from_bags(bags: Sequence[Path], output: Path, *, features: str = "NT
                       test: tuple[float, Sequence[str]] = (0.0, ()), train: Sequence[str] = (), seed: int = 0,
                       config: Path | None = None, topics: Mapping[str, str] | None = None, include_calm: bool = False,
                       min_duration_s: float = 10.0, jobs: int = 0, horizon_s: float | None = None,
-                      provenance: str = "", warn: Callable[[str], None] = _stderr,
-                      progress: Callable[[str], None] = _stderr) -> dict[str, Any]:
+                      provenance: str = "", warn: Callable[[str], None] = lambda _: None,
+                      progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """Build and save the dataset; the result of `replay dataset` (per-recording rows, splits, digest, warnings).
 
     val / test: (fraction of the manoeuvres no pattern pins, name globs); train: globs pinned to training;

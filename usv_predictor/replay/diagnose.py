@@ -1,21 +1,16 @@
 """Bags -> a diagnosis: what `replay diagnose` does (usv_predictor.analysis.diagnosis_run on the bags' recordings)."""
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
-
-
-def _stderr(message: str) -> None:
-    print(message, file=sys.stderr)
 
 
 def diagnose_bags(bags: Sequence[Path], *, vessel: str | None = None, model: Path | None = None, dt: float = 0.5,
                   hypotheses: Sequence[str] | None = None, max_causes: int = 2, horizon_s: float = 20.0,
                   stride_s: float = 5.0, gain: bool = True, export: Path | None = None, report: Path | None = None,
                   include_calm: bool = False, config: Path | None = None,
-                  progress: Callable[[str], None] = _stderr) -> dict[str, Any]:
+                  progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """The calm-water model (preset `vessel` or grey-box artifact `model`), the bags' recordings at step dt
     (topics of the predictor config `config`), and the diagnosis run on them (run_diagnosis: the arguments)."""
     from usv_predictor.analysis.diagnosis_run import calm_water_vessel, run_diagnosis

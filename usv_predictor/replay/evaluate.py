@@ -12,7 +12,6 @@ spec `physics[:VESSEL]` is the calm-water grey box of a preset (usv_predictor.mo
 from __future__ import annotations
 
 import datetime
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,10 +22,6 @@ from usv_predictor.errors import BagError, ConfigError, EvaluationError
 EVALUATION_FILE = "evaluation.json"
 SERIES_FILE = "evaluation_series.npz"
 REFERENCES = ("gnss", "truth")  # compare with the measured GNSS track and states, or the simulator's ground truth
-
-
-def _stderr(message: str) -> None:
-    print(message, file=sys.stderr)
 
 
 @dataclass(frozen=True)
@@ -58,7 +53,7 @@ def default_bags() -> list[Path]:
         raise BagError(f"no bags given and the shipped bags/sea_trial is missing: {err}") from err
 
 
-def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = _stderr) -> Any:
+def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = lambda _: None) -> Any:
     """The EvaluationResult of the request, its `extra` holding the provenance (time, version, model, data)."""
     import numpy as np
 
@@ -105,7 +100,7 @@ def save_evaluation(result: Any, directory: Path) -> dict:
 
 
 def evaluate(request: EvaluationRequest, output: Path | None = None,
-             progress: Callable[[str], None] = _stderr) -> dict:
+             progress: Callable[[str], None] = lambda _: None) -> dict:
     """The evaluation JSON of `replay evaluate`; with `output`, saved there with its time series."""
     result = evaluate_bags(request, progress)
     if output is None:
@@ -120,7 +115,7 @@ def is_evaluation_file(inputs: Sequence[Path]) -> bool:
     return len(inputs) == 1 and Path(inputs[0]).suffix == ".json"
 
 
-def report(request: EvaluationRequest, output: Path, title: str, progress: Callable[[str], None] = _stderr) -> dict:
+def report(request: EvaluationRequest, output: Path, title: str, progress: Callable[[str], None] = lambda _: None) -> dict:
     """`replay report`: the report of an evaluation file (request.bags is one .json) or of the bags evaluated as
     `request` says, written into `output`."""
     from usv_predictor.analysis import reports

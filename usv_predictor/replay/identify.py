@@ -3,7 +3,6 @@ recordings, export through usv_predictor.fitting.hybrid_fit, validation and repo
 from __future__ import annotations
 
 import glob
-import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -11,11 +10,7 @@ from typing import Any
 from usv_predictor.errors import BagError, DatasetError
 
 
-def _stderr(message: str) -> None:
-    print(message, file=sys.stderr)
-
-
-def identification_recordings(paths: Sequence[Path], dt: float, progress: Callable[[str], None] = _stderr) -> list:
+def identification_recordings(paths: Sequence[Path], dt: float, progress: Callable[[str], None] = lambda _: None) -> list:
     """The recordings of `paths` at step dt; a bag without engine speed is a DatasetError saying why it matters."""
     from usv_predictor.replay.recordings import load_recordings
 
@@ -31,7 +26,7 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
 
 def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure: str = "auto", prior: str = "none",
                   hybrid: bool = False, dt: float = 0.2, validation: str | None = None, report: Path | None = None,
-                  progress: Callable[[str], None] = _stderr) -> dict[str, Any]:
+                  progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """Identify the hull of preset `vessel` from `bags` (structure mmg / abkowitz / auto, prior none / fix / ridge),
     export the grey box (with hybrid: plus an MLP residual) to `output`; validation: a glob of bags only
     evaluated; report: a directory for summary.md and the force plots. The result of `replay identify`."""

@@ -1,15 +1,22 @@
 """Command-line options shared by several replay commands, and the typed values they become.
 
 Only argparse plumbing lives here: the commands call `add_*_arguments(parser)` and turn the parsed options
-into the typed request of their library function, so no argparse Namespace travels further.
+into the typed request of their library function, so no argparse Namespace travels further. `log` is how a
+command shows a library function's progress (stderr: stdout is the command's result).
 """
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Sequence
 
 from usv_predictor.replay.evaluate import REFERENCES, EvaluationRequest
+
+
+def log(message: str) -> None:
+    """A progress line on stderr."""
+    print(message, file=sys.stderr)
 
 
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:

@@ -12,7 +12,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import sys
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -30,10 +29,6 @@ EPOCH_NS = 1_622_527_200 * NS_PER_S  # 2021-06-01 06:00 UTC: the simulated trial
 GAP_S = 60.0  # time between consecutive manoeuvres of a programme (s)
 SPACING_M = 400.0  # distance between the start points of consecutive manoeuvres (m)
 HEADING_STEP_DEG = 37.0  # the approach heading turns this much from one manoeuvre of a programme to the next (deg)
-
-
-def _stderr(message: str) -> None:
-    print(message, file=sys.stderr)
 
 
 @dataclass(frozen=True)
@@ -162,7 +157,7 @@ def simulate_bag(path: Path, manoeuvre: Any, scenario: Any, request: SimulationR
             "size_bytes": sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())}
 
 
-def simulate(request: SimulationRequest, progress: Callable[[str], None] = _stderr) -> dict:
+def simulate(request: SimulationRequest, progress: Callable[[str], None] = lambda _: None) -> dict:
     """Every bag of the request (and their calm twins); the result of `replay simulate` (bags, scenario, digest)."""
     from usv_predictor.physics.dynamics import ManoeuvringModel
     from usv_predictor.physics.scenario import make_scenario
