@@ -19,12 +19,16 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from usv_predictor.config import Range
 from usv_predictor.errors import ConfigError
 from usv_predictor.frames import LocalTangentPlane, wrap_angle
 from usv_predictor.physics.environment import Environment, wave_components
 from usv_predictor.physics.simulator import ActuatorFaults, Trajectory
 from usv_predictor.physics.vessel import GRAVITY
 from usv_predictor.records import NS_PER_S, Signal
+
+RATE_RANGE = Range(0.1, 1000.0, "Hz")  # output rate of every sensor
+DELAY_RANGE = Range(0.0, 5.0, "s")  # hull response after the reported actuator values
 
 
 @dataclass(frozen=True)
@@ -62,12 +66,11 @@ class SensorSpec:
             value = getattr(self, f.name)
             if not math.isfinite(value):
                 raise ConfigError(f"sensor parameter {f.name}={value} must be finite")
-            if f.name.endswith("_hz") and not 0.1 <= value <= 1000.0:
-                raise ConfigError(f"sensor rate {f.name}={value} Hz is outside [0.1, 1000]")
+            if f.name.endswith("_hz"):
+                RATE_RANGE.check(f.name, value, "sensors")
             if (f.name.endswith("_std") or f.name.endswith("_lsb") or f.name.endswith("_lsb_deg")) and value < 0.0:
                 raise ConfigError(f"sensor parameter {f.name}={value} must be >= 0")
-        if not 0.0 <= self.actuator_delay_s <= 5.0:
-            raise ConfigError(f"actuator_delay_s={self.actuator_delay_s} is outside [0, 5] s")
+        DELAY_RANGE.check("actuator_delay_s", self.actuator_delay_s, "sensors")
 
     def noiseless(self) -> "SensorSpec":
         """Same rates, biases and offsets, no random noise and no quantisation."""
