@@ -15,9 +15,12 @@ import datetime
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from usv_predictor.errors import BagError, ConfigError, EvaluationError
+
+if TYPE_CHECKING:
+    from usv_predictor.analysis.evaluation import EvaluationResult
 
 EVALUATION_FILE = "evaluation.json"
 SERIES_FILE = "evaluation_series.npz"
@@ -53,7 +56,7 @@ def default_bags() -> list[Path]:
         raise BagError(f"no bags given and the shipped bags/sea_trial is missing: {err}") from err
 
 
-def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = lambda _: None) -> Any:
+def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = lambda _: None) -> EvaluationResult:
     """The EvaluationResult of the request, its `extra` holding the provenance (time, version, model, data)."""
     import numpy as np
 
@@ -85,7 +88,7 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
     return result
 
 
-def save_evaluation(result: Any, directory: Path) -> dict:
+def save_evaluation(result: EvaluationResult, directory: Path) -> dict:
     """DIR/evaluation.json + DIR/evaluation_series.npz (each written atomically); returns the JSON written."""
     import numpy as np
 

@@ -16,10 +16,14 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from usv_predictor.errors import ConfigError
 from usv_predictor.records import NS_PER_S
+
+if TYPE_CHECKING:
+    from usv_predictor.physics.scenario import Scenario
+    from usv_predictor.physics.vessel import Vessel
 
 KINDS = ("turning-circle", "zigzag", "pullout", "spiral", "random")
 SEAS = ("calm", "rizhao")  # calm water, or the seed 000 trial sea (current + wind + waves)
@@ -77,7 +81,7 @@ class SimulationRequest:
         return self.rudder_deg if self.check_deg is None else self.check_deg
 
 
-def manoeuvres(request: SimulationRequest, vessel: Any) -> list:
+def manoeuvres(request: SimulationRequest, vessel: Vessel) -> list:
     """The manoeuvres of the request: its programme, or its one manoeuvre within the vessel's rudder and rpm."""
     from usv_predictor.physics import manoeuvres as mv
 
@@ -118,7 +122,7 @@ def scenario_effects(sea: str, effects: Mapping[str, Mapping[str, float]]) -> di
     return chosen
 
 
-def simulate_bag(path: Path, manoeuvre: Any, scenario: Any, request: SimulationRequest, *, seed: int, index: int,
+def simulate_bag(path: Path, manoeuvre: Any, scenario: Scenario, request: SimulationRequest, *, seed: int, index: int,
                  model: Any = None) -> dict:
     """Simulate one manoeuvre (the index-th of a programme) under `scenario` and write its bag; a summary."""
     from usv_predictor import __version__
