@@ -53,10 +53,10 @@ def main() -> None:
     traj = simulate(model, TurningCircle(20.0, 650.0, duration_s=240.0), env)
     sense_t, signals = timed(lambda: measure(traj, env, scenario.sensor_spec), args.repeat)
     messages = sum(len(s) for s in signals.values())
-    from usv_predictor.replay.bagio import write_bag
-    from usv_predictor.replay.cmd_simulate import _topic_specs
+    from usv_predictor.config import load_predictor_config
+    from usv_predictor.replay.bagio import config_topic_specs, write_bag
 
-    specs, _ = _topic_specs()
+    specs = config_topic_specs(load_predictor_config(), include_ground_truth=True)
     streams = [(specs[role], signals[role]) for role in specs]
     with tempfile.TemporaryDirectory() as tmp:
         counter = iter(range(1000))

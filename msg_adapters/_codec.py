@@ -14,11 +14,10 @@ from typing import Any
 import numpy as np
 
 from usv_predictor.errors import AdapterError
+from usv_predictor.records import NS_PER_S
 
 MakeFn = Callable[[str], Any]
 """make(type_name) -> message class (rosbags dataclass, rclpy class or a columnar builder)."""
-
-NS_PER_S = 1_000_000_000
 
 
 def field(msg: object, path: str, ros_type: str) -> Any:

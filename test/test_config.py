@@ -12,6 +12,7 @@ import msg_adapters
 from usv_predictor.config import (
     FLOAT_RANGES,
     PredictorConfig,
+    Range,
     flatten_ros_parameters,
     input_topics,
     load_predictor_config,
@@ -210,3 +211,14 @@ def test_source_tree_wins_over_a_sourced_install(tmp_path: Path, monkeypatch: py
     found = package_share_path("only_installed.txt")
     assert found == prefix / "share" / "usv_predictor" / "only_installed.txt"
     assert math.isinf(load_predictor_config().ground_truth.max_age_s)  # ground truth has no staleness
+
+
+def test_a_range_check_names_source_name_value_and_unit() -> None:
+    speed = Range(0.0, 5.0, "m/s")
+    assert speed.check("current_speed", 5.0, "environment") == 5.0  # closed interval
+    for value in (-0.1, 5.5, math.nan, math.inf):
+        with pytest.raises(ConfigError, match=rf"^environment: current_speed={value} m/s is outside the allowed "
+                                              rf"range \[0.0, 5.0\]$"):
+            speed.check("current_speed", value, "environment")
+    with pytest.raises(ConfigError, match=r"^zigzag: rudder_deg=99.0 is outside the allowed range \[0.0, 90.0\]$"):
+        Range(0.0, 90.0, "").check("rudder_deg", 99.0, "zigzag")  # no unit: nothing after the value

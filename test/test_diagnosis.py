@@ -4,7 +4,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import numpy as np
 import pytest
 
 from usv_predictor.analysis.diagnosis import (
@@ -70,15 +69,55 @@ def test_a_resistance_error_of_the_model_is_named_as_such():
 
 
 def test_the_calm_water_model_can_come_from_an_identified_grey_box():
-    from usv_predictor.replay.cmd_diagnose import _hull_of
+    from usv_predictor.models.greybox import hull_from_metadata
 
     identified = {"identification": {"structure": "mmg", "extra_terms": {},
                                      "coefficients": [{"name": "R0", "estimate": 0.02}, {"name": "Y_v", "estimate": -0.3}]},
                   "architecture": {"residual": "ZeroResidual"}}
-    assert _hull_of(identified) == {"R0": 0.02, "Y_v": -0.3}
+    assert hull_from_metadata(identified) == {"R0": 0.02, "Y_v": -0.3}
     exported = {"architecture": {"hull": {"R0": 0.03}}}  # `replay diagnose --export`
-    assert _hull_of(exported) == {"R0": 0.03}
+    assert hull_from_metadata(exported) == {"R0": 0.03}
     # what the MMG grey box cannot carry is refused rather than silently dropped
-    assert _hull_of({**identified, "architecture": {"residual": "MlpResidual"}}) is None
-    assert _hull_of({"identification": {"structure": "abkowitz", "coefficients": []}}) is None
-    assert _hull_of({"architecture": {"width": 100}}) is None  # a DNN
+    assert hull_from_metadata({**identified, "architecture": {"residual": "MlpResidual"}}) is None
+    assert hull_from_metadata({"identification": {"structure": "abkowitz", "coefficients": []}}) is None
+    assert hull_from_metadata({"architecture": {"width": 100}}) is None  # a DNN
+
+
+def test_a_diagnosis_run_builds_its_segments_and_grey_box_once_and_shares_them(monkeypatch):
+    """diagnose, discrepancy (and the gain) use one set of segments and one scripted grey box; sharing the
+    compiled model changes no answer: its discrepancy equals that of a freshly built one."""
+    from usv_predictor.analysis import diagnosis as dg
+    from usv_predictor.analysis.diagnosis_run import run_diagnosis
+
+    recordings = trial(env=Environment(current_speed=0.3, current_to_deg=60.0))
+    built = {"make_segments": 0, "scripted_rollout": 0}
+    for name in built:
+        original = getattr(dg, name)
+
+        def counted(*args, _name=name, _original=original, **kwargs):
+            built[_name] += 1
+            return _original(*args, **kwargs)
+        monkeypatch.setattr(dg, name, counted)
+    out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5, hypotheses=["current", "rudder_offset"], max_causes=1,
+                        gain=False)
+    assert built == {"make_segments": 1, "scripted_rollout": 1}
+    assert out["cause"] == "current" and out["calm_water_model"] == {"vessel": VESSEL.name, "source": "preset"}
+    monkeypatch.undo()
+    fresh = discrepancy(scripted_rollout(VESSEL, 0.5), make_segments(recordings), recordings)
+
+    def flat(d: dict) -> dict:
+        return {f"{k}.{kk}": vv for k, v in d.items() for kk, vv in (v.items() if isinstance(v, dict) else [("", v)])}
+    assert flat(out["discrepancy"]) == pytest.approx(flat(fresh), rel=1e-9, abs=1e-12)
+
+
+def test_the_calm_water_model_is_a_preset_or_refuses_what_is_not_a_plain_grey_box():
+    from pathlib import Path
+
+    from usv_predictor.analysis.diagnosis_run import calm_water_vessel
+    from usv_predictor.errors import ModelError
+
+    vessel, source = calm_water_vessel("kvlcc2_model", None)
+    assert (vessel.name, source) == ("kvlcc2_model", "preset")
+    shipped_dnn = Path(__file__).resolve().parents[1] / "models" / "default.pt"
+    with pytest.raises(ModelError, match=r"default\.pt: diagnose needs an MMG grey box .* not model_type"):
+        calm_water_vessel(None, shipped_dnn)

@@ -16,7 +16,7 @@ from usv_predictor.physics.manoeuvres import PullOut, RandomManoeuvre, TurningCi
 from usv_predictor.physics.sensors import SensorSpec, measure
 from usv_predictor.physics.simulator import simulate
 from usv_predictor.physics.vessel import load_vessel
-from usv_predictor.replay.cli import _jsonable
+from usv_predictor.atomic import jsonable as _jsonable
 
 DT = 0.5  # s
 CURRENT = Environment(current_speed=0.4, current_to_deg=215.0)  # flows toward south-west (m/s, deg)

@@ -105,3 +105,55 @@ def test_the_rclpy_shell_is_the_only_rclpy_import():
     importers = sorted(str(p.relative_to(ROOT)) for p in source_files()
                        if any(m.split(".")[0] == "rclpy" for _, m in imported_modules(p)))
     assert importers == ["usv_predictor/node/node.py"]
+
+
+def test_no_command_imports_another_command():
+    """Thin commands: what two commands share lives in a library module (or replay/options.py), not in a command."""
+    commands = sorted((PACKAGE / "replay").glob("cmd_*.py"))
+    assert len(commands) >= 9
+    imports = {str(p.relative_to(ROOT)): sorted({m for _, m in imported_modules(p)
+                                                 if m.rsplit(".", 1)[-1].startswith("cmd_")
+                                                 or ".cmd_" in m}) for p in commands}
+    assert {path: found for path, found in imports.items() if found} == {}
+
+
+def exception_classes(path: Path) -> list[str]:
+    """Classes of the file deriving from one of usv_predictor.errors' exceptions (read with ast)."""
+    import usv_predictor.errors as errors
+
+    known = {name for name, value in vars(errors).items() if isinstance(value, type) and issubclass(value, Exception)}
+    tree = ast.parse(path.read_text(), filename=str(path))
+    return [node.name for node in ast.walk(tree) if isinstance(node, ast.ClassDef)
+            and any(isinstance(b, ast.Name) and b.id in known or isinstance(b, ast.Attribute) and b.attr in known
+                    for b in node.bases)]
+
+
+def test_every_exception_is_defined_in_errors_py():
+    elsewhere = {str(p.relative_to(ROOT)): exception_classes(p) for p in source_files() if p != PACKAGE / "errors.py"}
+    assert {path: names for path, names in elsewhere.items() if names} == {}
+    assert len(exception_classes(PACKAGE / "errors.py")) >= 12  # the check reads them (it can fail)
+
+
+def test_the_exceptions_keep_their_old_homes():
+    from usv_predictor import errors
+    from usv_predictor.analysis import diagnosis, evaluation, plots
+    from usv_predictor.data import recording
+    from usv_predictor.fitting import identification
+    from usv_predictor.node import live
+
+    assert live.InputRejected is errors.InputRejected and live.CycleSkipped is errors.CycleSkipped
+    assert recording.RecordingError is errors.RecordingError and evaluation.EvaluationError is errors.EvaluationError
+    assert plots.PlotError is errors.PlotError and diagnosis.DiagnosisError is errors.DiagnosisError
+    assert identification.NotIdentifiableError is errors.NotIdentifiableError
+    assert issubclass(errors.NotIdentifiableError, errors.ModelError)
+    assert errors.InputRejected("range", "too big").kind == "range"
+
+
+def test_nanoseconds_per_second_is_written_once():
+    """records.NS_PER_S is the one definition; no other module writes 10**9 (or 1e9) as a literal."""
+    literal = {str(p.relative_to(ROOT)): [node.lineno for node in ast.walk(ast.parse(p.read_text()))
+                                          if isinstance(node, ast.Constant) and not isinstance(node.value, bool)
+                                          and isinstance(node.value, (int, float)) and node.value == 1e9]
+               for p in source_files()}
+    written = {path: len(lines) for path, lines in literal.items() if lines}
+    assert written == {"usv_predictor/records.py": 1}

@@ -13,7 +13,7 @@ import pytest
 
 from msg_adapters import ROLE_FIELDS
 from usv_predictor.records import Signal
-from usv_predictor.replay import cmd_report
+from usv_predictor.analysis import reports
 from usv_predictor.replay.bagio import TopicSpec, write_bag
 from usv_predictor.replay.cli import main
 from usv_predictor.replay.recordings import bag_sha256
@@ -89,9 +89,9 @@ def test_report_from_an_evaluation_file_agrees_with_its_json(evaluated, tmp_path
         ("Absolute error of angle (deg)", "errors", "drift_direction_abs_deg", ""),
         ("Relative error of drift distance", "errors", "drift_distance_rel_pct", "%"),
     ):
-        assert _md_row(markdown, label) == [cmd_report.num(r["turning"][section][key], 2, suffix) for r in turning]
+        assert _md_row(markdown, label) == [reports.num(r["turning"][section][key], 2, suffix) for r in turning]
     summary_value = data["summary"]["mean_position_error_after_30s_m"]
-    assert _md_row(markdown, "mean_position_error_after_30s_m") == [cmd_report.num(summary_value, 3)]
+    assert _md_row(markdown, "mean_position_error_after_30s_m") == [reports.num(summary_value, 3)]
     # figures: per test track / position / states, plus the open-loop and turning summaries, all real PNGs
     pngs = sorted(p.name for p in out.glob("*.png"))
     assert len(pngs) == 3 * len(data["recordings"]) + 2
@@ -226,3 +226,17 @@ def test_shipped_artifact_format_is_evaluated(bags, tmp_path):
     assert data["model"]["model_id"] == loaded.model_id and data["model"]["model_type"] == "constant-velocity test"
     assert data["recordings"][0]["open_loop"]["position_error_after_10s_m"] > 0.0
     assert main(["evaluate", str(bags), "--model", str(path), "--dt", "0.25"]) == 2
+
+
+def test_the_evaluation_request_refuses_what_cannot_be_evaluated(capsys):
+    from usv_predictor.errors import EvaluationError
+    from usv_predictor.replay.evaluate import EvaluationRequest
+
+    for fields in ({"stride_s": 0.0}, {"horizons_s": (10.0, -30.0)}):
+        with pytest.raises(EvaluationError, match=r"--stride and --horizons must be positive \(s\)"):
+            EvaluationRequest(**fields)
+    with pytest.raises(EvaluationError, match="--reference 'radar': expected one of gnss, truth"):
+        EvaluationRequest(reference="radar")
+    assert main(["evaluate", "--model", "physics", "--stride", "-5"]) == 2  # refused before any bag is read
+    err = capsys.readouterr().err
+    assert err.startswith("replay evaluate: error: --stride and --horizons must be positive") and "reading" not in err

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -138,3 +139,41 @@ def test_shipped_bags_open_and_say_how_they_were_made():
         meta = read_custom_data(bag)
         effects = json.loads(meta["scenario"])["effects"]
         assert (set(effects) == {"current", "wind", "wave_drift"}) == (bag.parent.name != "calm")
+
+
+# ------------------------------------------------------------------ the typed request behind the command
+
+
+def test_the_simulation_request_refuses_bad_values_with_the_commands_messages(tmp_path):
+    from usv_predictor.errors import ConfigError
+    from usv_predictor.physics.vessel import load_vessel
+    from usv_predictor.replay.simulate import SimulationRequest, manoeuvres
+
+    out = tmp_path / "bags"
+    for fields, message in (({"programme": "diagnosis", "manoeuvre": "zigzag"}, "give either --programme or --manoeuvre"),
+                            ({"duration_s": 0.5}, "--duration 0.5 s is outside [1, 3600] s"),
+                            ({"manoeuvre": "zigzag", "check_deg": 95.0}, "--check 95 deg is outside (0, 90] deg"),
+                            ({"manoeuvre": "barrel-roll"}, "--manoeuvre 'barrel-roll': expected one of"),
+                            ({"sea": "stormy"}, "--sea 'stormy': expected one of calm, rizhao")):
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            SimulationRequest(output=out, **fields)
+    assert SimulationRequest(output=out, manoeuvre="turning-circle", check_deg=95.0).check_angle_deg == 95.0  # unused
+    vessel = load_vessel("jari_usv")
+    with pytest.raises(ConfigError, match=r"--rudder 60 deg is outside the preset's range \[0, 35\] deg"):
+        manoeuvres(SimulationRequest(output=out, rudder_deg=60.0), vessel)
+    with pytest.raises(ConfigError, match="--rpm -5 is outside"):
+        manoeuvres(SimulationRequest(output=out, rpm=-5.0), vessel)
+    [zigzag] = manoeuvres(SimulationRequest(output=out, manoeuvre="zigzag", rudder_deg=15.0, side="port"), vessel)
+    assert (zigzag.rudder_deg, zigzag.check_deg, zigzag.side) == (15.0, 15.0, -1)
+    assert not out.exists()  # nothing is written before the bags are simulated
+
+
+def test_given_effects_go_on_top_of_the_sea():
+    from usv_predictor.physics.scenario import RIZHAO_SEA
+    from usv_predictor.replay.simulate import scenario_effects
+
+    assert scenario_effects("calm", {"rudder_offset": {}}) == {"rudder_offset": {}}
+    sea = scenario_effects("rizhao", {"current": {"current_speed": 0.9}, "rudder_offset": {}})
+    assert set(sea) == set(RIZHAO_SEA) | {"rudder_offset"}
+    assert sea["current"] == {**RIZHAO_SEA["current"], "current_speed": 0.9}
+    assert RIZHAO_SEA["current"].get("current_speed") != 0.9  # the sea itself is not modified

@@ -43,6 +43,13 @@ class Range(NamedTuple):
     def describe(self, name: str) -> str:
         return f"{self.low:g} <= {name} <= {self.high:g} ({self.unit})"
 
+    def check(self, name: str, value: float, source: str) -> float:
+        """`value` if finite and within [low, high], else ConfigError naming source, name, value (and unit)."""
+        if not (self.low <= value <= self.high) or not math.isfinite(value):
+            unit = f" {self.unit}" if self.unit else ""
+            raise ConfigError(f"{source}: {name}={value}{unit} is outside the allowed range [{self.low}, {self.high}]")
+        return value
+
 
 # The node declares its ROS parameters with these same ranges, so rclpy and the loader agree.
 FLOAT_RANGES: Mapping[str, Range] = MappingProxyType(

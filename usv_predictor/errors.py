@@ -1,4 +1,7 @@
-"""The few exceptions usv_predictor raises; messages name the culprit (file, topic, field)."""
+"""Every exception usv_predictor raises on purpose; messages name the culprit (file, topic, field).
+
+The modules that raise them import them from here (and keep the names importable, e.g. live.CycleSkipped).
+"""
 from __future__ import annotations
 
 
@@ -24,3 +27,35 @@ class ModelError(UsvPredictorError):
 
 class DatasetError(UsvPredictorError):
     """A dataset cannot be built or read (empty split, too-short manoeuvre, wrong format)."""
+
+
+class RecordingError(UsvPredictorError):
+    """Signals that cannot become a Recording (missing role, too short, gaps); the message says which."""
+
+
+class NotIdentifiableError(ModelError):
+    """The data cannot determine some coefficients; the message names them and the options."""
+
+
+class EvaluationError(UsvPredictorError):
+    """A recording cannot be evaluated as asked (no reference track, no truth, too short); says which."""
+
+
+class DiagnosisError(UsvPredictorError):
+    """The data cannot support a diagnosis; the message says what data would be needed."""
+
+
+class PlotError(UsvPredictorError):
+    """A figure cannot be written (directory not writable, disk full); names the file."""
+
+
+class InputRejected(UsvPredictorError):
+    """One live input sample was refused (reason in the message; `kind` is its counter key)."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+class CycleSkipped(UsvPredictorError):
+    """No live prediction this cycle; the message says why (no input yet, stale input, bad model output)."""

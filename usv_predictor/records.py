@@ -1,9 +1,14 @@
-"""Plain-number records passed between sensors, adapters, bags and models (SI units, named frames)."""
+"""Plain-number records passed between sensors, adapters, bags and models (SI units, named frames).
+
+Time inside is int nanoseconds (t_ns) until the numeric boundary, where it becomes float seconds.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+
+NS_PER_S = 1_000_000_000  # nanoseconds per second
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from usv_predictor.data.recording import Recording
-from usv_predictor.errors import UsvPredictorError
+from usv_predictor.errors import DiagnosisError
 from usv_predictor.frames import compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
 from usv_predictor.physics import effects as fx
@@ -38,10 +38,6 @@ SIGMA = (0.05, 0.05, 0.005, 1.0, 1.0, 0.01)  # u, v (m/s), r (rad/s), x_n, y_e (
 EVIDENCE_CAUSE = 5.0  # held-out log-likelihood ratio over the calm-water model needed to name a cause
 MIN_GAIN = 0.05  # ... and the share of the calm-water model's held-out loss it must remove
 EVIDENCE_CONFOUND = 2.0  # a winner beating a runner-up cause by less than this is confounded with it
-
-
-class DiagnosisError(UsvPredictorError):
-    """The data cannot support a diagnosis; the message says what data would be needed."""
 
 
 # Every hypothesis and the grey-box terms (physics.effects.Term) it fits: `none` (none) and each effect record.
@@ -280,11 +276,14 @@ def check_data(recordings: Sequence[Recording]) -> list[str]:
 
 def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Sequence[str] | None = None,
              horizon_s: float = 20.0, stride_s: float = 5.0, substeps: int = 1, max_causes: int = 2,
-             progress: Callable[[str], None] = lambda _: None) -> Diagnosis:
+             progress: Callable[[str], None] = lambda _: None, segments: Segments | None = None,
+             rollout: torch.jit.ScriptModule | None = None) -> Diagnosis:
     """Name the cause of what the calm-water grey box gets wrong on these recordings.
 
     After the primary cause, up to max_causes - 1 further ones are added one at a time (forward selection)
     while each passes the same held-out evidence test against the model with the causes before it.
+    segments / rollout: make_segments(recordings, horizon_s, stride_s) and scripted_rollout(vessel, dt, substeps)
+    when the caller has them already (built here otherwise); the rollout's terms are left at the final fit.
     """
     started = time.perf_counter()
     notes = check_data(recordings)
@@ -292,9 +291,9 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     if "none" not in names:
         names.insert(0, "none")
     dt = recordings[0].dt
-    seg = make_segments(recordings, horizon_s, stride_s)
+    seg = segments if segments is not None else make_segments(recordings, horizon_s, stride_s)
     folds = _folds(recordings)
-    model = scripted_rollout(vessel, dt, substeps)
+    model = rollout if rollout is not None else scripted_rollout(vessel, dt, substeps)
     per_segment: dict[str, np.ndarray] = {}
     fold_params: dict[str, tuple[dict[str, float], ...]] = {}
     for name in names:
@@ -437,10 +436,13 @@ def extended_rollout(vessel: Vessel, dt: float, terms: dict[str, Sequence[float]
 
 def measure_gain(recordings: Sequence[Recording], vessel: Vessel, diagnosis: Diagnosis, *,
                  horizons_s: Sequence[float] = (10.0, 30.0, 60.0), stride_s: float = 5.0,
-                 horizon_s: float = 20.0, segment_stride_s: float = 5.0) -> dict[str, object]:
+                 horizon_s: float = 20.0, segment_stride_s: float = 5.0, segments: Segments | None = None,
+                 rollout: torch.jit.ScriptModule | None = None) -> dict[str, object]:
     """Every evaluation metric of the calm-water and the extended model on manoeuvres held out from the fit.
 
-    Each fold's manoeuvres are predicted by the extension fitted on the other fold only.
+    Each fold's manoeuvres are predicted by the extension fitted on the other fold only. segments / rollout:
+    make_segments(recordings, horizon_s, segment_stride_s) and scripted_rollout(vessel, dt) when the caller has
+    them already (built here otherwise).
     """
     from usv_predictor.analysis import evaluation
     from usv_predictor.models.greybox import GreyBoxPredictor, greybox_metadata
@@ -450,8 +452,8 @@ def measure_gain(recordings: Sequence[Recording], vessel: Vessel, diagnosis: Dia
     baseline = GreyBoxPredictor(base_rollout, {**greybox_metadata(vessel, base_rollout), "model_id": "calm-water"})
     names = [r.name for r in recordings]
     before, after = [], []
-    seg = make_segments(recordings, horizon_s, segment_stride_s)
-    fitter = scripted_rollout(vessel, dt)
+    seg = segments if segments is not None else make_segments(recordings, horizon_s, segment_stride_s)
+    fitter = rollout if rollout is not None else scripted_rollout(vessel, dt)
     for fit_fold, test_fold in ((0, 1), (1, 0)):
         fit_names, test_names = diagnosis.folds[fit_fold], diagnosis.folds[test_fold]
         fit_idx = [names.index(n) for n in fit_names]

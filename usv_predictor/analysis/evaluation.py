@@ -34,20 +34,17 @@ import numpy as np
 
 from usv_predictor.analysis import metrics
 from usv_predictor.data.recording import Recording
-from usv_predictor.errors import ModelError, UsvPredictorError
+from usv_predictor.errors import EvaluationError, ModelError
 from usv_predictor.frames import angle_difference_deg
+from usv_predictor.models import loading
+from usv_predictor.models.loading import check_dt
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, actuator_layout
 
 U, V, R, X_N, Y_E, PSI = range(6)  # columns of predicted and measured series (model output order)
 COLUMNS = ("u_mps", "v_mps", "r_rad_s", "x_n_m", "y_e_m", "psi_rad")
 REFERENCES = ("gnss", "truth")
 DEFAULT_HORIZONS_S = (10.0, 30.0, 60.0)
-DT_TOLERANCE_S = 1e-6
 DRIFT_DIRECTION_MIN_M = 1.0  # below this drift distance (m) its direction is noise
-
-
-class EvaluationError(UsvPredictorError):
-    """A recording cannot be evaluated as asked (no reference track, no truth, too short); says which."""
 
 
 class Predictor(Protocol):
@@ -195,25 +192,6 @@ class EvaluationResult:
 # --------------------------------------------------------------------------------------------
 # Model plumbing
 # --------------------------------------------------------------------------------------------
-def model_dt(model: Predictor) -> float:
-    """The model's step (s) from its metadata; ModelError when absent or not positive."""
-    try:
-        dt = float(model.metadata["dt"])
-    except (KeyError, TypeError, ValueError) as err:
-        raise ModelError(f"model metadata has no numeric 'dt' (s): {err}") from err
-    if not dt > 0.0:
-        raise ModelError(f"model metadata dt={dt} s must be > 0")
-    return dt
-
-
-def check_dt(model: Predictor, dt: float, what: str) -> None:
-    """ModelError when the model's step differs from the data's (a model only works at its own dt)."""
-    expected = model_dt(model)
-    if abs(expected - dt) > DT_TOLERANCE_S:
-        raise ModelError(f"model {model.metadata.get('model_id', '?')} has dt={expected:g} s but {what} "
-                         f"has dt={dt:g} s; resample the data at {expected:g} s or use a model trained at {dt:g} s")
-
-
 def rollout(model: Predictor, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
     """model.predict with its shapes checked: (B, 4), (B, H, 2) -> (E, B, H, 6)."""
     state = np.asarray(state, dtype=float)
@@ -575,22 +553,7 @@ def evaluate(model: Predictor, recordings: Sequence[Recording], reference: str =
                             summary=summarise(evaluations, horizons_s), horizons_s=tuple(horizons_s))
 
 
-# --------------------------------------------------------------------------------------------
-# Physics baseline: the calm-water manoeuvring model as a predictor
-# --------------------------------------------------------------------------------------------
-def physics_predictor(vessel: Any, dt: float) -> Predictor:
-    """The calm-water physics baseline: the vessel preset's grey box (usv_predictor.models.greybox) with no sea terms.
-
-    It knows nothing of current, wind or waves, so it is the baseline a learned model must beat at sea. The
-    recorded rudder angle and engine speed drive it as the actuator states (they are feedback, not commands).
-    `vessel` is a preset name or a Vessel.
-    """
-    from usv_predictor.models.greybox import greybox_predictor
-    from usv_predictor.physics.vessel import load_vessel
-
-    if not dt > 0.0:
-        raise ModelError(f"physics predictor step dt={dt} s must be > 0")
-    return greybox_predictor(load_vessel(vessel) if isinstance(vessel, str) else vessel, dt)
+physics_predictor = loading.physics_predictor  # the calm-water physics baseline (it lives with the models)
 
 
 # --------------------------------------------------------------------------------------------

@@ -5,6 +5,8 @@
     states_figure           u, v, r vs time (Fig. 10)
     open_loop_figure        open-loop position error vs prediction horizon
     turning_summary_figure  radius, drift direction and drift distance per test, measured vs predicted (Fig. 13-15)
+    force_decomposition_figure  hull / rudder / propeller forces of an identification vs the measured total
+                                (seed 001 Fig. 13)
 
 Rotation: with the drift direction alpha (compass, toward) the map (east, north) is turned so the drift points
 along +x: along = x_n cos(alpha) + y_e sin(alpha), across = x_n sin(alpha) - y_e cos(alpha) (to port of the
@@ -20,6 +22,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -27,16 +30,15 @@ from matplotlib.figure import Figure
 
 from usv_predictor.analysis.evaluation import X_N, Y_E, Prediction, R, U, V
 from usv_predictor.atomic import atomic_open
-from usv_predictor.errors import UsvPredictorError
+from usv_predictor.errors import PlotError
+
+if TYPE_CHECKING:
+    from usv_predictor.fitting.identification import IdentificationResult
 
 MEASURED = {"color": "black", "linewidth": 1.0, "label": "measured"}
 PREDICTED = {"color": "tab:blue", "linewidth": 1.4, "label": "predicted"}
 BAND = {"color": "tab:blue", "alpha": 0.2, "linewidth": 0.0}
 DPI = 110
-
-
-class PlotError(UsvPredictorError):
-    """A figure cannot be written (directory not writable, disk full); names the file."""
 
 
 def new_figure(width_in: float, height_in: float) -> Figure:
@@ -215,3 +217,41 @@ def turning_summary_figure(rows: Sequence[TurningRow], title: str) -> Figure:
     fig.suptitle(f"{title}\nturning tests, measured vs predicted", fontsize="medium")
     return fig
 
+
+
+def force_decomposition_figure(result: IdentificationResult, k: int) -> Figure:
+    """Seed 001 Fig. 13: hull / rudder / propeller decomposition and measured vs identified total over time,
+    for manoeuvre k of an identification (X, Y in N, N in N m; the grey band: the part left out of the fit)."""
+    from usv_predictor.fitting.identification import hull_forces
+
+    d = result.data[k]
+    values = result.fit.values()
+    hull = hull_forces(result.vessel, values, d.nu, result.fit.u0)
+    hull_v = hull_forces(result.vessel, values, d.nu, result.fit.u0,
+                         names=[n for n in values if "v" in n.split("_", 1)[-1] and "r" not in n.split("_", 1)[-1]])
+    hull_r = hull_forces(result.vessel, values, d.nu, result.fit.u0,
+                         names=[n for n in values if "r" in n.split("_", 1)[-1] and "v" not in n.split("_", 1)[-1]])
+    model_total = hull + d.rudder + d.propeller
+    fig = Figure(figsize=(9, 8), dpi=DPI)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(3, 1, sharex=True)
+    labels = ("X (N)", "Y (N)", "N (N m)")
+    for i, ax in enumerate(axes):
+        ax.plot(d.t_s, d.total[:, i], color="k", lw=1.5, label="measured (inverse dynamics)")
+        ax.plot(d.t_s, model_total[:, i], color="tab:red", lw=1.0, ls="--", label="identified total")
+        ax.plot(d.t_s, hull[:, i], color="tab:blue", lw=0.9, label="hull")
+        if i > 0:
+            ax.plot(d.t_s, hull_v[:, i], color="tab:cyan", lw=0.7, label="hull(v)")
+            ax.plot(d.t_s, hull_r[:, i], color="tab:purple", lw=0.7, label="hull(r)")
+        ax.plot(d.t_s, d.rudder[:, i], color="tab:green", lw=0.9, label="rudder (prior)")
+        if i == 0:
+            ax.plot(d.t_s, d.propeller[:, i], color="tab:orange", lw=0.9, label="propeller (prior)")
+        ax.set_ylabel(labels[i])
+        ax.grid(alpha=0.3)
+        ax.axvspan(d.t_s[0], d.t_s[np.argmax(d.keep)] if d.keep.any() else d.t_s[0], color="0.9")
+    axes[0].legend(fontsize=7, ncol=3)
+    axes[1].legend(fontsize=7, ncol=3)
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle(f"{d.name}: force decomposition ({result.structure}, prior {result.fit.prior_policy})")
+    fig.tight_layout()
+    return fig

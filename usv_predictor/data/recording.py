@@ -20,12 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from usv_predictor.errors import UsvPredictorError
+from usv_predictor.errors import RecordingError
 from usv_predictor.frames import LocalTangentPlane
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
-from usv_predictor.records import Signal
+from usv_predictor.records import NS_PER_S, Signal
 
-NS = 1_000_000_000
+NS = NS_PER_S  # the name tests import from here
 MOTION_ROLES = ("imu", "velocity", "heading")  # the state [u, v, r, psi]; the controls' roles come from the layout
 
 
@@ -35,10 +35,6 @@ def required_roles(layout: ActuatorLayout = DEFAULT_LAYOUT) -> tuple[str, ...]:
 
 
 REQUIRED_ROLES = required_roles(DEFAULT_LAYOUT)
-
-
-class RecordingError(UsvPredictorError):
-    """Signals that cannot become a Recording (missing role, too short, gaps); the message says which."""
 
 
 @dataclass(frozen=True)
@@ -109,7 +105,7 @@ def largest_gap(t_ns: np.ndarray, start_ns: int, end_ns: int) -> tuple[float, in
     edges = np.concatenate([[start_ns], inside, [end_ns]])
     gaps = np.diff(edges)
     k = int(np.argmax(gaps))
-    return float(gaps[k]) / NS, int(edges[k])
+    return float(gaps[k]) / NS_PER_S, int(edges[k])
 
 
 def recording_from_signals(signals: dict[str, Signal], dt: float, *, name: str, source: str = "",
@@ -127,25 +123,25 @@ def recording_from_signals(signals: dict[str, Signal], dt: float, *, name: str, 
         raise RecordingError(f"{source or name}: no data for role(s) {missing}; need {list(roles)}")
     if not dt > 0.0:
         raise RecordingError(f"{source or name}: step dt={dt} s must be > 0")
-    dt_ns = int(round(dt * NS))
+    dt_ns = int(round(dt * NS_PER_S))
     for role in roles:
         t = signals[role].t_ns
         if np.any(np.diff(t) <= 0):
             k = int(np.flatnonzero(np.diff(t) <= 0)[0])
             raise RecordingError(f"{source or name}: {role} timestamps do not increase at "
-                                 f"t={(t[k + 1] - t[0]) / NS:.3f} s (sort or de-duplicate first)")
+                                 f"t={(t[k + 1] - t[0]) / NS_PER_S:.3f} s (sort or de-duplicate first)")
     # whole windows only: a window cut by the end of the data would bias the mean of a trend
     start = max(int(signals[r].t_ns[0]) for r in roles) + dt_ns // 2
     end = min(int(signals[r].t_ns[-1]) for r in roles) - dt_ns // 2
     steps = (end - start) // dt_ns
     if steps < 1:
-        raise RecordingError(f"{source or name}: the signals overlap for {(end - start) / NS:.2f} s, less than one step")
+        raise RecordingError(f"{source or name}: the signals overlap for {(end - start) / NS_PER_S:.2f} s, less than one step")
     grid = start + np.arange(steps + 1, dtype=np.int64) * dt_ns
     limit = dt if max_gap_s is None else max_gap_s
     for role in roles:
         gap, at = largest_gap(signals[role].t_ns, start, int(grid[-1]))
         if gap > limit + 1e-9:
-            raise RecordingError(f"{source or name}: {role} has a {gap:.2f} s gap at t={(at - start) / NS:.2f} s, "
+            raise RecordingError(f"{source or name}: {role} has a {gap:.2f} s gap at t={(at - start) / NS_PER_S:.2f} s, "
                                  f"longer than {limit:.2f} s")
 
     def resample(role: str, field: str) -> np.ndarray:
@@ -177,6 +173,6 @@ def recording_from_signals(signals: dict[str, Signal], dt: float, *, name: str, 
         rel = (odom.t_ns - odom.t_ns[0]).astype(float)
         g = (grid - odom.t_ns[0]).astype(float)
         truth = np.column_stack([np.interp(g, rel, vals[:, k]) for k in range(6)])
-    return Recording(name=name, source=source, t0_ns=int(grid[0]), dt=dt, t_s=(grid - grid[0]) / NS,
+    return Recording(name=name, source=source, t0_ns=int(grid[0]), dt=dt, t_s=(grid - grid[0]) / NS_PER_S,
                      nu=nu, psi=psi, controls=controls, position=position, truth=truth, datum=datum,
                      layout=layout.name)

@@ -44,7 +44,7 @@ import numpy as np
 
 from usv_predictor.data.recording import Recording
 from usv_predictor.data.smoother import Smoothed, SmootherConfig, smooth_recording
-from usv_predictor.errors import ConfigError, DatasetError, ModelError
+from usv_predictor.errors import ConfigError, DatasetError, NotIdentifiableError
 from usv_predictor.models.greybox import HULL_NAMES
 from usv_predictor.models.hybrid import EXTRA_NAMES
 from usv_predictor.physics.dynamics import ManoeuvringModel
@@ -60,10 +60,6 @@ MIN_MANOEUVRES = 2  # cross-validation needs at least one manoeuvre to hold out
 SPEED_RATIO_RANGE = (0.6, 1.6)  # measured / preset straight-running speed accepted as "the same vessel and scale"
 RIDGE_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # penalty weights (relative to the data term) tried by CV
 Z95 = 1.959964
-
-
-class NotIdentifiableError(ModelError):
-    """The data cannot determine some coefficients; the message names them and the options."""
 
 
 # ------------------------------------------------------------------------------------------ structures

@@ -25,7 +25,7 @@ usv_predictor.physics.effects, which say which diagnosis hypothesis fits them; t
 from __future__ import annotations
 
 import math
-from typing import Dict, List
+from typing import Any, Dict, List, Mapping
 
 import torch
 from torch import Tensor, nn
@@ -247,3 +247,17 @@ def greybox_predictor(vessel: Vessel, dt: float, substeps: int = 2) -> GreyBoxPr
     meta = greybox_metadata(vessel, rollout, model_type="physics (calm-water MMG grey box of the preset)")
     meta["model_id"] = f"physics-{vessel.name}"
     return GreyBoxPredictor(rollout, meta)
+
+
+def hull_from_metadata(meta: Mapping[str, Any]) -> dict[str, float] | None:
+    """The MMG hull derivatives of a grey-box artifact's metadata: from `replay identify`
+    (identification.coefficients) or from `replay diagnose --export` (architecture.hull); None for anything
+    the plain grey box cannot carry (Abkowitz structure, extra terms, a learned residual, another family)."""
+    ident = meta.get("identification")
+    arch = meta.get("architecture")
+    if isinstance(ident, dict):
+        residual = arch.get("residual", "ZeroResidual") if isinstance(arch, dict) else "ZeroResidual"
+        if ident.get("structure") != "mmg" or ident.get("extra_terms") or residual != "ZeroResidual":
+            return None
+        return {c["name"]: c["estimate"] for c in ident.get("coefficients", []) if isinstance(c, dict)}
+    return arch.get("hull") if isinstance(arch, dict) and isinstance(arch.get("hull"), dict) else None

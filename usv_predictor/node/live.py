@@ -35,11 +35,12 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from usv_predictor.data.recording import NS, required_roles, window_resample
-from usv_predictor.errors import ModelError, UsvPredictorError
+from usv_predictor.data.recording import required_roles, window_resample
+from usv_predictor.errors import CycleSkipped, InputRejected, ModelError
 from usv_predictor.frames import LocalTangentPlane
 from usv_predictor.models.artifact import ModelArtifact
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
+from usv_predictor.records import NS_PER_S
 
 POSITION_ROLE = "gnss"
 # role -> the fields the state uses, in the order of recording_from_signals (the controls' roles: the layout's)
@@ -78,18 +79,6 @@ RAW_HEADING_LIMIT = {"rad": 2.0 * math.pi + 1e-6, "deg": 360.0 + 1e-6}  # |raw h
 RATE_WINDOW_S = 1.0  # input rates are counted over this much of the latest samples (s)
 WARM_UP_CALLS = 3  # rollouts run when a model is loaded
 STEADY_SPEED_LIMIT = 50.0  # m/s: a predicted speed beyond this is a diverged model, not a prediction
-
-
-class InputRejected(UsvPredictorError):
-    """One sample was refused (reason in the message; `kind` is its counter key)."""
-
-    def __init__(self, kind: str, message: str) -> None:
-        super().__init__(message)
-        self.kind = kind
-
-
-class CycleSkipped(UsvPredictorError):
-    """No prediction this cycle; the message says why (no input yet, stale input, bad model output)."""
 
 
 def check_raw_heading(raw: float, units: str) -> None:
@@ -170,10 +159,10 @@ class SampleBuffer:
     def rate_hz(self, now_ns: int, span_s: float = RATE_WINDOW_S) -> float:
         """Samples per second over the last span_s before now (0 when fewer than two)."""
         t, _ = self.samples()
-        recent = t[t >= now_ns - int(span_s * NS)]
+        recent = t[t >= now_ns - int(span_s * NS_PER_S)]
         if len(recent) < 2 or recent[-1] <= recent[0]:
             return 0.0
-        return (len(recent) - 1) * NS / float(recent[-1] - recent[0])
+        return (len(recent) - 1) * NS_PER_S / float(recent[-1] - recent[0])
 
 
 @dataclass
@@ -196,7 +185,7 @@ class InputTrack:
     def age_s(self, now_ns: int) -> float | None:
         """Age of the newest sample (by its stamp) on the clock now; None before the first sample."""
         latest = self.buffer.latest_ns
-        return None if latest is None else (now_ns - latest) / NS
+        return None if latest is None else (now_ns - latest) / NS_PER_S
 
 
 @dataclass(frozen=True)
@@ -210,7 +199,7 @@ class LiveSettings:
 
     @property
     def dt_ns(self) -> int:
-        return int(round(self.dt * NS))
+        return int(round(self.dt * NS_PER_S))
 
 
 class LiveState(NamedTuple):
@@ -251,8 +240,8 @@ class InputSet:
             if latest is not None and stamp_ns <= latest:
                 if stamp_ns == latest:
                     raise InputRejected("duplicate", f"{role}: stamp repeats the previous one")
-                raise InputRejected("backwards", f"{role}: stamp {(latest - stamp_ns) / NS:.3f} s before the previous one")
-            ahead = (stamp_ns - now_ns) / NS
+                raise InputRejected("backwards", f"{role}: stamp {(latest - stamp_ns) / NS_PER_S:.3f} s before the previous one")
+            ahead = (stamp_ns - now_ns) / NS_PER_S
             if ahead > self.settings.max_future_s:
                 raise InputRejected("future", f"{role}: stamp {ahead:.3f} s ahead of the clock "
                                               f"(limit {self.settings.max_future_s:g} s; clock or use_sim_time mismatch?)")
@@ -285,7 +274,7 @@ class InputSet:
             raise CycleSkipped(f"input {role}: the averaging window starts before its first buffered sample")
         if inside == 0:
             raise CycleSkipped(f"input {role}: no sample in the averaging window "
-                               f"(latest {(t_c_ns + half - int(t[-1])) / NS:.2f} s before its end)")
+                               f"(latest {(t_c_ns + half - int(t[-1])) / NS_PER_S:.2f} s before its end)")
         cols = [track.buffer.fields.index(c) for c in columns]
         chosen = values[:, cols]
         if role == "heading":
@@ -304,7 +293,7 @@ class InputSet:
                 raise CycleSkipped(f"input {role}: no message yet")
             if age > track.max_age_s:
                 raise CycleSkipped(f"input {role}: stale, newest sample {age:.2f} s old (limit {track.max_age_s:g} s)")
-        t_end = now_ns - int(round(self.settings.state_delay_s * NS))
+        t_end = now_ns - int(round(self.settings.state_delay_s * NS_PER_S))
         t_c = t_end - self.settings.dt_ns // 2
         means, counts = {}, {}
         for role in self.required:

@@ -54,15 +54,15 @@ from usv_predictor.config import (
     Range,
     default_config_path,
     flatten_ros_parameters,
-    package_share_path,
     parse_predictor_config,
     read_ros_parameters,
     unflatten_ros_parameters,
 )
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredictorError
-from usv_predictor.models.artifact import ModelArtifact, load_artifact
+from usv_predictor.models import loading
 from usv_predictor.node import live
 from usv_predictor.physics.vessel import load_vessel
+from usv_predictor.records import NS_PER_S
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
 COVARIANCE_TOPIC = "predicted_path_covariance"
@@ -155,20 +155,11 @@ def _key_values(pairs: dict[str, Any]) -> list[KeyValue]:
     return [KeyValue(key=key, value=str(value)) for key, value in pairs.items()]
 
 
-def resolve_model_path(model_path: str) -> Path:
-    """model_path "" -> the shipped models/default.pt (ModelError when it cannot be found)."""
-    if model_path:
-        return Path(model_path).expanduser()
-    try:
-        return package_share_path("models", "default.pt")
-    except ConfigError as err:
-        raise ModelError(f"model_path is empty and the shipped default model is missing: {err}") from err
-
-
 def load_model(model_path: str, config: PredictorConfig) -> live.Rollout:
-    """The model of `model_path`, checked against the configuration (ModelError naming file and mismatch)."""
-    path = resolve_model_path(model_path)
-    artifact: ModelArtifact = load_artifact(path, expect={"dt": config.dt, "vessel": config.vessel})
+    """The model of `model_path` ("" = the shipped one), checked against the configuration (ModelError naming
+    the file and the mismatch)."""
+    artifact = loading.load_model(model_path, expect={"dt": config.dt, "vessel": config.vessel},
+                                  option="model_path", physics=False)
     return live.Rollout(artifact, config.horizon_steps, config.ensemble_size)
 
 
@@ -360,7 +351,7 @@ class PredictorNode(Node):
             values["last_decode_error"] = failures.last
         if track.last_reject:
             values["last_rejected"] = track.last_reject
-        recent_reject = track.last_reject_ns is not None and now_ns - track.last_reject_ns < RECENT_REJECT_S * 1e9
+        recent_reject = track.last_reject_ns is not None and now_ns - track.last_reject_ns < RECENT_REJECT_S * NS_PER_S
         if failures.at_ns is not None and (track.last_accept_ns is None or failures.at_ns > track.last_accept_ns):
             return self._status(ERROR, f"input {role}", f"cannot decode messages: {failures.last}", values)
         if age is None:

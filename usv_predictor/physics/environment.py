@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from usv_predictor.errors import ConfigError
+from usv_predictor.config import Range
 
 
 @dataclass(frozen=True)
@@ -31,17 +31,16 @@ class Environment:
 
     def __post_init__(self) -> None:
         checks = {
-            "current_speed": (self.current_speed, 0.0, 5.0),
-            "wind_speed": (self.wind_speed, 0.0, 40.0),
-            "gust_std": (self.gust_std, 0.0, 15.0),
-            "gust_time_constant_s": (self.gust_time_constant_s, 0.1, 3600.0),
-            "wave_height": (self.wave_height, 0.0, 6.0),
-            "wave_period_s": (self.wave_period_s, 0.5, 25.0),
-            "current_turn_rate_deg_s": (self.current_turn_rate_deg_s, -1.0, 1.0),
+            "current_speed": (self.current_speed, Range(0.0, 5.0, "m/s")),
+            "wind_speed": (self.wind_speed, Range(0.0, 40.0, "m/s")),
+            "gust_std": (self.gust_std, Range(0.0, 15.0, "m/s")),
+            "gust_time_constant_s": (self.gust_time_constant_s, Range(0.1, 3600.0, "s")),
+            "wave_height": (self.wave_height, Range(0.0, 6.0, "m")),
+            "wave_period_s": (self.wave_period_s, Range(0.5, 25.0, "s")),
+            "current_turn_rate_deg_s": (self.current_turn_rate_deg_s, Range(-1.0, 1.0, "deg/s")),
         }
-        for name, (value, low, high) in checks.items():
-            if not (low <= value <= high) or not math.isfinite(value):
-                raise ConfigError(f"environment {name}={value} is outside the allowed range [{low}, {high}]")
+        for name, (value, allowed) in checks.items():
+            allowed.check(name, value, "environment")
 
     @property
     def is_calm(self) -> bool:

@@ -10,14 +10,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from usv_predictor.errors import ConfigError
+from usv_predictor.config import Range
 from usv_predictor.physics.simulator import Controller
 
 
 def _check(name: str, **ranges: tuple[float, float, float]) -> None:
     for arg, (value, low, high) in ranges.items():
-        if not (low <= value <= high) or not math.isfinite(value):
-            raise ConfigError(f"{name}: {arg}={value} is outside the allowed range [{low}, {high}]")
+        Range(low, high, "").check(arg, value, name)
 
 
 @dataclass(frozen=True)

@@ -19,12 +19,16 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from usv_predictor.config import Range
 from usv_predictor.errors import ConfigError
 from usv_predictor.frames import LocalTangentPlane, wrap_angle
 from usv_predictor.physics.environment import Environment, wave_components
-from usv_predictor.physics.simulator import NS, ActuatorFaults, Trajectory
+from usv_predictor.physics.simulator import ActuatorFaults, Trajectory
 from usv_predictor.physics.vessel import GRAVITY
-from usv_predictor.records import Signal
+from usv_predictor.records import NS_PER_S, Signal
+
+RATE_RANGE = Range(0.1, 1000.0, "Hz")  # output rate of every sensor
+DELAY_RANGE = Range(0.0, 5.0, "s")  # hull response after the reported actuator values
 
 
 @dataclass(frozen=True)
@@ -62,12 +66,11 @@ class SensorSpec:
             value = getattr(self, f.name)
             if not math.isfinite(value):
                 raise ConfigError(f"sensor parameter {f.name}={value} must be finite")
-            if f.name.endswith("_hz") and not 0.1 <= value <= 1000.0:
-                raise ConfigError(f"sensor rate {f.name}={value} Hz is outside [0.1, 1000]")
+            if f.name.endswith("_hz"):
+                RATE_RANGE.check(f.name, value, "sensors")
             if (f.name.endswith("_std") or f.name.endswith("_lsb") or f.name.endswith("_lsb_deg")) and value < 0.0:
                 raise ConfigError(f"sensor parameter {f.name}={value} must be >= 0")
-        if not 0.0 <= self.actuator_delay_s <= 5.0:
-            raise ConfigError(f"actuator_delay_s={self.actuator_delay_s} is outside [0, 5] s")
+        DELAY_RANGE.check("actuator_delay_s", self.actuator_delay_s, "sensors")
 
     def noiseless(self) -> "SensorSpec":
         """Same rates, biases and offsets, no random noise and no quantisation."""
@@ -90,7 +93,7 @@ def _quantise(x: np.ndarray, lsb: float) -> np.ndarray:
 def _grid(traj: Trajectory, rate_hz: float) -> np.ndarray:
     """Sample times (ns) at rate_hz over the trajectory span, starting at its first sample."""
     span = int(traj.t_ns[-1] - traj.t_ns[0])
-    step = NS / rate_hz
+    step = NS_PER_S / rate_hz
     return traj.t_ns[0] + np.round(np.arange(int(span // step) + 1) * step).astype(np.int64)
 
 
@@ -200,7 +203,7 @@ def measure(traj: Trajectory, env: Environment, spec: SensorSpec = SensorSpec(),
 
     # Actuator feedback leads the hull's response by actuator_delay_s (sampled that much later in truth).
     t = _grid(traj, spec.actuator_rate_hz)
-    t_true = t + int(round(spec.actuator_delay_s * NS))
+    t_true = t + int(round(spec.actuator_delay_s * NS_PER_S))
     rudder = _at(traj, t_true, traj.rudder) - faults.rudder_offset_rad + rng.normal(0, spec.rudder_noise_std, len(t))
     out["rudder_angle"] = Signal(t, _quantise(rudder, spec.rudder_lsb)[:, None], ("delta",))
     rpm = _at(traj, t_true, traj.rpm) + rng.normal(0, spec.rpm_noise_std, len(t))

@@ -20,8 +20,9 @@ from usv_predictor.errors import ConfigError
 from usv_predictor.frames import wrap_angle
 from usv_predictor.physics.dynamics import ManoeuvringModel, SeaLoads
 from usv_predictor.physics.environment import Environment, gust_series
+from usv_predictor.records import NS_PER_S
 
-NS = 1_000_000_000  # nanoseconds per second
+NS = NS_PER_S  # the name tests import from here
 
 
 Controller = Callable[[float, float, float], "tuple[float, float]"]
@@ -62,7 +63,7 @@ class Trajectory:
 
     @property
     def t_s(self) -> np.ndarray:
-        return (self.t_ns - self.t_ns[0]) / NS
+        return (self.t_ns - self.t_ns[0]) / NS_PER_S
 
 
 def initial_state(model: ManoeuvringModel, rpm: float, heading_rad: float) -> list[float]:
@@ -144,8 +145,8 @@ def _hermite(y0, y1, f0, f1, theta, h):
 
 def _dense_output(model, env, states, derivs, commands, dt, rate_hz, duration_s, start_ns) -> Trajectory:
     n_out = int(math.floor(duration_s * rate_hz + 1e-9)) + 1
-    t_out_ns = np.round(np.arange(n_out) * (NS / rate_hz)).astype(np.int64)
-    t_out = t_out_ns / NS
+    t_out_ns = np.round(np.arange(n_out) * (NS_PER_S / rate_hz)).astype(np.int64)
+    t_out = t_out_ns / NS_PER_S
     idx = np.minimum((t_out / dt).astype(np.int64), len(states) - 2)
     theta = ((t_out - idx * dt) / dt)[:, None]
     x, x_dot = _hermite(states[idx], states[idx + 1], derivs[idx], derivs[idx + 1], theta, dt)

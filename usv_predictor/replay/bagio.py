@@ -43,6 +43,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from msg_adapters import columnar_factory, get_adapter, rosbags_factory
+from usv_predictor.config import PredictorConfig, input_topics
 from usv_predictor.errors import AdapterError, BagError
 from usv_predictor.records import Signal
 from usv_predictor.replay.cdr_fast import decode_many, has_fast_layout
@@ -86,6 +87,12 @@ class TopicSpec:
             return get_adapter(self.role, self.ros_type, **dict(self.options))
         except AdapterError as err:
             raise BagError(f"topic {self.topic!r}: {err}") from err
+
+
+def config_topic_specs(cfg: PredictorConfig, include_ground_truth: bool = False) -> dict[str, TopicSpec]:
+    """role -> TopicSpec of the config's input topics, as the tools write them (frame: the entry's, else the base frame)."""
+    return {t.role: TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id or cfg.base_frame_id)
+            for t in input_topics(cfg, include_ground_truth=include_ground_truth)}
 
 
 def jazzy_typestore() -> Any:

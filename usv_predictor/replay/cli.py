@@ -11,16 +11,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
-import math
 import sys
 from pathlib import Path
 from types import ModuleType
 from typing import Any, NoReturn
 
-import numpy as np
-
-from usv_predictor.atomic import atomic_open
+from usv_predictor.atomic import write_json_atomic
 from usv_predictor.errors import UsvPredictorError
 
 PROG = "replay"
@@ -81,30 +77,6 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
         if module is not None:
             _add_command(subparsers, module)
     return parser
-
-
-def _jsonable(value: Any) -> Any:
-    """JSON-friendly copy: numpy scalars/arrays, paths, NaN/inf (-> null) handled."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return _jsonable(value.item())
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, Path):
-        return str(value)
-    return value
-
-
-def write_json_atomic(path: Path, result: dict) -> None:
-    """Write `result` as JSON to `path` via a temp file in the same directory and os.replace."""
-    text = json.dumps(_jsonable(result), indent=2, sort_keys=True) + "\n"
-    with atomic_open(path, "w", UsvPredictorError, "--json") as out:
-        out.write(text)
 
 
 def main(argv: list[str] | None = None) -> int:

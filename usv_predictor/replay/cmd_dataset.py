@@ -8,16 +8,17 @@ A directory argument stands for every bag under it, recursively, except sub-dire
 --include-calm, to read them. --val and --test take either a fraction of the manoeuvres not matched by a
 pattern, or glob patterns (repeatable) over recording names; --train GLOB pins manoeuvres to training.
 Recording names and the rules for gaps, NaNs, duplicates and short pieces: usv_predictor.replay.recordings.
+The work: usv_predictor.replay.dataset.
 """
 from __future__ import annotations
 
 import argparse
 import shlex
 import sys
-import time
 from pathlib import Path
 
 from usv_predictor.data.features import FEATURE_SETS
+from usv_predictor.replay.options import log
 
 NAME = "dataset"
 HELP = "build a training set (one-step samples, split by manoeuvre) from bags into one .npz file"
@@ -95,61 +96,27 @@ def _command_line(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> dict:
-    from usv_predictor.config import load_predictor_config
-    from usv_predictor.data.dataset import build_dataset, save_dataset, split_by_manoeuvre
-    from usv_predictor.errors import DatasetError
-    from usv_predictor.replay.recordings import bag_sha256, load_recordings
+    from usv_predictor.replay.dataset import dataset_from_bags
 
-    started = time.perf_counter()
-    warnings: list[str] = []
-
-    def warn(message: str) -> None:
-        warnings.append(message)
-        print(f"replay {NAME}: warning: {message}", file=sys.stderr)
-
-    def progress(message: str) -> None:
-        print(message, file=sys.stderr)
-
-    dt = args.dt if args.dt is not None else load_predictor_config(args.config).dt
-    val_fraction, val_globs = _fraction_or_globs(args.val, "--val", 0.2)
-    test_fraction, test_globs = _fraction_or_globs(args.test, "--test", 0.0)
-    recordings = load_recordings(args.bags, dt, config_path=args.config, topics=_topics(args.topic),
-                                 segment=args.segment, min_duration_s=args.min_duration, horizon_s=args.horizon,
-                                 include_calm=args.include_calm, jobs=args.jobs, warn=warn, progress=progress)
-    if not recordings:
-        raise DatasetError(f"no usable recording in {[str(b) for b in args.bags]} (see the warnings above)")
-    splits = split_by_manoeuvre([r.name for r in recordings], val_fraction=val_fraction, test_fraction=test_fraction,
-                                seed=args.seed, train=args.train, val=val_globs, test=test_globs)
-    for split, fraction in (("val", val_fraction), ("test", test_fraction)):
-        if fraction > 0.0 and split not in splits.values():
-            warn(f"--{split} {fraction:g} left the {split} split empty: too few manoeuvres to spare from training")
-    sources = sorted({r.source for r in recordings})
-    digests = {source: bag_sha256(Path(source)) for source in sources}
-    dataset = build_dataset(recordings, args.features, splits=splits, bag_sha256=digests,
-                            provenance=_command_line(args))
-    save_dataset(args.output, dataset)
-    return _summary(args, dataset, recordings, warnings, time.perf_counter() - started)
+    result = dataset_from_bags(
+        args.bags, args.output, features=args.features, dt=args.dt, segment=args.segment,
+        val=_fraction_or_globs(args.val, "--val", 0.2), test=_fraction_or_globs(args.test, "--test", 0.0),
+        train=args.train, seed=args.seed, config=args.config, topics=_topics(args.topic),
+        include_calm=args.include_calm, min_duration_s=args.min_duration, jobs=args.jobs, horizon_s=args.horizon,
+        provenance=_command_line(args), warn=lambda message: print(f"replay {NAME}: warning: {message}", file=sys.stderr),
+        progress=log)
+    _print_table(result)
+    return result
 
 
-def _summary(args: argparse.Namespace, dataset, recordings, warnings: list[str], seconds: float) -> dict:
-    import numpy as np
-
-    samples = np.bincount(dataset.arrays["sample_recording"], minlength=len(recordings))
-    rows = [{"name": r.name, "source": r.source, "split": e["split"], "steps": len(r),
-             "duration_s": r.duration_s, "samples": int(samples[m])}
-            for m, (r, e) in enumerate(zip(recordings, dataset.entries))]
-    splits = {s: {"recordings": sum(1 for row in rows if row["split"] == s),
-                  "duration_s": sum(row["duration_s"] for row in rows if row["split"] == s),
-                  "samples": sum(row["samples"] for row in rows if row["split"] == s)}
-              for s in ("train", "val", "test")}
+def _print_table(result: dict) -> None:
+    """One line per recording (split, duration, samples), one per split, and what was written."""
+    rows = result["recordings"]
     width = max(len(row["name"]) for row in rows)
     print(f"{'recording':<{width}}  split  duration_s  samples")
     for row in rows:
         print(f"{row['name']:<{width}}  {row['split']:<5}  {row['duration_s']:10.1f}  {row['samples']:7d}")
-    for s, c in splits.items():
+    for s, c in result["splits"].items():
         print(f"{s}: {c['recordings']} recording(s), {c['duration_s']:.0f} s, {c['samples']} samples")
-    print(f"wrote {args.output} ({dataset.feature_set}, dt {dataset.dt:g} s, {len(dataset.X)} samples) in {seconds:.2f} s")
-    return {"output": str(args.output), "format": dataset.metadata["format"], "digest": dataset.digest(),
-            "feature_set": dataset.feature_set, "feature_names": dataset.metadata["feature_names"], "dt": dataset.dt,
-            "recordings": rows, "splits": splits, "samples": int(len(dataset.X)), "warnings": warnings,
-            "seconds": seconds, "provenance": dataset.metadata["provenance"]}
+    print(f"wrote {result['output']} ({result['feature_set']}, dt {result['dt']:g} s, {result['samples']} samples) "
+          f"in {result['seconds']:.2f} s")

@@ -5,13 +5,14 @@ JSON result: cause, parameters (DESIGN.md vocabulary and units), uncertainty, co
 (further causes added one at a time while the evidence holds, with their parameters), evidence (every
 hypothesis: held-out loss, gain, log-likelihood evidence, per-fold parameters), discrepancy (what the calm-water
 model gets wrong), baseline / extended / gain (evaluation metrics on held-out manoeuvres), notes.
+The work: usv_predictor.replay.diagnose and usv_predictor.analysis.diagnosis_run.
 """
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import sys
 from pathlib import Path
+
+from usv_predictor.replay.options import log
 
 NAME = "diagnose"
 HELP = "name the physical cause of what the calm-water model gets wrong, extend the model, measure the gain"
@@ -40,95 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, default=None, help="predictor.yaml with the topics (default: shipped)")
 
 
-def _log(message: str) -> None:
-    print(message, file=sys.stderr)
-
-
-def baseline_vessel(args: argparse.Namespace):
-    """The calm-water model: a vessel preset, or the identified hull of a grey-box artifact."""
-    from usv_predictor.config import load_predictor_config
-    from usv_predictor.errors import ModelError
-    from usv_predictor.models.greybox import HULL_NAMES
-    from usv_predictor.physics.vessel import load_vessel
-
-    if args.model is None:
-        return load_vessel(args.vessel or load_predictor_config(args.config).vessel), "preset"
-    from usv_predictor.models.artifact import load_artifact
-
-    artifact = load_artifact(args.model)
-    meta = artifact.metadata
-    hull = _hull_of(meta)
-    if not str(meta.get("model_type", "")).startswith("greybox") or hull is None:
-        raise ModelError(f"model {args.model}: diagnose needs an MMG grey box without learned or extra terms "
-                         f"(`replay identify --structure mmg`), not model_type {meta.get('model_type')!r}; "
-                         "compare other models with `replay evaluate`")
-    vessel = load_vessel(args.vessel or str(meta.get("vessel")))
-    missing = [n for n in HULL_NAMES if n not in hull]
-    if missing:
-        raise ModelError(f"model {args.model}: hull coefficients {missing} missing from its metadata")
-    vessel = dataclasses.replace(vessel, hull=dataclasses.replace(vessel.hull, **{n: float(hull[n]) for n in HULL_NAMES}))
-    return vessel, f"identified ({meta.get('model_id')})"
-
-
-def _hull_of(meta: dict) -> dict | None:
-    """The MMG hull derivatives of a grey-box artifact: from `replay identify` (identification.coefficients)
-    or from `replay diagnose --export` (architecture.hull); None for anything the grey box cannot carry."""
-    ident = meta.get("identification")
-    arch = meta.get("architecture")
-    if isinstance(ident, dict):
-        residual = arch.get("residual", "ZeroResidual") if isinstance(arch, dict) else "ZeroResidual"
-        if ident.get("structure") != "mmg" or ident.get("extra_terms") or residual != "ZeroResidual":
-            return None
-        return {c["name"]: c["estimate"] for c in ident.get("coefficients", []) if isinstance(c, dict)}
-    return arch.get("hull") if isinstance(arch, dict) and isinstance(arch.get("hull"), dict) else None
-
-
 def run(args: argparse.Namespace) -> dict:
-    from usv_predictor.analysis import diagnosis as dg
-    from usv_predictor.errors import DatasetError
-    from usv_predictor.replay.recordings import load_recordings
+    from usv_predictor.replay.diagnose import diagnose_bags
 
-    vessel, source = baseline_vessel(args)
-    recordings = load_recordings(args.bags, args.dt, config_path=args.config, include_calm=args.include_calm,
-                                 horizon_s=args.horizon, progress=_log)
-    if not recordings:
-        raise DatasetError("no usable recording in the bags (see the warnings above)")
-    missing = [r.name for r in recordings if not (r.controls[:, 1] > 0).any()]
-    if missing:
-        raise DatasetError(f"no engine speed in {missing}: the calm-water model needs rudder and rpm; record engine_rpm")
-    _log(f"diagnosing {len(recordings)} manoeuvre(s) against the {source} calm-water model of {vessel.name}")
-    if args.max_causes < 1:
-        raise DatasetError(f"--max-causes {args.max_causes} must be >= 1")
-    result = dg.diagnose(recordings, vessel, hypotheses=args.hypotheses, horizon_s=args.horizon, stride_s=args.stride,
-                         max_causes=args.max_causes, progress=_log)
-    seg = dg.make_segments(recordings, args.horizon, args.stride)
-    discrepancy = dg.discrepancy(dg.scripted_rollout(vessel, args.dt), seg, recordings)
-    _log(f"cause: {result.cause} {result.parameters} — {result.message}")
-    out = {
-        "cause": result.cause, "parameters": result.parameters, "uncertainty": result.uncertainty,
-        "confounded_with": list(result.confounded_with), "message": result.message, "notes": list(result.notes),
-        "additional_causes": [dataclasses.asdict(a) for a in result.additional_causes],
-        "evidence": [dataclasses.asdict(e) for e in result.evidence],
-        "folds": [list(f) for f in result.folds], "discrepancy": discrepancy,
-        "calm_water_model": {"vessel": vessel.name, "source": source},
-        "recordings": [{"name": r.name, "source": r.source, "duration_s": r.duration_s} for r in recordings],
-        "seconds": result.seconds,
-    }
-    if result.cause != "none" and not args.no_gain:
-        _log("measuring the gain on held-out manoeuvres")
-        gain = dg.measure_gain(recordings, vessel, result, horizon_s=args.horizon, segment_stride_s=args.stride)
-        out.update(baseline=gain["baseline"], extended=gain["extended"], gain=gain["relative_improvement"])
-        per_recording = gain["per_recording"]
-    else:
-        out.update(baseline=None, extended=None, gain={})
-        per_recording = None
-    if args.export is not None:
-        artifact = dg.export_extended(args.export, vessel, result, args.dt)
-        out["exported_model"] = {"path": str(args.export), "model_id": artifact.model_id}
-        _log(f"extended model written to {args.export} ({artifact.model_id})")
-    if args.report is not None:
-        from usv_predictor.analysis.diagnosis_report import write_report
-
-        out["report"] = str(write_report(args.report, out, recordings, vessel, result, per_recording))
-        _log(f"report written to {out['report']}")
-    return out
+    return diagnose_bags(args.bags, vessel=args.vessel, model=args.model, dt=args.dt, hypotheses=args.hypotheses,
+                         max_causes=args.max_causes, horizon_s=args.horizon, stride_s=args.stride,
+                         gain=not args.no_gain, export=args.export, report=args.report,
+                         include_calm=args.include_calm, config=args.config, progress=log)

@@ -2,7 +2,8 @@
 
 Readers return one `Manoeuvre` per file: SI units, NED earth frame, body FRD, heading psi clockwise
 from north (rad, wrapped), eta = [x_n, y_e, psi], nu = [u, v, r], rudder delta positive to starboard
-(r > 0), propeller speed in rpm. Everything here is pure except `write_manoeuvre_bag` (one bagio.write_bag).
+(r > 0), propeller speed in rpm. Everything here is pure except `write_manoeuvre_bag` (one bagio.write_bag)
+and `convert` (what `replay convert` does: every file read first, then one bag each).
 
 Sources (see docs/data.md for the evidence behind each convention; every check below raises
 DatasetError naming file, line and column):
@@ -28,6 +29,7 @@ import hashlib
 import json
 import math
 import re
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
@@ -36,19 +38,18 @@ import numpy as np
 
 from usv_predictor.errors import DatasetError
 from usv_predictor.frames import LocalTangentPlane, ned_to_body, wrap_angle
-from usv_predictor.records import Signal
+from usv_predictor.records import NS_PER_S, Signal
 
 CONVERSION_VERSION = "1"
 GRAVITY = 9.81  # (m/s^2), the value the simulator writes as accel_z = -g
-NS = 1_000_000_000
 KNOT = 1852.0 / 3600.0  # (m/s per knot)
 MIN_ROWS = 20  # a manoeuvre shorter than this is a truncated file
 
 # Nominal epochs (UTC) - the files carry no date; only the time base within a file is measured.
 EPOCH_NS = {
-    "hsva": 1_136_073_600 * NS,  # 2006-01-01 00:00 UTC (year of the HSVA report)
-    "marin": 1_199_145_600 * NS,  # 2008-01-01 00:00 UTC (SIMMAN 2008)
-    "fuzhou": 1_640_995_200 * NS,  # 2022-01-01 00:00 UTC (year of the publication)
+    "hsva": 1_136_073_600 * NS_PER_S,  # 2006-01-01 00:00 UTC (year of the HSVA report)
+    "marin": 1_199_145_600 * NS_PER_S,  # 2008-01-01 00:00 UTC (SIMMAN 2008)
+    "fuzhou": 1_640_995_200 * NS_PER_S,  # 2022-01-01 00:00 UTC (year of the publication)
 }
 # Arbitrary GNSS datums of the tank data (nominal, NOT measured): lat/lon = datum + the tank track.
 DATUM_DEG = {
@@ -268,7 +269,7 @@ def _check_track_follows_heading(path: Path, t_s: np.ndarray, x: np.ndarray, y: 
     course = np.unwrap(np.arctan2(vy, vx)[moving])
     difference = np.degrees(np.abs(wrap_angle(course - psi[moving])))
     median = float(np.median(difference))
-    expected = f"(x north, y east, psi positive to starboard, y positive to starboard)"
+    expected = "(x north, y east, psi positive to starboard, y positive to starboard)"
     if median > max_deg:
         raise DatasetError(f"{path}: the track runs {median:.0f} deg off the heading in median; "
                            f"expected < {max_deg:g} deg {expected}")
@@ -569,7 +570,7 @@ def read_manoeuvre(path: Path, fmt: str) -> Manoeuvre:
 
 def time_ns(m: Manoeuvre) -> np.ndarray:
     """Stamps: the source's nominal epoch + the file's time base, int ns, strictly increasing."""
-    t_ns = EPOCH_NS[m.source] + np.round(m.t_s * NS).astype(np.int64)
+    t_ns = EPOCH_NS[m.source] + np.round(m.t_s * NS_PER_S).astype(np.int64)
     if np.any(np.diff(t_ns) <= 0):
         raise DatasetError(f"{m.path}: time base is not strictly increasing at nanosecond resolution")
     return t_ns
@@ -646,3 +647,30 @@ def write_manoeuvre_bag(path: Path, m: Manoeuvre, specs: Mapping[str, object], *
     streams = [(specs[role], signal) for role, signal in signals.items()]
     write_bag(Path(path), streams, storage=storage, metadata=custom_data(m, command), overwrite=overwrite)
     return int(sum(len(s) for _, s in streams))
+
+
+def convert(inputs: Sequence[Path], output: Path, *, fmt: str = "auto", storage: str = "sqlite3",
+            overwrite: bool = False, command: str = "replay convert",
+            progress: Callable[[str], None] = lambda _: None) -> dict:
+    """`replay convert`: every manoeuvre file of `inputs` (directories or files, format `fmt`) -> one bag each
+    in `output`, with the config's input topics. Every file is read first, so a bad one fails before any write."""
+    from usv_predictor.config import load_predictor_config
+    from usv_predictor.replay.bagio import config_topic_specs, prepare_outputs
+
+    manoeuvres = [read_manoeuvre(path, f) for path, f in find_sources(inputs, fmt)]
+    names: dict[str, Path] = {}
+    for m in manoeuvres:
+        if m.name in names:
+            raise DatasetError(f"{m.path} and {names[m.name]} both convert to bag {m.name!r}; convert them separately")
+        names[m.name] = m.path
+    prepare_outputs(output, [output / m.name for m in manoeuvres], overwrite)
+    specs = config_topic_specs(load_predictor_config(), include_ground_truth=False)
+    results = []
+    for k, m in enumerate(manoeuvres):
+        started = time.perf_counter()
+        path = output / m.name
+        messages = write_manoeuvre_bag(path, m, specs, storage=storage, overwrite=overwrite, command=command)
+        results.append(summarise(m) | {"bag": str(path), "messages": messages})
+        progress(f"[{k + 1}/{len(manoeuvres)}] {path}  {m.duration_s:.0f} s at {m.rate_hz:.2f} Hz, {messages} messages "
+                 f"({time.perf_counter() - started:.2f} s)")
+    return {"bags": results, "conversion_version": CONVERSION_VERSION, "output": str(output)}

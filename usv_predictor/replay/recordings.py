@@ -42,10 +42,10 @@ import numpy as np
 import yaml
 
 from usv_predictor.config import input_topics, load_predictor_config
-from usv_predictor.data.recording import NS, Recording, RecordingError, recording_from_signals, required_roles
+from usv_predictor.data.recording import Recording, RecordingError, recording_from_signals, required_roles
 from usv_predictor.errors import BagError, ConfigError, DatasetError
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
-from usv_predictor.records import Signal
+from usv_predictor.records import NS_PER_S, Signal
 from usv_predictor.replay.bagio import TopicSpec, read_bag
 
 OPTIONAL_ROLES = ("gnss", "odometry")
@@ -228,10 +228,10 @@ def clean_signal(signal: Signal, *, where: str, role: str, dt: float, t_ref_ns: 
     if len(steps) and steps.min() < 0:
         k = int(np.argmin(steps))
         back = -int(steps[k])
-        if back > dt * NS:
-            raise BagError(f"{where}: time goes back {back / NS:.3f} s at t={(t_ns[k] - t_ref_ns) / NS:.3f} s "
+        if back > dt * NS_PER_S:
+            raise BagError(f"{where}: time goes back {back / NS_PER_S:.3f} s at t={(t_ns[k] - t_ref_ns) / NS_PER_S:.3f} s "
                            f"(stamp {int(t_ns[k + 1])} ns after {int(t_ns[k])} ns), more than the step {dt:g} s")
-        warn(f"{where}: {int((steps < 0).sum())} samples out of order (at most {back / NS:.3f} s); sorted")
+        warn(f"{where}: {int((steps < 0).sum())} samples out of order (at most {back / NS_PER_S:.3f} s); sorted")
     order = np.argsort(t_ns, kind="stable")
     t_ns, values = t_ns[order], values[order]
     repeat = np.concatenate([[False], np.diff(t_ns) == 0])
@@ -254,10 +254,10 @@ def gap_cuts(signals: Mapping[str, Signal], dt: float, *, where: str, topic_of: 
     holes: list[tuple[int, int]] = []
     for role in required:
         t = signals[role].t_ns
-        for k in np.flatnonzero(np.diff(t) > dt * NS + 1):
+        for k in np.flatnonzero(np.diff(t) > dt * NS_PER_S + 1):
             a, b = int(t[k]), int(t[k + 1])
             if b > start and a < end:
-                warn(f"{where}: topic {topic_of[role]!r} has a {(b - a) / NS:.2f} s gap at t={(a - t_ref_ns) / NS:.2f} s "
+                warn(f"{where}: topic {topic_of[role]!r} has a {(b - a) / NS_PER_S:.2f} s gap at t={(a - t_ref_ns) / NS_PER_S:.2f} s "
                      f"(longer than the step {dt:g} s); cutting the recording there")
                 holes.append((a, b))
     spans, cursor = [], start
@@ -310,10 +310,10 @@ def steady_cuts(controls: np.ndarray, dt: float, *, settle_s: float = 30.0, lead
 
 def slice_recording(rec: Recording, start: int, stop: int, name: str) -> Recording:
     """Steps [start, stop) of a Recording as a Recording of its own (time re-based at its first step)."""
-    dt_ns = int(round(rec.dt * NS))
+    dt_ns = int(round(rec.dt * NS_PER_S))
     n = stop - start
     return dataclasses.replace(
-        rec, name=name, t0_ns=rec.t0_ns + start * dt_ns, t_s=(np.arange(n, dtype=np.int64) * dt_ns) / NS,
+        rec, name=name, t0_ns=rec.t0_ns + start * dt_ns, t_s=(np.arange(n, dtype=np.int64) * dt_ns) / NS_PER_S,
         nu=rec.nu[start:stop], psi=rec.psi[start:stop], controls=rec.controls[start:stop],
         position=rec.position[start:stop], truth=None if rec.truth is None else rec.truth[start:stop],
     )
@@ -372,8 +372,8 @@ def recordings_from_bag(source: BagSource, specs: Sequence[TopicSpec], dt: float
     pieces: list[Recording] = []
     for k, (a, b) in enumerate(spans, start=1):
         name = source.name if len(spans) == 1 else f"{source.name}#{k}"
-        if (b - a) / NS < max(min_duration_s, dt):
-            warn(f"{path}: piece {name} from t={(a - t_ref) / NS:.2f} s lasts {(b - a) / NS:.2f} s, "
+        if (b - a) / NS_PER_S < max(min_duration_s, dt):
+            warn(f"{path}: piece {name} from t={(a - t_ref) / NS_PER_S:.2f} s lasts {(b - a) / NS_PER_S:.2f} s, "
                  f"shorter than {min_duration_s:g} s; skipped")
             continue
         try:

@@ -1,0 +1,101 @@
+"""One diagnosis run: the calm-water model, the named cause, what the model gets wrong, the gain, the outputs.
+
+    calm_water_vessel  the calm-water model of a diagnosis: a vessel preset, or the identified hull of a grey-box
+                       artifact (`replay identify --structure mmg`, or an earlier `replay diagnose --export`)
+    run_diagnosis      diagnose + discrepancy + held-out gain + export + report (usv_predictor.analysis.diagnosis),
+                       with the segments and the scripted grey box built once and shared by every step
+
+The result is the JSON of `replay diagnose` (keys in its module docstring).
+"""
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from usv_predictor.analysis import diagnosis as dg
+from usv_predictor.config import load_predictor_config
+from usv_predictor.data.recording import Recording
+from usv_predictor.errors import DatasetError, ModelError
+from usv_predictor.models.greybox import HULL_NAMES, hull_from_metadata
+from usv_predictor.physics.vessel import Vessel, load_vessel
+
+
+def calm_water_vessel(vessel: str | None, model: Path | None, config: Path | None = None) -> tuple[Vessel, str]:
+    """(the calm-water vessel, where it comes from: "preset" or "identified (<model_id>)").
+
+    vessel: a preset name (None: the model's vessel, or else the predictor config's); model: a grey-box
+    artifact whose identified hull replaces the preset's (ModelError when it carries anything else).
+    """
+    if model is None:
+        return load_vessel(vessel or load_predictor_config(config).vessel), "preset"
+    from usv_predictor.models.artifact import load_artifact
+
+    meta = load_artifact(model).metadata
+    hull = hull_from_metadata(meta)
+    if not str(meta.get("model_type", "")).startswith("greybox") or hull is None:
+        raise ModelError(f"model {model}: diagnose needs an MMG grey box without learned or extra terms "
+                         f"(`replay identify --structure mmg`), not model_type {meta.get('model_type')!r}; "
+                         "compare other models with `replay evaluate`")
+    preset = load_vessel(vessel or str(meta.get("vessel")))
+    missing = [n for n in HULL_NAMES if n not in hull]
+    if missing:
+        raise ModelError(f"model {model}: hull coefficients {missing} missing from its metadata")
+    identified = dataclasses.replace(preset.hull, **{n: float(hull[n]) for n in HULL_NAMES})
+    return dataclasses.replace(preset, hull=identified), f"identified ({meta.get('model_id')})"
+
+
+def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, *, dt: float,
+                  hypotheses: Sequence[str] | None = None, max_causes: int = 2, horizon_s: float = 20.0,
+                  stride_s: float = 5.0, gain: bool = True, export: Path | None = None, report: Path | None = None,
+                  progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+    """Diagnose `recordings` (resampled at dt) against the calm-water `vessel` (from `source`).
+
+    gain: also evaluate the extended model on held-out manoeuvres (when a cause is named); export: write the
+    extended model (TorchScript artifact) there; report: write report.md + plots into that directory.
+    """
+    if not recordings:
+        raise DatasetError("no usable recording in the bags (see the warnings above)")
+    missing = [r.name for r in recordings if not (r.controls[:, 1] > 0).any()]
+    if missing:
+        raise DatasetError(f"no engine speed in {missing}: the calm-water model needs rudder and rpm; record engine_rpm")
+    progress(f"diagnosing {len(recordings)} manoeuvre(s) against the {source} calm-water model of {vessel.name}")
+    if max_causes < 1:
+        raise DatasetError(f"--max-causes {max_causes} must be >= 1")
+    dg.check_data(recordings)  # its refusals come before those of the segments, as in dg.diagnose
+    segments = dg.make_segments(recordings, horizon_s, stride_s)  # built once: diagnose, discrepancy and gain share
+    rollout = dg.scripted_rollout(vessel, dt)  # ... the segments and the compiled grey box
+    result = dg.diagnose(recordings, vessel, hypotheses=hypotheses, horizon_s=horizon_s, stride_s=stride_s,
+                         max_causes=max_causes, progress=progress, segments=segments, rollout=rollout)
+    discrepancy = dg.discrepancy(rollout, segments, recordings)
+    progress(f"cause: {result.cause} {result.parameters} — {result.message}")
+    out: dict[str, Any] = {
+        "cause": result.cause, "parameters": result.parameters, "uncertainty": result.uncertainty,
+        "confounded_with": list(result.confounded_with), "message": result.message, "notes": list(result.notes),
+        "additional_causes": [dataclasses.asdict(a) for a in result.additional_causes],
+        "evidence": [dataclasses.asdict(e) for e in result.evidence],
+        "folds": [list(f) for f in result.folds], "discrepancy": discrepancy,
+        "calm_water_model": {"vessel": vessel.name, "source": source},
+        "recordings": [{"name": r.name, "source": r.source, "duration_s": r.duration_s} for r in recordings],
+        "seconds": result.seconds,
+    }
+    if result.cause != "none" and gain:
+        progress("measuring the gain on held-out manoeuvres")
+        measured = dg.measure_gain(recordings, vessel, result, horizon_s=horizon_s, segment_stride_s=stride_s,
+                                   segments=segments, rollout=rollout)
+        out.update(baseline=measured["baseline"], extended=measured["extended"], gain=measured["relative_improvement"])
+        per_recording = measured["per_recording"]
+    else:
+        out.update(baseline=None, extended=None, gain={})
+        per_recording = None
+    if export is not None:
+        artifact = dg.export_extended(export, vessel, result, dt)
+        out["exported_model"] = {"path": str(export), "model_id": artifact.model_id}
+        progress(f"extended model written to {export} ({artifact.model_id})")
+    if report is not None:
+        from usv_predictor.analysis.diagnosis_report import write_report
+
+        out["report"] = str(write_report(report, out, recordings, vessel, result, per_recording))
+        progress(f"report written to {out['report']}")
+    return out

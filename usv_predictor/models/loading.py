@@ -1,0 +1,113 @@
+"""One way to name and load a model for prediction: the node's `model_path` and the replay tool's `--model`.
+
+A model spec is
+    "" or None         the shipped model, models/default.pt in the package share (ModelError saying where it
+                       was looked for when there is none);
+    "physics[:VESSEL]" the calm-water MMG grey box of a vessel preset (usv_predictor.models.greybox), no file:
+                       the physics baseline a learned model must beat at sea (only where `physics=True`);
+    anything else      a model artifact file (usv_predictor.models.artifact), checked against `expect`
+                       (metadata fields) and `dt` (the step the data is resampled at).
+Every failure is a ModelError naming the file (or option) and what differs. torch is imported only when a
+model is loaded, so command-line help stays light.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+from usv_predictor import config
+from usv_predictor.errors import ConfigError, ModelError
+
+if TYPE_CHECKING:
+    from usv_predictor.models.artifact import ModelArtifact
+    from usv_predictor.models.greybox import GreyBoxPredictor
+    from usv_predictor.physics.vessel import Vessel
+
+PHYSICS = "physics"  # the spec of the physics baseline, optionally ":VESSEL"
+DEFAULT_MODEL = ("models", "default.pt")  # the shipped model, relative to the package share
+DT_TOLERANCE_S = 1e-6  # two steps closer than this are the same step (s)
+
+
+class HasMetadata(Protocol):
+    metadata: Mapping[str, Any]
+
+
+def is_physics(spec: str | None) -> bool:
+    """True for "physics" and "physics:VESSEL"."""
+    return spec is not None and (spec == PHYSICS or spec.startswith(PHYSICS + ":"))
+
+
+def default_model_path(option: str = "--model", physics: bool = True) -> Path:
+    """The shipped model file; ModelError saying where it was looked for (and what to pass instead) without one."""
+    try:
+        return config.package_share_path(*DEFAULT_MODEL)
+    except ConfigError as err:
+        looked = ", ".join(str(root.joinpath(*DEFAULT_MODEL)) for root in config.share_roots())
+        instead = (f", pass {option} PATH, or {option} physics for the physics baseline" if physics
+                   else f" or set {option} to a model file")
+        raise ModelError(f"no shipped model: {'/'.join(DEFAULT_MODEL)} does not exist (looked in {looked}); "
+                         f"train one with `replay train`{instead}") from err
+
+
+def model_dt(model: HasMetadata) -> float:
+    """The model's step (s) from its metadata; ModelError when absent or not positive."""
+    try:
+        dt = float(model.metadata["dt"])
+    except (KeyError, TypeError, ValueError) as err:
+        raise ModelError(f"model metadata has no numeric 'dt' (s): {err}") from err
+    if not dt > 0.0:
+        raise ModelError(f"model metadata dt={dt} s must be > 0")
+    return dt
+
+
+def check_dt(model: HasMetadata, dt: float, what: str) -> None:
+    """ModelError when the model's step differs from the data's (a model only works at its own dt)."""
+    expected = model_dt(model)
+    if abs(expected - dt) > DT_TOLERANCE_S:
+        raise ModelError(f"model {model.metadata.get('model_id', '?')} has dt={expected:g} s but {what} "
+                         f"has dt={dt:g} s; resample the data at {expected:g} s or use a model trained at {dt:g} s")
+
+
+def physics_predictor(vessel: str | Vessel, dt: float) -> GreyBoxPredictor:
+    """The calm-water physics baseline: the vessel preset's grey box (usv_predictor.models.greybox), no sea terms.
+
+    It knows nothing of current, wind or waves, so it is the baseline a learned model must beat at sea. The
+    recorded rudder angle and engine speed drive it as the actuator states (they are feedback, not commands).
+    `vessel` is a preset name or a Vessel.
+    """
+    from usv_predictor.models.greybox import greybox_predictor
+    from usv_predictor.physics.vessel import load_vessel
+
+    if not dt > 0.0:
+        raise ModelError(f"physics predictor step dt={dt} s must be > 0")
+    return greybox_predictor(load_vessel(vessel) if isinstance(vessel, str) else vessel, dt)
+
+
+def load_model(spec: str | None, *, dt: float | None = None, vessel: str | None = None,
+               expect: Mapping[str, Any] | None = None, option: str = "--model", dt_option: str = "--dt",
+               physics: bool = True) -> ModelArtifact | GreyBoxPredictor:
+    """The model a spec names (module docstring), checked; ModelError naming the file and what differs.
+
+    dt: the step the data will be resampled at (None: the model's own); for the physics baseline its step
+    (None: the config's). vessel: the preset of a bare "physics" (None: the config's). expect: metadata
+    fields an artifact must have (usv_predictor.models.artifact.load_artifact). option / dt_option: how the
+    caller names the spec and dt in messages (the node: "model_path"). physics=False reads "physics" as a file.
+    """
+    if physics and is_physics(spec):
+        assert spec is not None
+        name = spec.partition(":")[2] or vessel
+        defaults = config.load_predictor_config() if name is None or dt is None else None
+        return physics_predictor(name or defaults.vessel, dt if dt is not None else defaults.dt)
+    path = Path(spec).expanduser() if spec else default_model_path(option, physics)
+    if not path.is_file():
+        raise ModelError(f"{option} {path}: no such model file")
+    try:
+        from usv_predictor.models.artifact import load_artifact
+    except ImportError as err:
+        raise ModelError(f"{path}: cannot load model artifacts, usv_predictor.models.artifact is unavailable "
+                         f"({err})") from err
+    model = load_artifact(path, expect=expect)
+    if dt is not None:
+        check_dt(model, dt, f"{dt_option} for {path}")
+    return model

@@ -1,0 +1,24 @@
+"""Bags -> a diagnosis: what `replay diagnose` does (usv_predictor.analysis.diagnosis_run on the bags' recordings)."""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+
+def diagnose_bags(bags: Sequence[Path], *, vessel: str | None = None, model: Path | None = None, dt: float = 0.5,
+                  hypotheses: Sequence[str] | None = None, max_causes: int = 2, horizon_s: float = 20.0,
+                  stride_s: float = 5.0, gain: bool = True, export: Path | None = None, report: Path | None = None,
+                  include_calm: bool = False, config: Path | None = None,
+                  progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+    """The calm-water model (preset `vessel` or grey-box artifact `model`), the bags' recordings at step dt
+    (topics of the predictor config `config`), and the diagnosis run on them (run_diagnosis: the arguments)."""
+    from usv_predictor.analysis.diagnosis_run import calm_water_vessel, run_diagnosis
+    from usv_predictor.replay.recordings import load_recordings
+
+    calm_water, source = calm_water_vessel(vessel, model, config)
+    recordings = load_recordings(bags, dt, config_path=config, include_calm=include_calm, horizon_s=horizon_s,
+                                 progress=progress)
+    return run_diagnosis(recordings, calm_water, source, dt=dt, hypotheses=hypotheses, max_causes=max_causes,
+                         horizon_s=horizon_s, stride_s=stride_s, gain=gain, export=export, report=report,
+                         progress=progress)

@@ -1,0 +1,132 @@
+"""A model on recorded manoeuvres: what `replay evaluate` and `replay report` do, from a typed EvaluationRequest.
+
+    evaluate_bags    bags -> recordings at the model's step -> usv_predictor.analysis.evaluation (seed 000
+                     Tables 7-8 metrics, closed-loop and open-loop errors), with the run's provenance
+    evaluate         the same, saved with --output as evaluation.json + evaluation_series.npz (the time series
+                     `replay report DIR/evaluation.json` draws from)
+    report           an evaluation file or bags -> usv_predictor.analysis.reports.write_report
+
+No bags: the shipped bags/sea_trial (calm twins skipped); no model: the shipped models/default.pt; the model
+spec `physics[:VESSEL]` is the calm-water grey box of a preset (usv_predictor.models.loading). Bags are only read.
+"""
+from __future__ import annotations
+
+import datetime
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from usv_predictor.errors import BagError, ConfigError, EvaluationError
+
+if TYPE_CHECKING:
+    from usv_predictor.analysis.evaluation import EvaluationResult
+
+EVALUATION_FILE = "evaluation.json"
+SERIES_FILE = "evaluation_series.npz"
+REFERENCES = ("gnss", "truth")  # compare with the measured GNSS track and states, or the simulator's ground truth
+
+
+@dataclass(frozen=True)
+class EvaluationRequest:
+    """Which model on which bags, compared how (EvaluationError for values that cannot be evaluated)."""
+
+    bags: tuple[Path, ...] = ()  # bags or directories of bags; () = the shipped bags/sea_trial
+    model: str | None = None  # model spec (usv_predictor.models.loading); None = the shipped model
+    dt: float | None = None  # step (s) to resample the bags at; must equal the model's (None: the model's)
+    reference: str = "gnss"  # one of REFERENCES
+    horizons_s: tuple[float, ...] = (10.0, 30.0, 60.0)  # open-loop horizons (s)
+    stride_s: float = 5.0  # time between open-loop start points (s)
+    include_calm: bool = False  # also read calm/ twins under bag directories
+
+    def __post_init__(self) -> None:
+        if self.stride_s <= 0.0 or any(h <= 0.0 for h in self.horizons_s):
+            raise EvaluationError("--stride and --horizons must be positive (s)")
+        if self.reference not in REFERENCES:
+            raise EvaluationError(f"--reference {self.reference!r}: expected one of {', '.join(REFERENCES)}")
+
+
+def default_bags() -> list[Path]:
+    """The shipped sea-trial bags; BagError when they are missing."""
+    from usv_predictor.config import package_share_path
+
+    try:
+        return [package_share_path("bags", "sea_trial")]
+    except ConfigError as err:
+        raise BagError(f"no bags given and the shipped bags/sea_trial is missing: {err}") from err
+
+
+def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = lambda _: None) -> EvaluationResult:
+    """The EvaluationResult of the request, its `extra` holding the provenance (time, version, model, data)."""
+    import numpy as np
+
+    from usv_predictor import __version__
+    from usv_predictor.analysis import evaluation
+    from usv_predictor.models import loading
+    from usv_predictor.replay.recordings import load_recordings
+
+    model = loading.load_model(request.model, dt=request.dt)
+    dt = loading.model_dt(model)
+    bags = list(request.bags) or default_bags()
+    progress(f"model {model.metadata.get('model_id', '?')} ({model.metadata.get('model_type', '?')}), dt {dt:g} s; "
+             f"reading {', '.join(map(str, bags))}")
+    recordings = load_recordings(bags, dt, include_calm=request.include_calm, warn=lambda m: progress(f"warning: {m}"),
+                                 progress=progress)
+    if not recordings:
+        raise BagError(f"no usable recording in {', '.join(map(str, bags))} (see the warnings above)")
+    result = evaluation.evaluate(model, recordings, request.reference, tuple(request.horizons_s), request.stride_s,
+                                 progress=progress)
+    result.extra.update({
+        "generated_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "software_version": __version__,
+        "model_source": request.model or str(loading.default_model_path()),
+        "data": {"bags": [str(b) for b in bags], "dt_s": dt, "reference": request.reference,
+                 "recordings": [{"name": r.name, "source": r.source, "duration_s": r.duration_s,
+                                 "has_gnss": bool(np.isfinite(r.position).any()),
+                                 "has_truth": r.truth is not None} for r in recordings]},
+    })
+    return result
+
+
+def save_evaluation(result: EvaluationResult, directory: Path) -> dict:
+    """DIR/evaluation.json + DIR/evaluation_series.npz (each written atomically); returns the JSON written."""
+    import numpy as np
+
+    from usv_predictor.analysis.evaluation import series_arrays
+    from usv_predictor.atomic import atomic_open, write_json_atomic
+
+    with atomic_open(directory / SERIES_FILE, "wb") as out:
+        np.savez_compressed(out, **series_arrays(result))
+    data = dict(result.to_json(), series_file=SERIES_FILE)
+    write_json_atomic(directory / EVALUATION_FILE, data)
+    return data
+
+
+def evaluate(request: EvaluationRequest, output: Path | None = None,
+             progress: Callable[[str], None] = lambda _: None) -> dict:
+    """The evaluation JSON of `replay evaluate`; with `output`, saved there with its time series."""
+    result = evaluate_bags(request, progress)
+    if output is None:
+        return result.to_json()
+    data = save_evaluation(result, output)
+    progress(f"wrote {output / EVALUATION_FILE} and {output / SERIES_FILE}")
+    return data
+
+
+def is_evaluation_file(inputs: Sequence[Path]) -> bool:
+    """One .json input: an evaluation file of `replay evaluate --output` (anything else: bags)."""
+    return len(inputs) == 1 and Path(inputs[0]).suffix == ".json"
+
+
+def report(request: EvaluationRequest, output: Path, title: str, progress: Callable[[str], None] = lambda _: None) -> dict:
+    """`replay report`: the report of an evaluation file (request.bags is one .json) or of the bags evaluated as
+    `request` says, written into `output`."""
+    from usv_predictor.analysis import reports
+
+    if is_evaluation_file(request.bags):
+        progress(f"reading evaluation {request.bags[0]}")
+        data, predictions = reports.load_evaluation_file(request.bags[0], warn=progress)
+    else:
+        result = evaluate_bags(request, progress)
+        data, predictions = result.to_json(), [r.prediction for r in result.recordings]
+    return reports.write_report(data, predictions, output, title, progress)

@@ -1,0 +1,42 @@
+"""Command-line options shared by several replay commands, and the typed values they become.
+
+Only argparse plumbing lives here: the commands call `add_*_arguments(parser)` and turn the parsed options
+into the typed request of their library function, so no argparse Namespace travels further. `log` is how a
+command shows a library function's progress (stderr: stdout is the command's result).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from usv_predictor.replay.evaluate import REFERENCES, EvaluationRequest
+
+
+def log(message: str) -> None:
+    """A progress line on stderr."""
+    print(message, file=sys.stderr)
+
+
+def add_model_arguments(parser: argparse.ArgumentParser) -> None:
+    """The model and how to compare it: options of `replay evaluate` and `replay report` (which can evaluate bags)."""
+    parser.add_argument("--model", default=None, metavar="M",
+                        help="model artifact (.pt), or 'physics[:VESSEL]' for the calm-water physics baseline "
+                             "(default: the shipped models/default.pt)")
+    parser.add_argument("--dt", type=float, default=None,
+                        help="step (s) to resample the bags at; must equal the model's dt (default: the model's)")
+    parser.add_argument("--reference", choices=REFERENCES, default="gnss",
+                        help="compare with the measured GNSS track and states (default) or the ground truth of "
+                             "simulated bags")
+    parser.add_argument("--horizons", type=float, nargs="+", default=[10.0, 30.0, 60.0], metavar="S",
+                        help="open-loop horizons (s, default 10 30 60)")
+    parser.add_argument("--stride", type=float, default=5.0, metavar="S",
+                        help="time between open-loop start points (s, default 5)")
+    parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
+
+
+def evaluation_request(args: argparse.Namespace, bags: Sequence[Path]) -> EvaluationRequest:
+    """The options of add_model_arguments (and the bags) as an EvaluationRequest."""
+    return EvaluationRequest(bags=tuple(bags), model=args.model, dt=args.dt, reference=args.reference,
+                             horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm)
