@@ -61,6 +61,7 @@ from usv_predictor.config import (
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredictorError
 from usv_predictor.models import loading
 from usv_predictor.node import live
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
 from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.records import NS_PER_S
 
@@ -155,11 +156,11 @@ def _key_values(pairs: dict[str, Any]) -> list[KeyValue]:
     return [KeyValue(key=key, value=str(value)) for key, value in pairs.items()]
 
 
-def load_model(model_path: str, config: PredictorConfig) -> live.Rollout:
-    """The model of `model_path` ("" = the shipped one), checked against the configuration (ModelError naming
-    the file and the mismatch)."""
-    artifact = loading.load_model(model_path, expect={"dt": config.dt, "vessel": config.vessel},
-                                  option="model_path", physics=False)
+def load_model(model_path: str, config: PredictorConfig, layout: ActuatorLayout = DEFAULT_LAYOUT) -> live.Rollout:
+    """The model of `model_path` ("" = the shipped one), checked against the configuration: its step, vessel and
+    control columns (the vessel's actuator layout); ModelError naming the file and the mismatch."""
+    expect = {"dt": config.dt, "vessel": config.vessel, "control_layout": list(layout.control_names)}
+    artifact = loading.load_model(model_path, expect=expect, option="model_path", physics=False)
     return live.Rollout(artifact, config.horizon_steps, config.ensemble_size)
 
 
@@ -178,7 +179,7 @@ class PredictorNode(Node):
         defaults_path = Path(config_path) if config_path is not None else default_config_path()
         self.config = self._declare_parameters(defaults_path)
         self.layout = load_vessel(self.config.vessel).actuator_layout  # ConfigError: fatal at start-up
-        self.rollout = load_model(self.config.model_path, self.config)  # ModelError: fatal at start-up
+        self.rollout = load_model(self.config.model_path, self.config, self.layout)  # ModelError: fatal at start-up
         self.inputs = live.InputSet(
             {entry.role: msg_adapters.ROLE_FIELDS[entry.role] for entry in self.config.inputs},
             {entry.role: float(self.get_parameter(f"inputs.{entry.role}.max_age_s").value) for entry in self.config.inputs},
@@ -248,7 +249,7 @@ class PredictorNode(Node):
         for parameter in parameters:
             if parameter.name == "model_path":
                 try:
-                    swap = load_model(str(parameter.value), self.config)
+                    swap = load_model(str(parameter.value), self.config, self.layout)
                 except (ModelError, ConfigError) as err:
                     self.get_logger().error(f"model_path not changed, keeping {self.rollout.artifact.path}: {err}")
                     return SetParametersResult(successful=False, reason=str(err))
