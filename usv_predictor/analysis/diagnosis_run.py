@@ -18,6 +18,7 @@ from usv_predictor.analysis import diagnosis as dg
 from usv_predictor.config import load_predictor_config
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import DatasetError, ModelError
+from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.models.greybox import HULL_NAMES, hull_from_metadata
 from usv_predictor.physics.vessel import Vessel, load_vessel
 
@@ -34,7 +35,8 @@ def calm_water_vessel(vessel: str | None, model: Path | None, config: Path | Non
 
     meta = load_artifact(model).metadata
     hull = hull_from_metadata(meta)
-    if not str(meta.get("model_type", "")).startswith("greybox") or hull is None:
+    family = MODEL_FAMILIES.get(family_name(str(meta.get("model_type", ""))))
+    if family is None or not family.physics or hull is None:
         raise ModelError(f"model {model}: diagnose needs an MMG grey box without learned or extra terms "
                          f"(`replay identify --structure mmg`), not model_type {meta.get('model_type')!r}; "
                          "compare other models with `replay evaluate`")

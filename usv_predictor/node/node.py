@@ -60,6 +60,7 @@ from usv_predictor.config import (
 )
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredictorError
 from usv_predictor.models import loading
+from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.node import live
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
 from usv_predictor.physics.vessel import load_vessel
@@ -150,6 +151,12 @@ def _node_descriptor(name: str, spec: NodeParameter) -> ParameterDescriptor:
     unit = "s" if name.endswith("_s") else "samples"
     allowed = None if spec.low is None else Range(spec.low, spec.high, unit)
     return _ranged(descriptor, name, spec.default, allowed)
+
+
+def _family_description(metadata: dict[str, Any]) -> str:
+    """What kind of model it is (models/families.py), for /diagnostics."""
+    family = MODEL_FAMILIES.get(family_name(str(metadata.get("model_type", ""))))
+    return family.description if family is not None else "not a model family of usv_predictor"
 
 
 def _key_values(pairs: dict[str, Any]) -> list[KeyValue]:
@@ -371,6 +378,7 @@ class PredictorNode(Node):
         meta = artifact.metadata
         values = {
             "model_path": str(artifact.path), "model_id": artifact.model_id, "model_type": meta.get("model_type"),
+            "family": _family_description(meta),
             "feature_set": meta.get("feature_set"), "vessel": meta.get("vessel"), "dt": f"{artifact.dt:g}",
             "ensemble_size": f"{self.rollout.members}/{artifact.ensemble_size}",
             "training_data_sha256": meta.get("training_data_sha256"), "created_utc": meta.get("created_utc"),
