@@ -18,8 +18,8 @@ from usv_predictor.frames import angle_difference_deg, compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
 from usv_predictor.physics import effects
 from usv_predictor.physics.effects import (
-    EFFECTS,
     DEG_TO_RAD,
+    EFFECTS,
     Effect,
     EffectParameter,
     ScalarReadout,

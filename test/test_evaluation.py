@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from usv_predictor.analysis import evaluation as ev
+from usv_predictor.atomic import jsonable as _jsonable
 from usv_predictor.data.recording import Recording, recording_from_signals
 from usv_predictor.errors import ModelError
 from usv_predictor.physics.dynamics import ManoeuvringModel
@@ -16,7 +17,6 @@ from usv_predictor.physics.manoeuvres import PullOut, RandomManoeuvre, TurningCi
 from usv_predictor.physics.sensors import SensorSpec, measure
 from usv_predictor.physics.simulator import simulate
 from usv_predictor.physics.vessel import load_vessel
-from usv_predictor.atomic import jsonable as _jsonable
 
 DT = 0.5  # s
 CURRENT = Environment(current_speed=0.4, current_to_deg=215.0)  # flows toward south-west (m/s, deg)

@@ -34,6 +34,7 @@ from usv_predictor.replay.recordings import load_recordings
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
 import play_bag  # noqa: E402  (tools/ is not a package)
+
 from ros_helpers import domain_id, localhost_env, ros_context  # noqa: E402,F401 (ros_context is a fixture)
 
 BAG = REPO / "bags" / "sea_trial" / "turning_circle_stbd_20deg_700rpm"

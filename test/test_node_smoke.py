@@ -23,6 +23,7 @@ from usv_predictor.node import node as predictor_node
 
 from ros_helpers import Harness, localhost_env, ros_context, values_of  # noqa: F401 (ros_context is a fixture)
 
+
 @pytest.fixture()
 def harness(ros_context: Context) -> Iterator[Harness]:
     fixture = Harness(ros_context, [Parameter("rate_hz", value=20.0)], peer_name="smoke_peer")

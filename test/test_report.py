@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from msg_adapters import ROLE_FIELDS
-from usv_predictor.records import Signal
 from usv_predictor.analysis import reports
+from usv_predictor.records import Signal
 from usv_predictor.replay.bagio import TopicSpec, write_bag
 from usv_predictor.replay.cli import main
 from usv_predictor.replay.recordings import bag_sha256

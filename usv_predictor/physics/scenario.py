@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 from dataclasses import asdict, dataclass, field, replace
 from typing import Mapping, TypeVar
 
+from usv_predictor.config import Range
 from usv_predictor.errors import ConfigError
 from usv_predictor.physics import effects as fx
 from usv_predictor.physics.effects import EffectParameter
@@ -90,10 +90,7 @@ def effect_parameters(name: str, given: Mapping[str, float]) -> dict[str, float]
         raise ConfigError(f"effect {name!r} has no parameter(s) {unknown}; it takes {sorted(spec)}")
     values = {}
     for p in EFFECTS[name]:
-        value = float(given.get(p.name, p.default))
-        if not (p.low <= value <= p.high) or not math.isfinite(value):
-            raise ConfigError(f"{name}: {p.name}={value} {p.unit} is outside the allowed range [{p.low}, {p.high}]")
-        values[p.name] = value
+        values[p.name] = Range(p.low, p.high, p.unit).check(p.name, float(given.get(p.name, p.default)), name)
     return values
 
 

@@ -31,8 +31,7 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
     export the grey box (with hybrid: plus an MLP residual) to `output`; validation: a glob of bags only
     evaluated; report: a directory for summary.md and the force plots. The result of `replay identify`."""
     from usv_predictor.analysis.evaluation import evaluate
-    from usv_predictor.fitting import hybrid_fit
-    from usv_predictor.fitting import identification
+    from usv_predictor.fitting import hybrid_fit, identification
     from usv_predictor.physics.vessel import load_vessel
 
     preset = load_vessel(vessel)
