@@ -16,7 +16,7 @@ slower); chunk ("storage") mode for mcap (2.7 MB vs 2.2 MB whole-file, but it is
 compression that every mcap tool reads directly).
 Bags are written into a temporary directory beside the target and renamed at the end.
 
-Reading decodes each topic in bulk (cdr_fast.decode_many -> structure of arrays -> one vectorised
+Reading decodes each topic in bulk (msg_adapters.cdr.decode_many -> structure of arrays -> one vectorised
 adapter.decode); types without a fixed layout (JointState) go one rosbags message at a time.
 """
 from __future__ import annotations
@@ -46,7 +46,7 @@ from msg_adapters import columnar_factory, get_adapter, rosbags_factory
 from usv_predictor.config import PredictorConfig, input_topics
 from usv_predictor.errors import AdapterError, BagError
 from usv_predictor.records import Signal
-from usv_predictor.replay.cdr_fast import decode_many, has_fast_layout
+from msg_adapters.cdr import decode_many, has_fast_layout
 
 if sys.version_info >= (3, 14):
     from compression.zstd import ZstdError
@@ -363,7 +363,7 @@ def _decode_one_by_one(
 def _decode_in_bulk(
     path: Path, spec: TopicSpec, adapter: Any, raws: list, log_times: list[int], typestore: Any
 ) -> tuple[np.ndarray, np.ndarray]:
-    """All messages at once: cdr_fast structure of arrays -> one vectorised adapter.decode."""
+    """All messages at once: msg_adapters.cdr structure of arrays -> one vectorised adapter.decode."""
     try:
         stamp, columns = adapter.decode(decode_many(spec.ros_type, raws, typestore))
     except (AdapterError, BagError) as err:
