@@ -23,6 +23,7 @@ import msg_adapters
 from usv_predictor.node import node as predictor_node
 
 WAIT_S = 15.0  # upper bound on discovery + a few timer periods (s)
+DIAGNOSTICS_RATE_HZ = 20.0  # the harness's /diagnostics rate (default 1 Hz): tests wait on the reports
 # plain values (SI, marine frames) of every default input that give a good prediction
 GOOD = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), "heading": (0.5,),
         "rudder_angle": (0.1,), "engine_rpm": (650.0,), "gnss": (35.38, 119.56, 0.0)}
@@ -68,6 +69,8 @@ class Harness:
     """The node under test (wall clock), a peer node that publishes its inputs, and what comes back."""
 
     def __init__(self, context: Context, overrides: list[Parameter], peer_name: str = "test_peer") -> None:
+        if not any(p.name == "diagnostics_rate_hz" for p in overrides):
+            overrides = [*overrides, Parameter("diagnostics_rate_hz", value=DIAGNOSTICS_RATE_HZ)]
         self.node = predictor_node.PredictorNode(context=context, parameter_overrides=overrides)
         self.peer = Node(peer_name, context=context)
         self.executor = SingleThreadedExecutor(context=context)

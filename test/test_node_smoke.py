@@ -57,7 +57,7 @@ def test_inputs_are_decoded_and_reported(harness: Harness) -> None:
     assert statuses["prediction"].level[0] == predictor_node.WARN
     assert "no message yet" in statuses["prediction"].message
     configured = [i.role for i in harness.node.config.inputs]
-    assert sorted(statuses) == sorted([*configured, "model", "prediction"])
+    assert sorted(statuses) == sorted([*configured, "model", "prediction", "plan", "candidate plans"])
 
 
 def test_stale_input_turns_to_warn_and_limit_is_live(harness: Harness) -> None:
