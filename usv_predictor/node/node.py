@@ -421,7 +421,7 @@ class PredictorNode(Node):
         self.candidates.received += 1
         self._catch_up(now_ns)
         try:
-            data = decode_joint_trajectory(raw, max_joints=plans.MAX_CANDIDATES * len(self.layout.controls))
+            data = decode_joint_trajectory(raw)
             batch = plans.parse_plan(data, self.layout, now_ns, self._plan_limits(), candidates=True)
         except (live.InputRejected, AdapterError) as err:
             self.candidates.refuse(getattr(err, "kind", "malformed"), str(err), now_ns)
