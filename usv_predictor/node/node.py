@@ -42,8 +42,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.context import Context
 from rclpy.exceptions import ParameterException
-from rclpy.executors import Executor, ExternalShutdownException
-from rclpy.experimental import EventsExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
@@ -616,7 +615,12 @@ def _check_output_types(config: PredictorConfig) -> None:
 
 
 def make_executor(context: Context | None = None) -> Executor:
-    """The executor `main` spins the node with: rclpy's EventsExecutor (measured faster, docs/node.md)."""
+    """The executor `main` spins the node with: rclpy's EventsExecutor (measured faster, docs/node.md); the
+    SingleThreadedExecutor on an rclpy without it (Jazzy before 7.1.4)."""
+    try:
+        from rclpy.experimental import EventsExecutor
+    except ImportError:
+        return SingleThreadedExecutor(context=context)
     return EventsExecutor(context=context)
 
 
