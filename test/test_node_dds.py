@@ -189,3 +189,35 @@ def test_installed_executable_publishes_a_path_with_the_default_model(installed:
     env = {**installed_env(installed), "ROS_DOMAIN_ID": str(domain_id(2))}  # (ros_helpers.domain_id)
     listener = play_to([str(executable), "--ros-args", "-p", "use_sim_time:=true"], env, seconds=4.0, rate=1.0)
     check_paths(listener, rate_hz=10.0, seconds=4.0)
+
+
+@pytest.mark.parametrize("signal_name", ["SIGINT", "SIGTERM"])
+def test_the_node_process_stops_on_a_signal(signal_name: str) -> None:
+    """main() spins the EventsExecutor with spin_once (its spin() ignores signals in rclpy 7.1.5): it must stop."""
+    import signal
+
+    env = node_environment(4)
+    process = subprocess.Popen([sys.executable, "-m", "usv_predictor.node"], env=env, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    context = Context()
+    rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
+    peer = Node("signal_peer", context=context)
+    try:
+        deadline = time.monotonic() + 60.0
+        while peer.count_publishers("predicted_path") == 0:  # up and spinning
+            assert process.poll() is None, process.communicate()[1][-2000:]
+            assert time.monotonic() < deadline, "the node did not come up within 60 s"
+            time.sleep(0.1)
+        time.sleep(0.5)
+        process.send_signal(getattr(signal, signal_name))
+        try:
+            process.wait(timeout=10.0)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            pytest.fail(f"the node ignored {signal_name} for 10 s")
+        assert process.returncode == 0, process.communicate()[1][-2000:]
+    finally:
+        peer.destroy_node()
+        rclpy.try_shutdown(context=context)
+        if process.poll() is None:
+            process.kill()
