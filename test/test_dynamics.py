@@ -30,6 +30,10 @@ class RpmStep:
     duration_s: float = 150.0
     name: str = "rpm_step"
 
+    @property
+    def propulsion(self) -> float:  # the approach's propulsion command (simulator.Manoeuvre)
+        return self.rpm
+
     def controller(self):
         return lambda t, psi, r: (0.0, self.rpm if t < 5.0 else self.rpm_after)
 

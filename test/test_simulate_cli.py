@@ -14,6 +14,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from usv_predictor.config import input_topics, load_predictor_config
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, unused_roles
 from usv_predictor.replay.bagio import TopicSpec, read_bag, read_custom_data
 from usv_predictor.replay.cli import main
 
@@ -28,9 +29,11 @@ EXPECTED_TYPES = {
 }
 
 
-def specs() -> list[TopicSpec]:
+def specs(layout: ActuatorLayout = DEFAULT_LAYOUT) -> list[TopicSpec]:
+    """The config's topics that a boat of this layout uses (the config lists every layout's controls)."""
     cfg = load_predictor_config()
-    return [TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id) for t in input_topics(cfg, include_ground_truth=True)]
+    return [TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id) for t in input_topics(cfg, include_ground_truth=True)
+            if t.role not in unused_roles(layout)]
 
 
 def simulate(tmp_path: Path, *extra: str) -> tuple[int, dict]:

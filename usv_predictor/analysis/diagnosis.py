@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from usv_predictor.data.recording import Recording
-from usv_predictor.errors import DiagnosisError
+from usv_predictor.errors import ConfigError, DiagnosisError
 from usv_predictor.frames import compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
 from usv_predictor.physics import effects as fx
@@ -287,7 +287,12 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     """
     started = time.perf_counter()
     notes = check_data(recordings)
-    names = list(hypotheses or HYPOTHESES)
+    applicable = fx.hypothesis_names(vessel.layout)
+    names = list(hypotheses or applicable)
+    foreign = [name for name in names if name in HYPOTHESES and name not in applicable]
+    if foreign:
+        raise ConfigError(f"hypotheses {foreign} do not apply to vessel {vessel.name} (actuator layout {vessel.layout}); "
+                         f"its hypotheses are {', '.join(applicable)}")
     if "none" not in names:
         names.insert(0, "none")
     dt = recordings[0].dt
