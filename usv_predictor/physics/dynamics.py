@@ -634,7 +634,7 @@ def model_class(vessel: Vessel) -> type:
         except KeyError as err:
             raise ConfigError(f"vessel {vessel.name}: no equations for {err.args[0]!r} in physics/dynamics.py "
                               f"(hull models {sorted(HULL_FORCES)}, layouts {sorted(ACTUATOR_FORCES)})") from None
-        name = f"{hull.__name__}{forces.__name__}Model"
+        name = f"ManoeuvringModel[{key[0]}, {key[1]}]"
         _CLASSES[key] = type(name, (forces, hull, ManoeuvringModel),
                              {"constants": (*hull.constants, *forces.constants, SeaConstants), "__module__": __name__})
     return _CLASSES[key]
