@@ -180,8 +180,10 @@ class SmallCraftConstants:
     m33: float
     det_vr: float  # m22 m33 - m23 m32 (kg^2 m^2)
     munk: float  # Y_vdot - X_udot (kg): the added-mass yaw moment is munk u_r v_r (N m)
+    m33_rigid: float  # I_z + m x_G^2 (kg m^2): m33 = m33_rigid - N_rdot (the torch twin adds the fitted N_rdot)
     small_craft: SmallCraftHull  # the derivatives (SI): the identifiable hull coefficients
-    cross_flow: float  # 0.5 rho d C_d (kg/m^2): times the strip integral of |w| w (m^3/s^2) gives N
+    half_rho_d: float  # 0.5 rho d (kg/m^2)
+    cross_flow: float  # half_rho_d C_d (kg/m^2): times the strip integral of |w| w (m^3/s^2) gives N
     strip_x: tuple[float, ...]  # strip centres from midship (m), midpoint rule over [-L/2, L/2]
     strip_dx: float  # strip width L / CROSS_FLOW_STRIPS (m)
 
@@ -189,8 +191,10 @@ class SmallCraftConstants:
     def of(cls, vessel: Vessel) -> "SmallCraftConstants":
         g, h = vessel.geometry, vessel.small_craft
         dx = g.L_pp / CROSS_FLOW_STRIPS
-        return cls(**_mass_constants(vessel), munk=h.Y_vdot - h.X_udot, small_craft=h,
-                   cross_flow=0.5 * RHO_WATER * g.d * h.cross_flow_cd,
+        half_rho_d = 0.5 * RHO_WATER * g.d
+        return cls(**_mass_constants(vessel), munk=h.Y_vdot - h.X_udot,
+                   m33_rigid=vessel.inertia_zz + vessel.mass * g.x_G**2, small_craft=h, half_rho_d=half_rho_d,
+                   cross_flow=half_rho_d * h.cross_flow_cd,
                    strip_x=tuple(-0.5 * g.L_pp + (k + 0.5) * dx for k in range(CROSS_FLOW_STRIPS)), strip_dx=dx)
 
 
@@ -255,12 +259,13 @@ class TwinThrusterConstants:
 OPENED = (Propeller, Rudder)  # records whose fields constants_of lists under their own names
 
 
-def constants_of(vessel: Vessel) -> dict[str, object]:
+def constants_of(vessel: Vessel, records: tuple[type, ...] | None = None) -> dict[str, object]:
     """Every constant of the vessel's equations of motion by name: the records of its hull model and of its
-    layout's force model and SeaConstants, with the vessel sections in OPENED (propeller, rudder) opened into their
-    fields. The hull coefficients stay one record under the hull model's section name (`hull`, `small_craft`)."""
+    layout's force model and SeaConstants (or only `records`), with the vessel sections in OPENED (propeller,
+    rudder) opened into their fields. The hull coefficients stay one record under the hull model's section name
+    (`hull`, `small_craft`), thrust maps one record each."""
     out: dict[str, object] = {}
-    for record_type in model_class(vessel).constants:
+    for record_type in model_class(vessel).constants if records is None else records:
         record = record_type.of(vessel)
         for f in fields(record):
             value = getattr(record, f.name)
