@@ -286,13 +286,13 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     when the caller has them already (built here otherwise); the rollout's terms are left at the final fit.
     """
     started = time.perf_counter()
-    notes = check_data(recordings)
-    applicable = fx.hypothesis_names(vessel.layout)
+    applicable = fx.hypothesis_names(vessel.layout)  # a rudder offset needs a rudder, an imbalance two thrusters
     names = list(hypotheses or applicable)
     foreign = [name for name in names if name in HYPOTHESES and name not in applicable]
     if foreign:
         raise ConfigError(f"hypotheses {foreign} do not apply to vessel {vessel.name} (actuator layout {vessel.layout}); "
-                         f"its hypotheses are {', '.join(applicable)}")
+                          f"its hypotheses are {', '.join(applicable)}")
+    notes = check_data(recordings)
     if "none" not in names:
         names.insert(0, "none")
     dt = recordings[0].dt
