@@ -286,6 +286,7 @@ class ManoeuvringModel:
     """
 
     constants: ClassVar[tuple[type, ...]] = ()  # the constants records of the combined class
+    munk: float = 0.0  # (kg) -C_A(nu_r) nu_r in yaw = munk u_r v_r: the small-craft hull's Munk moment (MMG: in N_v)
 
     def __new__(cls, vessel: Vessel, *args: Any, **kwargs: Any) -> "ManoeuvringModel":
         return super().__new__(model_class(vessel) if cls is ManoeuvringModel else cls)
@@ -314,6 +315,12 @@ class ManoeuvringModel:
         """All forces and moments at midship for relative (u_r, v_r) and over-ground (u, v) velocities and the
         actuator levels (a, b) of the layout (delta rad and rpm for rudder_propeller)."""
         steering, propulsion = self.actuator_loads(u_r, v_r, r, a, b)
+        wind, waves = self.environment_loads(psi, u, v, sea)
+        return Forces(self.hull_loads(u_r, v_r, r), steering, propulsion, wind, waves)
+
+    def environment_loads(self, psi: float, u: float, v: float, sea: SeaLoads
+                  ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """(wind, waves) loads at heading psi and over-ground velocity (u, v)."""
         wind = (0.0, 0.0, 0.0)
         if sea.wind_speed > 0.0:
             # apparent wind over ground (seed 000 eq. 13-18); the still-air drag of the boat's own motion is
@@ -330,7 +337,7 @@ class ManoeuvringModel:
             qw = self.q_wave * sea.wave_amplitude**2
             waves = (qw * fourier(self.drift_x, chi), qw * fourier(self.drift_y, chi),
                      qw * self.L * fourier(self.drift_n, chi))
-        return Forces(self.hull_loads(u_r, v_r, r), steering, propulsion, wind, waves)
+        return wind, waves
 
     def _air_load(self, u_rw: float, v_rw: float) -> tuple[float, float, float]:
         """Air load for the apparent wind (u_rw, v_rw) in the body frame (seed 000 eq. 12-14)."""
@@ -346,12 +353,20 @@ class ManoeuvringModel:
         c, s = math.cos(psi), math.sin(psi)
         u = u_r + sea.current_n * c + sea.current_e * s
         v = v_r - sea.current_n * s + sea.current_e * c
-        x, y, n = self.loads(u_r, v_r, r, psi, u, v, a, b, sea).total()
+        # the loads as in loads(), summed in Forces.total's order (without building the record: the hot path)
+        h = self.hull_loads(u_r, v_r, r)
+        st, pr = self.actuator_loads(u_r, v_r, r, a, b)
+        w, wv = self.environment_loads(psi, u, v, sea)
+        x = h[0] + st[0] + pr[0] + w[0] + wv[0]
+        y = h[1] + st[1] + pr[1] + w[1] + wv[1]
+        n = h[2] + st[2] + pr[2] + w[2] + wv[2]
         m, x_g = self.m, self.x_G
         # Coriolis and centripetal terms (MMG eq. 4; Fossen's C(nu) nu) and the hull model's own (Munk)
         rhs_x = x + self.m22 * v_r * r + x_g * m * r * r
         rhs_y = y - self.m11 * u_r * r
-        rhs_n = self.coriolis_yaw(n - x_g * m * u_r * r, u_r, v_r)
+        rhs_n = n - x_g * m * u_r * r
+        if self.munk:  # the small-craft hull's added-mass Coriolis yaw term (Munk moment); MMG has it in N_v
+            rhs_n += self.munk * u_r * v_r
         if sea.current_accel_n or sea.current_accel_e:
             # a turning current accelerates the water; the rigid body feels it (Fossen 2021 sec. 10.3)
             a_u = sea.current_accel_n * c + sea.current_accel_e * s
@@ -402,10 +417,6 @@ class ManoeuvringModel:
     # ---- supplied by the hull model and the actuator force model -----------------------------------------
     def hull_loads(self, u_r: float, v_r: float, r: float) -> tuple[float, float, float]:
         raise NotImplementedError
-
-    def coriolis_yaw(self, rhs_n: float, u_r: float, v_r: float) -> float:
-        """The yaw right-hand side with the hull model's own Coriolis term (none for MMG)."""
-        return rhs_n
 
     def resistance_coefficients(self) -> tuple[float, float]:
         """(r1 (N s/m), r2 (N s^2/m^2)) of the straight-running resistance R(u) = r1 u + r2 u^2 of the hull."""
@@ -468,10 +479,6 @@ class SmallCraftHullForces:
         return ((h.X_u + h.X_uu * abs(u_r)) * u_r,
                 h.Y_v * v_r + h.Y_r * r + y_cf,
                 h.N_v * v_r + h.N_r * r + h.N_rr * abs(r) * r + n_cf)
-
-    def coriolis_yaw(self, rhs_n: float, u_r: float, v_r: float) -> float:
-        # -C_A(nu_r) nu_r in yaw: (Y_vdot - X_udot) u_r v_r (Fossen's m2c of M_A; destabilising Munk moment)
-        return rhs_n + self.munk * u_r * v_r
 
     def resistance_coefficients(self) -> tuple[float, float]:
         h = self.small_craft
