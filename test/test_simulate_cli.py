@@ -10,10 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from usv_predictor.config import input_topics, load_predictor_config
+from usv_predictor.physics.vessel import vessel_dir
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout, unused_roles
 from usv_predictor.replay.bagio import TopicSpec, read_bag, read_custom_data
 from usv_predictor.replay.cli import main
@@ -206,6 +208,31 @@ def test_a_twin_thruster_programme_is_stated_in_commands(tmp_path):
     [zigzag] = manoeuvres(SimulationRequest(output=tmp_path, vessel="otter", manoeuvre="zigzag", differential=0.3,
                                             side="port"), load_vessel("otter"))
     assert (zigzag.turn, zigzag.check_deg, zigzag.propulsion, zigzag.side) == (0.3, 20.0, 0.6, -1)
+
+
+@pytest.mark.parametrize("layout, extra, topics", [
+    ("rudder_throttle", ["--rudder", "15", "--throttle", "0.7"], {"rudder_angle", "throttle"}),
+    ("rudder_only", ["--rudder", "15", "--rpm", "600"], {"rudder_angle"}),
+])
+def test_rudder_layouts_write_their_own_controls(tmp_path, layout, extra, topics):
+    """A rudder boat that logs a throttle writes rudder_angle and throttle; one that logs no propulsion only the
+    rudder (its simulated engine runs at --rpm all the same)."""
+    raw = yaml.safe_load((vessel_dir() / "jari_usv.yaml").read_text())
+    raw["actuator_layout"] = layout
+    if layout == "rudder_throttle":
+        raw["throttle"] = {"forward_N": 9000.0, "reverse_N": 3500.0, "exponent": 2.0, "dead_band": 0.05,
+                           "time_constant_s": 1.2}
+    boat = tmp_path / "boat.yaml"
+    boat.write_text(yaml.safe_dump(raw))
+    code, result = simulate(tmp_path, "--vessel", str(boat), "--duration", "20", *extra)
+    assert code == 0
+    bag = Path(result["bags"][0]["bag"])
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        written = {c.topic for c in reader.connections}
+    controls = {"rudder_angle", "engine_rpm", "throttle", "thrusters/port", "thrusters/starboard"}
+    assert written & controls == topics
+    expected = {"rudder_throttle": "turning_circle_stbd_15deg_p0.7", "rudder_only": "turning_circle_stbd_15deg_600rpm"}
+    assert bag.name == expected[layout] and result["bags"][0]["final_speed_mps"] > 2.0
 
 
 @pytest.mark.parametrize("args, message", [

@@ -46,10 +46,9 @@ from torch import Tensor, nn
 
 from usv_predictor.physics import dynamics, effects
 from usv_predictor.physics.dynamics import SPEED_FLOOR, SeaConstants, constants_of
-from usv_predictor.physics.vessel import RHO_WATER, ThrustMap, Vessel
+from usv_predictor.physics.vessel import RHO_WATER, Hull, ThrustMap, Vessel
 
-HULL_NAMES = ("R0", "X_vv", "X_vr", "X_rr", "X_vvvv", "Y_v", "Y_r", "Y_vvv", "Y_vvr", "Y_vrr", "Y_rrr",
-              "N_v", "N_r", "N_vvv", "N_vvr", "N_vrr", "N_rrr")  # the MMG hull's coefficients (vessel.Hull)
+HULL_NAMES = tuple(f.name for f in fields(Hull))  # the MMG hull's coefficients, R0 ... N_rrr (vessel.Hull)
 STRUCTURES = {"mmg": "MMG (Yasukawa & Yoshimura 2015)", "small_craft": "small craft (Fossen 2021 ch. 6)"}
 
 
