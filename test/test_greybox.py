@@ -35,8 +35,10 @@ def small_rudder_boat() -> object:
     propeller = {**jari["propeller"], "D_P": 0.12}  # (m)
     rudder = {**jari["rudder"], "A_R": 0.02}  # (m^2)
     raw = {k: v for k, v in otter.items() if k != "thrusters"}
-    return vessel_from_dict({**raw, "actuator_layout": "rudder_propeller", "propeller": propeller, "rudder": rudder,
-                             "actuators": jari["actuators"]}, source="otter hull with a rudder")
+    # every coefficient non-zero, so that the twins are compared on each (the Otter has no Y_r, N_v, X_uu)
+    hull = {**otter["small_craft"], "Y_r": -20.0, "N_v": -15.0, "X_uu": -10.0}  # (N s), (N s), (N s^2/m^2)
+    return vessel_from_dict({**raw, "small_craft": hull, "actuator_layout": "rudder_propeller", "propeller": propeller,
+                             "rudder": rudder, "actuators": jari["actuators"]}, source="otter hull with a rudder")
 
 
 VESSELS = {  # every hull model and every layout at least once

@@ -254,6 +254,8 @@ def test_sections_follow_the_hull_model_and_the_layout():
         vessel_from_dict({**otter, "hull_model": "barge"}, source="boat.yaml")
     with pytest.raises(ConfigError, match=r"unknown key\(s\) \['thruster'\]"):
         vessel_from_dict({**otter, "thruster": {}}, source="boat.yaml")
+    lean = {k: v for k, v in otter["small_craft"].items() if k not in ("Y_r", "N_v")}  # optional couplings
+    assert vessel_from_dict({**otter, "small_craft": lean}).small_craft == load_vessel("otter").small_craft
 
 
 # ---- rudder_throttle and rudder_only -------------------------------------------------------------------------

@@ -49,7 +49,6 @@ from usv_predictor.physics.dynamics import SPEED_FLOOR, SeaConstants, constants_
 from usv_predictor.physics.vessel import RHO_WATER, Hull, ThrustMap, Vessel
 
 HULL_NAMES = tuple(f.name for f in fields(Hull))  # the MMG hull's coefficients, R0 ... N_rrr (vessel.Hull)
-STRUCTURES = {"mmg": "MMG (Yasukawa & Yoshimura 2015)", "small_craft": "small craft (Fossen 2021 ch. 6)"}
 
 
 def _fourier_table(series: tuple[float, tuple[tuple[int, float, float], ...]]) -> List[List[float]]:
@@ -114,39 +113,43 @@ class MmgHullModule(nn.Module):
 
 
 class SmallCraftHullModule(nn.Module):
-    """Fossen's small-craft hull; h = the coefficients of vessel.SmallCraftHull in field order: X_udot, Y_vdot,
-    N_rdot, X_u, X_uu, Y_v, Y_r, N_v, N_r, N_rr, cross_flow_cd. The mass matrix follows the fitted added mass."""
+    """Fossen's small-craft hull; h = the coefficients of vessel.SmallCraftHull in its field order (indexed by
+    name below). The mass matrix follows the fitted added mass."""
 
     def __init__(self, vessel: Vessel) -> None:
         super().__init__()
         _set_constants(self, constants_of(vessel, dynamics.SmallCraftHullForces.constants))
         self.register_buffer("strips", torch.tensor(self.strip_x, dtype=torch.float64), persistent=False)  # (S,)
+        names, _ = hull_coefficients(vessel)
+        (self.i_xud, self.i_yvd, self.i_nrd, self.i_xu, self.i_xuu, self.i_yv, self.i_yr, self.i_nv, self.i_nr,
+         self.i_nrr, self.i_cd) = (names.index(n) for n in ("X_udot", "Y_vdot", "N_rdot", "X_u", "X_uu", "Y_v", "Y_r",
+                                                           "N_v", "N_r", "N_rr", "cross_flow_cd"))
 
     def forces(self, h: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor, resistance_change: Tensor) -> List[Tensor]:
         w = v_r[:, None] + self.strips[None, :] * r[:, None]  # (B, S) relative cross-flow velocity along the hull
         f = torch.abs(w) * w  # (B, S)
-        cross = -self.half_rho_d * h[10] * self.strip_dx
+        cross = -self.half_rho_d * h[self.i_cd] * self.strip_dx
         y_cf = cross * torch.sum(f, dim=1)
         n_cf = cross * torch.sum(self.strips[None, :] * f, dim=1)
-        x_h = (1.0 + resistance_change[0]) * ((h[3] + h[4] * torch.abs(u_r)) * u_r)
-        y_h = h[5] * v_r + h[6] * r + y_cf
-        n_h = h[7] * v_r + h[8] * r + h[9] * torch.abs(r) * r + n_cf
+        x_h = (1.0 + resistance_change[0]) * ((h[self.i_xu] + h[self.i_xuu] * torch.abs(u_r)) * u_r)
+        y_h = h[self.i_yv] * v_r + h[self.i_yr] * r + y_cf
+        n_h = h[self.i_nv] * v_r + h[self.i_nr] * r + h[self.i_nrr] * torch.abs(r) * r + n_cf
         return [x_h, y_h, n_h]
 
     def solve(self, h: Tensor, x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor) -> List[Tensor]:
         """nu_r_dot = M^-1 (tau - C_RB(nu_r) nu_r - C_A(nu_r) nu_r), M with the fitted added mass; the yaw row has
         the Munk moment (Y_vdot - X_udot) u_r v_r."""
-        m11 = self.m - h[0]
-        m22 = self.m - h[1]
-        m33 = self.m33_rigid - h[2]
+        m11 = self.m - h[self.i_xud]
+        m22 = self.m - h[self.i_yvd]
+        m33 = self.m33_rigid - h[self.i_nrd]
         det = m22 * m33 - self.m23 * self.m32
         rhs_x = x + m22 * v_r * r + self.x_G * self.m * r * r
         rhs_y = y - m11 * u_r * r
-        rhs_n = n - self.x_G * self.m * u_r * r + (h[1] - h[0]) * u_r * v_r
+        rhs_n = n - self.x_G * self.m * u_r * r + (h[self.i_yvd] - h[self.i_xud]) * u_r * v_r
         return [rhs_x / m11, (m33 * rhs_y - self.m23 * rhs_n) / det, (m22 * rhs_n - self.m32 * rhs_y) / det]
 
     def resistance(self, h: Tensor, resistance_change: Tensor) -> List[Tensor]:
-        return [-h[3] * (1.0 + resistance_change[0]), -h[4] * (1.0 + resistance_change[0])]
+        return [-h[self.i_xu] * (1.0 + resistance_change[0]), -h[self.i_xuu] * (1.0 + resistance_change[0])]
 
 
 # ---- actuator force models (dynamics.RudderPropellerForces, RudderThrottleForces, TwinThrusterForces) ----------
@@ -493,7 +496,7 @@ def greybox_metadata(vessel: Vessel, rollout: GreyBoxRollout, *, model_type: str
         "output_layout": ["u", "v", "r", "x_n", "y_e", "psi"], "dt": rollout.dt, "horizon_steps": int(horizon_steps),
         "normalisation": {}, "vessel": vessel.name, "training_data_sha256": training_data_sha256,
         "ensemble_size": 1,
-        "architecture": {"structure": STRUCTURES[vessel.hull_model_name], "substeps": rollout.substeps,
+        "architecture": {"structure": vessel.hull_model.structure, "substeps": rollout.substeps,
                          "hull": dict(zip(rollout.hull_names, rollout.hull.detach().tolist())), "terms": rollout.terms()},
         "training": dict(training or {}), "units": dict(UNITS),
     }

@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Callable, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -77,6 +77,8 @@ class CommandInput:
     label: str  # format of the value in manoeuvre names ("{:g}deg" -> 20deg, "d{:g}" -> d0.4)
     default: float  # the option's default value (in `unit`)
     help: str
+    limits: Callable[[Any], tuple[float, float, bool]]  # vessel -> (low, high, low allowed) of the option's value
+    limited_by: str = "the range"  # how the error message names the limits ("the preset's range")
 
     def tag(self, value: float) -> str:
         return self.label.format(value)
@@ -181,12 +183,17 @@ def _differential(turn: float, propulsion: float) -> tuple[float, float]:
     return min(max(propulsion + half, -1.0), 1.0), min(max(propulsion - half, -1.0), 1.0)
 
 
-RUDDER_DEG = CommandInput("--rudder", "deg", math.pi / 180.0, "{:g}deg", 20.0, "rudder angle (deg)")
-ENGINE_RPM = CommandInput("--rpm", "rpm", 1.0, "{:g}rpm", 650.0, "engine speed (rpm)")
+RUDDER_DEG = CommandInput("--rudder", "deg", math.pi / 180.0, "{:g}deg", 20.0, "rudder angle (deg)",
+                          lambda vessel: (0.0, vessel.actuators.rudder_max_deg, True), "the preset's range")
+ENGINE_RPM = CommandInput("--rpm", "rpm", 1.0, "{:g}rpm", 650.0, "engine speed (rpm)",
+                          lambda vessel: (max(vessel.actuators.rpm_min, 0.0), vessel.actuators.rpm_max, False),
+                          "the preset's range")
 THROTTLE = CommandInput("--throttle", "-", 1.0, "p{:g}", 0.6,
-                        "normalised propulsion command in (0, 1] (the mean of both thrusters for a twin)")
+                        "normalised propulsion command in (0, 1] (the mean of both thrusters for a twin)",
+                        lambda vessel: (0.0, 1.0, False))  # ahead
 DIFFERENTIAL = CommandInput("--differential", "-", 1.0, "d{:g}", 0.4,
-                            "normalised thrust difference port - starboard in (0, 2] (+ turns to starboard)")
+                            "normalised thrust difference port - starboard in (0, 2] (+ turns to starboard)",
+                            lambda vessel: (0.0, 2.0, False))  # port +1, starboard -1 at most
 
 _RUDDER = Control("delta", "rad", "rudder_angle", "delta", (-math.radians(60.0), math.radians(60.0)),
                   "rudder angle, + turns the vessel to starboard (60 deg: no rudder turns further; a rudder in "

@@ -28,6 +28,7 @@ class HullModel:
     sections: tuple[str, ...]  # vessel sections it needs besides geometry, windage and wave_drift
     coefficients: str  # the section whose fields are the hull coefficients an identification fits
     equations: str  # where the equations come from
+    structure: str  # its name in a grey-box artifact's metadata (architecture.structure)
 
 
 MMG = HullModel(
@@ -36,6 +37,7 @@ MMG = HullModel(
     sections=("added_mass", "hull"),
     coefficients="hull",
     equations="Yasukawa & Yoshimura 2015 eq. 4-8 (MMG standard method) in Fossen's matrix form (Fossen 2021 eq. 6.5)",
+    structure="MMG (Yasukawa & Yoshimura 2015)",
 )
 
 SMALL_CRAFT = HullModel(
@@ -47,6 +49,7 @@ SMALL_CRAFT = HullModel(
     equations="Fossen 2021 eq. 6.5 (ch. 6): 3-DOF C_RB independent of the linear velocity, C_A(nu_r) of a diagonal "
               "added-mass matrix (Munk moment), linear + quadratic damping, strip-theory cross-flow drag with "
               "Hoerner's C_d; as coded in Fossen's otter.py (PythonVehicleSimulator) and otter.m (MSS)",
+    structure="small craft (Fossen 2021 ch. 6)",
 )
 
 HULL_MODELS: Mapping[str, HullModel] = MappingProxyType({

@@ -164,11 +164,11 @@ class SmallCraftHull:
     X_u: float  # linear surge damping (N s/m), <= 0
     X_uu: float  # quadratic surge damping X_|u|u (N s^2/m^2), <= 0
     Y_v: float  # linear sway damping (N s/m), <= 0
-    Y_r: float  # sway force per yaw rate (N s)
-    N_v: float  # yaw moment per sway velocity (N s)
     N_r: float  # linear yaw damping (N m s), <= 0
     N_rr: float  # quadratic yaw damping N_|r|r (N m s^2), <= 0
     cross_flow_cd: float  # 2-D cross-flow drag coefficient C_d (-), >= 0; 0 = no cross-flow drag
+    Y_r: float = 0.0  # sway force per yaw rate (N s), optional
+    N_v: float = 0.0  # yaw moment per sway velocity (N s), optional
 
 
 @dataclass(frozen=True)

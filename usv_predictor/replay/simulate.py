@@ -36,21 +36,8 @@ SPACING_M = 400.0  # distance between the start points of consecutive manoeuvres
 HEADING_STEP_DEG = 37.0  # the approach heading turns this much from one manoeuvre of a programme to the next (deg)
 
 
-# The command options of `replay simulate`: the SimulationRequest field of each layout input's option, and the
-# range a value may take for a vessel (low, high, whether low itself is allowed) with the message's wording.
+# The command options of `replay simulate` (the layouts' CommandInput records) -> the SimulationRequest field.
 OPTION_FIELDS = {"--rudder": "rudder_deg", "--rpm": "rpm", "--differential": "differential", "--throttle": "throttle"}
-
-
-def _option_range(option: str, vessel: Vessel) -> tuple[float, float, bool, str]:
-    """(low, high, low allowed, words) of a command option for this vessel."""
-    if option == "--rudder":
-        return 0.0, vessel.actuators.rudder_max_deg, True, "the preset's range"
-    if option == "--rpm":
-        a = vessel.actuators
-        return max(a.rpm_min, 0.0), a.rpm_max, False, "the preset's range"
-    if option == "--differential":
-        return 0.0, 2.0, False, "the range"  # port +1 and starboard -1 at most
-    return 0.0, 1.0, False, "the range"  # a throttle ahead
 
 
 @dataclass(frozen=True)
@@ -124,12 +111,12 @@ def _commands(request: SimulationRequest, vessel: Vessel) -> tuple[float, float]
     values = []
     for i in inputs:
         value = request.command_value(i.option, i.default)
-        low, high, closed, words = _option_range(i.option, vessel)
+        low, high, closed = i.limits(vessel)
         if not ((low <= value) if closed else (low < value)) or value > high:
             shown = f" {i.unit}" if i.unit == "deg" else ""  # an angle says its unit next to the value
             unit = f" {i.unit}" if i.unit != "-" else ""
-            raise ConfigError(f"{i.option} {value:g}{shown} is outside {words} {'[' if closed else '('}{low:g}, "
-                              f"{high:g}]{unit}")
+            raise ConfigError(f"{i.option} {value:g}{shown} is outside {i.limited_by} {'[' if closed else '('}"
+                              f"{low:g}, {high:g}]{unit}")
         values.append(value)
     return values[0], values[1]
 
