@@ -285,3 +285,14 @@ def test_rudder_only_engine_speed_inverts_straight_speed():
     for rpm in (400.0, 650.0, 900.0):
         assert model.engine_speed_for(model.straight_speed(rpm)) == pytest.approx(rpm, rel=1e-6)
     assert model.engine_speed_for(0.0) == 0.0
+
+
+def test_a_model_pickles_and_is_built_once_per_hull_model_and_layout(otter):
+    import pickle
+
+    copy = pickle.loads(pickle.dumps(ManoeuvringModel(otter.vessel, thrust_imbalance=0.05)))
+    assert type(copy) is type(otter) and copy.thrust_imbalance == 0.05
+    assert copy.derivative([0, 0, 0, 1.0, 0.1, 0.2, 0.5, 0.4], 0.6, 0.3, CALM) == \
+        ManoeuvringModel(otter.vessel, thrust_imbalance=0.05).derivative([0, 0, 0, 1.0, 0.1, 0.2, 0.5, 0.4], 0.6, 0.3, CALM)
+    assert type(ManoeuvringModel(load_vessel("wamv"))) is type(otter)  # the same hull model and layout
+    assert isinstance(otter, ManoeuvringModel) and type(otter).__name__ == "ManoeuvringModel[small_craft, twin_thrusters]"

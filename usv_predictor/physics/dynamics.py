@@ -302,6 +302,10 @@ class ManoeuvringModel:
         for name, value in constants_of(vessel).items():  # attributes: the float hot path reads self.<name>
             setattr(self, name, value)
 
+    def __reduce__(self) -> tuple:
+        """Pickled as the arguments that rebuild it (its class is made per hull model and layout)."""
+        return ManoeuvringModel, (self.vessel, self.propeller_side_force, self.thrust_imbalance)
+
     def with_faults(self, propeller_side_force: float, thrust_imbalance: float) -> "ManoeuvringModel":
         """This model, or one of the same vessel with these force faults."""
         if (propeller_side_force, thrust_imbalance) == (self.propeller_side_force, self.thrust_imbalance):
