@@ -323,7 +323,7 @@ class ManoeuvringModel:
         return Forces(self.hull_loads(u_r, v_r, r), steering, propulsion, wind, waves)
 
     def environment_loads(self, psi: float, u: float, v: float, sea: SeaLoads
-                  ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+                          ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """(wind, waves) loads at heading psi and over-ground velocity (u, v)."""
         wind = (0.0, 0.0, 0.0)
         if sea.wind_speed > 0.0:
