@@ -505,7 +505,8 @@ def greybox_metadata(vessel: Vessel, rollout: GreyBoxRollout, *, model_type: str
 def greybox_predictor(vessel: Vessel, dt: float, substeps: int = 2) -> GreyBoxPredictor:
     """The calm-water grey box of a vessel as a predictor (the physics baseline of evaluations)."""
     rollout = GreyBoxRollout(vessel, dt=dt, substeps=substeps)
-    meta = greybox_metadata(vessel, rollout, model_type=f"physics (calm-water {vessel.hull_model_name} grey box of the preset)")
+    meta = greybox_metadata(vessel, rollout, model_type=f"physics (calm-water {vessel.hull_model.label} grey box of the "
+                                                        f"preset)")
     meta["model_id"] = f"physics-{vessel.name}"
     return GreyBoxPredictor(rollout, meta)
 

@@ -29,6 +29,7 @@ class HullModel:
     coefficients: str  # the section whose fields are the hull coefficients an identification fits
     equations: str  # where the equations come from
     structure: str  # its name in a grey-box artifact's metadata (architecture.structure)
+    label: str  # its short name in messages and model types ("the calm-water MMG grey box")
 
 
 MMG = HullModel(
@@ -38,6 +39,7 @@ MMG = HullModel(
     coefficients="hull",
     equations="Yasukawa & Yoshimura 2015 eq. 4-8 (MMG standard method) in Fossen's matrix form (Fossen 2021 eq. 6.5)",
     structure="MMG (Yasukawa & Yoshimura 2015)",
+    label="MMG",
 )
 
 SMALL_CRAFT = HullModel(
@@ -50,6 +52,7 @@ SMALL_CRAFT = HullModel(
               "added-mass matrix (Munk moment), linear + quadratic damping, strip-theory cross-flow drag with "
               "Hoerner's C_d; as coded in Fossen's otter.py (PythonVehicleSimulator) and otter.m (MSS)",
     structure="small craft (Fossen 2021 ch. 6)",
+    label="small-craft",
 )
 
 HULL_MODELS: Mapping[str, HullModel] = MappingProxyType({
