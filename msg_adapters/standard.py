@@ -371,6 +371,18 @@ class ScalarRpmAdapter(_Base):
         return make(self.ros_type)(data=c.leaf(rpm))
 
 
+@dataclass(frozen=True)
+class ScalarCommandAdapter(_Base):
+    """std_msgs/Float64|Float32 normalised command c in [-1, 1] (+ ahead): a throttle or one thruster."""
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        return None, c.values_out(c.field(msg, "data", self.ros_type))
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        (command,) = self._values(values)
+        return make(self.ros_type)(data=c.leaf(command))
+
+
 def _joint_index(msg: Any, joint: str, ros_type: str) -> int:
     names = c.field(msg, "name", ros_type)
     if not all(isinstance(name, str) for name in names):
@@ -506,6 +518,12 @@ ADAPTER_CLASSES: Mapping[tuple[str, str], type[_Base]] = MappingProxyType(
         ("engine_rpm", "std_msgs/msg/Float64"): ScalarRpmAdapter,
         ("engine_rpm", "std_msgs/msg/Float32"): ScalarRpmAdapter,
         ("engine_rpm", "sensor_msgs/msg/JointState"): JointStateRpmAdapter,
+        ("throttle", "std_msgs/msg/Float64"): ScalarCommandAdapter,
+        ("throttle", "std_msgs/msg/Float32"): ScalarCommandAdapter,
+        ("thruster_port", "std_msgs/msg/Float64"): ScalarCommandAdapter,
+        ("thruster_port", "std_msgs/msg/Float32"): ScalarCommandAdapter,
+        ("thruster_starboard", "std_msgs/msg/Float64"): ScalarCommandAdapter,
+        ("thruster_starboard", "std_msgs/msg/Float32"): ScalarCommandAdapter,
         ("gnss", "sensor_msgs/msg/NavSatFix"): NavSatFixAdapter,
         ("odometry", "nav_msgs/msg/Odometry"): OdometryAdapter,
     }

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from usv_predictor.data.recording import Recording
-from usv_predictor.errors import DiagnosisError
+from usv_predictor.errors import ConfigError, DiagnosisError
 from usv_predictor.frames import compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
 from usv_predictor.physics import effects as fx
@@ -286,8 +286,13 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     when the caller has them already (built here otherwise); the rollout's terms are left at the final fit.
     """
     started = time.perf_counter()
+    applicable = fx.hypothesis_names(vessel.layout)  # a rudder offset needs a rudder, an imbalance two thrusters
+    names = list(hypotheses or applicable)
+    foreign = [name for name in names if name in HYPOTHESES and name not in applicable]
+    if foreign:
+        raise ConfigError(f"hypotheses {foreign} do not apply to vessel {vessel.name} (actuator layout {vessel.layout}); "
+                          f"its hypotheses are {', '.join(applicable)}")
     notes = check_data(recordings)
-    names = list(hypotheses or HYPOTHESES)
     if "none" not in names:
         names.insert(0, "none")
     dt = recordings[0].dt

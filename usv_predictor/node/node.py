@@ -62,7 +62,7 @@ from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredi
 from usv_predictor.models import loading
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.node import live
-from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, unused_roles
 from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.records import NS_PER_S
 
@@ -187,19 +187,21 @@ class PredictorNode(Node):
         self.config = self._declare_parameters(defaults_path)
         self.layout = load_vessel(self.config.vessel).actuator_layout  # ConfigError: fatal at start-up
         self.rollout = load_model(self.config.model_path, self.config, self.layout)  # ModelError: fatal at start-up
+        # the inputs this vessel uses: the config may list control roles of other actuator layouts (it does)
+        used = [entry for entry in self.config.inputs if entry.role not in unused_roles(self.layout)]
         self.inputs = live.InputSet(
-            {entry.role: msg_adapters.ROLE_FIELDS[entry.role] for entry in self.config.inputs},
-            {entry.role: float(self.get_parameter(f"inputs.{entry.role}.max_age_s").value) for entry in self.config.inputs},
+            {entry.role: msg_adapters.ROLE_FIELDS[entry.role] for entry in used},
+            {entry.role: float(self.get_parameter(f"inputs.{entry.role}.max_age_s").value) for entry in used},
             self._live_settings(), self.layout,
         )
         make = msg_adapters.rclpy_factory()
-        self._entries: dict[str, InputConfig] = {entry.role: entry for entry in self.config.inputs}
+        self._entries: dict[str, InputConfig] = {entry.role: entry for entry in used}
         self._adapters = {
             entry.role: msg_adapters.get_adapter(entry.role, entry.ros_type, **entry.options)
-            for entry in self.config.inputs
+            for entry in used
         }
         self._failures = {role: DecodeFailures() for role in self._entries}
-        for entry in self.config.inputs:
+        for entry in used:
             self.create_subscription(
                 make(entry.ros_type), entry.topic, partial(self._on_message, entry.role), qos_profile_sensor_data
             )

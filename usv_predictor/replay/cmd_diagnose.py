@@ -27,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a grey-box model artifact (from `replay identify`) as the calm-water model instead of the preset")
     parser.add_argument("--dt", type=float, default=0.5, help="model step (s, default 0.5)")
     parser.add_argument("--hypotheses", nargs="+", default=None, metavar="H",
-                        help=f"hypotheses to test (default: all of {' '.join(hypothesis_names())})")
+                        help=f"hypotheses to test (default: those of the vessel's actuator layout among "
+                             f"{' '.join(hypothesis_names())})")
     parser.add_argument("--max-causes", type=int, default=2,
                         help="name up to this many causes, added one at a time while each passes the evidence test "
                              "(default 2)")

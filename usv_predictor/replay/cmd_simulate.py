@@ -27,10 +27,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     what.add_argument("--programme", choices=sorted(PROGRAMMES),
                       help="a trial programme: sea_trial (seed 000 Table 3 turns), training, diagnosis")
     what.add_argument("--manoeuvre", choices=KINDS, help="one manoeuvre instead of a programme")
-    what.add_argument("--rudder", type=float, default=20.0, help="rudder angle (deg, default 20)")
-    what.add_argument("--check", type=float, default=None, help="zig-zag check angle (deg, default = --rudder)")
-    what.add_argument("--rpm", type=float, default=650.0, help="engine speed (rpm, default 650)")
-    what.add_argument("--side", choices=SIDES, default="starboard", help="first rudder to (default starboard)")
+    what.add_argument("--rudder", type=float, default=None,
+                      help="rudder angle (deg, default 20; rudder layouts)")
+    what.add_argument("--check", type=float, default=None,
+                      help="zig-zag check angle (deg, default = --rudder, or 20 for a differential)")
+    what.add_argument("--rpm", type=float, default=None,
+                      help="engine speed (rpm, default 650; rudder_propeller and rudder_only)")
+    what.add_argument("--differential", type=float, default=None,
+                      help="twin thrusters: normalised command port - starboard in (0, 2], + turns to starboard "
+                           "(default 0.4)")
+    what.add_argument("--throttle", type=float, default=None,
+                      help="normalised propulsion command in (0, 1]: the throttle of rudder_throttle, the mean of "
+                           "both thrusters of twin_thrusters (default 0.6)")
+    what.add_argument("--side", choices=SIDES, default="starboard", help="first turn to (default starboard)")
     what.add_argument("--duration", type=float, default=None, help="duration (s; default per manoeuvre)")
     what.add_argument("--heading", type=float, default=0.0, help="initial heading (deg clockwise from north)")
     what.add_argument("--vessel", default="jari_usv", help="vessel preset in config/vessels (default jari_usv)")
@@ -80,7 +89,8 @@ def run(args: argparse.Namespace) -> dict:
 
     request = SimulationRequest(
         output=args.output, vessel=args.vessel, programme=args.programme, manoeuvre=args.manoeuvre,
-        rudder_deg=args.rudder, check_deg=args.check, rpm=args.rpm, side=args.side, duration_s=args.duration,
+        rudder_deg=args.rudder, check_deg=args.check, rpm=args.rpm, differential=args.differential,
+        throttle=args.throttle, side=args.side, duration_s=args.duration,
         heading_deg=args.heading, sea=args.sea, effects=_effects(args), calm_twin=args.calm_twin,
         storage=args.storage, compress=not args.no_compress, overwrite=args.overwrite, blind=args.blind,
         seed=args.seed, dt=args.dt, command=shlex.join(["replay", *sys.argv[1:]]) if sys.argv else "replay simulate")

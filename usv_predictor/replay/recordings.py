@@ -44,7 +44,8 @@ import yaml
 from usv_predictor.config import input_topics, load_predictor_config
 from usv_predictor.data.recording import Recording, RecordingError, recording_from_signals, required_roles
 from usv_predictor.errors import BagError, ConfigError, DatasetError
-from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout, unused_roles
+from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.records import NS_PER_S, Signal
 from usv_predictor.replay.bagio import TopicSpec, read_bag
 
@@ -169,8 +170,10 @@ def parse_datum(text: str) -> tuple[float, float] | None:
     return (lat, lon) if -90.0 < lat < 90.0 and -180.0 <= lon <= 180.0 else None
 
 
-def topic_specs(config_path: str | Path | None = None, topics: Mapping[str, str] | None = None) -> list[TopicSpec]:
-    """TopicSpecs of the configured inputs and ground truth; `topics` overrides role -> topic name."""
+def topic_specs(config_path: str | Path | None = None, topics: Mapping[str, str] | None = None,
+                layout: ActuatorLayout | None = None) -> list[TopicSpec]:
+    """TopicSpecs of the configured inputs and ground truth that a vessel of `layout` uses (None: the configured
+    vessel's layout; the config lists the controls of every layout); `topics` overrides role -> topic name."""
     cfg = load_predictor_config(config_path)
     entries = input_topics(cfg, include_ground_truth=True)
     roles = {e.role for e in entries}
@@ -178,12 +181,17 @@ def topic_specs(config_path: str | Path | None = None, topics: Mapping[str, str]
     if unknown:
         raise ConfigError(f"topic override for unknown role(s) {unknown}; roles of {cfg.source}: {sorted(roles)}")
     overrides = dict(topics or {})
-    return [TopicSpec(overrides.get(e.role, e.topic), e.role, e.ros_type, e.options, e.frame_id) for e in entries]
+    unused = unused_roles(layout or load_vessel(cfg.vessel).actuator_layout)
+    return [TopicSpec(overrides.get(e.role, e.topic), e.role, e.ros_type, e.options, e.frame_id) for e in entries
+            if e.role not in unused]
 
 
 def _present_specs(path: Path, present: Mapping[str, tuple[str, int]] | None, specs: Sequence[TopicSpec],
                    warn: Warn, layout: ActuatorLayout = DEFAULT_LAYOUT) -> list[TopicSpec]:
-    """The specs to read: required topics must be there (BagError), absent optional ones are left out."""
+    """The specs to read: required topics must be there (BagError), absent optional ones are left out, and the
+    controls of other actuator layouts (the config lists every layout's) are not read."""
+    unused = unused_roles(layout)
+    specs = [spec for spec in specs if spec.role not in unused]
     if present is None:  # not a rosbag2 directory: let read_bag name what is missing
         return list(specs)
     required = required_roles(layout)
@@ -448,7 +456,7 @@ def load_recordings(bag_paths: Iterable[str | Path], dt: float, *, config_path: 
         raise DatasetError(f"step dt={dt} s must be a positive number")
     if segment not in SEGMENTS:
         raise DatasetError(f"unknown segment mode {segment!r}; use one of {list(SEGMENTS)}")
-    specs = topic_specs(config_path, topics)
+    specs = topic_specs(config_path, topics, layout)
     sources = find_bags(bag_paths, include_calm=include_calm)
     options = {"segment": segment, "min_duration_s": min_duration_s, "horizon_s": horizon_s, "layout": layout.name}
     recordings: list[Recording] = []
