@@ -19,6 +19,7 @@ from rclpy.parameter import Parameter
 
 from usv_predictor.config import load_predictor_config
 from usv_predictor.errors import ConfigError
+from usv_predictor.physics.actuators import unused_roles
 from usv_predictor.node import node as predictor_node
 
 from ros_helpers import Harness, localhost_env, ros_context, values_of  # noqa: F401 (ros_context is a fixture)
@@ -56,8 +57,10 @@ def test_inputs_are_decoded_and_reported(harness: Harness) -> None:
     assert statuses["model"].level[0] == predictor_node.OK
     assert statuses["prediction"].level[0] == predictor_node.WARN
     assert "no message yet" in statuses["prediction"].message
-    configured = [i.role for i in harness.node.config.inputs]
-    assert sorted(statuses) == sorted([*configured, "model", "prediction"])
+    # every configured input the vessel's actuator layout uses is reported; the controls of other layouts are not
+    used = [i.role for i in harness.node.config.inputs if i.role not in unused_roles(harness.node.layout)]
+    assert "throttle" not in used and "thruster_port" not in used and "rudder_angle" in used
+    assert sorted(statuses) == sorted([*used, "model", "prediction"])
 
 
 def test_stale_input_turns_to_warn_and_limit_is_live(harness: Harness) -> None:

@@ -139,8 +139,8 @@ def known_forces(vessel: Vessel, nu: np.ndarray, controls: np.ndarray) -> tuple[
     propeller = np.empty((len(nu), 3))
     for k, ((u, v, r), (delta, rpm)) in enumerate(zip(nu, controls)):
         loads = model.loads(float(u), float(v), float(r), 0.0, float(u), float(v), float(delta), float(rpm))
-        rudder[k] = loads.rudder
-        propeller[k] = loads.propeller
+        rudder[k] = loads.steering
+        propeller[k] = loads.propulsion
     return rudder, propeller
 
 
