@@ -49,6 +49,11 @@ class PlotError(UsvPredictorError):
     """A figure cannot be written (directory not writable, disk full); names the file."""
 
 
+class OutputError(UsvPredictorError):
+    """An output cannot be written: not writable, no space left, it would replace or sit inside an input, or it
+    holds a value JSON cannot (NaN/inf); the message names the path or the field."""
+
+
 class InputRejected(UsvPredictorError):
     """One live input sample was refused (reason in the message; `kind` is its counter key)."""
 

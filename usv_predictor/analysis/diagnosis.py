@@ -287,7 +287,10 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     """
     started = time.perf_counter()
     notes = check_data(recordings)
-    names = list(hypotheses or HYPOTHESES)
+    names = list(dict.fromkeys(hypotheses or HYPOTHESES))
+    unknown = [name for name in names if name not in HYPOTHESES]
+    if unknown:
+        raise DiagnosisError(f"unknown hypothesis {', '.join(map(repr, unknown))}; choose from {', '.join(HYPOTHESES)}")
     if "none" not in names:
         names.insert(0, "none")
     dt = recordings[0].dt

@@ -66,7 +66,8 @@ PRIMITIVE_DTYPES = {
 }  # fmt: skip
 
 # Exceptions meaning "this bag cannot be read": storage, metadata, truncated compressed file
-_READ_ERRORS = (AnyReaderError, ReaderError, OSError, EOFError, sqlite3.DatabaseError, ZstdError, yaml.YAMLError)
+_READ_ERRORS = (AnyReaderError, ReaderError, OSError, EOFError, sqlite3.DatabaseError, ZstdError, yaml.YAMLError,
+                UnicodeDecodeError)  # a metadata.yaml that is not UTF-8
 # ... and "this message cannot be deserialised"
 _DESERIALIZE_ERRORS = (SerdeError, struct.error, ValueError, IndexError)
 
@@ -414,10 +415,13 @@ def read_custom_data(path: Path) -> dict[str, str]:
     """The bag's custom_data (metadata.yaml), e.g. how it was made; {} when it has none."""
     metadata_path = Path(path) / "metadata.yaml"
     try:
-        info = yaml.safe_load(metadata_path.read_text())["rosbag2_bagfile_information"]
-    except (OSError, yaml.YAMLError, KeyError, TypeError) as err:
+        info = yaml.safe_load(metadata_path.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        custom = info.get("custom_data") or {}
+        if not isinstance(custom, dict):
+            raise TypeError(f"custom_data is a {type(custom).__name__}, expected a mapping")
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, AttributeError) as err:
         raise BagError(f"{path}: cannot read rosbag2 metadata {metadata_path}: {err}") from err
-    return {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
+    return {str(k): str(v) for k, v in custom.items()}
 
 
 def _size_on_disk(path: Path) -> int:

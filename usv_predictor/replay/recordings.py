@@ -12,7 +12,9 @@ What happens to imperfect input (warnings go through `warn`, by default to stder
 - missing or unreadable bag, unreadable metadata, a required topic missing or empty, a topic of another
   message type: BagError naming the bag, the topic and what is present;
 - a missing optional topic (GNSS, ground truth): that role is left out, with a warning;
-- samples with NaN in a field the Recording uses (USED_FIELDS): dropped, warning with topic/field/count;
+- samples with NaN in a field the Recording uses (USED_FIELDS): dropped, warning with topic/field/count; the
+  same for values outside the plausible ranges (data.recording.PLAUSIBLE, the controls' plausible ranges), e.g.
+  a corrupt 1e30 or a rudder angle in degrees read as radians;
 - stamps: rows are sorted; a step backwards by more than the step dt in the given order is an error naming
   the time (bagio.read_bag sorts by header stamp, so this guards Signals from elsewhere); exact duplicates
   (same stamp, same values) are dropped and counted; same stamp with other values: the first is kept, counted;
@@ -42,7 +44,13 @@ import numpy as np
 import yaml
 
 from usv_predictor.config import input_topics, load_predictor_config
-from usv_predictor.data.recording import Recording, RecordingError, recording_from_signals, required_roles
+from usv_predictor.data.recording import (
+    Recording,
+    RecordingError,
+    plausible_ranges,
+    recording_from_signals,
+    required_roles,
+)
 from usv_predictor.errors import BagError, ConfigError, DatasetError
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
 from usv_predictor.records import NS_PER_S, Signal
@@ -151,7 +159,7 @@ def bag_metadata(path: Path) -> tuple[dict[str, tuple[str, int]], dict[str, str]
     if not metadata.is_file():
         return None
     try:
-        info = yaml.load(metadata.read_text(), Loader=_YAML_LOADER)["rosbag2_bagfile_information"]
+        info = yaml.load(metadata.read_text(encoding="utf-8"), Loader=_YAML_LOADER)["rosbag2_bagfile_information"]
         topics = {t["topic_metadata"]["name"]: (t["topic_metadata"]["type"], int(t.get("message_count", 0)))
                   for t in info.get("topics_with_message_count") or []}
         custom = {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
@@ -224,6 +232,23 @@ def clean_signal(signal: Signal, *, where: str, role: str, dt: float, t_ref_ns: 
         if bad.any():
             warn(f"{where}: dropped {int(bad.sum())} of {len(t_ns)} samples with NaN/inf ({', '.join(counts)})")
             t_ns, values = t_ns[~bad], values[~bad]
+        plausible = plausible_ranges(layout)
+        outside = np.zeros(len(t_ns), dtype=bool)
+        counts = []
+        for name in used:
+            if name not in plausible:
+                continue
+            low, high = plausible[name]
+            column = values[:, signal.fields.index(name)]
+            out = (column < low) | (column > high)
+            outside |= out
+            if out.any():
+                worst = column[out][np.argmax(np.abs(column[out]))]
+                counts.append(f"{name}: {int(out.sum())}, e.g. {worst:g} outside [{low:g}, {high:g}]")
+        if outside.any():
+            warn(f"{where}: dropped {int(outside.sum())} of {len(t_ns)} samples with implausible values "
+                 f"({'; '.join(counts)}): corrupt samples, or wrong units in the config?")
+            t_ns, values = t_ns[~outside], values[~outside]
     steps = np.diff(t_ns)
     if len(steps) and steps.min() < 0:
         k = int(np.argmin(steps))
