@@ -44,6 +44,8 @@ def write_failure(err: BaseException) -> str:
         return f"no space left ({err.strerror})"
     if isinstance(err, sqlite3.Error) and "full" in str(err):  # sqlite words a full disk as "database or disk is full"
         return f"no space left ({err})"
+    if isinstance(err, sqlite3.Error) and str(getattr(err, "sqlite_errorname", "")).startswith("SQLITE_IOERR"):
+        return f"{err} (a full disk or the file-size limit?)"  # how sqlite reports EFBIG
     if isinstance(err, OSError) and err.strerror:
         return err.strerror
     return str(err) or type(err).__name__

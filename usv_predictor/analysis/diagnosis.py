@@ -153,6 +153,9 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
 
     count = max(int(torch.count_nonzero(seg.weight)), 1)
     r = res(theta)
+    if not np.all(np.isfinite(r)):
+        raise DiagnosisError(f"hypothesis {hypothesis}: the calm-water model's residuals are not finite on these "
+                             "segments (NaN/inf in the recordings?)")
     cost = float(r @ r)
     lam, it = 1e-2, 0
     jac = np.zeros((len(r), len(theta)))
@@ -166,6 +169,8 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
         improved = False
         for _ in range(8):
             delta = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-9), -jtr)
+            if not np.all(np.isfinite(delta)):  # a non-finite Jacobian: no step (a NaN parameter would reach the
+                break                            # rollout's indexing, e.g. the actuator delay)
             trial = np.clip(theta + delta, low / scale, high / scale)
             r_trial = res(trial)
             c_trial = float(r_trial @ r_trial)

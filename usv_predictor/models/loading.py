@@ -109,7 +109,7 @@ def load_model(spec: str | None, *, dt: float | None = None, vessel: str | None 
         raise ModelError(f"{path}: cannot load model artifacts, usv_predictor.models.artifact is unavailable "
                          f"({err})") from err
     model = load_artifact(path, expect=expect)
-    check_runs(model)  # a model whose code raises is refused here, naming the file, not in the middle of a run
     if dt is not None:
         check_dt(model, dt, f"{dt_option} for {path}")
+    check_runs(model)  # a model whose code raises is refused here, naming the file, not in the middle of a run
     return model

@@ -43,6 +43,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from msg_adapters import columnar_factory, get_adapter, rosbags_factory
+from usv_predictor.atomic import NO_SPACE_ERRNOS, write_failure
 from usv_predictor.config import PredictorConfig, input_topics
 from usv_predictor.errors import AdapterError, BagError
 from usv_predictor.records import Signal
@@ -309,7 +310,8 @@ def write_bag(
                 writer.write(connections[topic], stamp, encoded[topic][row])
         _install(built, path)
     except (WriterError, OSError, sqlite3.Error) as err:
-        raise BagError(f"{path}: cannot write bag: {err}") from err
+        cause = err.__cause__ if isinstance(err, WriterError) and err.__cause__ is not None else err
+        raise BagError(f"cannot write bag {path}: {write_failure(cause)}") from err
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
     return path
@@ -326,6 +328,10 @@ def _open_reader(path: Path) -> Iterator[AnyReader]:
     try:
         with AnyReader([path], default_typestore=jazzy_typestore()) as reader:
             yield reader
+    except OSError as err:
+        if err.errno in NO_SPACE_ERRNOS:  # a compressed bag is decompressed into a temporary file first
+            raise BagError(f"{path}: cannot read bag: {write_failure(err)} for its decompressed copy") from err
+        raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {err})") from err
     except _READ_ERRORS as err:
         raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {err})") from err
 

@@ -62,12 +62,14 @@ def default_bags() -> list[Path]:
         raise BagError(f"no bags given and the shipped bags/sea_trial is missing: {err}") from err
 
 
-def _output_apart(request: EvaluationRequest, output: Path | None) -> None:
-    """The output directory is neither one of the bags read (the shipped ones when none are given) nor inside one."""
+def _output_apart(request: EvaluationRequest, output: Path | None, writes: Sequence[str]) -> None:
+    """The output directory is neither one of the bags read (the shipped ones when none are given) nor inside one,
+    and none of the files it writes there (`writes`) is an input."""
     from usv_predictor.atomic import check_outputs
 
     if output is not None:
-        check_outputs({"--output": output}, [*(request.bags or default_bags()), request.model], {"--output"})
+        outputs = {"--output": output, **{f"--output ({name})": output / name for name in writes}}
+        check_outputs(outputs, [*(request.bags or default_bags()), request.model], {"--output"})
 
 
 def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = lambda _: None) -> EvaluationResult:
@@ -119,7 +121,7 @@ def save_evaluation(result: EvaluationResult, directory: Path) -> dict:
 def evaluate(request: EvaluationRequest, output: Path | None = None,
              progress: Callable[[str], None] = lambda _: None) -> dict:
     """The evaluation JSON of `replay evaluate`; with `output`, saved there with its time series."""
-    _output_apart(request, output)
+    _output_apart(request, output, (EVALUATION_FILE, SERIES_FILE))
     result = evaluate_bags(request, progress)
     if output is None:
         return result.to_json()
@@ -138,7 +140,7 @@ def report(request: EvaluationRequest, output: Path, title: str, progress: Calla
     `request` says, written into `output`."""
     from usv_predictor.analysis import reports
 
-    _output_apart(request, output)
+    _output_apart(request, output, (reports.REPORT_MD, reports.REPORT_JSON))
     if is_evaluation_file(request.bags):
         progress(f"reading evaluation {request.bags[0]}")
         data, predictions = reports.load_evaluation_file(request.bags[0], warn=progress)

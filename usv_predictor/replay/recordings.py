@@ -35,6 +35,7 @@ import hashlib
 import math
 import multiprocessing
 import os
+import signal
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -429,6 +430,12 @@ def _bag_job(source: BagSource, specs: Sequence[TopicSpec], dt: float, options: 
     return recordings_from_bag(source, specs, dt, warn=messages.append, **options), messages
 
 
+def _ignore_interrupts() -> None:
+    """In a worker: Ctrl-C reaches the whole process group, but only the parent answers it (one line, exit 130);
+    a worker finishes its bag instead of printing a traceback of its own."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _map_bags(sources: Sequence[BagSource], specs: Sequence[TopicSpec], dt: float, options: Mapping, jobs: int):
     """(source, recordings, warnings) per bag, in order; bags are independent, so `jobs` processes read them.
 
@@ -442,7 +449,8 @@ def _map_bags(sources: Sequence[BagSource], specs: Sequence[TopicSpec], dt: floa
     specs = [dataclasses.replace(s, options=dict(s.options)) for s in specs]  # a mappingproxy does not pickle
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
-    with ProcessPoolExecutor(max_workers=min(jobs, len(sources)), mp_context=context) as pool:
+    with ProcessPoolExecutor(max_workers=min(jobs, len(sources)), mp_context=context,
+                             initializer=_ignore_interrupts) as pool:
         work = [pool.submit(_bag_job, source, specs, dt, options) for source in sources]
         try:
             for source, future in zip(sources, work):
