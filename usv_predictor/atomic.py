@@ -11,7 +11,7 @@ such numbers, so a value that is undefined must be written as None on purpose wh
 (`finite_or_none`), never replaced silently on the way out.
 
 Inputs: `check_outputs` refuses, before any work, an output that is an input, lies inside one (a bag is a
-directory), would replace one, repeats another output, or cannot be created.
+directory) or inside any bag, would replace an input, repeats another output, or cannot be created.
 """
 from __future__ import annotations
 
@@ -34,6 +34,7 @@ OUTPUT_MODE = 0o644
 # errno values that mean "the bytes do not fit": disk full, the file-size limit (ulimit -f), a quota
 NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EFBIG, errno.EDQUOT})
 PROBE_PREFIX = ".usv_predictor_probe."
+BAG_METADATA = "metadata.yaml"  # what makes a directory a rosbag2 bag
 
 
 # ----------------------------------------------------------------------------- atomic files
@@ -184,6 +185,7 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike[str] | None],
 
     - is an input, or lies inside an input directory (a bag is a directory): inputs are only read;
     - is a file output where a directory holding an input is (it would replace that directory);
+    - is, or lies inside, a rosbag2 bag (a directory holding metadata.yaml), an input or not;
     - is the same path as another output;
     - cannot be created (its nearest existing ancestor is not a directory, or no file can be made there).
 
@@ -203,6 +205,10 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike[str] | None],
                 raise OutputError(f"{option} {given} is inside the input {source_given}: inputs are only read")
             if option not in directories and _within(source, target):
                 raise OutputError(f"{option} {given} would replace the directory holding the input {source_given}")
+        bag = next((d for d in (target, *target.parents) if (d / BAG_METADATA).is_file()), None)
+        if bag is not None:
+            raise OutputError(f"{option} {given} is {'the' if bag == target else 'inside the'} rosbag2 bag {bag}: "
+                              "a recording is not an output folder")
         if target in seen:
             raise OutputError(f"{option} {given} is also {seen[target]}: give each output its own path")
         seen[target] = option

@@ -28,6 +28,7 @@ import torch
 
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import DiagnosisError
+from usv_predictor.records import whole_steps
 from usv_predictor.frames import compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
 from usv_predictor.physics import effects as fx
@@ -68,7 +69,8 @@ def make_segments(recordings: Sequence[Recording], horizon_s: float = 20.0, stri
     """Cut every recording into segments of horizon_s starting every stride_s."""
     states, controls, targets, weights, index = [], [], [], [], []
     for i, rec in enumerate(recordings):
-        h, stride = int(round(horizon_s / rec.dt)), max(1, int(round(stride_s / rec.dt)))
+        h = whole_steps(horizon_s, rec.dt, "segment horizon")
+        stride = whole_steps(min(stride_s, len(rec) * rec.dt), rec.dt, "segment stride")
         for k in range(0, len(rec) - h, stride):
             pos = rec.position[k + 1:k + h + 1] - rec.position[k]
             target = np.column_stack([rec.nu[k + 1:k + h + 1], pos, rec.psi[k + 1:k + h + 1]])

@@ -40,6 +40,7 @@ from usv_predictor.frames import angle_difference_deg
 from usv_predictor.models import loading
 from usv_predictor.models.loading import check_dt
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, actuator_layout
+from usv_predictor.records import whole_steps
 
 U, V, R, X_N, Y_E, PSI = range(6)  # columns of predicted and measured series (model output order)
 COLUMNS = ("u_mps", "v_mps", "r_rad_s", "x_n_m", "y_e_m", "psi_rad")
@@ -257,11 +258,13 @@ def open_loop(model: Predictor, recording: Recording, reference: str = "gnss",
     dt = recording.dt
     check_dt(model, dt, f"recording {recording.name}")
     measured = reference_series(recording, reference)
-    fitting = [h for h in horizons_s if round(h / dt) <= len(recording) - 1]
+    fitting = [h for h in horizons_s if h / dt <= len(recording) - 0.5]  # round(h / dt) <= T - 1, for any h
     if not fitting:
         return None
-    steps = int(round(max(fitting) / dt))
-    stride = max(1, int(round(stride_s / dt)))
+    for h in fitting:
+        whole_steps(h, dt, "open-loop horizon")
+    steps = whole_steps(max(fitting), dt, "open-loop horizon")
+    stride = whole_steps(min(stride_s, len(recording) * dt), dt, "--stride")  # longer than the recording: one start
     starts = np.arange(0, len(recording) - steps, stride)
     starts = starts[np.isfinite(measured[starts, X_N]) & np.isfinite(measured[starts, Y_E])]
     if len(starts) == 0:

@@ -68,7 +68,7 @@ class TrainingConfig:
             "lr_schedule": self.lr_schedule in LR_SCHEDULES,
             "lr_step_epochs": self.lr_step_epochs >= 1,
             "lr_drop": 0.0 < self.lr_drop <= 1.0,
-            "weight_decay": self.weight_decay >= 0.0,
+            "weight_decay": 0.0 <= self.weight_decay <= 1.0,  # an L2 weight beyond 1 overflows Adam's float32
             "patience": self.patience is None or self.patience >= 1,
             "multi_step": 1 <= self.multi_step <= 1000,
             "ensemble": 1 <= self.ensemble <= 64,

@@ -82,6 +82,7 @@ def physics_predictor(vessel: str | Vessel, dt: float) -> GreyBoxPredictor:
 
     if not dt > 0.0:
         raise ModelError(f"physics predictor step dt={dt} s must be > 0")
+    config.FLOAT_RANGES["dt"].check("dt", dt, "physics predictor step")
     return greybox_predictor(load_vessel(vessel) if isinstance(vessel, str) else vessel, dt)
 
 

@@ -45,7 +45,7 @@ from rosbags.typesys import Stores, get_typestore
 from msg_adapters import columnar_factory, get_adapter, rosbags_factory
 from usv_predictor.atomic import NO_SPACE_ERRNOS, write_failure
 from usv_predictor.config import PredictorConfig, input_topics
-from usv_predictor.errors import AdapterError, BagError
+from usv_predictor.errors import AdapterError, BagError, one_line
 from usv_predictor.records import Signal
 from usv_predictor.replay.cdr_fast import decode_many, has_fast_layout
 
@@ -331,9 +331,9 @@ def _open_reader(path: Path) -> Iterator[AnyReader]:
     except OSError as err:
         if err.errno in NO_SPACE_ERRNOS:  # a compressed bag is decompressed into a temporary file first
             raise BagError(f"{path}: cannot read bag: {write_failure(err)} for its decompressed copy") from err
-        raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {err})") from err
+        raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {one_line(err)})") from err
     except _READ_ERRORS as err:
-        raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {err})") from err
+        raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {one_line(err)})") from err
 
 
 def _select_connections(path: Path, reader: AnyReader, spec: TopicSpec) -> list[Any]:
@@ -426,7 +426,7 @@ def read_custom_data(path: Path) -> dict[str, str]:
         if not isinstance(custom, dict):
             raise TypeError(f"custom_data is a {type(custom).__name__}, expected a mapping")
     except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, AttributeError) as err:
-        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata_path}: {err}") from err
+        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata_path}: {one_line(err)}") from err
     return {str(k): str(v) for k, v in custom.items()}
 
 

@@ -25,7 +25,7 @@ from types import ModuleType
 from typing import Any, NoReturn
 
 from usv_predictor.atomic import check_outputs, write_json_atomic
-from usv_predictor.errors import UsvPredictorError
+from usv_predictor.errors import UsvPredictorError, one_line
 
 PROG = "replay"
 COMMANDS: tuple[str, ...] = (
@@ -144,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{err.prog}: error: {err}", file=sys.stderr)
         return EXIT_ERROR
     except UsvPredictorError as err:
-        print(f"{prog}: error: {err}", file=sys.stderr)
+        print(f"{prog}: error: {one_line(str(err))}", file=sys.stderr)  # one line, whatever the message holds
         return EXIT_ERROR
     except OSError as err:  # the environment (a file vanished, a device failed): not a bug, still one line
         print(f"{prog}: error: {_error_line(err)}", file=sys.stderr)

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from usv_predictor.config import input_topics, load_predictor_config
+from usv_predictor.config import FLOAT_RANGES, input_topics, load_predictor_config
 from usv_predictor.data.recording import (
     Recording,
     RecordingError,
@@ -52,9 +52,9 @@ from usv_predictor.data.recording import (
     recording_from_signals,
     required_roles,
 )
-from usv_predictor.errors import BagError, ConfigError, DatasetError
+from usv_predictor.errors import BagError, ConfigError, DatasetError, one_line
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
-from usv_predictor.records import NS_PER_S, Signal
+from usv_predictor.records import NS_PER_S, Signal, whole_steps
 from usv_predictor.replay.bagio import TopicSpec, read_bag
 
 OPTIONAL_ROLES = ("gnss", "odometry")
@@ -165,7 +165,7 @@ def bag_metadata(path: Path) -> tuple[dict[str, tuple[str, int]], dict[str, str]
                   for t in info.get("topics_with_message_count") or []}
         custom = {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
     except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError) as err:
-        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata} ({type(err).__name__}: {err})") from err
+        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata} ({type(err).__name__}: {one_line(err)})") from err
     return topics, custom
 
 
@@ -359,9 +359,10 @@ def _long_enough(rec: Recording, min_duration_s: float, horizon_s: float | None,
     if rec.duration_s + 1e-9 < min_duration_s:
         warn(f"{rec.source}: {rec.name} lasts {rec.duration_s:.1f} s, shorter than {min_duration_s:g} s; skipped")
         return False
-    if horizon_s is not None and len(rec) < round(horizon_s / rec.dt) + 1:
+    needed = None if horizon_s is None else whole_steps(horizon_s, rec.dt, "--horizon", minimum=0) + 1
+    if needed is not None and len(rec) < needed:
         warn(f"{rec.source}: {rec.name} has {len(rec)} steps, too few for the {horizon_s:g} s horizon "
-             f"({round(horizon_s / rec.dt) + 1} steps); skipped")
+             f"({needed} steps); skipped")
         return False
     return True
 
@@ -479,6 +480,7 @@ def load_recordings(bag_paths: Iterable[str | Path], dt: float, *, config_path: 
     """
     if not dt > 0.0 or not math.isfinite(dt):
         raise DatasetError(f"step dt={dt} s must be a positive number")
+    FLOAT_RANGES["dt"].check("dt", dt, "the resampling step")  # 1e-300 s would ask for an astronomical grid
     if segment not in SEGMENTS:
         raise DatasetError(f"unknown segment mode {segment!r}; use one of {list(SEGMENTS)}")
     specs = topic_specs(config_path, topics)
