@@ -295,6 +295,58 @@ def test_broken_bags_deeper(mutation: str, base: dict[str, Path], tmp_path: Path
         "--json", out / "d.json")
 
 
+# ------------------------------------------------------------------ broken measured data for `replay convert`
+
+
+def _source_mutations() -> dict[str, Callable[[np.random.Generator, bytes], bytes]]:
+    def garbage(rng: np.random.Generator, data: bytes) -> bytes:
+        out = bytearray(data)
+        for at in rng.integers(0, len(out), size=200):
+            out[int(at)] = int(rng.integers(0, 256))
+        return bytes(out)
+
+    def replace_numbers(text: bytes, rng: np.random.Generator, by: bytes) -> bytes:
+        lines = text.split(b"\n")
+        for k in rng.integers(len(lines) // 4, len(lines) - 1, size=5):
+            separator = b"," if b"," in lines[int(k)] else None  # CSV, or columns separated by blanks
+            words = lines[int(k)].split(separator)
+            if words:
+                words[int(rng.integers(0, len(words)))] = by
+                lines[int(k)] = (separator or b" ").join(words)
+        return b"\n".join(lines)
+
+    return {
+        "empty": lambda rng, d: b"",
+        "truncated": lambda rng, d: d[: int(len(d) * rng.uniform(0.01, 0.6))],
+        "garbage_bytes": garbage,
+        "nan_values": lambda rng, d: replace_numbers(d, rng, b"nan"),
+        "inf_values": lambda rng, d: replace_numbers(d, rng, b"-inf"),
+        "text_values": lambda rng, d: replace_numbers(d, rng, b"x"),
+        "short_rows": lambda rng, d: b"\n".join(line[: len(line) // 2] if k % 7 == 3 else line
+                                                for k, line in enumerate(d.split(b"\n"))),
+        "header_only": lambda rng, d: b"\n".join(d.split(b"\n")[:5]),
+    }
+
+
+SOURCE_MUTATIONS = _source_mutations()
+SOURCES = ("kvlcc2_hsva_simman2008/HSVA_CPMC_KVLCC2_Z_10_10_S.dat", "usv_alexandersson2022_fuzhou/zigzag_30_inter_xy.csv")
+
+
+@pytest.mark.parametrize("mutation", sorted(SOURCE_MUTATIONS))
+def test_broken_measured_data(mutation: str, raw_data_dir: Path, tmp_path: Path, checked: Callable) -> None:
+    """`replay convert` on a broken copy of an HSVA model-test file and of the Fuzhou sea-trial file."""
+    rng = rng_for(f"convert {mutation}")
+    sources = []
+    for name in SOURCES:
+        target = tmp_path / "in" / Path(name).name
+        target.parent.mkdir(exist_ok=True)
+        target.write_bytes(SOURCE_MUTATIONS[mutation](rng, (raw_data_dir / name).read_bytes()))
+        sources.append(target)
+    run = checked(*sources)
+    for k, source in enumerate(sources):
+        run("convert", source, "--output", tmp_path / "out" / str(k), "--json", tmp_path / "out" / f"{k}.json")
+
+
 # ------------------------------------------------------------------ numbers that are not numbers
 
 
@@ -346,6 +398,7 @@ OUTPUT_CASES = {  # command -> (its output option, "file" or "dir", its other ar
     "diagnose": ("--export", "file", lambda b: [b["bags"], "--hypotheses", "current", "--no-gain"]),
     "simulate": ("--output", "dir", lambda b: ["--manoeuvre", "zigzag", "--duration", "5"]),
     "info": ("--json", "file", lambda b: [b["zigzag"]]),
+    "convert": ("--output", "dir", lambda b: [REPO / "bags" / "README.md"]),  # not measured data: refused anyway
 }
 
 
