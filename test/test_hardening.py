@@ -364,8 +364,9 @@ def test_a_full_disk_leaves_no_partial_file(one_bag_dataset, short_bags, tmp_pat
 
 # ------------------------------------------------------------------ Ctrl-C during a long command
 
-def _interrupt_after(argv: list[str], marker: str, cwd: Path, group: bool = False) -> subprocess.CompletedProcess:
-    """Run `replay ARGV`, send SIGINT once `marker` appears on its stderr (to its process group with `group`, as
+def _interrupt_after(argv: list[str], marker: str, cwd: Path, group: bool = False,
+                     sig: int = signal.SIGINT) -> subprocess.CompletedProcess:
+    """Run `replay ARGV`, send `sig` once `marker` appears on its stderr (to its process group with `group`, as
     a terminal's Ctrl-C does)."""
     process = subprocess.Popen([sys.executable, "-m", "usv_predictor.replay", *argv], cwd=cwd, text=True,
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=group,
@@ -379,9 +380,9 @@ def _interrupt_after(argv: list[str], marker: str, cwd: Path, group: bool = Fals
             break
         assert time.monotonic() < deadline
     if group:
-        os.killpg(process.pid, signal.SIGINT)
+        os.killpg(process.pid, sig)
     else:
-        process.send_signal(signal.SIGINT)
+        process.send_signal(sig)
     out, err = process.communicate(timeout=300)
     return subprocess.CompletedProcess(process.args, process.returncode, out, "".join(seen) + err)
 
@@ -419,3 +420,14 @@ def test_ctrl_c_during_a_long_command(command, one_bag_dataset, tmp_path, reques
     if command in ("train", "dataset", "evaluate", "report", "identify", "diagnose"):
         assert written == []  # interrupted before the outputs: nothing (every writer is atomic and writes last)
     assert digest(inputs) == before
+
+
+@pytest.mark.slow
+def test_sigterm_during_a_long_command(one_bag_dataset, tmp_path) -> None:
+    """SIGTERM (a service manager, a CI timeout) unwinds like Ctrl-C: `terminated`, exit 143, nothing written."""
+    argv, marker = INTERRUPTED["train"]
+    done = _interrupt_after([a.format(dataset=one_bag_dataset) for a in argv], marker, tmp_path, sig=signal.SIGTERM)
+    assert done.returncode == cli.EXIT_TERMINATED == 143, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr and done.stderr.strip().splitlines()[-1] == "replay train: terminated"
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*"))
+    assert leftovers(tmp_path) == []

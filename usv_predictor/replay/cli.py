@@ -10,8 +10,9 @@ gets `--json PATH` (result written atomically, strict JSON).
 Before any work, every output (and --json) is checked against every input (usv_predictor.atomic.check_outputs:
 never an input, never inside one, never replacing one) and for being writable. Errors (UsvPredictorError, bad
 arguments, an OS error reading or writing a file) print one line `replay <command>: error: <message>` on
-stderr and exit with code 2 (EXIT_ERROR); Ctrl-C (SIGINT) or SIGTERM prints `replay <command>: interrupted`
-and exits with 130 (EXIT_INTERRUPTED) or 143, leaving no partial output (every writer is atomic).
+stderr and exit with code 2 (EXIT_ERROR); Ctrl-C (SIGINT) prints `replay <command>: interrupted` and exits with
+130 (EXIT_INTERRUPTED), SIGTERM `replay <command>: terminated` and 143 (EXIT_TERMINATED), leaving no partial
+output (every writer is atomic and removes its temporary file as the exception unwinds).
 """
 from __future__ import annotations
 
