@@ -230,7 +230,7 @@ class _Feeder:
         cfg = load_predictor_config()
         self.publishers = {e.role: (self.node.create_publisher(self.make(e.ros_type), e.topic, 100),
                                     msg_adapters.get_adapter(e.role, e.ros_type, **e.options), e)
-                           for e in cfg.inputs}
+                           for e in cfg.inputs if e.role in GOOD}  # the default vessel's inputs
 
     def _count(self, _: Any) -> None:
         self.paths += 1
