@@ -57,7 +57,7 @@ def main() -> None:
     from usv_predictor.replay.bagio import config_topic_specs, write_bag
 
     specs = config_topic_specs(load_predictor_config(), include_ground_truth=True)
-    streams = [(specs[role], signals[role]) for role in specs]
+    streams = [(specs[role], signals[role]) for role in specs if role in signals]
     with tempfile.TemporaryDirectory() as tmp:
         counter = iter(range(1000))
         write_t, _ = timed(lambda: write_bag(Path(tmp) / f"b{next(counter)}", streams), args.repeat)

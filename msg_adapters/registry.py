@@ -20,6 +20,10 @@ ROLE_FIELDS: dict[str, tuple[str, ...]] = {
     "heading": ("psi",),  # rad, NED, clockwise from north, wrapped to [-pi, pi)
     "rudder_angle": ("delta",),  # rad, positive turns the vessel to starboard
     "engine_rpm": ("rpm",),  # rev/min
+    # normalised commands c in [-1, 1], + ahead (a PWM, rpm or thrust in N is converted by adapter options)
+    "throttle": ("command",),  # the propeller's throttle of a rudder_throttle boat
+    "thruster_port": ("command",),  # the port thruster of a twin_thrusters boat
+    "thruster_starboard": ("command",),  # the starboard thruster
     "gnss": ("lat", "lon", "alt"),  # deg, deg, m (WGS-84); NaN when there is no fix
     "odometry": ("x_n", "y_e", "psi", "u", "v", "r"),  # m, m (NED in the odom frame), rad, m/s, m/s, rad/s
 }

@@ -303,15 +303,19 @@ class ScalarHeadingAdapter(_Base):
 
     Options: units "deg" (default) | "rad"; convention "compass" (clockwise from north, default;
     encode writes [0, 360) deg or [0, 2 pi) rad) | "enu" (counter-clockwise from east, wrapped).
+    A value more than one turn (RAW_LIMIT) from zero is not a heading in the configured unit (a corrupt value, or
+    degrees configured as rad): it decodes as NaN instead of being wrapped into a plausible-looking angle.
     """
 
     units: str = "deg"
     convention: str = "compass"
 
     OPTIONS: ClassVar = MappingProxyType({"units": choice("deg", "rad"), "convention": choice("compass", "enu")})
+    RAW_LIMIT: ClassVar = MappingProxyType({"rad": 2.0 * math.pi + 1e-6, "deg": 360.0 + 1e-6})  # |raw| per unit
 
     def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
         angle = np.asarray(c.field(msg, "data", self.ros_type), dtype=np.float64)
+        angle = np.where(np.abs(angle) <= self.RAW_LIMIT[self.units], angle, np.nan)
         angle = np.radians(angle) if self.units == "deg" else angle
         psi = wrap_angle(angle) if self.convention == "compass" else enu_yaw_to_heading(angle)
         return None, c.values_out(psi)
@@ -369,6 +373,18 @@ class ScalarRpmAdapter(_Base):
     def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
         (rpm,) = self._values(values)
         return make(self.ros_type)(data=c.leaf(rpm))
+
+
+@dataclass(frozen=True)
+class ScalarCommandAdapter(_Base):
+    """std_msgs/Float64|Float32 normalised command c in [-1, 1] (+ ahead): a throttle or one thruster."""
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        return None, c.values_out(c.field(msg, "data", self.ros_type))
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        (command,) = self._values(values)
+        return make(self.ros_type)(data=c.leaf(command))
 
 
 def _joint_index(msg: Any, joint: str, ros_type: str) -> int:
@@ -506,6 +522,12 @@ ADAPTER_CLASSES: Mapping[tuple[str, str], type[_Base]] = MappingProxyType(
         ("engine_rpm", "std_msgs/msg/Float64"): ScalarRpmAdapter,
         ("engine_rpm", "std_msgs/msg/Float32"): ScalarRpmAdapter,
         ("engine_rpm", "sensor_msgs/msg/JointState"): JointStateRpmAdapter,
+        ("throttle", "std_msgs/msg/Float64"): ScalarCommandAdapter,
+        ("throttle", "std_msgs/msg/Float32"): ScalarCommandAdapter,
+        ("thruster_port", "std_msgs/msg/Float64"): ScalarCommandAdapter,
+        ("thruster_port", "std_msgs/msg/Float32"): ScalarCommandAdapter,
+        ("thruster_starboard", "std_msgs/msg/Float64"): ScalarCommandAdapter,
+        ("thruster_starboard", "std_msgs/msg/Float32"): ScalarCommandAdapter,
         ("gnss", "sensor_msgs/msg/NavSatFix"): NavSatFixAdapter,
         ("odometry", "nav_msgs/msg/Odometry"): OdometryAdapter,
     }

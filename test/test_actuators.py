@@ -96,9 +96,45 @@ def test_a_layout_with_three_controls_flows_through_features_and_the_learned_rol
         rollout(torch.from_numpy(start), torch.zeros(2, 6, 2, dtype=torch.float64))
 
 
+def test_twin_thrusters_turn_with_the_thrust_difference():
+    """port = p + d/2, starboard = p - d/2 (clipped to [-1, 1]); the steering signal is port - starboard (+ turns
+    to starboard, the port thruster sits at y = -b/2), the propulsion the mean."""
+    twin = actuator_layout("twin_thrusters")
+    assert twin.control_names == ("port", "starboard") and twin.roles == ("thruster_port", "thruster_starboard")
+    assert twin.to_commands(0.4, 0.6) == pytest.approx((0.8, 0.4))
+    assert twin.to_commands(2.0, 0.0) == (1.0, -1.0) and twin.to_commands(0.6, 0.9) == pytest.approx((1.0, 0.6))
+    commands = np.array([twin.to_commands(0.4, 0.6), twin.to_commands(-0.3, 0.5)])
+    assert twin.steering_signal(commands) == pytest.approx([0.4, -0.3])
+    assert twin.propulsion_signal(commands) == pytest.approx([0.6, 0.5])
+    assert twin.reported_commands == ("port", "starboard") and DEFAULT_LAYOUT.reported_commands == ()
+
+
+def test_rudder_only_reports_no_propulsion_and_every_layout_can_be_simulated():
+    only = actuator_layout("rudder_only")
+    assert only.control_names == ("delta",) and only.commands == ("delta", "rpm")
+    assert only.propulsion_signal(np.zeros((5, 1))).tolist() == [0.0] * 5  # nothing reported: a constant level
+    assert required_roles(only) == ("imu", "velocity", "heading", "rudder_angle")
+    assert actuator_layout("rudder_throttle").control_names == ("delta", "throttle")
+    for layout in ACTUATOR_LAYOUTS.values():
+        assert len(layout.to_commands(0.1, 0.5)) == len(layout.commands) == 2
+        assert set(layout.control_names) <= set(layout.commands) and layout.sections and layout.supports
+        assert layout.turn_input is not None and layout.propulsion_input is not None
+
+
+def test_a_vessel_leaves_the_control_roles_of_other_layouts_alone():
+    from usv_predictor.physics.actuators import unused_roles
+
+    assert unused_roles(DEFAULT_LAYOUT) == {"throttle", "thruster_port", "thruster_starboard"}
+    assert unused_roles(actuator_layout("twin_thrusters")) == {"rudder_angle", "engine_rpm", "throttle"}
+    assert unused_roles(actuator_layout("rudder_only")) == {"engine_rpm", "throttle", "thruster_port",
+                                                            "thruster_starboard"}
+
+
 def test_unknown_layouts_and_bad_records_are_refused():
-    with pytest.raises(ConfigError, match="unknown actuator layout 'twin'; known: rudder_propeller"):
+    with pytest.raises(ConfigError, match="unknown actuator layout 'twin'; known: rudder_propeller, rudder_throttle"):
         actuator_layout("twin")
+    with pytest.raises(ConfigError, match="source 'guess'"):
+        Control("x", "-", "throttle", "command", (-1.0, 1.0), "x", "guess")
     with pytest.raises(ConfigError, match="steering weights"):
         ActuatorLayout("bad", "", THREE.controls, MappingProxyType({"nothing": 1.0}), MappingProxyType({"rpm": 1.0}),
                        "", 0.1, 0.1)

@@ -33,6 +33,9 @@ SAMPLES = {
     "heading": (2.5,),
     "rudder_angle": (0.2,),
     "engine_rpm": (1200.0,),
+    "throttle": (0.6,),
+    "thruster_port": (0.75,),
+    "thruster_starboard": (-0.25,),
     "gnss": (59.1234567, 10.7654321, 3.5),
     "odometry": (120.0, -45.0, -2.0, 3.0, -0.4, -0.05),
 }

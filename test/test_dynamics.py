@@ -30,6 +30,10 @@ class RpmStep:
     duration_s: float = 150.0
     name: str = "rpm_step"
 
+    @property
+    def propulsion(self) -> float:  # the approach's propulsion command (simulator.Manoeuvre)
+        return self.rpm
+
     def controller(self):
         return lambda t, psi, r: (0.0, self.rpm if t < 5.0 else self.rpm_after)
 
@@ -191,8 +195,8 @@ def test_loads_decomposition_sums_to_the_total(model):
     sea = SeaLoads(0.2, -0.1, 0.0, 0.0, 8.0, 1.0, 0.3, 2.0)
     forces = model.loads(4.0, -0.5, 0.1, 0.7, 4.1, -0.4, 0.2, 650.0, sea)
     total = forces.total()
-    parts = np.array([forces.hull, forces.rudder, forces.propeller, forces.wind, forces.waves])
+    parts = np.array([forces.hull, forces.steering, forces.propulsion, forces.wind, forces.waves])
     assert np.allclose(parts.sum(axis=0), total)
-    assert forces.rudder[1] < 0.0  # positive rudder: side force to port ...
-    assert forces.rudder[2] > 0.0  # ... and a starboard yaw moment
+    assert forces.steering[1] < 0.0  # positive rudder: side force to port ...
+    assert forces.steering[2] > 0.0  # ... and a starboard yaw moment
     assert model.loads(4.0, 0.0, 0.0, 0.0, 4.0, 0.0, 0.0, 650.0, CALM).wind == (0.0, 0.0, 0.0)

@@ -14,6 +14,7 @@ import torch
 
 from usv_predictor.analysis import diagnosis, hidden_effects
 from usv_predictor.analysis.evaluation import angle_error_deg
+from usv_predictor.errors import ConfigError
 from usv_predictor.frames import angle_difference_deg, compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
 from usv_predictor.physics import effects
@@ -37,6 +38,30 @@ from usv_predictor.physics.vessel import load_vessel
 ROOT = Path(__file__).resolve().parents[1]
 VESSEL = load_vessel("jari_usv")
 SIMULATED = tuple(effects.simulated())
+PRESET_OF_LAYOUT = {"rudder_propeller": "jari_usv", "twin_thrusters": "otter"}  # a preset of each simulated layout
+
+
+def preset_for(name: str) -> str:
+    """A vessel preset whose layout the effect applies to (the 15 m rudder boat unless the effect needs another)."""
+    layouts = EFFECTS[name].layouts
+    return "jari_usv" if layouts is None or "rudder_propeller" in layouts else PRESET_OF_LAYOUT[layouts[0]]
+
+
+def layout_for(name: str) -> str:
+    return load_vessel(preset_for(name)).layout
+
+
+def rollout_inputs(vessel) -> tuple[torch.Tensor, torch.Tensor]:
+    """A turn after a straight start for the vessel's layout: state (1, 4), controls (1, H, C)."""
+    steps = 30
+    turning = torch.arange(steps) >= 10
+    if vessel.layout == "twin_thrusters":
+        port = torch.where(turning, 0.8, 0.6).to(torch.float64)
+        controls = torch.stack([port, 1.2 - port], dim=-1)[None]  # (1, H, 2)
+        return torch.tensor([[1.8, 0.0, 0.0, 0.3]], dtype=torch.float64), controls
+    delta = torch.where(turning, math.radians(20.0), 0.0).to(torch.float64)
+    controls = torch.stack([delta, torch.full((steps,), 650.0, dtype=torch.float64)], dim=-1)[None]  # (1, H, 2)
+    return torch.tensor([[2.5, 0.0, 0.0, 0.3]], dtype=torch.float64), controls  # (1, 4)
 
 
 # ---- every record is complete and consistent ---------------------------------------------------------
@@ -88,10 +113,18 @@ def test_the_tolerances_and_draw_ranges_are_the_published_ones():
         "current": {"speed_mps": 0.05, "direction_deg": 10.0}, "wind": {"speed_mps": 2.0, "direction_deg": 20.0},
         "wave_drift": {"significant_height_m": 0.4, "direction_deg": 30.0}, "rudder_offset": {"offset_deg": 0.5},
         "yaw_rate_bias": {"bias_deg_s": 0.1}, "heading_offset": {"offset_deg": 1.0}, "actuator_delay": {"delay_s": 0.2},
-        "propeller_asymmetry": {"side_force_pct": 0.5}, "none": {}}
+        "propeller_asymmetry": {"side_force_pct": 0.5}, "thruster_imbalance": {"imbalance_pct": 1.5}, "none": {}}
     assert hidden_effects.EFFECTS == ("none", "current", "wind", "wave_drift", "rudder_offset", "yaw_rate_bias",
                                       "heading_offset", "actuator_delay", "propeller_asymmetry")
-    assert tuple(diagnosis.HYPOTHESES) == ("none", *hidden_effects.EFFECTS[1:8], "resistance", "propeller_asymmetry")
+    assert hidden_effects.effect_names() == hidden_effects.EFFECTS  # a rudder boat's suite is unchanged
+    assert tuple(diagnosis.HYPOTHESES) == ("none", *hidden_effects.EFFECTS[1:8], "resistance", "propeller_asymmetry",
+                                           "thruster_imbalance")
+    twin = hidden_effects.effect_names("twin_thrusters")
+    assert twin == ("none", "current", "wind", "wave_drift", "yaw_rate_bias", "heading_offset", "actuator_delay",
+                    "thruster_imbalance")
+    draws = [hidden_effects.draw(np.random.default_rng(k), "thruster_imbalance", "twin_thrusters") for k in range(40)]
+    assert all(5.0 <= abs(d.parameters["thruster_imbalance_pct"]) <= 15.0 for d in draws)
+    assert {math.copysign(1.0, d.parameters["thruster_imbalance_pct"]) for d in draws} == {-1.0, 1.0}
     rng = np.random.default_rng(7)
     for _ in range(200):
         truth = hidden_effects.draw(rng, "rudder_offset")
@@ -105,28 +138,31 @@ def test_the_tolerances_and_draw_ranges_are_the_published_ones():
         hidden_effects.draw(rng, "resistance")
 
 
+@pytest.mark.parametrize("layout", list(PRESET_OF_LAYOUT))
 @pytest.mark.parametrize("term", tuple(effects.grey_box_terms().values()), ids=lambda t: t.name)
-def test_every_grey_box_term_exists_and_acts_on_the_rollout(term):
-    """The attribute exists with the record's size, and the equations use it: setting it changes the prediction."""
-    rollout = GreyBoxRollout(VESSEL, dt=0.5)
+def test_every_grey_box_term_exists_and_acts_where_its_effects_apply(term, layout):
+    """The attribute exists with the record's size on every rollout, and the equations use it: setting it changes
+    the prediction of a boat whose layout its effects apply to, and only there (a rudder offset does nothing to a
+    twin-thruster boat, a thrust imbalance nothing to a rudder boat)."""
+    vessel = load_vessel(PRESET_OF_LAYOUT[layout])
+    rollout = GreyBoxRollout(vessel, dt=0.5)
     assert tuple(getattr(rollout, term.name).shape) == (term.size,)
-    steps = 30
-    delta = torch.where(torch.arange(steps) < 10, 0.0, math.radians(20.0)).to(torch.float64)
-    controls = torch.stack([delta, torch.full((steps,), 650.0, dtype=torch.float64)], dim=-1)[None]  # (1, H, 2)
-    state = torch.tensor([[2.5, 0.0, 0.0, 0.3]], dtype=torch.float64)  # (1, 4)
+    state, controls = rollout_inputs(vessel)
     with torch.no_grad():
         calm = rollout(state, controls)  # (1, 1, H, 6)
         value = min(term.high, max(term.low, max(abs(x) for x in term.start) + 5.0 * term.scale))
         getattr(rollout, term.name)[:] = value
         extended = rollout(state, controls)
-    assert float((extended - calm).abs().max()) > 1e-6, f"{term.name} does not change the grey box's prediction"
+    applies = any(e.applies_to(layout) for e in EFFECTS.values() if term in e.terms)
+    change = float((extended - calm).abs().max())
+    assert (change > 1e-6) == applies, f"{term.name} on {layout}: change {change:g}, applies {applies}"
 
 
 def test_the_grey_box_terms_are_the_records_terms_in_order():
     rollout = GreyBoxRollout(VESSEL, dt=0.5)
     assert tuple(rollout.terms()) == rollout.term_names == tuple(effects.grey_box_terms()) == (
         "current_ne", "wind_ne", "wave_ne", "rudder_offset", "yaw_rate_bias", "heading_offset", "actuator_delay",
-        "resistance_change", "propeller_side_force")
+        "resistance_change", "propeller_side_force", "thrust_imbalance")
     # the hypothesis and the term keep their own public names; the record links them
     assert [t.name for t in EFFECTS["propeller_asymmetry"].terms] == ["propeller_side_force"]
 
@@ -138,7 +174,7 @@ def test_truth_to_terms_to_vocabulary_round_trips(name):
     effect = EFFECTS[name]
     rng = np.random.default_rng(list(EFFECTS).index(name))
     for _ in range(20):
-        truth = hidden_effects.draw(rng, name)
+        truth = hidden_effects.draw(rng, name, layout_for(name))
         terms = effect.readout.terms_from_truth(truth.parameters)
         found = diagnosis.physical_parameters(name, terms)
         errors = hidden_effects.parameter_errors(truth, found)
@@ -155,15 +191,15 @@ def test_scalar_terms_are_what_the_simulator_is_given():
         effect = EFFECTS[name]
         if not isinstance(effect.readout, ScalarReadout):
             continue
-        truth = hidden_effects.draw(rng, name)
-        scenario = make_scenario("jari_usv", {name: truth.parameters})
+        truth = hidden_effects.draw(rng, name, layout_for(name))
+        scenario = make_scenario(preset_for(name), {name: truth.parameters})
         (term, (value,)), = effect.readout.terms_from_truth(truth.parameters).items()
         (parameter,) = effect.parameters
         simulator = {Environment: scenario.environment, ActuatorFaults: scenario.faults,
                      SensorSpec: scenario.sensor_spec}[parameter.sets.target]
         assert value == pytest.approx(getattr(simulator, parameter.sets.name), rel=1e-12, abs=1e-15), name
         checked += 1
-    assert checked == 5
+    assert checked == 6
 
 
 def test_vector_conventions():
@@ -178,6 +214,11 @@ def test_vector_conventions():
     assert waves["wave_ne"] == pytest.approx((0.0, 0.25), abs=1e-12)
     assert EFFECTS["propeller_asymmetry"].readout.terms_from_truth({"propeller_side_force_pct": 4.0}) == {
         "propeller_side_force": pytest.approx((0.04,))}
+    # a thruster imbalance of +8 %: the starboard thruster is weaker; the simulator's fault is the term (k = 0.08)
+    assert EFFECTS["thruster_imbalance"].readout.terms_from_truth({"thruster_imbalance_pct": 8.0}) == {
+        "thrust_imbalance": pytest.approx((0.08,))}
+    faults = make_scenario("otter", {"thruster_imbalance": {"thruster_imbalance_pct": 8.0}}).faults
+    assert faults.thruster_imbalance == pytest.approx(0.08)
 
 
 def test_a_wrong_convention_fails_the_round_trip():
@@ -222,7 +263,7 @@ def test_the_scenario_applies_effects_generically():
 def test_every_parameter_reaches_its_simulator_field(name):
     effect = EFFECTS[name]
     values = {p.name: (p.low + p.high) / 2.0 + 0.1 for p in effect.parameters}  # off every default
-    scenario = make_scenario("jari_usv", {name: values})
+    scenario = make_scenario(preset_for(name), {name: values})
     built = {Environment: scenario.environment, ActuatorFaults: scenario.faults, SensorSpec: scenario.sensor_spec}
     for p in effect.parameters:
         assert getattr(built[p.sets.target], p.sets.name) == pytest.approx(p.sets.value(values[p.name])), p.name
@@ -303,3 +344,18 @@ def test_angle_helpers():
     assert angle_difference_deg(725.0, -5.0) == pytest.approx(10.0)
     assert angle_error_deg(350.0, 10.0) == -20.0 and angle_error_deg(None, 10.0) is None
     assert [compass_deg(n, e) for n, e in ((1, 0), (0, 1), (-1, 0), (0, -1))] == [0.0, 90.0, 180.0, 270.0]
+
+
+def test_effects_apply_to_their_layouts():
+    """A rudder boat keeps its hypotheses; a twin-thruster boat has no rudder offset or propeller walk but a
+    thruster imbalance; the simulator and the diagnosis refuse an effect of another layout, naming it."""
+    assert effects.hypothesis_names("rudder_propeller") == ("none", *[n for n in EFFECTS if n != "thruster_imbalance"])
+    assert effects.hypothesis_names() == ("none", *EFFECTS)
+    twin = effects.hypothesis_names("twin_thrusters")
+    assert "thruster_imbalance" in twin and not {"rudder_offset", "propeller_asymmetry"} & set(twin)
+    assert set(effects.simulated("twin_thrusters")) == set(twin) - {"none", "resistance"}
+    with pytest.raises(ConfigError, match=r"effect 'rudder_offset' does not apply to vessel otter \(actuator layout "
+                                          r"twin_thrusters\); it applies to rudder_propeller, rudder_throttle, rudder_only"):
+        make_scenario("otter", {"rudder_offset": {"rudder_offset_deg": 2.0}})
+    with pytest.raises(ConfigError, match=r"hypotheses \['propeller_asymmetry'\] do not apply to vessel otter"):
+        diagnosis.diagnose([], load_vessel("otter"), hypotheses=["current", "propeller_asymmetry"])

@@ -11,7 +11,7 @@ from usv_predictor.errors import ConfigError
 from usv_predictor.frames import LocalTangentPlane, wrap_angle
 from usv_predictor.physics.dynamics import ManoeuvringModel
 from usv_predictor.physics.environment import Environment
-from usv_predictor.physics.manoeuvres import TurningCircle, ZigZag
+from usv_predictor.physics.manoeuvres import CommandZigZag, TurningCircle, ZigZag
 from usv_predictor.physics.sensors import SensorSpec, measure
 from usv_predictor.physics.simulator import ActuatorFaults, simulate
 from usv_predictor.physics.vessel import GRAVITY, load_vessel
@@ -116,3 +116,23 @@ def test_spec_validation():
         SensorSpec.from_mapping({"gyro_bais": 0.1})
     with pytest.raises(ConfigError, match="actuator_delay_s"):
         SensorSpec(actuator_delay_s=-1.0)
+
+
+def test_a_twin_thruster_boat_reports_its_commands():
+    """Normalised commands at the actuator rate, quantised to command_lsb, no rudder or engine speed; a thruster
+    imbalance is invisible in the log (it reports what was sent), an actuator delay makes the log lead."""
+    model = ManoeuvringModel(load_vessel("otter"))
+    faults = ActuatorFaults(thruster_imbalance=0.1)
+    traj = simulate(model, CommandZigZag("twin_thrusters", 0.5, 15.0, 0.6, duration_s=40.0), faults=faults)
+    signals = measure(traj, Environment(), SensorSpec(), faults)
+    assert set(signals) == {"imu", "velocity", "heading", "thruster_port", "thruster_starboard", "gnss", "odometry"}
+    port = signals["thruster_port"]
+    assert port.fields == ("command",) and 1e9 / np.median(np.diff(port.t_ns)) == pytest.approx(10.0)
+    lsb = SensorSpec().command_lsb
+    assert np.allclose(port.values / lsb, np.round(port.values / lsb))
+    truth = traj.command("port")[np.searchsorted(traj.t_ns, port.t_ns)]
+    assert np.max(np.abs(port.column("command") - truth)) <= 0.5 * lsb
+    assert np.allclose(signals["thruster_starboard"].column("command") + port.column("command"), 1.2, atol=lsb)
+    led = measure(traj, Environment(), dataclasses.replace(CLEAN, actuator_delay_s=0.5), faults)["thruster_port"]
+    on_time = measure(traj, Environment(), CLEAN, faults)["thruster_port"]
+    assert np.array_equal(led.values[:-6], on_time.values[5:-1])

@@ -10,10 +10,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from usv_predictor.config import input_topics, load_predictor_config
+from usv_predictor.physics.vessel import vessel_dir
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout, unused_roles
 from usv_predictor.replay.bagio import TopicSpec, read_bag, read_custom_data
 from usv_predictor.replay.cli import main
 
@@ -28,9 +31,11 @@ EXPECTED_TYPES = {
 }
 
 
-def specs() -> list[TopicSpec]:
+def specs(layout: ActuatorLayout = DEFAULT_LAYOUT) -> list[TopicSpec]:
+    """The config's topics that a boat of this layout uses (the config lists every layout's controls)."""
     cfg = load_predictor_config()
-    return [TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id) for t in input_topics(cfg, include_ground_truth=True)]
+    return [TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id) for t in input_topics(cfg, include_ground_truth=True)
+            if t.role not in unused_roles(layout)]
 
 
 def simulate(tmp_path: Path, *extra: str) -> tuple[int, dict]:
@@ -98,7 +103,10 @@ def test_programme_with_calm_twins_and_blind_metadata(tmp_path):
         (["--current-speed", "0.3"], "--current-speed belongs to effect 'current': add --effect current"),
         (["--rpm", "-5"], "--rpm -5 is outside"),
         (["--effect", "gremlins"], "invalid choice: 'gremlins'"),
-        (["--wind-speed", "abc", "--effect", "wind"], "invalid float value: 'abc'"),
+        (["--wind-speed", "abc", "--effect", "wind"], "argument --wind-speed: 'abc' is not a finite number"),
+        (["--wind-speed", "nan", "--effect", "wind"], "argument --wind-speed: 'nan' is not a finite number"),
+        (["--seed", "-1"], "argument --seed: '-1' is not a whole number >= 0"),
+        (["--duration", "inf"], "argument --duration: 'inf' is not a finite number > 0"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_no_bag(tmp_path, capsys, args, message):
@@ -166,6 +174,88 @@ def test_the_simulation_request_refuses_bad_values_with_the_commands_messages(tm
     [zigzag] = manoeuvres(SimulationRequest(output=out, manoeuvre="zigzag", rudder_deg=15.0, side="port"), vessel)
     assert (zigzag.rudder_deg, zigzag.check_deg, zigzag.side) == (15.0, 15.0, -1)
     assert not out.exists()  # nothing is written before the bags are simulated
+
+
+TWIN_TYPES = {**{k: v for k, v in EXPECTED_TYPES.items() if k not in ("rudder_angle", "engine_rpm")},
+              "thrusters/port": "std_msgs/msg/Float64", "thrusters/starboard": "std_msgs/msg/Float64"}
+
+
+def test_a_twin_thruster_boat_writes_its_thruster_commands(tmp_path):
+    code, result = simulate(tmp_path, "--vessel", "otter", "--manoeuvre", "turning-circle", "--differential", "0.5",
+                            "--throttle", "0.7", "--duration", "30", "--effect", "thruster_imbalance",
+                            "--thruster-imbalance-pct", "6")
+    assert code == 0
+    bag = Path(result["bags"][0]["bag"])
+    assert bag.name == "turning_circle_stbd_d0.5_p0.7"
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        assert {c.topic: c.msgtype for c in reader.connections} == TWIN_TYPES
+    signals = read_bag(bag, specs(actuator_layout("twin_thrusters")))
+    assert signals["thrusters/port"].column("command")[-1] == pytest.approx(0.95, abs=2**-9)  # 0.7 + 0.5 / 2
+    assert signals["thrusters/starboard"].column("command")[-1] == pytest.approx(0.45, abs=2**-9)
+    meta = read_custom_data(bag)
+    assert json.loads(meta["manoeuvre"]) == {"layout": "twin_thrusters", "turn": 0.5, "propulsion": 0.7,
+                                             "duration_s": 30.0, "approach_s": 10.0, "side": 1}
+    sensors = json.loads(meta["scenario"])["sensors"]
+    assert "command_lsb" in sensors and "rudder_lsb" not in sensors  # what shaped this boat's recording
+    assert result["bags"][0]["heading_change_deg"] > 90.0  # a starboard turn
+
+
+def test_a_twin_thruster_programme_is_stated_in_commands(tmp_path):
+    from usv_predictor.physics.vessel import load_vessel
+    from usv_predictor.replay.simulate import SimulationRequest, manoeuvres
+
+    names = [m.name for m in manoeuvres(SimulationRequest(output=tmp_path, vessel="otter", programme="diagnosis"),
+                                        load_vessel("otter"))]
+    assert names == ["turning_circle_stbd_d0.4_p0.6", "turning_circle_port_d0.4_p0.6", "zigzag_d0.4_20_stbd_p0.6",
+                     "zigzag_d0.4_20_port_p0.6"]
+    [zigzag] = manoeuvres(SimulationRequest(output=tmp_path, vessel="otter", manoeuvre="zigzag", differential=0.3,
+                                            side="port"), load_vessel("otter"))
+    assert (zigzag.turn, zigzag.check_deg, zigzag.propulsion, zigzag.side) == (0.3, 20.0, 0.6, -1)
+
+
+@pytest.mark.parametrize("layout, extra, topics", [
+    ("rudder_throttle", ["--rudder", "15", "--throttle", "0.7"], {"rudder_angle", "throttle"}),
+    ("rudder_only", ["--rudder", "15", "--rpm", "600"], {"rudder_angle"}),
+])
+def test_rudder_layouts_write_their_own_controls(tmp_path, layout, extra, topics):
+    """A rudder boat that logs a throttle writes rudder_angle and throttle; one that logs no propulsion only the
+    rudder (its simulated engine runs at --rpm all the same)."""
+    raw = yaml.safe_load((vessel_dir() / "jari_usv.yaml").read_text())
+    raw["actuator_layout"] = layout
+    if layout == "rudder_throttle":
+        raw["throttle"] = {"forward_N": 9000.0, "reverse_N": 3500.0, "exponent": 2.0, "dead_band": 0.05,
+                           "time_constant_s": 1.2}
+    boat = tmp_path / "boat.yaml"
+    boat.write_text(yaml.safe_dump(raw))
+    code, result = simulate(tmp_path, "--vessel", str(boat), "--duration", "20", *extra)
+    assert code == 0
+    bag = Path(result["bags"][0]["bag"])
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        written = {c.topic for c in reader.connections}
+    controls = {"rudder_angle", "engine_rpm", "throttle", "thrusters/port", "thrusters/starboard"}
+    assert written & controls == topics
+    expected = {"rudder_throttle": "turning_circle_stbd_15deg_p0.7", "rudder_only": "turning_circle_stbd_15deg_600rpm"}
+    assert bag.name == expected[layout] and result["bags"][0]["final_speed_mps"] > 2.0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--vessel", "otter", "--rudder", "10"], "--rudder does not apply to vessel otter (actuator layout "
+                                              "twin_thrusters); it takes --differential and --throttle"),
+    (["--vessel", "otter", "--rpm", "600"], "--rpm does not apply to vessel otter"),
+    (["--differential", "0.3"], "--differential does not apply to vessel jari_usv (actuator layout rudder_propeller); "
+                                "it takes --rudder and --rpm"),
+    (["--vessel", "otter", "--differential", "2.5"], "--differential 2.5 is outside the range (0, 2]"),
+    (["--vessel", "otter", "--throttle", "0"], "--throttle 0 is outside the range (0, 1]"),
+    (["--vessel", "otter", "--effect", "rudder_offset"], "effect 'rudder_offset' does not apply to vessel otter "
+                                                         "(actuator layout twin_thrusters)"),
+    (["--effect", "thruster_imbalance"], "effect 'thruster_imbalance' does not apply to vessel jari_usv"),
+])
+def test_options_and_effects_of_another_layout_are_refused(tmp_path, capsys, args, message):
+    code = main(["simulate", "--output", str(tmp_path / "bags"), "--duration", "5", *args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert err[-1].startswith("replay simulate: error:") and message in err[-1]
+    assert not (tmp_path / "bags").exists() or not any((tmp_path / "bags").iterdir())
 
 
 def test_given_effects_go_on_top_of_the_sea():

@@ -14,14 +14,16 @@ from typing import Mapping
 import numpy as np
 
 from usv_predictor.physics import effects as fx
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT
 
 
-def effect_names() -> tuple[str, ...]:
-    """The effects the suite can hide: none, then every effect the simulator can make (registry order)."""
-    return (fx.NONE, *fx.simulated())
+def effect_names(layout: str = DEFAULT_LAYOUT.name) -> tuple[str, ...]:
+    """The effects the suite can hide in a boat of this actuator layout: none, then every effect the simulator can
+    make that applies to it (registry order)."""
+    return (fx.NONE, *fx.simulated(layout))
 
 
-EFFECTS = effect_names()  # as the registry was at import (tests parametrise over it); draw() asks effect_names()
+EFFECTS = effect_names()  # the rudder_propeller boat's, as the registry was at import (tests parametrise over it)
 
 # Stated tolerances of the acceptance suite (absolute errors), from the records.
 TOLERANCES: Mapping[str, Mapping[str, float]] = fx.RegistryView(
@@ -44,13 +46,13 @@ class Draw:
         return flags
 
 
-def draw(rng: np.random.Generator, effect: str | None = None) -> Draw:
-    """One effect (uniformly among effect_names() unless given) with parameters drawn from its record's ranges.
+def draw(rng: np.random.Generator, effect: str | None = None, layout: str = DEFAULT_LAYOUT.name) -> Draw:
+    """One effect (uniformly among effect_names(layout) unless given) with parameters drawn from its record's ranges.
 
     The random numbers, in order: the effect (unless given), one sign (for the parameters drawn with a random
     sign), then one uniform per parameter drawn from a range, in the record's order.
     """
-    names = effect_names()
+    names = effect_names(layout)
     effect = effect or str(rng.choice(names))
     sign = float(rng.choice([-1.0, 1.0]))
     if effect not in names:

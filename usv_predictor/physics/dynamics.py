@@ -1,39 +1,76 @@
-"""3-DOF manoeuvring dynamics in Fossen's matrix form with MMG force models.
+"""3-DOF manoeuvring dynamics in Fossen's matrix form: a hull model, the force model of an actuator layout, wind and
+waves.
 
-    M nu_r_dot + C(nu_r) nu_r + D(nu_r) nu_r = tau_R + tau_P + tau_wind + tau_wave      (Fossen 2021 eq. 6.5)
+    M nu_r_dot + C(nu_r) nu_r + D(nu_r) nu_r = tau_act + tau_wind + tau_wave                (Fossen 2021 eq. 6.5)
     eta_dot = R(psi) (nu_r + nu_c)                                                     (Fossen 2021 eq. 2.40)
 
-State (marine convention, SI): eta = [x_n, y_e, psi] (NED), nu_r = [u_r, v_r, r] = velocity relative to the
-water in the body frame FRD at midship, nu_c = R(psi)^T V_c^n the current in the body frame (seed 000 eq. 20-22).
-Because the hydrodynamic forces depend on nu_r only, a uniform current drifts the vessel at exactly V_c.
-M and C(nu) are the left-hand sides of Yasukawa & Yoshimura 2015 eq. 4 (rigid body + added mass about midship);
-D(nu) nu = -[X_H, Y_H, N_H] is the MMG hull polynomial (eq. 8; linear + nonlinear damping, the Munk moment is in
-N_v as in captive-test derivatives); tau_R is the semi-empirical rudder model with propeller slipstream
-(eq. 13-16, 37-43), tau_P the propeller thrust from rpm (eq. 10-12); tau_wind is seed 000 eq. 12-18 on the
-apparent wind over ground
-(the increment over still air); tau_wave the mean drift of seed 000 eq. 19.
-Positive rudder angle delta turns the vessel to starboard (r > 0).
+State (marine convention, SI): [x_n, y_e, psi, u_r, v_r, r, a, b]: eta = [x_n, y_e, psi] (NED), nu_r = [u_r, v_r,
+r] the velocity relative to the water in the body frame FRD at midship (body y to starboard), nu_c = R(psi)^T V_c^n
+the current in the body frame (seed 000 eq. 20-22), and the two actuator states (a, b) of the layout, named by its
+`commands` (physics/actuators.py): rudder_propeller and rudder_only (delta rad, engine speed rpm), rudder_throttle
+(delta rad, lagged throttle command -), twin_thrusters (lagged port and starboard commands -: the motor follows its
+command with the thrust map's first-order lag, Fossen's otter.py n_dot = (n_c - n) / T_n; thrust = map(level)).
+Every force depends on nu_r only, so a uniform current drifts the vessel at exactly V_c.
+
+Hull models (physics/hulls.py, one class here per record, HULL_FORCES):
+  mmg          M and C(nu) nu are the left-hand sides of Yasukawa & Yoshimura 2015 eq. 4 (rigid body + added mass
+               about midship); D(nu) nu = -[X_H, Y_H, N_H] the MMG hull polynomial (eq. 8; the Munk moment is in
+               N_v as in captive-test derivatives).
+  small_craft  Fossen 2021 ch. 6 as in his otter.py: M = M_RB + M_A with M_A = -diag(X_udot, Y_vdot, N_rdot);
+               C_RB(nu_r) nu_r = [-m (v_r r + x_G r^2), m u_r r, m x_G u_r r] (3-DOF, independent of the linear
+               velocity, so the relative-velocity form is exact for an irrotational current) and C_A(nu_r) nu_r =
+               [Y_vdot v_r r, -X_udot u_r r, (X_udot - Y_vdot) u_r v_r] (the Munk moment); linear + quadratic
+               damping and strip-theory cross-flow drag (vessel.SmallCraftHull).
+Actuator force models (physics/actuators.py, one class here per layout, ACTUATOR_FORCES):
+  rudder_propeller  the semi-empirical MMG rudder with propeller slipstream (eq. 13-16, 37-43) and the propeller
+                    thrust (eq. 10-12) from the engine speed.
+  rudder_only       the same (the simulated boat has an engine; its speed is not reported).
+  rudder_throttle   the same at the engine speed n whose static thrust rho n^2 D^4 K_T(0) is the thrust map's at
+                    the lagged throttle (vessel.ThrustMap; astern gives no thrust: the MMG propeller is ahead only).
+  twin_thrusters    X = T_port + T_stbd, N = (b/2) (T_port - T_stbd) (port at y = -b/2), T = thrust map at the
+                    lagged command; a thrust imbalance k (thruster_imbalance) multiplies port by (1 + k), starboard
+                    by (1 - k): k > 0 is a weaker starboard side, the boat pulls to starboard at equal commands.
+tau_wind is seed 000 eq. 12-18 on the apparent wind over ground (the increment over still air), tau_wave the mean
+drift of seed 000 eq. 19, for every hull model. N > 0 turns the bow to starboard (r > 0): positive rudder angles
+and more port thrust do.
 
 Everything is plain Python float arithmetic: one derivative is a few microseconds, which beats numpy on
-scalars by an order of magnitude (see benchmarks/bench_simulator.py).
+scalars by an order of magnitude (see benchmarks/bench_simulator.py). ManoeuvringModel(vessel) builds the class of
+the vessel's hull model and layout once (a mixin of each) and caches it.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
-from usv_predictor.physics.vessel import GRAVITY, RHO_AIR, RHO_WATER, Hull, Propeller, Rudder, Vessel
+from usv_predictor.errors import ConfigError
+from usv_predictor.physics.vessel import (
+    GRAVITY,
+    RHO_AIR,
+    RHO_WATER,
+    Hull,
+    Propeller,
+    Rudder,
+    SmallCraftHull,
+    ThrustMap,
+    Vessel,
+)
 
-SPEED_FLOOR = 0.05  # speed below which non-dimensional hull terms are regularised (m/s)
+SPEED_FLOOR = 0.05  # speed below which non-dimensional MMG hull terms are regularised (m/s)
+CROSS_FLOW_STRIPS = 20  # strips of the cross-flow drag integral over the length (-), as Fossen's crossFlowDrag
 
 
 class Forces(NamedTuple):
-    """Force decomposition in the body frame at midship: surge X (N), sway Y (N), yaw N (N m)."""
+    """Force decomposition in the body frame at midship: surge X (N), sway Y (N), yaw N (N m).
+
+    steering: the rudder of a rudder layout, the yaw moment of the thrust difference of twin thrusters;
+    propulsion: the propeller of a rudder layout, the summed thrust of twin thrusters.
+    """
 
     hull: tuple[float, float, float]
-    rudder: tuple[float, float, float]
-    propeller: tuple[float, float, float]
+    steering: tuple[float, float, float]
+    propulsion: tuple[float, float, float]
     wind: tuple[float, float, float]
     waves: tuple[float, float, float]
 
@@ -75,14 +112,41 @@ def fourier(series: tuple[float, tuple[tuple[int, float, float], ...]], chi: flo
     return value
 
 
+# ---- the constants records: computed once from a Vessel, read by name by both twins -----------------------
+# (ManoeuvringModel here, GreyBoxRollout in models/greybox.py: constants_of(vessel) is their one source)
+
+@dataclass(frozen=True)
+class SeaConstants:
+    """Windage and wave-drift constants (SI), the same for every hull model."""
+
+    wind_x: float  # 0.5 rho_air A_F c_x (kg/m)
+    wind_y: float  # 0.5 rho_air A_L c_y (kg/m)
+    wind_n: float  # 0.5 rho_air A_L L_oa c_n (kg)
+    q_wave: float  # 0.5 rho g L: times zeta_a^2 gives the wave-drift force scale (N/m^2)
+    drift_x: tuple[float, tuple[tuple[int, float, float], ...]]  # wave-drift Fourier series (fourier_terms)
+    drift_y: tuple[float, tuple[tuple[int, float, float], ...]]
+    drift_n: tuple[float, tuple[tuple[int, float, float], ...]]
+
+    @classmethod
+    def of(cls, vessel: Vessel) -> "SeaConstants":
+        g, w, d = vessel.geometry, vessel.windage, vessel.wave_drift
+        return cls(
+            wind_x=0.5 * RHO_AIR * w.A_F * w.c_x, wind_y=0.5 * RHO_AIR * w.A_L * w.c_y,
+            wind_n=0.5 * RHO_AIR * w.A_L * g.L_oa * w.c_n, q_wave=0.5 * RHO_WATER * GRAVITY * g.L_pp,
+            drift_x=fourier_terms(d.a_x, d.b_x), drift_y=fourier_terms(d.a_y, d.b_y), drift_n=fourier_terms(d.a_n, d.b_n),
+        )
+
+
+def _mass_constants(vessel: Vessel) -> dict[str, float]:
+    """The rigid body and the mass matrix M = M_RB + M_A about midship (Vessel.mass_matrix) in SI units."""
+    ((m11, _, _), (_, m22, m23), (_, m32, m33)) = vessel.mass_matrix()
+    return dict(L=vessel.geometry.L_pp, m=vessel.mass, x_G=vessel.geometry.x_G, m11=m11, m22=m22, m23=m23, m32=m32,
+                m33=m33, det_vr=m22 * m33 - m23 * m32)
+
+
 @dataclass(frozen=True)
 class HullConstants:
-    """The rigid body, added mass, hull, windage and wave-drift constants of a vessel in SI units.
-
-    Computed once from a Vessel; both twins of the physics (ManoeuvringModel here, GreyBoxRollout in torch)
-    read their constants from this record and its actuator twin (RudderPropellerConstants), field by field
-    under the same names, so they cannot drift apart.
-    """
+    """The MMG hull: rigid body and added mass (M), the force scale and the hull polynomial, SI units."""
 
     L: float  # length between perpendiculars L_pp (m)
     m: float  # mass (kg)
@@ -94,31 +158,49 @@ class HullConstants:
     m33: float
     det_vr: float  # m22 m33 - m23 m32 (kg^2 m^2)
     q_force: float  # 0.5 rho L d: times U^2 gives the hull force scale (kg/m)
-    hull: Hull  # MMG hull polynomial coefficients (-)
-    wind_x: float  # 0.5 rho_air A_F c_x (kg/m)
-    wind_y: float  # 0.5 rho_air A_L c_y (kg/m)
-    wind_n: float  # 0.5 rho_air A_L L_oa c_n (kg)
-    q_wave: float  # 0.5 rho g L: times zeta_a^2 gives the wave-drift force scale (N/m^2)
-    drift_x: tuple[float, tuple[tuple[int, float, float], ...]]  # wave-drift Fourier series (fourier_terms)
-    drift_y: tuple[float, tuple[tuple[int, float, float], ...]]
-    drift_n: tuple[float, tuple[tuple[int, float, float], ...]]
+    hull: Hull  # MMG hull polynomial coefficients (-): the identifiable hull coefficients
 
     @classmethod
     def of(cls, vessel: Vessel) -> "HullConstants":
-        g, w, d = vessel.geometry, vessel.windage, vessel.wave_drift
-        ((m11, _, _), (_, m22, m23), (_, m32, m33)) = vessel.mass_matrix()
-        return cls(
-            L=g.L_pp, m=vessel.mass, x_G=g.x_G, m11=m11, m22=m22, m23=m23, m32=m32, m33=m33,
-            det_vr=m22 * m33 - m23 * m32, q_force=0.5 * RHO_WATER * g.L_pp * g.d, hull=vessel.hull,
-            wind_x=0.5 * RHO_AIR * w.A_F * w.c_x, wind_y=0.5 * RHO_AIR * w.A_L * w.c_y,
-            wind_n=0.5 * RHO_AIR * w.A_L * g.L_oa * w.c_n, q_wave=0.5 * RHO_WATER * GRAVITY * g.L_pp,
-            drift_x=fourier_terms(d.a_x, d.b_x), drift_y=fourier_terms(d.a_y, d.b_y), drift_n=fourier_terms(d.a_n, d.b_n),
-        )
+        g = vessel.geometry
+        return cls(**_mass_constants(vessel), q_force=0.5 * RHO_WATER * g.L_pp * g.d, hull=vessel.hull)
+
+
+@dataclass(frozen=True)
+class SmallCraftConstants:
+    """Fossen's small-craft hull (vessel.SmallCraftHull) in SI units, with the mass matrix and cross-flow strips."""
+
+    L: float  # length (m)
+    m: float  # mass (kg)
+    x_G: float  # centre of gravity from midship, + forward (m)
+    m11: float  # M = M_RB + M_A about midship (kg, kg m, kg m^2)
+    m22: float
+    m23: float
+    m32: float
+    m33: float
+    det_vr: float  # m22 m33 - m23 m32 (kg^2 m^2)
+    munk: float  # Y_vdot - X_udot (kg): the added-mass yaw moment is munk u_r v_r (N m)
+    m33_rigid: float  # I_z + m x_G^2 (kg m^2): m33 = m33_rigid - N_rdot (the torch twin adds the fitted N_rdot)
+    small_craft: SmallCraftHull  # the derivatives (SI): the identifiable hull coefficients
+    half_rho_d: float  # 0.5 rho d (kg/m^2)
+    cross_flow: float  # half_rho_d C_d (kg/m^2): times the strip integral of |w| w (m^3/s^2) gives N
+    strip_x: tuple[float, ...]  # strip centres from midship (m), midpoint rule over [-L/2, L/2]
+    strip_dx: float  # strip width L / CROSS_FLOW_STRIPS (m)
+
+    @classmethod
+    def of(cls, vessel: Vessel) -> "SmallCraftConstants":
+        g, h = vessel.geometry, vessel.small_craft
+        dx = g.L_pp / CROSS_FLOW_STRIPS
+        half_rho_d = 0.5 * RHO_WATER * g.d
+        return cls(**_mass_constants(vessel), munk=h.Y_vdot - h.X_udot,
+                   m33_rigid=vessel.inertia_zz + vessel.mass * g.x_G**2, small_craft=h, half_rho_d=half_rho_d,
+                   cross_flow=half_rho_d * h.cross_flow_cd,
+                   strip_x=tuple(-0.5 * g.L_pp + (k + 0.5) * dx for k in range(CROSS_FLOW_STRIPS)), strip_dx=dx)
 
 
 @dataclass(frozen=True)
 class RudderPropellerConstants:
-    """The propeller, rudder and actuator constants of the rudder_propeller layout (see HullConstants).
+    """The propeller, rudder and actuator constants of the rudder layouts.
 
     The vessel file's propeller and rudder sections as they are (their fields become the attributes of the
     same names), plus what is derived from them in SI units.
@@ -146,32 +228,274 @@ class RudderPropellerConstants:
         )
 
 
-def constants_of(vessel: Vessel) -> dict[str, object]:
-    """Every constant of the vessel's equations of motion by name: HullConstants and its actuator constants,
-    with the vessel sections they carry (propeller, rudder; not the hull polynomial) opened into their fields."""
+@dataclass(frozen=True)
+class ThrottleConstants:
+    """The throttle of rudder_throttle: its thrust map and the propeller's static-thrust factor."""
+
+    throttle: ThrustMap  # static thrust (N) against the normalised throttle, with the motor lag
+    static_thrust: float  # rho D^4 K_T(0) (kg m): T0 = static_thrust n^2 for n in rev/s
+    rpm_per_rev_s: float  # 60 gear_ratio: engine rpm per propeller rev/s (rpm s)
+
+    @classmethod
+    def of(cls, vessel: Vessel) -> "ThrottleConstants":
+        p = vessel.propeller
+        return cls(throttle=vessel.throttle, static_thrust=RHO_WATER * p.D_P**4 * p.k0, rpm_per_rev_s=60.0 * p.gear_ratio)
+
+
+@dataclass(frozen=True)
+class TwinThrusterConstants:
+    """The two fixed thrusters of twin_thrusters (vessel.Thrusters)."""
+
+    half_spacing: float  # b/2: lever arm of each thrust about the centreline (m)
+    port: ThrustMap  # thrust (N) against the port command, with its motor lag
+    starboard: ThrustMap
+
+    @classmethod
+    def of(cls, vessel: Vessel) -> "TwinThrusterConstants":
+        t = vessel.thrusters
+        return cls(half_spacing=0.5 * t.spacing, port=t.port, starboard=t.starboard)
+
+
+OPENED = (Propeller, Rudder)  # records whose fields constants_of lists under their own names
+
+
+def constants_of(vessel: Vessel, records: tuple[type, ...] | None = None) -> dict[str, object]:
+    """Every constant of the vessel's equations of motion by name: the records of its hull model and of its
+    layout's force model and SeaConstants (or only `records`), with the vessel sections in OPENED (propeller,
+    rudder) opened into their fields. The hull coefficients stay one record under the hull model's section name
+    (`hull`, `small_craft`), thrust maps one record each."""
     out: dict[str, object] = {}
-    for record in (HullConstants.of(vessel), RudderPropellerConstants.of(vessel)):
+    for record_type in model_class(vessel).constants if records is None else records:
+        record = record_type.of(vessel)
         for f in fields(record):
             value = getattr(record, f.name)
-            if isinstance(value, (Propeller, Rudder)):
+            if isinstance(value, OPENED):
                 out.update({g.name: getattr(value, g.name) for g in fields(value)})
             else:
                 out[f.name] = value
     return out
 
 
-class ManoeuvringModel:
-    """The vessel's equations of motion, with every constant precomputed in SI units (constants_of)."""
+# ---- the float model ------------------------------------------------------------------------------------
 
-    def __init__(self, vessel: Vessel, propeller_side_force: float = 0.0) -> None:
+class ManoeuvringModel:
+    """The vessel's equations of motion, with every constant precomputed in SI units (constants_of).
+
+    ManoeuvringModel(vessel) is an instance of the class that combines the vessel's hull model (HULL_FORCES) and
+    its layout's force model (ACTUATOR_FORCES) with this base; see the module docstring for the equations.
+    """
+
+    constants: ClassVar[tuple[type, ...]] = ()  # the constants records of the combined class
+    munk: float = 0.0  # (kg) -C_A(nu_r) nu_r in yaw = munk u_r v_r: the small-craft hull's Munk moment (MMG: in N_v)
+
+    def __new__(cls, vessel: Vessel, *args: Any, **kwargs: Any) -> "ManoeuvringModel":
+        return super().__new__(model_class(vessel) if cls is ManoeuvringModel else cls)
+
+    def __init__(self, vessel: Vessel, propeller_side_force: float = 0.0, thrust_imbalance: float = 0.0) -> None:
         """propeller_side_force: transverse propeller force / thrust (-), + to starboard at the propeller
-        (the 'paddle-wheel' effect of a single screw, or a bent shaft); 0 for a symmetric propulsor."""
+        (the 'paddle-wheel' effect of a single screw, or a bent shaft); 0 for a symmetric propulsor.
+        thrust_imbalance: k (-), the port thruster delivers (1 + k), the starboard one (1 - k) of its map's thrust
+        (k > 0: the starboard side is weaker). Each acts only in the layouts that have the propulsor."""
         self.vessel = vessel
         self.propeller_side_force = float(propeller_side_force)
+        self.thrust_imbalance = float(thrust_imbalance)
         for name, value in constants_of(vessel).items():  # attributes: the float hot path reads self.<name>
             setattr(self, name, value)
 
+    def __reduce__(self) -> tuple:
+        """Pickled as the arguments that rebuild it (its class is made per hull model and layout)."""
+        return ManoeuvringModel, (self.vessel, self.propeller_side_force, self.thrust_imbalance)
+
+    def with_faults(self, propeller_side_force: float, thrust_imbalance: float) -> "ManoeuvringModel":
+        """This model, or one of the same vessel with these force faults."""
+        if (propeller_side_force, thrust_imbalance) == (self.propeller_side_force, self.thrust_imbalance):
+            return self
+        return ManoeuvringModel(self.vessel, propeller_side_force=propeller_side_force,
+                                thrust_imbalance=thrust_imbalance)
+
     # ---- forces -------------------------------------------------------------------------------------
+    def loads(self, u_r: float, v_r: float, r: float, psi: float, u: float, v: float,
+              a: float, b: float, sea: SeaLoads = CALM) -> Forces:
+        """All forces and moments at midship for relative (u_r, v_r) and over-ground (u, v) velocities and the
+        actuator levels (a, b) of the layout (delta rad and rpm for rudder_propeller)."""
+        steering, propulsion = self.actuator_loads(u_r, v_r, r, a, b)
+        wind, waves = self.environment_loads(psi, u, v, sea)
+        return Forces(self.hull_loads(u_r, v_r, r), steering, propulsion, wind, waves)
+
+    def environment_loads(self, psi: float, u: float, v: float, sea: SeaLoads
+                          ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """(wind, waves) loads at heading psi and over-ground velocity (u, v)."""
+        wind = (0.0, 0.0, 0.0)
+        if sea.wind_speed > 0.0:
+            # apparent wind over ground (seed 000 eq. 13-18); the still-air drag of the boat's own motion is
+            # part of the calm-water resistance (as in trial analysis, ITTC 7.5-04-01-01.1), so the load is
+            # the increment over still air: zero without wind, and a current alone still drifts the boat exactly
+            c, s = math.cos(psi), math.sin(psi)
+            w_n, w_e = -sea.wind_speed * math.cos(sea.wind_from), -sea.wind_speed * math.sin(sea.wind_from)
+            wind_now = self._air_load(u - (w_n * c + w_e * s), v - (-w_n * s + w_e * c))
+            still = self._air_load(u, v)
+            wind = (wind_now[0] - still[0], wind_now[1] - still[1], wind_now[2] - still[2])
+        waves = (0.0, 0.0, 0.0)
+        if sea.wave_amplitude > 0.0:
+            chi = sea.wave_from - psi  # 0 = head seas
+            qw = self.q_wave * sea.wave_amplitude**2
+            waves = (qw * fourier(self.drift_x, chi), qw * fourier(self.drift_y, chi),
+                     qw * self.L * fourier(self.drift_n, chi))
+        return wind, waves
+
+    def _air_load(self, u_rw: float, v_rw: float) -> tuple[float, float, float]:
+        """Air load for the apparent wind (u_rw, v_rw) in the body frame (seed 000 eq. 12-14)."""
+        v2 = u_rw * u_rw + v_rw * v_rw
+        gamma = -math.atan2(v_rw, u_rw)
+        return (-self.wind_x * v2 * math.cos(gamma), self.wind_y * v2 * math.sin(gamma),
+                self.wind_n * v2 * math.sin(2.0 * gamma))
+
+    # ---- equations of motion ------------------------------------------------------------------------
+    def accelerations(self, psi: float, u_r: float, v_r: float, r: float, a: float, b: float,
+                      sea: SeaLoads = CALM) -> tuple[float, float, float]:
+        """nu_r_dot = M^-1 (tau - C(nu_r) nu_r - M_RB R^T dV_c/dt) at the actuator levels (a, b)."""
+        c, s = math.cos(psi), math.sin(psi)
+        u = u_r + sea.current_n * c + sea.current_e * s
+        v = v_r - sea.current_n * s + sea.current_e * c
+        # the loads as in loads(), summed in Forces.total's order (without building the record: the hot path)
+        h = self.hull_loads(u_r, v_r, r)
+        st, pr = self.actuator_loads(u_r, v_r, r, a, b)
+        w, wv = self.environment_loads(psi, u, v, sea)
+        x = h[0] + st[0] + pr[0] + w[0] + wv[0]
+        y = h[1] + st[1] + pr[1] + w[1] + wv[1]
+        n = h[2] + st[2] + pr[2] + w[2] + wv[2]
+        m, x_g = self.m, self.x_G
+        # Coriolis and centripetal terms (MMG eq. 4; Fossen's C(nu) nu) and the hull model's own (Munk)
+        rhs_x = x + self.m22 * v_r * r + x_g * m * r * r
+        rhs_y = y - self.m11 * u_r * r
+        rhs_n = n - x_g * m * u_r * r
+        if self.munk:  # the small-craft hull's added-mass Coriolis yaw term (Munk moment); MMG has it in N_v
+            rhs_n += self.munk * u_r * v_r
+        if sea.current_accel_n or sea.current_accel_e:
+            # a turning current accelerates the water; the rigid body feels it (Fossen 2021 sec. 10.3)
+            a_u = sea.current_accel_n * c + sea.current_accel_e * s
+            a_v = -sea.current_accel_n * s + sea.current_accel_e * c
+            rhs_x -= m * a_u
+            rhs_y -= m * a_v
+            rhs_n -= m * x_g * a_v
+        u_dot = rhs_x / self.m11
+        v_dot = (self.m33 * rhs_y - self.m23 * rhs_n) / self.det_vr
+        r_dot = (self.m22 * rhs_n - self.m32 * rhs_y) / self.det_vr
+        return u_dot, v_dot, r_dot
+
+    def derivative(self, state: list[float], cmd_a: float, cmd_b: float, sea: SeaLoads) -> list[float]:
+        """d/dt of [x_n, y_e, psi, u_r, v_r, r, a, b] for the commands (cmd_a, cmd_b) of the layout's `commands`."""
+        _, _, psi, u_r, v_r, r, a, b = state
+        c, s = math.cos(psi), math.sin(psi)
+        u = u_r + sea.current_n * c + sea.current_e * s
+        v = v_r - sea.current_n * s + sea.current_e * c
+        u_dot, v_dot, r_dot = self.accelerations(psi, u_r, v_r, r, a, b, sea)
+        a_dot, b_dot = self.actuator_rates(a, b, cmd_a, cmd_b)
+        return [u * c - v * s, u * s + v * c, r, u_dot, v_dot, r_dot, a_dot, b_dot]
+
+    def straight_speed(self, command: float, tol: float = 1e-6) -> float:
+        """Steady straight-running speed through the water (m/s) where thrust balances resistance, for the
+        propulsion command of the layout (rpm; a normalised throttle; both thrusters' command); 0 when the
+        command does not drive the boat ahead."""
+        a, b = self.initial_actuators(command)
+        low, high = 0.0, 60.0
+        if self.accelerations(0.0, 1e-3, 0.0, 0.0, a, b)[0] <= 0.0:
+            return 0.0
+        while high - low > tol:
+            mid = 0.5 * (low + high)
+            if self.accelerations(0.0, mid, 0.0, 0.0, a, b)[0] > 0.0:
+                low = mid
+            else:
+                high = mid
+        return 0.5 * (low + high)
+
+    def initial_state(self, command: float, heading_rad: float) -> list[float]:
+        """Steady straight running at the propulsion command: [x_n, y_e, psi, u_r, v_r, r, a, b]."""
+        return [0.0, 0.0, heading_rad, self.straight_speed(command), 0.0, 0.0, *self.initial_actuators(command)]
+
+    def actuator_levels(self, states: Any, commands: Any) -> Any:
+        """(N, 2) actuator levels the forces act with, from the states and commands (N, 2): the states (a layout
+        with an instantaneous motor overrides it)."""
+        return states
+
+    # ---- supplied by the hull model and the actuator force model -----------------------------------------
+    def hull_loads(self, u_r: float, v_r: float, r: float) -> tuple[float, float, float]:
+        raise NotImplementedError
+
+    def resistance_coefficients(self) -> tuple[float, float]:
+        """(r1 (N s/m), r2 (N s^2/m^2)) of the straight-running resistance R(u) = r1 u + r2 u^2 of the hull."""
+        raise NotImplementedError
+
+    def actuator_loads(self, u_r: float, v_r: float, r: float, a: float, b: float
+                       ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        raise NotImplementedError
+
+    def actuator_rates(self, a: float, b: float, cmd_a: float, cmd_b: float) -> tuple[float, float]:
+        raise NotImplementedError
+
+    def initial_actuators(self, command: float) -> tuple[float, float]:
+        raise NotImplementedError
+
+
+# ---- hull models ----------------------------------------------------------------------------------------
+
+class MmgHullForces:
+    """The MMG hull polynomial (Yasukawa & Yoshimura 2015 eq. 5-8), regularised below SPEED_FLOOR."""
+
+    constants = (HullConstants,)
+
+    def hull_loads(self, u_r: float, v_r: float, r: float) -> tuple[float, float, float]:
+        h = self.hull
+        L = self.L
+        speed = math.sqrt(u_r * u_r + v_r * v_r)
+        U = max(speed, SPEED_FLOOR)
+        vp = v_r / U
+        rp = r * L / U
+        q = self.q_force * U * U
+        x_h = q * (-h.R0 * (u_r * abs(u_r) / (U * U)) + h.X_vv * vp * vp + h.X_vr * vp * rp + h.X_rr * rp * rp
+                   + h.X_vvvv * vp**4)
+        y_h = q * (h.Y_v * vp + h.Y_r * rp + h.Y_vvv * vp**3 + h.Y_vvr * vp * vp * rp + h.Y_vrr * vp * rp * rp
+                   + h.Y_rrr * rp**3)
+        n_h = q * L * (h.N_v * vp + h.N_r * rp + h.N_vvv * vp**3 + h.N_vvr * vp * vp * rp
+                       + h.N_vrr * vp * rp * rp + h.N_rrr * rp**3)
+        return x_h, y_h, n_h
+
+    def resistance_coefficients(self) -> tuple[float, float]:
+        return 0.0, self.q_force * self.hull.R0  # X_H = -0.5 rho L d R0 u^2 at v = r = 0
+
+
+class SmallCraftHullForces:
+    """Fossen's small-craft hull (vessel.SmallCraftHull): damping derivatives, cross-flow drag, Munk moment."""
+
+    constants = (SmallCraftConstants,)
+
+    def hull_loads(self, u_r: float, v_r: float, r: float) -> tuple[float, float, float]:
+        h = self.small_craft
+        y_cf = n_cf = 0.0
+        if self.cross_flow:
+            for x in self.strip_x:  # Fossen's crossFlowDrag: 0.5 rho d C_d |v + x r| (v + x r) per unit length
+                w = v_r + x * r
+                f = abs(w) * w
+                y_cf += f
+                n_cf += x * f
+            y_cf *= -self.cross_flow * self.strip_dx
+            n_cf *= -self.cross_flow * self.strip_dx
+        return ((h.X_u + h.X_uu * abs(u_r)) * u_r,
+                h.Y_v * v_r + h.Y_r * r + y_cf,
+                h.N_v * v_r + h.N_r * r + h.N_rr * abs(r) * r + n_cf)
+
+    def resistance_coefficients(self) -> tuple[float, float]:
+        h = self.small_craft
+        return -h.X_u, -h.X_uu
+
+
+# ---- actuator force models ------------------------------------------------------------------------------
+
+class RudderPropellerForces:
+    """MMG propeller (eq. 10-12) and rudder with slipstream (eq. 13-16, 37-43) from (delta rad, engine rpm)."""
+
+    constants = (RudderPropellerConstants,)
+
     def propeller(self, u_r: float, v_r: float, r: float, rpm: float) -> tuple[float, float, float, float]:
         """Returns (X_P (N), u_P inflow (m/s), K_T (-), n_P (rev/s)); MMG eq. 10-12 with w_P = w_P0 exp(-4 beta_P^2)."""
         speed = math.sqrt(u_r * u_r + v_r * v_r) + 1e-9
@@ -186,25 +510,10 @@ class ManoeuvringModel:
         thrust = RHO_WATER * n_p * n_p * self.D_P**4 * k_t
         return (1.0 - self.t_P) * thrust, u_p, k_t, n_p
 
-    def loads(self, u_r: float, v_r: float, r: float, psi: float, u: float, v: float,
-              delta: float, rpm: float, sea: SeaLoads = CALM) -> Forces:
-        """All forces and moments at midship for relative (u_r, v_r) and over-ground (u, v) velocities."""
-        h = self.hull
-        L = self.L
-        speed = math.sqrt(u_r * u_r + v_r * v_r)
-        U = max(speed, SPEED_FLOOR)
-        vp = v_r / U
-        rp = r * L / U
-        q = self.q_force * U * U
-        x_h = q * (-h.R0 * (u_r * abs(u_r) / (U * U)) + h.X_vv * vp * vp + h.X_vr * vp * rp + h.X_rr * rp * rp
-                   + h.X_vvvv * vp**4)
-        y_h = q * (h.Y_v * vp + h.Y_r * rp + h.Y_vvv * vp**3 + h.Y_vvr * vp * vp * rp + h.Y_vrr * vp * rp * rp
-                   + h.Y_rrr * rp**3)
-        n_h = q * L * (h.N_v * vp + h.N_r * rp + h.N_vvv * vp**3 + h.N_vvr * vp * vp * rp
-                       + h.N_vrr * vp * rp * rp + h.N_rrr * rp**3)
-
+    def actuator_loads(self, u_r: float, v_r: float, r: float, delta: float, rpm: float
+                       ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """(rudder, propeller) forces at the rudder angle delta (rad) and the engine speed rpm."""
         x_p, u_p, k_t, n_p = self.propeller(u_r, v_r, r, rpm)
-
         # rudder inflow with propeller slipstream (MMG eq. 38, written without the 1/J^2 singularity)
         slip = math.sqrt(u_p * u_p + 8.0 * max(k_t, 0.0) * n_p * n_p * self.D_P**2 / math.pi)
         u_rudder = self.epsilon * math.sqrt(
@@ -218,58 +527,8 @@ class ManoeuvringModel:
         x_r = -(1.0 - self.t_R) * f_n * math.sin(delta)
         y_r = -(1.0 + self.a_H) * f_n * math.cos(delta)
         n_r = -(self.x_R_m + self.a_H * self.x_H_m) * f_n * math.cos(delta)
-
-        wind = (0.0, 0.0, 0.0)
-        if sea.wind_speed > 0.0:
-            # apparent wind over ground (seed 000 eq. 13-18); the still-air drag of the boat's own motion is
-            # part of the calm-water resistance R0 (as in trial analysis, ITTC 7.5-04-01-01.1), so the load is
-            # the increment over still air: zero without wind, and a current alone still drifts the boat exactly
-            c, s = math.cos(psi), math.sin(psi)
-            w_n, w_e = -sea.wind_speed * math.cos(sea.wind_from), -sea.wind_speed * math.sin(sea.wind_from)
-            wind_now = self._air_load(u - (w_n * c + w_e * s), v - (-w_n * s + w_e * c))
-            still = self._air_load(u, v)
-            wind = (wind_now[0] - still[0], wind_now[1] - still[1], wind_now[2] - still[2])
-
-        waves = (0.0, 0.0, 0.0)
-        if sea.wave_amplitude > 0.0:
-            chi = sea.wave_from - psi  # 0 = head seas
-            qw = self.q_wave * sea.wave_amplitude**2
-            waves = (qw * fourier(self.drift_x, chi), qw * fourier(self.drift_y, chi),
-                     qw * L * fourier(self.drift_n, chi))
         y_p = self.propeller_side_force * x_p / (1.0 - self.t_P)  # share of the thrust, at the propeller
-        return Forces((x_h, y_h, n_h), (x_r, y_r, n_r), (x_p, y_p, y_p * self.x_P * L), wind, waves)
-
-    def _air_load(self, u_rw: float, v_rw: float) -> tuple[float, float, float]:
-        """Air load for the apparent wind (u_rw, v_rw) in the body frame (seed 000 eq. 12-14)."""
-        v2 = u_rw * u_rw + v_rw * v_rw
-        gamma = -math.atan2(v_rw, u_rw)
-        return (-self.wind_x * v2 * math.cos(gamma), self.wind_y * v2 * math.sin(gamma),
-                self.wind_n * v2 * math.sin(2.0 * gamma))
-
-    # ---- equations of motion ------------------------------------------------------------------------
-    def accelerations(self, psi: float, u_r: float, v_r: float, r: float, delta: float, rpm: float,
-                      sea: SeaLoads = CALM) -> tuple[float, float, float]:
-        """nu_r_dot = M^-1 (tau - C(nu_r) nu_r - M_RB R^T dV_c/dt)."""
-        c, s = math.cos(psi), math.sin(psi)
-        u = u_r + sea.current_n * c + sea.current_e * s
-        v = v_r - sea.current_n * s + sea.current_e * c
-        x, y, n = self.loads(u_r, v_r, r, psi, u, v, delta, rpm, sea).total()
-        m, x_g = self.m, self.x_G
-        # Coriolis and centripetal terms of MMG eq. 4 (Fossen's C(nu) nu)
-        rhs_x = x + self.m22 * v_r * r + x_g * m * r * r
-        rhs_y = y - self.m11 * u_r * r
-        rhs_n = n - x_g * m * u_r * r
-        if sea.current_accel_n or sea.current_accel_e:
-            # a turning current accelerates the water; the rigid body feels it (Fossen 2021 sec. 10.3)
-            a_u = sea.current_accel_n * c + sea.current_accel_e * s
-            a_v = -sea.current_accel_n * s + sea.current_accel_e * c
-            rhs_x -= m * a_u
-            rhs_y -= m * a_v
-            rhs_n -= m * x_g * a_v
-        u_dot = rhs_x / self.m11
-        v_dot = (self.m33 * rhs_y - self.m23 * rhs_n) / self.det_vr
-        r_dot = (self.m22 * rhs_n - self.m32 * rhs_y) / self.det_vr
-        return u_dot, v_dot, r_dot
+        return (x_r, y_r, n_r), (x_p, y_p, y_p * self.x_P * self.L)
 
     def actuator_rates(self, delta: float, rpm: float, delta_cmd: float, rpm_cmd: float) -> tuple[float, float]:
         """Steering gear: first-order servo with rate limit; engine: first-order lag."""
@@ -278,25 +537,120 @@ class ManoeuvringModel:
         delta_dot = min(max(delta_dot, -self.rudder_rate), self.rudder_rate)
         return delta_dot, (rpm_cmd - rpm) / self.t_engine
 
-    def derivative(self, state: list[float], delta_cmd: float, rpm_cmd: float, sea: SeaLoads) -> list[float]:
-        """d/dt of [x_n, y_e, psi, u_r, v_r, r, delta, rpm]."""
-        _, _, psi, u_r, v_r, r, delta, rpm = state
-        c, s = math.cos(psi), math.sin(psi)
-        u = u_r + sea.current_n * c + sea.current_e * s
-        v = v_r - sea.current_n * s + sea.current_e * c
-        u_dot, v_dot, r_dot = self.accelerations(psi, u_r, v_r, r, delta, rpm, sea)
-        delta_dot, rpm_dot = self.actuator_rates(delta, rpm, delta_cmd, rpm_cmd)
-        return [u * c - v * s, u * s + v * c, r, u_dot, v_dot, r_dot, delta_dot, rpm_dot]
+    def initial_actuators(self, command: float) -> tuple[float, float]:
+        return 0.0, command  # rudder amidships, the engine at the commanded speed
 
-    def straight_speed(self, rpm: float, tol: float = 1e-6) -> float:
-        """Steady straight-running speed through the water (m/s) where thrust balances resistance."""
-        low, high = 0.0, 60.0
-        if self.accelerations(0.0, 1e-3, 0.0, 0.0, 0.0, rpm)[0] <= 0.0:
+    def engine_speed_for(self, speed: float, resistance_change: float = 0.0) -> float:
+        """The engine speed (rpm) that holds `speed` (m/s, through the water) in straight running: the inverse of
+        straight_speed, in closed form. Straight (v = r = delta = 0): beta_P = 0, u_P = u (1 - w_P0), and
+        (1 - t_P) rho (k0 D^4 n^2 + k1 D^3 u_P n + k2 D^2 u_P^2) = (1 + resistance_change) (r1 u + r2 u^2),
+        a quadratic in n (rev/s) whose positive root is taken; 0 for speed <= 0."""
+        if speed <= 0.0:
             return 0.0
-        while high - low > tol:
-            mid = 0.5 * (low + high)
-            if self.accelerations(0.0, mid, 0.0, 0.0, 0.0, rpm)[0] > 0.0:
-                low = mid
-            else:
-                high = mid
-        return 0.5 * (low + high)
+        r1, r2 = self.resistance_coefficients()
+        u_p = speed * (1.0 - self.w_P0)
+        scale = (1.0 - self.t_P) * RHO_WATER
+        qa = scale * self.k0 * self.D_P**4
+        qb = scale * self.k1 * self.D_P**3 * u_p
+        qc = scale * self.k2 * self.D_P**2 * u_p * u_p - (1.0 + resistance_change) * (r1 * speed + r2 * speed * speed)
+        n = (-qb + math.sqrt(max(qb * qb - 4.0 * qa * qc, 0.0))) / (2.0 * qa)
+        return max(n, 0.0) * 60.0 * self.gear_ratio
+
+
+class RudderThrottleForces(RudderPropellerForces):
+    """The rudder-propeller forces at the engine speed of the thrust map's static thrust at the lagged throttle."""
+
+    constants = (RudderPropellerConstants, ThrottleConstants)
+
+    def engine_speed(self, level: float) -> float:
+        """Engine speed (rpm) whose static thrust rho n^2 D^4 K_T(0) is the throttle map's at `level` (0 astern)."""
+        thrust = self.throttle.thrust(level)
+        return math.sqrt(thrust / self.static_thrust) * self.rpm_per_rev_s if thrust > 0.0 else 0.0
+
+    def actuator_loads(self, u_r: float, v_r: float, r: float, delta: float, level: float
+                       ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        return RudderPropellerForces.actuator_loads(self, u_r, v_r, r, delta, self.engine_speed(level))
+
+    def actuator_rates(self, delta: float, level: float, delta_cmd: float, throttle_cmd: float) -> tuple[float, float]:
+        delta_dot, _ = RudderPropellerForces.actuator_rates(self, delta, 0.0, delta_cmd, 0.0)
+        lag = self.throttle.time_constant_s
+        return delta_dot, (throttle_cmd - level) / lag if lag > 0.0 else 0.0
+
+    def derivative(self, state: list[float], cmd_a: float, cmd_b: float, sea: SeaLoads) -> list[float]:
+        if self.throttle.time_constant_s > 0.0:
+            return ManoeuvringModel.derivative(self, state, cmd_a, cmd_b, sea)
+        return ManoeuvringModel.derivative(self, [*state[:7], cmd_b], cmd_a, cmd_b, sea)  # instantaneous motor
+
+    def actuator_levels(self, states: Any, commands: Any) -> Any:
+        if self.throttle.time_constant_s > 0.0:
+            return states
+        levels = states.copy()
+        levels[:, 1] = commands[:, 1]
+        return levels
+
+
+class TwinThrusterForces:
+    """Two fixed thrusters: X = T_p + T_s, N = (b/2)(T_p - T_s), each thrust its map's at the lagged command."""
+
+    constants = (TwinThrusterConstants,)
+
+    def thrusts(self, port: float, starboard: float) -> tuple[float, float]:
+        """(T_port, T_starboard) (N) at the levels, with the thrust imbalance k: (1 + k) port, (1 - k) starboard."""
+        k = self.thrust_imbalance
+        return (1.0 + k) * self.port.thrust(port), (1.0 - k) * self.starboard.thrust(starboard)
+
+    def actuator_loads(self, u_r: float, v_r: float, r: float, port: float, starboard: float
+                       ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """(steering, propulsion): the yaw moment of the thrust difference, the surge force of the sum."""
+        t_p, t_s = self.thrusts(port, starboard)
+        return (0.0, 0.0, self.half_spacing * (t_p - t_s)), (t_p + t_s, 0.0, 0.0)
+
+    def actuator_rates(self, port: float, starboard: float, cmd_p: float, cmd_s: float) -> tuple[float, float]:
+        lag_p, lag_s = self.port.time_constant_s, self.starboard.time_constant_s
+        return ((cmd_p - port) / lag_p if lag_p > 0.0 else 0.0), ((cmd_s - starboard) / lag_s if lag_s > 0.0 else 0.0)
+
+    def derivative(self, state: list[float], cmd_a: float, cmd_b: float, sea: SeaLoads) -> list[float]:
+        if self.port.time_constant_s > 0.0 and self.starboard.time_constant_s > 0.0:
+            return ManoeuvringModel.derivative(self, state, cmd_a, cmd_b, sea)
+        # an instantaneous motor (time constant 0, e.g. VRX's thrusters): its level is the command
+        port = state[6] if self.port.time_constant_s > 0.0 else cmd_a
+        starboard = state[7] if self.starboard.time_constant_s > 0.0 else cmd_b
+        return ManoeuvringModel.derivative(self, [*state[:6], port, starboard], cmd_a, cmd_b, sea)
+
+    def actuator_levels(self, states: Any, commands: Any) -> Any:
+        levels = states.copy()
+        for k, side in enumerate((self.port, self.starboard)):
+            if side.time_constant_s == 0.0:
+                levels[:, k] = commands[:, k]
+        return levels
+
+    def initial_actuators(self, command: float) -> tuple[float, float]:
+        return command, command  # both thrusters at the command
+
+
+HULL_FORCES: dict[str, type] = {  # hull model (physics/hulls.py) -> its equations
+    "mmg": MmgHullForces,
+    "small_craft": SmallCraftHullForces,
+}
+ACTUATOR_FORCES: dict[str, type] = {  # actuator layout (physics/actuators.py) -> its force model
+    "rudder_propeller": RudderPropellerForces,
+    "rudder_only": RudderPropellerForces,
+    "rudder_throttle": RudderThrottleForces,
+    "twin_thrusters": TwinThrusterForces,
+}
+_CLASSES: dict[tuple[str, str], type] = {}
+
+
+def model_class(vessel: Vessel) -> type:
+    """The ManoeuvringModel class of the vessel's hull model and layout (built once, cached)."""
+    key = (vessel.hull_model_name, vessel.layout)
+    if key not in _CLASSES:
+        try:
+            hull, forces = HULL_FORCES[key[0]], ACTUATOR_FORCES[key[1]]
+        except KeyError as err:
+            raise ConfigError(f"vessel {vessel.name}: no equations for {err.args[0]!r} in physics/dynamics.py "
+                              f"(hull models {sorted(HULL_FORCES)}, layouts {sorted(ACTUATOR_FORCES)})") from None
+        name = f"ManoeuvringModel[{key[0]}, {key[1]}]"
+        _CLASSES[key] = type(name, (forces, hull, ManoeuvringModel),
+                             {"constants": (*hull.constants, *forces.constants, SeaConstants), "__module__": __name__})
+    return _CLASSES[key]

@@ -12,7 +12,10 @@ An Effect holds
                   when it is a diagnosis hypothesis;
   readout         fitted terms (SI) -> the vocabulary (speeds, compass degrees, ...), their standard errors,
                   the terms a simulated truth implies (the inverse) and estimate-minus-truth errors;
-  tolerance       the acceptance suite's absolute error bounds, keyed like the readout's errors.
+  tolerance       the acceptance suite's absolute error bounds, keyed like the readout's errors;
+  layouts         the actuator layouts (physics/actuators.py) it applies to, None for all: a rudder offset needs
+                  a rudder, a thruster imbalance two thrusters. The simulator refuses an effect for a vessel it does
+                  not apply to; hypothesis_names(layout) and simulated(layout) give the applicable ones.
 
 The vocabulary (simulator parameters):
   current              current_speed (m/s), current_to_deg (flows TOWARD), current_turn_rate_deg_s
@@ -24,6 +27,8 @@ The vocabulary (simulator parameters):
   actuator_delay       actuator_delay_s (the hull responds this long after the reported rudder/rpm)
   resistance           (diagnosis only: a model error, not simulated)
   propeller_asymmetry  propeller_side_force_pct (transverse propeller force in % of thrust, + to starboard)
+  thruster_imbalance   thruster_imbalance_pct (k in %: port delivers (1 + k), starboard (1 - k) of its thrust map;
+                       + = the starboard side is weaker, the boat pulls to starboard at equal commands)
 plus `none`, the calm-water model, which is no record.
 
 Consumers never bind EFFECTS at import: they read `effects.EFFECTS` (or the functions below) when they run, and
@@ -304,6 +309,7 @@ class Effect:
     parameters: tuple[EffectParameter, ...] = ()  # `replay simulate` parameters; () = the simulator cannot make it
     tolerance: Mapping[str, float] = field(default_factory=dict)  # acceptance suite, absolute errors
     not_simulated: str = ""  # why the simulator has no such effect (required when parameters is empty)
+    layouts: tuple[str, ...] | None = None  # actuator layouts it applies to; None: every layout
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tolerance", MappingProxyType(dict(self.tolerance)))
@@ -313,6 +319,10 @@ class Effect:
     @property
     def simulated(self) -> bool:
         return bool(self.parameters)
+
+    def applies_to(self, layout: str | None) -> bool:
+        """Whether a boat of this actuator layout can have the effect (None: any layout)."""
+        return layout is None or self.layouts is None or layout in self.layouts
 
     def acts_on(self, target: type) -> bool:
         """Whether any of its parameters sets a field of `target` (e.g. Environment: it is part of the sea)."""
@@ -334,12 +344,17 @@ def sea_parameter(name: str, default: float, low: float, high: float, unit: str,
 
 
 def scalar_effect(name: str, help: str, term: Term, vocabulary: tuple[str, float], tolerance: float,
-                  parameter: EffectParameter | None = None, not_simulated: str = "") -> Effect:
+                  parameter: EffectParameter | None = None, not_simulated: str = "",
+                  layouts: tuple[str, ...] | None = None) -> Effect:
     """An effect of one scalar term read as one vocabulary value: vocabulary = (key, factor), see ScalarReadout."""
     key, factor = vocabulary
     readout = ScalarReadout(term.name, key, factor, None if parameter is None else parameter.name)
     return Effect(name, help, terms=(term,), readout=readout, parameters=() if parameter is None else (parameter,),
-                  tolerance={key: tolerance} if parameter is not None else {}, not_simulated=not_simulated)
+                  tolerance={key: tolerance} if parameter is not None else {}, not_simulated=not_simulated,
+                  layouts=layouts)
+
+
+RUDDER_LAYOUTS = ("rudder_propeller", "rudder_throttle", "rudder_only")  # a rudder behind an MMG propeller
 
 
 EFFECTS: Mapping[str, Effect] = _registry(
@@ -383,7 +398,7 @@ EFFECTS: Mapping[str, Effect] = _registry(
                   Term("rudder_offset", 1, 0.01, -0.2, 0.2, (0.0,), "rad"), ("offset_deg", RAD_TO_DEG), 0.5,  # (deg)
                   EffectParameter("rudder_offset_deg", 2.0, -10.0, 10.0, "deg", "true minus reported rudder",
                                   SimulatorField(ActuatorFaults, "rudder_offset_rad", "rad", multiply=DEG_TO_RAD),
-                                  Uniform(1.0, 4.0, random_sign=True))),
+                                  Uniform(1.0, 4.0, random_sign=True)), layouts=RUDDER_LAYOUTS),
     scalar_effect("yaw_rate_bias", "a gyro bias: the measured yaw rate is the true one plus a constant",
                   Term("yaw_rate_bias", 1, 0.002, -0.1, 0.1, (0.0,), "rad/s"), ("bias_deg_s", RAD_TO_DEG), 0.1,
                   EffectParameter("yaw_rate_bias_deg_s", 0.5, -5.0, 5.0, "deg/s", "gyro bias",  # tolerance (deg/s)
@@ -407,20 +422,28 @@ EFFECTS: Mapping[str, Effect] = _registry(
                   EffectParameter("propeller_side_force_pct", 3.0, -20.0, 20.0, "%",
                                   "transverse propeller force in % of thrust, + to starboard",
                                   SimulatorField(ActuatorFaults, "propeller_side_force", "-", divide=100.0),
-                                  Uniform(2.0, 6.0, random_sign=True))),
+                                  Uniform(2.0, 6.0, random_sign=True)), layouts=RUDDER_LAYOUTS),
+    scalar_effect("thruster_imbalance", "unequal thrusters: at equal commands the port thruster delivers (1 + k) and "
+                  "the starboard one (1 - k) of its thrust map (a fouled or worn propeller, a weak motor or ESC)",
+                  Term("thrust_imbalance", 1, 0.02, -0.5, 0.5, (0.0,), "-"),  # k
+                  ("imbalance_pct", 100.0), 1.5,  # tolerance (%)
+                  EffectParameter("thruster_imbalance_pct", 10.0, -50.0, 50.0, "%",
+                                  "thrust imbalance k in %: + = the starboard thruster is weaker",
+                                  SimulatorField(ActuatorFaults, "thruster_imbalance", "-", divide=100.0),
+                                  Uniform(5.0, 15.0, random_sign=True)), layouts=("twin_thrusters",)),
 )
 
 
 # ---- what consumers derive -------------------------------------------------------------------------------
 
-def hypothesis_names() -> tuple[str, ...]:
-    """The diagnosis vocabulary: none, then every effect in registry order."""
-    return (NONE, *EFFECTS)
+def hypothesis_names(layout: str | None = None) -> tuple[str, ...]:
+    """The diagnosis vocabulary: none, then every effect in registry order (only those that apply to `layout`)."""
+    return (NONE, *(name for name, effect in EFFECTS.items() if effect.applies_to(layout)))
 
 
-def simulated() -> dict[str, Effect]:
-    """The effects the simulator can make, in registry order."""
-    return {name: effect for name, effect in EFFECTS.items() if effect.simulated}
+def simulated(layout: str | None = None) -> dict[str, Effect]:
+    """The effects the simulator can make, in registry order (only those that apply to `layout`)."""
+    return {name: effect for name, effect in EFFECTS.items() if effect.simulated and effect.applies_to(layout)}
 
 
 def grey_box_terms() -> dict[str, Term]:

@@ -7,16 +7,19 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
 from typing import Mapping, TypeVar
 
 from usv_predictor.config import Range
 from usv_predictor.errors import ConfigError
 from usv_predictor.physics import effects as fx
+from usv_predictor.physics.actuators import ActuatorLayout
 from usv_predictor.physics.effects import EffectParameter
 from usv_predictor.physics.environment import Environment
 from usv_predictor.physics.sensors import SensorSpec
 from usv_predictor.physics.simulator import ActuatorFaults
+from usv_predictor.physics.vessel import load_vessel
 
 __all__ = ["EFFECTS", "RIZHAO_SEA", "EffectParameter", "Scenario", "effect_parameters", "make_scenario"]
 
@@ -72,8 +75,9 @@ class Scenario:
         return replace(self, effects={k: v for k, v in self.effects.items() if k not in sea})
 
     def describe(self) -> dict:
+        """Vessel, effects and the sensor parameters that shape a recording of this vessel (SensorSpec.describe)."""
         return {"vessel": self.vessel, "effects": {k: dict(v) for k, v in self.effects.items()},
-                "sensors": asdict(self.sensors)}
+                "sensors": self.sensors.describe(layout_of(self.vessel))}
 
     def digest(self) -> str:
         """SHA-256 of the description: lets a blind bag prove what made it without saying it."""
@@ -94,6 +98,19 @@ def effect_parameters(name: str, given: Mapping[str, float]) -> dict[str, float]
     return values
 
 
+@lru_cache(maxsize=32)
+def layout_of(vessel: str) -> ActuatorLayout:
+    """The actuator layout of a vessel preset (name or YAML path)."""
+    return load_vessel(vessel).actuator_layout
+
+
 def make_scenario(vessel: str, effects: Mapping[str, Mapping[str, float]], sensors: SensorSpec | None = None) -> Scenario:
+    """A checked scenario: every effect known, applicable to the vessel's actuator layout, its parameters in range."""
+    layout = layout_of(vessel)
+    for name in effects:
+        effect = fx.EFFECTS.get(name)
+        if effect is not None and not effect.applies_to(layout.name):
+            raise ConfigError(f"effect {name!r} does not apply to vessel {vessel} (actuator layout {layout.name}); "
+                              f"it applies to {', '.join(effect.layouts or ())}")
     checked = {name: effect_parameters(name, params) for name, params in effects.items() if name != fx.NONE}
     return Scenario(vessel=vessel, effects=checked, sensors=sensors or SensorSpec())

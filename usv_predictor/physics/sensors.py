@@ -7,14 +7,17 @@ Environment's JONSWAP components with the encounter frequency of the moving, tur
 
 Outputs are Signals in the roles of msg_adapters.ROLE_FIELDS (marine frames, SI):
   imu (yaw_rate, accel_x, accel_y, accel_z, heading=NaN: no orientation, REP-145), velocity (u, v, r),
-  heading (psi), rudder_angle (delta), engine_rpm (rpm), gnss (lat, lon, alt), odometry (ground truth).
+  heading (psi), the controls of the vessel's actuator layout (rudder_angle (delta) and engine_rpm (rpm) of a
+  rudder_propeller boat, thruster_port and thruster_starboard (command) of twin thrusters, ...: a control of
+  source "state" reports the true actuator level, one of source "command" the command sent, each with the noise
+  and resolution fields its Control record names), gnss (lat, lon, alt), odometry (ground truth).
 Values are quantised to each sensor's resolution (a power of two, like an ADC's LSB) which also makes
 the bags compress well.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any, Mapping
 
 import numpy as np
@@ -22,6 +25,7 @@ import numpy as np
 from usv_predictor.config import Range
 from usv_predictor.errors import ConfigError
 from usv_predictor.frames import LocalTangentPlane, wrap_angle
+from usv_predictor.physics.actuators import ACTUATOR_LAYOUTS, ActuatorLayout, actuator_layout
 from usv_predictor.physics.environment import Environment, wave_components
 from usv_predictor.physics.simulator import ActuatorFaults, Trajectory
 from usv_predictor.physics.vessel import GRAVITY
@@ -53,6 +57,8 @@ class SensorSpec:
     rudder_lsb: float = 2.0**-12  # rudder feedback resolution (rad)
     rpm_noise_std: float = 2.0  # engine speed noise (rpm)
     rpm_lsb: float = 0.25  # engine speed resolution (rpm)
+    command_noise_std: float = 0.0  # noise on a logged normalised command (-): a log holds what was sent
+    command_lsb: float = 2.0**-9  # resolution of a normalised command (-): ~1 us of a 1000-2000 us PWM
     actuator_delay_s: float = 0.0  # the hull responds this long after the reported actuator values (s)
     gnss_noise_std: float = 0.3  # horizontal position noise per axis (m)
     gnss_lsb_deg: float = 2.0**-26  # latitude/longitude resolution (deg), ~1.7 mm
@@ -76,6 +82,13 @@ class SensorSpec:
         """Same rates, biases and offsets, no random noise and no quantisation."""
         zero = {f.name: 0.0 for f in fields(self) if f.name.endswith("_std") or "lsb" in f.name}
         return replace(self, **zero)
+
+    def describe(self, layout: ActuatorLayout) -> dict[str, float]:
+        """The parameters that shape a recording of a boat of this layout: all but the noise and resolution of
+        other layouts' controls (a rudder boat's recording says nothing of thruster commands)."""
+        others = {name for other in ACTUATOR_LAYOUTS.values() for c in other.controls for name in (c.noise, c.resolution)}
+        own = {name for c in layout.controls for name in (c.noise, c.resolution)}
+        return {k: v for k, v in asdict(self).items() if k not in others - own}
 
     @classmethod
     def from_mapping(cls, raw: Mapping[str, Any], source: str = "<sensors>") -> "SensorSpec":
@@ -104,6 +117,12 @@ def _at(traj: Trajectory, t_ns: np.ndarray, values: np.ndarray) -> np.ndarray:
     if values.ndim == 1:
         return np.interp(t, tt, values)
     return np.column_stack([np.interp(t, tt, values[:, k]) for k in range(values.shape[1])])
+
+
+def _hold(traj: Trajectory, t_ns: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Zero-order hold of (N,) values onto t_ns (a command holds until the next one; clamped at the ends)."""
+    index = np.searchsorted(traj.t_ns, t_ns, side="right") - 1
+    return values[np.clip(index, 0, len(values) - 1)]
 
 
 @dataclass(frozen=True)
@@ -164,8 +183,11 @@ def measure(traj: Trajectory, env: Environment, spec: SensorSpec = SensorSpec(),
             faults: ActuatorFaults = ActuatorFaults(), seed: int = 0) -> dict[str, Signal]:
     """All sensor signals of one run, keyed by role (plus 'odometry' = ground truth).
 
-    The rudder feedback reports what the crew believes: the true angle minus faults.rudder_offset_rad.
+    The controls are those of the trajectory's actuator layout. A feedback reports what the crew believes: the
+    true level minus the fault's offset of that actuator (the rudder offset); a command log reports the command
+    as sent.
     """
+    layout = actuator_layout(traj.layout)
     rng = np.random.default_rng(seed)
     waves = wave_motion(traj, env, spec, rng)
     u = traj.nu[:, 0] + waves.u
@@ -201,13 +223,20 @@ def measure(traj: Trajectory, env: Environment, spec: SensorSpec = SensorSpec(),
     lsb = math.radians(spec.heading_lsb_deg)
     out["heading"] = Signal(t, wrap_angle(_quantise(psi, lsb))[:, None], ("psi",))
 
-    # Actuator feedback leads the hull's response by actuator_delay_s (sampled that much later in truth).
+    # Actuator feedback and command logs lead the hull's response by actuator_delay_s (sampled that much later
+    # in truth), in the layout's control order (the random numbers come in that order).
     t = _grid(traj, spec.actuator_rate_hz)
     t_true = t + int(round(spec.actuator_delay_s * NS_PER_S))
-    rudder = _at(traj, t_true, traj.rudder) - faults.rudder_offset_rad + rng.normal(0, spec.rudder_noise_std, len(t))
-    out["rudder_angle"] = Signal(t, _quantise(rudder, spec.rudder_lsb)[:, None], ("delta",))
-    rpm = _at(traj, t_true, traj.rpm) + rng.normal(0, spec.rpm_noise_std, len(t))
-    out["engine_rpm"] = Signal(t, _quantise(rpm, spec.rpm_lsb)[:, None], ("rpm",))
+    columns: dict[str, list[np.ndarray]] = {}
+    for control in layout.controls:
+        if control.source == "state":
+            value = _at(traj, t_true, traj.actuator(control.name)) - faults.offset(control.name)
+        else:
+            value = _hold(traj, t_true, traj.command(control.name))
+        value = value + rng.normal(0, getattr(spec, control.noise), len(t))
+        columns.setdefault(control.role, []).append(_quantise(value, getattr(spec, control.resolution)))
+    for role, values in columns.items():
+        out[role] = Signal(t, np.column_stack(values), layout.fields_of(role))
 
     t = _grid(traj, spec.gnss_rate_hz)
     plane = LocalTangentPlane(spec.datum_lat_deg, spec.datum_lon_deg)

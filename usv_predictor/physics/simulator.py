@@ -5,8 +5,13 @@ controller). Between steps the solution is reconstructed with cubic Hermite inte
 and derivatives at the step ends (4th-order accurate, as RK4 itself), so sensors can sample at 100 Hz while
 the integrator takes 0.05 s steps: ship dynamics have time constants of seconds.
 
+The autopilot returns a turn command and a propulsion command in the layout's steering and propulsion units
+(physics/actuators.py); the layout's command_map turns them into the boat's commands (rudder layouts: the rudder
+angle and the engine speed or throttle; twin thrusters: port = p + d/2, starboard = p - d/2).
+
 Output Trajectory (marine convention, SI): eta = [x_n, y_e, psi], nu = [u, v, r] over ground (body FRD),
-nu_dot its time derivative, nu_r the velocity through the water, plus true actuator states.
+nu_dot its time derivative, nu_r the velocity through the water, plus the true actuator levels and the commands
+(named by the layout's `commands`).
 """
 from __future__ import annotations
 
@@ -33,10 +38,11 @@ class Manoeuvre(Protocol):
 
     name: str
     duration_s: float
-    rpm: float  # engine speed of the straight approach (rpm)
+    propulsion: float  # propulsion command of the straight approach (the layout's propulsion unit: rpm, -)
 
     def controller(self) -> Controller:
-        """f(t_s, psi_unwrapped_rad, r) -> (rudder command (rad), engine command (rpm))."""
+        """f(t_s, psi_unwrapped_rad, r) -> (turn command, propulsion command) in the layout's steering and
+        propulsion units (rudder layouts: rudder rad and rpm or throttle; twin thrusters: differential, mean)."""
 
 
 @dataclass(frozen=True)
@@ -45,6 +51,11 @@ class ActuatorFaults:
 
     rudder_offset_rad: float = 0.0  # true rudder = reported rudder + offset (mechanical misalignment)
     propeller_side_force: float = 0.0  # transverse propeller force / thrust (-), + to starboard (propeller walk)
+    thruster_imbalance: float = 0.0  # k (-): port delivers (1 + k), starboard (1 - k) of its map; + = starboard weaker
+
+    def offset(self, command: str) -> float:
+        """What the actuator adds to the command named `command` (the rudder offset to the rudder angle)."""
+        return self.rudder_offset_rad if command == "delta" else 0.0
 
 
 @dataclass(frozen=True)
@@ -54,10 +65,10 @@ class Trajectory:
     nu: np.ndarray  # (N, 3) u, v (m/s) over ground, r (rad/s)
     nu_dot: np.ndarray  # (N, 3) du/dt, dv/dt (m/s^2), dr/dt (rad/s^2)
     nu_r: np.ndarray  # (N, 3) velocity relative to the water
-    rudder: np.ndarray  # (N,) true rudder angle (rad)
-    rpm: np.ndarray  # (N,) true engine speed (rpm)
-    rudder_cmd: np.ndarray  # (N,) rudder command (rad), as the autopilot sent it
-    rpm_cmd: np.ndarray  # (N,) engine command (rpm)
+    actuators: np.ndarray  # (N, 2) true actuator levels, named by `names` (delta rad, rpm; port, starboard -)
+    commands: np.ndarray  # (N, 2) the commands, as the autopilot sent them (zero-order hold)
+    names: tuple[str, ...]  # the layout's commands: names of the columns of actuators and commands
+    layout: str  # the vessel's actuator layout (physics/actuators.py): which controls its sensors report
     psi_unwrapped: np.ndarray  # (N,) continuous heading (rad)
     info: dict = field(default_factory=dict)
 
@@ -65,10 +76,29 @@ class Trajectory:
     def t_s(self) -> np.ndarray:
         return (self.t_ns - self.t_ns[0]) / NS_PER_S
 
+    def actuator(self, name: str) -> np.ndarray:
+        """(N,) true level of the actuator `name` (ConfigError naming the layout's otherwise)."""
+        return self.actuators[:, self._column(name)]
 
-def initial_state(model: ManoeuvringModel, rpm: float, heading_rad: float) -> list[float]:
-    """Steady straight running at `rpm` through the water: [x_n, y_e, psi, u_r, v_r, r, delta, rpm]."""
-    return [0.0, 0.0, heading_rad, model.straight_speed(rpm), 0.0, 0.0, 0.0, rpm]
+    def command(self, name: str) -> np.ndarray:
+        """(N,) the command `name` as sent."""
+        return self.commands[:, self._column(name)]
+
+    def _column(self, name: str) -> int:
+        if name not in self.names:
+            raise ConfigError(f"the trajectory's actuators are {self.names}, not {name!r}")
+        return self.names.index(name)
+
+    # the rudder layouts' columns by their names
+    rudder = property(lambda self: self.actuator("delta"), doc="(N,) true rudder angle (rad)")
+    rpm = property(lambda self: self.actuator("rpm"), doc="(N,) true engine speed (rpm)")
+    rudder_cmd = property(lambda self: self.command("delta"), doc="(N,) rudder command (rad)")
+    rpm_cmd = property(lambda self: self.command("rpm"), doc="(N,) engine command (rpm)")
+
+
+def initial_state(model: ManoeuvringModel, command: float, heading_rad: float) -> list[float]:
+    """Steady straight running at the propulsion command through the water: [x_n, y_e, psi, u_r, v_r, r, a, b]."""
+    return model.initial_state(command, heading_rad)
 
 
 def sea_loads(env: Environment, t_s: np.ndarray, wind_speed: np.ndarray) -> list[SeaLoads]:
@@ -96,26 +126,28 @@ def simulate(model: ManoeuvringModel, manoeuvre: Manoeuvre, env: Environment | N
     # The sea is held over each step (gusts and a turning current vary over tens of seconds).
     sea = sea_loads(env, t_nodes, gust_series(env, t_nodes, rng))
 
-    x = initial_state(model, manoeuvre.rpm, math.radians(heading_deg))
+    model = model.with_faults(faults.propeller_side_force, faults.thruster_imbalance)
+    layout = model.vessel.actuator_layout
+    x = initial_state(model, manoeuvre.propulsion, math.radians(heading_deg))
     states, derivs, commands = [], [], []
-    offset = faults.rudder_offset_rad
-    if faults.propeller_side_force != model.propeller_side_force:
-        model = ManoeuvringModel(model.vessel, propeller_side_force=faults.propeller_side_force)
+    offset_a, offset_b = (faults.offset(name) for name in layout.commands)
+    to_commands = layout.to_commands
     f = model.derivative
     command = manoeuvre.controller()
     for i in range(steps + 1):
         t = i * dt
-        delta_cmd, rpm_cmd = command(t, x[2], x[5])
-        k1 = f(x, delta_cmd + offset, rpm_cmd, sea[i])
+        cmd_a, cmd_b = to_commands(*command(t, x[2], x[5]))
+        true_a, true_b = cmd_a + offset_a, cmd_b + offset_b  # what the actuators are driven to
+        k1 = f(x, true_a, true_b, sea[i])
         states.append(x)
         derivs.append(k1)
-        commands.append((delta_cmd, rpm_cmd))
+        commands.append((cmd_a, cmd_b))
         if i == steps:
             break
         h2 = 0.5 * dt
-        k2 = f([a + h2 * b for a, b in zip(x, k1)], delta_cmd + offset, rpm_cmd, sea[i])
-        k3 = f([a + h2 * b for a, b in zip(x, k2)], delta_cmd + offset, rpm_cmd, sea[i])
-        k4 = f([a + dt * b for a, b in zip(x, k3)], delta_cmd + offset, rpm_cmd, sea[i])
+        k2 = f([a + h2 * b for a, b in zip(x, k1)], true_a, true_b, sea[i])
+        k3 = f([a + h2 * b for a, b in zip(x, k2)], true_a, true_b, sea[i])
+        k4 = f([a + dt * b for a, b in zip(x, k3)], true_a, true_b, sea[i])
         h6 = dt / 6.0
         x = [a + h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4) for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4)]
         if not all(map(math.isfinite, x)):
@@ -167,6 +199,6 @@ def _dense_output(model, env, states, derivs, commands, dt, rate_hz, duration_s,
         t_ns=t_out_ns + start_ns,
         eta=np.column_stack([x[:, 0], x[:, 1], wrap_angle(psi)]),
         nu=nu, nu_dot=nu_dot, nu_r=nu_r.copy(),
-        rudder=x[:, 6], rpm=x[:, 7], rudder_cmd=cmd[:, 0], rpm_cmd=cmd[:, 1],
-        psi_unwrapped=psi, info={},
+        actuators=model.actuator_levels(x[:, 6:8], cmd), commands=cmd, names=model.vessel.actuator_layout.commands,
+        layout=model.vessel.layout, psi_unwrapped=psi, info={},
     )

@@ -18,7 +18,7 @@ def diagnose_bags(bags: Sequence[Path], *, vessel: str | None = None, model: Pat
 
     calm_water, source = calm_water_vessel(vessel, model, config)
     recordings = load_recordings(bags, dt, config_path=config, include_calm=include_calm, horizon_s=horizon_s,
-                                 progress=progress)
+                                 progress=progress, layout=calm_water.actuator_layout)
     return run_diagnosis(recordings, calm_water, source, dt=dt, hypotheses=hypotheses, max_causes=max_causes,
                          horizon_s=horizon_s, stride_s=stride_s, gain=gain, export=export, report=report,
                          progress=progress)

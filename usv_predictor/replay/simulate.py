@@ -1,7 +1,8 @@
 """Simulated trials as rosbag2 recordings: what `replay simulate` does, from a typed SimulationRequest.
 
-One bag per manoeuvre, named after it, with the default topics of config/predictor.yaml plus the ground
-truth (`ground_truth/odometry`, never used for fitting). The bag's custom_data records how it was made
+One bag per manoeuvre, named after it, with the default topics of config/predictor.yaml that the vessel's actuator
+layout reports (rudder_angle and engine_rpm of a rudder_propeller boat, thruster_port and thruster_starboard of twin
+thrusters, ...) plus the ground truth (`ground_truth/odometry`, never used for fitting). The bag's custom_data records how it was made
 (command, vessel, scenario, seed, software version), or with `blind` only a SHA-256 digest of the scenario so
 that a tool under test cannot read the answer from it. A trial day starts at EPOCH_NS; the manoeuvres of a
 programme follow each other GAP_S apart in time and SPACING_M apart in place, with the approach heading
@@ -27,6 +28,7 @@ if TYPE_CHECKING:
 
 KINDS = ("turning-circle", "zigzag", "pullout", "spiral", "random")
 SEAS = ("calm", "rizhao")  # calm water, or the seed 000 trial sea (current + wind + waves)
+MIN_DT_S, MAX_DT_S = 0.001, 0.2  # s: the integration steps `replay simulate` accepts (RK4 is stable below 0.2 s)
 SIDES = ("starboard", "port")
 STORAGES = ("sqlite3", "mcap")
 EPOCH_NS = 1_622_527_200 * NS_PER_S  # 2021-06-01 06:00 UTC: the simulated trial day starts here
@@ -35,18 +37,26 @@ SPACING_M = 400.0  # distance between the start points of consecutive manoeuvres
 HEADING_STEP_DEG = 37.0  # the approach heading turns this much from one manoeuvre of a programme to the next (deg)
 
 
+# The command options of `replay simulate` (the layouts' CommandInput records) -> the SimulationRequest field.
+OPTION_FIELDS = {"--rudder": "rudder_deg", "--rpm": "rpm", "--differential": "differential", "--throttle": "throttle"}
+
+
 @dataclass(frozen=True)
 class SimulationRequest:
     """What to simulate and where to write it. Values the vessel does not bound are checked here (ConfigError);
-    rudder and rpm against the vessel's limits when the manoeuvres are built (`manoeuvres`)."""
+    the turn and propulsion commands against the vessel's layout and limits when the manoeuvres are built
+    (`manoeuvres`): a rudder layout takes --rudder and --rpm (or --throttle for rudder_throttle), twin thrusters
+    --differential and --throttle; None is the layout input's default."""
 
     output: Path  # directory for the bags
     vessel: str = "jari_usv"  # vessel preset in config/vessels
     programme: str | None = None  # a trial programme of usv_predictor.physics.manoeuvres.PROGRAMMES ...
     manoeuvre: str | None = None  # ... or one manoeuvre of KINDS (neither: a turning circle)
-    rudder_deg: float = 20.0  # rudder angle (deg)
-    check_deg: float | None = None  # zig-zag check angle (deg; None: rudder_deg)
-    rpm: float = 650.0  # engine speed (rpm)
+    rudder_deg: float | None = None  # rudder angle (deg; None: 20)
+    check_deg: float | None = None  # zig-zag check angle (deg; None: the rudder angle, or 20 for a differential)
+    rpm: float | None = None  # engine speed (rpm; None: 650)
+    differential: float | None = None  # twin thrusters: port - starboard normalised command (-; None: 0.4)
+    throttle: float | None = None  # normalised propulsion command (-; None: 0.6)
     side: str = "starboard"  # first rudder to
     duration_s: float | None = None  # (s; None: the manoeuvre's default)
     heading_deg: float = 0.0  # initial heading (deg clockwise from north)
@@ -71,6 +81,8 @@ class SimulationRequest:
                                      ("--storage", self.storage, STORAGES)):
             if value not in allowed:
                 raise ConfigError(f"{name} {value!r}: expected one of {', '.join(allowed)}")
+        if not MIN_DT_S <= self.dt <= MAX_DT_S:  # below: an astronomical number of steps; above: unstable RK4
+            raise ConfigError(f"--dt {self.dt:g} s is outside [{MIN_DT_S:g}, {MAX_DT_S:g}] s")
         if self.duration_s is not None and not 1.0 <= self.duration_s <= 3600.0:
             raise ConfigError(f"--duration {self.duration_s:g} s is outside [1, 3600] s")
         if not self.programme and self.manoeuvre == "zigzag" and not 0.0 < self.check_angle_deg <= 90.0:
@@ -78,38 +90,64 @@ class SimulationRequest:
 
     @property
     def check_angle_deg(self) -> float:
-        return self.rudder_deg if self.check_deg is None else self.check_deg
+        if self.check_deg is not None:
+            return self.check_deg
+        return self.rudder_deg if self.rudder_deg is not None else 20.0
+
+    def command_value(self, option: str, default: float) -> float:
+        value = getattr(self, OPTION_FIELDS[option])
+        return default if value is None else float(value)
+
+
+def _commands(request: SimulationRequest, vessel: Vessel) -> tuple[float, float]:
+    """The request's (turn, propulsion) in the units of the vessel's layout inputs, checked against its limits;
+    an option of another layout is refused naming the vessel's layout."""
+    layout = vessel.actuator_layout
+    inputs = (layout.turn_input, layout.propulsion_input)
+    if None in inputs:
+        raise ConfigError(f"vessel {vessel.name}: actuator layout {layout.name} cannot be simulated")
+    own = {i.option for i in inputs}
+    given = [option for option, name in OPTION_FIELDS.items() if getattr(request, name) is not None and option not in own]
+    if given:
+        raise ConfigError(f"{' '.join(given)} does not apply to vessel {vessel.name} (actuator layout {layout.name}); "
+                          f"it takes {' and '.join(i.option for i in inputs)}")
+    values = []
+    for i in inputs:
+        value = request.command_value(i.option, i.default)
+        low, high, closed = i.limits(vessel)
+        if not ((low <= value) if closed else (low < value)) or value > high:
+            shown = f" {i.unit}" if i.unit == "deg" else ""  # an angle says its unit next to the value
+            unit = f" {i.unit}" if i.unit != "-" else ""
+            raise ConfigError(f"{i.option} {value:g}{shown} is outside {i.limited_by} {'[' if closed else '('}"
+                              f"{low:g}, {high:g}]{unit}")
+        values.append(value)
+    return values[0], values[1]
 
 
 def manoeuvres(request: SimulationRequest, vessel: Vessel) -> list:
-    """The manoeuvres of the request: its programme, or its one manoeuvre within the vessel's rudder and rpm."""
+    """The manoeuvres of the request: its programme, or its one manoeuvre within the vessel's limits, stated in the
+    units of the vessel's layout (physics/manoeuvres.py: a rudder and rpm, or the layout's own commands)."""
     from usv_predictor.physics import manoeuvres as mv
 
-    limit = vessel.actuators.rudder_max_deg
-    if not 0.0 <= request.rudder_deg <= limit:
-        raise ConfigError(f"--rudder {request.rudder_deg:g} deg is outside the preset's range [0, {limit:g}] deg")
-    a = vessel.actuators
-    if not a.rpm_min <= request.rpm <= a.rpm_max or request.rpm <= 0.0:
-        raise ConfigError(f"--rpm {request.rpm:g} is outside the preset's range ({max(a.rpm_min, 0):g}, "
-                          f"{a.rpm_max:g}] rpm")
+    layout = vessel.actuator_layout
+    turn, propulsion = _commands(request, vessel)
     if request.programme:
         if request.programme not in mv.PROGRAMMES:
             raise ConfigError(f"--programme {request.programme!r}: expected one of {', '.join(sorted(mv.PROGRAMMES))}")
-        return mv.PROGRAMMES[request.programme]()
+        return mv.programme(request.programme, layout)
     side = 1 if request.side == "starboard" else -1
-    rudder, rpm = request.rudder_deg, request.rpm
     extra = {} if request.duration_s is None else {"duration_s": request.duration_s}
     kind = request.manoeuvre or "turning-circle"
     if kind == "turning-circle":
-        return [mv.TurningCircle(rudder, rpm, side=side, **extra)]
+        return [mv.turning_circle(layout, turn, propulsion, side=side, **extra)]
     if kind == "zigzag":
-        return [mv.ZigZag(rudder, request.check_angle_deg, rpm, side=side, **extra)]
+        return [mv.zigzag(layout, turn, request.check_angle_deg, propulsion, side=side, **extra)]
     if kind == "pullout":
-        return [mv.PullOut(rudder, rpm, side=side, **extra)]
+        return [mv.pullout(layout, turn, propulsion, side=side, **extra)]
     if kind == "spiral":
-        steps = (rudder, 0.6 * rudder, 0.3 * rudder, 0.15 * rudder, 0.0)
-        return [mv.Spiral(rudder_steps_deg=steps + tuple(-d for d in reversed(steps[:-1])), rpm=rpm)]
-    return [mv.RandomManoeuvre(seed=request.seed, rpm=rpm, rudder_max_deg=rudder, **extra)]
+        steps = (turn, 0.6 * turn, 0.3 * turn, 0.15 * turn, 0.0)
+        return [mv.spiral(layout, steps + tuple(-d for d in reversed(steps[:-1])), propulsion)]
+    return [mv.random_manoeuvre(layout, request.seed, propulsion, turn, **extra)]
 
 
 def scenario_effects(sea: str, effects: Mapping[str, Mapping[str, float]]) -> dict[str, dict[str, float]]:
