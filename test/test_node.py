@@ -20,15 +20,7 @@ from usv_predictor.config import package_share_path
 from usv_predictor.errors import ModelError
 from usv_predictor.node import node as predictor_node
 
-from ros_helpers import (  # noqa: F401 (ros_context is a fixture)
-    GOOD,
-    Harness,
-    level,
-    localhost_env,
-    ros_context,
-    statuses,
-    values_of,
-)
+from ros_helpers import GOOD, Harness, level, localhost_env, statuses, values_of
 
 DEFAULT_MODEL = package_share_path("models", "default.pt")
 

@@ -26,7 +26,7 @@ from usv_predictor.frames import enu_yaw_to_heading, quaternion_to_yaw
 from usv_predictor.node import node as predictor_node
 from usv_predictor.node import plans
 
-from ros_helpers import GOOD, WAIT_S, Harness, level, ros_context, statuses, values_of  # noqa: F401 (fixture)
+from ros_helpers import GOOD, WAIT_S, Harness, level, statuses, values_of
 
 NS = 1_000_000_000
 HORIZON_STEPS = 20  # 10 s at dt 0.5 s

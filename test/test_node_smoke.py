@@ -29,7 +29,7 @@ from usv_predictor.errors import ConfigError
 from usv_predictor.physics.actuators import unused_roles
 from usv_predictor.node import node as predictor_node
 
-from ros_helpers import GOOD, Harness, domain_id, localhost_env, ros_context, values_of  # noqa: F401 (ros_context is a fixture)
+from ros_helpers import GOOD, Harness, domain_id, localhost_env, values_of
 
 
 @pytest.fixture()
