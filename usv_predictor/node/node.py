@@ -553,8 +553,10 @@ class PredictorNode(Node):
                 return self._status(ERROR, f"input {role}", f"every message refused: {track.last_reject}", values)
             return self._status(ERROR, f"input {role}", "no message received", values)
         if age > track.max_age_s:
-            return self._status(WARN, f"input {role}", f"stale: last message {age:.2f} s ago "
-                                                       f"(limit {track.max_age_s:g} s)", values)
+            stale = f"stale: last message {age:.2f} s ago (limit {track.max_age_s:g} s)"
+            # refusals are why an input goes stale while its messages still arrive (stamps behind, ahead, ...)
+            refused = f"; messages refused: {track.last_reject}" if recent_reject else ""
+            return self._status(WARN, f"input {role}", stale + refused, values)
         if recent_reject:
             return self._status(WARN, f"input {role}", f"messages refused: {track.last_reject}", values)
         return self._status(OK, f"input {role}", "fresh", values)
