@@ -27,6 +27,7 @@ model_path may change at run time: the new model is validated first, the old one
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import signal
 import sys
@@ -656,7 +657,21 @@ def make_executor(context: Context | None = None) -> Executor:
         from rclpy.experimental import EventsExecutor
     except ImportError:
         return SingleThreadedExecutor(context=context)
+    # EventsExecutor() calls faulthandler.enable(), which needs sys.stderr to have a file descriptor; where it
+    # was replaced by an object without one (pytest's capture, an embedding program) the crash report goes to the
+    # process's own stderr
+    if not _has_fileno(sys.stderr) and _has_fileno(sys.__stderr__):
+        with contextlib.redirect_stderr(sys.__stderr__):
+            return EventsExecutor(context=context)
     return EventsExecutor(context=context)
+
+
+def _has_fileno(stream: Any) -> bool:
+    try:
+        stream.fileno()
+    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation is both an OSError and a ValueError
+        return False
+    return True
 
 
 def parse_arguments(argv: Sequence[str]) -> argparse.Namespace:
