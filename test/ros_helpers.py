@@ -23,7 +23,6 @@ import msg_adapters
 from usv_predictor.node import node as predictor_node
 
 WAIT_S = 15.0  # upper bound on discovery + a few timer periods (s)
-TURNS_AFTER_A_FEED = 12  # callbacks one feed can make ready: 6 inputs, 2 timers, the peer's Path and /diagnostics
 DIAGNOSTICS_RATE_HZ = 20.0  # the harness's /diagnostics rate (default 1 Hz): tests wait on the reports
 # plain values (SI, marine frames) of every default input that give a good prediction
 GOOD = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), "heading": (0.5,),
@@ -92,20 +91,12 @@ class Harness:
             if role not in skip:
                 self.publish(role, override.get(role, values))
 
-    def turn(self, timeout_s: float) -> None:
-        """Wait up to timeout_s for a callback, then run what else is ready (spin_once runs one callback): each
-        input fed gets its turn, whatever else the node's two timers take (the share of the inputs, and so the
-        input rates /diagnostics reports, no longer depends on how fast a busy machine runs this loop)."""
-        self.executor.spin_once(timeout_sec=timeout_s)
-        for _ in range(TURNS_AFTER_A_FEED):
-            self.executor.spin_once(timeout_sec=0.0)
-
     def spin(self, seconds: float, feed: Callable[[], None] | None = None) -> None:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             if feed is not None:
                 feed()
-            self.turn(0.01)
+            self.executor.spin_once(timeout_sec=0.01)
 
     def spin_until(self, condition: Callable[[dict[str, Any]], bool], feed: Callable[[], None] | None = None) -> dict:
         """Spin (feeding inputs) until the latest /diagnostics satisfies condition; return its statuses."""
@@ -113,7 +104,7 @@ class Harness:
         while time.monotonic() < deadline:
             if feed is not None:
                 feed()
-            self.turn(0.02)
+            self.executor.spin_once(timeout_sec=0.02)
             if self.latest is not None and condition(statuses(self.latest)):
                 return statuses(self.latest)
         last = None if self.latest is None else {k: (level(s), s.message) for k, s in statuses(self.latest).items()}
