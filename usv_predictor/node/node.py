@@ -512,6 +512,7 @@ class PredictorNode(Node):
         self._publish_diagnostics(now_ns)
 
     def _publish_diagnostics(self, now_ns: int) -> None:
+        self._current_plan(now_ns)  # a plan that went stale is dropped before any status reads it: one story per report
         statuses = [self._input_status(role, now_ns) for role in self._entries]
         statuses += [self._model_status(), self._prediction_status(), self._plan_status(now_ns),
                      self._candidates_status(now_ns)]
