@@ -490,7 +490,7 @@ def _thrust_map(o: OwnerData) -> tuple[dict[str, Value], float]:
     outside = [c for c, _ in points if abs(c) > 1.0 + 1e-9]
     if outside:
         raise ConfigError(f"--thrust: command {outside[0]:g} (normalised) is beyond full command +-1: check "
-                          f"--thrust-unit {o.thrust_unit}" + (f" and --pwm-range" if o.thrust_unit == "pwm" else ""))
+                          f"--thrust-unit {o.thrust_unit}" + (" and --pwm-range" if o.thrust_unit == "pwm" else ""))
     source = f"datasheet --thrust ({o.thrust_unit})"
 
     def power_law(side: list[tuple[float, float]]) -> tuple[float, float, str]:
