@@ -180,7 +180,7 @@ def test_a_model_off_by_a_radius_factor_shows_that_relative_error(turn, scale):
     errors = result.turning.errors
     expected_pct = 100.0 * (scale - 1.0)
     for key in ("turning_radius_rel_pct", "steady_turning_radius_rel_pct", "drift_distance_rel_pct",
-                "advance_rel_pct", "tactical_diameter_rel_pct"):
+                "advance_rel_pct", "transfer_rel_pct", "tactical_diameter_rel_pct"):
         assert errors[key] == pytest.approx(expected_pct, abs=1e-3), key
     assert errors["drift_direction_abs_deg"] == pytest.approx(0.0, abs=1e-6)  # same shape, same direction
 
@@ -256,7 +256,7 @@ def test_evaluate_summary_and_json_carry_units(turn, vessel_model):
     rec = data["recordings"][0]
     assert set(rec["turning"]["errors"]) == {"turning_radius_rel_pct", "steady_turning_radius_rel_pct",
                                              "drift_distance_rel_pct", "drift_direction_abs_deg",
-                                             "advance_rel_pct", "tactical_diameter_rel_pct"}
+                                             "advance_rel_pct", "transfer_rel_pct", "tactical_diameter_rel_pct"}
     assert {"position_error_after_10s_m", "position_error_after_30s_m", "position_error_after_60s_m"} <= set(
         rec["open_loop"])
     assert set(rec["closed_loop_rmse"]) >= {"u_mps", "v_mps", "r_deg_s", "psi_deg", "position_m"}

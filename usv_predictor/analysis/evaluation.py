@@ -17,7 +17,7 @@ Open loop: the same rollout from many start points (every `stride_s`), position 
 
 Manoeuvre metrics on measured vs predicted tracks (metrics.py for the definitions):
     turning circles  turning radius eq. 29 and the steady circle fit, drift distance eq. 27, drift direction
-                     eq. 28 (compass, toward), IMO advance and tactical diameter;
+                     eq. 28 (compass, toward), IMO advance, transfer and tactical diameter;
     zig-zags         first and second overshoot angles (ITTC);
     every recording  RMSE of u, v, r, psi and of the position along the closed-loop rollout.
 Errors follow seed 000 Tables 7-8: relative (%) for lengths, absolute (deg) for angles, always
@@ -364,9 +364,11 @@ def turning_metrics(t_s: np.ndarray, series: np.ndarray, execute_time_s: float, 
     drift = _attempt(notes, f"{what} drift (eq. 27, 28)", lambda: metrics.drift(t, x_n, y_e, psi))
     axis = drift_axis_deg if drift_axis_deg is not None else (drift.direction_deg if drift else None)
     radius = None
-    if axis is not None and math.isfinite(axis):
+    if axis is None or math.isfinite(axis):  # None: no eq. 27 drift; a 360-720 deg track uses its first circle
         radius = _attempt(notes, f"{what} turning radius (eq. 29)",
                           lambda: metrics.turning_radius(t, x_n, y_e, psi, drift_direction_deg=axis))
+        if radius is not None and radius.note:
+            notes.append(f"{what} turning radius (eq. 29): {radius.note}")
     steady = _attempt(notes, f"{what} steady circle fit", lambda: metrics.steady_turning_radius(t, x_n, y_e, psi))
     imo = None
     if math.isfinite(execute_time_s):
@@ -381,6 +383,7 @@ def turning_metrics(t_s: np.ndarray, series: np.ndarray, execute_time_s: float, 
         "drift_angle_seed_eq28_deg": metrics.seed_drift_angle_deg(drift.direction_deg) if drift else None,
         "drift_speed_mps": drift.speed_mps if drift else None,
         "advance_m": imo.advance_m if imo else None,
+        "transfer_m": imo.transfer_m if imo else None,
         "tactical_diameter_m": imo.tactical_diameter_m if imo else None,
     }
 
@@ -419,6 +422,7 @@ def compare_turning(prediction: Prediction, execute_time_s: float) -> Comparison
         "drift_distance_rel_pct": relative_error_pct(predicted["drift_distance_m"], measured["drift_distance_m"]),
         "drift_direction_abs_deg": angle_error_deg(predicted["drift_direction_deg"], measured["drift_direction_deg"]),
         "advance_rel_pct": relative_error_pct(predicted["advance_m"], measured["advance_m"]),
+        "transfer_rel_pct": relative_error_pct(predicted["transfer_m"], measured["transfer_m"]),
         "tactical_diameter_rel_pct": relative_error_pct(predicted["tactical_diameter_m"],
                                                         measured["tactical_diameter_m"]),
     }

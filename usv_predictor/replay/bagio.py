@@ -27,7 +27,7 @@ import sqlite3
 import struct
 import sys
 import tempfile
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -336,8 +336,26 @@ def _open_reader(path: Path) -> Iterator[AnyReader]:
         raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {one_line(err)})") from err
 
 
+def absolute_topic(name: str) -> str:
+    """A topic name resolved in the root namespace, as ROS 2 resolves a relative name of a node in "/" (REP-144):
+    `imu/data` -> `/imu/data`; an absolute name stays. The config's names are relative (remappable), while
+    `ros2 bag record` writes the resolved, fully qualified ones."""
+    return name if name.startswith("/") else "/" + name
+
+
+def resolve_topic(configured: str, present: Iterable[str]) -> str | None:
+    """The bag's name for a configured topic: the same name, else the one that resolves to the same absolute name
+    (`imu/data` matches a recorded `/imu/data` and the reverse); None when the bag has neither."""
+    names = list(present)
+    if configured in names:
+        return configured
+    wanted = absolute_topic(configured)
+    return next((name for name in names if absolute_topic(name) == wanted), None)
+
+
 def _select_connections(path: Path, reader: AnyReader, spec: TopicSpec) -> list[Any]:
-    connections = [c for c in reader.connections if c.topic == spec.topic]
+    name = resolve_topic(spec.topic, {c.topic for c in reader.connections})
+    connections = [c for c in reader.connections if c.topic == name]
     if not connections:
         present = sorted({c.topic for c in reader.connections})
         raise BagError(f"{path}: no topic {spec.topic!r}; topics present: {present}")

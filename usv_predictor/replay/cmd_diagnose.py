@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from usv_predictor.replay.options import log, positive_float, positive_int
+from usv_predictor.replay.options import add_config_argument, log, positive_float, positive_int
 
 NAME = "diagnose"
 HELP = "name the physical cause of what the calm-water model gets wrong, extend the model, measure the gain"
@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write the extended model (TorchScript artifact) for the node")
     parser.add_argument("--report", type=Path, default=None, metavar="DIR", help="write report.md + plots into DIR")
     parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
-    parser.add_argument("--config", type=Path, default=None, help="predictor.yaml with the topics (default: shipped)")
+    add_config_argument(parser)
 
 
 def run(args: argparse.Namespace) -> dict:

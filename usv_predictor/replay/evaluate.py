@@ -39,6 +39,7 @@ class EvaluationRequest:
     horizons_s: tuple[float, ...] = (10.0, 30.0, 60.0)  # open-loop horizons (s)
     stride_s: float = 5.0  # time between open-loop start points (s)
     include_calm: bool = False  # also read calm/ twins under bag directories
+    config: Path | None = None  # predictor.yaml with the input topics (None: the shipped one)
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(x) and x > 0.0 for x in (self.stride_s, *self.horizons_s)):
@@ -86,7 +87,7 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
     bags = list(request.bags) or default_bags()
     progress(f"model {model.metadata.get('model_id', '?')} ({model.metadata.get('model_type', '?')}), dt {dt:g} s; "
              f"reading {', '.join(map(str, bags))}")
-    recordings = load_recordings(bags, dt, include_calm=request.include_calm, warn=lambda m: progress(f"warning: {m}"),
+    recordings = load_recordings(bags, dt, config_path=request.config, include_calm=request.include_calm, warn=lambda m: progress(f"warning: {m}"),
                                  progress=progress)
     if not recordings:
         raise BagError(f"no usable recording in {', '.join(map(str, bags))} (see the warnings above)")

@@ -9,6 +9,8 @@ Recording names are the shortest trailing part of the bag path that is unique am
 (`zigzag_10_10_stbd_650rpm`, or `training/zigzag_...` next to `calm/zigzag_...`).
 
 What happens to imperfect input (warnings go through `warn`, by default to stderr):
+- topic names: a configured (relative) name matches the bag's fully qualified one, as ROS resolves names in the
+  root namespace (`imu/data` reads `/imu/data`, written so by `ros2 bag record`; bagio.resolve_topic);
 - missing or unreadable bag, unreadable metadata, a required topic missing or empty, a topic of another
   message type: BagError naming the bag, the topic and what is present;
 - a missing optional topic (GNSS, ground truth): that role is left out, with a warning;
@@ -56,7 +58,7 @@ from usv_predictor.errors import BagError, ConfigError, DatasetError, one_line
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout, unused_roles
 from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.records import NS_PER_S, Signal, whole_steps
-from usv_predictor.replay.bagio import TopicSpec, read_bag
+from usv_predictor.replay.bagio import TopicSpec, read_bag, resolve_topic
 
 OPTIONAL_ROLES = ("gnss", "odometry")
 # Fields of each role that recording_from_signals uses: a NaN there would poison a window mean.
@@ -206,6 +208,9 @@ def _present_specs(path: Path, present: Mapping[str, tuple[str, int]] | None, sp
     required = required_roles(layout)
     chosen = []
     for spec in specs:
+        name = resolve_topic(spec.topic, present)  # `imu/data` of the config is `/imu/data` of `ros2 bag record`
+        if name is not None and name != spec.topic:
+            spec = dataclasses.replace(spec, topic=name)
         ros_type, count = present.get(spec.topic, (None, 0))
         if spec.role in required:
             if ros_type is None:
