@@ -56,7 +56,7 @@ from usv_predictor.errors import BagError, ConfigError, DatasetError, one_line
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout, unused_roles
 from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.records import NS_PER_S, Signal, whole_steps
-from usv_predictor.replay.bagio import TopicSpec, read_bag
+from usv_predictor.replay.bagio import TopicSpec, read_signals
 
 OPTIONAL_ROLES = ("gnss", "odometry")
 # Fields of each role that recording_from_signals uses: a NaN there would poison a window mean.
@@ -389,12 +389,12 @@ def recordings_from_bag(source: BagSource, specs: Sequence[TopicSpec], dt: float
     path = source.path
     metadata = bag_metadata(path)
     chosen = _present_specs(path, None if metadata is None else metadata[0], specs, warn, actuators)
-    raw = read_bag(path, chosen)
+    raw = dict(zip((spec.role for spec in chosen), read_signals(path, chosen)))  # role -> Signal (topics may be shared)
     t_ref = min((int(s.t_ns[0]) for s in raw.values() if len(s)), default=0)
     topic_of = {spec.role: spec.topic for spec in chosen}
     signals = {}
     for spec in chosen:
-        cleaned = clean_signal(raw[spec.topic], where=f"{path}: topic {spec.topic!r}", role=spec.role, dt=dt,
+        cleaned = clean_signal(raw[spec.role], where=f"{path}: topic {spec.topic!r}", role=spec.role, dt=dt,
                                t_ref_ns=t_ref, warn=warn, layout=actuators)
         if len(cleaned) == 0:
             if spec.role in required:
