@@ -375,6 +375,20 @@ def _long_enough(rec: Recording, min_duration_s: float, horizon_s: float | None,
     return True
 
 
+def _check_recorded_layout(path: Path, vessel: str | None, layout: ActuatorLayout) -> None:
+    """A bag that names its vessel (custom_data `vessel`, written by `replay simulate`) is read with that vessel's
+    actuator layout: BagError naming both otherwise. A vessel that is no preset here is not checked."""
+    if not vessel:
+        return
+    try:
+        recorded = load_vessel(vessel).actuator_layout
+    except ConfigError:
+        return
+    if recorded.name != layout.name:
+        raise BagError(f"{path}: recorded on vessel {vessel} ({recorded.name} {list(recorded.control_names)}) but read "
+                       f"as {layout.name} {list(layout.control_names)}: read it with the vessel of the bag")
+
+
 def recordings_from_bag(source: BagSource, specs: Sequence[TopicSpec], dt: float, *, segment: str = "bag",
                         min_duration_s: float = 10.0, horizon_s: float | None = None,
                         warn: Warn = warn_stderr, layout: str = DEFAULT_LAYOUT.name) -> list[Recording]:
@@ -388,6 +402,8 @@ def recordings_from_bag(source: BagSource, specs: Sequence[TopicSpec], dt: float
     required = required_roles(actuators)
     path = source.path
     metadata = bag_metadata(path)
+    if metadata is not None:
+        _check_recorded_layout(path, metadata[1].get("vessel"), actuators)
     chosen = _present_specs(path, None if metadata is None else metadata[0], specs, warn, actuators)
     raw = dict(zip((spec.role for spec in chosen), read_signals(path, chosen)))  # role -> Signal (topics may be shared)
     t_ref = min((int(s.t_ns[0]) for s in raw.values() if len(s)), default=0)
