@@ -53,7 +53,13 @@ from usv_predictor.data.recording import (
     required_roles,
 )
 from usv_predictor.errors import BagError, ConfigError, DatasetError, one_line
-from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout, unused_roles
+from usv_predictor.physics.actuators import (
+    DEFAULT_LAYOUT,
+    ActuatorLayout,
+    actuator_layout,
+    check_layout_inputs,
+    unused_roles,
+)
 from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.records import NS_PER_S, Signal, whole_steps
 from usv_predictor.replay.bagio import TopicSpec, read_signals
@@ -190,7 +196,9 @@ def topic_specs(config_path: str | Path | None = None, topics: Mapping[str, str]
     if unknown:
         raise ConfigError(f"topic override for unknown role(s) {unknown}; roles of {cfg.source}: {sorted(roles)}")
     overrides = dict(topics or {})
-    unused = unused_roles(layout or load_vessel(cfg.vessel).actuator_layout)
+    layout = layout or load_vessel(cfg.vessel).actuator_layout
+    check_layout_inputs(layout, {e.role: overrides.get(e.role, e.topic) for e in entries}, cfg.source)
+    unused = unused_roles(layout)
     return [TopicSpec(overrides.get(e.role, e.topic), e.role, e.ros_type, e.options, e.frame_id) for e in entries
             if e.role not in unused]
 
