@@ -12,7 +12,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from usv_predictor.replay.options import finite_float, log, non_negative_float, positive_float
+from usv_predictor.replay.options import finite_float, log, non_negative_float, positive_float, positive_int
 
 NAME = "vessel"
 HELP = "write a vessel description (YAML) from principal dimensions, actuator geometry and a thrust datasheet"
@@ -49,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     hull.add_argument("--length-overall", type=positive_float, default=None, help="length overall (m, default --lpp)")
     hull.add_argument("--x-g", type=finite_float, default=0.0, help="centre of gravity from midship (m, default 0)")
     hull.add_argument("--k-zz", type=positive_float, default=None, help="yaw radius of gyration / L (-, default 0.25)")
-    hull.add_argument("--hulls", type=int, choices=(1, 2), default=1, help="1 monohull (default), 2 catamaran")
+    hull.add_argument("--hulls", type=positive_int, choices=(1, 2), default=1, help="1 monohull (default), 2 catamaran")
     hull.add_argument("--demihull-beam", type=positive_float, default=None, help="beam of one pontoon (m, default B/4)")
     hull.add_argument("--freeboard", type=positive_float, default=None, help="deck height above water (m, default 1.5 d)")
     rudder = parser.add_argument_group("rudder and propeller (rudder layouts)")
@@ -62,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     rudder.add_argument("--propeller-x", type=finite_float, default=None, help="propeller position (m, default -0.48 L)")
     rudder.add_argument("--pitch-ratio", type=positive_float, default=None,
                         help="P/D (-, default: from the datasheet's static thrust, else 1.0)")
-    rudder.add_argument("--blades", type=int, default=4, help="number of blades (default 4)")
+    rudder.add_argument("--blades", type=positive_int, default=4, help="number of blades (default 4)")
     rudder.add_argument("--blade-area-ratio", type=positive_float, default=0.55, help="A_E/A_0 (-, default 0.55)")
     rudder.add_argument("--gear-ratio", type=positive_float, default=1.0, help="engine rpm / propeller rpm (default 1)")
     rudder.add_argument("--rpm-max", type=positive_float, default=None,

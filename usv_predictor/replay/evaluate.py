@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import datetime
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from usv_predictor.errors import BagError, ConfigError, EvaluationError
 
@@ -40,6 +40,7 @@ class EvaluationRequest:
     stride_s: float = 5.0  # time between open-loop start points (s)
     include_calm: bool = False  # also read calm/ twins under bag directories
     config: Path | None = None  # predictor.yaml with the input topics (None: the shipped one)
+    vessel: str | None = None  # preset the bags were recorded on (its actuator layout); None: the model's, else the config's
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(x) and x > 0.0 for x in (self.stride_s, *self.horizons_s)):
@@ -73,6 +74,28 @@ def _output_apart(request: EvaluationRequest, output: Path | None, writes: Seque
         check_outputs(outputs, [*(request.bags or default_bags()), request.model], {"--output"})
 
 
+def bags_layout(vessel: str | None, metadata: Mapping[str, Any], source: str, config: Path | None = None) -> Any:
+    """The actuator layout the bags are read with: of `vessel`, else of the model's vessel (a known preset), else of
+    the config's; EvaluationError (one line naming both) when the model's control_layout is not that layout's."""
+    from usv_predictor.config import load_predictor_config
+    from usv_predictor.physics.vessel import load_vessel
+
+    if vessel is None:
+        try:
+            preset = load_vessel(str(metadata.get("vessel", "")))
+        except ConfigError:  # a model of a vessel that is no preset here: the configured vessel's bags
+            preset = load_vessel(load_predictor_config(config).vessel)
+    else:
+        preset = load_vessel(vessel)
+    layout = preset.actuator_layout
+    controls = list(metadata.get("control_layout", []))
+    if controls != list(layout.control_names):
+        raise EvaluationError(f"model {source} has control_layout {controls} but the bags of vessel {preset.name} have "
+                              f"{layout.name} {list(layout.control_names)}: evaluate a model of that layout (or "
+                              "give the bags' vessel)")
+    return layout
+
+
 def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = lambda _: None) -> EvaluationResult:
     """The EvaluationResult of the request, its `extra` holding the provenance (time, version, model, data)."""
     import numpy as np
@@ -87,8 +110,10 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
     bags = list(request.bags) or default_bags()
     progress(f"model {model.metadata.get('model_id', '?')} ({model.metadata.get('model_type', '?')}), dt {dt:g} s; "
              f"reading {', '.join(map(str, bags))}")
-    recordings = load_recordings(bags, dt, config_path=request.config, include_calm=request.include_calm, warn=lambda m: progress(f"warning: {m}"),
-                                 progress=progress)
+    layout = bags_layout(request.vessel, model.metadata, request.model or str(loading.default_model_path()),
+                         config=request.config)
+    recordings = load_recordings(bags, dt, config_path=request.config, include_calm=request.include_calm,
+                                 warn=lambda m: progress(f"warning: {m}"), progress=progress, layout=layout)
     if not recordings:
         raise BagError(f"no usable recording in {', '.join(map(str, bags))} (see the warnings above)")
     result = evaluation.evaluate(model, recordings, request.reference, tuple(request.horizons_s), request.stride_s,

@@ -85,10 +85,14 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                         help="time between open-loop start points (s, default 5)")
     parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
     add_config_argument(parser)
+    parser.add_argument("--vessel", default=None, metavar="PRESET",
+                        help="vessel preset the bags were recorded on: its actuator layout says which control topics "
+                             "are read and must be the model's control_layout (default: the model's vessel, else "
+                             "the config's)")
 
 
 def evaluation_request(args: argparse.Namespace, bags: Sequence[Path]) -> EvaluationRequest:
     """The options of add_model_arguments (and the bags) as an EvaluationRequest."""
     return EvaluationRequest(bags=tuple(bags), model=args.model, dt=args.dt, reference=args.reference,
                              horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm,
-                             config=args.config)
+                             config=args.config, vessel=args.vessel)
