@@ -81,4 +81,5 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
 def evaluation_request(args: argparse.Namespace, bags: Sequence[Path]) -> EvaluationRequest:
     """The options of add_model_arguments (and the bags) as an EvaluationRequest."""
     return EvaluationRequest(bags=tuple(bags), model=args.model, dt=args.dt, reference=args.reference,
-                             horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm)
+                             horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm,
+                             adaptive=bool(getattr(args, "adaptive", False)))
