@@ -147,12 +147,21 @@ class OnlineConfig:
 
 
 def chi2_quantile(probability: float, dof: int) -> float:
-    """The chi^2 quantile by the Wilson-Hilferty approximation (Johnson, Kotz & Balakrishnan 1994 eq. 18.24):
-    k (1 - 2/(9k) + z sqrt(2/(9k)))^3, z the normal quantile; within 1 % of the exact value for k = 1-3 at
-    p >= 0.99 (16.25 against 16.27 for k = 3, p = 0.999)."""
-    z = NormalDist().inv_cdf(probability)
-    a = 2.0 / (9.0 * dof)
-    return dof * (1.0 - a + z * math.sqrt(a)) ** 3
+    """The chi^2 quantile for 1-3 degrees of freedom, exact (Abramowitz & Stegun 1964 eq. 26.4.4-26.4.6):
+    k = 1: z^2 with z the normal quantile of (1 + p)/2; k = 2: -2 ln(1 - p); k = 3: the root of
+    F(x) = erf(sqrt(x/2)) - sqrt(2x/pi) exp(-x/2) = p by bisection (16.27 at p = 0.999)."""
+    if dof == 1:
+        return NormalDist().inv_cdf(0.5 * (1.0 + probability)) ** 2
+    if dof == 2:
+        return -2.0 * math.log(1.0 - probability)
+    if dof != 3:
+        raise ConfigError(f"chi2_quantile: {dof} degrees of freedom; the measurement has 1-3 components")
+    low, high = 0.0, 200.0
+    for _ in range(200):
+        mid = 0.5 * (low + high)
+        cdf = math.erf(math.sqrt(0.5 * mid)) - math.sqrt(2.0 * mid / math.pi) * math.exp(-0.5 * mid)
+        low, high = (mid, high) if cdf < probability else (low, mid)
+    return 0.5 * (low + high)
 
 
 @dataclass(frozen=True)
