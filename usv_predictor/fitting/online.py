@@ -65,6 +65,7 @@ import numpy as np
 
 from usv_predictor.errors import ConfigError
 from usv_predictor.frames import compass_deg
+from usv_predictor.physics import effects
 from usv_predictor.physics.actuators import ActuatorLayout
 from usv_predictor.physics.dynamics import ManoeuvringModel, SeaLoads
 from usv_predictor.physics.vessel import Vessel
@@ -74,7 +75,8 @@ STATE_UNITS = ("m/s", "m/s", "rad/s", "m/s", "m/s", "rad/s", "-")
 U_R, V_R, R, C_N, C_E, B_R, K_R = range(7)
 N_STATE = 7
 NU = slice(0, 3)  # the velocity states
-TERMS = {"current_ne": (C_N, C_E), "yaw_rate_bias": (B_R,), "resistance_change": (K_R,)}  # grey-box term -> states
+TERMS = dict(zip(effects.ONLINE_TERMS, ((C_N, C_E), (B_R,), (K_R,))))  # grey-box term -> its states
+RUDDER_OFFSET, SIDE_FORCE, IMBALANCE, WIND, WAVE = effects.FIXED_TERMS  # terms the process model takes as they are
 FD_STEP = (1e-4, 1e-4, 1e-5)  # central-difference steps for d(nu_r_dot)/d(u_r, v_r, r) (m/s, m/s, rad/s)
 
 
@@ -208,7 +210,7 @@ class OnlineEstimate:
         return {
             "t_s": self.t_s, "status": self.status, "converged": self.converged,
             "current_n_mps": self.state[C_N], "current_e_mps": self.state[C_E],
-            "current_speed_mps": self.current_speed_m_s, "current_to_deg": self.current_to_deg,
+            "current_speed_mps": self.current_speed_m_s, "current_toward_deg": self.current_to_deg,
             "current_std_max_mps": self.current_std_max_m_s,
             "current_cov_nn_ne_ee_m2_s2": list(self.current_cov),
             "yaw_rate_bias_deg_s": math.degrees(self.state[B_R]), "yaw_rate_bias_std_deg_s": math.degrees(self.std[B_R]),
@@ -231,12 +233,12 @@ class OnlineEstimator:
                  terms: Mapping[str, Sequence[float]] | None = None) -> None:
         self.config = config or OnlineConfig()
         terms = {k: [float(x) for x in v] for k, v in (terms or {}).items()}
-        self.model = ManoeuvringModel(vessel, propeller_side_force=_term(terms, "propeller_side_force"),
-                                      thrust_imbalance=_term(terms, "thrust_imbalance"))
+        self.model = ManoeuvringModel(vessel, propeller_side_force=_term(terms, SIDE_FORCE),
+                                      thrust_imbalance=_term(terms, IMBALANCE))
         self.layout: ActuatorLayout = vessel.actuator_layout
-        self.rudder_offset = _term(terms, "rudder_offset")  # (rad), added to a reported rudder
-        wind = terms.get("wind_ne", [0.0, 0.0])
-        wave = terms.get("wave_ne", [0.0, 0.0])
+        self.rudder_offset = _term(terms, RUDDER_OFFSET)  # (rad), added to a reported rudder
+        wind = terms.get(WIND, [0.0, 0.0])  # wind velocity (toward) north/east (m/s)
+        wave = terms.get(WAVE, [0.0, 0.0])
         self._wind = (math.hypot(*wind), math.atan2(-wind[1], -wind[0]) if any(wind) else 0.0)  # speed, FROM (rad)
         wave_amp2 = math.hypot(*wave)  # zeta_a^2 (m^2) along the direction FROM
         self._wave = (math.sqrt(wave_amp2), math.atan2(wave[1], wave[0]) if any(wave) else 0.0)

@@ -444,6 +444,14 @@ EFFECTS: Mapping[str, Effect] = _registry(
 )
 
 
+# ---- the online estimator (fitting/online.py) ---------------------------------------------------------------
+# The grey-box terms it estimates as states, in its state order (current north/east, gyro bias, resistance change)
+ONLINE_TERMS = ("current_ne", "yaw_rate_bias", "resistance_change")
+# The terms its float process model takes as the model carries them: a rudder offset, the propeller side force, the
+# thrust imbalance, the wind and the wave drift (their equations: physics/dynamics.py, as models/greybox.py's)
+FIXED_TERMS = ("rudder_offset", "propeller_side_force", "thrust_imbalance", "wind_ne", "wave_ne")
+
+
 # ---- what consumers derive -------------------------------------------------------------------------------
 
 def hypothesis_names(layout: str | None = None) -> tuple[str, ...]:
