@@ -213,7 +213,7 @@ class OnlineEstimate:
             "current_speed_mps": self.current_speed_m_s, "current_toward_deg": self.current_to_deg,
             "current_std_max_mps": self.current_std_max_m_s,
             "current_cov_nn_ne_ee_m2_s2": list(self.current_cov),
-            "yaw_rate_bias_deg_s": math.degrees(self.state[B_R]), "yaw_rate_bias_std_deg_s": math.degrees(self.std[B_R]),
+            "gyro_bias_deg_s": math.degrees(self.state[B_R]), "gyro_bias_std_deg_s": math.degrees(self.std[B_R]),
             "resistance_change_pct": 100.0 * self.state[K_R], "resistance_change_std_pct": 100.0 * self.std[K_R],
             "nis_mean": self.nis_mean if math.isfinite(self.nis_mean) else None,
             "updates": self.updates, "rejections": self.rejections, "resets": self.resets, "changes": self.changes,
