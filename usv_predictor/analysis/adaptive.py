@@ -69,7 +69,7 @@ def model_terms(model: Any) -> dict[str, list[float]] | None:
     """The grey-box terms (models/greybox.py names, SI) the model carries; None when it has no current term (a
     learned model: the estimate is not applied)."""
     module = module_of(model)
-    if module is None or not hasattr(module, "current_ne"):
+    if module is None or not hasattr(module, effects.ONLINE_TERMS[0]):  # no current term
         return None
     out = {}
     for name in effects.grey_box_terms():
