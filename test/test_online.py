@@ -159,7 +159,7 @@ def turning():
     """A turning circle in a 0.4 m/s current, noiseless truth at 0.5 s: t, nu (T, 3), psi, controls (T, 2)."""
     model = ManoeuvringModel(load_vessel("jari_usv"))
     env = Environment(current_speed=0.4, current_to_deg=135.0)
-    traj = simulate_trajectory(model, TurningCircle(20.0 * math.pi / 180.0, 650.0, duration_s=120.0), env)
+    traj = simulate_trajectory(model, TurningCircle(20.0, 650.0, duration_s=120.0), env)
     k = np.arange(0, len(traj.t_s), 50)
     return traj.t_s[k], traj.nu[k], traj.psi_unwrapped[k], traj.actuators[k]
 
