@@ -9,7 +9,6 @@ and the model step of `replay evaluate --adaptive`) through OnlineEstimator.step
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
