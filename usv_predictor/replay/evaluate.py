@@ -41,6 +41,7 @@ class EvaluationRequest:
     include_calm: bool = False  # also read calm/ twins under bag directories
     config: Path | None = None  # predictor.yaml with the input topics (None: the shipped one)
     vessel: str | None = None  # preset the bags were recorded on (its actuator layout); None: the model's, else the config's
+    adaptive: bool = False  # also run the online estimator and the adaptive open loop (analysis/adaptive.py)
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(x) and x > 0.0 for x in (self.stride_s, *self.horizons_s)):
@@ -118,6 +119,8 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
         raise BagError(f"no usable recording in {', '.join(map(str, bags))} (see the warnings above)")
     result = evaluation.evaluate(model, recordings, request.reference, tuple(request.horizons_s), request.stride_s,
                                  progress=progress)
+    if request.adaptive:
+        result.extra["adaptive"] = adaptive_section(model, recordings, request, progress)
     result.extra.update({
         "generated_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "software_version": __version__,
@@ -128,6 +131,34 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
                                  "has_truth": r.truth is not None} for r in recordings]},
     })
     return result
+
+
+def adaptive_section(model: object, recordings: Sequence[object], request: EvaluationRequest,
+                     progress: Callable[[str], None] = lambda _: None) -> dict:
+    """`--adaptive`: the online estimator (fitting/online.py) over each recording and the open-loop errors with
+    its live estimate in the model's terms (analysis/adaptive.py), beside the plain ones."""
+    from dataclasses import asdict
+
+    from usv_predictor.analysis import adaptive
+    from usv_predictor.fitting.online import STATE_NAMES, STATE_UNITS, OnlineConfig
+
+    config = OnlineConfig()
+    runs = []
+    for k, recording in enumerate(recordings):
+        progress(f"[{k + 1}/{len(recordings)}] online estimate and adaptive open loop on {recording.name}")
+        runs.append(adaptive.adaptive_open_loop(model, recording, request.reference, tuple(request.horizons_s),
+                                                request.stride_s, config))
+    applied = bool(runs) and runs[0].applied
+    return {
+        "method": "extended Kalman filter on the float grey box, states " + ", ".join(
+            f"{n} ({u})" for n, u in zip(STATE_NAMES, STATE_UNITS)) + " (docs/online.md)",
+        "applied": applied,
+        "how": ("the live current_ne, yaw_rate_bias and resistance_change are set in the grey box's terms before "
+                "each rollout" if applied else adaptive.NOT_APPLIED),
+        "config": asdict(config),
+        "summary": adaptive.summarise(runs, tuple(request.horizons_s)),
+        "recordings": [run.to_json(recording.dt) for run, recording in zip(runs, recordings)],
+    }
 
 
 def save_evaluation(result: EvaluationResult, directory: Path) -> dict:

@@ -95,4 +95,5 @@ def evaluation_request(args: argparse.Namespace, bags: Sequence[Path]) -> Evalua
     """The options of add_model_arguments (and the bags) as an EvaluationRequest."""
     return EvaluationRequest(bags=tuple(bags), model=args.model, dt=args.dt, reference=args.reference,
                              horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm,
-                             config=args.config, vessel=args.vessel)
+                             config=args.config, vessel=args.vessel,
+                             adaptive=bool(getattr(args, "adaptive", False)))
