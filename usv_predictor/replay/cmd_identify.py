@@ -15,11 +15,11 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from usv_predictor.replay.options import log, positive_float
+from usv_predictor.replay.options import add_config_argument, log, positive_float
 
 NAME = "identify"
 HELP = "identify the grey-box hull coefficients from bags (EKF/RTS + inverse-dynamics regression) and export the model"
-INPUTS = ("bags", "vessel")
+INPUTS = ("bags", "vessel", "config")
 OUTPUTS = {"output": "file", "report": "dir"}
 
 
@@ -36,10 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--val", default=None, metavar="GLOB", help="bags to validate on only (glob)")
     parser.add_argument("--output", type=Path, required=True, help="model file to write (.pt)")
     parser.add_argument("--report", type=Path, default=None, metavar="DIR", help="write summary.md and plots into DIR")
+    add_config_argument(parser)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     from usv_predictor.replay.identify import identify_bags
 
     return identify_bags(args.bags, args.output, vessel=args.vessel, structure=args.structure, prior=args.prior,
-                         hybrid=args.hybrid, dt=args.dt, validation=args.val, report=args.report, progress=log)
+                         hybrid=args.hybrid, dt=args.dt, validation=args.val, report=args.report, config=args.config,
+                         progress=log)

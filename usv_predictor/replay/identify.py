@@ -10,12 +10,14 @@ from typing import Any
 from usv_predictor.errors import BagError, DatasetError
 
 
-def identification_recordings(paths: Sequence[Path], dt: float, progress: Callable[[str], None] = lambda _: None) -> list:
-    """The recordings of `paths` at step dt; a bag without engine speed is a DatasetError saying why it matters."""
+def identification_recordings(paths: Sequence[Path], dt: float, progress: Callable[[str], None] = lambda _: None,
+                              config: Path | None = None) -> list:
+    """The recordings of `paths` at step dt (topics of `config`, default the shipped predictor.yaml); a bag without
+    engine speed is a DatasetError saying why it matters."""
     from usv_predictor.replay.recordings import load_recordings
 
     try:
-        return load_recordings(paths, dt, progress=progress)
+        return load_recordings(paths, dt, config_path=config, progress=progress)
     except BagError as err:
         if "engine_rpm" in str(err):
             raise DatasetError(f"identification needs the engine speed (engine_rpm): without it the propeller thrust "
@@ -26,16 +28,17 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
 
 def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure: str = "auto", prior: str = "none",
                   hybrid: bool = False, dt: float = 0.2, validation: str | None = None, report: Path | None = None,
-                  progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+                  config: Path | None = None, progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """Identify the hull of preset `vessel` from `bags` (structure mmg / abkowitz / auto, prior none / fix / ridge),
     export the grey box (with hybrid: plus an MLP residual) to `output`; validation: a glob of bags only
-    evaluated; report: a directory for summary.md and the force plots. The result of `replay identify`."""
+    evaluated; report: a directory for summary.md and the force plots; config: the predictor.yaml whose topics
+    are read (default the shipped one). The result of `replay identify`."""
     from usv_predictor.analysis.evaluation import evaluate
     from usv_predictor.fitting import hybrid_fit, identification
     from usv_predictor.physics.vessel import load_vessel
 
     preset = load_vessel(vessel)
-    recordings = identification_recordings(list(bags), dt, progress)
+    recordings = identification_recordings(list(bags), dt, progress, config)
     if not recordings:
         raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
     result = identification.identify(preset, recordings, structure=structure, prior=prior, progress=progress)
@@ -57,7 +60,8 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
         paths = sorted(Path(p) for p in glob.glob(validation))
         if not paths:
             raise DatasetError(f"--val {validation!r} matches no bag")
-        out["validation"] = evaluate(artifact, identification_recordings(paths, dt, progress), progress=progress).to_json()
+        out["validation"] = evaluate(artifact, identification_recordings(paths, dt, progress, config),
+                                     progress=progress).to_json()
     for c in result.fit.coefficients():
         progress(f"  {c.name:7s} {c.estimate:+.5f}  [{c.ci95[0]:+.5f}, {c.ci95[1]:+.5f}]  prior {c.prior:+.5f}  "
                  f"{c.status}")
