@@ -3,7 +3,7 @@
 Run: .venv/bin/python benchmarks/bench_dataset.py [--repeats 3] [--bags bags]
 
 (a) rosbags: AnyReader + deserialize_cdr + adapter.decode, one message at a time (the obvious way);
-(b) bagio.read_bag: AnyReader + cdr_fast.decode_many + one vectorised adapter.decode per topic;
+(b) bagio.read_bag: AnyReader + msg_adapters.cdr.decode_many + one vectorised adapter.decode per topic;
 both over every shipped bag (calm twins included) and the default topics of config/predictor.yaml,
 ground truth included. (b) is split into its phases (open the bag, iterate the raw messages, decode)
 to show where the time goes. Then `replay dataset bags/training bags/sea_trial` end to end: one process,
@@ -25,7 +25,7 @@ from pathlib import Path
 from rosbags.highlevel import AnyReader
 
 from usv_predictor.replay.bagio import jazzy_typestore, read_bag
-from usv_predictor.replay.cdr_fast import decode_many
+from msg_adapters.cdr import decode_many
 from usv_predictor.replay.cli import main as replay_main
 from usv_predictor.replay.recordings import default_jobs, find_bags, topic_specs
 
@@ -112,7 +112,7 @@ def main() -> None:
     fast = best_seconds(lambda: bulk(bags, specs), args.repeats)
     print(f"\n{'bag -> Signals':42s} {'seconds':>8s} {'msg/s':>10s}")
     print(f"{'(a) rosbags deserialize_cdr + adapters':42s} {slow:8.2f} {count / slow:10,.0f}")
-    print(f"{'(b) bagio.read_bag (cdr_fast, bulk)':42s} {fast:8.2f} {count / fast:10,.0f}   "
+    print(f"{'(b) bagio.read_bag (cdr, bulk)':42s} {fast:8.2f} {count / fast:10,.0f}   "
           f"{slow / fast:.1f}x faster; target {TARGET_MSG_S:,} msg/s: {'met' if count / fast >= TARGET_MSG_S else 'MISSED'}")
     runs = [phases(bags, specs) for _ in range(args.repeats)]
     spent = {phase: min(run[phase] for run in runs) for phase in runs[0]}

@@ -20,7 +20,7 @@ from rosbags.interfaces import Nodetype
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from usv_predictor.replay.cdr_fast import decode_many, supported_types
+from msg_adapters.cdr import decode_many, supported_types
 
 from timing import best_seconds  # benchmarks/timing.py (the script folder is on sys.path)
 

@@ -1,18 +1,28 @@
 #!/usr/bin/env python3
-"""Speed of the online predictor: rollout compute, end-to-end latency over DDS, CPU use of the node.
+"""Speed of the online predictor, side by side in one run: rollout compute, end-to-end latency over DDS, CPU.
 
-    python benchmarks/bench_node.py [--repeats 2000] [--seconds 10] [--json out/bench_node.json]
+    python benchmarks/bench_node.py [--repeats 2000] [--seconds 10] [--baseline 67fb230] [--json out/bench_node.json]
 
-1. One 60 s / dt 0.5 s rollout (120 steps, B = 1, the shipped 5-member model), side by side in one run:
-   the TorchScript artifact as the node calls it (live.Rollout: preallocated inputs), the same folded
-   network as a plain PyTorch eager loop, and as a numpy loop; then an 8-member ensemble, batched in one
-   TorchScript call. torch.set_num_threads(1), warm-up first; p50 / p99 over --repeats calls.
-2. The node in its own process (`python -m usv_predictor.node`, 10 Hz) fed from this process with IMU at
-   200 Hz and the other inputs at their shipped rates (wall clock): end-to-end latency = arrival of
-   predicted_path here - its header stamp (the node's clock when the cycle started: state, rollout,
-   encoding, DDS); input-to-path = arrival - stamp of the newest IMU message sent before it (includes the
-   wait for the next timer tick, up to 1 / rate_hz); CPU of the node process from /proc over the run.
-Figures depend on the machine and its load (2 shared cores here): see docs/node.md for the recorded run.
+1. Rollout compute, one 60 s / dt 0.5 s rollout (120 steps) of the shipped 5-member model, torch.set_num_threads(1),
+   warm-up first, p50 / p99 over --repeats calls: the artifact as the node calls it (live.Rollout: preallocated
+   inputs); the same module after torch.jit.freeze, and after freeze + optimize_for_inference; the same folded
+   network as a plain eager loop (members one by one, no fused batched matmuls) and as a numpy loop; the
+   network re-scripted with tanh(x) = 2 sigmoid(2x) - 1 (torch's tanh is the slow kernel of a batch); and the
+   64-candidate batch (B = 64, one call) for the artifact, freeze and the sigmoid form.
+2. The node in its own process at 10 Hz, fed from this process over DDS (loopback, localhost discovery) with the
+   inputs as CDR bytes (stamps patched in place: the feeder costs next to nothing), IMU at 200 Hz then at 1 kHz,
+   the other inputs at 20/20/10/10/5 Hz; the Path arrives on a raw subscription (its header stamp read from the
+   bytes, so the receiver's own deserialisation is not counted). Variants, each a fresh process:
+     old      the node of --baseline (git archive of that commit): message objects in and out, rclpy.spin
+     events   this node (CDR in and out) with rclpy's EventsExecutor (what main() uses)
+     single   this node with the SingleThreadedExecutor
+   end-to-end = arrival of predicted_path - its header stamp (the node's clock when the cycle started: decoding,
+   state, rollout, encoding, DDS); input-to-path = arrival - stamp of the newest IMU message sent before it
+   (includes the wait for the next timer tick, up to 1 / rate_hz); CPU of the node process from /proc.
+3. Candidate plans (events variant): 64 candidates x 120 steps on candidate_plans at 2 Hz; answer = arrival of
+   candidate_predictions (matched by the stamp) - publication of the plans; the node's own figures from
+   /diagnostics (compute of the batched rollout, arrival -> published).
+Figures depend on the machine and its load (2 shared cores here): the load average is printed with them.
 """
 from __future__ import annotations
 
@@ -20,24 +30,36 @@ import argparse
 import json
 import math
 import os
+import struct
 import subprocess
 import sys
+import tarfile
+import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
 from usv_predictor.config import package_share_path
 from usv_predictor.models.artifact import export_module, load_artifact
-from usv_predictor.models.dnn import DnnConfig, DnnModel, DnnRollout
+from usv_predictor.models.dnn import DnnConfig, DnnModel, DnnRollout, _heading_fold
 from usv_predictor.node import live
 
 H = 120
+REPO = Path(__file__).resolve().parents[1]
+BASELINE = "67fb230"  # the last commit before issue 13: the message-object node
+RATES = {"imu": 200.0, "velocity": 20.0, "heading": 20.0, "rudder_angle": 10.0, "engine_rpm": 10.0, "gnss": 5.0}  # Hz
+VALUES = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), "heading": (0.5,),
+          "rudder_angle": (0.1,), "engine_rpm": (650.0,), "gnss": (35.38, 119.56, 0.0)}
+NS = 1_000_000_000
 
 
-def percentiles(seconds: list[float]) -> dict[str, float]:
-    ms = np.array(seconds) * 1e3
+def percentiles(seconds: list[float] | np.ndarray) -> dict[str, float]:
+    ms = np.asarray(seconds, dtype=float) * 1e3
+    if len(ms) == 0:
+        return {"p50_ms": math.nan, "p99_ms": math.nan, "n": 0}
     return {"p50_ms": float(np.percentile(ms, 50)), "p99_ms": float(np.percentile(ms, 99)), "n": len(ms)}
 
 
@@ -52,12 +74,19 @@ def timed(fn, repeats: int) -> dict[str, float]:
     return percentiles(out)
 
 
+def load() -> str:
+    return "/".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+# ----------------------------------------------------------------------------- 1. rollout compute
+
+
 def folded(module) -> dict[str, torch.Tensor]:
     names = ("m_s", "w_c", "bias", "head", "phase", "hidden_w", "hidden_b")
     return {n: getattr(module, n).detach().clone() for n in names}
 
 
-def eager_rollout(p: dict[str, torch.Tensor], state: torch.Tensor, controls: torch.Tensor, dt: float) -> torch.Tensor:
+def eager_rollout(p: dict[str, torch.Tensor], state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
     """The artifact's forward (NTF, tanh) written as a plain eager loop over steps, member by member."""
     members = []
     n_s = p["m_s"].shape[1]
@@ -95,9 +124,33 @@ def numpy_rollout(p: dict[str, np.ndarray], state: np.ndarray, controls: np.ndar
     return out
 
 
+class SigmoidTanhRollout(DnnRollout):
+    """The artifact's network with tanh(x) computed as 2 sigmoid(2x) - 1 (in place): what the activation costs."""
+
+    def _activation_(self, h: torch.Tensor) -> torch.Tensor:
+        if self.clipped:
+            return h.clamp_(0.0, self.ceiling)
+        return h.mul_(2.0).sigmoid_().mul_(2.0).sub_(1.0)
+
+
+def rescripted(artifact, cls: type[DnnRollout]) -> torch.jit.ScriptModule:
+    """A DnnRollout subclass scripted around the artifact's folded buffers (its constants from the metadata)."""
+    source, arch = artifact.module, artifact.metadata["architecture"]
+    module = cls.__new__(cls)
+    torch.nn.Module.__init__(module)
+    module.trig_mode = _heading_fold(artifact.metadata["feature_set"])[0]
+    module.n_trig, module.n_controls = source.phase.shape[-1], source.w_c.shape[1]
+    module.clipped, module.ceiling = arch["activation"] == "clipped_relu", float(arch["ceiling"])
+    module.dt, module.ensemble_size = float(artifact.dt), source.m_s.shape[0]
+    for name, buffer in source.named_buffers():
+        module.register_buffer(name, buffer.clone())
+    return torch.jit.script(module.eval())
+
+
 def bench_compute(repeats: int, tmp: Path) -> dict:
     torch.set_num_threads(1)
-    artifact = load_artifact(package_share_path("models", "default.pt"))
+    path = package_share_path("models", "default.pt")
+    artifact = load_artifact(path)
     rollout = live.Rollout(artifact, H)
     state, controls = np.array([5.0, 0.1, 0.02, 0.3]), np.array([0.2, 650.0])
     params = folded(artifact.module)
@@ -105,30 +158,53 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
     t_controls = torch.tensor(np.tile(controls, (1, H, 1)), dtype=params["m_s"].dtype)
     np_params = {k: v.double().numpy() for k, v in params.items()}
     np_controls = np.tile(controls, (H, 1))
+    frozen = torch.jit.freeze(torch.jit.load(str(path)).eval())
+    optimised = torch.jit.optimize_for_inference(torch.jit.freeze(torch.jit.load(str(path)).eval()))
+    sigmoid = rescripted(artifact, SigmoidTanhRollout)
+    batch_state = t_state.expand(64, 4).contiguous()
+    batch_controls = t_controls.expand(64, H, 2).contiguous()
     with torch.inference_mode():
-        reference = rollout(state, controls)[:, :, [0, 1, 2, 5]]
-        eager = eager_rollout(params, t_state, t_controls, artifact.dt)[:, 0, 1:].double().numpy()
+        reference = rollout(state, controls)  # (E, H, 6)
+        eager = eager_rollout(params, t_state, t_controls)[:, 0, 1:].double().numpy()
+        variants = {name: module(t_state, t_controls)[:, 0].double().numpy()
+                    for name, module in (("freeze", frozen), ("optimize_for_inference", optimised), ("sigmoid", sigmoid))}
     numpy_out = numpy_rollout(np_params, state, np_controls)[:, 1:]
-    agreement = {"eager_vs_torchscript_max_abs": float(np.abs(eager - reference).max()),
-                 "numpy_vs_torchscript_max_abs": float(np.abs(numpy_out - reference).max())}
+    agreement = {"eager_vs_torchscript_max_abs": float(np.abs(eager - reference[..., [0, 1, 2, 5]]).max()),
+                 "numpy_vs_torchscript_max_abs": float(np.abs(numpy_out - reference[..., [0, 1, 2, 5]]).max()),
+                 **{f"{name}_vs_torchscript_max_abs": float(np.abs(out - reference).max()) for name, out in variants.items()}}
+
+    def call(module, s, c):
+        def run() -> None:
+            with torch.inference_mode():
+                module(s, c)
+        return run
 
     def run_eager() -> None:
         with torch.inference_mode():
-            eager_rollout(params, t_state, t_controls, artifact.dt)
+            eager_rollout(params, t_state, t_controls)
 
+    few = max(50, repeats // 10)
     results = {
-        "torchscript_5": timed(lambda: rollout(state, controls), repeats),
-        "eager_5": timed(run_eager, max(50, repeats // 10)),
-        "numpy_5": timed(lambda: numpy_rollout(np_params, state, np_controls), max(50, repeats // 10)),
+        "torchscript_5 (the node's call)": timed(lambda: rollout(state, controls), repeats),
+        "torchscript_5 jit.freeze": timed(call(frozen, t_state, t_controls), repeats),
+        "torchscript_5 freeze+optimize_for_inference": timed(call(optimised, t_state, t_controls), repeats),
+        "torchscript_5 tanh as 2 sigmoid(2x) - 1": timed(call(sigmoid, t_state, t_controls), repeats),
+        "eager_5 (members looped, no fused bmm)": timed(run_eager, few),
+        "numpy_5": timed(lambda: numpy_rollout(np_params, state, np_controls), few),
+        "batch 64 candidates torchscript_5": timed(call(artifact.module, batch_state, batch_controls), few),
+        "batch 64 candidates jit.freeze": timed(call(frozen, batch_state, batch_controls), few),
+        "batch 64 candidates sigmoid tanh": timed(call(sigmoid, batch_state, batch_controls), few),
     }
     # 8 untrained members of the same architecture: the cost, not the answer, is measured
     members = [DnnModel(DnnConfig.for_features("NTF")).eval() for _ in range(8)]
-    eight = export_module(tmp / "ensemble8.pt", DnnRollout(members, artifact.dt),
-                          {**artifact.metadata, "ensemble_size": 8})
+    eight = export_module(tmp / "ensemble8.pt", DnnRollout(members, artifact.dt), {**artifact.metadata, "ensemble_size": 8})
     rollout8 = live.Rollout(eight, H)
-    results["torchscript_8_batched"] = timed(lambda: rollout8(state, controls), repeats)
+    results["torchscript_8 batched members"] = timed(lambda: rollout8(state, controls), repeats)
     results["agreement"] = agreement
     return results
+
+
+# ----------------------------------------------------------------------------- 2. the node over DDS
 
 
 def cpu_seconds(pid: int) -> float:
@@ -136,99 +212,294 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def bench_end_to_end(seconds: float) -> dict:
+def header_stamp(raw: bytes) -> int:
+    """header.stamp of a serialized message that starts with a std_msgs/Header (ns)."""
+    sec, nanosec = struct.unpack_from("<iI", raw, 4)
+    return sec * NS + nanosec
+
+
+def serve(executor_name: str, ros_args: list[str]) -> int:
+    """This node in this process, spun by the named executor (the 'events' and 'single' variants)."""
     import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.experimental import EventsExecutor
+
+    from usv_predictor.node import node as predictor_node
+
+    torch.set_num_threads(1)
+    rclpy.init(args=["predictor", "--ros-args", *ros_args])
+    node = predictor_node.PredictorNode()
+    executor = EventsExecutor() if executor_name == "events" else SingleThreadedExecutor()
+    try:
+        predictor_node.spin(node, executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def receive(out: Path) -> int:
+    """The receiving end (its own process, so that publishing inputs never delays a reception): raw subscriptions
+    record (arrival, header stamp) of every predicted_path and candidate_predictions, the newest IMU stamp, and the
+    node's own figures from /diagnostics; written to `out` (JSON) on SIGTERM."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
 
     import msg_adapters
-    from usv_predictor.config import load_predictor_config
 
-    domain = 150 + os.getpid() % 80
-    env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
-    os.environ.update({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
-    process = subprocess.Popen([sys.executable, "-m", "usv_predictor.node", "--ros-args", "-p", "rate_hz:=10.0",
-                                "--log-level", "error"], env=env)
-    context = Context()
-    rclpy.init(context=context, domain_id=domain)
-    peer = Node("bench_feeder", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(peer)
     make = msg_adapters.rclpy_factory()
-    cfg = load_predictor_config()
-    rates = {"imu": 200.0, "velocity": 20.0, "heading": 20.0, "rudder_angle": 10.0, "engine_rpm": 10.0, "gnss": 5.0}
-    values = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), "heading": (0.5,),
-              "rudder_angle": (0.1,), "engine_rpm": (650.0,), "gnss": (35.38, 119.56, 0.0)}
-    pubs, adapters = {}, {}
-    for role in rates:
-        entry = cfg.input(role)
-        pubs[role] = peer.create_publisher(make(entry.ros_type), entry.topic, 10)
-        adapters[role] = msg_adapters.get_adapter(role, entry.ros_type, **entry.options)
-    arrivals: list[tuple[int, int, int]] = []  # (arrival ns, header stamp ns, newest imu stamp ns)
+    rclpy.init()
+    node = Node("bench_receiver")
+    paths: list[tuple[int, int, int]] = []  # (arrival ns, header stamp ns, newest imu stamp ns)
+    answers: list[tuple[int, int]] = []  # (arrival ns, header stamp ns)
+    reports: list[tuple[int, dict[str, dict[str, str]]]] = []  # (arrival ns, status -> figures)
     last_imu = [0]
 
-    def on_path(msg) -> None:
-        now = time.time_ns()
-        arrivals.append((now, msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, last_imu[0]))
+    def on_imu(raw: bytes) -> None:
+        last_imu[0] = header_stamp(raw)
 
-    peer.create_subscription(make("nav_msgs/msg/Path"), "predicted_path", on_path, 10)
-    deadline = time.monotonic() + 60
-    while peer.count_publishers("predicted_path") == 0 and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.05)
-    next_due = {role: time.monotonic() for role in rates}
-    warm_until = time.monotonic() + 2.0
-    cpu_start = wall_start = None
-    end = warm_until + seconds
+    def on_report(msg: Any) -> None:
+        figures = {status.name.split(": ", 1)[-1]: {kv.key: kv.value for kv in status.values if "_ms_" in kv.key}
+                   for status in msg.status if status.name.endswith(("prediction", "candidate plans"))}
+        reports.append((time.time_ns(), figures))
+
+    node.create_subscription(make("nav_msgs/msg/Path"), "predicted_path",
+                             lambda raw: paths.append((time.time_ns(), header_stamp(raw), last_imu[0])), 10, raw=True)
+    node.create_subscription(make("trajectory_msgs/msg/MultiDOFJointTrajectory"), "candidate_predictions",
+                             lambda raw: answers.append((time.time_ns(), header_stamp(raw))), 10, raw=True)
+    node.create_subscription(make("sensor_msgs/msg/Imu"), "imu/data", on_imu, 100, raw=True)
+    node.create_subscription(make("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics", on_report, 10)
+    executor = EventsExecutor()
+    executor.add_node(node)
     try:
-        while time.monotonic() < end:
-            now = time.monotonic()
-            if cpu_start is None and now >= warm_until:
-                cpu_start, wall_start = cpu_seconds(process.pid), now
-                arrivals.clear()
-            for role, rate in rates.items():
-                if now >= next_due[role]:
-                    stamp = time.time_ns()
-                    pubs[role].publish(adapters[role].encode(stamp, values[role], make, cfg.input(role).frame_id))
-                    if role == "imu":
-                        last_imu[0] = stamp
-                    next_due[role] += 1.0 / rate
-            executor.spin_once(timeout_sec=max(0.0, min(next_due.values()) - time.monotonic()))
-        cpu = (cpu_seconds(process.pid) - cpu_start) / (time.monotonic() - wall_start)
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.5)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
     finally:
-        executor.shutdown()
-        peer.destroy_node()
-        rclpy.try_shutdown(context=context)
-        process.terminate()
-        process.wait(timeout=15)
-    stamps = np.array(arrivals)
-    return {"paths": len(arrivals), "seconds": seconds,
-            "path_rate_hz": len(arrivals) / seconds,
-            "end_to_end": percentiles(list((stamps[:, 0] - stamps[:, 1]) / 1e9)),
-            "input_to_path": percentiles(list((stamps[:, 0] - stamps[:, 2]) / 1e9)),
-            "node_cpu_percent_of_one_core": 100.0 * cpu}
+        out.write_text(json.dumps({"paths": paths, "answers": answers, "reports": reports}))
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+class Feeder:
+    """Publishes the inputs as CDR bytes with fresh stamps (paced by sleeping), and the candidate plans."""
+
+    def __init__(self, domain: int) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.node import Node
+        from rclpy.serialization import serialize_message
+
+        import msg_adapters
+        from usv_predictor.config import load_predictor_config
+
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = Node("bench_feeder", context=self.context)
+        make = msg_adapters.rclpy_factory()
+        cfg = load_predictor_config()
+        self.publishers, self.templates, self.stamped = {}, {}, {}
+        for role in RATES:
+            entry = cfg.input(role)
+            adapter = msg_adapters.get_adapter(role, entry.ros_type, **entry.options)
+            first = serialize_message(adapter.encode(NS, VALUES[role], make, entry.frame_id))
+            second = serialize_message(adapter.encode(2 * NS + 5, VALUES[role], make, entry.frame_id))
+            changed = [i for i in range(len(first)) if first[i] != second[i]]
+            self.stamped[role] = bool(changed)
+            assert not changed or (min(changed) >= 4 and max(changed) < 12), f"{role}: stamp not at bytes 4..12"
+            self.templates[role] = bytearray(first)
+            self.publishers[role] = self.node.create_publisher(make(entry.ros_type), entry.topic, 10)
+        self.plans = self.node.create_publisher(make("trajectory_msgs/msg/JointTrajectory"), "candidate_plans", 10)
+        self.candidates = bytearray(serialize_message(candidates_message(make, 64, H)))
+
+    def publish(self, role: str) -> None:
+        buffer = self.templates[role]
+        if self.stamped[role]:
+            struct.pack_into("<iI", buffer, 4, *divmod(time.time_ns(), NS))
+        self.publishers[role].publish(bytes(buffer))
+
+    def publish_candidates(self) -> int:
+        stamp = time.time_ns()
+        struct.pack_into("<iI", self.candidates, 4, *divmod(stamp, NS))
+        self.plans.publish(bytes(self.candidates))
+        return stamp
+
+    def wait_for(self, processes: list[subprocess.Popen]) -> None:
+        """Until the node subscribes to the IMU and the receiver to predicted_path."""
+        deadline = time.monotonic() + 90.0
+        while (self.node.count_subscribers("imu/data") < 2 or self.node.count_publishers("predicted_path") < 1
+               or self.node.count_subscribers("predicted_path") < 1):
+            assert all(p.poll() is None for p in processes), "the node or the receiver exited"
+            assert time.monotonic() < deadline, "the node did not come up within 90 s"
+            time.sleep(0.05)
+
+    def run(self, seconds: float, imu_hz: float, process: subprocess.Popen, candidates_hz: float = 0.0) -> dict:
+        """Feed for 2 s of warm-up then `seconds` at these rates; (start ns, end ns) of the measured part, CPU."""
+        rates = {**RATES, "imu": imu_hz}
+        next_due = {role: time.monotonic() for role in rates}
+        plans_due = math.inf if candidates_hz <= 0 else time.monotonic() + 2.0
+        warm_until = time.monotonic() + 2.0
+        end = warm_until + seconds
+        cpu_start = wall_start = start_ns = None
+        sent: list[int] = []
+        while True:
+            now = time.monotonic()
+            if now >= end:
+                break
+            if cpu_start is None and now >= warm_until:
+                cpu_start, wall_start, start_ns = cpu_seconds(process.pid), now, time.time_ns()
+                sent.clear()
+            for role, rate in rates.items():
+                while now >= next_due[role]:
+                    self.publish(role)
+                    next_due[role] += 1.0 / rate
+            if now >= plans_due:
+                sent.append(self.publish_candidates())
+                plans_due += 1.0 / candidates_hz
+            time.sleep(max(0.0, min(min(next_due.values()), plans_due, end) - time.monotonic()))
+        cpu = (cpu_seconds(process.pid) - cpu_start) / (time.monotonic() - wall_start)
+        end_ns = time.time_ns()
+        time.sleep(1.0)  # the inputs stop: the node goes stale and stops predicting
+        return {"imu_hz": imu_hz, "seconds": seconds, "window_ns": (start_ns, end_ns), "candidates_sent": sent,
+                "load": load(), "node_cpu_percent_of_one_core": 100.0 * cpu}
+
+    def close(self) -> None:
+        import rclpy
+
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def figures(run: dict, received: dict) -> dict:
+    """The run's latencies from what the receiver recorded inside the run's window."""
+    start, end = run.pop("window_ns")
+    sent = run.pop("candidates_sent")
+    arrivals = np.array([p for p in received["paths"] if start <= p[0] <= end], dtype=np.int64).reshape(-1, 3)
+    run.update(paths=len(arrivals), end_to_end=percentiles((arrivals[:, 0] - arrivals[:, 1]) / 1e9),
+               input_to_path=percentiles((arrivals[:, 0] - arrivals[:, 2]) / 1e9))
+    reports = [figures for at, figures in received["reports"] if start <= at <= end + NS]
+    run["node_reports"] = reports[-1].get("prediction", {}) if reports else {}
+    if sent:
+        answered = {stamp: at for at, stamp in received["answers"]}
+        latency = [answered[s] - s for s in sent if s in answered]
+        run["candidates"] = {"sent": len(sent), "answered": len(latency), "answer": percentiles(np.array(latency) / 1e9),
+                             "node": reports[-1].get("candidate plans", {}) if reports else {}}
+    return run
+
+
+def candidates_message(make, count: int, steps: int, dt: float = 0.5) -> Any:
+    """count candidates "c<i>/delta", "c<i>/rpm": rudders from -0.5 to 0.5 rad at 650 rpm, steps points dt apart."""
+    msg = make("trajectory_msgs/msg/JointTrajectory")()
+    msg.joint_names = [f"c{i}/{control}" for i in range(count) for control in ("delta", "rpm")]
+    rudders = np.linspace(-0.5, 0.5, count)
+    row = [float(x) for r in rudders for x in (r, 650.0)]
+    point, duration = make("trajectory_msgs/msg/JointTrajectoryPoint"), make("builtin_interfaces/msg/Duration")
+    msg.points = [point(positions=row, time_from_start=duration(sec=int(k * dt), nanosec=int(round(k * dt % 1 * NS))))
+                  for k in range(steps)]
+    msg.header.stamp.sec = 1  # patched per publication
+    return msg
+
+
+def baseline_tree(revision: str, tmp: Path) -> Path:
+    """The source tree of `revision` (git archive), to run the old node from."""
+    target = tmp / f"baseline_{revision}"
+    archive = subprocess.run(["git", "-C", str(REPO), "archive", "--format=tar", revision], check=True,
+                             capture_output=True).stdout
+    target.mkdir()
+    archive_path = tmp / "baseline.tar"
+    archive_path.write_bytes(archive)
+    with tarfile.open(archive_path) as tar:
+        tar.extractall(target, filter="data")
+    return target
+
+
+def bench_node(variant: str, seconds: float, tmp: Path, baseline: str) -> dict:
+    domain = 150 + (os.getpid() + len(variant)) % 80
+    env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    ros_args = ["-p", "rate_hz:=10.0", "--log-level", "error"]
+    if variant == "old":
+        tree = baseline_tree(baseline, tmp)
+        command = [sys.executable, "-m", "usv_predictor.node", "--ros-args", *ros_args]
+        node_env, cwd = {**env, "PYTHONPATH": str(tree)}, str(tree)
+    else:
+        command = [sys.executable, str(Path(__file__).resolve()), "--serve", variant, "--ros-args", *ros_args]
+        node_env, cwd = {**env, "PYTHONPATH": str(REPO)}, str(REPO)
+    out = tmp / f"received_{variant}.json"
+    receiver = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--receive", str(out)],
+                                env={**env, "PYTHONPATH": str(REPO)})
+    process = subprocess.Popen(command, env=node_env, cwd=cwd)
+    feeder = Feeder(domain)
+    runs: dict[str, dict] = {}
+    try:
+        feeder.wait_for([process, receiver])
+        runs["imu_200"] = feeder.run(seconds, 200.0, process)
+        runs["imu_1000"] = feeder.run(seconds, 1000.0, process)
+        if variant == "events":
+            runs["candidates_64"] = feeder.run(seconds, 200.0, process, candidates_hz=2.0)
+    finally:
+        feeder.close()
+        for child in (process, receiver):
+            child.terminate()
+            try:
+                child.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                child.kill()
+    received = json.loads(out.read_text())
+    if os.environ.get("BENCH_KEEP"):
+        Path(os.environ["BENCH_KEEP"]).write_text(json.dumps({"received": received, "runs": runs}))
+    return {name: figures(run, received) for name, run in runs.items()}
 
 
 def main() -> int:
+    if "--serve" in sys.argv:  # the node process of a variant (see bench_node)
+        index = sys.argv.index("--serve")
+        return serve(sys.argv[index + 1], sys.argv[sys.argv.index("--ros-args") + 1:])
+    if "--receive" in sys.argv:  # the receiving process (see receive)
+        return receive(Path(sys.argv[sys.argv.index("--receive") + 1]))
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--repeats", type=int, default=2000)
-    parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--seconds", type=float, default=10.0, help="measured seconds per phase (s)")
+    parser.add_argument("--baseline", default=BASELINE, help="git revision of the old node ('' to skip it)")
+    parser.add_argument("--variants", default="old,events,single")
+    parser.add_argument("--skip-compute", action="store_true")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
-    import tempfile
-
+    result: dict[str, Any] = {"started": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "load_at_start": load(),
+                              "cpu": os.cpu_count()}
+    print(f"{result['started']}, {os.cpu_count()} cores, load average (1/5/15 min) {result['load_at_start']}")
     with tempfile.TemporaryDirectory() as tmp:
-        result = {"compute": bench_compute(args.repeats, Path(tmp))}
-    for name, figures in result["compute"].items():
-        if name != "agreement":
-            print(f"rollout {name:22s} p50 {figures['p50_ms']:7.3f} ms  p99 {figures['p99_ms']:7.3f} ms  (n={figures['n']})")
-    print(f"agreement with the artifact: {result['compute']['agreement']}")
-    result["node"] = bench_end_to_end(args.seconds)
-    node = result["node"]
-    print(f"node at 10 Hz, IMU 200 Hz: {node['paths']} paths in {node['seconds']:g} s; end-to-end p50 "
-          f"{node['end_to_end']['p50_ms']:.2f} ms p99 {node['end_to_end']['p99_ms']:.2f} ms; input-to-path p50 "
-          f"{node['input_to_path']['p50_ms']:.2f} ms p99 {node['input_to_path']['p99_ms']:.2f} ms; "
-          f"CPU {node['node_cpu_percent_of_one_core']:.1f} % of one core")
+        if not args.skip_compute:
+            result["compute"] = bench_compute(args.repeats, Path(tmp))
+            print(f"\nrollout, 120 steps (load {load()})              p50 ms   p99 ms")
+            for name, figures in result["compute"].items():
+                if name != "agreement":
+                    print(f"  {name:45s} {figures['p50_ms']:7.3f}  {figures['p99_ms']:7.3f}   (n={figures['n']})")
+            print(f"  agreement with the artifact (max abs): {result['compute']['agreement']}")
+        variants = [v for v in args.variants.split(",") if v and (v != "old" or args.baseline)]
+        result["node"] = {v: bench_node(v, args.seconds, Path(tmp), args.baseline) for v in variants}
+    print("\nnode at 10 Hz over DDS; e2e = cycle start -> Path received        p50 / p99 ms      CPU % of one core")
+    for variant, runs in result["node"].items():
+        label = {"old": f"old ({args.baseline}, message objects)", "events": "new, EventsExecutor",
+                 "single": "new, SingleThreadedExecutor"}[variant]
+        for name, run in runs.items():
+            print(f"  {label:38s} IMU {run['imu_hz']:6.0f} Hz  e2e {run['end_to_end']['p50_ms']:6.2f} / "
+                  f"{run['end_to_end']['p99_ms']:6.2f}  input->path {run['input_to_path']['p50_ms']:6.2f} / "
+                  f"{run['input_to_path']['p99_ms']:6.2f}  CPU {run['node_cpu_percent_of_one_core']:5.1f}  "
+                  f"({run['paths']} paths, load {run['load']}){'  + candidates' if 'candidates' in run else ''}")
+            reported = run["node_reports"]
+            if reported:
+                print(f"    the node's own figures (last 200 cycles): {reported}")
+            if "candidates" in run:
+                c = run["candidates"]
+                print(f"    64 candidates x {H} steps at 2 Hz: {c['answered']}/{c['sent']} answered, publish -> answer "
+                      f"p50 {c['answer']['p50_ms']:.2f} p99 {c['answer']['p99_ms']:.2f} ms; node: {c['node']}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=2))

@@ -1,4 +1,4 @@
-"""The predictor's output messages: predicted path and predicted velocities.
+"""The predictor's output messages: predicted path, predicted velocities, covariance, candidates, diagnostics.
 
 Inputs are marine (eta (H, 3) = [x_n, y_e, psi] NED, nu (H, 3) = [u, v, r] FRD, times in int ns);
 messages are REP-103/105:
@@ -7,19 +7,35 @@ messages are REP-103/105:
   trajectory_msgs/MultiDOFJointTrajectory: joint_names = [child_frame_id] (the body frame);
     points[i].transforms[0] the same ENU pose, velocities[0] the body twist FLU (linear.x = u,
     linear.y = -v, angular.z = -r), accelerations empty, time_from_start = t_ns[i] - stamp.
+  candidate predictions (the batch form, one message for N plans): a MultiDOFJointTrajectory whose
+    joint_names are the N candidate names; points[k].transforms[i] / velocities[i] are candidate i's
+    pose and twist at t_ns[k] as above; header.stamp = the candidates' stamp.
+  std_msgs/Float64MultiArray covariance: dim [("step", H), ("cov_x_y_yaw_enu", 9)], data H row-major 3 x 3.
+  diagnostic_msgs/DiagnosticArray from plain `Status` records.
+
+Two builders per message: `encode_*` makes message objects with make(type_name) (rclpy, rosbags,
+columnar), `*_cdr` writes the serialized CDR bytes directly with numpy (fixed layouts, msg_adapters.cdr),
+what the node publishes. Both take their numbers from the same vectorised conversions (`enu_poses`,
+`flu_twists`), and test_output_cdr.py proves the bytes equal rclpy's serialisation of the objects.
 """
 from __future__ import annotations
 
-from typing import Any
+import functools
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from msg_adapters import _codec as c
+from msg_adapters.cdr_writer import CdrLayout, CdrWriter, time_parts
 from usv_predictor.errors import AdapterError
 from usv_predictor.frames import enu_yaw_to_heading, heading_to_enu_yaw, quaternion_to_yaw, yaw_to_quaternion
 
 PATH_TYPE = "nav_msgs/msg/Path"
 TRAJECTORY_TYPE = "trajectory_msgs/msg/MultiDOFJointTrajectory"
+COVARIANCE_TYPE = "std_msgs/msg/Float64MultiArray"
+DIAGNOSTICS_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
+COVARIANCE_LABELS = ("step", "cov_x_y_yaw_enu")
 
 
 def _check_shapes(t_ns: np.ndarray, **arrays: np.ndarray) -> None:
@@ -28,23 +44,31 @@ def _check_shapes(t_ns: np.ndarray, **arrays: np.ndarray) -> None:
             raise AdapterError(f"{name} must have shape ({len(t_ns)}, 3) to match t_ns, got {array.shape}")
 
 
-def _enu_pose_parts(eta_row: np.ndarray) -> tuple[tuple[float, float], tuple[float, float, float, float]]:
-    x_n, y_e, psi = (float(x) for x in eta_row)
-    quat = tuple(float(q) for q in yaw_to_quaternion(heading_to_enu_yaw(psi)))
-    return (y_e, x_n), quat
+def enu_poses(eta: np.ndarray) -> np.ndarray:
+    """(..., 3) [x_n, y_e, psi] NED -> (..., 7) geometry_msgs Pose [x east, y north, z 0, qx, qy, qz, qw] ENU."""
+    eta = np.asarray(eta, dtype=np.float64)
+    qx, qy, qz, qw = yaw_to_quaternion(heading_to_enu_yaw(eta[..., 2]))
+    return np.stack([eta[..., 1], eta[..., 0], np.zeros_like(qz), qx, qy, qz, qw], axis=-1)
+
+
+def flu_twists(nu: np.ndarray) -> np.ndarray:
+    """(..., 3) [u, v, r] FRD -> (..., 6) geometry_msgs Twist [linear x y z, angular x y z] FLU."""
+    nu = np.asarray(nu, dtype=np.float64)
+    zero = np.zeros_like(nu[..., 0])
+    return np.stack([nu[..., 0], -nu[..., 1], zero, zero, zero, -nu[..., 2]], axis=-1)
+
+
+def _pose(make: c.MakeFn, row: np.ndarray) -> Any:
+    return make("geometry_msgs/msg/Pose")(position=c.vector3(make, *row[:3], "geometry_msgs/msg/Point"),
+                                          orientation=c.quaternion(make, *row[3:]))
 
 
 def encode_path(stamp_ns: int, t_ns: np.ndarray, eta: np.ndarray, frame_id: str, make: c.MakeFn) -> Any:
     """nav_msgs/Path of the predicted poses eta (H, 3) NED at times t_ns (H,)."""
     t_ns, eta = np.asarray(t_ns, dtype=np.int64), np.asarray(eta, dtype=np.float64)
     _check_shapes(t_ns, eta=eta)
-    poses = []
-    for t_i, eta_i in zip(t_ns, eta):
-        (east, north), quat = _enu_pose_parts(eta_i)
-        pose = make("geometry_msgs/msg/Pose")(
-            position=c.vector3(make, east, north, 0.0, "geometry_msgs/msg/Point"), orientation=c.quaternion(make, *quat)
-        )
-        poses.append(make("geometry_msgs/msg/PoseStamped")(header=c.header(make, int(t_i), frame_id), pose=pose))
+    poses = [make("geometry_msgs/msg/PoseStamped")(header=c.header(make, int(t_i), frame_id), pose=_pose(make, row))
+             for t_i, row in zip(t_ns, enu_poses(eta))]
     return make(PATH_TYPE)(header=c.header(make, int(stamp_ns), frame_id), poses=poses)
 
 
@@ -69,27 +93,33 @@ def encode_predicted_velocities(
     t_ns = np.asarray(t_ns, dtype=np.int64)
     eta, nu = np.asarray(eta, dtype=np.float64), np.asarray(nu, dtype=np.float64)
     _check_shapes(t_ns, eta=eta, nu=nu)
+    return encode_candidate_predictions(stamp_ns, t_ns, eta[None], nu[None], frame_id, [child_frame_id], make)
+
+
+def encode_candidate_predictions(stamp_ns: int, t_ns: np.ndarray, eta: np.ndarray, nu: np.ndarray, frame_id: str,
+                                 names: Sequence[str], make: c.MakeFn) -> Any:
+    """MultiDOFJointTrajectory of N bodies: eta, nu (N, H, 3) -> joint i = names[i], point k at t_ns[k]."""
+    poses, twists = _check_batch(t_ns, eta, nu, names)
     points = []
-    for t_i, eta_i, nu_i in zip(t_ns, eta, nu):
-        (east, north), quat = _enu_pose_parts(eta_i)
-        u, v, r = (float(x) for x in nu_i)
-        transform = make("geometry_msgs/msg/Transform")(
-            translation=c.vector3(make, east, north, 0.0), rotation=c.quaternion(make, *quat)
-        )
-        twist = make("geometry_msgs/msg/Twist")(
-            linear=c.vector3(make, u, -v, 0.0), angular=c.vector3(make, 0.0, 0.0, -r)
-        )
-        points.append(
-            make("trajectory_msgs/msg/MultiDOFJointTrajectoryPoint")(
-                transforms=[transform],
-                velocities=[twist],
-                accelerations=[],
-                time_from_start=c.time_msg(make, int(t_i) - int(stamp_ns), "builtin_interfaces/msg/Duration"),
-            )
-        )
-    return make(TRAJECTORY_TYPE)(
-        header=c.header(make, int(stamp_ns), frame_id), joint_names=[child_frame_id], points=points
-    )
+    for k, t_k in enumerate(np.asarray(t_ns, dtype=np.int64)):
+        transforms = [make("geometry_msgs/msg/Transform")(translation=c.vector3(make, *row[:3]),
+                                                          rotation=c.quaternion(make, *row[3:])) for row in poses[:, k]]
+        velocities = [make("geometry_msgs/msg/Twist")(linear=c.vector3(make, *row[:3]), angular=c.vector3(make, *row[3:]))
+                      for row in twists[:, k]]
+        points.append(make("trajectory_msgs/msg/MultiDOFJointTrajectoryPoint")(
+            transforms=transforms, velocities=velocities, accelerations=[],
+            time_from_start=c.time_msg(make, int(t_k) - int(stamp_ns), "builtin_interfaces/msg/Duration")))
+    return make(TRAJECTORY_TYPE)(header=c.header(make, int(stamp_ns), frame_id), joint_names=list(names), points=points)
+
+
+def _check_batch(t_ns: np.ndarray, eta: np.ndarray, nu: np.ndarray, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    """(N, H, 7) poses and (N, H, 6) twists, or AdapterError naming the mismatched shape."""
+    eta, nu = np.asarray(eta, dtype=np.float64), np.asarray(nu, dtype=np.float64)
+    expected = (len(names), len(t_ns), 3)
+    for name, array in (("eta", eta), ("nu", nu)):
+        if array.shape != expected:
+            raise AdapterError(f"{name} must have shape {expected} (names, times, 3), got {array.shape}")
+    return enu_poses(eta), flu_twists(nu)
 
 
 def decode_predicted_velocities(msg: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -111,3 +141,141 @@ def decode_predicted_velocities(msg: Any) -> tuple[np.ndarray, np.ndarray]:
             -c.field(twist, "angular.z", TRAJECTORY_TYPE),
         )
     return t_ns, nu
+
+
+# ---------------------------------------------------------------- serialized CDR (what the node publishes)
+
+
+@functools.lru_cache(maxsize=16)
+def _path_layout(steps: int, frame_id: str) -> CdrLayout:
+    w = CdrWriter()
+    w.slot("stamp", "<i4", 2)  # builtin_interfaces/Time: sec int32, nanosec uint32 (< 1e9: same bytes as int32)
+    w.string(frame_id)
+    w.uint32(steps)
+    for _ in range(steps):  # geometry_msgs/PoseStamped
+        w.slot("pose_stamp", "<i4", 2)
+        w.string(frame_id)
+        w.slot("pose", "<f8", 7)
+    return w.layout()
+
+
+def path_cdr(stamp_ns: int, t_ns: np.ndarray, eta: np.ndarray, frame_id: str) -> bytes:
+    """Serialized nav_msgs/Path, byte-equal to rclpy's serialisation of encode_path(...)."""
+    t_ns, eta = np.asarray(t_ns, dtype=np.int64), np.asarray(eta, dtype=np.float64)
+    _check_shapes(t_ns, eta=eta)
+    return _path_layout(len(t_ns), frame_id).fill(stamp=time_parts(stamp_ns), pose_stamp=time_parts(t_ns),
+                                                  pose=enu_poses(eta))
+
+
+@functools.lru_cache(maxsize=16)
+def _trajectory_layout(steps: int, frame_id: str, names: tuple[str, ...]) -> CdrLayout:
+    bodies = len(names)
+    w = CdrWriter()
+    w.slot("stamp", "<i4", 2)
+    w.string(frame_id)
+    w.strings(names)
+    w.uint32(steps)
+    for _ in range(steps):  # trajectory_msgs/MultiDOFJointTrajectoryPoint
+        w.uint32(bodies)
+        if bodies:
+            w.slot("transforms", "<f8", 7 * bodies)  # Transform = 7 float64, no padding between them
+        w.uint32(bodies)
+        if bodies:
+            w.slot("twists", "<f8", 6 * bodies)  # Twist = 6 float64
+        w.uint32(0)  # accelerations: none
+        w.slot("time_from_start", "<i4", 2)
+    return w.layout()
+
+
+def candidate_predictions_cdr(stamp_ns: int, t_ns: np.ndarray, eta: np.ndarray, nu: np.ndarray, frame_id: str,
+                              names: Sequence[str]) -> bytes:
+    """Serialized MultiDOFJointTrajectory of N bodies (eta, nu (N, H, 3)), as encode_candidate_predictions."""
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    poses, twists = _check_batch(t_ns, eta, nu, names)
+    layout = _trajectory_layout(len(t_ns), frame_id, tuple(names))
+    steps, bodies = len(t_ns), len(names)
+    return layout.fill(stamp=time_parts(stamp_ns), time_from_start=time_parts(t_ns - int(stamp_ns)),
+                       transforms=poses.transpose(1, 0, 2).reshape(steps, 7 * bodies),  # (H, N x 7)
+                       twists=twists.transpose(1, 0, 2).reshape(steps, 6 * bodies))  # (H, N x 6)
+
+
+def predicted_velocities_cdr(stamp_ns: int, t_ns: np.ndarray, eta: np.ndarray, nu: np.ndarray, frame_id: str,
+                             child_frame_id: str) -> bytes:
+    """Serialized MultiDOFJointTrajectory of the prediction, byte-equal to rclpy's of encode_predicted_velocities."""
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    eta, nu = np.asarray(eta, dtype=np.float64), np.asarray(nu, dtype=np.float64)
+    _check_shapes(t_ns, eta=eta, nu=nu)
+    return candidate_predictions_cdr(stamp_ns, t_ns, eta[None], nu[None], frame_id, [child_frame_id])
+
+
+def encode_covariance(covariance: np.ndarray, make: c.MakeFn) -> Any:
+    """(H, 3, 3) covariances of [x east, y north, yaw] -> std_msgs/Float64MultiArray (steps x 9, row-major)."""
+    covariance = _check_covariance(covariance)
+    steps = covariance.shape[0]
+    dimension = make("std_msgs/msg/MultiArrayDimension")
+    layout = make("std_msgs/msg/MultiArrayLayout")(
+        dim=[dimension(label=COVARIANCE_LABELS[0], size=steps, stride=steps * 9),
+             dimension(label=COVARIANCE_LABELS[1], size=9, stride=9)], data_offset=0)
+    return make(COVARIANCE_TYPE)(layout=layout, data=covariance.reshape(-1).tolist())
+
+
+def _check_covariance(covariance: np.ndarray) -> np.ndarray:
+    covariance = np.asarray(covariance, dtype=np.float64)
+    if covariance.ndim != 3 or covariance.shape[1:] != (3, 3):
+        raise AdapterError(f"covariance must have shape (H, 3, 3), got {covariance.shape}")
+    return covariance
+
+
+@functools.lru_cache(maxsize=16)
+def _covariance_layout(steps: int) -> CdrLayout:
+    w = CdrWriter()
+    w.uint32(2)  # layout.dim
+    for label, size, stride in ((COVARIANCE_LABELS[0], steps, steps * 9), (COVARIANCE_LABELS[1], 9, 9)):
+        w.string(label)
+        w.uint32(size)
+        w.uint32(stride)
+    w.uint32(0)  # layout.data_offset
+    w.sequence("data", "<f8", steps * 9)
+    return w.layout()
+
+
+def covariance_cdr(covariance: np.ndarray) -> bytes:
+    """Serialized Float64MultiArray of (H, 3, 3) covariances, byte-equal to rclpy's of encode_covariance."""
+    covariance = _check_covariance(covariance)
+    return _covariance_layout(covariance.shape[0]).fill(data=covariance.reshape(1, -1))
+
+
+class Status(NamedTuple):
+    """One diagnostic_msgs/DiagnosticStatus as plain values."""
+
+    level: int  # DiagnosticStatus.OK 0, WARN 1, ERROR 2, STALE 3
+    name: str
+    message: str
+    hardware_id: str
+    values: tuple[tuple[str, str], ...]  # (key, value) pairs
+
+
+def encode_diagnostics(stamp_ns: int, statuses: Sequence[Status], make: c.MakeFn) -> Any:
+    """diagnostic_msgs/DiagnosticArray (header frame_id empty) of `statuses`."""
+    status_type, key_value = make("diagnostic_msgs/msg/DiagnosticStatus"), make("diagnostic_msgs/msg/KeyValue")
+    return make(DIAGNOSTICS_TYPE)(header=c.header(make, int(stamp_ns), ""), status=[
+        status_type(level=bytes([s.level]), name=s.name, message=s.message, hardware_id=s.hardware_id,
+                    values=[key_value(key=k, value=v) for k, v in s.values]) for s in statuses])
+
+
+def diagnostics_cdr(stamp_ns: int, statuses: Sequence[Status]) -> bytes:
+    """Serialized DiagnosticArray, byte-equal to rclpy's serialisation of encode_diagnostics (rclpy make)."""
+    w = CdrWriter()
+    w.slot("stamp", "<i4", 2)
+    w.string("")
+    w.uint32(len(statuses))
+    for status in statuses:
+        w.primitive("u1", status.level)  # `byte`
+        w.string(status.name)
+        w.string(status.message)
+        w.string(status.hardware_id)
+        w.uint32(len(status.values))
+        for key, value in status.values:
+            w.string(key)
+            w.string(value)
+    return w.layout().fill(stamp=time_parts(stamp_ns))

@@ -8,7 +8,9 @@ CI run can never pass by silently skipping the tests on real data.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -41,3 +43,20 @@ def raw_data_dir() -> Path:
     if running_in_ci():
         pytest.fail(f"{reason}; CI is set, so tests on real data must not be skipped", pytrace=False)
     pytest.skip(reason)
+
+
+@pytest.fixture()
+def ros_context(monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
+    """A private rclpy context (rclpy.context.Context) on this process's domain, discovery on this host only
+    (the node tests; rclpy is imported here, not when a test without ROS collects this file)."""
+    import rclpy
+    from rclpy.context import Context
+    from ros_helpers import domain_id
+
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id(0))
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)

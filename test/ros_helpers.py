@@ -1,4 +1,5 @@
-"""Shared helpers of the node tests: domain ids, an isolated rclpy context, the node harness, /diagnostics lookups.
+"""Shared helpers of the node tests: domain ids, the node harness, /diagnostics lookups (the isolated rclpy
+context `ros_context` is a fixture of conftest.py).
 
 Every test process talks on its own ROS_DOMAIN_ID (derived from the pid, an offset per use) with discovery
 on this host only, so parallel runs on one machine do not hear each other.
@@ -8,11 +9,10 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
@@ -23,6 +23,7 @@ import msg_adapters
 from usv_predictor.node import node as predictor_node
 
 WAIT_S = 15.0  # upper bound on discovery + a few timer periods (s)
+DIAGNOSTICS_RATE_HZ = 20.0  # the harness's /diagnostics rate (default 1 Hz): tests wait on the reports
 # plain values (SI, marine frames) of every default input that give a good prediction
 GOOD = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), "heading": (0.5,),
         "rudder_angle": (0.1,), "engine_rpm": (650.0,), "gnss": (35.38, 119.56, 0.0)}
@@ -36,18 +37,6 @@ def domain_id(offset: int = 0) -> int:
 def localhost_env(offset: int = 0) -> dict[str, str]:
     """os.environ for a child process on this process's domain (+ offset), discovery on this host only."""
     return {**os.environ, "ROS_DOMAIN_ID": str(domain_id(offset)), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
-
-
-@pytest.fixture()
-def ros_context(monkeypatch: pytest.MonkeyPatch) -> Iterator[Context]:
-    """A private rclpy context on this process's domain, discovery on this host only."""
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    context = Context()
-    rclpy.init(context=context, domain_id=domain_id(0))
-    try:
-        yield context
-    finally:
-        rclpy.try_shutdown(context=context)
 
 
 def statuses(report: DiagnosticArray) -> dict[str, Any]:
@@ -68,6 +57,8 @@ class Harness:
     """The node under test (wall clock), a peer node that publishes its inputs, and what comes back."""
 
     def __init__(self, context: Context, overrides: list[Parameter], peer_name: str = "test_peer") -> None:
+        if not any(p.name == "diagnostics_rate_hz" for p in overrides):
+            overrides = [*overrides, Parameter("diagnostics_rate_hz", value=DIAGNOSTICS_RATE_HZ)]
         self.node = predictor_node.PredictorNode(context=context, parameter_overrides=overrides)
         self.peer = Node(peer_name, context=context)
         self.executor = SingleThreadedExecutor(context=context)

@@ -13,7 +13,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from usv_predictor.errors import BagError
-from usv_predictor.replay.cdr_fast import decode_many, has_fast_layout, supported_types
+from msg_adapters.cdr import decode_many, has_fast_layout, supported_types
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 

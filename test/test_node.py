@@ -20,15 +20,7 @@ from usv_predictor.config import package_share_path
 from usv_predictor.errors import ModelError
 from usv_predictor.node import node as predictor_node
 
-from ros_helpers import (  # noqa: F401 (ros_context is a fixture)
-    GOOD,
-    Harness,
-    level,
-    localhost_env,
-    ros_context,
-    statuses,
-    values_of,
-)
+from ros_helpers import GOOD, Harness, level, localhost_env, statuses, values_of
 
 DEFAULT_MODEL = package_share_path("models", "default.pt")
 
@@ -140,9 +132,10 @@ def test_stamps_backwards_and_from_the_future_are_refused(harness: Harness) -> N
 def test_a_1khz_imu_burst_keeps_buffers_bounded(harness: Harness) -> None:
     capacity = harness.node.inputs.tracks["imu"].buffer.capacity
     nbytes = harness.node.inputs.tracks["imu"].buffer.nbytes
-    end = time.monotonic() + 3.0
+    deadline = time.monotonic() + 60.0
     sent = 0
-    while time.monotonic() < end:  # ~1 kHz for 3 s (as fast as the loop runs, at most 1 per ms)
+    while sent < capacity + 256:  # a burst as fast as the loop runs (1-2 kHz here): a count, not a duration, so
+        assert time.monotonic() < deadline, f"only {sent} IMU messages sent in 60 s"  # a busy machine passes too
         harness.publish("imu", GOOD["imu"])
         sent += 1
         harness.executor.spin_once(timeout_sec=0.0)

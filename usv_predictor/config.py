@@ -113,7 +113,7 @@ class PredictorConfig:
     source: str  # file (or parameter set) it came from, for messages
     model_path: str  # "" = the shipped default model
     vessel: str  # preset name in config/vessels/
-    rate_hz: float  # prediction and diagnostics rate (Hz)
+    rate_hz: float  # prediction rate (Hz); the node publishes /diagnostics at its diagnostics_rate_hz
     horizon_s: float  # prediction horizon (s)
     dt: float  # prediction step (s)
     ensemble_size: int

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -486,7 +486,7 @@ class Prediction(NamedTuple):
 
 
 class Rollout:
-    """The TorchScript model with preallocated inputs: one (1, 4) state and (1, H, C) held controls."""
+    """The TorchScript model with preallocated inputs: one (1, 4) state and (1, H, C) controls."""
 
     def __init__(self, artifact: ModelArtifact, horizon_steps: int, ensemble_size: int | None = None) -> None:
         available = artifact.ensemble_size
@@ -496,19 +496,19 @@ class Rollout:
                              f"{available} member(s)")
         self.artifact = artifact
         self.horizon_steps = int(horizon_steps)
-        dtype = artifact.module.m_s.dtype if hasattr(artifact.module, "m_s") else torch.float64
-        self._state = torch.zeros(1, 4, dtype=dtype)
+        self.dtype = artifact.module.m_s.dtype if hasattr(artifact.module, "m_s") else torch.float64
+        self._state = torch.zeros(1, 4, dtype=self.dtype)
         self.n_controls = len(artifact.metadata["control_layout"])  # C, the model's control columns
-        self._controls = torch.zeros(1, self.horizon_steps, self.n_controls, dtype=dtype)
+        self._controls = torch.zeros(1, self.horizon_steps, self.n_controls, dtype=self.dtype)
         for _ in range(WARM_UP_CALLS):  # TorchScript profiles and optimises its first calls: not in a live cycle
             self(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(self.n_controls))
 
     def __call__(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        """(E, H, 6) [u, v, r, x_n, y_e, psi] relative to the start, controls (C,) held for every step.
+        """(E, H, 6) [u, v, r, x_n, y_e, psi] relative to the start; controls (C,) held for every step, or (H, C).
 
         ModelError "model X fails when run: ..." when the model's code raises (at warm-up: a start-up error)."""
         self._state[0].copy_(torch.from_numpy(np.asarray(state, dtype=np.float64)))
-        self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)).expand(self.horizon_steps, self.n_controls))
+        self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)))  # broadcasts (C,) to (H, C)
         try:
             with torch.inference_mode():
                 out = self.artifact.module(self._state, self._controls)  # (E, 1, H, 6)
@@ -516,24 +516,83 @@ class Rollout:
         except MODEL_RUN_ERRORS as err:
             raise ModelError(f"model {self.artifact.path} fails when run: {failure_reason(err)}") from err
 
+    def batch(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """(E, B, H, 6) from one state (4,) under B control sequences (B, H, C): one call of the model."""
+        controls = np.asarray(controls, dtype=np.float64)
+        if controls.ndim != 3 or controls.shape[1:] != (self.horizon_steps, self.n_controls):
+            raise ModelError(f"controls of shape {controls.shape}, expected (B, {self.horizon_steps}, {self.n_controls})")
+        count = controls.shape[0]
+        states = torch.from_numpy(np.asarray(state, dtype=np.float64)).to(self.dtype).expand(count, 4)  # (B, 4)
+        try:
+            with torch.inference_mode():
+                out = self.artifact.module(states, torch.from_numpy(controls).to(self.dtype))  # (E, B, H, 6)
+            return out[: self.members].double().numpy()
+        except MODEL_RUN_ERRORS as err:
+            raise ModelError(f"model {self.artifact.path} fails when run: {failure_reason(err)}") from err
 
-def predict(inputs: InputSet, rollout: Rollout, now_ns: int) -> Prediction:
-    """State at now -> rollout -> anchored, checked prediction (CycleSkipped when it cannot be trusted)."""
-    live = inputs.assemble(now_ns)
-    started = time.perf_counter()
-    out = rollout(live.state, live.controls)  # (E, H, 6)
-    compute_s = time.perf_counter() - started
+
+Schedule = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""schedule(grid_ns (H,), held (C,)) -> (N, H, C): the controls of N plans at the model's step times."""
+
+
+def _check_output(out: np.ndarray) -> None:
     if not np.all(np.isfinite(out)):
         raise CycleSkipped("model output is not finite (NaN/inf): nothing published")
     speed = np.hypot(out[..., 0], out[..., 1])
-    if float(speed.max()) > STEADY_SPEED_LIMIT:
+    if float(speed.max(initial=0.0)) > STEADY_SPEED_LIMIT:
         raise CycleSkipped(f"model output diverged (speed {float(speed.max()):.1f} m/s > {STEADY_SPEED_LIMIT:g} m/s)")
-    origin = live.position if live.position is not None else np.zeros(2)
-    eta_members = np.concatenate([out[..., 3:5] + origin, out[..., 5:6]], axis=-1)  # (E, H, 3)
-    dt_ns = inputs.settings.dt_ns
-    t_ns = live.t_c_ns + dt_ns * np.arange(1, rollout.horizon_steps + 1, dtype=np.int64)
+
+
+def _anchored(out: np.ndarray, position: np.ndarray | None) -> np.ndarray:
+    """(..., H, 3) [x_n, y_e, psi] of the model's (..., H, 6), moved to the measured position (or (0, 0))."""
+    origin = position if position is not None else np.zeros(2)
+    return np.concatenate([out[..., 3:5] + origin, out[..., 5:6]], axis=-1)
+
+
+def step_times(live: LiveState, settings: LiveSettings, first: int = 0) -> np.ndarray:
+    """(H,) t_c + (first + k) dt, k = 0 .. H-1: the controls' times (first 0) or the predictions' (first 1)."""
+    return live.t_c_ns + settings.dt_ns * np.arange(first, first + settings.horizon_steps, dtype=np.int64)
+
+
+def predict(inputs: InputSet, rollout: Rollout, now_ns: int, schedule: Schedule | None = None) -> Prediction:
+    """State at now -> rollout -> anchored, checked prediction (CycleSkipped when it cannot be trusted).
+
+    The controls are the current ones held, or schedule's (one plan, plans.py) at t_c + k dt.
+    """
+    live = inputs.assemble(now_ns)
+    controls = live.controls if schedule is None else schedule(step_times(live, inputs.settings), live.controls)[0]
+    started = time.perf_counter()
+    out = rollout(live.state, controls)  # (E, H, 6)
+    compute_s = time.perf_counter() - started
+    _check_output(out)
+    eta_members = _anchored(out, live.position)  # (E, H, 3)
+    t_ns = step_times(live, inputs.settings, first=1)
     return Prediction(now_ns, t_ns, eta_members.mean(axis=0), out[..., 0:3].mean(axis=0), eta_members,
                       live.position is not None, live, compute_s)
+
+
+class BatchPrediction(NamedTuple):
+    """Predictions for N candidate plans from one state (NED/FRD, SI); row k is at t_ns[k]."""
+
+    stamp_ns: int  # the clock when it was made
+    t_ns: np.ndarray  # (H,) future times t_c + (k + 1) dt
+    eta: np.ndarray  # (N, H, 3) ensemble mean x_n, y_e (anchored), psi
+    nu: np.ndarray  # (N, H, 3) ensemble mean u, v, r
+    anchored: bool
+    state: LiveState
+    compute_s: float  # wall time of the one batched rollout (s)
+
+
+def predict_batch(inputs: InputSet, rollout: Rollout, now_ns: int, schedule: Schedule) -> BatchPrediction:
+    """State at now -> one rollout of batch N under schedule's N control sequences -> checked predictions."""
+    live = inputs.assemble(now_ns)
+    controls = schedule(step_times(live, inputs.settings), live.controls)  # (N, H, C)
+    started = time.perf_counter()
+    out = rollout.batch(live.state, controls)  # (E, N, H, 6)
+    compute_s = time.perf_counter() - started
+    _check_output(out)
+    return BatchPrediction(now_ns, step_times(live, inputs.settings, first=1), _anchored(out, live.position).mean(axis=0),
+                           out[..., 0:3].mean(axis=0), live.position is not None, live, compute_s)
 
 
 def enu_covariance(eta_members: np.ndarray) -> np.ndarray:

@@ -1,19 +1,25 @@
 """The `predictor` rclpy node: live 3-DOF motion prediction from a TorchScript model artifact.
 
 The only module of the package that imports rclpy; the work is done by usv_predictor.node.live (pure).
-Inputs arrive as ROS messages (REP-103/105: ENU, FLU, yaw counter-clockwise from east) and are turned
-into plain numbers in SI units and marine frames (NED, FRD, heading clockwise from north) by
-msg_adapters, checked and buffered (live.InputSet). Every 1 / rate_hz a timer builds the state the way
-the replay tool builds a Recording, rolls the model out over horizon_s with the current actuator
-commands held, and publishes (docs/node.md has the details):
+Messages travel as serialized CDR both ways (docs/node.md, "Design"): the input subscriptions are raw, the
+callbacks only keep the bytes and their arrival clock, and each timer decodes all pending messages of an
+input in one call (msg_adapters.cdr.decode_values: bulk CDR decoder + the input's adapter, the same decoder
+the replay tool reads bags with), turning REP-103/105 messages (ENU, FLU) into SI numbers in marine frames
+(NED, FRD, heading clockwise from north), checked and buffered by live.InputSet. Every 1 / rate_hz a timer
+builds the state the way the replay tool builds a Recording, rolls the model out over horizon_s with the
+current actuator commands held (or under the plan on `plan`), and publishes CDR written with numpy
+(msg_adapters.outputs, byte-equal to rclpy's serialisation):
 
     predicted_path               nav_msgs/Path, ENU, frame_id (default odom), pose k stamped t_c + k dt
     predicted_velocities         trajectory_msgs/MultiDOFJointTrajectory (msg_adapters.outputs)
     predicted_path_covariance    std_msgs/Float64MultiArray, ensemble covariance of (x, y, yaw) ENU per step
-    /diagnostics                 inputs (age, rate, rejections), model (id, metadata), prediction (latency)
+    candidate_predictions        trajectory_msgs/MultiDOFJointTrajectory, one joint per candidate plan, published
+                                 as soon as a batch arrives on `candidate_plans` (plans.py)
+    /diagnostics                 at diagnostics_rate_hz: inputs (age, rate, rejections), model, prediction
+                                 (latency), plan and candidate plans (refusals)
 
 A cycle that cannot be trusted (no input yet, stale input, non-finite model output) publishes nothing
-but /diagnostics, with the reason, and a throttled warning. Parameters are declared from
+(/diagnostics says why) and logs a throttled warning. Parameters are declared from
 config/predictor.yaml (or `--config FILE`) with descriptors carrying the loader's ranges, so rclpy
 rejects out-of-range overrides; the node-only parameters (NODE_PARAMETERS) are declared here.
 model_path may change at run time: the new model is validated first, the old one kept on failure.
@@ -21,31 +27,46 @@ model_path may change at run time: the new model is validated first, the old one
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import signal
 import sys
+import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.context import Context
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 import msg_adapters
-from msg_adapters.outputs import encode_path, encode_predicted_velocities
+from msg_adapters.cdr import decode_joint_trajectory, decode_values
+from msg_adapters.outputs import (
+    COVARIANCE_TYPE,
+    DIAGNOSTICS_TYPE,
+    PATH_TYPE,
+    TRAJECTORY_TYPE,
+    Status,
+    candidate_predictions_cdr,
+    covariance_cdr,
+    diagnostics_cdr,
+    path_cdr,
+    predicted_velocities_cdr,
+)
 from usv_predictor import __version__
 from usv_predictor.config import (
     ENSEMBLE_RANGE,
@@ -65,13 +86,16 @@ from usv_predictor.data.recording import PLAUSIBLE
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredictorError
 from usv_predictor.models import loading
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
-from usv_predictor.node import live
+from usv_predictor.node import live, plans
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, unused_roles
 from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.records import NS_PER_S
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
 COVARIANCE_TOPIC = "predicted_path_covariance"
+PLAN_TOPIC = "plan"  # trajectory_msgs/JointTrajectory: controls to predict under (plans.py)
+CANDIDATE_PLANS_TOPIC = "candidate_plans"  # trajectory_msgs/JointTrajectory: N candidates "<name>/<control>"
+CANDIDATE_PREDICTIONS_TOPIC = "candidate_predictions"  # trajectory_msgs/MultiDOFJointTrajectory, joint = candidate
 ERROR_LOG_PERIOD_S = 5.0  # throttle of repeated warnings (s)
 RECENT_REJECT_S = 5.0  # an input with a rejected sample this recently is WARN (s)
 LATENCY_WINDOW = 200  # cycles kept for the latency percentiles
@@ -84,7 +108,7 @@ RCLInvalidROSArgsError = _rclpy.RCLInvalidROSArgsError  # unparsable --ros-args 
 _DESCRIPTIONS = {
     "model_path": "TorchScript model file; empty = the package's shipped default model (may change at run time)",
     "vessel": "vessel preset name (config/vessels/<vessel>.yaml); the model must be made for it",
-    "rate_hz": "prediction and diagnostics rate (Hz)",
+    "rate_hz": "prediction rate (Hz)",
     "horizon_s": "prediction horizon (s); a whole number of dt steps",
     "dt": "prediction time step (s); must equal the model's",
     "ensemble_size": "ensemble members used (the model must have at least this many)",
@@ -111,6 +135,9 @@ NODE_PARAMETERS: dict[str, NodeParameter] = {
     "datum_lat_deg": NodeParameter(math.nan, "latitude of the local tangent plane of predicted_path (deg); "
                                              "NaN = the first GNSS fix"),
     "datum_lon_deg": NodeParameter(math.nan, "longitude of that plane (deg); NaN = the first GNSS fix"),
+    "diagnostics_rate_hz": NodeParameter(1.0, "rate of /diagnostics (Hz)", 0.01, 100.0),
+    "plan_max_age_s": NodeParameter(1.0, "a plan (or candidate plans) stamped longer ago than this is refused, and a "
+                                         "followed plan is dropped for the held commands (s)", 0.01, 60.0),
 }
 
 
@@ -175,7 +202,7 @@ def _descriptor(name: str, value: Any) -> ParameterDescriptor:
 
 def _node_descriptor(name: str, spec: NodeParameter) -> ParameterDescriptor:
     descriptor = ParameterDescriptor(name=name, description=spec.description, read_only=True)
-    unit = "s" if name.endswith("_s") else "samples"
+    unit = "s" if name.endswith("_s") else "Hz" if name.endswith("_hz") else "samples"
     allowed = None if spec.low is None else Range(spec.low, spec.high, unit)
     return _ranged(descriptor, name, spec.default, allowed)
 
@@ -184,10 +211,6 @@ def _family_description(metadata: dict[str, Any]) -> str:
     """What kind of model it is (models/families.py), for /diagnostics."""
     family = MODEL_FAMILIES.get(family_name(str(metadata.get("model_type", ""))))
     return family.description if family is not None else "not a model family of usv_predictor"
-
-
-def _key_values(pairs: dict[str, Any]) -> list[KeyValue]:
-    return [KeyValue(key=key, value=str(value)) for key, value in pairs.items()]
 
 
 def load_model(model_path: str, config: PredictorConfig, layout: ActuatorLayout = DEFAULT_LAYOUT) -> live.Rollout:
@@ -205,8 +228,28 @@ class DecodeFailures:
     at_ns: int | None = None
 
 
+@dataclass
+class PlanInput:
+    """What came of the messages of one plan topic (the plan, or the candidate plans)."""
+
+    topic: str
+    received: int = 0
+    refused: dict[str, int] = field(default_factory=dict)
+    last_refused: str = ""
+    last_refused_ns: int | None = None
+    answered: int = 0  # candidates: batches predicted and published
+    skipped: str = ""  # candidates: why the latest batch got no prediction (no state yet, ...)
+    compute_s: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))  # the batched rollout
+    answer_s: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))  # arrival -> published
+    batch: int = 0  # candidates in the latest batch
+
+    def refuse(self, kind: str, message: str, now_ns: int) -> None:
+        self.refused[kind] = self.refused.get(kind, 0) + 1
+        self.last_refused, self.last_refused_ns = message, now_ns
+
+
 class PredictorNode(Node):
-    """Subscribes to the configured inputs, predicts at rate_hz, reports on /diagnostics."""
+    """Subscribes to the configured inputs and the plan topics, predicts at rate_hz, reports on /diagnostics."""
 
     def __init__(self, config_path: str | Path | None = None, **node_options: Any) -> None:
         super().__init__(NODE_NAME, **node_options)
@@ -221,32 +264,47 @@ class PredictorNode(Node):
             {entry.role: float(self.get_parameter(f"inputs.{entry.role}.max_age_s").value) for entry in used},
             self._live_settings(), self.layout,
         )
+        _check_output_types(self.config)
         make = msg_adapters.rclpy_factory()
+        self._clock = self.get_clock()
         self._entries: dict[str, InputConfig] = {entry.role: entry for entry in used}
         self._adapters = {
             entry.role: msg_adapters.get_adapter(entry.role, entry.ros_type, **entry.options)
             for entry in used
         }
+        self._deserializers = {entry.role: partial(deserialize_message, message_type=make(entry.ros_type))
+                               for entry in used}
         self._failures = {role: DecodeFailures() for role in self._entries}
+        # CDR bytes and their arrival clock, decoded in bulk at the next timer (bounded: the oldest go first)
+        capacity = self.inputs.settings.capacity
+        self._pending: dict[str, deque[tuple[bytes, int]]] = {role: deque(maxlen=capacity) for role in self._entries}
+        self.arrived = {role: 0 for role in self._entries}  # messages received per input (decoded or pending)
+        self.dropped = {role: 0 for role in self._entries}  # pushed out of a full pending queue undecoded
         for entry in used:
-            self.create_subscription(
-                make(entry.ros_type), entry.topic, partial(self._on_message, entry.role), qos_profile_sensor_data
-            )
+            self.create_subscription(make(entry.ros_type), entry.topic, partial(self._on_message, entry.role),
+                                     qos_profile_sensor_data, raw=True)
         outputs = self.config.outputs
-        self._path_pub = self.create_publisher(make(outputs["predicted_path"].ros_type), outputs["predicted_path"].topic, 10)
-        self._velocities_pub = self.create_publisher(
-            make(outputs["predicted_velocities"].ros_type), outputs["predicted_velocities"].topic, 10
-        )
-        self._covariance_pub = self.create_publisher(Float64MultiArray, COVARIANCE_TOPIC, 10)
-        self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
-        self._make = make
+        self._path_pub = self.create_publisher(make(PATH_TYPE), outputs["predicted_path"].topic, 10)
+        self._velocities_pub = self.create_publisher(make(TRAJECTORY_TYPE), outputs["predicted_velocities"].topic, 10)
+        self._covariance_pub = self.create_publisher(make(COVARIANCE_TYPE), COVARIANCE_TOPIC, 10)
+        self._diagnostics = self.create_publisher(make(DIAGNOSTICS_TYPE), DIAGNOSTICS_TOPIC, 10)
+        self._candidates_pub = self.create_publisher(make(TRAJECTORY_TYPE), CANDIDATE_PREDICTIONS_TOPIC, 10)
+        self.plan = PlanInput(PLAN_TOPIC)
+        self.candidates = PlanInput(CANDIDATE_PLANS_TOPIC)
+        self.following: plans.Plan | None = None  # the plan the predictions are made under
+        self._plan_ended = ""  # why the node stopped following the latest plan (stale), for /diagnostics
+        self._plan_ended_ns: int | None = None
+        self.create_subscription(make(plans.PLAN_TYPE), PLAN_TOPIC, self._on_plan, 10, raw=True)
+        self.create_subscription(make(plans.PLAN_TYPE), CANDIDATE_PLANS_TOPIC, self._on_candidates, 10, raw=True)
         self._latencies: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        self._cycle_times: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.published = 0
         self.skipped = 0
         self.last_skip = ""
         self.last_prediction: live.Prediction | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.create_timer(1.0 / self.config.rate_hz, self._on_timer)
+        self.create_timer(1.0 / float(self.get_parameter("diagnostics_rate_hz").value), self._on_diagnostics_timer)
         self.get_logger().info(
             f"usv_predictor {__version__}: model {self.rollout.artifact.path} ({self.rollout.artifact.model_id}, "
             f"{self.rollout.members} member(s)), {len(self._entries)} inputs ({', '.join(self._entries)}), "
@@ -278,6 +336,10 @@ class PredictorNode(Node):
                                  state_delay_s=float(value["state_delay_s"]), max_future_s=float(value["max_future_s"]),
                                  capacity=int(value["buffer_capacity"]), datum=datum)
 
+    def _plan_limits(self) -> plans.PlanLimits:
+        return plans.PlanLimits(max_age_s=float(self.get_parameter("plan_max_age_s").value),
+                                max_future_s=self.inputs.settings.max_future_s)
+
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """Swap the model (validated first; the old one stays on failure) and apply new staleness limits."""
         swap: live.Rollout | None = None
@@ -297,41 +359,129 @@ class PredictorNode(Node):
                 self.inputs.tracks[role].max_age_s = float(parameter.value)
         return SetParametersResult(successful=True)
 
-    # --------------------------------------------------------------- callbacks
-    def _on_message(self, role: str, msg: Any) -> None:
-        now_ns = self.get_clock().now().nanoseconds
-        try:
-            if role == "heading" and hasattr(msg, "data"):
-                live.check_raw_heading(float(msg.data), str(self._entries[role].options.get("units", "deg")))
-            stamp_ns, values = self._adapters[role].decode(msg)
-            values = tuple(float(v) for v in values)
-        except live.InputRejected as err:
-            self.inputs.tracks[role].reject(err.kind, str(err), now_ns)
-            self._warn_input(role, str(err))
-            return
-        except (AdapterError, ValueError, ArithmeticError) as err:
-            failures = self._failures[role]
-            failures.count, failures.last, failures.at_ns = failures.count + 1, str(err), now_ns
-            self._warn_input(role, str(err))
-            return
-        try:
-            self.inputs.add(role, now_ns if stamp_ns is None else int(stamp_ns), values, now_ns)
-        except live.InputRejected as err:
-            self._warn_input(role, str(err))
+    # --------------------------------------------------------------- inputs: bytes in, decoded in bulk
+    def _on_message(self, role: str, raw: bytes) -> None:
+        """Keep the CDR bytes and the arrival clock; decoding waits for the next timer (one bulk call per input)."""
+        pending = self._pending[role]
+        if len(pending) == pending.maxlen:
+            self.dropped[role] += 1
+        pending.append((raw, self._clock.now().nanoseconds))
+        self.arrived[role] += 1
+
+    def _catch_up(self, now_ns: int) -> None:
+        """Clear the buffers if the clock jumped back, then decode and buffer every pending message."""
+        if self.inputs.observe_clock(now_ns):
+            self.get_logger().warning("the clock jumped back: input buffers cleared")
+            for pending in self._pending.values():  # what arrived before the jump belongs to the old time line
+                kept = [(raw, at_ns) for raw, at_ns in pending if at_ns <= now_ns]
+                pending.clear()
+                pending.extend(kept)
+        for role, pending in self._pending.items():
+            if pending:
+                messages = list(pending)
+                pending.clear()
+                self._take(role, messages)
+
+    def _take(self, role: str, messages: list[tuple[bytes, int]]) -> None:
+        """Decode one input's messages in one call (msg_adapters.cdr) and add them in arrival order."""
+        entry = self._entries[role]
+        batch = decode_values(self._adapters[role], [raw for raw, _ in messages], deserialize=self._deserializers[role])
+        errors = dict(batch.errors)
+        raw_heading = getattr(batch.columns, "data", None) if role == "heading" else None
+        units = str(entry.options.get("units", "deg"))
+        row = 0
+        for i, (_, arrival_ns) in enumerate(messages):
+            if i in errors:
+                failures = self._failures[role]
+                failures.count, failures.last, failures.at_ns = failures.count + 1, errors[i], arrival_ns
+                self._warn_input(role, errors[i])
+                continue
+            stamp_ns = arrival_ns if batch.stamps is None else int(batch.stamps[row])
+            values = tuple(float(v) for v in batch.values[row])
+            try:
+                if raw_heading is not None:
+                    live.check_raw_heading(float(raw_heading[row]), units)
+            except live.InputRejected as err:
+                self.inputs.tracks[role].received += 1
+                self.inputs.tracks[role].reject(err.kind, str(err), arrival_ns)
+                self._warn_input(role, str(err))
+                row += 1
+                continue
+            row += 1
+            try:
+                self.inputs.add(role, stamp_ns, values, arrival_ns)
+            except live.InputRejected as err:
+                self._warn_input(role, str(err))
 
     def _warn_input(self, role: str, message: str) -> None:
         self.get_logger().warning(f"input {role} on {self._entries[role].topic}: {message}",
                                   throttle_duration_sec=ERROR_LOG_PERIOD_S)
 
+    # --------------------------------------------------------------- plans
+    def _on_plan(self, raw: bytes) -> None:
+        """A plan to predict under from the next cycle on (it replaces the previous one; refused: held commands)."""
+        now_ns = self._clock.now().nanoseconds
+        self.plan.received += 1
+        try:
+            self.following = plans.parse_plan(decode_joint_trajectory(raw), self.layout, now_ns, self._plan_limits())
+        except (live.InputRejected, AdapterError) as err:
+            kind = getattr(err, "kind", "malformed")
+            self.plan.refuse(kind, str(err), now_ns)
+            self.following = None
+            self.get_logger().warning(f"plan on {self.resolve_topic_name(PLAN_TOPIC)} refused, predicting with the "
+                                      f"current commands held: {err}", throttle_duration_sec=ERROR_LOG_PERIOD_S)
+
+    def _current_plan(self, now_ns: int) -> plans.Plan | None:
+        """The plan to follow this cycle, or None (held commands) once it is older than plan_max_age_s."""
+        plan = self.following
+        if plan is not None and plan.age_s(now_ns) > self._plan_limits().max_age_s:
+            self._plan_ended = (f"the plan stamped {plans.describe_stamp(plan.stamp_ns)} is stale "
+                                f"({plan.age_s(now_ns):.2f} s old, plan_max_age_s {self._plan_limits().max_age_s:g} s)")
+            self._plan_ended_ns = now_ns
+            self.following = None
+            return None
+        return plan
+
+    def _on_candidates(self, raw: bytes) -> None:
+        """Predict N candidate plans now, in one batched rollout, and publish the batch tagged with their stamp."""
+        started = time.perf_counter()
+        now_ns = self._clock.now().nanoseconds
+        self.candidates.received += 1
+        self._catch_up(now_ns)
+        try:
+            data = decode_joint_trajectory(raw)
+            batch = plans.parse_plan(data, self.layout, now_ns, self._plan_limits(), candidates=True)
+        except (live.InputRejected, AdapterError) as err:
+            self.candidates.refuse(getattr(err, "kind", "malformed"), str(err), now_ns)
+            self.get_logger().warning(f"candidate plans on {self.resolve_topic_name(CANDIDATE_PLANS_TOPIC)} refused: "
+                                      f"{err}", throttle_duration_sec=ERROR_LOG_PERIOD_S)
+            return
+        try:
+            result = live.predict_batch(self.inputs, self.rollout, now_ns, batch.schedule)
+        except (live.CycleSkipped, ModelError, AdapterError, RuntimeError) as err:
+            self.candidates.skipped = str(err)
+            self.get_logger().warning(f"no prediction for the candidate plans: {err}",
+                                      throttle_duration_sec=ERROR_LOG_PERIOD_S)
+            return
+        self._candidates_pub.publish(candidate_predictions_cdr(batch.stamp_ns, result.t_ns, result.eta, result.nu,
+                                                               self.config.frame_id, batch.names))
+        self.candidates.answered += 1
+        self.candidates.skipped = ""
+        self.candidates.batch = len(batch.names)
+        self.candidates.compute_s.append(result.compute_s)
+        self.candidates.answer_s.append(time.perf_counter() - started)
+
+    # --------------------------------------------------------------- the cycle
     def _on_timer(self) -> None:
         if not self.context.ok():  # shutting down (SIGINT/SIGTERM): publishing would fail
             return
-        now = self.get_clock().now()
-        if self.inputs.observe_clock(now.nanoseconds):
-            self.get_logger().warning("the clock jumped back: input buffers cleared")
+        started = time.perf_counter()
+        now_ns = self._clock.now().nanoseconds
+        self._catch_up(now_ns)
+        plan = self._current_plan(now_ns)
         try:
-            prediction = live.predict(self.inputs, self.rollout, now.nanoseconds)
-            self._publish(prediction)
+            prediction = live.predict(self.inputs, self.rollout, now_ns, None if plan is None else plan.schedule)
+            self._publish(prediction, prediction.stamp_ns if plan is None else plan.stamp_ns)
         except (live.CycleSkipped, ModelError, AdapterError, RuntimeError) as err:
             # RuntimeError: what a TorchScript module raises; the cycle is lost, the node carries on
             self.skipped += 1
@@ -342,30 +492,37 @@ class PredictorNode(Node):
             self.last_skip = ""
             self.last_prediction = prediction
             self._latencies.append(prediction.compute_s)
-        self._publish_diagnostics(now.nanoseconds)
+            self._cycle_times.append(time.perf_counter() - started)
 
-    # --------------------------------------------------------------- outputs
-    def _publish(self, prediction: live.Prediction) -> None:
+    def _publish(self, prediction: live.Prediction, stamp_ns: int) -> None:
+        """The three outputs as CDR bytes; header.stamp = the cycle's clock, or the stamp of the plan followed."""
         frame = self.config.frame_id
-        self._path_pub.publish(encode_path(prediction.stamp_ns, prediction.t_ns, prediction.eta, frame, self._make))
-        self._velocities_pub.publish(encode_predicted_velocities(
-            prediction.stamp_ns, prediction.t_ns, prediction.eta, prediction.nu, frame, self.config.base_frame_id,
-            self._make))
+        self._path_pub.publish(path_cdr(stamp_ns, prediction.t_ns, prediction.eta, frame))
+        self._velocities_pub.publish(predicted_velocities_cdr(stamp_ns, prediction.t_ns, prediction.eta, prediction.nu,
+                                                              frame, self.config.base_frame_id))
         if len(prediction.eta_members) > 1:
-            self._covariance_pub.publish(covariance_message(live.enu_covariance(prediction.eta_members)))
+            self._covariance_pub.publish(covariance_cdr(live.enu_covariance(prediction.eta_members)))
+
+    # --------------------------------------------------------------- /diagnostics (own rate)
+    def _on_diagnostics_timer(self) -> None:
+        if not self.context.ok():
+            return
+        now_ns = self._clock.now().nanoseconds
+        self._catch_up(now_ns)
+        self._publish_diagnostics(now_ns)
 
     def _publish_diagnostics(self, now_ns: int) -> None:
-        report = DiagnosticArray()
-        report.header.stamp = self.get_clock().now().to_msg()
-        report.status = [self._input_status(role, now_ns) for role in self._entries]
-        report.status += [self._model_status(), self._prediction_status()]
-        self._diagnostics.publish(report)
+        self._current_plan(now_ns)  # a plan that went stale is dropped before any status reads it: one story per report
+        statuses = [self._input_status(role, now_ns) for role in self._entries]
+        statuses += [self._model_status(), self._prediction_status(), self._plan_status(now_ns),
+                     self._candidates_status(now_ns)]
+        self._diagnostics.publish(diagnostics_cdr(now_ns, statuses))
 
-    def _status(self, level: int, what: str, message: str, values: dict[str, Any]) -> DiagnosticStatus:
-        return DiagnosticStatus(level=bytes([level]), name=f"{self.get_name()}: {what}", message=message,
-                                hardware_id=self.config.base_frame_id, values=_key_values(values))
+    def _status(self, level: int, what: str, message: str, values: dict[str, Any]) -> Status:
+        return Status(level, f"{self.get_name()}: {what}", message, self.config.base_frame_id,
+                      tuple((key, str(value)) for key, value in values.items()))
 
-    def _input_status(self, role: str, now_ns: int) -> DiagnosticStatus:
+    def _input_status(self, role: str, now_ns: int) -> Status:
         track, entry, failures = self.inputs.tracks[role], self._entries[role], self._failures[role]
         age = track.age_s(now_ns)
         values: dict[str, Any] = {
@@ -375,6 +532,7 @@ class PredictorNode(Node):
             "decode_errors": failures.count,
             "rejected": sum(track.rejected.values()),
             **{f"rejected_{kind}": count for kind, count in sorted(track.rejected.items())},
+            "dropped_undecoded": self.dropped[role],
             "rate_hz": f"{track.buffer.rate_hz(now_ns):.1f}",
             "buffer": f"{len(track.buffer)}/{track.buffer.capacity}",
             "max_age_s": f"{track.max_age_s:g}",
@@ -397,13 +555,15 @@ class PredictorNode(Node):
                 return self._status(ERROR, f"input {role}", f"every message refused: {track.last_reject}", values)
             return self._status(ERROR, f"input {role}", "no message received", values)
         if age > track.max_age_s:
-            return self._status(WARN, f"input {role}", f"stale: last message {age:.2f} s ago "
-                                                       f"(limit {track.max_age_s:g} s)", values)
+            stale = f"stale: last message {age:.2f} s ago (limit {track.max_age_s:g} s)"
+            # refusals are why an input goes stale while its messages still arrive (stamps behind, ahead, ...)
+            refused = f"; messages refused: {track.last_reject}" if recent_reject else ""
+            return self._status(WARN, f"input {role}", stale + refused, values)
         if recent_reject:
             return self._status(WARN, f"input {role}", f"messages refused: {track.last_reject}", values)
         return self._status(OK, f"input {role}", "fresh", values)
 
-    def _model_status(self) -> DiagnosticStatus:
+    def _model_status(self) -> Status:
         artifact = self.rollout.artifact
         meta = artifact.metadata
         values = {
@@ -416,14 +576,13 @@ class PredictorNode(Node):
         }
         return self._status(OK, "model", f"loaded {artifact.model_id}", values)
 
-    def _prediction_status(self) -> DiagnosticStatus:
-        latencies = np.array(self._latencies) * 1e3
+    def _prediction_status(self) -> Status:
         values: dict[str, Any] = {"published": self.published, "skipped": self.skipped,
                                   "rate_hz": f"{self.config.rate_hz:g}"}
-        if len(latencies):
-            values.update(compute_ms_p50=f"{np.percentile(latencies, 50):.3f}",
-                          compute_ms_p99=f"{np.percentile(latencies, 99):.3f}",
-                          compute_ms_max=f"{latencies.max():.3f}")
+        values.update(_percentiles("compute_ms", self._latencies))  # the rollout
+        values.update(_percentiles("cycle_ms", self._cycle_times))  # decode, state, rollout, encode, publish
+        values["controls"] = ("held" if self.following is None
+                              else f"plan stamped {plans.describe_stamp(self.following.stamp_ns)}")
         last = self.last_prediction
         if last is not None:
             values["anchored"] = "gnss" if last.anchored else "relative to (0, 0): no GNSS"
@@ -436,16 +595,84 @@ class PredictorNode(Node):
             return self._status(WARN, "prediction", "no prediction yet", values)
         return self._status(OK, "prediction", "published", values)
 
+    def _plan_values(self, plan_input: PlanInput) -> dict[str, Any]:
+        return {"topic": self.resolve_topic_name(plan_input.topic), "type": plans.PLAN_TYPE,
+                "received": plan_input.received, "refused": sum(plan_input.refused.values()),
+                **{f"refused_{kind}": count for kind, count in sorted(plan_input.refused.items())},
+                "plan_max_age_s": f"{self._plan_limits().max_age_s:g}",
+                **({"last_refused": plan_input.last_refused} if plan_input.last_refused else {})}
 
-def covariance_message(covariance: np.ndarray) -> Float64MultiArray:
-    """(H, 3, 3) covariances of [x east, y north, yaw] -> Float64MultiArray (steps x 9, row-major)."""
-    steps = covariance.shape[0]
-    msg = Float64MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label="step", size=steps, stride=steps * 9),
-                      MultiArrayDimension(label="cov_x_y_yaw_enu", size=9, stride=9)]
-    msg.layout.data_offset = 0
-    msg.data = covariance.reshape(-1).astype(float).tolist()
-    return msg
+    def _plan_status(self, now_ns: int) -> Status:
+        values = self._plan_values(self.plan)
+        plan = self._current_plan(now_ns)
+        if plan is not None:
+            values.update(stamp=plans.describe_stamp(plan.stamp_ns), age_s=f"{plan.age_s(now_ns):.3f}",
+                          points=len(plan.t_ns), ends_in_s=f"{(int(plan.t_ns[-1]) - now_ns) / NS_PER_S:.3f}")
+            return self._status(OK, "plan", f"predicting under the plan stamped {plans.describe_stamp(plan.stamp_ns)}",
+                                values)
+        refused_ns, ended_ns = self.plan.last_refused_ns, self._plan_ended_ns
+        latest = max((t for t in (refused_ns, ended_ns) if t is not None), default=None)
+        if latest is not None and now_ns - latest < RECENT_REJECT_S * NS_PER_S:
+            reason = f"refused: {self.plan.last_refused}" if latest == refused_ns else self._plan_ended
+            return self._status(WARN, "plan", f"{reason}; predicting with the current commands held", values)
+        return self._status(OK, "plan", "no plan: predicting with the current commands held", values)
+
+    def _candidates_status(self, now_ns: int) -> Status:
+        found = self.candidates
+        values = self._plan_values(found)
+        values.update(answered=found.answered, last_batch=found.batch, max_candidates=plans.MAX_CANDIDATES)
+        values.update(_percentiles("compute_ms", found.compute_s))
+        values.update(_percentiles("answer_ms", found.answer_s))  # arrival -> published
+        if found.last_refused_ns is not None and now_ns - found.last_refused_ns < RECENT_REJECT_S * NS_PER_S:
+            return self._status(WARN, "candidate plans", f"refused: {found.last_refused}", values)
+        if found.skipped:
+            values["reason"] = found.skipped
+            return self._status(WARN, "candidate plans", f"no prediction: {found.skipped}", values)
+        if found.answered == 0:
+            return self._status(OK, "candidate plans", "none received", values)
+        return self._status(OK, "candidate plans", f"answered {found.answered} batch(es)", values)
+
+
+def _percentiles(name: str, seconds: deque[float]) -> dict[str, str]:
+    """{name_p50, name_p99, name_max} in ms of the latest values (none when empty)."""
+    if not seconds:
+        return {}
+    ms = np.array(seconds) * 1e3
+    return {f"{name}_p50": f"{np.percentile(ms, 50):.3f}", f"{name}_p99": f"{np.percentile(ms, 99):.3f}",
+            f"{name}_max": f"{ms.max():.3f}"}
+
+
+def _check_output_types(config: PredictorConfig) -> None:
+    """The outputs are written as CDR of fixed types: another configured type is a ConfigError naming it."""
+    expected = {"predicted_path": PATH_TYPE, "predicted_velocities": TRAJECTORY_TYPE}
+    for role, ros_type in expected.items():
+        if config.outputs[role].ros_type != ros_type:
+            raise ConfigError(f"{config.source}: outputs.{role}.type is {config.outputs[role].ros_type!r}; "
+                              f"the node publishes {ros_type}")
+
+
+def make_executor(context: Context | None = None) -> Executor:
+    """The executor `main` spins the node with: rclpy's EventsExecutor (measured faster, docs/node.md); the
+    SingleThreadedExecutor on an rclpy without it (Jazzy before 7.1.4)."""
+    try:
+        from rclpy.experimental import EventsExecutor
+    except ImportError:
+        return SingleThreadedExecutor(context=context)
+    # EventsExecutor() calls faulthandler.enable(), which needs sys.stderr to have a file descriptor; where it
+    # was replaced by an object without one (pytest's capture, an embedding program) the crash report goes to the
+    # process's own stderr
+    if not _has_fileno(sys.stderr) and _has_fileno(sys.__stderr__):
+        with contextlib.redirect_stderr(sys.__stderr__):
+            return EventsExecutor(context=context)
+    return EventsExecutor(context=context)
+
+
+def _has_fileno(stream: Any) -> bool:
+    try:
+        stream.fileno()
+    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation is both an OSError and a ValueError
+        return False
+    return True
 
 
 def parse_arguments(argv: Sequence[str]) -> argparse.Namespace:
@@ -490,12 +717,16 @@ class _StopRequest:
         return {sig: signal.signal(sig, self) for sig in STOP_SIGNALS}
 
 
-def _spin(node: PredictorNode, stop: _StopRequest) -> None:
-    """Run the node's callbacks until a stop signal (or an external shutdown of its context)."""
-    executor = SingleThreadedExecutor(context=node.context)
+def spin(node: Node, executor: Executor, stop: _StopRequest | None = None) -> None:
+    """Run the node's callbacks until a stop signal (stop.requested) or an external shutdown of its context.
+
+    A loop of spin_once, not executor.spin(): in rclpy 7.1.5 EventsExecutor.spin() never runs timers and does
+    not return on shutdown (measured: 80 % of a core, zero timer calls), while its spin_once does both. The loop
+    looks at the stop flag at least every SPIN_PERIOD_S, between callbacks (never half-way through one).
+    """
     executor.add_node(node)
     try:
-        while stop.requested is None and node.context.ok():
+        while (stop is None or stop.requested is None) and node.context.ok():
             executor.spin_once(timeout_sec=SPIN_PERIOD_S)
     except ExternalShutdownException:
         pass
@@ -531,7 +762,7 @@ def main(args: Sequence[str] | None = None) -> int:
         if stop.requested is None:
             node = PredictorNode(config_path=options.config)
         if stop.requested is None:
-            _spin(node, stop)
+            spin(node, make_executor(node.context), stop)
     except RCLInvalidROSArgsError as err:  # a broken --params-file, a malformed -p or -r
         print(f"predictor: error: invalid ROS arguments: {_first_line(err)}", file=sys.stderr)
         return EXIT_ERROR

@@ -16,7 +16,7 @@ slower); chunk ("storage") mode for mcap (2.7 MB vs 2.2 MB whole-file, but it is
 compression that every mcap tool reads directly).
 Bags are written into a temporary directory beside the target and renamed at the end.
 
-Reading decodes each topic in bulk (cdr_fast.decode_many -> structure of arrays -> one vectorised
+Reading decodes each topic in bulk (msg_adapters.cdr.decode_many -> structure of arrays -> one vectorised
 adapter.decode); types without a fixed layout (JointState, MultiArrays) go one rosbags message at a time. A topic
 may carry several roles (both thrusters in one Float64MultiArray, JointState or Wrench): its messages are decoded
 once and each role's adapter reads its part (read_signals); writing encodes the roles into one message per stamp
@@ -50,7 +50,7 @@ from usv_predictor.atomic import NO_SPACE_ERRNOS, write_failure
 from usv_predictor.config import PredictorConfig, input_topics
 from usv_predictor.errors import AdapterError, BagError, one_line
 from usv_predictor.records import Signal
-from usv_predictor.replay.cdr_fast import decode_many, has_fast_layout
+from msg_adapters.cdr import decode_many, has_fast_layout
 
 if sys.version_info >= (3, 14):
     from compression.zstd import ZstdError
@@ -422,7 +422,7 @@ def _decode_one_by_one(
 def _decode_in_bulk(
     path: Path, spec: TopicSpec, adapter: Any, columns_in: Any, raws: list, log_times: list[int]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """All messages at once: one vectorised adapter.decode of the cdr_fast structure of arrays."""
+    """All messages at once: one vectorised adapter.decode of the msg_adapters.cdr structure of arrays."""
     try:
         stamp, columns = adapter.decode(columns_in)
     except (AdapterError, BagError) as err:
