@@ -119,5 +119,5 @@ def test_the_calm_water_model_is_a_preset_or_refuses_what_is_not_a_plain_grey_bo
     vessel, source = calm_water_vessel("kvlcc2_model", None)
     assert (vessel.name, source) == ("kvlcc2_model", "preset")
     shipped_dnn = Path(__file__).resolve().parents[1] / "models" / "default.pt"
-    with pytest.raises(ModelError, match=r"default\.pt: diagnose needs an MMG grey box .* not model_type"):
+    with pytest.raises(ModelError, match=r"default\.pt: diagnose needs a grey box .* not model_type"):
         calm_water_vessel(None, shipped_dnn)

@@ -692,7 +692,7 @@ def profile_throttle_gain(vessel: Vessel, data: Sequence[ForceData], structure: 
     best = int(np.argmin(values))
     a, b = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
     golden = (math.sqrt(5.0) - 1.0) / 2.0
-    for _ in range(30):  # golden section on [a, b]
+    for _ in range(20):  # golden section on [a, b] (bracket of two grid steps: 0.618^20 of it)
         c, d = b - golden * (b - a), a + golden * (b - a)
         if objective(c) < objective(d):
             b = d
@@ -709,7 +709,7 @@ def profile_throttle_gain(vessel: Vessel, data: Sequence[ForceData], structure: 
         if objective(edge) - j_best < rise:
             return math.nan
         inner, outer = x_best, edge
-        for _ in range(40):
+        for _ in range(20):
             mid = 0.5 * (inner + outer)
             if objective(mid) - j_best < rise:
                 inner = mid

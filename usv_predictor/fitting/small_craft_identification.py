@@ -288,14 +288,18 @@ def fit_joint(d: JointDesign, priors: Mapping[str, float], *, fixed: Sequence[st
         sub = Design(eq, tuple(names[k] for k in own), d.matrix[np.ix_(rows, own)], d.target[rows], d.groups[rows],
                      np.ones(int(rows.sum())))
         per_equation.append(EquationFit(eq, tuple(coefficients[k] for k in own), _collinearity(sub),
-                                        float(np.sqrt(np.mean(residual[rows] ** 2))),
-                                        effective_samples(residual[rows], d.groups[rows]), ridge))
+                                        float(np.sqrt(np.mean(residual[rows] ** 2))) if rows.any() else math.nan,
+                                        effective_samples(residual[rows], d.groups[rows]) if rows.any() else 0.0,
+                                        ridge))
     return JointFit(structure, policy, tuple(per_equation), (), 0.0, tuple(coefficients),
                     tuple(float(w) for w in weights), ridge)
 
 
 def _collinearity(d: Design) -> Collinearity:
     """identification.collinearity, tolerant of a column without excitation (reported as such, NaN correlations)."""
+    if d.matrix.shape[1] == 0 or d.matrix.shape[0] < 2:  # an equation without coefficients or rows
+        return Collinearity(d.equation, d.names, np.full((len(d.names),) * 2, np.nan), math.nan,
+                            {n: math.nan for n in d.names}, ())
     varying = np.std(d.matrix, axis=0) > 0
     if varying.all():
         return collinearity(d)
