@@ -320,6 +320,11 @@ def design(vessel: Vessel, data: Sequence[ForceData], structure: str, equation: 
                   np.concatenate(scales))
 
 
+def json_number(x: float) -> float | None:
+    """x, or None (JSON null) when it is not finite: artifact metadata and --json are strict JSON."""
+    return float(x) if math.isfinite(x) else None
+
+
 @dataclass(frozen=True)
 class Collinearity:
     equation: str
@@ -330,7 +335,8 @@ class Collinearity:
     pairs: tuple[tuple[str, str, float], ...]  # |rho| > COLLINEAR_RHO
 
     def to_json(self) -> dict:
-        return {"equation": self.equation, "condition_number": self.condition_number, "vif": self.vif,
+        return {"equation": self.equation, "condition_number": json_number(self.condition_number),
+                "vif": {k: json_number(v) for k, v in self.vif.items()},
                 "multicollinear_pairs": [{"a": a, "b": b, "rho": rho} for a, b, rho in self.pairs],
                 "names": list(self.names),
                 "correlation": [[None if not math.isfinite(x) else x for x in row] for row in self.correlation.tolist()]}
@@ -373,8 +379,9 @@ class Coefficient:
     rel_ci: float  # 95 % CI half-width / max(|estimate|, |prior|, floor)
 
     def to_json(self) -> dict:
-        return {"name": self.name, "estimate": self.estimate, "ci95": list(self.ci95), "prior": self.prior,
-                "status": self.status, "rel_ci": self.rel_ci}
+        """Strict JSON: an unbounded CI or rel_ci (no excitation) is null."""
+        return {"name": self.name, "estimate": self.estimate, "ci95": [json_number(x) for x in self.ci95],
+                "prior": self.prior, "status": self.status, "rel_ci": json_number(self.rel_ci)}
 
 
 @dataclass(frozen=True)
@@ -612,8 +619,8 @@ class IdentificationResult:
             "actuators": {d.name: dict(d.actuator) for d in self.data if d.actuator},
             "not_identifiable_without_prior": list(self.fit.not_identifiable),
             "collinearity": [e.collinearity.to_json() for e in self.fit.equations],
-            "residual_rms": {e.equation: e.residual_rms for e in self.fit.equations},
-            "effective_samples": {e.equation: e.effective_samples for e in self.fit.equations},
+            "residual_rms": {e.equation: json_number(e.residual_rms) for e in self.fit.equations},
+            "effective_samples": {e.equation: json_number(e.effective_samples) for e in self.fit.equations},
             "cross_validation": [cv.to_json() for cv in self.cross_validation],
             "extra_terms": self.extra_terms,
             "manoeuvres": [d.name for d in self.data],

@@ -16,7 +16,7 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
                                layout: Any = None, blocks: int = 1) -> list:
     """The recordings of `paths` at step dt, read with the vessel's actuator `layout` (physics/actuators.py; None:
     rudder_propeller); a bag without engine speed is a DatasetError saying why it matters. blocks > 1 cuts each
-    recording into that many contiguous pieces of equal length, NAME@1, NAME@2, ... (blocked cross-validation of
+    recording into that many contiguous pieces of equal length, NAME~1, NAME~2, ... (blocked cross-validation of
     a single long record: each piece is held out in turn)."""
     from usv_predictor.physics.actuators import DEFAULT_LAYOUT
     from usv_predictor.replay.recordings import load_recordings, slice_recording
@@ -37,7 +37,7 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
     pieces = []
     for rec in recordings:
         bounds = np.linspace(0, len(rec), blocks + 1).round().astype(int)
-        pieces += [slice_recording(rec, int(a), int(b), f"{rec.name}@{k + 1}")
+        pieces += [slice_recording(rec, int(a), int(b), f"{rec.name}~{k + 1}")
                    for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
     return pieces
 
