@@ -199,8 +199,9 @@ def dalian(bags: Path, work: Path) -> dict:
         d = diagnose_bags(both, vessel=str(DALIAN_VESSEL), model=model, dt=0.5, progress=log)
         out["diagnose"][label] = {"cause": d["cause"], "parameters": d["parameters"], "message": d["message"],
                                   "additional_causes": d["additional_causes"], "gain": d["gain"],
-                                  "evidence": [{k: e[k] for k in ("hypothesis", "held_out_loss", "gain", "evidence",
-                                                                  "parameters") if k in e} for e in d["evidence"]]}
+                                  "evidence": [{k: e[k] for k in ("hypothesis", "heldout_loss", "gain_vs_none",
+                                                                  "evidence_vs_none", "fold_parameters")}
+                                               for e in d["evidence"]]}
     return out
 
 

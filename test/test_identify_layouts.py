@@ -155,6 +155,19 @@ def test_identify_exports_a_small_craft_grey_box_that_predicts(otter, tmp_path):
     assert np.sqrt(np.mean((speed - np.hypot(rec.truth[1:, 3], rec.truth[1:, 4])) ** 2)) < 0.1  # (m/s)
 
 
+def test_the_thrust_exponent_is_the_file_s_unless_the_data_determine_it(otter):
+    """The otter's propellers give thrust ~ command^2: from a vessel file that says 1 the data choose 2; from the
+    right file they keep it."""
+    vessel, recordings, data = otter
+    linear = sc.with_exponent(vessel, 1.0)
+    result = idf.identify(linear, recordings, structure="diagonal", prior="fix", data=data)
+    assert result.vessel.thrusters.port.exponent == 2.0 == result.vessel.thrusters.starboard.exponent
+    assert any("the data determine it" in n and "-> 2 instead of the vessel file's 1" in n for n in result.notes)
+    kept = idf.identify(vessel, recordings, structure="diagonal", prior="fix", data=data)
+    assert kept.vessel.thrusters.port.exponent == 2.0
+    assert any("the vessel file's 2 kept" in n for n in kept.notes)
+
+
 def test_layouts_and_structures_are_checked(otter):
     vessel, recordings, data = otter
     with pytest.raises(ConfigError, match="unknown model structure 'mmg' for the small-craft hull"):

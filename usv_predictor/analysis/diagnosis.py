@@ -315,7 +315,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         return 0.5 * n_eff * math.log(max(per_segment[over].mean(), 1e-12) / max(per_segment[a].mean(), 1e-12))
 
     base = per_segment["none"]
-    ranked = sorted(names, key=lambda n: per_segment[n].mean())
+    # a hypothesis whose fit diverged (non-finite held-out loss) ranks last, never first (NaN does not sort)
+    ranked = sorted(names, key=lambda n: (not math.isfinite(per_segment[n].mean()), per_segment[n].mean()))
     best = ranked[0]
     evidence = tuple(Evidence(n, float(per_segment[n].mean()), float(1.0 - per_segment[n].mean() / base.mean()),
                               evidence_for(n, "none"), 0.0 if n == best else evidence_for(best, n),

@@ -24,9 +24,10 @@ What is fixed, and why:
     alone cannot set the scale of the forces (M nu_dot + C nu = tau is unchanged when M, the damping and the thrust
     are all multiplied by the same k), and the added mass is not separable from the rigid body in short trials (every
     equation sees m + m_A); the vessel file states them (Fossen's rules for the Otter: -0.1 m, -1.5 m, -1.7 I_z);
-  - each thrust map's exponent, dead band and time constant, and the thruster spacing b: with the gains free they
-    are nearly collinear with them over the commands a run uses (a single run cannot tell c^2 from a larger gain
-    on c^1.8), so they come from the vessel file (a datasheet or a bollard test);
+  - each thrust map's dead band and time constant, and the thruster spacing b: with the gains free they are nearly
+    collinear with them over the commands a run uses, so they come from the vessel file (a datasheet or a bollard
+    test); the exponent too, unless the data determine it: the fit is repeated at each exponent of EXPONENT_GRID and
+    one whose cross-validation error is lower than the file's by more than 5 % replaces it (both said in the notes);
   - a coefficient without excitation (no astern command: the reverse gains R) or with a 95 % CI wider than
     REL_CI_LIMIT of its size is NOT identifiable, and a free coefficient of the wrong sign (damping > 0, C_d < 0,
     a thrust gain < 0) is NOT physical: both are refused (prior "none", naming them and the prior to use), held at
@@ -88,6 +89,7 @@ SIGN: Mapping[str, int] = {  # +1: must be >= 0, -1: must be <= 0 (Fossen's SNAM
     **{name: +1 for name in GAIN_NAMES},
 }
 FORCE_FLOOR = 0.02  # a coefficient moving its equation's force by < 1 % of the force rms (half this) is determined
+EXPONENT_GRID = (1.0, 1.5, 2.0)  # thrust ~ command^e tried when the data may determine e (2: shaft-speed command)
 FOLD_EXCITATION = 0.1  # a CV fold holds at the prior a coefficient whose training column has < 10 % of its norm
 HELD_BY_FILE = ("X_udot", "Y_vdot", "N_rdot")  # the added masses (module docstring: not separable, set the scale)
 
@@ -462,18 +464,60 @@ def identify_small_craft(vessel: Vessel, recordings: Sequence[Recording], *, str
         cvs.append(cross_validate(vessel, forces, fits[s]))
     chosen = candidates[0]
     notes = [f"held at the vessel file's values: the mass, inertia and added masses ({', '.join(HELD_BY_FILE)}; they "
-             "set the scale of every force), each thrust map's exponent, dead band and time constant, the spacing"]
+             "set the scale of every force), each thrust map's dead band and time constant, the spacing"]
     if structure == "auto":
         by = {cv.structure: cv.score for cv in cvs}
         chosen = "coupled" if by["coupled"] < 0.95 * by["diagonal"] else "diagonal"
         notes.append(f"auto: CV error diagonal {by['diagonal']:.4f}, coupled {by['coupled']:.4f} -> {chosen}")
     fit = fits[chosen]
+    score = next(cv.score for cv in cvs if cv.structure == chosen)
+    vessel, fit, note = _thrust_exponent(vessel, forces, fit, score, prior, rel_ci_limit, progress)
+    if note:
+        notes.append(note)
     if fit.not_identifiable:
         notes.append(f"not identifiable without the prior: {', '.join(fit.not_identifiable)} -> {prior}")
     identified = identified_vessel(vessel, fit)
     forces = [replace(f, rudder=st, propeller=pr)
               for f, (st, pr) in ((f, known_forces(identified, f.nu, f.controls)) for f in forces)]
     return IdentificationResult(identified, fit, tuple(cvs), {}, tuple(forces), tuple(notes))
+
+
+def with_exponent(vessel: Vessel, exponent: float) -> Vessel:
+    """The vessel with both power-law thrust maps at `exponent` (the gains keep their meaning: thrust at full)."""
+    t = vessel.thrusters
+    return replace(vessel, thrusters=replace(t, port=replace(t.port, exponent=exponent),
+                                             starboard=replace(t.starboard, exponent=exponent)))
+
+
+def _thrust_exponent(vessel: Vessel, data: Sequence[ForceData], fit: JointFit, score: float, prior: str,
+                     rel_ci_limit: float, progress: Callable[[str], None] | None) -> tuple[Vessel, JointFit, str]:
+    """(vessel, fit, note): the thrust maps' exponent stays the vessel file's unless the data determine it: the
+    structure is refitted at each exponent of EXPONENT_GRID and one whose cross-validation error is lower than the
+    file's by more than 5 % replaces it (the CV errors go into the note either way). Table maps are not profiled."""
+    t = vessel.thrusters
+    if t.port.table_command or t.starboard.table_command or t.port.exponent != t.starboard.exponent:
+        return vessel, fit, ""
+    scores = {t.port.exponent: score}
+    fits = {t.port.exponent: fit}
+    for exponent in EXPONENT_GRID:
+        if exponent in scores:
+            continue
+        if progress is not None:
+            progress(f"thrust map exponent {exponent:g} (the vessel file's: {t.port.exponent:g})")
+        trial = with_exponent(vessel, exponent)
+        try:
+            fits[exponent] = fit_small_craft(trial, data, fit.structure, prior, rel_ci_limit=rel_ci_limit)
+        except NotIdentifiableError:
+            continue  # with prior "none" an exponent whose fit is refused is no candidate
+        scores[exponent] = cross_validate(trial, data, fits[exponent]).score
+    best = min(scores, key=scores.__getitem__)
+    listed = ", ".join(f"{e:g}: {v:.4f}" for e, v in sorted(scores.items()))
+    if best != t.port.exponent and scores[best] < 0.95 * scores[t.port.exponent]:
+        return (with_exponent(vessel, best), fits[best],
+                f"thrust map exponent: the data determine it (CV error by exponent {listed}) -> {best:g} instead of "
+                f"the vessel file's {t.port.exponent:g}")
+    return vessel, fit, (f"thrust map exponent: the vessel file's {t.port.exponent:g} kept (CV error by exponent "
+                         f"{listed}: no other lower by more than 5 %)")
 
 
 def hull_forces(vessel: Vessel, values: Mapping[str, float], nu: np.ndarray,
