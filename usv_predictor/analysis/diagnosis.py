@@ -349,6 +349,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                 losses.append(segment_losses(model, seg.select(np.isin(seg.recording, folds[test_fold]))))
             trials[name] = np.concatenate(losses)
             progress(f"{'+'.join((*chosen, name)):30s} held-out loss {trials[name].mean():9.3f}")
+        trials = {n: t for n, t in trials.items() if math.isfinite(t.mean())}  # a diverged fit is no cause
         if not trials:
             break
         name = min(trials, key=lambda n: trials[n].mean())

@@ -27,7 +27,8 @@ What is fixed, and why:
   - each thrust map's dead band and time constant, and the thruster spacing b: with the gains free they are nearly
     collinear with them over the commands a run uses, so they come from the vessel file (a datasheet or a bollard
     test); the exponent too, unless the data determine it: the fit is repeated at each exponent of EXPONENT_GRID and
-    one whose cross-validation error is lower than the file's by more than 5 % replaces it (both said in the notes);
+    one whose cross-validation error (held-out force NMSE) is lower than the file's by more than 5 % and below
+    DECISIVE_CV replaces it (both said in the notes: forces the model cannot predict held out decide nothing);
   - a coefficient without excitation (no astern command: the reverse gains R) or with a 95 % CI wider than
     REL_CI_LIMIT of its size is NOT identifiable, and a free coefficient of the wrong sign (damping > 0, C_d < 0,
     a thrust gain < 0) is NOT physical: both are refused (prior "none", naming them and the prior to use), held at
@@ -35,7 +36,8 @@ What is fixed, and why:
   The size of a coefficient for that test is max(|estimate|, |prior|, FORCE_FLOOR rms(target) / rms(regressor)): a
   coefficient whose whole uncertainty moves its equation's force by less than a percent is determined, even at 0.
 Structures: diagonal (Fossen's Otter: X_u, X_uu, Y_v, N_r, N_rr, C_d) and coupled (+ Y_r, N_v), compared by
-leave-one-manoeuvre-out CV of the three forces ("auto": coupled only if its error is lower by more than 5 %).
+leave-one-manoeuvre-out CV of the three forces ("auto": coupled only if its error is lower by more than 5 % and below
+DECISIVE_CV: a model that cannot predict held-out forces better than that decides nothing).
 A structure leaves its other coefficients at the vessel file's values.
 """
 from __future__ import annotations
@@ -90,6 +92,7 @@ SIGN: Mapping[str, int] = {  # +1: must be >= 0, -1: must be <= 0 (Fossen's SNAM
 }
 FORCE_FLOOR = 0.02  # a coefficient moving its equation's force by < 1 % of the force rms (half this) is determined
 EXPONENT_GRID = (1.0, 1.5, 2.0)  # thrust ~ command^e tried when the data may determine e (2: shaft-speed command)
+DECISIVE_CV = 0.5  # a CV comparison decides (exponent, structure) only below this held-out force NMSE
 FOLD_EXCITATION = 0.1  # a CV fold holds at the prior a coefficient whose training column has < 10 % of its norm
 HELD_BY_FILE = ("X_udot", "Y_vdot", "N_rdot")  # the added masses (module docstring: not separable, set the scale)
 
@@ -467,7 +470,7 @@ def identify_small_craft(vessel: Vessel, recordings: Sequence[Recording], *, str
              "set the scale of every force), each thrust map's dead band and time constant, the spacing"]
     if structure == "auto":
         by = {cv.structure: cv.score for cv in cvs}
-        chosen = "coupled" if by["coupled"] < 0.95 * by["diagonal"] else "diagonal"
+        chosen = "coupled" if by["coupled"] < min(0.95 * by["diagonal"], DECISIVE_CV) else "diagonal"
         notes.append(f"auto: CV error diagonal {by['diagonal']:.4f}, coupled {by['coupled']:.4f} -> {chosen}")
     fit = fits[chosen]
     score = next(cv.score for cv in cvs if cv.structure == chosen)
@@ -493,7 +496,8 @@ def _thrust_exponent(vessel: Vessel, data: Sequence[ForceData], fit: JointFit, s
                      rel_ci_limit: float, progress: Callable[[str], None] | None) -> tuple[Vessel, JointFit, str]:
     """(vessel, fit, note): the thrust maps' exponent stays the vessel file's unless the data determine it: the
     structure is refitted at each exponent of EXPONENT_GRID and one whose cross-validation error is lower than the
-    file's by more than 5 % replaces it (the CV errors go into the note either way). Table maps are not profiled."""
+    file's by more than 5 % and below DECISIVE_CV replaces it (the CV errors go into the note either way).
+    Table maps are not profiled."""
     t = vessel.thrusters
     if t.port.table_command or t.starboard.table_command or t.port.exponent != t.starboard.exponent:
         return vessel, fit, ""
@@ -512,12 +516,12 @@ def _thrust_exponent(vessel: Vessel, data: Sequence[ForceData], fit: JointFit, s
         scores[exponent] = cross_validate(trial, data, fits[exponent]).score
     best = min(scores, key=scores.__getitem__)
     listed = ", ".join(f"{e:g}: {v:.4f}" for e, v in sorted(scores.items()))
-    if best != t.port.exponent and scores[best] < 0.95 * scores[t.port.exponent]:
+    if best != t.port.exponent and scores[best] < 0.95 * scores[t.port.exponent] and scores[best] < DECISIVE_CV:
         return (with_exponent(vessel, best), fits[best],
                 f"thrust map exponent: the data determine it (CV error by exponent {listed}) -> {best:g} instead of "
                 f"the vessel file's {t.port.exponent:g}")
     return vessel, fit, (f"thrust map exponent: the vessel file's {t.port.exponent:g} kept (CV error by exponent "
-                         f"{listed}: no other lower by more than 5 %)")
+                         f"{listed}: none lower by more than 5 % with a CV error below {DECISIVE_CV:g})")
 
 
 def hull_forces(vessel: Vessel, values: Mapping[str, float], nu: np.ndarray,
