@@ -162,11 +162,15 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
             step = theta.copy()
             step[j] += eps
             jac[:, j] = (res(step) - r) / eps
+        jac[~np.isfinite(jac)] = 0.0  # a perturbation whose rollout diverged gives no direction
         jtj, jtr = jac.T @ jac, jac.T @ r
         improved = False
         for _ in range(8):
             delta = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-9), -jtr)
             trial = np.clip(theta + delta, low / scale, high / scale)
+            if not np.all(np.isfinite(trial)):  # never roll out non-finite parameters (a NaN delay indexes nothing)
+                lam *= 10.0
+                continue
             r_trial = res(trial)
             c_trial = float(r_trial @ r_trial)
             if c_trial < cost:
