@@ -125,6 +125,18 @@ def test_a_wrong_sign_is_not_physical():
     assert sc.problems(sc.fit_joint(dataclasses.replace(d, target=-target), {"X_u": -1.0}, weights=np.ones(3))) == {}
 
 
+def test_an_mmg_derivative_of_a_sign_no_ship_has_is_flagged():
+    """R0 > 0, Y_v < 0, N_r < 0, Y_vvv < 0 for every ship: a free estimate of the other sign is not physical, however
+    narrow its CI (the Fuzhou zig-zag drives Y_vvv to +0.86 without this rule)."""
+    def fit(name: str, value: float) -> idf.EquationFit:
+        c = idf.Coefficient(name, value, (value - 0.01, value + 0.01), -1.0, "identified", 0.01)
+        return idf.EquationFit("Y", (c,), None, 0.0, 100.0)
+
+    assert idf.not_identifiable(fit("Y_vvv", +0.86)) == ["Y_vvv"]
+    assert idf.not_identifiable(fit("Y_vvv", -0.86)) == []
+    assert idf.not_identifiable(fit("Y_r", +0.86)) == []  # no sign rule: Y_r differs between ships
+
+
 def test_identify_exports_a_small_craft_grey_box_that_predicts(otter, tmp_path):
     vessel, recordings, data = otter
     result = idf.identify(vessel, recordings, structure="auto", prior="fix", data=data)
@@ -215,7 +227,7 @@ def test_throttle_gain_is_profiled_from_a_wrong_vessel_file():
     assert result.to_json()["coefficients"][-1]["name"] == "throttle.forward_N"
 
 
-def test_rudder_only_estimates_the_engine_speed_of_each_manoeuvre():
+def test_rudder_only_estimates_the_engine_speed_of_each_manoeuvre(tmp_path):
     vessel = _jari("rudder_only")
     runs = (ZigZag(10.0, 10.0, 650.0, duration_s=80.0), ZigZag(20.0, 20.0, 700.0, duration_s=80.0, side=-1),
             TurningCircle(25.0, 650.0, duration_s=80.0), TurningCircle(15.0, 700.0, duration_s=80.0, side=-1))
@@ -230,3 +242,14 @@ def test_rudder_only_estimates_the_engine_speed_of_each_manoeuvre():
     for name in ("Y_v", "Y_r", "N_v", "N_r"):
         assert found[name].estimate == pytest.approx(getattr(vessel.hull, name), rel=0.10), name
     assert any("constant engine setting" in note for note in result.notes)
+    # the exported grey box takes the one control column of the layout, [delta]
+    hybrid_fit.export_identified(str(tmp_path / "rudder_only.pt"), hybrid_fit.greybox_module(result, DT), result,
+                                 dt=DT, training_data_sha256="0" * 64)
+    art = load_artifact(tmp_path / "rudder_only.pt")
+    assert art.metadata["control_layout"] == ["delta"] and art.metadata["actuator_layout"] == "rudder_only"
+    rec = recordings[2]  # the starboard turning circle, closed loop from its first state
+    pred = art.predict(rec.state()[:1], rec.controls[None, :-1])
+    assert pred.shape == (1, 1, len(rec) - 1, 6) and pred[0, 0, -1, 2] > 0.0  # turns to starboard
+    assert np.sqrt(np.mean((pred[0, 0, :, 2] - rec.truth[1:, 5]) ** 2)) < 0.2 * np.abs(rec.truth[:, 5]).max()
+    with pytest.raises(Exception, match=r"controls \(B, H, 1\)"):
+        art.predict(rec.state()[:1], np.zeros((1, 5, 2)))

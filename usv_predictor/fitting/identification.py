@@ -461,8 +461,17 @@ def fit_equation(d: Design, prior: Mapping[str, float], *, fixed: Sequence[str] 
                        float(np.sqrt(np.mean(residual**2))), n_eff, ridge)
 
 
+MMG_SIGN = {"R0": +1, "Y_v": -1, "N_r": -1, "Y_vvv": -1}  # +1: >= 0, -1: <= 0 for every ship (resistance, sway
+# and yaw damping, the growth of sway damping with drift; Yasukawa & Yoshimura 2015 Table 3 and Table 4's ships)
+
+
+MMG_SIGN_TEXT = ", ".join(f"{n} {'>=' if v > 0 else '<='} 0" for n, v in MMG_SIGN.items())
+
+
 def not_identifiable(fit: EquationFit, rel_ci_limit: float = REL_CI_LIMIT) -> list[str]:
-    return [c.name for c in fit.coefficients if c.status == "identified" and c.rel_ci > rel_ci_limit]
+    """Free coefficients whose CI is too wide, or whose estimate has the sign no ship has (MMG_SIGN: not physical)."""
+    return [c.name for c in fit.coefficients if c.status == "identified"
+            and (c.rel_ci > rel_ci_limit or MMG_SIGN.get(c.name, 0) * c.estimate < 0.0)]
 
 
 # ------------------------------------------------------------------------------------------ prior policies
@@ -496,7 +505,8 @@ def _message(names: Sequence[str], fits: Sequence[EquationFit], data_names: Sequ
     pairs = [f"{a}~{b} (rho {rho:+.2f})" for f in fits for a, b, rho in f.collinearity.pairs]
     conds = ", ".join(f"{f.equation}: {f.collinearity.condition_number:.3g}" for f in fits)
     return (f"coefficients not identifiable from {len(data_names)} manoeuvre(s) ({', '.join(data_names)}): "
-            f"{', '.join(names)} (95 % CI wider than {REL_CI_LIMIT:.0%} of their size); condition numbers {conds}"
+            f"{', '.join(names)} (95 % CI wider than {REL_CI_LIMIT:.0%} of their size, or a sign no ship has: "
+            f"{MMG_SIGN_TEXT}); condition numbers {conds}"
             + (f"; multicollinear regressors: {', '.join(pairs)}" if pairs else "")
             + ". Options: prior='fix' (--prior fix) holds them at the vessel preset's values, prior='ridge' "
               "(--prior ridge) pulls every coefficient towards the preset; or record more informative manoeuvres "
