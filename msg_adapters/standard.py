@@ -303,15 +303,19 @@ class ScalarHeadingAdapter(_Base):
 
     Options: units "deg" (default) | "rad"; convention "compass" (clockwise from north, default;
     encode writes [0, 360) deg or [0, 2 pi) rad) | "enu" (counter-clockwise from east, wrapped).
+    A value more than one turn (RAW_LIMIT) from zero is not a heading in the configured unit (a corrupt value, or
+    degrees configured as rad): it decodes as NaN instead of being wrapped into a plausible-looking angle.
     """
 
     units: str = "deg"
     convention: str = "compass"
 
     OPTIONS: ClassVar = MappingProxyType({"units": choice("deg", "rad"), "convention": choice("compass", "enu")})
+    RAW_LIMIT: ClassVar = MappingProxyType({"rad": 2.0 * math.pi + 1e-6, "deg": 360.0 + 1e-6})  # |raw| per unit
 
     def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
         angle = np.asarray(c.field(msg, "data", self.ros_type), dtype=np.float64)
+        angle = np.where(np.abs(angle) <= self.RAW_LIMIT[self.units], angle, np.nan)
         angle = np.radians(angle) if self.units == "deg" else angle
         psi = wrap_angle(angle) if self.convention == "compass" else enu_yaw_to_heading(angle)
         return None, c.values_out(psi)

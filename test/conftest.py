@@ -16,6 +16,12 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 RAW_DATA_DIR = REPO_ROOT.parent / "shared" / "data" / "raw"
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers", "slow: a case that runs processes (signals, file-size limits) or long commands; still run by "
+                   "default, deselect with -m 'not slow'")
+
+
 def running_in_ci() -> bool:
     """True when CI is set to anything but an explicit no (CI=true, CI=1, ...)."""
     return os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")

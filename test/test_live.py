@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -186,3 +187,103 @@ def test_rollout_refuses_more_members_than_the_model_has() -> None:
     with pytest.raises(ModelError, match="ensemble_size 9 requested"):
         live.Rollout(artifact, 120, ensemble_size=9)
     assert live.Rollout(artifact, 120, ensemble_size=2)(np.array([5.0, 0, 0, 0]), np.array([0.0, 650.0])).shape == (2, 120, 6)
+
+
+# ----------------------------------------------------------------------------- redundant inputs (issue 12)
+
+
+def _bag_rows(bag: Path, heading: Callable[[np.ndarray], np.ndarray] | None = None,
+              velocity_scale: float = 1.0) -> list[tuple[int, str, tuple[float, ...]]]:
+    """Every input sample of a bag in stamp order, with the decoded heading (and velocity) changed as a wrong
+    configuration would change it."""
+    specs = [s for s in topic_specs() if s.role != "odometry"]
+    signals = read_bag(bag, specs)
+    rows = []
+    for spec in specs:
+        sig = signals[spec.topic]
+        values = sig.values.copy()
+        if spec.role == "heading" and heading is not None:
+            values[:, 0] = heading(values[:, 0])
+        if spec.role == "velocity":
+            values[:, :2] *= velocity_scale
+        rows += [(int(t), spec.role, tuple(v)) for t, v in zip(sig.t_ns, values)]
+    return sorted(rows, key=lambda row: row[0])
+
+
+def _replay_live(rows: list[tuple[int, str, tuple[float, ...]]]) -> list[tuple[float, dict[str, tuple[str, str]]]]:
+    """Feed the samples as the node receives them; every second: (seconds since the start, the refusals)."""
+    inputs = make_inputs()
+    t0 = rows[0][0]
+    next_check, seen = t0 + NS, []
+    for stamp, role, values in rows:
+        if stamp > next_check:
+            inputs.check_consistency(next_check)
+            seen.append(((next_check - t0) / NS, dict(inputs.refusals)))
+            next_check += NS
+        try:
+            inputs.add(role, stamp, values, stamp)
+        except live.InputRejected:
+            pass
+    return seen
+
+
+SHIPPED = sorted(p.parent for p in (Path(__file__).resolve().parents[1] / "bags").rglob("metadata.yaml"))
+
+
+@pytest.mark.parametrize("bag", SHIPPED, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_the_shipped_bags_are_never_refused_as_inconsistent(bag: Path) -> None:
+    """Current, wind, waves (their yaw motion included) and sensor noise: all consistent, nothing refused."""
+    seen = _replay_live(_bag_rows(bag))
+    assert len(seen) > 100 and all(refusals == {} for _, refusals in seen)
+
+
+def test_a_heading_in_radians_configured_as_degrees_is_refused_with_the_reason() -> None:
+    """Issue 12: the heading published in radians, read as degrees: it never leaves +-6.3 'deg' while the gyro
+    turns circles. The adapter's decode of such a value is radians(mod(psi, 2 pi))."""
+    seen = _replay_live(_bag_rows(BAG, heading=lambda psi: np.radians(np.mod(psi, 2 * math.pi))))
+    refused = [(t, r) for t, r in seen if r]
+    assert refused and refused[0][0] <= 10.0  # within 10 s of the start
+    assert len(refused) >= len(seen) - 10  # and from then on
+    reasons = {why for _, r in refused for role, why in r.values() if role == "heading"}
+    assert any("never leaves a" in why and "radians with units deg" in why for why in reasons), reasons
+    inputs = make_inputs()
+    for stamp, role, values in _bag_rows(BAG, heading=lambda psi: np.radians(np.mod(psi, 2 * math.pi)))[:60000]:
+        try:
+            inputs.add(role, stamp, values, stamp)
+        except live.InputRejected:
+            pass
+    with pytest.raises(live.CycleSkipped, match="input heading refused: the heading disagrees"):
+        inputs.assemble(stamp)
+    assert inputs.tracks["heading"].refused.startswith("the heading disagrees")
+    assert not inputs.observe_clock(stamp)
+    assert inputs.observe_clock(0) and inputs.refusals == {} and inputs.tracks["heading"].refused == ""  # a restart
+
+
+@pytest.mark.parametrize(("mistake", "role", "words"), [
+    ("convention", "heading", "the heading"),  # counter-clockwise read as clockwise
+    ("offset", "heading", "the heading disagrees with the GNSS track"),  # a compass mounted 90 deg off
+    ("km/h", "velocity", "the velocity disagrees with the GNSS track"),  # km/h read as m/s
+])
+def test_other_unit_and_sign_mistakes_are_refused(mistake: str, role: str, words: str) -> None:
+    heading = {"convention": lambda psi: -psi, "offset": lambda psi: psi + math.pi / 2}.get(mistake)
+    seen = _replay_live(_bag_rows(BAG, heading=heading, velocity_scale=3.6 if mistake == "km/h" else 1.0))
+    refused = [r for _, r in seen if r]
+    assert len(refused) >= len(seen) - 10
+    assert any(who == role and why.startswith(words) for r in refused for who, why in r.values())
+
+
+def test_consistency_checks_need_evidence() -> None:
+    """Straight running at rest, or a short turn: no verdict (nothing refused, nothing cleared)."""
+    t = np.linspace(0.0, 20.0, 401)
+    calm = live.heading_vs_gyro(t, np.full_like(t, 0.01), t, np.full_like(t, 0.3), 0.0, 20.0)
+    assert calm == live.NOT_JUDGED  # 11 deg of turning: not enough to judge
+    turning = live.heading_vs_gyro(t, np.full_like(t, 0.2), t, 0.2 * t, 0.0, 20.0)
+    assert turning.judged and turning.problem == ""
+    biased = live.heading_vs_gyro(t, np.full_like(t, 0.2 + math.radians(0.5)), t, 0.2 * t, 0.0, 20.0)
+    assert biased.judged and biased.problem == ""  # a 0.5 deg/s gyro bias passes
+    slow = live.track_vs_gnss(t, np.full_like(t, 1.0), np.zeros_like(t), t, np.zeros_like(t), t, 1.0 * t,
+                              np.zeros_like(t), 0.0, 20.0)
+    assert slow == ("velocity", live.NOT_JUDGED)  # below TRACK_MIN_SPEED over ground
+    drift = live.track_vs_gnss(t, np.full_like(t, 5.0), np.zeros_like(t), t, np.zeros_like(t), t, 5.0 * t,
+                               1.5 * t, 0.0, 20.0)
+    assert drift == ("velocity", live.Consistency(True))  # a current of 30 % of the speed across the track passes

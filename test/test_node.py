@@ -100,6 +100,27 @@ def test_heading_in_degrees_configured_as_rad_is_refused(ros_context: Context) -
         fixture.close()
 
 
+def test_heading_in_radians_configured_as_degrees_is_refused_while_turning(harness: Harness) -> None:
+    """Issue 12: each value is a plausible heading in degrees, so only the gyro can tell. The boat turns at
+    0.4 rad/s (23 deg/s); its heading in radians read as degrees never leaves 6.3 deg. Refused with the reason on
+    /diagnostics, and no Path is published from then on."""
+    assert harness.node.config.input("heading").options.get("units", "deg") == "deg"
+    started = time.monotonic()
+
+    def feed() -> None:
+        psi = (0.4 * (time.monotonic() - started)) % (2 * math.pi)  # rad, what the compass publishes
+        harness.feed(skip=("heading",), imu=(0.4, 0.0, 0.0, -9.81, math.nan))
+        harness.publish("heading", (), raw=harness.make("std_msgs/msg/Float64")(data=psi))
+
+    found = harness.spin_until(lambda s: level(s["heading"]) == predictor_node.ERROR, feed)
+    assert found["heading"].message.startswith("refused: the heading disagrees with the gyro")
+    assert "radians with units deg" in found["heading"].message
+    assert "input heading refused" in found["prediction"].message and level(found["prediction"]) == predictor_node.WARN
+    count = len(harness.paths)
+    harness.spin(0.5, feed)
+    assert len(harness.paths) == count  # nothing is published from a refused input
+
+
 def test_stamps_backwards_and_from_the_future_are_refused(harness: Harness) -> None:
     harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, harness.feed)
 
@@ -181,13 +202,13 @@ def test_a_model_for_other_controls_is_refused_naming_the_layouts(ros_context: C
 
 
 @pytest.mark.parametrize("case", ["missing", "corrupt", "vessel"])
-def test_a_bad_model_at_start_exits_nonzero_naming_the_file(tmp_path: Path, case: str) -> None:
+def test_a_bad_model_at_start_exits_2_naming_the_file(tmp_path: Path, case: str) -> None:
     models = write_bad_models(tmp_path)
     args = ["-p", f"model_path:={models[case]}"] if case in models else ["-p", "vessel:=kvlcc2_model"]
     env = localhost_env(41)
     done = subprocess.run([sys.executable, "-m", "usv_predictor.node", "--ros-args", *args],
                           capture_output=True, text=True, timeout=60, env=env)
-    assert done.returncode == 1, done.stderr[-2000:]
-    assert "predictor: error: " in done.stderr
+    assert done.returncode == predictor_node.EXIT_ERROR == 2, done.stderr[-2000:]
+    assert "predictor: error: " in done.stderr and "Traceback" not in done.stderr
     expected = str(models[case]) if case in models else 'vessel: model "jari_usv", config "kvlcc2_model"'
     assert expected in done.stderr

@@ -170,6 +170,7 @@ def test_model_whose_dt_differs_from_the_requested_one_is_refused(bags, tmp_path
 
     fake = types.ModuleType("usv_predictor.models.artifact")
     fake.load_artifact = lambda path, expect=None: Loaded()
+    fake.check_runs = lambda model: None  # the dt is checked first: the model is never run
     monkeypatch.setitem(sys.modules, "usv_predictor.models.artifact", fake)
     assert main(["evaluate", str(bags), "--model", str(model_file), "--dt", "0.5"]) == 2
     err = capsys.readouterr().err
@@ -215,7 +216,7 @@ def test_shipped_artifact_format_is_evaluated(bags, tmp_path):
             return out.unsqueeze(0)  # (1, B, H, 6)
 
     meta = {"model_type": "constant-velocity test", "feature_set": "F0", "feature_names": [], "state_layout": [],
-            "control_layout": [], "output_layout": [], "dt": 0.5, "horizon_steps": 120, "normalisation": {},
+            "control_layout": ["delta", "rpm"], "output_layout": [], "dt": 0.5, "horizon_steps": 120, "normalisation": {},
             "vessel": "jari_usv", "training_data_sha256": "0" * 64, "ensemble_size": 1, "architecture": {},
             "training": {}, "units": {}}
     path = tmp_path / "cv.pt"
@@ -233,10 +234,10 @@ def test_the_evaluation_request_refuses_what_cannot_be_evaluated(capsys):
     from usv_predictor.replay.evaluate import EvaluationRequest
 
     for fields in ({"stride_s": 0.0}, {"horizons_s": (10.0, -30.0)}):
-        with pytest.raises(EvaluationError, match=r"--stride and --horizons must be positive \(s\)"):
+        with pytest.raises(EvaluationError, match=r"--stride .* and --horizons .* must be finite and positive \(s\)"):
             EvaluationRequest(**fields)
     with pytest.raises(EvaluationError, match="--reference 'radar': expected one of gnss, truth"):
         EvaluationRequest(reference="radar")
     assert main(["evaluate", "--model", "physics", "--stride", "-5"]) == 2  # refused before any bag is read
     err = capsys.readouterr().err
-    assert err.startswith("replay evaluate: error: --stride and --horizons must be positive") and "reading" not in err
+    assert err.startswith("replay evaluate: error: argument --stride: '-5' is not a finite number > 0") and "reading" not in err

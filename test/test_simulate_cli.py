@@ -103,7 +103,10 @@ def test_programme_with_calm_twins_and_blind_metadata(tmp_path):
         (["--current-speed", "0.3"], "--current-speed belongs to effect 'current': add --effect current"),
         (["--rpm", "-5"], "--rpm -5 is outside"),
         (["--effect", "gremlins"], "invalid choice: 'gremlins'"),
-        (["--wind-speed", "abc", "--effect", "wind"], "invalid float value: 'abc'"),
+        (["--wind-speed", "abc", "--effect", "wind"], "argument --wind-speed: 'abc' is not a finite number"),
+        (["--wind-speed", "nan", "--effect", "wind"], "argument --wind-speed: 'nan' is not a finite number"),
+        (["--seed", "-1"], "argument --seed: '-1' is not a whole number >= 0"),
+        (["--duration", "inf"], "argument --duration: 'inf' is not a finite number > 0"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_no_bag(tmp_path, capsys, args, message):

@@ -49,6 +49,11 @@ class PlotError(UsvPredictorError):
     """A figure cannot be written (directory not writable, disk full); names the file."""
 
 
+class OutputError(UsvPredictorError):
+    """An output cannot be written: not writable, no space left, it would replace or sit inside an input, or it
+    holds a value JSON cannot (NaN/inf); the message names the path or the field."""
+
+
 class InputRejected(UsvPredictorError):
     """One live input sample was refused (reason in the message; `kind` is its counter key)."""
 
@@ -59,3 +64,19 @@ class InputRejected(UsvPredictorError):
 
 class CycleSkipped(UsvPredictorError):
     """No live prediction this cycle; the message says why (no input yet, stale input, bad model output)."""
+
+
+def one_line(err: BaseException | str) -> str:
+    """The message of `err` on one line (an error message is one line naming the culprit): a YAML syntax error, also
+    one wrapped in another library's error, as "problem (line L, column C)"; other multi-line text (or a str) joined
+    by " / "."""
+    if isinstance(err, str):
+        return " / ".join(line.strip() for line in err.splitlines() if line.strip())
+    cause: BaseException | None = err
+    while cause is not None and getattr(cause, "problem_mark", None) is None:
+        cause = cause.__cause__ or cause.__context__
+    if cause is not None:
+        mark = cause.problem_mark  # type: ignore[attr-defined]
+        return f"{cause.problem} (line {mark.line + 1}, column {mark.column + 1})"  # type: ignore[attr-defined]
+    lines = [line.strip() for line in str(err).splitlines() if line.strip()]
+    return " / ".join(lines) or type(err).__name__

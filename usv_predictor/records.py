@@ -4,11 +4,25 @@ Time inside is int nanoseconds (t_ns) until the numeric boundary, where it becom
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from usv_predictor.errors import ConfigError
+
 NS_PER_S = 1_000_000_000  # nanoseconds per second
+MAX_STEPS = 10**8  # steps any horizon, stride or window may span (over three years at 1 s)
+
+
+def whole_steps(seconds: float, dt: float, what: str, minimum: int = 1) -> int:
+    """round(seconds / dt) steps of dt; ConfigError naming `what` when that is not finite, rounds below `minimum`
+    or exceeds MAX_STEPS (a horizon of 1e308 s or 1e-320 s is refused, not turned into an overflow)."""
+    ratio = seconds / dt if dt > 0.0 else math.inf
+    if not math.isfinite(ratio) or not minimum - 0.5 <= ratio <= MAX_STEPS:
+        raise ConfigError(f"{what} {seconds:g} s is {ratio:g} steps of {dt:g} s; expected {minimum} to {MAX_STEPS} "
+                          "steps")
+    return max(minimum, int(round(ratio)))
 
 
 @dataclass(frozen=True)

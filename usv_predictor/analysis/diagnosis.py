@@ -28,6 +28,7 @@ import torch
 
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import ConfigError, DiagnosisError
+from usv_predictor.records import whole_steps
 from usv_predictor.frames import compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
 from usv_predictor.physics import effects as fx
@@ -68,7 +69,8 @@ def make_segments(recordings: Sequence[Recording], horizon_s: float = 20.0, stri
     """Cut every recording into segments of horizon_s starting every stride_s."""
     states, controls, targets, weights, index = [], [], [], [], []
     for i, rec in enumerate(recordings):
-        h, stride = int(round(horizon_s / rec.dt)), max(1, int(round(stride_s / rec.dt)))
+        h = whole_steps(horizon_s, rec.dt, "segment horizon")
+        stride = whole_steps(min(stride_s, len(rec) * rec.dt), rec.dt, "segment stride")
         for k in range(0, len(rec) - h, stride):
             pos = rec.position[k + 1:k + h + 1] - rec.position[k]
             target = np.column_stack([rec.nu[k + 1:k + h + 1], pos, rec.psi[k + 1:k + h + 1]])
@@ -153,6 +155,9 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
 
     count = max(int(torch.count_nonzero(seg.weight)), 1)
     r = res(theta)
+    if not np.all(np.isfinite(r)):
+        raise DiagnosisError(f"hypothesis {hypothesis}: the calm-water model's residuals are not finite on these "
+                             "segments (NaN/inf in the recordings?)")
     cost = float(r @ r)
     lam, it = 1e-2, 0
     jac = np.zeros((len(r), len(theta)))
@@ -167,6 +172,8 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
         improved = False
         for _ in range(8):
             delta = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-9), -jtr)
+            if not np.all(np.isfinite(delta)):  # a non-finite Jacobian: no step (a NaN parameter would reach the
+                break                            # rollout's indexing, e.g. the actuator delay)
             trial = np.clip(theta + delta, low / scale, high / scale)
             if not np.all(np.isfinite(trial)):  # never roll out non-finite parameters (a NaN delay indexes nothing)
                 lam *= 10.0
@@ -297,6 +304,10 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         raise ConfigError(f"hypotheses {foreign} do not apply to vessel {vessel.name} (actuator layout {vessel.layout}); "
                           f"its hypotheses are {', '.join(applicable)}")
     notes = check_data(recordings)
+    unknown = [name for name in dict.fromkeys(names) if name not in HYPOTHESES]
+    if unknown:
+        raise DiagnosisError(f"unknown hypothesis {', '.join(map(repr, unknown))}; choose from {', '.join(HYPOTHESES)}")
+    names = list(dict.fromkeys(names))
     if "none" not in names:
         names.insert(0, "none")
     dt = recordings[0].dt

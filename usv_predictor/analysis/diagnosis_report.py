@@ -7,8 +7,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from usv_predictor.atomic import atomic_open
+from usv_predictor.atomic import atomic_open, write_failure
 from usv_predictor.data.recording import Recording
+from usv_predictor.errors import PlotError
 from usv_predictor.physics.vessel import Vessel
 
 
@@ -101,7 +102,10 @@ def write_report(directory: Path, out: dict, recordings: Sequence[Recording], ve
                  per_recording: dict | None) -> Path:
     """report.md + evidence.png, tracks.png, errors.png in `directory`; report.md written last, atomically."""
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise PlotError(f"cannot write report {directory}: {write_failure(err)}") from err
     _evidence_plot(out, directory / "evidence.png")
     closed = _track_plots(recordings, vessel, result.fit.terms, directory / "tracks.png", directory / "errors.png")
     lines = [f"# Diagnosis: {out['cause']}", "", out["message"] + ".", ""]

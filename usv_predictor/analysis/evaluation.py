@@ -33,12 +33,14 @@ from typing import Any, Protocol
 import numpy as np
 
 from usv_predictor.analysis import metrics
+from usv_predictor.atomic import finite_or_none
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import EvaluationError, ModelError
 from usv_predictor.frames import angle_difference_deg
 from usv_predictor.models import loading
 from usv_predictor.models.loading import check_dt
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, actuator_layout
+from usv_predictor.records import whole_steps
 
 U, V, R, X_N, Y_E, PSI = range(6)  # columns of predicted and measured series (model output order)
 COLUMNS = ("u_mps", "v_mps", "r_rad_s", "x_n_m", "y_e_m", "psi_rad")
@@ -93,8 +95,9 @@ class ManoeuvreKind:
         return f"{self.kind.replace('_', ' ')}, {self.side}, {self.rudder_deg:.0f} deg, {self.rpm:.0f} rpm"
 
     def to_json(self) -> dict:
-        return {"kind": self.kind, "side": self.side, "rudder_deg": self.rudder_deg, "rpm": self.rpm,
-                "execute_time_s": self.execute_time_s}
+        """JSON (null where undefined: no held rudder, no execute)."""
+        return {"kind": self.kind, "side": self.side, "rudder_deg": finite_or_none(self.rudder_deg),
+                "rpm": finite_or_none(self.rpm), "execute_time_s": finite_or_none(self.execute_time_s)}
 
 
 @dataclass(frozen=True)
@@ -113,15 +116,15 @@ class OpenLoop:
             "horizon_s": self.horizon_s,
             "start_points": self.starts,
             "horizons": [
-                {"horizon_s": h.horizon_s, "mean_m": h.mean_m, "p50_m": h.p50_m, "p95_m": h.p95_m,
-                 "max_m": h.max_m, "count": h.count}
+                {"horizon_s": h.horizon_s, "mean_m": finite_or_none(h.mean_m), "p50_m": finite_or_none(h.p50_m),
+                 "p95_m": finite_or_none(h.p95_m), "max_m": finite_or_none(h.max_m), "count": h.count}
                 for h in self.horizons
-            ],
+            ],  # null where no start point has a finite error at that horizon
             "step_s": dt,
-            "mean_error_by_step_m": [float(x) for x in self.mean_error_by_step_m],
+            "mean_error_by_step_m": [finite_or_none(x) for x in self.mean_error_by_step_m],
         }
         for h in self.horizons:
-            out[f"position_error_after_{h.horizon_s:g}s_m"] = h.mean_m
+            out[f"position_error_after_{h.horizon_s:g}s_m"] = finite_or_none(h.mean_m)
         return out
 
 
@@ -161,7 +164,7 @@ class RecordingEvaluation:
             "duration_s": self.duration_s,
             "manoeuvre": self.manoeuvre.to_json(),
             "manoeuvre_label": self.manoeuvre.label(),
-            "closed_loop_rmse": self.state_rmse,
+            "closed_loop_rmse": {key: finite_or_none(value) for key, value in self.state_rmse.items()},
             "turning": None if self.turning is None else self.turning.to_json(),
             "zigzag": None if self.zigzag is None else self.zigzag.to_json(),
             "open_loop": None if self.open_loop is None else self.open_loop.to_json(self.dt),
@@ -255,11 +258,13 @@ def open_loop(model: Predictor, recording: Recording, reference: str = "gnss",
     dt = recording.dt
     check_dt(model, dt, f"recording {recording.name}")
     measured = reference_series(recording, reference)
-    fitting = [h for h in horizons_s if round(h / dt) <= len(recording) - 1]
+    fitting = [h for h in horizons_s if h / dt <= len(recording) - 0.5]  # round(h / dt) <= T - 1, for any h
     if not fitting:
         return None
-    steps = int(round(max(fitting) / dt))
-    stride = max(1, int(round(stride_s / dt)))
+    for h in fitting:
+        whole_steps(h, dt, "open-loop horizon")
+    steps = whole_steps(max(fitting), dt, "open-loop horizon")
+    stride = whole_steps(min(stride_s, len(recording) * dt), dt, "--stride")  # longer than the recording: one start
     starts = np.arange(0, len(recording) - steps, stride)
     starts = starts[np.isfinite(measured[starts, X_N]) & np.isfinite(measured[starts, Y_E])]
     if len(starts) == 0:
@@ -574,12 +579,22 @@ def predictions_from_arrays(arrays: Mapping[str, np.ndarray], names: Sequence[st
     out = []
     for k, name in enumerate(names):
         try:
-            out.append(Prediction(name=name, reference=reference, t_s=np.asarray(arrays[f"rec{k}_t_s"]),
-                                  controls=np.asarray(arrays[f"rec{k}_controls"]),
-                                  measured=np.asarray(arrays[f"rec{k}_measured"]),
-                                  predicted=np.asarray(arrays[f"rec{k}_predicted"]),
-                                  predicted_std=np.asarray(arrays[f"rec{k}_predicted_std"])))
+            prediction = Prediction(name=name, reference=reference, t_s=np.asarray(arrays[f"rec{k}_t_s"]),
+                                    controls=np.asarray(arrays[f"rec{k}_controls"]),
+                                    measured=np.asarray(arrays[f"rec{k}_measured"]),
+                                    predicted=np.asarray(arrays[f"rec{k}_predicted"]),
+                                    predicted_std=np.asarray(arrays[f"rec{k}_predicted_std"]))
         except KeyError as err:
             raise EvaluationError(f"series file has no array {err} for recording {name}") from err
+        steps = prediction.t_s.shape[0] if prediction.t_s.ndim == 1 else -1
+        shapes = {"t_s": (prediction.t_s, (steps,)), "controls": (prediction.controls, None),
+                  "measured": (prediction.measured, (steps, 6)), "predicted": (prediction.predicted, (steps, 6)),
+                  "predicted_std": (prediction.predicted_std, (steps, 6))}
+        for field_name, (array, shape) in shapes.items():
+            if array.dtype.kind not in "fiu" or (shape is not None and array.shape != shape) or steps < 1 \
+                    or (shape is None and (array.ndim != 2 or array.shape[0] != steps)):
+                raise EvaluationError(f"series file: rec{k}_{field_name} of recording {name} has shape {array.shape} "
+                                      f"and type {array.dtype}, expected {shape or (steps, 'C')} numbers")
+        out.append(prediction)
     return out
 

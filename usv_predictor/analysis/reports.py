@@ -15,6 +15,7 @@ import datetime
 import json
 import math
 import re
+import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -228,14 +229,93 @@ def evaluation_table(result: dict) -> str:
 # ------------------------------------------------------------------ evaluation files and reports
 
 
+class _Optional:
+    """A schema entry that may be absent (and, with null=True, null)."""
+
+    def __init__(self, spec: Any, null: bool = False) -> None:
+        self.spec = spec
+        self.null = null
+
+
+NUMBER = "number"  # a JSON number or null (undefined); never a bool
+TEXT = "text"
+_NUMBERS: Any = {str: NUMBER}  # a mapping of any keys to numbers (or nulls)
+_COMPARISON = {"measured": _NUMBERS, "predicted": _NUMBERS, "errors": _NUMBERS, "notes": _Optional([TEXT])}
+_TURNING_KEYS = ("turning_radius_m", "steady_turning_radius_m", "drift_direction_deg", "drift_distance_m",
+                 "advance_m", "tactical_diameter_m")
+_RECORDING = {
+    "name": TEXT, "manoeuvre_label": TEXT, "manoeuvre": {"kind": TEXT}, "source": _Optional(TEXT),
+    "duration_s": _Optional(NUMBER), "notes": _Optional([TEXT]),
+    "closed_loop_rmse": {key: NUMBER for key in ("u_mps", "v_mps", "r_deg_s", "psi_deg", "position_m",
+                                                 "final_position_error_m")},
+    "turning": _Optional(dict(_COMPARISON, measured={key: NUMBER for key in _TURNING_KEYS},
+                              predicted={key: NUMBER for key in _TURNING_KEYS}), null=True),
+    "zigzag": _Optional(_COMPARISON, null=True),
+    "open_loop": _Optional({"start_points": NUMBER, "step_s": NUMBER, "mean_error_by_step_m": [NUMBER],
+                            "horizons": [{"horizon_s": NUMBER, "mean_m": NUMBER, "p95_m": NUMBER}]}, null=True),
+}
+EVALUATION_SCHEMA = {"recordings": [_RECORDING], "summary": _NUMBERS, "model": _Optional({str: object}),
+                     "data": _Optional({str: object}), "reference": _Optional(TEXT),
+                     "open_loop_horizons_s": _Optional([NUMBER]), "series_file": _Optional(TEXT, null=True)}
+
+
+def _check_shape(value: Any, spec: Any, where: str) -> None:
+    """EvaluationError naming the field (`recordings[0].turning.measured`) whose value does not fit `spec`."""
+    def wrong(expected: str) -> EvaluationError:
+        found = "null" if value is None else type(value).__name__
+        return EvaluationError(f"field {where or '(top level)'} is {found}, expected {expected}")
+
+    if isinstance(spec, _Optional):
+        if value is not None or not spec.null:
+            _check_shape(value, spec.spec, where)
+    elif spec == NUMBER:
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                  or not math.isfinite(value)):
+            raise wrong("a finite number or null")
+    elif spec == TEXT:
+        if not isinstance(value, str):
+            raise wrong("a string")
+    elif spec is object:
+        return
+    elif isinstance(spec, list):
+        if not isinstance(value, list):
+            raise wrong("a list")
+        for k, item in enumerate(value):
+            _check_shape(item, spec[0], f"{where}[{k}]")
+    elif isinstance(spec, dict):
+        if not isinstance(value, dict):
+            raise wrong("an object")
+        if list(spec) == [str]:  # any keys, one kind of value
+            for key, item in value.items():
+                _check_shape(item, spec[str], f"{where}.{key}" if where else key)
+            return
+        for key, item_spec in spec.items():
+            if key not in value:
+                if isinstance(item_spec, _Optional):
+                    continue
+                raise EvaluationError(f"field {where + '.' if where else ''}{key} is missing")
+            _check_shape(value[key], item_spec, f"{where}.{key}" if where else key)
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a JSON number")
+
+
 def load_evaluation_file(path: Path, warn: Callable[[str], None] = lambda _: None) -> tuple[dict, list | None]:
-    """(evaluation JSON, predictions or None when its series file is absent: `warn` says so)."""
+    """(evaluation JSON, predictions or None when its series file is absent: `warn` says so).
+
+    The file is checked against EVALUATION_SCHEMA first (what the report reads): a null section, a string where a
+    number belongs, a missing field is an EvaluationError naming the file and the field."""
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        data = json.loads(path.read_text(encoding="utf-8"), parse_constant=_no_constant)
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:  # ValueError: JSONDecodeError, NaN
         raise EvaluationError(f"{path}: cannot read the evaluation file ({err})") from err
     if not isinstance(data, dict) or not isinstance(data.get("recordings"), list) or "summary" not in data:
         raise EvaluationError(f"{path}: not an evaluation file of `replay evaluate` (no 'recordings' and 'summary')")
+    try:
+        _check_shape(data, EVALUATION_SCHEMA, "")
+    except EvaluationError as err:
+        raise EvaluationError(f"{path}: not an evaluation file of `replay evaluate`: {err}") from err
     series = data.get("series_file")
     if not series:
         warn(f"warning: {path} names no series file (written by `replay evaluate --output DIR`); no track figures")
@@ -244,7 +324,7 @@ def load_evaluation_file(path: Path, warn: Callable[[str], None] = lambda _: Non
     try:
         with np.load(series_path) as arrays:
             loaded = {k: arrays[k] for k in arrays.files}
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
         raise EvaluationError(f"{series_path}: cannot read the time series of {path} ({err})") from err
     names = [r["name"] for r in data["recordings"]]
     return data, predictions_from_arrays(loaded, names, data.get("reference", "gnss"))

@@ -336,3 +336,27 @@ def _check_consistent(ds: Dataset) -> None:
         problems.append("sample_recording points outside the recordings")
     if problems:
         raise DatasetError(f"{where}: inconsistent dataset: {'; '.join(problems)}")
+    _check_finite(ds)
+
+
+# arrays whose every value must be a finite number (positions are NaN without GNSS, truth without a simulator)
+FINITE_ARRAYS = ("seq_t_s", "seq_nu", "seq_psi", "seq_controls", "X", "Y")
+
+
+def _check_finite(ds: Dataset) -> None:
+    """DatasetError naming the array, the first bad row, its column and recording when a value is NaN or inf."""
+    columns = {"X": list(ds.metadata.get("feature_names", [])), "Y": list(TARGET_NAMES), "seq_nu": list(STATE_NAMES[:3]),
+               "seq_controls": list(CONTROL_NAMES)}
+    for name in FINITE_ARRAYS:
+        values = np.asarray(ds.arrays[name])
+        if values.dtype.kind != "f":
+            continue
+        bad = ~np.isfinite(values)
+        if not bad.any():
+            continue
+        index = np.argwhere(bad)[0]
+        row, col = int(index[0]), (int(index[1]) if len(index) > 1 else None)
+        names = columns.get(name, [])
+        column = "" if col is None else f", column {names[col] if col < len(names) else col}"
+        raise DatasetError(f"{ds.path}: {name} holds {int(bad.sum())} non-finite value(s) (first at row {row}{column}: "
+                           f"{values[tuple(index)]}); rebuild the dataset with `replay dataset`")

@@ -36,6 +36,26 @@ def required_roles(layout: ActuatorLayout = DEFAULT_LAYOUT) -> tuple[str, ...]:
 
 REQUIRED_ROLES = required_roles(DEFAULT_LAYOUT)
 
+# Plausible values of the decoded fields (SI, marine frames, after msg_adapters). Outside them the sample is
+# corrupt or the configuration (units, sign) is wrong: the node refuses such a sample (live.check_values), the
+# replay tool drops it with a warning (replay.recordings.clean_signal). The controls' ranges are their
+# Control.plausible in the actuator layout.
+PLAUSIBLE: dict[str, tuple[float, float]] = {
+    "u": (-10.0, 30.0),  # m/s, surge over ground of a USV
+    "v": (-15.0, 15.0),  # m/s
+    "r": (-3.0, 3.0),  # rad/s (170 deg/s), ground-truth yaw rate
+    "yaw_rate": (-3.0, 3.0),  # rad/s (170 deg/s), gyro
+    "lat": (-89.9, 89.9),  # deg (the local tangent plane of the positions is singular at the poles)
+    "lon": (-180.0, 180.0),  # deg
+    "x_n": (-1.0e7, 1.0e7),  # m, ground-truth position in a local plane (a quarter of the Earth's circumference)
+    "y_e": (-1.0e7, 1.0e7),  # m
+}
+
+
+def plausible_ranges(layout: ActuatorLayout = DEFAULT_LAYOUT) -> dict[str, tuple[float, float]]:
+    """field -> plausible (low, high): PLAUSIBLE and the layout's controls (by their role's field name)."""
+    return {**PLAUSIBLE, **{c.field: c.plausible for c in layout.controls}}
+
 
 @dataclass(frozen=True)
 class Recording:

@@ -56,6 +56,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
+from usv_predictor.atomic import finite_or_none
 from usv_predictor.data.recording import Recording
 from usv_predictor.data.smoother import Smoothed, SmootherConfig, smooth_recording
 from usv_predictor.errors import ConfigError, DatasetError, NotIdentifiableError
@@ -320,26 +321,26 @@ def design(vessel: Vessel, data: Sequence[ForceData], structure: str, equation: 
                   np.concatenate(scales))
 
 
-def json_number(x: float) -> float | None:
-    """x, or None (JSON null) when it is not finite: artifact metadata and --json are strict JSON."""
-    return float(x) if math.isfinite(x) else None
-
-
 @dataclass(frozen=True)
 class Collinearity:
     equation: str
     names: tuple[str, ...]
     correlation: np.ndarray  # (p, p) of the regressors (NaN for a constant column)
-    condition_number: float  # of the column-scaled regressor matrix
-    vif: dict[str, float]  # variance inflation factors
+    condition_number: float  # of the column-scaled regressor matrix (inf: singular)
+    vif: dict[str, float]  # variance inflation factors of the varying regressors (inf: exactly collinear)
     pairs: tuple[tuple[str, str, float], ...]  # |rho| > COLLINEAR_RHO
+    constant: tuple[str, ...] = ()  # regressors that do not vary (the biases Y_0, N_0): no correlation, no VIF
 
     def to_json(self) -> dict:
-        return {"equation": self.equation, "condition_number": json_number(self.condition_number),
-                "vif": {k: json_number(v) for k, v in self.vif.items()},
+        """JSON: a constant regressor has no VIF (listed in `constant_regressors`, null correlations); a singular
+        design has condition_number null and `singular` true."""
+        return {"equation": self.equation, "condition_number": finite_or_none(self.condition_number),
+                "singular": not math.isfinite(self.condition_number) or any(not math.isfinite(v) for v in self.vif.values()),
+                "vif": {name: finite_or_none(v) for name, v in self.vif.items()},
+                "constant_regressors": list(self.constant),
                 "multicollinear_pairs": [{"a": a, "b": b, "rho": rho} for a, b, rho in self.pairs],
                 "names": list(self.names),
-                "correlation": [[None if not math.isfinite(x) else x for x in row] for row in self.correlation.tolist()]}
+                "correlation": [[finite_or_none(x) for x in row] for row in self.correlation.tolist()]}
 
 
 def collinearity(d: Design) -> Collinearity:
@@ -354,19 +355,19 @@ def collinearity(d: Design) -> Collinearity:
     norms = np.linalg.norm(a, axis=0)
     s = np.linalg.svd(a / np.where(norms > 0, norms, 1.0), compute_uv=False)
     cond = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
-    vif: dict[str, float] = {}
+    # VIF_j = [R^-1]_jj over the varying regressors only: a constant column (a bias term) has no variance to
+    # inflate, so it has no VIF (it used to be NaN, which JSON cannot hold)
     varying = std > 0
+    names = [name for name, var in zip(d.names, varying) if var]
     sub = corr[np.ix_(varying, varying)]
     try:
-        inv = np.linalg.inv(sub)
-        diag = iter(np.diag(inv))
-        for name, var in zip(d.names, varying):
-            vif[name] = float(next(diag)) if var else math.nan
+        vif = {name: float(v) for name, v in zip(names, np.diag(np.linalg.inv(sub)))}
     except np.linalg.LinAlgError:
-        vif = {name: math.inf for name in d.names}
+        vif = {name: math.inf for name in names}
     pairs = tuple((d.names[i], d.names[j], float(corr[i, j])) for i in range(len(d.names))
                   for j in range(i + 1, len(d.names)) if math.isfinite(corr[i, j]) and abs(corr[i, j]) > COLLINEAR_RHO)
-    return Collinearity(d.equation, d.names, corr, cond, vif, pairs)
+    constant = tuple(name for name, var in zip(d.names, varying) if not var)
+    return Collinearity(d.equation, d.names, corr, cond, vif, pairs, constant)
 
 
 @dataclass(frozen=True)
@@ -380,8 +381,8 @@ class Coefficient:
 
     def to_json(self) -> dict:
         """Strict JSON: an unbounded CI or rel_ci (no excitation) is null."""
-        return {"name": self.name, "estimate": self.estimate, "ci95": [json_number(x) for x in self.ci95],
-                "prior": self.prior, "status": self.status, "rel_ci": json_number(self.rel_ci)}
+        return {"name": self.name, "estimate": self.estimate, "ci95": [finite_or_none(x) for x in self.ci95],
+                "prior": self.prior, "status": self.status, "rel_ci": finite_or_none(self.rel_ci)}
 
 
 @dataclass(frozen=True)
@@ -629,8 +630,8 @@ class IdentificationResult:
             "actuators": {d.name: dict(d.actuator) for d in self.data if d.actuator},
             "not_identifiable_without_prior": list(self.fit.not_identifiable),
             "collinearity": [e.collinearity.to_json() for e in self.fit.equations],
-            "residual_rms": {e.equation: json_number(e.residual_rms) for e in self.fit.equations},
-            "effective_samples": {e.equation: json_number(e.effective_samples) for e in self.fit.equations},
+            "residual_rms": {e.equation: finite_or_none(e.residual_rms) for e in self.fit.equations},
+            "effective_samples": {e.equation: finite_or_none(e.effective_samples) for e in self.fit.equations},
             "cross_validation": [cv.to_json() for cv in self.cross_validation],
             "extra_terms": self.extra_terms,
             "manoeuvres": [d.name for d in self.data],

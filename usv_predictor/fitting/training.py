@@ -68,7 +68,7 @@ class TrainingConfig:
             "lr_schedule": self.lr_schedule in LR_SCHEDULES,
             "lr_step_epochs": self.lr_step_epochs >= 1,
             "lr_drop": 0.0 < self.lr_drop <= 1.0,
-            "weight_decay": self.weight_decay >= 0.0,
+            "weight_decay": 0.0 <= self.weight_decay <= 1.0,  # an L2 weight beyond 1 overflows Adam's float32
             "patience": self.patience is None or self.patience >= 1,
             "multi_step": 1 <= self.multi_step <= 1000,
             "ensemble": 1 <= self.ensemble <= 64,
@@ -112,8 +112,8 @@ class MemberResult:
     best_epoch: int  # 1-based; the restored weights
     epochs_run: int
     train_loss: float  # at the best epoch
-    val_loss: float  # at the best epoch (nan without validation data)
-    history: tuple[tuple[float, float], ...]  # (train, val) per epoch
+    val_loss: float | None  # at the best epoch (None without validation data: there is no such loss)
+    history: tuple[tuple[float, float | None], ...]  # (train, val or None) per epoch
 
 
 @dataclass(frozen=True)
@@ -133,8 +133,10 @@ class TrainingResult:
         return self.members[0].best_epoch
 
     @property
-    def val_loss(self) -> float:
-        return float(np.mean([m.val_loss for m in self.members]))
+    def val_loss(self) -> float | None:
+        """Mean validation loss at the best epochs; None without validation data."""
+        losses = [m.val_loss for m in self.members if m.val_loss is not None]
+        return float(np.mean(losses)) if losses else None
 
     @property
     def train_loss(self) -> float:
@@ -156,7 +158,7 @@ class TrainingResult:
         }
 
 
-Progress = Callable[[int, int, float, float], None]  # (member, epoch, train loss, val loss)
+Progress = Callable[[int, int, float, "float | None"], None]  # (member, epoch, train loss, val loss or None)
 
 
 # ----------------------------------------------------------------------------- data
@@ -287,9 +289,9 @@ def _train_member(config: DnnConfig, recipe: TrainingConfig, norm: Normalisation
         order = torch.Generator().manual_seed(seed)
         batch = min(recipe.batch_size, train.n)
         n_batches = max(train.n // batch, 1)
-        best = (math.inf, 0, math.nan, math.nan)  # (monitored loss, epoch, train, val)
+        best: tuple[float, int, float, float | None] = (math.inf, 0, math.nan, None)  # (monitored, epoch, train, val)
         best_state = {k: v.clone() for k, v in model.state_dict().items()}
-        history: list[tuple[float, float]] = []
+        history: list[tuple[float, float | None]] = []
         for epoch in range(recipe.epochs):
             for group in optimizer.param_groups:
                 group["lr"] = _learning_rate(recipe, epoch)
@@ -305,9 +307,13 @@ def _train_member(config: DnnConfig, recipe: TrainingConfig, norm: Normalisation
             train_loss = total / n_batches
             model.eval()
             with torch.no_grad():
-                val_loss = float(val.loss(model)) if val is not None else math.nan
+                val_loss = float(val.loss(model)) if val is not None else None
             history.append((train_loss, val_loss))
-            monitored = val_loss if val is not None else train_loss
+            monitored = val_loss if val_loss is not None else train_loss
+            if not math.isfinite(monitored):
+                raise ConfigError(f"training diverged: the {'validation' if val_loss is not None else 'training'} loss "
+                                  f"is {monitored} at epoch {epoch + 1} of member {member}; lower the learning rate "
+                                  f"(now {recipe.learning_rate:g})")
             if monitored < best[0]:
                 best = (monitored, epoch + 1, train_loss, val_loss)
                 best_state = {k: v.clone() for k, v in model.state_dict().items()}

@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import datetime
 import hashlib
+import io
 import json
 import math
 import warnings
@@ -30,8 +31,8 @@ import torch
 from torch import nn
 
 import usv_predictor
-from usv_predictor.atomic import atomic_path
-from usv_predictor.errors import ModelError
+from usv_predictor.atomic import json_text, write_bytes_atomic
+from usv_predictor.errors import ModelError, OutputError
 
 FORMAT = "usv_predictor.model/1"
 METADATA_FILE = "metadata.json"
@@ -82,9 +83,39 @@ class ModelArtifact:
                 or controls.shape[0] != state.shape[0]:
             raise ModelError(f"model {self.path}: predict needs state (B, 4) and controls (B, H, {width}), "
                              f"got {state.shape} and {controls.shape}")
-        with torch.inference_mode():
-            out = self.module(torch.from_numpy(state), torch.from_numpy(controls))
-        return out.double().numpy()
+        try:
+            with torch.inference_mode():
+                out = self.module(torch.from_numpy(state), torch.from_numpy(controls))
+            return out.double().numpy()
+        except MODEL_RUN_ERRORS as err:
+            raise ModelError(f"model {self.path} fails when run: {failure_reason(err)}") from err
+
+
+# what a model's code can raise when called: torch.jit.Error (what a TorchScript `raise` becomes: not a
+# RuntimeError) and the Python exceptions of an eager module or of TorchScript's own checks
+MODEL_RUN_ERRORS = (torch.jit.Error, RuntimeError, ValueError, TypeError, IndexError, KeyError, AttributeError,
+                    AssertionError)
+
+
+def failure_reason(err: BaseException) -> str:
+    """What a model's code raised, in one line: the last line of a TorchScript error (its first lines are the
+    interpreter's preamble and the code), without the `builtins.` prefix."""
+    lines = [line.strip() for line in str(err).splitlines() if line.strip()]
+    return lines[-1].removeprefix("builtins.") if lines else type(err).__name__
+
+
+def check_runs(artifact: ModelArtifact) -> None:
+    """One two-step rollout from 1 m/s ahead with the controls at zero: a model whose code raises, that answers in
+    another shape than (E, 1, 2, 6), or with NaN/inf, is a ModelError at load time ("model X fails when run: ...")
+    instead of a traceback in the middle of a run."""
+    controls = np.zeros((1, 2, len(artifact.metadata["control_layout"])))
+    out = artifact.predict(np.array([[1.0, 0.0, 0.0, 0.0]]), controls)
+    expected = (artifact.ensemble_size, 1, 2, len(OUTPUT_LAYOUT))
+    if out.shape != expected:
+        raise ModelError(f"model {artifact.path} fails when run: it returns shape {out.shape}, expected {expected} "
+                         "(ensemble, batch, steps, [u, v, r, x_n, y_e, psi])")
+    if not np.all(np.isfinite(out)):
+        raise ModelError(f"model {artifact.path} fails when run: its rollout from 1 m/s ahead is not finite (NaN/inf)")
 
 
 def weights_digest(module: nn.Module) -> str:
@@ -109,7 +140,8 @@ def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, An
     """Script `module` (any rollout with the forward contract above) and write it with its metadata.
 
     Fills format, software_version, created_utc and model_id; the other REQUIRED_KEYS must be given.
-    Written atomically (temporary file in the target folder, then os.replace).
+    Serialised in memory, then written atomically (temporary file in the target folder, then os.replace);
+    metadata holding NaN or infinity is a ModelError naming the field.
     """
     path = Path(path)
     meta = dict(metadata)
@@ -121,9 +153,17 @@ def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, An
         raise ModelError(f"model {path}: metadata lacks {missing}")
     with _quiet_jit():
         scripted = module if isinstance(module, torch.jit.ScriptModule) else torch.jit.script(module.eval())
-    text = json.dumps(meta, indent=2, sort_keys=True, allow_nan=False)
-    with atomic_path(path, ModelError, "model") as tmp, _quiet_jit():
-        torch.jit.save(scripted, str(tmp), _extra_files={METADATA_FILE: text})
+    try:
+        text = json_text(meta, f"model {path}: metadata")
+    except OutputError as err:
+        raise ModelError(str(err)) from err
+    # Into memory first: torch's file writer aborts the process (SIGABRT) when the disk is full or the file-size
+    # limit is hit, leaving its temporary file behind; the bytes then go through the atomic writer, which fails
+    # with one line and removes its temporary file.
+    buffer = io.BytesIO()
+    with _quiet_jit():
+        torch.jit.save(scripted, buffer, _extra_files={METADATA_FILE: text})
+    write_bytes_atomic(path, buffer.getvalue(), ModelError, "model")
     return load_artifact(path)
 
 

@@ -7,8 +7,9 @@ A model spec is
                        the physics baseline a learned model must beat at sea (only where `physics=True`);
     anything else      a model artifact file (usv_predictor.models.artifact), checked against `expect`
                        (metadata fields) and `dt` (the step the data is resampled at).
-Every failure is a ModelError naming the file (or option) and what differs. torch is imported only when a
-model is loaded, so command-line help stays light.
+Every failure is a ModelError naming the file (or option) and what differs; a model whose code raises when
+called (or answers in another shape, or NaN) is "model X fails when run: ..." (artifact.check_runs). torch is
+imported only when a model is loaded, so command-line help stays light.
 """
 from __future__ import annotations
 
@@ -81,6 +82,7 @@ def physics_predictor(vessel: str | Vessel, dt: float) -> GreyBoxPredictor:
 
     if not dt > 0.0:
         raise ModelError(f"physics predictor step dt={dt} s must be > 0")
+    config.FLOAT_RANGES["dt"].check("dt", dt, "physics predictor step")
     return greybox_predictor(load_vessel(vessel) if isinstance(vessel, str) else vessel, dt)
 
 
@@ -103,11 +105,12 @@ def load_model(spec: str | None, *, dt: float | None = None, vessel: str | None 
     if not path.is_file():
         raise ModelError(f"{option} {path}: no such model file")
     try:
-        from usv_predictor.models.artifact import load_artifact
+        from usv_predictor.models.artifact import check_runs, load_artifact
     except ImportError as err:
         raise ModelError(f"{path}: cannot load model artifacts, usv_predictor.models.artifact is unavailable "
                          f"({err})") from err
     model = load_artifact(path, expect=expect)
     if dt is not None:
         check_dt(model, dt, f"{dt_option} for {path}")
+    check_runs(model)  # a model whose code raises is refused here, naming the file, not in the middle of a run
     return model

@@ -10,6 +10,8 @@ from typing import Sequence
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    from usv_predictor.node.node import main as node_main
-
+    try:
+        from usv_predictor.node.node import main as node_main  # rclpy, torch: a second or two
+    except KeyboardInterrupt:  # Ctrl-C before the node's own handlers exist: a normal end, no traceback
+        return 0
     return node_main(args)

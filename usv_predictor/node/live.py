@@ -20,9 +20,24 @@ Prediction k (k = 1 .. H) is the model's output at t_c + k dt.
 
 Samples are checked on arrival (reject reasons are counted per input and reported): non-finite values in
 a field the state uses, a stamp not after the previous one (backwards or duplicate), a stamp more than
-max_future_s ahead of the clock, values outside PLAUSIBLE or a control's plausible range (wrong units
+max_future_s ahead of the clock, values outside data.recording.PLAUSIBLE or a control's plausible range (wrong units
 configuration, e.g. heading configured as rad but > 2 pi, rudder degrees read as radians, absurd rpm). Buffers are fixed-size rings:
 memory does not grow with the message rate.
+
+Redundant inputs are checked against each other (at most once per CONSISTENCY_PERIOD_S, over the latest
+CONSISTENCY_WINDOW_S), because a unit or sign mistake can give values that are each plausible:
+
+    heading vs gyro      the heading's change over 1 s steps against the integrated imu yaw rate; judged once the
+                         gyro has turned TURN_EVIDENCE_DEG, refused when sum |d psi - d theta| exceeds
+                         HEADING_DISAGREEMENT of sum |d theta| (a heading in radians configured as degrees never
+                         leaves +-6.3 "deg" while the boat turns circles; a wrong convention turns the other way)
+    track vs GNSS        the velocity rotated by the heading and integrated (dead reckoning) against the GNSS
+                         displacement; judged above TRACK_MIN_SPEED over ground, refused (the heading) when the
+                         directions differ by more than TRACK_ANGLE_LIMIT_DEG, (the velocity) when the lengths
+                         differ by more than TRACK_LENGTH_RATIO (a current of a third of the speed passes)
+
+A refused input stops the predictions (CycleSkipped naming it and why) until a later check with enough evidence
+finds it consistent again; the node shows the reason on /diagnostics.
 """
 from __future__ import annotations
 
@@ -35,10 +50,11 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from usv_predictor.data.recording import required_roles, window_resample
+from msg_adapters.standard import ScalarHeadingAdapter
+from usv_predictor.data.recording import plausible_ranges, required_roles, window_resample
 from usv_predictor.errors import CycleSkipped, InputRejected, ModelError
-from usv_predictor.frames import LocalTangentPlane
-from usv_predictor.models.artifact import ModelArtifact
+from usv_predictor.frames import LocalTangentPlane, angle_difference_deg, body_to_ned, compass_deg, wrap_angle
+from usv_predictor.models.artifact import MODEL_RUN_ERRORS, ModelArtifact, failure_reason
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
 from usv_predictor.records import NS_PER_S
 
@@ -50,15 +66,6 @@ MOTION_FIELDS: Mapping[str, tuple[str, ...]] = {
     "heading": ("psi",),
     POSITION_ROLE: ("lat", "lon"),
 }
-# Plausible values (SI after the adapter). Outside them the configuration is the likelier culprit. The
-# controls' ranges are their Control.plausible in the actuator layout.
-PLAUSIBLE: Mapping[str, tuple[float, float]] = {
-    "u": (-10.0, 30.0),  # m/s, surge over ground of a USV
-    "v": (-15.0, 15.0),  # m/s
-    "yaw_rate": (-3.0, 3.0),  # rad/s (170 deg/s)
-    "lat": (-90.0, 90.0),  # deg
-    "lon": (-180.0, 180.0),  # deg
-}
 
 
 def state_fields(layout: ActuatorLayout = DEFAULT_LAYOUT) -> dict[str, tuple[str, ...]]:
@@ -69,15 +76,21 @@ def state_fields(layout: ActuatorLayout = DEFAULT_LAYOUT) -> dict[str, tuple[str
     return fields
 
 
-def plausible_ranges(layout: ActuatorLayout = DEFAULT_LAYOUT) -> dict[str, tuple[float, float]]:
-    """field -> plausible (low, high): PLAUSIBLE and the layout's controls (by their role's field name)."""
-    return {**PLAUSIBLE, **{c.field: c.plausible for c in layout.controls}}
-
-
 STATE_FIELDS: Mapping[str, tuple[str, ...]] = state_fields(DEFAULT_LAYOUT)
-RAW_HEADING_LIMIT = {"rad": 2.0 * math.pi + 1e-6, "deg": 360.0 + 1e-6}  # |raw heading| per configured unit
+RAW_HEADING_LIMIT = ScalarHeadingAdapter.RAW_LIMIT  # |raw heading| per configured unit: one turn
 RATE_WINDOW_S = 1.0  # input rates are counted over this much of the latest samples (s)
 WARM_UP_CALLS = 3  # rollouts run when a model is loaded
+CONSISTENCY_WINDOW_S = 20.0  # s of the latest samples the consistency checks compare
+CONSISTENCY_PERIOD_S = 1.0  # s between two consistency checks
+CONSISTENCY_STEP_S = 1.0  # s: the heading and the integrated gyro are compared over steps this long
+TURN_EVIDENCE_DEG = 60.0  # deg the gyro must turn (sum of |turn| per step) before the heading is judged
+HEADING_DISAGREEMENT = 0.5  # share of the gyro's turning the heading may differ by (a 0.5 deg/s gyro bias passes)
+MIN_CHECK_SPAN_S = 5.0  # s of overlapping data a check needs
+RADIANS_AS_DEGREES_SPREAD = math.radians(2.0 * math.pi) + 1e-3  # rad: a heading in rad read as deg stays in 6.3 deg
+TRACK_MIN_SPEED = 2.0  # m/s over ground (GNSS) before the dead-reckoned track is judged
+TRACK_ANGLE_LIMIT_DEG = 60.0  # deg between the dead-reckoned and the GNSS displacement
+TRACK_LENGTH_RATIO = (0.4, 2.5)  # dead-reckoned / GNSS displacement length accepted
+TRACK_END_S = 1.0  # s of GNSS fixes averaged at each end of the window (0.3 m noise per fix)
 STEADY_SPEED_LIMIT = 50.0  # m/s: a predicted speed beyond this is a diverged model, not a prediction
 
 
@@ -105,6 +118,97 @@ def check_values(role: str, fields: Sequence[str], values: Sequence[float],
         if not low <= value <= high:
             raise InputRejected("range", f"{role}.{name} = {value:g} outside the plausible [{low:g}, {high:g}]: "
                                          f"wrong units or sign configuration?")
+
+
+class Consistency(NamedTuple):
+    """The verdict of one consistency check: judged (enough evidence), and what is wrong ("" when nothing)."""
+
+    judged: bool
+    problem: str = ""
+
+
+NOT_JUDGED = Consistency(False)
+
+
+def _cumulative(t_s: np.ndarray, rate: np.ndarray) -> np.ndarray:
+    """Trapezoidal integral of `rate` over t_s, 0 at the first sample."""
+    return np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t_s))])
+
+
+def heading_vs_gyro(t_imu_s: np.ndarray, yaw_rate: np.ndarray, t_heading_s: np.ndarray, psi: np.ndarray,
+                    start_s: float, end_s: float) -> Consistency:
+    """Does the heading turn as the gyro does over [start_s, end_s]? (s on one clock; rad, rad/s)
+
+    On 1 s steps: d theta = the integrated yaw rate, d psi = the unwrapped heading's change. Judged once
+    sum |d theta| >= TURN_EVIDENCE_DEG; a problem when sum |d psi - d theta| > HEADING_DISAGREEMENT sum |d theta|.
+    """
+    start_s = max(start_s, float(t_imu_s[0]), float(t_heading_s[0]))
+    end_s = min(end_s, float(t_imu_s[-1]), float(t_heading_s[-1]))
+    if end_s - start_s < MIN_CHECK_SPAN_S or len(t_imu_s) < 2 or len(t_heading_s) < 2:
+        return NOT_JUDGED
+    grid = np.linspace(start_s, end_s, max(2, int((end_s - start_s) / CONSISTENCY_STEP_S) + 1))
+    d_theta = np.diff(np.interp(grid, t_imu_s, _cumulative(t_imu_s, yaw_rate)))
+    d_psi = np.diff(np.interp(grid, t_heading_s, np.unwrap(psi)))
+    turned = float(np.abs(d_theta).sum())
+    if turned < math.radians(TURN_EVIDENCE_DEG):
+        return NOT_JUDGED
+    differs = float(np.abs(d_psi - d_theta).sum())
+    if differs <= HEADING_DISAGREEMENT * turned:
+        return Consistency(True)
+    heading_turned = float(np.abs(d_psi).sum())
+    inside = (t_heading_s >= start_s) & (t_heading_s <= end_s)
+    spread = float(np.ptp(wrap_angle(psi[inside]))) if inside.any() else 0.0
+    if spread <= RADIANS_AS_DEGREES_SPREAD:
+        hint = (f"it never leaves a {math.degrees(spread):.1f} deg band: a heading published in radians with units "
+                "deg configured?")
+    elif heading_turned < 0.25 * turned:
+        hint = "it hardly turns: the heading's units?"
+    elif float(np.dot(d_psi, d_theta)) < 0.0:
+        hint = "the heading turns the other way: its convention (compass / enu) or the gyro's sign?"
+    else:
+        hint = "the heading's units or the gyro's?"
+    return Consistency(True, f"the heading disagrees with the gyro: over {end_s - start_s:.0f} s it turned "
+                             f"{math.degrees(heading_turned):.0f} deg while the imu yaw rate integrates to "
+                             f"{math.degrees(turned):.0f} deg; {hint}")
+
+
+def track_vs_gnss(t_velocity_s: np.ndarray, u: np.ndarray, v: np.ndarray, t_heading_s: np.ndarray, psi: np.ndarray,
+                  t_gnss_s: np.ndarray, x_n: np.ndarray, y_e: np.ndarray, start_s: float, end_s: float
+                  ) -> tuple[str, Consistency]:
+    """(the input to blame, verdict): the velocity rotated by the heading and integrated against the GNSS track.
+
+    Over [start_s, end_s] (s), from the mean GNSS position of the first TRACK_END_S to that of the last, with the
+    dead-reckoned displacement between the same times (body_to_ned, Fossen eq. 2.40). Judged above
+    TRACK_MIN_SPEED over ground; the heading is to blame when the directions differ by more than
+    TRACK_ANGLE_LIMIT_DEG, the velocity when the length ratio leaves TRACK_LENGTH_RATIO.
+    """
+    start_s = max(start_s, float(t_velocity_s[0]), float(t_heading_s[0]), float(t_gnss_s[0]))
+    end_s = min(end_s, float(t_velocity_s[-1]), float(t_heading_s[-1]), float(t_gnss_s[-1]))
+    if end_s - start_s < MIN_CHECK_SPAN_S or len(t_velocity_s) < 2 or len(t_heading_s) < 2:
+        return "velocity", NOT_JUDGED
+    first = (t_gnss_s >= start_s) & (t_gnss_s <= start_s + TRACK_END_S)
+    last = (t_gnss_s >= end_s - TRACK_END_S) & (t_gnss_s <= end_s)
+    if not first.any() or not last.any():
+        return "velocity", NOT_JUDGED
+    t0, t1 = float(t_gnss_s[first].mean()), float(t_gnss_s[last].mean())
+    gnss = np.array([x_n[last].mean() - x_n[first].mean(), y_e[last].mean() - y_e[first].mean()])
+    if t1 - t0 < MIN_CHECK_SPAN_S or float(np.hypot(*gnss)) < TRACK_MIN_SPEED * (t1 - t0):
+        return "velocity", NOT_JUDGED
+    north, east = body_to_ned(u, v, np.interp(t_velocity_s, t_heading_s, np.unwrap(psi)))
+    reckoned = np.array([np.diff(np.interp([t0, t1], t_velocity_s, _cumulative(t_velocity_s, north)))[0],
+                         np.diff(np.interp([t0, t1], t_velocity_s, _cumulative(t_velocity_s, east)))[0]])
+    length_g, length_r = float(np.hypot(*gnss)), float(np.hypot(*reckoned))
+    angle = abs(angle_difference_deg(compass_deg(*reckoned), compass_deg(*gnss)))
+    seen = (f"over {t1 - t0:.0f} s the velocity rotated by the heading moves {length_r:.0f} m toward "
+            f"{compass_deg(*reckoned):.0f} deg, GNSS {length_g:.0f} m toward {compass_deg(*gnss):.0f} deg")
+    if angle > TRACK_ANGLE_LIMIT_DEG:
+        return "heading", Consistency(True, f"the heading disagrees with the GNSS track: {seen}; the heading's units, "
+                                            "convention or offset?")
+    low, high = TRACK_LENGTH_RATIO
+    if not low * length_g <= length_r <= high * length_g:
+        return "velocity", Consistency(True, f"the velocity disagrees with the GNSS track: {seen}; the velocity's "
+                                             "units or frame?")
+    return "velocity", Consistency(True)
 
 
 class SampleBuffer:
@@ -177,6 +281,7 @@ class InputTrack:
     last_reject: str = ""
     last_reject_ns: int | None = None
     last_accept_ns: int | None = None  # clock when the latest good sample was accepted
+    refused: str = ""  # why the whole input is refused (it disagrees with a redundant input); "" when it is not
 
     def reject(self, kind: str, message: str, now_ns: int) -> None:
         self.rejected[kind] = self.rejected.get(kind, 0) + 1
@@ -228,6 +333,8 @@ class InputSet:
         self.datum: tuple[float, float] | None = settings.datum
         self._plane = None if self.datum is None else LocalTangentPlane(*self.datum)
         self._last_now_ns: int | None = None
+        self.refusals: dict[str, tuple[str, str]] = {}  # check -> (refused role, why), see check_consistency
+        self._next_check_ns: int | None = None
 
     # --------------------------------------------------------------- messages in
     def add(self, role: str, stamp_ns: int, values: Sequence[float], now_ns: int) -> None:
@@ -262,7 +369,49 @@ class InputSet:
         if jumped:
             for track in self.tracks.values():
                 track.buffer.clear()
+            self._set_refusals({})
+            self._next_check_ns = None
         return jumped
+
+    # --------------------------------------------------------------- redundant inputs
+    def _series(self, role: str, field: str) -> tuple[np.ndarray, np.ndarray] | None:
+        track = self.tracks.get(role)
+        if track is None or len(track.buffer) < 2 or field not in track.buffer.fields:
+            return None
+        t, values = track.buffer.samples()
+        return t / NS_PER_S, values[:, track.buffer.fields.index(field)]
+
+    def _set_refusals(self, refusals: dict[str, tuple[str, str]]) -> None:
+        self.refusals = refusals
+        for role, track in self.tracks.items():
+            track.refused = "; ".join(why for refused, why in refusals.values() if refused == role)
+
+    def check_consistency(self, now_ns: int) -> None:
+        """Compare the redundant inputs (module docstring) over the latest CONSISTENCY_WINDOW_S, at most once per
+        CONSISTENCY_PERIOD_S; a check without enough evidence keeps its previous verdict."""
+        if self._next_check_ns is not None and now_ns < self._next_check_ns:
+            return
+        self._next_check_ns = now_ns + int(CONSISTENCY_PERIOD_S * NS_PER_S)
+        end_s = now_ns / NS_PER_S
+        start_s = end_s - CONSISTENCY_WINDOW_S
+        refusals = dict(self.refusals)
+        gyro, heading = self._series("imu", "yaw_rate"), self._series("heading", "psi")
+        if gyro is not None and heading is not None:
+            verdict = heading_vs_gyro(*gyro, *heading, start_s, end_s)
+            if verdict.judged:
+                refusals.pop("heading_vs_gyro", None)
+                if verdict.problem:
+                    refusals["heading_vs_gyro"] = ("heading", verdict.problem)
+        surge, sway = self._series("velocity", "u"), self._series("velocity", "v")
+        lat, lon = self._series(POSITION_ROLE, "lat"), self._series(POSITION_ROLE, "lon")
+        if None not in (surge, sway, heading, lat, lon) and self._plane is not None:
+            x_n, y_e = self._plane.to_ned(lat[1], lon[1])
+            role, verdict = track_vs_gnss(surge[0], surge[1], sway[1], *heading, lat[0], x_n, y_e, start_s, end_s)
+            if verdict.judged:
+                refusals.pop("track_vs_gnss", None)
+                if verdict.problem:
+                    refusals["track_vs_gnss"] = (role, verdict.problem)
+        self._set_refusals(refusals)
 
     # --------------------------------------------------------------- state out
     def _window_mean(self, role: str, columns: Sequence[str], t_c_ns: int) -> tuple[np.ndarray, int]:
@@ -293,6 +442,9 @@ class InputSet:
                 raise CycleSkipped(f"input {role}: no message yet")
             if age > track.max_age_s:
                 raise CycleSkipped(f"input {role}: stale, newest sample {age:.2f} s old (limit {track.max_age_s:g} s)")
+        self.check_consistency(now_ns)
+        for role, why in self.refusals.values():
+            raise CycleSkipped(f"input {role} refused: {why}")
         t_end = now_ns - int(round(self.settings.state_delay_s * NS_PER_S))
         t_c = t_end - self.settings.dt_ns // 2
         means, counts = {}, {}
@@ -352,12 +504,17 @@ class Rollout:
             self(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(self.n_controls))
 
     def __call__(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        """(E, H, 6) [u, v, r, x_n, y_e, psi] relative to the start, controls (C,) held for every step."""
+        """(E, H, 6) [u, v, r, x_n, y_e, psi] relative to the start, controls (C,) held for every step.
+
+        ModelError "model X fails when run: ..." when the model's code raises (at warm-up: a start-up error)."""
         self._state[0].copy_(torch.from_numpy(np.asarray(state, dtype=np.float64)))
         self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)).expand(self.horizon_steps, self.n_controls))
-        with torch.inference_mode():
-            out = self.artifact.module(self._state, self._controls)  # (E, 1, H, 6)
-        return out[: self.members, 0].double().numpy()
+        try:
+            with torch.inference_mode():
+                out = self.artifact.module(self._state, self._controls)  # (E, 1, H, 6)
+            return out[: self.members, 0].double().numpy()
+        except MODEL_RUN_ERRORS as err:
+            raise ModelError(f"model {self.artifact.path} fails when run: {failure_reason(err)}") from err
 
 
 def predict(inputs: InputSet, rollout: Rollout, now_ns: int) -> Prediction:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 import sys
 from collections import deque
 from dataclasses import dataclass
@@ -34,10 +35,12 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
@@ -58,6 +61,7 @@ from usv_predictor.config import (
     read_ros_parameters,
     unflatten_ros_parameters,
 )
+from usv_predictor.data.recording import PLAUSIBLE
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredictorError
 from usv_predictor.models import loading
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
@@ -74,6 +78,8 @@ LATENCY_WINDOW = 200  # cycles kept for the latency percentiles
 
 # DiagnosticStatus levels are `byte` fields (bytes of length 1 in rclpy); compare them as ints.
 OK, WARN, ERROR = (level[0] for level in (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR))
+RCLError = _rclpy.RCLError  # what rcl raises (e.g. a publish on a context that is shut down)
+RCLInvalidROSArgsError = _rclpy.RCLInvalidROSArgsError  # unparsable --ros-args (a broken --params-file)
 
 _DESCRIPTIONS = {
     "model_path": "TorchScript model file; empty = the package's shipped default model (may change at run time)",
@@ -106,6 +112,27 @@ NODE_PARAMETERS: dict[str, NodeParameter] = {
                                              "NaN = the first GNSS fix"),
     "datum_lon_deg": NodeParameter(math.nan, "longitude of that plane (deg); NaN = the first GNSS fix"),
 }
+
+
+DATUM_RANGES = {name: Range(*PLAUSIBLE[field], "deg") for name, field in
+                (("datum_lat_deg", "lat"), ("datum_lon_deg", "lon"))}  # the plausible GNSS fixes
+
+
+def datum_of(lat: Any, lon: Any) -> tuple[float, float] | None:
+    """The datum parameters as (lat, lon) deg, or None when both are NaN (the first fix); ConfigError naming the
+    parameter when one is out of range, infinite, or set without the other."""
+    values = {"datum_lat_deg": float(lat), "datum_lon_deg": float(lon)}
+    unset = [name for name, v in values.items() if math.isnan(v)]
+    for name, v in values.items():
+        if name not in unset:
+            DATUM_RANGES[name].check(name, v, f"node {NODE_NAME}: parameter")
+    if len(unset) == 2:
+        return None
+    if unset:
+        given = next(name for name in values if name not in unset)
+        raise ConfigError(f"node {NODE_NAME}: parameter {given} is set but {unset[0]} is not: give both, or neither "
+                          "(the datum is then the first GNSS fix)")
+    return values["datum_lat_deg"], values["datum_lon_deg"]
 
 
 def _is_float_parameter(name: str) -> bool:
@@ -246,8 +273,7 @@ class PredictorNode(Node):
 
     def _live_settings(self) -> live.LiveSettings:
         value = {name: self.get_parameter(name).value for name in NODE_PARAMETERS}
-        lat, lon = float(value["datum_lat_deg"]), float(value["datum_lon_deg"])
-        datum = (lat, lon) if math.isfinite(lat) and math.isfinite(lon) else None
+        datum = datum_of(value["datum_lat_deg"], value["datum_lon_deg"])
         return live.LiveSettings(dt=self.config.dt, horizon_steps=self.config.horizon_steps,
                                  state_delay_s=float(value["state_delay_s"]), max_future_s=float(value["max_future_s"]),
                                  capacity=int(value["buffer_capacity"]), datum=datum)
@@ -364,6 +390,8 @@ class PredictorNode(Node):
         recent_reject = track.last_reject_ns is not None and now_ns - track.last_reject_ns < RECENT_REJECT_S * NS_PER_S
         if failures.at_ns is not None and (track.last_accept_ns is None or failures.at_ns > track.last_accept_ns):
             return self._status(ERROR, f"input {role}", f"cannot decode messages: {failures.last}", values)
+        if track.refused:  # it disagrees with a redundant input (live.InputSet.check_consistency)
+            return self._status(ERROR, f"input {role}", f"refused: {track.refused}", values)
         if age is None:
             if track.last_reject:
                 return self._status(ERROR, f"input {role}", f"every message refused: {track.last_reject}", values)
@@ -441,28 +469,84 @@ def parse_arguments(argv: Sequence[str]) -> argparse.Namespace:
     return parser.parse_args(remove_ros_args(list(argv))[1:])
 
 
-def main(args: Sequence[str] | None = None) -> int:
-    """Entry point of `ros2 run usv_predictor predictor`; args is a full argv (program name first)."""
-    argv = list(sys.argv if args is None else args)
-    options = parse_arguments(argv)  # --help exits here, before ROS starts
-    import torch
+EXIT_OK = 0  # stopped by SIGINT or SIGTERM (Ctrl-C, systemd, docker stop, launch): a normal end
+EXIT_ERROR = 2  # a start-up error (parameter, parameter file, ROS arguments, model, vessel): one line on stderr,
+                # the same code as the replay tool's bad input
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+SPIN_PERIOD_S = 0.1  # longest wait between two looks at the stop flag (s)
 
-    torch.set_num_threads(1)  # one rollout of a tiny network: threads cost more than they give
-    rclpy.init(args=argv)
+
+class _StopRequest:
+    """SIGINT / SIGTERM set a flag the spin loop reads between callbacks: a callback is never interrupted half-way
+    (no publish on a context that is shutting down), and the context is shut down only after the loop ends."""
+
+    def __init__(self) -> None:
+        self.requested: int | None = None
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        self.requested = signum
+
+    def install(self) -> dict[int, Any]:
+        return {sig: signal.signal(sig, self) for sig in STOP_SIGNALS}
+
+
+def _spin(node: PredictorNode, stop: _StopRequest) -> None:
+    """Run the node's callbacks until a stop signal (or an external shutdown of its context)."""
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    try:
+        while stop.requested is None and node.context.ok():
+            executor.spin_once(timeout_sec=SPIN_PERIOD_S)
+    except ExternalShutdownException:
+        pass
+    except RCLError:  # a publish that raced a shutdown made elsewhere (the context is gone): a normal end
+        if node.context.ok():
+            raise
+    finally:
+        executor.shutdown(timeout_sec=SPIN_PERIOD_S)
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Entry point of `ros2 run usv_predictor predictor`; args is a full argv (program name first).
+
+    Exit codes: 0 after SIGINT or SIGTERM (also while publishing: the signal only sets a flag the spin loop reads
+    between callbacks), 2 for a start-up error (one line `predictor: error: ...` on stderr: a parameter, the
+    parameter file, the ROS arguments, the model, the vessel or an input adapter).
+    """
+    argv = list(sys.argv if args is None else args)
+    stop = _StopRequest()
+    previous = stop.install()  # before the slow start-up (torch, the model): an early stop is clean too
     node: PredictorNode | None = None
     try:
-        node = PredictorNode(config_path=options.config)
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        options = parse_arguments(argv)  # --help exits here, before ROS starts
+        import torch
+
+        torch.set_num_threads(1)  # one rollout of a tiny network: threads cost more than they give
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)  # our handlers stop the loop
+        if stop.requested is None:
+            node = PredictorNode(config_path=options.config)
+        if stop.requested is None:
+            _spin(node, stop)
+    except RCLInvalidROSArgsError as err:  # a broken --params-file, a malformed -p or -r
+        print(f"predictor: error: invalid ROS arguments: {_first_line(err)}", file=sys.stderr)
+        return EXIT_ERROR
     except UsvPredictorError as err:
         print(f"predictor: error: {err}", file=sys.stderr)
-        return 1
+        return EXIT_ERROR
+    except KeyboardInterrupt:  # a SIGINT before our handler was installed
+        pass
     finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    return EXIT_OK
 
 
 if __name__ == "__main__":

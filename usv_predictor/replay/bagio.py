@@ -43,8 +43,9 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from msg_adapters import columnar_factory, get_adapter, rosbags_factory
+from usv_predictor.atomic import NO_SPACE_ERRNOS, write_failure
 from usv_predictor.config import PredictorConfig, input_topics
-from usv_predictor.errors import AdapterError, BagError
+from usv_predictor.errors import AdapterError, BagError, one_line
 from usv_predictor.records import Signal
 from usv_predictor.replay.cdr_fast import decode_many, has_fast_layout
 
@@ -66,7 +67,8 @@ PRIMITIVE_DTYPES = {
 }  # fmt: skip
 
 # Exceptions meaning "this bag cannot be read": storage, metadata, truncated compressed file
-_READ_ERRORS = (AnyReaderError, ReaderError, OSError, EOFError, sqlite3.DatabaseError, ZstdError, yaml.YAMLError)
+_READ_ERRORS = (AnyReaderError, ReaderError, OSError, EOFError, sqlite3.DatabaseError, ZstdError, yaml.YAMLError,
+                UnicodeDecodeError)  # a metadata.yaml that is not UTF-8
 # ... and "this message cannot be deserialised"
 _DESERIALIZE_ERRORS = (SerdeError, struct.error, ValueError, IndexError)
 
@@ -308,7 +310,8 @@ def write_bag(
                 writer.write(connections[topic], stamp, encoded[topic][row])
         _install(built, path)
     except (WriterError, OSError, sqlite3.Error) as err:
-        raise BagError(f"{path}: cannot write bag: {err}") from err
+        cause = err.__cause__ if isinstance(err, WriterError) and err.__cause__ is not None else err
+        raise BagError(f"cannot write bag {path}: {write_failure(cause)}") from err
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
     return path
@@ -325,8 +328,12 @@ def _open_reader(path: Path) -> Iterator[AnyReader]:
     try:
         with AnyReader([path], default_typestore=jazzy_typestore()) as reader:
             yield reader
+    except OSError as err:
+        if err.errno in NO_SPACE_ERRNOS:  # a compressed bag is decompressed into a temporary file first
+            raise BagError(f"{path}: cannot read bag: {write_failure(err)} for its decompressed copy") from err
+        raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {one_line(err)})") from err
     except _READ_ERRORS as err:
-        raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {err})") from err
+        raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {one_line(err)})") from err
 
 
 def _select_connections(path: Path, reader: AnyReader, spec: TopicSpec) -> list[Any]:
@@ -414,10 +421,13 @@ def read_custom_data(path: Path) -> dict[str, str]:
     """The bag's custom_data (metadata.yaml), e.g. how it was made; {} when it has none."""
     metadata_path = Path(path) / "metadata.yaml"
     try:
-        info = yaml.safe_load(metadata_path.read_text())["rosbag2_bagfile_information"]
-    except (OSError, yaml.YAMLError, KeyError, TypeError) as err:
-        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata_path}: {err}") from err
-    return {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
+        info = yaml.safe_load(metadata_path.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        custom = info.get("custom_data") or {}
+        if not isinstance(custom, dict):
+            raise TypeError(f"custom_data is a {type(custom).__name__}, expected a mapping")
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, AttributeError) as err:
+        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata_path}: {one_line(err)}") from err
+    return {str(k): str(v) for k, v in custom.items()}
 
 
 def _size_on_disk(path: Path) -> int:

@@ -1,23 +1,32 @@
 """`replay`: the command-line front of the replay tool (`python -m usv_predictor.replay <command>`).
 
 Each command is a module usv_predictor/replay/cmd_<name>.py exposing NAME, HELP,
-add_arguments(parser) and run(args) -> dict (the machine-readable result). Modules are imported
-only when needed: `replay <command>` imports that command alone, `replay --help` imports every
+add_arguments(parser) and run(args) -> dict (the machine-readable result), and the paths it reads and writes:
+INPUTS (the argument names holding input paths) and OUTPUTS (argument name -> "file" or "dir"). Modules are
+imported only when needed: `replay <command>` imports that command alone, `replay --help` imports every
 command module (they keep heavy imports inside run()) and lists those that import. Every command
-gets `--json PATH` (result written atomically). Errors (UsvPredictorError, bad arguments) print
-one line `replay <command>: error: <message>` on stderr and exit with code 2.
+gets `--json PATH` (result written atomically, strict JSON).
+
+Before any work, every output (and --json) is checked against every input (usv_predictor.atomic.check_outputs:
+never an input, never inside one, never replacing one) and for being writable. Errors (UsvPredictorError, bad
+arguments, an OS error reading or writing a file) print one line `replay <command>: error: <message>` on
+stderr and exit with code 2 (EXIT_ERROR); Ctrl-C (SIGINT) prints `replay <command>: interrupted` and exits with
+130 (EXIT_INTERRUPTED), SIGTERM `replay <command>: terminated` and 143 (EXIT_TERMINATED), leaving no partial
+output (every writer is atomic and removes its temporary file as the exception unwinds).
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
+import threading
 from pathlib import Path
 from types import ModuleType
 from typing import Any, NoReturn
 
-from usv_predictor.atomic import write_json_atomic
-from usv_predictor.errors import UsvPredictorError
+from usv_predictor.atomic import check_outputs, write_json_atomic
+from usv_predictor.errors import UsvPredictorError, one_line
 
 PROG = "replay"
 COMMANDS: tuple[str, ...] = (
@@ -32,6 +41,8 @@ COMMANDS: tuple[str, ...] = (
     "usv_predictor.replay.cmd_diagnose",
 )
 EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
+EXIT_TERMINATED = 143  # 128 + SIGTERM
 
 
 class _UsageError(Exception):
@@ -79,10 +90,44 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     return parser
 
 
+class _Terminated(BaseException):
+    """SIGTERM arrived: unwinds like KeyboardInterrupt, so every atomic writer removes its temporary file."""
+
+
+def _on_sigterm(signum: int, frame: Any) -> None:
+    raise _Terminated()
+
+
+def _path_values(args: argparse.Namespace, name: str) -> list[Path]:
+    """The paths an argument holds (a path, a list of them, or a model spec that names an existing file)."""
+    value = getattr(args, name, None)
+    values = value if isinstance(value, (list, tuple)) else [value]
+    return [Path(v) for v in values if v is not None and (isinstance(v, Path) or Path(str(v)).exists())]
+
+
+def check_paths(command: ModuleType, args: argparse.Namespace) -> None:
+    """Outputs (the command's OUTPUTS and --json) apart from its INPUTS and writable (OutputError otherwise)."""
+    inputs = [path for name in getattr(command, "INPUTS", ()) for path in _path_values(args, name)]
+    kinds: dict[str, str] = dict(getattr(command, "OUTPUTS", {}))
+    outputs = {f"--{name.replace('_', '-')}": getattr(args, name, None) for name in kinds}
+    outputs["--json"] = args.json
+    directories = {f"--{name.replace('_', '-')}" for name, kind in kinds.items() if kind == "dir"}
+    check_outputs(outputs, inputs, directories)
+
+
+def _error_line(err: BaseException) -> str:
+    """An OSError as one line naming the file."""
+    if isinstance(err, OSError) and err.filename is not None:
+        return f"{err.filename}: {err.strerror or err}"
+    return str(err) or type(err).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one replay command; returns the process exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
     prog = PROG
+    handles_sigterm = threading.current_thread() is threading.main_thread()  # only there can Python set handlers
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if handles_sigterm else None
     try:
         try:
             args = build_parser(argv).parse_args(argv)
@@ -92,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
         if command is None:
             raise _UsageError(PROG, "a command is required (see --help)")
         prog = f"{PROG} {command.NAME}"
+        check_paths(command, args)
         result = command.run(args)
         if args.json is not None:
             write_json_atomic(args.json, result)
@@ -99,6 +145,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{err.prog}: error: {err}", file=sys.stderr)
         return EXIT_ERROR
     except UsvPredictorError as err:
-        print(f"{prog}: error: {err}", file=sys.stderr)
+        print(f"{prog}: error: {one_line(str(err))}", file=sys.stderr)  # one line, whatever the message holds
         return EXIT_ERROR
+    except OSError as err:  # the environment (a file vanished, a device failed): not a bug, still one line
+        print(f"{prog}: error: {_error_line(err)}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except _Terminated:
+        print(f"{prog}: terminated", file=sys.stderr)
+        return EXIT_TERMINATED
+    finally:
+        if handles_sigterm:
+            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
     return 0

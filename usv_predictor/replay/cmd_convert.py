@@ -16,6 +16,8 @@ from usv_predictor.replay.options import log
 NAME = "convert"
 HELP = ("convert public measured manoeuvres (HSVA/MARIN KVLCC2 zig-zags, Fuzhou USV zig-zag, Dalian twin-thruster "
         "USV runs) to rosbag2 bags")
+INPUTS = ("sources",)
+OUTPUTS = {"output": "dir"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

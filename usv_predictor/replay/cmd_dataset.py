@@ -18,17 +18,19 @@ import sys
 from pathlib import Path
 
 from usv_predictor.data.features import FEATURE_SETS
-from usv_predictor.replay.options import log
+from usv_predictor.replay.options import log, non_negative_float, non_negative_int, positive_float
 
 NAME = "dataset"
 HELP = "build a training set (one-step samples, split by manoeuvre) from bags into one .npz file"
+INPUTS = ("bags", "config")
+OUTPUTS = {"output": "file"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bags", nargs="+", type=Path, metavar="BAG",
                         help="bags, or directories searched recursively for bags (calm/ twins skipped)")
     parser.add_argument("--output", type=Path, required=True, help="dataset file to write (.npz)")
-    parser.add_argument("--dt", type=float, default=None, help="step (s; default: dt of the config, 0.5)")
+    parser.add_argument("--dt", type=positive_float, default=None, help="step (s; default: dt of the config, 0.5)")
     parser.add_argument("--features", choices=sorted(FEATURE_SETS), default="NTF",
                         help="input features (seed 000): F0 [u v r delta rpm], NAF + psi, NTF + sin/cos psi (default NTF)")
     parser.add_argument("--segment", choices=("bag", "steady"), default="bag",
@@ -40,16 +42,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     split.add_argument("--test", action="append", default=[], metavar="FRACTION|GLOB",
                        help="test: a fraction (default 0) or name globs (repeatable)")
     split.add_argument("--train", action="append", default=[], metavar="GLOB", help="pin manoeuvres to training")
-    split.add_argument("--seed", type=int, default=0, help="seed of the random split (default 0)")
+    split.add_argument("--seed", type=non_negative_int, default=0, help="seed of the random split (default 0)")
     data = parser.add_argument_group("input")
     data.add_argument("--config", type=Path, default=None, help="predictor parameter file (default config/predictor.yaml)")
     data.add_argument("--topic", action="append", default=[], metavar="ROLE=TOPIC",
                       help="read ROLE from TOPIC instead of the config's (repeatable), e.g. velocity=ins/twist")
     data.add_argument("--include-calm", action="store_true", help="also read calm/ twins found under directories")
-    data.add_argument("--min-duration", type=float, default=10.0, help="skip pieces shorter than this (s, default 10)")
-    data.add_argument("--jobs", type=int, default=0,
+    data.add_argument("--min-duration", type=non_negative_float, default=10.0, help="skip pieces shorter than this (s, default 10)")
+    data.add_argument("--jobs", type=non_negative_int, default=0,
                       help="processes reading bags in parallel (default 0: one per CPU, at most one per bag)")
-    data.add_argument("--horizon", type=float, default=None,
+    data.add_argument("--horizon", type=positive_float, default=None,
                       help="skip recordings with fewer than HORIZON/dt + 1 steps (s; default: no such check)")
 
 

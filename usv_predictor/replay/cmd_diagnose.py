@@ -12,10 +12,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from usv_predictor.replay.options import log
+from usv_predictor.replay.options import log, positive_float, positive_int
 
 NAME = "diagnose"
 HELP = "name the physical cause of what the calm-water model gets wrong, extend the model, measure the gain"
+INPUTS = ("bags", "model", "config")
+OUTPUTS = {"export": "file", "report": "dir"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,15 +27,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vessel", default=None, help="vessel preset of the calm-water model (default: config's vessel)")
     parser.add_argument("--model", type=Path, default=None, metavar="M",
                         help="a grey-box model artifact (from `replay identify`) as the calm-water model instead of the preset")
-    parser.add_argument("--dt", type=float, default=0.5, help="model step (s, default 0.5)")
-    parser.add_argument("--hypotheses", nargs="+", default=None, metavar="H",
+    parser.add_argument("--dt", type=positive_float, default=0.5, help="model step (s, default 0.5)")
+    parser.add_argument("--hypotheses", nargs="+", default=None, metavar="H", choices=hypothesis_names(),
                         help=f"hypotheses to test (default: those of the vessel's actuator layout among "
                              f"{' '.join(hypothesis_names())})")
-    parser.add_argument("--max-causes", type=int, default=2,
+    parser.add_argument("--max-causes", type=positive_int, default=2,
                         help="name up to this many causes, added one at a time while each passes the evidence test "
                              "(default 2)")
-    parser.add_argument("--horizon", type=float, default=20.0, help="segment horizon (s, default 20)")
-    parser.add_argument("--stride", type=float, default=5.0, help="time between segment starts (s, default 5)")
+    parser.add_argument("--horizon", type=positive_float, default=20.0, help="segment horizon (s, default 20)")
+    parser.add_argument("--stride", type=positive_float, default=5.0, help="time between segment starts (s, default 5)")
     parser.add_argument("--no-gain", action="store_true", help="skip the held-out evaluation of the extended model")
     parser.add_argument("--export", type=Path, default=None, metavar="PATH",
                         help="write the extended model (TorchScript artifact) for the node")

@@ -18,6 +18,8 @@ from usv_predictor.replay.options import add_model_arguments, evaluation_request
 
 NAME = "evaluate"
 HELP = "evaluate a model on bags: closed-loop tracks, turning-circle and zig-zag metrics, open-loop errors"
+INPUTS = ("bags", "model")
+OUTPUTS = {"output": "dir"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

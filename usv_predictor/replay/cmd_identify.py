@@ -19,10 +19,12 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from usv_predictor.replay.options import log
+from usv_predictor.replay.options import log, positive_float, positive_int
 
 NAME = "identify"
 HELP = "identify the grey-box hull coefficients from bags (EKF/RTS + inverse-dynamics regression) and export the model"
+INPUTS = ("bags", "vessel")
+OUTPUTS = {"output": "file", "report": "dir"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,11 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--prior", choices=("none", "fix", "ridge"), default="none",
                         help="what to do with coefficients the data cannot determine (default none: refuse, naming them)")
     parser.add_argument("--hybrid", action="store_true", help="add an MLP residual on the accelerations (model_type hybrid)")
-    parser.add_argument("--dt", type=float, default=0.2, help="step (s) of the resampled data and the model (default 0.2)")
+    parser.add_argument("--dt", type=positive_float, default=0.2, help="step (s) of the resampled data and the model (default 0.2)")
     parser.add_argument("--val", default=None, metavar="GLOB", help="bags to validate on only (glob)")
     parser.add_argument("--output", type=Path, required=True, help="model file to write (.pt)")
     parser.add_argument("--report", type=Path, default=None, metavar="DIR", help="write summary.md and plots into DIR")
-    parser.add_argument("--blocks", type=int, default=1, metavar="K",
+    parser.add_argument("--blocks", type=positive_int, default=1, metavar="K",
                         help="cut each recording into K contiguous pieces, each held out in turn by the cross-"
                              "validation (a single long record; default 1)")
 

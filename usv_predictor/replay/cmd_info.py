@@ -8,6 +8,8 @@ from pathlib import Path
 
 NAME = "info"
 HELP = "summarise rosbag2 bags: topics, types, message counts, rates, duration, custom_data"
+INPUTS = ("bags",)
+OUTPUTS: dict[str, str] = {}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

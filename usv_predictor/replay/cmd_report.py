@@ -17,6 +17,8 @@ from usv_predictor.replay.options import add_model_arguments, evaluation_request
 
 NAME = "report"
 HELP = "write a Markdown report (report.md, report.json, PNG figures) of an evaluation file or of bags"
+INPUTS = ("inputs", "model")
+OUTPUTS = {"output": "dir"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

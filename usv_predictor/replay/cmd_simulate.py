@@ -12,11 +12,13 @@ import shlex
 import sys
 from pathlib import Path
 
-from usv_predictor.replay.options import log
+from usv_predictor.replay.options import finite_float, log, non_negative_int, positive_float
 from usv_predictor.replay.simulate import KINDS, SEAS, SIDES, STORAGES, SimulationRequest
 
 NAME = "simulate"
 HELP = "simulate manoeuvres (turning circles, zig-zags, pull-outs, spirals, random) and write rosbag2 bags"
+INPUTS = ()
+OUTPUTS = {"output": "dir"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,21 +29,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     what.add_argument("--programme", choices=sorted(PROGRAMMES),
                       help="a trial programme: sea_trial (seed 000 Table 3 turns), training, diagnosis")
     what.add_argument("--manoeuvre", choices=KINDS, help="one manoeuvre instead of a programme")
-    what.add_argument("--rudder", type=float, default=None,
+    what.add_argument("--rudder", type=finite_float, default=None,
                       help="rudder angle (deg, default 20; rudder layouts)")
-    what.add_argument("--check", type=float, default=None,
+    what.add_argument("--check", type=finite_float, default=None,
                       help="zig-zag check angle (deg, default = --rudder, or 20 for a differential)")
-    what.add_argument("--rpm", type=float, default=None,
+    what.add_argument("--rpm", type=finite_float, default=None,
                       help="engine speed (rpm, default 650; rudder_propeller and rudder_only)")
-    what.add_argument("--differential", type=float, default=None,
+    what.add_argument("--differential", type=finite_float, default=None,
                       help="twin thrusters: normalised command port - starboard in (0, 2], + turns to starboard "
                            "(default 0.4)")
-    what.add_argument("--throttle", type=float, default=None,
+    what.add_argument("--throttle", type=finite_float, default=None,
                       help="normalised propulsion command in (0, 1]: the throttle of rudder_throttle, the mean of "
                            "both thrusters of twin_thrusters (default 0.6)")
     what.add_argument("--side", choices=SIDES, default="starboard", help="first turn to (default starboard)")
-    what.add_argument("--duration", type=float, default=None, help="duration (s; default per manoeuvre)")
-    what.add_argument("--heading", type=float, default=0.0, help="initial heading (deg clockwise from north)")
+    what.add_argument("--duration", type=positive_float, default=None, help="duration (s; default per manoeuvre)")
+    what.add_argument("--heading", type=finite_float, default=0.0, help="initial heading (deg clockwise from north)")
     what.add_argument("--vessel", default="jari_usv", help="vessel preset in config/vessels (default jari_usv)")
     sea = parser.add_argument_group("sea and hidden effects (DESIGN.md vocabulary)")
     sea.add_argument("--sea", choices=SEAS, default="calm",
@@ -52,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         for p in params:
             unit = "PCT" if p.unit == "%" else p.unit.upper().replace("/", "_")
             text = f"{effect}: {p.help} ({p.unit}, default {p.default:g}, range {p.low:g}..{p.high:g})"
-            sea.add_argument(p.flag, dest=p.name, type=float, default=None, metavar=unit,
+            sea.add_argument(p.flag, dest=p.name, type=finite_float, default=None, metavar=unit,
                              help=text.replace("%", "%%"))  # argparse %-formats help texts
     out = parser.add_argument_group("output")
     out.add_argument("--output", type=Path, default=Path("out/simulated"), help="directory for the bags (default out/simulated)")
@@ -61,8 +63,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--no-compress", action="store_true", help="do not zstd-compress the bags")
     out.add_argument("--overwrite", action="store_true", help="replace existing bags")
     out.add_argument("--blind", action="store_true", help="record only a digest of the scenario in the bag metadata")
-    out.add_argument("--seed", type=int, default=0, help="random seed (noise, gusts, waves, random manoeuvre)")
-    out.add_argument("--dt", type=float, default=0.05, help="integration step (s, default 0.05)")
+    out.add_argument("--seed", type=non_negative_int, default=0, help="random seed (noise, gusts, waves, random manoeuvre)")
+    out.add_argument("--dt", type=positive_float, default=0.05, help="integration step (s, default 0.05)")
 
 
 def _effects(args: argparse.Namespace) -> dict[str, dict[str, float]]:

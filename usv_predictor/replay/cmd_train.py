@@ -14,8 +14,12 @@ import time
 from pathlib import Path
 from typing import Any
 
+from usv_predictor.replay.options import non_negative_float, non_negative_int, positive_float, positive_int
+
 NAME = "train"
 HELP = "train the seed 000 motion network on a dataset and export the TorchScript model artifact"
+INPUTS = ("dataset",)
+OUTPUTS = {"output": "file"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,31 +29,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="feature set (default: the dataset's; another set is recomputed from its recordings)")
     parser.add_argument("--activation", choices=("tanh", "clipped_relu"), default="tanh",
                         help="hidden activation, seed 000 eq. 2 / eq. 1 (default tanh)")
-    parser.add_argument("--ceiling", type=float, default=10.0, help="clippedReLU ceiling (default 10)")
-    parser.add_argument("--width", type=int, default=100, help="hidden units per layer (default 100)")
-    parser.add_argument("--depth", type=int, default=2, help="hidden layers (default 2)")
+    parser.add_argument("--ceiling", type=positive_float, default=10.0, help="clippedReLU ceiling (default 10)")
+    parser.add_argument("--width", type=positive_int, default=100, help="hidden units per layer (default 100)")
+    parser.add_argument("--depth", type=positive_int, default=2, help="hidden layers (default 2)")
     parser.add_argument("--no-batch-norm", action="store_true", help="leave out batch normalisation")
     parser.add_argument("--absolute-target", action="store_true",
                         help="predict [u, v, r] at the next step as in the paper instead of the increment")
-    parser.add_argument("--epochs", type=int, default=500, help="maximum epochs (default 500)")
-    parser.add_argument("--patience", type=int, default=50,
+    parser.add_argument("--epochs", type=positive_int, default=500, help="maximum epochs (default 500)")
+    parser.add_argument("--patience", type=non_negative_int, default=50,
                         help="stop after this many epochs without validation improvement; 0: never (default 50)")
-    parser.add_argument("--batch-size", type=int, default=128, help="mini-batch size (default 128)")
-    parser.add_argument("--lr", type=float, default=0.005, help="initial learning rate (default 0.005)")
+    parser.add_argument("--batch-size", type=positive_int, default=128, help="mini-batch size (default 128)")
+    parser.add_argument("--lr", type=positive_float, default=0.005, help="initial learning rate (default 0.005)")
     parser.add_argument("--lr-schedule", choices=("step", "cosine", "constant"), default="step",
                         help="learning-rate decay (default step: x0.5 every 100 epochs)")
-    parser.add_argument("--l2", type=float, default=1e-4, help="L2 regularisation (default 1e-4)")
-    parser.add_argument("--multi-step", type=int, default=1, metavar="K",
+    parser.add_argument("--l2", type=non_negative_float, default=1e-4, help="L2 regularisation (default 1e-4)")
+    parser.add_argument("--multi-step", type=positive_int, default=1, metavar="K",
                         help="train on closed-loop rollouts of K steps (default 1: one-step, as the paper)")
-    parser.add_argument("--ensemble", type=int, default=1, metavar="E", help="ensemble members (default 1)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads while training (default 1)")
+    parser.add_argument("--ensemble", type=positive_int, default=1, metavar="E", help="ensemble members (default 1)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed (default 0)")
+    parser.add_argument("--threads", type=positive_int, default=1, help="torch threads while training (default 1)")
     parser.add_argument("--vessel", default=None, help="vessel recorded in the model (default: the config's)")
-    parser.add_argument("--horizon-steps", type=int, default=None,
+    parser.add_argument("--horizon-steps", type=positive_int, default=None,
                         help="default prediction horizon in steps recorded in the model (default: the config's)")
     parser.add_argument("--dtype", choices=("float32", "float64"), default="float32",
                         help="arithmetic of the exported rollout (default float32)")
-    parser.add_argument("--progress-s", type=float, default=2.0, help="seconds between progress lines (default 2)")
+    parser.add_argument("--progress-s", type=non_negative_float, default=2.0, help="seconds between progress lines (default 2)")
 
 
 class _Throttled:
@@ -60,12 +64,12 @@ class _Throttled:
         self.epochs = epochs
         self.last = -float("inf")
 
-    def __call__(self, member: int, epoch: int, train_loss: float, val_loss: float) -> None:
+    def __call__(self, member: int, epoch: int, train_loss: float, val_loss: float | None) -> None:
         now = time.monotonic()
         if epoch == 1 or now - self.last >= self.every:
             self.last = now
-            print(f"member {member} epoch {epoch}/{self.epochs}: train {train_loss:.5g} val {val_loss:.5g}",
-                  file=sys.stderr)
+            val = "-" if val_loss is None else f"{val_loss:.5g}"
+            print(f"member {member} epoch {epoch}/{self.epochs}: train {train_loss:.5g} val {val}", file=sys.stderr)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:

@@ -12,6 +12,7 @@ spec `physics[:VESSEL]` is the calm-water grey box of a preset (usv_predictor.mo
 from __future__ import annotations
 
 import datetime
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,8 +41,13 @@ class EvaluationRequest:
     include_calm: bool = False  # also read calm/ twins under bag directories
 
     def __post_init__(self) -> None:
-        if self.stride_s <= 0.0 or any(h <= 0.0 for h in self.horizons_s):
-            raise EvaluationError("--stride and --horizons must be positive (s)")
+        if not all(math.isfinite(x) and x > 0.0 for x in (self.stride_s, *self.horizons_s)):
+            raise EvaluationError(f"--stride {self.stride_s:g} and --horizons {' '.join(f'{h:g}' for h in self.horizons_s)}"
+                                  " must be finite and positive (s)")
+        if not self.horizons_s:
+            raise EvaluationError("--horizons needs at least one horizon (s)")
+        if self.dt is not None and not (math.isfinite(self.dt) and self.dt > 0.0):
+            raise EvaluationError(f"--dt {self.dt:g} must be finite and positive (s)")
         if self.reference not in REFERENCES:
             raise EvaluationError(f"--reference {self.reference!r}: expected one of {', '.join(REFERENCES)}")
 
@@ -54,6 +60,16 @@ def default_bags() -> list[Path]:
         return [package_share_path("bags", "sea_trial")]
     except ConfigError as err:
         raise BagError(f"no bags given and the shipped bags/sea_trial is missing: {err}") from err
+
+
+def _output_apart(request: EvaluationRequest, output: Path | None, writes: Sequence[str]) -> None:
+    """The output directory is neither one of the bags read (the shipped ones when none are given) nor inside one,
+    and none of the files it writes there (`writes`) is an input."""
+    from usv_predictor.atomic import check_outputs
+
+    if output is not None:
+        outputs = {"--output": output, **{f"--output ({name})": output / name for name in writes}}
+        check_outputs(outputs, [*(request.bags or default_bags()), request.model], {"--output"})
 
 
 def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = lambda _: None) -> EvaluationResult:
@@ -105,6 +121,7 @@ def save_evaluation(result: EvaluationResult, directory: Path) -> dict:
 def evaluate(request: EvaluationRequest, output: Path | None = None,
              progress: Callable[[str], None] = lambda _: None) -> dict:
     """The evaluation JSON of `replay evaluate`; with `output`, saved there with its time series."""
+    _output_apart(request, output, (EVALUATION_FILE, SERIES_FILE))
     result = evaluate_bags(request, progress)
     if output is None:
         return result.to_json()
@@ -123,6 +140,7 @@ def report(request: EvaluationRequest, output: Path, title: str, progress: Calla
     `request` says, written into `output`."""
     from usv_predictor.analysis import reports
 
+    _output_apart(request, output, (reports.REPORT_MD, reports.REPORT_JSON))
     if is_evaluation_file(request.bags):
         progress(f"reading evaluation {request.bags[0]}")
         data, predictions = reports.load_evaluation_file(request.bags[0], warn=progress)

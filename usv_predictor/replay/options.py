@@ -3,15 +3,57 @@
 Only argparse plumbing lives here: the commands call `add_*_arguments(parser)` and turn the parsed options
 into the typed request of their library function, so no argparse Namespace travels further. `log` is how a
 command shows a library function's progress (stderr: stdout is the command's result).
+
+Numbers: every numeric option is parsed by one of NUMBER_TYPES (never a bare float or int), so "nan", "inf",
+a zero step or a negative seed is a one-line usage error naming the option before any work.
 """
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 from usv_predictor.replay.evaluate import REFERENCES, EvaluationRequest
+
+
+def _number(text: str, kind: type, what: str, ok: Callable[[float], bool]) -> float | int:
+    try:
+        value = kind(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+    if not math.isfinite(value) or not ok(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """A finite number (no nan, no inf)."""
+    return float(_number(text, float, "a finite number", lambda v: True))
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0 (steps, horizons, strides, durations)."""
+    return float(_number(text, float, "a finite number > 0", lambda v: v > 0.0))
+
+
+def non_negative_float(text: str) -> float:
+    """A finite number >= 0."""
+    return float(_number(text, float, "a finite number >= 0", lambda v: v >= 0.0))
+
+
+def positive_int(text: str) -> int:
+    """A whole number >= 1."""
+    return int(_number(text, int, "a whole number >= 1", lambda v: v >= 1))
+
+
+def non_negative_int(text: str) -> int:
+    """A whole number >= 0 (seeds, counts where 0 means none or automatic)."""
+    return int(_number(text, int, "a whole number >= 0", lambda v: v >= 0))
+
+
+NUMBER_TYPES = (finite_float, positive_float, non_negative_float, positive_int, non_negative_int)
 
 
 def log(message: str) -> None:
@@ -24,14 +66,14 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", default=None, metavar="M",
                         help="model artifact (.pt), or 'physics[:VESSEL]' for the calm-water physics baseline "
                              "(default: the shipped models/default.pt)")
-    parser.add_argument("--dt", type=float, default=None,
+    parser.add_argument("--dt", type=positive_float, default=None,
                         help="step (s) to resample the bags at; must equal the model's dt (default: the model's)")
     parser.add_argument("--reference", choices=REFERENCES, default="gnss",
                         help="compare with the measured GNSS track and states (default) or the ground truth of "
                              "simulated bags")
-    parser.add_argument("--horizons", type=float, nargs="+", default=[10.0, 30.0, 60.0], metavar="S",
+    parser.add_argument("--horizons", type=positive_float, nargs="+", default=[10.0, 30.0, 60.0], metavar="S",
                         help="open-loop horizons (s, default 10 30 60)")
-    parser.add_argument("--stride", type=float, default=5.0, metavar="S",
+    parser.add_argument("--stride", type=positive_float, default=5.0, metavar="S",
                         help="time between open-loop start points (s, default 5)")
     parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
 

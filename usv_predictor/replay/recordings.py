@@ -12,7 +12,9 @@ What happens to imperfect input (warnings go through `warn`, by default to stder
 - missing or unreadable bag, unreadable metadata, a required topic missing or empty, a topic of another
   message type: BagError naming the bag, the topic and what is present;
 - a missing optional topic (GNSS, ground truth): that role is left out, with a warning;
-- samples with NaN in a field the Recording uses (USED_FIELDS): dropped, warning with topic/field/count;
+- samples with NaN in a field the Recording uses (USED_FIELDS): dropped, warning with topic/field/count; the
+  same for values outside the plausible ranges (data.recording.PLAUSIBLE, the controls' plausible ranges), e.g.
+  a corrupt 1e30 or a rudder angle in degrees read as radians;
 - stamps: rows are sorted; a step backwards by more than the step dt in the given order is an error naming
   the time (bagio.read_bag sorts by header stamp, so this guards Signals from elsewhere); exact duplicates
   (same stamp, same values) are dropped and counted; same stamp with other values: the first is kept, counted;
@@ -33,6 +35,7 @@ import hashlib
 import math
 import multiprocessing
 import os
+import signal
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -41,12 +44,18 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from usv_predictor.config import input_topics, load_predictor_config
-from usv_predictor.data.recording import Recording, RecordingError, recording_from_signals, required_roles
-from usv_predictor.errors import BagError, ConfigError, DatasetError
+from usv_predictor.config import FLOAT_RANGES, input_topics, load_predictor_config
+from usv_predictor.data.recording import (
+    Recording,
+    RecordingError,
+    plausible_ranges,
+    recording_from_signals,
+    required_roles,
+)
+from usv_predictor.errors import BagError, ConfigError, DatasetError, one_line
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout, unused_roles
 from usv_predictor.physics.vessel import load_vessel
-from usv_predictor.records import NS_PER_S, Signal
+from usv_predictor.records import NS_PER_S, Signal, whole_steps
 from usv_predictor.replay.bagio import TopicSpec, read_bag
 
 OPTIONAL_ROLES = ("gnss", "odometry")
@@ -152,12 +161,12 @@ def bag_metadata(path: Path) -> tuple[dict[str, tuple[str, int]], dict[str, str]
     if not metadata.is_file():
         return None
     try:
-        info = yaml.load(metadata.read_text(), Loader=_YAML_LOADER)["rosbag2_bagfile_information"]
+        info = yaml.load(metadata.read_text(encoding="utf-8"), Loader=_YAML_LOADER)["rosbag2_bagfile_information"]
         topics = {t["topic_metadata"]["name"]: (t["topic_metadata"]["type"], int(t.get("message_count", 0)))
                   for t in info.get("topics_with_message_count") or []}
         custom = {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
     except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError) as err:
-        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata} ({type(err).__name__}: {err})") from err
+        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata} ({type(err).__name__}: {one_line(err)})") from err
     return topics, custom
 
 
@@ -232,6 +241,23 @@ def clean_signal(signal: Signal, *, where: str, role: str, dt: float, t_ref_ns: 
         if bad.any():
             warn(f"{where}: dropped {int(bad.sum())} of {len(t_ns)} samples with NaN/inf ({', '.join(counts)})")
             t_ns, values = t_ns[~bad], values[~bad]
+        plausible = plausible_ranges(layout)
+        outside = np.zeros(len(t_ns), dtype=bool)
+        counts = []
+        for name in used:
+            if name not in plausible:
+                continue
+            low, high = plausible[name]
+            column = values[:, signal.fields.index(name)]
+            out = (column < low) | (column > high)
+            outside |= out
+            if out.any():
+                worst = column[out][np.argmax(np.abs(column[out]))]
+                counts.append(f"{name}: {int(out.sum())}, e.g. {worst:g} outside [{low:g}, {high:g}]")
+        if outside.any():
+            warn(f"{where}: dropped {int(outside.sum())} of {len(t_ns)} samples with implausible values "
+                 f"({'; '.join(counts)}): corrupt samples, or wrong units in the config?")
+            t_ns, values = t_ns[~outside], values[~outside]
     steps = np.diff(t_ns)
     if len(steps) and steps.min() < 0:
         k = int(np.argmin(steps))
@@ -341,9 +367,10 @@ def _long_enough(rec: Recording, min_duration_s: float, horizon_s: float | None,
     if rec.duration_s + 1e-9 < min_duration_s:
         warn(f"{rec.source}: {rec.name} lasts {rec.duration_s:.1f} s, shorter than {min_duration_s:g} s; skipped")
         return False
-    if horizon_s is not None and len(rec) < round(horizon_s / rec.dt) + 1:
+    needed = None if horizon_s is None else whole_steps(horizon_s, rec.dt, "--horizon", minimum=0) + 1
+    if needed is not None and len(rec) < needed:
         warn(f"{rec.source}: {rec.name} has {len(rec)} steps, too few for the {horizon_s:g} s horizon "
-             f"({round(horizon_s / rec.dt) + 1} steps); skipped")
+             f"({needed} steps); skipped")
         return False
     return True
 
@@ -412,6 +439,12 @@ def _bag_job(source: BagSource, specs: Sequence[TopicSpec], dt: float, options: 
     return recordings_from_bag(source, specs, dt, warn=messages.append, **options), messages
 
 
+def _ignore_interrupts() -> None:
+    """In a worker: Ctrl-C reaches the whole process group, but only the parent answers it (one line, exit 130);
+    a worker finishes its bag instead of printing a traceback of its own."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _map_bags(sources: Sequence[BagSource], specs: Sequence[TopicSpec], dt: float, options: Mapping, jobs: int):
     """(source, recordings, warnings) per bag, in order; bags are independent, so `jobs` processes read them.
 
@@ -425,7 +458,8 @@ def _map_bags(sources: Sequence[BagSource], specs: Sequence[TopicSpec], dt: floa
     specs = [dataclasses.replace(s, options=dict(s.options)) for s in specs]  # a mappingproxy does not pickle
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
-    with ProcessPoolExecutor(max_workers=min(jobs, len(sources)), mp_context=context) as pool:
+    with ProcessPoolExecutor(max_workers=min(jobs, len(sources)), mp_context=context,
+                             initializer=_ignore_interrupts) as pool:
         work = [pool.submit(_bag_job, source, specs, dt, options) for source in sources]
         try:
             for source, future in zip(sources, work):
@@ -454,6 +488,7 @@ def load_recordings(bag_paths: Iterable[str | Path], dt: float, *, config_path: 
     """
     if not dt > 0.0 or not math.isfinite(dt):
         raise DatasetError(f"step dt={dt} s must be a positive number")
+    FLOAT_RANGES["dt"].check("dt", dt, "the resampling step")  # 1e-300 s would ask for an astronomical grid
     if segment not in SEGMENTS:
         raise DatasetError(f"unknown segment mode {segment!r}; use one of {list(SEGMENTS)}")
     specs = topic_specs(config_path, topics, layout)

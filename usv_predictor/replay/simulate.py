@@ -28,6 +28,7 @@ if TYPE_CHECKING:
 
 KINDS = ("turning-circle", "zigzag", "pullout", "spiral", "random")
 SEAS = ("calm", "rizhao")  # calm water, or the seed 000 trial sea (current + wind + waves)
+MIN_DT_S, MAX_DT_S = 0.001, 0.2  # s: the integration steps `replay simulate` accepts (RK4 is stable below 0.2 s)
 SIDES = ("starboard", "port")
 STORAGES = ("sqlite3", "mcap")
 EPOCH_NS = 1_622_527_200 * NS_PER_S  # 2021-06-01 06:00 UTC: the simulated trial day starts here
@@ -80,6 +81,8 @@ class SimulationRequest:
                                      ("--storage", self.storage, STORAGES)):
             if value not in allowed:
                 raise ConfigError(f"{name} {value!r}: expected one of {', '.join(allowed)}")
+        if not MIN_DT_S <= self.dt <= MAX_DT_S:  # below: an astronomical number of steps; above: unstable RK4
+            raise ConfigError(f"--dt {self.dt:g} s is outside [{MIN_DT_S:g}, {MAX_DT_S:g}] s")
         if self.duration_s is not None and not 1.0 <= self.duration_s <= 3600.0:
             raise ConfigError(f"--duration {self.duration_s:g} s is outside [1, 3600] s")
         if not self.programme and self.manoeuvre == "zigzag" and not 0.0 < self.check_angle_deg <= 90.0:

@@ -1,0 +1,74 @@
+"""Shared helpers of the tests that feed the replay tool bad input (test_hardening.py, test_fuzz.py).
+
+`replay` runs a command in-process through usv_predictor.replay.cli.main and returns (exit code, stderr); the
+other helpers say what a run must leave behind: the inputs byte-identical (`digest`), no temporary file of an
+atomic writer (`leftovers`), and on failure one line `replay <command>: error: ...` (`assert_one_line`).
+`bag_streams` / `write_variant` turn a bag into the Signals of its configured topics and back, to make
+mutated copies.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+import pytest
+
+from usv_predictor.atomic import PROBE_PREFIX
+from usv_predictor.records import Signal
+from usv_predictor.replay import cli
+from usv_predictor.replay.bagio import TopicSpec, read_bag, write_bag
+from usv_predictor.replay.recordings import bag_metadata, topic_specs
+
+EXIT_CODES = (0, cli.EXIT_ERROR)  # what bad input may end with: a clean run, or one line and exit 2
+
+
+def replay(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str]:
+    """Run `replay ARGV...` in this process: (exit code, what it printed on stderr)."""
+    capsys.readouterr()
+    code = cli.main([str(a) for a in argv])
+    return code, capsys.readouterr().err
+
+
+def digest(paths: Iterable[Path]) -> dict[str, str]:
+    """sha256 of every file under `paths` (files or directories), by path: an input must not change at all."""
+    out: dict[str, str] = {}
+    for root in paths:
+        root = Path(root)
+        files = [root] if root.is_file() else sorted(p for p in root.rglob("*") if p.is_file())
+        for f in files:
+            out[str(f)] = hashlib.sha256(f.read_bytes()).hexdigest()
+    return out
+
+
+def leftovers(root: Path) -> list[Path]:
+    """Temporary files of the atomic writers (`.<name>.<random>.partial`, bag work directories, write probes)."""
+    found = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        for name in [*dirnames, *filenames]:
+            if name.endswith(".partial") or name.startswith(PROBE_PREFIX):
+                found.append(Path(dirpath) / name)
+    return found
+
+
+def assert_one_line(code: int, err: str, command: str, allowed: Iterable[int] = EXIT_CODES) -> None:
+    """Exit 0 or 2 (or `allowed`), never a traceback; an error is one line naming the command."""
+    assert code in tuple(allowed), f"replay {command} exited {code}:\n{err[-3000:]}"
+    assert "Traceback" not in err, err[-3000:]
+    if code == cli.EXIT_ERROR:
+        last = err.strip().splitlines()[-1]
+        assert last.startswith(f"replay {command}: error: ") or last.startswith("replay: error: "), last
+
+
+def bag_streams(path: Path) -> tuple[list[tuple[TopicSpec, Signal]], dict[str, str]]:
+    """The configured topics of a bag (ground truth included) as (spec, Signal), and its custom_data."""
+    present, custom = bag_metadata(path) or ({}, {})
+    specs = [s for s in topic_specs() if s.topic in present]
+    signals = read_bag(path, specs)
+    return [(s, signals[s.topic]) for s in specs], custom
+
+
+def write_variant(path: Path, streams: list[tuple[TopicSpec, Signal]], custom: Mapping[str, str]) -> Path:
+    """Write a (mutated) copy of a bag: uncompressed sqlite3, the same custom_data."""
+    return write_bag(path, streams, metadata=custom, compress=False)

@@ -1,0 +1,433 @@
+"""Issue 12, case by case: never a traceback, never touch an input, never leave half a file (the replay side).
+
+Each test is one case of the issue, reproduced on the shipped bags or on short bags simulated here, and run the
+way a user runs it (in-process through usv_predictor.replay.cli.main, or as a process where a signal or a
+file-size limit is the point). The node's cases are in test_node_smoke.py, test_node.py and test_live.py; the
+generated bad inputs in test_fuzz.py.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import resource
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from msg_adapters import ROLE_FIELDS
+from usv_predictor.atomic import check_outputs, jsonable, write_json_atomic
+from usv_predictor.errors import OutputError
+from usv_predictor.models.artifact import export_module, load_artifact, read_metadata
+from usv_predictor.records import Signal
+from usv_predictor.replay import cli
+from usv_predictor.replay.options import NUMBER_TYPES
+from usv_predictor.replay.recordings import clean_signal
+
+from replay_helpers import assert_one_line, bag_streams, digest, leftovers, replay, write_variant
+
+REPO = Path(__file__).resolve().parents[1]
+BAGS = REPO / "bags"
+ZIGZAG = BAGS / "training" / "zigzag_20_20_port_700rpm"
+TURN = BAGS / "sea_trial" / "turning_circle_stbd_15deg_650rpm"
+DEFAULT_MODEL = REPO / "models" / "default.pt"
+
+
+def _simulate(capsys: pytest.CaptureFixture[str], out: Path, *extra: str) -> None:
+    for manoeuvre in (["--manoeuvre", "zigzag"], ["--manoeuvre", "turning-circle", "--side", "port"]):
+        code, err = replay(capsys, "simulate", *manoeuvre, "--duration", "60", "--no-compress", "--output", out, *extra)
+        assert code == 0, err
+
+
+@pytest.fixture(scope="module")
+def short_bags(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Two 60 s manoeuvres (a 20/20 zig-zag, a port turn), uncompressed sqlite3: enough for identify and diagnose."""
+    out = tmp_path_factory.mktemp("short") / "bags"
+    for manoeuvre in (["--manoeuvre", "zigzag"], ["--manoeuvre", "turning-circle", "--side", "port"]):
+        assert cli.main(["simulate", *manoeuvre, "--duration", "60", "--no-compress", "--output", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def one_bag_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`replay dataset <one bag>`: every manoeuvre goes to training, the validation split is empty."""
+    path = tmp_path_factory.mktemp("ds") / "one.npz"
+    assert cli.main(["dataset", str(ZIGZAG), "--output", str(path), "--jobs", "1"]) == 0
+    return path
+
+
+def _failing_model(path: Path) -> Path:
+    """A TorchScript model with the shipped metadata whose code raises when called."""
+
+    class Raises(torch.nn.Module):
+        def forward(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
+            if bool(state.sum() > -1e30):
+                raise RuntimeError("boom: this model always fails")
+            return torch.zeros(1, state.shape[0], controls.shape[1], 6)
+
+    _, meta = read_metadata(DEFAULT_MODEL)
+    meta = {k: v for k, v in meta.items() if k not in ("format", "software_version", "created_utc", "model_id")}
+    export_module(path, Raises(), meta)
+    return path
+
+
+# ------------------------------------------------------------------ tracebacks seen
+
+def test_train_without_a_validation_split_writes_json(one_bag_dataset, tmp_path, capsys) -> None:
+    """Was: ValueError: Out of range float values are not JSON compliant: nan (the val loss of no val split)."""
+    model, result = tmp_path / "m.pt", tmp_path / "train.json"
+    code, err = replay(capsys, "train", one_bag_dataset, "--output", model, "--epochs", "3", "--json", result)
+    assert_one_line(code, err, "train", allowed=(0,))
+    summary = json.loads(result.read_text())
+    assert summary["n_val"] == 0 and summary["monitor"] == "train" and summary["val_loss"] is None
+    assert load_artifact(model).metadata["training"]["val_loss"] == [None]
+
+
+def test_train_refuses_a_dataset_holding_nan_naming_the_array(one_bag_dataset, tmp_path, capsys) -> None:
+    with np.load(one_bag_dataset) as npz:
+        arrays = {name: npz[name] for name in npz.files}
+    arrays["X"] = arrays["X"].copy()
+    arrays["X"][7, 2] = np.nan
+    broken = tmp_path / "nan.npz"
+    np.savez_compressed(broken, **arrays)
+    code, err = replay(capsys, "train", broken, "--output", tmp_path / "m.pt", "--epochs", "2")
+    assert_one_line(code, err, "train", allowed=(2,))
+    assert "X holds 1 non-finite value(s) (first at row 7, column" in err and str(broken) in err
+    assert not (tmp_path / "m.pt").exists()
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_identify_writes_json_without_nan(tmp_path, capsys, storage) -> None:
+    """Was: the NaN-in-JSON crash on an mcap bag and with --prior fix: the variance inflation factor of the
+    constant bias regressor (Y_0, N_0) of the Abkowitz structure is undefined and was NaN."""
+    bags = tmp_path / "bags"
+    _simulate(capsys, bags, "--storage", storage)
+    result = tmp_path / "id.json"
+    code, err = replay(capsys, "identify", bags, "--vessel", "jari_usv", "--prior", "fix", "--structure", "abkowitz",
+                       "--output", tmp_path / "id.pt", "--json", result)
+    assert_one_line(code, err, "identify", allowed=(0,))
+    collinearity = {c["equation"]: c for c in json.loads(result.read_text())["identification"]["collinearity"]}
+    for equation, bias in (("Y", "Y_0"), ("N", "N_0")):
+        entry = next(c for name, c in collinearity.items() if name.startswith(equation))
+        assert entry["constant_regressors"] == [bias] and bias not in entry["vif"]
+        assert all(v is not None and v >= 1.0 for v in entry["vif"].values())
+    assert load_artifact(tmp_path / "id.pt").metadata["identification"]["collinearity"]
+
+
+def test_strict_json_names_the_field_and_writes_nothing(tmp_path) -> None:
+    value = {"identification": {"collinearity": [{}, {"vif": {"Y_0": np.float64("nan")}}]}}
+    with pytest.raises(OutputError, match=r"field identification\.collinearity\[1\]\.vif\.Y_0 is nan"):
+        jsonable(value)
+    with pytest.raises(OutputError, match=r"out\.json: field a\[2\] is inf"):
+        write_json_atomic(tmp_path / "out.json", {"a": [1, 2.0, math.inf]})
+    assert list(tmp_path.iterdir()) == []
+    assert jsonable({"p": Path("x"), "n": np.arange(2), "t": (np.float32(1.5), None)}) == \
+        {"p": "x", "n": [0, 1], "t": [1.5, None]}
+
+
+def test_a_model_with_nan_metadata_names_the_field(tmp_path) -> None:
+    from usv_predictor.errors import ModelError
+
+    shipped = load_artifact(DEFAULT_MODEL)
+    meta = dict(shipped.metadata, training={"val_loss": [math.nan]})
+    with pytest.raises(ModelError, match=r"metadata: field training\.val_loss\[0\] is nan"):
+        export_module(tmp_path / "m.pt", shipped.module, meta)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_huge_values_are_dropped_with_a_warning_naming_the_field() -> None:
+    t = np.arange(100, dtype=np.int64) * 10_000_000
+    values = np.zeros((100, 5))
+    values[:, 4] = np.nan  # the IMU's orientation is absent (REP-145) and not used: not a reason to drop
+    values[40:45, 0] = 1e30  # yaw rate (rad/s)
+    warnings: list[str] = []
+    signal_in = Signal(t, values, ROLE_FIELDS["imu"])
+    cleaned = clean_signal(signal_in, where="bag: topic 'imu/data'", role="imu", dt=0.5, t_ref_ns=0, warn=warnings.append)
+    assert len(cleaned) == 95 and np.abs(cleaned.values[:, 0]).max() == 0.0
+    assert warnings == ["bag: topic 'imu/data': dropped 5 of 100 samples with implausible values (yaw_rate: 5, e.g. "
+                        "1e+30 outside [-3, 3]): corrupt samples, or wrong units in the config?"]
+
+
+@pytest.mark.parametrize(("role", "field"), [("imu", "yaw_rate"), ("engine_rpm", "rpm"), ("velocity", "u")])
+def test_diagnose_on_huge_values(short_bags, tmp_path, capsys, role, field) -> None:
+    """Was: RuntimeError: index -9223372036854775808 is out of bounds (the actuator delay fitted to NaN)."""
+    bags = tmp_path / "huge"
+    for bag in sorted(short_bags.iterdir()):
+        streams, custom = bag_streams(bag)
+        for spec, sig in streams:
+            if spec.role == role:
+                sig.values[len(sig) // 3: len(sig) // 3 + 5, sig.fields.index(field)] = 1e30
+        write_variant(bags / bag.name, streams, custom)
+    code, err = replay(capsys, "diagnose", bags, "--hypotheses", "actuator_delay", "--no-gain")
+    assert_one_line(code, err, "diagnose", allowed=(0,))
+    assert "dropped 5 of" in err and f"{field}: 5, e.g. 1e+30" in err
+
+
+OPTION_CASES = [
+    ("evaluate", "--horizons", "nan"), ("evaluate", "--horizons", "inf"), ("evaluate", "--stride", "nan"),
+    ("evaluate", "--stride", "inf"), ("evaluate", "--dt", "nan"), ("report", "--horizons", "nan"),
+    ("report", "--stride", "inf"), ("dataset", "--horizon", "0"), ("dataset", "--horizon", "nan"),
+    ("dataset", "--horizon", "inf"), ("diagnose", "--horizon", "0"), ("diagnose", "--horizon", "nan"),
+    ("diagnose", "--stride", "inf"), ("simulate", "--seed", "-1"), ("train", "--lr", "nan"),
+    ("identify", "--dt", "inf"), ("diagnose", "--hypotheses", "bogus"),
+]
+REQUIRED = {"dataset": [str(ZIGZAG), "--output", "x.npz"], "train": ["ds.npz", "--output", "m.pt"],
+            "identify": [str(ZIGZAG), "--vessel", "jari_usv", "--output", "m.pt"], "diagnose": [str(ZIGZAG)],
+            "report": ["--output", "r"], "evaluate": [str(ZIGZAG)], "simulate": ["--output", "s"]}
+
+
+@pytest.mark.parametrize(("command", "option", "value"), OPTION_CASES)
+def test_numbers_that_are_not_numbers_are_usage_errors(tmp_path, capsys, monkeypatch, command, option, value) -> None:
+    monkeypatch.chdir(tmp_path)
+    code, err = replay(capsys, command, *REQUIRED[command], option, value)
+    assert_one_line(code, err, command, allowed=(2,))
+    assert f"argument {option}" in err and value in err
+    assert list(tmp_path.iterdir()) == []  # refused before any work
+
+
+def test_every_numeric_option_is_parsed_by_a_checked_type() -> None:
+    """No bare float/int: each numeric option refuses nan, inf and out-of-range values at parse time."""
+    parser = cli.build_parser([])
+    subparsers = next(a for a in parser._actions if a.choices and isinstance(a.choices, dict))
+    bare = [(name, action.dest) for name, sub in subparsers.choices.items() for action in sub._actions
+            if action.type in (float, int)]
+    assert bare == []
+    checked = [action.type for sub in subparsers.choices.values() for action in sub._actions
+               if action.type in NUMBER_TYPES]
+    assert len(checked) >= 40
+
+
+@pytest.mark.parametrize("command", ["identify", "diagnose"])
+def test_an_unwritable_report_directory_is_refused_before_any_work(tmp_path, capsys, command) -> None:
+    """Was: a PermissionError traceback after the work. Here the directory lies below a regular file (root may
+    write anywhere else; os.access cannot tell, so the tool tries to make a file there)."""
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    args = [ZIGZAG, "--vessel", "jari_usv", "--output", tmp_path / "m.pt"] if command == "identify" else [ZIGZAG]
+    code, err = replay(capsys, command, *args, "--report", blocker / "report")
+    assert_one_line(code, err, command, allowed=(2,))
+    assert f"cannot write --report {blocker / 'report'}: {blocker} is not a directory" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_info_on_metadata_that_is_not_utf8(tmp_path, capsys) -> None:
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    for f in ZIGZAG.iterdir():
+        (bag / f.name).write_bytes(f.read_bytes())
+    (bag / "metadata.yaml").write_bytes((ZIGZAG / "metadata.yaml").read_bytes() + b"\n# \xff\xfe \x80\n")
+    code, err = replay(capsys, "info", bag)
+    assert_one_line(code, err, "info", allowed=(2,))
+    assert f"{bag}: cannot read bag (UnicodeDecodeError" in err
+
+
+@pytest.fixture(scope="module")
+def evaluation_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("eval")
+    assert cli.main(["evaluate", str(ZIGZAG), str(TURN), "--output", str(out)]) == 0
+    return out / "evaluation.json"
+
+
+def _set(data: dict, path: tuple, value: object) -> None:
+    for key in path[:-1]:
+        data = data[key]
+    data[path[-1]] = value
+
+
+@pytest.mark.parametrize(("path", "value", "message"), [
+    (("summary",), None, "field summary is null, expected an object"),
+    (("recordings", 0), None, "field recordings[0] is null, expected an object"),
+    (("recordings", 1, "turning", "measured"), None, "field recordings[1].turning.measured is null"),
+    (("recordings", 1, "closed_loop_rmse"), None, "field recordings[1].closed_loop_rmse is null"),
+    (("recordings", 0, "open_loop", "horizons"), None, "field recordings[0].open_loop.horizons is null"),
+    (("model",), None, "field model is null, expected an object"),
+    (("recordings", 0, "notes"), None, "field recordings[0].notes is null, expected a list"),
+    (("open_loop_horizons_s",), "10", "field open_loop_horizons_s is str, expected a list"),
+    (("summary", "mean_rmse_u_mps"), "fast", "field summary.mean_rmse_u_mps is str, expected a finite number"),
+])
+def test_report_on_an_evaluation_file_with_a_null_section(evaluation_file, tmp_path, capsys, path, value,
+                                                         message) -> None:
+    """Was: AttributeError on a null section. Now: one line naming the file and the field."""
+    data = json.loads(evaluation_file.read_text())
+    _set(data, path, value)
+    edited = tmp_path / "evaluation.json"
+    edited.write_text(json.dumps(data))
+    code, err = replay(capsys, "report", edited, "--output", tmp_path / "report")
+    assert_one_line(code, err, "report", allowed=(2,))
+    assert f"{edited}: not an evaluation file of `replay evaluate`: {message}" in err
+    assert not (tmp_path / "report").exists()
+
+
+def test_report_accepts_the_sections_that_may_be_null(evaluation_file, tmp_path, capsys) -> None:
+    data = json.loads(evaluation_file.read_text())
+    data["recordings"][0]["turning"] = data["recordings"][0]["zigzag"] = data["recordings"][0]["open_loop"] = None
+    data.pop("series_file")
+    edited = tmp_path / "evaluation.json"
+    edited.write_text(json.dumps(data))
+    code, err = replay(capsys, "report", edited, "--output", tmp_path / "report")
+    assert_one_line(code, err, "report", allowed=(0,))
+    assert (tmp_path / "report" / "report.md").is_file()
+
+
+def test_an_evaluation_file_with_nan_is_refused(evaluation_file, tmp_path, capsys) -> None:
+    edited = tmp_path / "evaluation.json"
+    edited.write_text(evaluation_file.read_text().replace('"recordings": [', '"x": NaN, "recordings": [', 1))
+    code, err = replay(capsys, "report", edited, "--output", tmp_path / "report")
+    assert_one_line(code, err, "report", allowed=(2,))
+    assert "NaN is not a JSON number" in err
+
+
+def test_evaluate_with_a_model_whose_code_raises(tmp_path, capsys) -> None:
+    model = _failing_model(tmp_path / "raises.pt")
+    code, err = replay(capsys, "evaluate", ZIGZAG, "--model", model)
+    assert_one_line(code, err, "evaluate", allowed=(2,))
+    assert err.strip().splitlines()[-1] == (f"replay evaluate: error: model {model} fails when run: RuntimeError: boom: "
+                                            "this model always fails")
+
+
+# ------------------------------------------------------------------ inputs overwritten
+
+@pytest.mark.parametrize("case", ["dataset_onto_metadata", "evaluate_json_onto_metadata", "train_onto_dataset"])
+def test_an_output_that_is_or_is_inside_an_input_is_refused(one_bag_dataset, tmp_path, capsys, case) -> None:
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    for f in ZIGZAG.iterdir():
+        (bag / f.name).write_bytes(f.read_bytes())
+    dataset = tmp_path / "ds.npz"
+    dataset.write_bytes(one_bag_dataset.read_bytes())
+    argv, expected = {
+        "dataset_onto_metadata": (["dataset", bag, "--output", bag / "metadata.yaml"],
+                                  f"--output {bag / 'metadata.yaml'} is inside the input {bag}"),
+        "evaluate_json_onto_metadata": (["evaluate", bag, "--json", bag / "metadata.yaml"],
+                                        f"--json {bag / 'metadata.yaml'} is inside the input {bag}"),
+        "train_onto_dataset": (["train", dataset, "--output", dataset],
+                               f"--output {dataset} is the input {dataset}: an input is never replaced"),
+    }[case]
+    before = digest([bag, dataset])
+    code, err = replay(capsys, *argv)
+    assert_one_line(code, err, argv[0], allowed=(2,))
+    assert expected in err and "reading" not in err  # before any work
+    assert digest([bag, dataset]) == before
+
+
+def test_check_outputs_rules(tmp_path) -> None:
+    bag = tmp_path / "bags" / "one"
+    bag.mkdir(parents=True)
+    (bag / "metadata.yaml").write_text("x")
+    check_outputs({"--output": tmp_path / "out.npz"}, [bag])  # apart: fine
+    check_outputs({"--output": tmp_path / "bags"}, [bag], directories={"--output"})  # a directory beside: fine
+    with pytest.raises(OutputError, match="would replace the directory holding the input"):
+        check_outputs({"--output": tmp_path / "bags"}, [bag])  # a file where the directory of an input is
+    with pytest.raises(OutputError, match="is inside the input"):
+        check_outputs({"--output": tmp_path / "bags" / "one" / ".." / "one" / "x"}, [bag])  # resolved paths
+    link = tmp_path / "link"
+    link.symlink_to(bag)
+    with pytest.raises(OutputError, match="is the input"):
+        check_outputs({"--output": link}, [bag])
+
+
+# ------------------------------------------------------------------ partial files (a process with a file-size limit)
+
+def _limited(limit_bytes: int) -> None:
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", ["train", "identify", "diagnose_export"])
+def test_a_full_disk_leaves_no_partial_file(one_bag_dataset, short_bags, tmp_path, command) -> None:
+    """Was: SIGABRT inside torch's writer and a `.<name>.<random>.partial` left beside the output. The file-size
+    limit (ulimit -f) stands in for a full disk; the inputs are uncompressed, so reading them writes nothing."""
+    out = tmp_path / "out"
+    out.mkdir()
+    target = out / "model.pt"
+    argv = {"train": ["train", str(one_bag_dataset), "--output", str(target), "--epochs", "2"],
+            "identify": ["identify", str(short_bags), "--vessel", "jari_usv", "--prior", "fix", "--output", str(target)],
+            "diagnose_export": ["diagnose", str(short_bags), "--hypotheses", "current", "--no-gain",
+                                "--export", str(target)]}[command]
+    before = digest([one_bag_dataset, short_bags])
+    done = subprocess.run([sys.executable, "-m", "usv_predictor.replay", *argv], capture_output=True, text=True,
+                          timeout=600, preexec_fn=lambda: _limited(4096), env={**os.environ, "PYTHONPATH": str(REPO)})
+    name = argv[0]
+    assert done.returncode == 2, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines()[-1] == (f"replay {name}: error: cannot write model {target}: "
+                                                    "no space left (File too large)")
+    assert list(out.iterdir()) == [] and leftovers(tmp_path) == []
+    assert digest([one_bag_dataset, short_bags]) == before
+
+
+# ------------------------------------------------------------------ Ctrl-C during a long command
+
+def _interrupt_after(argv: list[str], marker: str, cwd: Path, group: bool = False,
+                     sig: int = signal.SIGINT) -> subprocess.CompletedProcess:
+    """Run `replay ARGV`, send `sig` once `marker` appears on its stderr (to its process group with `group`, as
+    a terminal's Ctrl-C does)."""
+    process = subprocess.Popen([sys.executable, "-m", "usv_predictor.replay", *argv], cwd=cwd, text=True,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=group,
+                               env={**os.environ, "PYTHONPATH": str(REPO)})
+    seen = []
+    assert process.stderr is not None
+    deadline = time.monotonic() + 300
+    for line in process.stderr:
+        seen.append(line)
+        if marker in line:
+            break
+        assert time.monotonic() < deadline
+    if group:
+        os.killpg(process.pid, sig)
+    else:
+        process.send_signal(sig)
+    out, err = process.communicate(timeout=300)
+    return subprocess.CompletedProcess(process.args, process.returncode, out, "".join(seen) + err)
+
+
+INTERRUPTED = {
+    "train": (["train", "{dataset}", "--output", "out/m.pt", "--epochs", "100000", "--patience", "0",
+               "--progress-s", "0"], "epoch 3/"),
+    "simulate": (["simulate", "--programme", "training", "--output", "out/bags"], "[1/4]"),
+    "dataset": (["dataset", str(BAGS), "--include-calm", "--jobs", "2", "--output", "out/ds.npz"], "[1/20]"),
+    "evaluate": (["evaluate", "--output", "out/eval"], "[1/6]"),
+    "report": (["report", "--output", "out/report"], "[1/6]"),
+    "identify": (["identify", str(BAGS / "training"), "--vessel", "jari_usv", "--prior", "fix", "--output",
+                  "out/id.pt", "--report", "out/id"], "smoothing"),
+    "diagnose": (["diagnose", str(BAGS / "sea_trial"), "--report", "out/diagnosis", "--export", "out/x.pt"],
+                 "held-out loss"),
+    "convert": (["convert", "{raw}/kvlcc2_hsva_simman2008", "--output", "out/bags"], "[1/"),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", sorted(INTERRUPTED))
+def test_ctrl_c_during_a_long_command(command, one_bag_dataset, tmp_path, request) -> None:
+    """Was: a KeyboardInterrupt traceback. Now: `replay X: interrupted`, exit 130, no output at all."""
+    argv, marker = INTERRUPTED[command]
+    raw = request.getfixturevalue("raw_data_dir") if command == "convert" else None
+    argv = [a.format(dataset=one_bag_dataset, raw=raw) for a in argv]
+    inputs = [Path(a) for a in argv[1:] if Path(a).exists()] or [BAGS]
+    before = digest(inputs)
+    done = _interrupt_after(argv, marker, tmp_path, group=command == "dataset")
+    assert done.returncode == cli.EXIT_INTERRUPTED, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines()[-1] == f"replay {command}: interrupted"
+    written = [p for p in (tmp_path / "out").rglob("*") if p.is_file()] if (tmp_path / "out").exists() else []
+    assert leftovers(tmp_path) == []
+    if command in ("train", "dataset", "evaluate", "report", "identify", "diagnose"):
+        assert written == []  # interrupted before the outputs: nothing (every writer is atomic and writes last)
+    assert digest(inputs) == before
+
+
+@pytest.mark.slow
+def test_sigterm_during_a_long_command(one_bag_dataset, tmp_path) -> None:
+    """SIGTERM (a service manager, a CI timeout) unwinds like Ctrl-C: `terminated`, exit 143, nothing written."""
+    argv, marker = INTERRUPTED["train"]
+    done = _interrupt_after([a.format(dataset=one_bag_dataset) for a in argv], marker, tmp_path, sig=signal.SIGTERM)
+    assert done.returncode == cli.EXIT_TERMINATED == 143, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr and done.stderr.strip().splitlines()[-1] == "replay train: terminated"
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*"))
+    assert leftovers(tmp_path) == []
