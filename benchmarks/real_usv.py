@@ -1,4 +1,4 @@
-"""The two real USV records, every figure of README_real_usv_section.md: identify, predict, compare, diagnose.
+"""The two real USV records: identify, predict, compare, diagnose (every figure of the README section on them).
 
 Dalian twin-thruster USV (../shared/data/raw/usv_2345vor_dalian, closed-loop path following, ~4 and ~3 minutes):
   `replay convert` both runs; for each direction (identify on the circle, predict the sine; and the reverse)
@@ -225,7 +225,7 @@ class NomotoPredictor:
             r_next = target + (r - target) * decay  # exact over the step, rudder held
             psi_next = psi + target * self.dt + (r - target) * self.t * (1.0 - decay)
             mid = 0.5 * (psi + psi_next)
-            x, y = x + speed * math.cos(0.0) * np.cos(mid) * self.dt, y + speed * np.sin(mid) * self.dt
+            x, y = x + speed * np.cos(mid) * self.dt, y + speed * np.sin(mid) * self.dt  # midpoint rule
             r, psi = r_next, psi_next
             out[0, :, k] = np.column_stack([speed, np.zeros(batch), r, x, y, psi])
         return out
@@ -275,7 +275,7 @@ def fuzhou(bags: Path, work: Path) -> dict:
     from usv_predictor.physics.dynamics import ManoeuvringModel
     from usv_predictor.physics.manoeuvres import TurningCircle
     from usv_predictor.physics.simulator import simulate
-    from usv_predictor.physics.vessel import Hull, load_vessel
+    from usv_predictor.physics.vessel import load_vessel
     from usv_predictor.replay.recordings import slice_recording
 
     vessel = load_vessel(FUZHOU_VESSEL)
@@ -360,7 +360,6 @@ def fuzhou(bags: Path, work: Path) -> dict:
         f"m ({radii['port']['p2_5_m']:.2f}-{radii['port']['p97_5_m']:.2f}); MMG identified "
         f"{out['turning_circle_22deg_mmg']['identified_radius_m']:.2f} m, vessel file "
         f"{out['turning_circle_22deg_mmg']['vessel_file_radius_m']:.2f} m")
-    del Hull
     return out
 
 
