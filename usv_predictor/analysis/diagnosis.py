@@ -156,8 +156,17 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
     count = max(int(torch.count_nonzero(seg.weight)), 1)
     r = res(theta)
     if not np.all(np.isfinite(r)):
+        set_terms(model, {})
+        if terms and bool(torch.isfinite(residuals(model, seg)).all()):
+            # the calm-water model rolls out, this hypothesis's start does not: a diverged fit (infinite loss), which
+            # ranks last and is never named (diagnose); not an error of the data
+            values = unpack(theta)
+            set_terms(model, values)
+            return Fit(hypothesis, values, math.inf, {name: (math.inf,) * len(v) for name, v in values.items()}, 0,
+                       time.perf_counter() - started)
         raise DiagnosisError(f"hypothesis {hypothesis}: the calm-water model's residuals are not finite on these "
-                             "segments (NaN/inf in the recordings?)")
+                             "segments (NaN/inf in the recordings, or a rollout that diverges at this step: try a "
+                             "smaller --dt)")
     cost = float(r @ r)
     lam, it = 1e-2, 0
     jac = np.zeros((len(r), len(theta)))
