@@ -22,7 +22,8 @@ from typing import Any
 from usv_predictor.replay.options import log, positive_float, positive_int
 
 NAME = "identify"
-HELP = "identify the grey-box hull coefficients from bags (EKF/RTS + inverse-dynamics regression) and export the model"
+HELP = ("identify the grey box of any actuator layout from bags (hull coefficients, thrust-map gains, engine speeds; "
+        "EKF/RTS + inverse-dynamics regression) and export the model")
 INPUTS = ("bags", "vessel")
 OUTPUTS = {"output": "file", "report": "dir"}
 
@@ -30,7 +31,8 @@ OUTPUTS = {"output": "file", "report": "dir"}
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bags", nargs="+", type=Path, metavar="BAG", help="bags or directories of bags to fit")
     parser.add_argument("--vessel", required=True, help="vessel preset name or YAML path (mass, added mass, rudder, "
-                                                        "propeller, thrusters: the prior knowledge)")
+                                                        "propeller, thrusters: the prior knowledge); its actuator "
+                                                        "layout says which control topics the bags must carry")
     parser.add_argument("--structure", choices=("mmg", "abkowitz", "diagonal", "coupled", "auto"), default="auto",
                         help="hull model structure: mmg / abkowitz for the MMG hull, diagonal / coupled for the "
                              "small-craft hull (auto: compare the hull model's by cross-validation, default)")
