@@ -131,8 +131,18 @@ run_demo() {
     say "4. diagnosis of the shipped sea trial: the cause, the extended model and its gain on held-out manoeuvres"
     "$replay" diagnose "$REPO"/bags/sea_trial "$REPO"/bags/training --report "$out/diagnosis" \
         --export "$out/extended.pt" --json "$out/diagnosis.json"
+    say "5. a twin-thruster boat (Otter class): zig-zags in differential thrust both ways with a hidden 8 % weaker" \
+        "starboard thruster, diagnosed against a current (a few seconds)"
+    for side in starboard port; do
+        "$replay" simulate --vessel otter --manoeuvre zigzag --differential 0.4 --check 20 --throttle 0.6 \
+            --duration 60 --side "$side" --heading 30 --effect thruster_imbalance --thruster-imbalance-pct 8 \
+            --seed 11 --blind --output "$out/otter_bags"
+    done
+    "$replay" diagnose --vessel otter "$out/otter_bags" --hypotheses thruster_imbalance current --max-causes 1 \
+        --no-gain --json "$out/otter_diagnosis.json"
     # ============================ end of DEMO section ==============================
-    say "demo done: evaluation report $out/report/report.md, diagnosis $out/diagnosis/report.md, all in $out"
+    say "demo done: evaluation report $out/report/report.md, diagnosis $out/diagnosis/report.md," \
+        "twin-thruster diagnosis $out/otter_diagnosis.json, all in $out"
 }
 
 main() {

@@ -1,11 +1,12 @@
 """Confusion matrix of `diagnose` over random hidden effects (the README's figures).
 
-Each draw: one effect of the vocabulary (or none) with random parameters (usv_predictor.analysis.hidden_effects),
-the `diagnosis` trial programme (turning circles and 20/20 zig-zags both ways) simulated with sensor noise,
-resampled like the replay tool does, and diagnosed. Prints the confusion matrix (rows: truth, columns: named
+Each draw: one effect of the vessel's vocabulary (or none; the effects that apply to its actuator layout) with
+random parameters (usv_predictor.analysis.hidden_effects), the vessel's `diagnosis` trial programme (turning circles
+and zig-zags both ways, in its layout's units) simulated with sensor noise, resampled like the replay tool does at
+the model step that suits the vessel (analysis.diagnosis_steps), and diagnosed with its segment horizon and stride. Prints the confusion matrix (rows: truth, columns: named
 cause; `?` marks answers that name the truth only as confounded), the parameter errors per effect, how many
 draws met the acceptance tolerances, and the time per diagnosis. Deterministic for --seed.
-Run: .venv/bin/python benchmarks/bench_diagnosis.py --draws 100 [--jobs 2] [--json out.json]
+Run: .venv/bin/python benchmarks/bench_diagnosis.py --draws 100 [--vessel otter] [--jobs 2] [--json out.json]
 """
 from __future__ import annotations
 
@@ -17,14 +18,15 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 
-def one_draw(index: int, seed: int) -> dict:
+def one_draw(index: int, seed: int, vessel_name: str = "jari_usv") -> dict:
     import torch
 
     from usv_predictor.analysis.diagnosis import diagnose
-    from usv_predictor.analysis.hidden_effects import EFFECTS, draw, within_tolerance
+    from usv_predictor.analysis.diagnosis_steps import diagnosis_steps
+    from usv_predictor.analysis.hidden_effects import draw, effect_names, within_tolerance
     from usv_predictor.data.recording import recording_from_signals
     from usv_predictor.physics.dynamics import ManoeuvringModel
-    from usv_predictor.physics.manoeuvres import diagnosis_runs
+    from usv_predictor.physics.manoeuvres import programme
     from usv_predictor.physics.scenario import make_scenario
     from usv_predictor.physics.sensors import measure
     from usv_predictor.physics.simulator import simulate
@@ -32,19 +34,22 @@ def one_draw(index: int, seed: int) -> dict:
 
     torch.set_num_threads(1)
     rng = np.random.default_rng([seed, index])
-    truth = draw(rng, EFFECTS[index % len(EFFECTS)])  # balanced over the effects
-    vessel = load_vessel("jari_usv")
+    vessel = load_vessel(vessel_name)
+    layout = vessel.actuator_layout
+    effects = effect_names(layout.name)
+    truth = draw(rng, effects[index % len(effects)], layout.name)  # balanced over the effects
+    steps = diagnosis_steps(vessel)  # jari_usv: 0.5 s, 20 s, 5 s
     model = ManoeuvringModel(vessel)
-    scenario = make_scenario("jari_usv", {truth.effect: truth.parameters} if truth.effect != "none" else {})
+    scenario = make_scenario(vessel_name, {truth.effect: truth.parameters} if truth.effect != "none" else {})
     recordings = []
     heading0 = rng.uniform(0.0, 360.0)
-    for k, manoeuvre in enumerate(diagnosis_runs()):
+    for k, manoeuvre in enumerate(programme("diagnosis", layout)):
         traj = simulate(model, manoeuvre, scenario.environment, heading_deg=heading0 + 37.0 * k,
                         faults=scenario.faults, seed=1000 * index + k)
         signals = measure(traj, scenario.environment, scenario.sensor_spec, scenario.faults, seed=1000 * index + 100 + k)
-        recordings.append(recording_from_signals(signals, 0.5, name=manoeuvre.name))
+        recordings.append(recording_from_signals(signals, steps.dt, name=manoeuvre.name, layout=layout))
     started = time.perf_counter()
-    result = diagnose(recordings, vessel)
+    result = diagnose(recordings, vessel, horizon_s=steps.horizon_s, stride_s=steps.stride_s)
     seconds = time.perf_counter() - started
     ok, errors = within_tolerance(truth, result.parameters) if result.cause == truth.effect else (False, {})
     return {"index": index, "truth": truth.effect, "truth_parameters": truth.parameters, "cause": result.cause,
@@ -57,13 +62,17 @@ def main() -> None:
     parser.add_argument("--draws", type=int, default=100)
     parser.add_argument("--seed", type=int, default=2026)
     parser.add_argument("--jobs", type=int, default=1)
+    parser.add_argument("--vessel", default="jari_usv", help="vessel preset (its layout's effects are drawn)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
-    from usv_predictor.analysis.hidden_effects import EFFECTS
+    from usv_predictor.analysis.hidden_effects import effect_names
+    from usv_predictor.physics.vessel import load_vessel
 
+    EFFECTS = effect_names(load_vessel(args.vessel).layout)
+    started = time.perf_counter()
     with ProcessPoolExecutor(args.jobs) as pool:
         results = []
-        for r in pool.map(one_draw, range(args.draws), [args.seed] * args.draws):
+        for r in pool.map(one_draw, range(args.draws), [args.seed] * args.draws, [args.vessel] * args.draws):
             results.append(r)
             print(f"[{len(results)}/{args.draws}] {r['truth']:15s} -> {r['cause']:15s} "
                   f"{'ok' if r['within_tolerance'] or r['truth'] == r['cause'] == 'none' else '  '} {r['errors']} "
@@ -88,10 +97,13 @@ def main() -> None:
                            f"max {np.max([abs(r['errors'][k]) for r in rows]):.3g}" for k in keys)
         tol = sum(r["within_tolerance"] for r in rows)
         print(f"{effect:15s} {tol}/{len(rows)} within tolerance; {spread}")
-    print(f"time per diagnosis: median {np.median([r['seconds'] for r in results]):.1f} s")
+    print(f"{args.vessel}: {len(results)} draws, time per diagnosis: median "
+          f"{np.median([r['seconds'] for r in results]):.1f} s; whole run {time.perf_counter() - started:.0f} s "
+          f"with {args.jobs} job(s)")
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"results": results, "matrix": matrix.tolist(), "effects": list(EFFECTS)}, f, indent=1)
+            json.dump({"vessel": args.vessel, "results": results, "matrix": matrix.tolist(), "effects": list(EFFECTS)},
+                      f, indent=1)
 
 
 if __name__ == "__main__":

@@ -73,6 +73,36 @@ def non_negative(value: object) -> object:
     raise ValueError("expected a finite number >= 0")
 
 
+def finite_number(value: object) -> object:
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+        return float(value)
+    raise ValueError("expected a finite number")
+
+
+def positive(value: object) -> object:
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0:
+        return float(value)
+    raise ValueError("expected a finite number > 0")
+
+
+def exponent_option(value: object) -> object:
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 < value <= 4.0:
+        return float(value)
+    raise ValueError("expected a number in (0, 4]")
+
+
+def non_negative_integer(value: object) -> object:
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
+        return int(value)
+    raise ValueError("expected an integer >= 0")
+
+
+def boolean(value: object) -> object:
+    if isinstance(value, bool):
+        return value
+    raise ValueError("expected true or false")
+
+
 def non_empty_string(value: object) -> object:
     if isinstance(value, str) and value:
         return value

@@ -21,9 +21,14 @@ import numpy as np
 from msg_adapters import _codec as c
 from msg_adapters.registry import (
     ROLE_FIELDS,
+    boolean,
     choice,
+    exponent_option,
+    finite_number,
     non_empty_string,
     non_negative,
+    non_negative_integer,
+    positive,
     sign_option,
     validate_options,
 )
@@ -375,16 +380,346 @@ class ScalarRpmAdapter(_Base):
         return make(self.ros_type)(data=c.leaf(rpm))
 
 
+# ---------------------------------------------------------------- commands: a throttle, one thruster
+
+# units -> (default neutral, default full_scale) in that unit; None: full_scale has no default (the option is required)
+COMMAND_UNITS: Mapping[str, tuple[float, float | None]] = MappingProxyType({
+    "normalised": (0.0, 1.0),  # (-) the command c itself
+    "percent": (0.0, 100.0),  # (%) of full ahead
+    "pwm": (1500.0, 500.0),  # (us) RC pulse width: 1500 us neutral, 2000 us full ahead, 1000 us full astern
+    "rpm": (0.0, None),  # (rev/min) shaft speed; full_scale = the rpm at full ahead
+    "rad_per_s": (0.0, None),  # (rad/s) shaft speed (what sensor_msgs/JointState velocity holds)
+    "newton": (0.0, None),  # (N) thrust; full_scale = the thrust at full ahead (VRX thrusters)
+})
+_UNIT_WORDS = MappingProxyType({"normalised": "a normalised command", "percent": "a percent", "pwm": "a PWM in us",
+                                "rpm": "a shaft speed in rpm", "rad_per_s": "a shaft speed in rad/s",
+                                "newton": "a thrust in N"})
+COMMAND_LIMIT = 1.2  # (-) a decoded |c| beyond this is no command of the configured scale: refused
+
+
+def _likely_mistake(units: str, raw: float) -> str:
+    """What a raw value far outside the configured scale most likely is (for the refusal)."""
+    size = abs(raw)
+    if units != "pwm" and 800.0 <= size <= 2200.0:
+        return f"a PWM in microseconds configured as {_UNIT_WORDS[units]}?"
+    if units == "pwm" and size <= 100.0 * COMMAND_LIMIT:
+        return "a normalised or percent command configured as pwm (or a wrong neutral)?"
+    if units == "normalised" and size <= 100.0 * COMMAND_LIMIT:
+        return "a percent configured as normalised?"
+    if units in ("rpm", "rad_per_s", "newton"):
+        return f"is full_scale really {_UNIT_WORDS[units]} at full ahead?"
+    return "check the units, neutral and full_scale options"
+
+
 @dataclass(frozen=True)
-class ScalarCommandAdapter(_Base):
-    """std_msgs/Float64|Float32 normalised command c in [-1, 1] (+ ahead): a throttle or one thruster."""
+class CommandScale:
+    """A raw actuator value (PWM, percent, rpm, N, ...) <-> the normalised command c in [-1, 1] (+ ahead).
+
+    decode: d = sign (raw - neutral); r = d / full_scale for d >= 0, d / reverse_full_scale for d < 0 (the astern
+    full scale, e.g. a propeller's lower astern rpm); c = sign(r) |r|^(1/exponent). exponent 1 (default) is a
+    linear command; 2 reads a thrust in N of a propeller whose command is proportional to shaft speed
+    (T ~ n|n|, Fossen 2021 eq. 9.1, the Otter's thrust map). encode inverts it: raw = neutral + sign s sign(c)
+    |c|^exponent with s the full scale of c's direction. With the defaults (normalised) c = raw exactly.
+    """
+
+    units: str
+    neutral: float
+    full_scale: float  # raw units above neutral at full ahead (> 0)
+    reverse_full_scale: float  # raw units below neutral at full astern (> 0)
+    sign: int  # +1, or -1 when the raw value's positive direction is astern
+    exponent: float  # raw ~ |c|^exponent (-)
+
+    def ratio(self, raw: Any) -> np.ndarray:
+        """r: the raw value's distance from neutral as a fraction of the full scale of its direction."""
+        d = self.sign * (np.asarray(raw, dtype=np.float64) - self.neutral)
+        return np.where(d >= 0.0, d / self.full_scale, d / self.reverse_full_scale)
+
+    def to_command(self, raw: Any) -> np.ndarray:
+        r = self.ratio(raw)
+        return r if self.exponent == 1.0 else np.sign(r) * np.abs(r) ** (1.0 / self.exponent)
+
+    def to_raw(self, command: Any) -> np.ndarray:
+        c = np.asarray(command, dtype=np.float64)
+        r = c if self.exponent == 1.0 else np.sign(c) * np.abs(c) ** self.exponent
+        return self.neutral + self.sign * np.where(r >= 0.0, r * self.full_scale, r * self.reverse_full_scale)
+
+    def describe(self) -> str:
+        text = f"units {self.units} neutral {self.neutral:g} full_scale {self.full_scale:g}"
+        if self.reverse_full_scale != self.full_scale:
+            text += f" reverse_full_scale {self.reverse_full_scale:g}"
+        if self.exponent != 1.0:
+            text += f" exponent {self.exponent:g}"
+        return text + (" sign -1" if self.sign == -1 else "")
+
+
+def check_command(role: str, source: str, raw: Any, command: Any, ratio: Any, setting: str, hint: Callable[[float], str],
+                  limit: float = COMMAND_LIMIT) -> None:
+    """AdapterError when a decoded |command| exceeds `limit` (NaN passes): names the role, the field, the setting
+    and the likely mistake (a PWM configured as thrust, ...)."""
+    command = np.asarray(command, dtype=np.float64)
+    bad = np.abs(command) > limit
+    if not bad.any():
+        return
+    k = int(np.flatnonzero(bad.ravel())[0])
+    value = float(np.broadcast_to(np.asarray(raw, dtype=np.float64), command.shape).ravel()[k])
+    size = float(np.broadcast_to(np.asarray(ratio, dtype=np.float64), command.shape).ravel()[k])
+    count = f" ({int(bad.sum())} of {bad.size} samples)" if bad.size > 1 else ""
+    raise AdapterError(f"{role} = {value:g} ({source}) with {setting} is {abs(size):.3g} x full scale, beyond "
+                       f"{limit:g}{count}: {hint(value)}")
+
+
+@dataclass(frozen=True)
+class _CommandBase(_Base):
+    """Options shared by the command adapters (one number per role): units, neutral, full_scale,
+    reverse_full_scale (default full_scale), sign, exponent (see CommandScale); defaults per units in COMMAND_UNITS."""
+
+    units: str = "normalised"
+    neutral: float | None = None
+    full_scale: float | None = None
+    reverse_full_scale: float | None = None
+    sign: int = 1
+    exponent: float = 1.0
+
+    OPTIONS: ClassVar = MappingProxyType({
+        "units": choice(*COMMAND_UNITS), "neutral": finite_number, "full_scale": positive,
+        "reverse_full_scale": positive, "sign": sign_option, "exponent": exponent_option,
+    })
+
+    def __post_init__(self) -> None:
+        neutral, full_scale = COMMAND_UNITS[self.units]
+        if self.full_scale is None and full_scale is None:
+            raise AdapterError(f"adapter {self.role!r} for {self.ros_type}: units {self.units} need the option "
+                               f"full_scale ({_UNIT_WORDS[self.units]} at full ahead)")
+        object.__setattr__(self, "neutral", neutral if self.neutral is None else self.neutral)
+        object.__setattr__(self, "full_scale", full_scale if self.full_scale is None else self.full_scale)
+        if self.reverse_full_scale is None:
+            object.__setattr__(self, "reverse_full_scale", self.full_scale)
+
+    @property
+    def scale(self) -> CommandScale:
+        return CommandScale(self.units, float(self.neutral), float(self.full_scale), float(self.reverse_full_scale),
+                            self.sign, self.exponent)
+
+    @property
+    def source(self) -> str:
+        """The message field the command is read from, for messages."""
+        return "data"
+
+    def command(self, raw: Any) -> np.ndarray:
+        """The checked normalised command of raw values (AdapterError naming the likely mistake)."""
+        scale = self.scale
+        command = scale.to_command(raw)
+        check_command(self.role, self.source, raw, command, scale.ratio(raw), scale.describe(),
+                      lambda value: _likely_mistake(self.units, value))
+        return command
+
+
+@dataclass(frozen=True)
+class ScalarCommandAdapter(_CommandBase):
+    """std_msgs/Float64|Float32 -> a normalised command c in [-1, 1] (+ ahead): a throttle or one thruster.
+
+    The number is in `units` (default normalised: c as it is); VRX thrusters: units newton, full_scale the thrust
+    at full ahead; PWM: units pwm (neutral 1500, full_scale 500 us by default). See CommandScale.
+    """
 
     def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
-        return None, c.values_out(c.field(msg, "data", self.ros_type))
+        return None, c.values_out(self.command(c.field(msg, "data", self.ros_type)))
 
     def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
         (command,) = self._values(values)
-        return make(self.ros_type)(data=c.leaf(command))
+        return make(self.ros_type)(data=c.leaf(self.scale.to_raw(command)))
+
+
+# ---- several roles on one topic (Float64MultiArray, JointState, Wrench carry both thrusters)
+#
+# An adapter of a type that can carry several roles has SHARES_TOPIC = True, a `slot` (what part of the message it
+# reads; adapters on one topic need different slots), `message_options` (options about the whole message that
+# adapters on one topic must agree on) and a classmethod encode_shared(adapters, t_ns, values, make, frame_id)
+# building one message from the values of every role; encode(...) is encode_shared of one adapter (the other slots
+# neutral). msg_adapters.encode_shared checks a group and calls it.
+
+
+def _multiarray_value(msg: Any, index: int, ros_type: str) -> np.ndarray:
+    """data[data_offset + index] of one message ((k,) data) or of a structure of arrays ((N, k) data)."""
+    data = np.asarray(c.field(msg, "data", ros_type), dtype=np.float64)
+    offset = np.asarray(c.field(msg, "layout.data_offset", ros_type), dtype=np.int64)
+    position = offset + index
+    size = data.shape[-1] if data.ndim else 0
+    if data.ndim == 0 or np.any(position >= size):
+        raise AdapterError(f"{ros_type}: data has {size} entries, expected entry {index} (after data_offset "
+                           f"{int(np.max(offset))}); is `index` right?")
+    if data.ndim == 1:
+        return data[int(position)]
+    return np.take_along_axis(data, np.broadcast_to(position, data.shape[:-1])[..., None], axis=-1)[..., 0]
+
+
+@dataclass(frozen=True)
+class MultiArrayCommandAdapter(_CommandBase):
+    """std_msgs/Float64MultiArray|Float32MultiArray entry `index` (required option; after layout.data_offset) -> a
+    normalised command, with the CommandScale options (e.g. left/right PWM in one message: index 0 and 1, units pwm).
+    Two roles may share the topic (different indices). encode writes an empty layout.dim, data_offset 0, and 0 in
+    the entries no role writes."""
+
+    index: int = 0
+
+    OPTIONS: ClassVar = MappingProxyType({**_CommandBase.OPTIONS, "index": non_negative_integer})
+    REQUIRED: ClassVar = ("index",)
+    SHARES_TOPIC: ClassVar[bool] = True
+
+    @property
+    def source(self) -> str:
+        return f"data[{self.index}]"
+
+    @property
+    def slot(self) -> object:
+        return self.index
+
+    @property
+    def message_options(self) -> tuple:
+        return ()
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        return None, c.values_out(self.command(_multiarray_value(msg, self.index, self.ros_type)))
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        return self.encode_shared((self,), t_ns, (values,), make, frame_id)
+
+    @classmethod
+    def encode_shared(cls, adapters: Sequence[MultiArrayCommandAdapter], t_ns: Any, values: Sequence[Sequence[Any]],
+                      make: c.MakeFn, frame_id: str = "") -> Any:
+        raws = [a.scale.to_raw(a._values(v)[0]) for a, v in zip(adapters, values)]
+        shape = np.broadcast_shapes(*(r.shape for r in raws))
+        data = np.zeros((*shape, max(a.index for a in adapters) + 1))  # (..., k)
+        for adapter, raw in zip(adapters, raws):
+            data[..., adapter.index] = raw
+        if "Float32" in adapters[0].ros_type:
+            data = data.astype(np.float32)  # rclpy's array('f') takes float32 only
+        layout = make("std_msgs/msg/MultiArrayLayout")(dim=[], data_offset=0)
+        return make(adapters[0].ros_type)(layout=layout, data=data)
+
+
+JOINT_FIELDS = ("position", "velocity", "effort")
+
+
+@dataclass(frozen=True)
+class JointStateCommandAdapter(_CommandBase):
+    """sensor_msgs/JointState `field` (position | velocity | effort, default velocity) of joint `joint` (required)
+    -> a normalised command, with the CommandScale options. The number is taken in `units` as it is: a driver that
+    follows ROS and publishes the propeller's velocity in rad/s needs units rad_per_s (full_scale in rad/s), one
+    that publishes rpm there units rpm. Two roles may share the topic (different joints or fields). Decode handles
+    one message at a time (not vectorisable). encode writes the joints of its roles and 0 in the fields no role
+    of a joint reads (empty fields no role reads)."""
+
+    joint: str = ""
+    field: str = "velocity"
+
+    OPTIONS: ClassVar = MappingProxyType({**_CommandBase.OPTIONS, "joint": non_empty_string,
+                                          "field": choice(*JOINT_FIELDS)})
+    REQUIRED: ClassVar = ("joint",)
+    SHARES_TOPIC: ClassVar[bool] = True
+
+    @property
+    def source(self) -> str:
+        return f"{self.field} of joint {self.joint!r}"
+
+    @property
+    def slot(self) -> object:
+        return (self.joint, self.field)
+
+    @property
+    def message_options(self) -> tuple:
+        return ()
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        raw = _joint_value(msg, self.joint, self.ros_type, self.field)
+        return c.stamp_ns(msg, self.ros_type), c.values_out(self.command(raw))
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        return self.encode_shared((self,), t_ns, (values,), make, frame_id)
+
+    @classmethod
+    def encode_shared(cls, adapters: Sequence[JointStateCommandAdapter], t_ns: Any, values: Sequence[Sequence[Any]],
+                      make: c.MakeFn, frame_id: str = "") -> Any:
+        raws = [a.scale.to_raw(a._values(v)[0]) for a, v in zip(adapters, values)]
+        shape = np.broadcast_shapes(np.shape(t_ns), *(r.shape for r in raws))
+        joints = list(dict.fromkeys(a.joint for a in adapters))
+        columns = {name: np.zeros((*shape, len(joints))) if any(a.field == name for a in adapters) else np.zeros(0)
+                   for name in JOINT_FIELDS}  # (..., joints) or empty
+        for adapter, raw in zip(adapters, raws):
+            columns[adapter.field][..., joints.index(adapter.joint)] = raw
+        return make(adapters[0].ros_type)(header=c.header(make, t_ns, frame_id), name=joints, **columns)
+
+
+@dataclass(frozen=True)
+class WrenchCommandAdapter(_Base):
+    """geometry_msgs/Wrench|WrenchStamped as a normalised surge/yaw command (Otter drivers) -> one thruster.
+
+    Mixing (Fossen 2021 ch. 11, two fixed thrusters): s = force.x / surge_full_scale (+ ahead) and the yaw command
+    y = -sign torque.z / yaw_full_scale, + turning to starboard (FRD; torque.z of the message is FLU, + turning to
+    port; sign -1 for a driver whose positive torque.z turns to starboard). Then
+        port = s + y,  starboard = s - y
+    (more port thrust turns to starboard). encode inverts it: s = (port + starboard) / 2, y = (port - starboard) / 2;
+    one role alone encodes the other side at 0. |s|, |y| and, unless saturate, the mixed command beyond 1.2 are
+    refused; saturate: true clips the mixed command to [-1, 1] as drivers do (surge 1 with yaw 0.3 is full port).
+    Both roles on one topic must have the same options.
+    """
+
+    surge_full_scale: float = 1.0  # force.x at full ahead (the message's unit: normalised, or N)
+    yaw_full_scale: float = 1.0  # |torque.z| of a full differential (normalised, or N m)
+    sign: int = 1
+    saturate: bool = False
+
+    OPTIONS: ClassVar = MappingProxyType({"surge_full_scale": positive, "yaw_full_scale": positive,
+                                          "sign": sign_option, "saturate": boolean})
+    SIDE: ClassVar = MappingProxyType({"thruster_port": 1.0, "thruster_starboard": -1.0})  # c = s + side * y
+    SHARES_TOPIC: ClassVar[bool] = True
+
+    @property
+    def slot(self) -> object:
+        return self.role
+
+    @property
+    def message_options(self) -> tuple:
+        return (self.surge_full_scale, self.yaw_full_scale, self.sign, self.saturate)
+
+    def _wrench(self, msg: Any) -> Any:
+        return c.field(msg, "wrench", self.ros_type) if self.ros_type.endswith("Stamped") else msg
+
+    def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
+        wrench = self._wrench(msg)
+        force_x = np.asarray(c.field(wrench, "force.x", self.ros_type), dtype=np.float64)
+        torque_z = np.asarray(c.field(wrench, "torque.z", self.ros_type), dtype=np.float64)
+        surge = force_x / self.surge_full_scale
+        yaw = -self.sign * torque_z / self.yaw_full_scale
+        setting = f"surge_full_scale {self.surge_full_scale:g} yaw_full_scale {self.yaw_full_scale:g}"
+        hint = lambda value: "is the full scale the message's value at full command (N or N m for a wrench in SI)?"  # noqa: E731
+        check_command(self.role, "force.x, the surge", force_x, surge, surge, setting, hint)
+        check_command(self.role, "torque.z, the yaw", torque_z, yaw, yaw, setting, hint)
+        command = surge + self.SIDE[self.role] * yaw
+        if self.saturate:
+            command = np.clip(command, -1.0, 1.0)
+        else:
+            check_command(self.role, "force.x and torque.z mixed", command, command, command, setting,
+                          lambda value: "a surge plus yaw beyond full: set saturate: true if the driver clips")
+        stamp = c.stamp_ns(msg, self.ros_type) if self.ros_type.endswith("Stamped") else None
+        return stamp, c.values_out(command)
+
+    def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
+        return self.encode_shared((self,), t_ns, (values,), make, frame_id)
+
+    @classmethod
+    def encode_shared(cls, adapters: Sequence[WrenchCommandAdapter], t_ns: Any, values: Sequence[Sequence[Any]],
+                      make: c.MakeFn, frame_id: str = "") -> Any:
+        side = {a.role: a._values(v)[0] for a, v in zip(adapters, values)}
+        port, starboard = side.get("thruster_port", 0.0), side.get("thruster_starboard", 0.0)
+        first = adapters[0]
+        surge = 0.5 * (port + starboard) * first.surge_full_scale
+        torque_z = -first.sign * 0.5 * (port - starboard) * first.yaw_full_scale
+        wrench = make("geometry_msgs/msg/Wrench")(force=c.vector3(make, surge, 0.0, 0.0),
+                                                   torque=c.vector3(make, 0.0, 0.0, torque_z))
+        if not first.ros_type.endswith("Stamped"):
+            return wrench
+        return make(first.ros_type)(header=c.header(make, t_ns, frame_id), wrench=wrench)
 
 
 def _joint_index(msg: Any, joint: str, ros_type: str) -> int:
@@ -524,10 +859,23 @@ ADAPTER_CLASSES: Mapping[tuple[str, str], type[_Base]] = MappingProxyType(
         ("engine_rpm", "sensor_msgs/msg/JointState"): JointStateRpmAdapter,
         ("throttle", "std_msgs/msg/Float64"): ScalarCommandAdapter,
         ("throttle", "std_msgs/msg/Float32"): ScalarCommandAdapter,
+        ("throttle", "std_msgs/msg/Float64MultiArray"): MultiArrayCommandAdapter,
+        ("throttle", "std_msgs/msg/Float32MultiArray"): MultiArrayCommandAdapter,
+        ("throttle", "sensor_msgs/msg/JointState"): JointStateCommandAdapter,
         ("thruster_port", "std_msgs/msg/Float64"): ScalarCommandAdapter,
         ("thruster_port", "std_msgs/msg/Float32"): ScalarCommandAdapter,
+        ("thruster_port", "std_msgs/msg/Float64MultiArray"): MultiArrayCommandAdapter,
+        ("thruster_port", "std_msgs/msg/Float32MultiArray"): MultiArrayCommandAdapter,
+        ("thruster_port", "sensor_msgs/msg/JointState"): JointStateCommandAdapter,
+        ("thruster_port", "geometry_msgs/msg/Wrench"): WrenchCommandAdapter,
+        ("thruster_port", "geometry_msgs/msg/WrenchStamped"): WrenchCommandAdapter,
         ("thruster_starboard", "std_msgs/msg/Float64"): ScalarCommandAdapter,
         ("thruster_starboard", "std_msgs/msg/Float32"): ScalarCommandAdapter,
+        ("thruster_starboard", "std_msgs/msg/Float64MultiArray"): MultiArrayCommandAdapter,
+        ("thruster_starboard", "std_msgs/msg/Float32MultiArray"): MultiArrayCommandAdapter,
+        ("thruster_starboard", "sensor_msgs/msg/JointState"): JointStateCommandAdapter,
+        ("thruster_starboard", "geometry_msgs/msg/Wrench"): WrenchCommandAdapter,
+        ("thruster_starboard", "geometry_msgs/msg/WrenchStamped"): WrenchCommandAdapter,
         ("gnss", "sensor_msgs/msg/NavSatFix"): NavSatFixAdapter,
         ("odometry", "nav_msgs/msg/Odometry"): OdometryAdapter,
     }

@@ -23,7 +23,13 @@ from usv_predictor.frames import quaternion_to_yaw
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 FACTORIES = {"rosbags": rosbags_factory(TYPESTORE), "rclpy": rclpy_factory()}
-OPTIONS = {"sensor_msgs/msg/JointState": {"joint": "rudder_joint"}}
+OPTIONS = {
+    "sensor_msgs/msg/JointState": {"joint": "rudder_joint"},
+    "std_msgs/msg/Float64MultiArray": {"index": 1},
+    "std_msgs/msg/Float32MultiArray": {"index": 1},
+}
+HEADERLESS = {"geometry_msgs/msg/Wrench"}  # and every std_msgs type
+COMMAND_ROLES = ("throttle", "thruster_port", "thruster_starboard")
 T_NS = 1_700_000_123_456_789_012
 
 # One plausible sample per role (SI, marine frames); heading 2.5 rad is deliberately not pi/2.
@@ -46,7 +52,7 @@ def adapter_for(role: str, ros_type: str, **extra):
 
 
 def tolerance(ros_type: str) -> float:
-    return 1e-5 if ros_type.endswith("Float32") else 1e-12
+    return 1e-5 if "Float32" in ros_type else 1e-12
 
 
 def stack(messages: list) -> SimpleNamespace | np.ndarray | str | list:
@@ -70,7 +76,7 @@ def test_round_trip_every_adapter(role: str, ros_type: str, factory: str) -> Non
     assert adapter.fields == ROLE_FIELDS[role]
     msg = adapter.encode(T_NS, SAMPLES[role], FACTORIES[factory], "frame")
     stamp, values = adapter.decode(msg)
-    assert stamp == (None if ros_type.startswith("std_msgs") else T_NS)
+    assert stamp == (None if ros_type in HEADERLESS or ros_type.startswith("std_msgs") else T_NS)
     np.testing.assert_allclose(values, SAMPLES[role], rtol=tolerance(ros_type), atol=tolerance(ros_type))
     if factory == "rosbags":  # the typestore can serialise what encode built
         assert len(TYPESTORE.serialize_cdr(msg, ros_type)) > 4
@@ -258,6 +264,8 @@ def _random_rows(role: str, n: int, rng: np.random.Generator) -> np.ndarray:
     rows = np.asarray(SAMPLES[role]) + rng.normal(scale=0.3, size=(n, len(SAMPLES[role])))
     if role in ("imu", "gnss"):
         rows[1, -1] = np.nan  # one message without orientation / altitude (-> no fix)
+    if role in COMMAND_ROLES:
+        rows = np.clip(rows, -1.0, 1.0)  # commands beyond +-1.2 are refused (test_command_refusals)
     return rows
 
 
@@ -372,3 +380,192 @@ def test_factories_report_unknown_types() -> None:
 def test_registry_covers_every_role() -> None:
     assert {role for role, _ in registered()} == set(ROLE_FIELDS)
     assert msg_adapters.registered() == registered()
+
+
+# ---------------------------------------------------------------- commands: units, options, sharing, refusals
+
+
+@pytest.mark.parametrize(
+    ("options", "raw", "command"),
+    [
+        ({}, 0.4, 0.4),  # normalised: as it is
+        ({"sign": -1}, 0.4, -0.4),  # the driver's positive is astern
+        ({"units": "pwm"}, 1750.0, 0.5),  # 1500 us neutral, 500 us full scale
+        ({"units": "pwm"}, 1000.0, -1.0),
+        ({"units": "pwm", "neutral": 1520.0, "full_scale": 380.0, "reverse_full_scale": 420.0}, 1100.0, -1.0),
+        ({"units": "pwm", "sign": -1}, 1250.0, 0.5),  # reversed servo
+        ({"units": "percent"}, -25.0, -0.25),
+        ({"units": "rpm", "full_scale": 1800.0, "reverse_full_scale": 1200.0}, -600.0, -0.5),
+        ({"units": "rad_per_s", "full_scale": 100.0}, 50.0, 0.5),
+        ({"units": "newton", "full_scale": 250.0, "reverse_full_scale": 100.0}, -100.0, -1.0),  # VRX clamps
+        ({"units": "newton", "full_scale": 119.682, "exponent": 2.0}, 119.682 / 4.0, 0.5),  # Otter: T ~ c|c|
+        ({"units": "newton", "full_scale": 119.682, "reverse_full_scale": 66.708, "exponent": 2.0}, -66.708 / 4.0, -0.5),
+    ],
+)
+def test_command_units_by_hand(options: dict, raw: float, command: float) -> None:
+    adapter = get_adapter("thruster_port", "std_msgs/msg/Float64", **options)
+    make = FACTORIES["rclpy"]
+    assert adapter.decode(make("std_msgs/msg/Float64")(data=raw)) == (None, (pytest.approx(command, abs=1e-12),))
+    assert adapter.encode(0, (command,), make).data == pytest.approx(raw, abs=1e-9)  # encode inverts decode
+
+
+def test_command_defaults_keep_the_value_bit_exact() -> None:
+    adapter = get_adapter("throttle", "std_msgs/msg/Float64")
+    values = np.random.default_rng(4).uniform(-1.0, 1.0, 50)
+    _, (decoded,) = adapter.decode(SimpleNamespace(data=values))
+    np.testing.assert_array_equal(decoded, values)
+
+
+@pytest.mark.parametrize(
+    ("role", "ros_type", "options", "raw", "message"),
+    [
+        ("thruster_port", "std_msgs/msg/Float64", {"units": "newton", "full_scale": 120.0}, 1500.0,
+         r"thruster_port = 1500 \(data\) with units newton neutral 0 full_scale 120 is 12\.5 x full scale.*"
+         r"a PWM in microseconds configured as a thrust in N\?"),
+        ("thruster_starboard", "std_msgs/msg/Float32", {}, 1500.0, r"PWM in microseconds configured as a normalised"),
+        ("throttle", "std_msgs/msg/Float64", {}, 60.0, r"throttle = 60 .* a percent configured as normalised\?"),
+        ("throttle", "std_msgs/msg/Float64", {"units": "pwm"}, 0.8, r"normalised or percent command configured as pwm"),
+        ("thruster_port", "std_msgs/msg/Float64", {"units": "rpm", "full_scale": 100.0}, 500.0,
+         r"is full_scale really a shaft speed in rpm at full ahead\?"),
+    ],
+)
+def test_command_refusals_name_the_likely_mistake(role: str, ros_type: str, options: dict, raw: float,
+                                                  message: str) -> None:
+    adapter = get_adapter(role, ros_type, **options)
+    with pytest.raises(AdapterError, match=message):
+        adapter.decode(FACTORIES["rosbags"](ros_type)(data=raw))
+
+
+def test_command_refusal_counts_samples_and_nan_passes() -> None:
+    adapter = get_adapter("thruster_port", "std_msgs/msg/Float64", units="pwm")
+    _, (c,) = adapter.decode(SimpleNamespace(data=np.array([1500.0, np.nan, 2000.0])))
+    assert c[0] == 0.0 and math.isnan(c[1]) and c[2] == 1.0
+    assert adapter.decode(SimpleNamespace(data=2100.0))[1] == (pytest.approx(1.2),)  # at the limit: accepted
+    with pytest.raises(AdapterError, match=r"= 2200 .*\(2 of 4 samples\)"):
+        adapter.decode(SimpleNamespace(data=np.array([1500.0, 2200.0, 800.0, 1600.0])))
+
+
+def test_command_option_errors() -> None:
+    with pytest.raises(AdapterError, match=r"units rpm need the option full_scale \(a shaft speed in rpm at full ahead\)"):
+        get_adapter("throttle", "std_msgs/msg/Float64", units="rpm")
+    with pytest.raises(AdapterError, match=r"units='us'.*'pwm'"):
+        get_adapter("throttle", "std_msgs/msg/Float64", units="us")
+    with pytest.raises(AdapterError, match=r"full_scale=0.*> 0"):
+        get_adapter("throttle", "std_msgs/msg/Float64", units="pwm", full_scale=0)
+    with pytest.raises(AdapterError, match=r"exponent=5.*\(0, 4\]"):
+        get_adapter("throttle", "std_msgs/msg/Float64", exponent=5)
+    with pytest.raises(AdapterError, match=r"\['index'\] required"):
+        get_adapter("thruster_port", "std_msgs/msg/Float64MultiArray")
+    with pytest.raises(AdapterError, match=r"index=-1.*integer >= 0"):
+        get_adapter("thruster_port", "std_msgs/msg/Float64MultiArray", index=-1)
+    with pytest.raises(AdapterError, match=r"field='torque'.*'position', 'velocity', 'effort'"):
+        get_adapter("thruster_port", "sensor_msgs/msg/JointState", joint="left", field="torque")
+    with pytest.raises(AdapterError, match=r"unknown option.*'units'"):
+        get_adapter("thruster_port", "geometry_msgs/msg/Wrench", units="pwm")
+    with pytest.raises(AdapterError, match=r"saturate=1.*true or false"):
+        get_adapter("thruster_port", "geometry_msgs/msg/Wrench", saturate=1)
+
+
+def _pair(ros_type: str, port: dict, starboard: dict) -> list:
+    return [get_adapter("thruster_port", ros_type, **port), get_adapter("thruster_starboard", ros_type, **starboard)]
+
+
+@pytest.mark.parametrize("factory", sorted(FACTORIES))
+def test_multiarray_left_right_pwm_in_one_message(factory: str) -> None:
+    make = FACTORIES[factory]
+    pair = _pair("std_msgs/msg/Float64MultiArray", {"index": 0, "units": "pwm"}, {"index": 1, "units": "pwm"})
+    msg = msg_adapters.encode_shared(pair, T_NS, [(0.5,), (-0.2,)], make)
+    assert list(msg.data) == pytest.approx([1750.0, 1400.0])
+    assert [a.decode(msg) for a in pair] == [(None, (pytest.approx(0.5),)), (None, (pytest.approx(-0.2),))]
+    # data_offset is honoured: index counts after it
+    hand = make("std_msgs/msg/Float64MultiArray")(
+        layout=make("std_msgs/msg/MultiArrayLayout")(dim=[], data_offset=1), data=np.array([7.0, 1600.0, 1300.0]))
+    assert [a.decode(hand)[1][0] for a in pair] == pytest.approx([0.2, -0.4])
+    with pytest.raises(AdapterError, match=r"data has 1 entries, expected entry 1.*`index`"):
+        pair[1].decode(make("std_msgs/msg/Float64MultiArray")(
+            layout=make("std_msgs/msg/MultiArrayLayout")(dim=[], data_offset=0), data=np.array([1500.0])))
+
+
+@pytest.mark.parametrize("factory", sorted(FACTORIES))
+def test_joint_state_thrusters_fields_and_units(factory: str) -> None:
+    make = FACTORIES[factory]
+    ros_type = "sensor_msgs/msg/JointState"
+    pair = _pair(ros_type, {"joint": "left_prop", "units": "rad_per_s", "full_scale": 150.0},
+                 {"joint": "right_prop", "units": "rad_per_s", "full_scale": 150.0, "reverse_full_scale": 100.0})
+    msg = msg_adapters.encode_shared(pair, T_NS, [(0.4,), (-0.5,)], make, "base_link")
+    assert list(msg.name) == ["left_prop", "right_prop"]
+    assert list(msg.velocity) == pytest.approx([60.0, -50.0]) and len(msg.position) == 0 and len(msg.effort) == 0
+    assert [a.decode(msg) for a in pair] == [(T_NS, (pytest.approx(0.4),)), (T_NS, (pytest.approx(-0.5),))]
+    effort = get_adapter("throttle", ros_type, joint="engine", field="effort", units="percent")
+    header = make("std_msgs/msg/Header")(stamp=make("builtin_interfaces/msg/Time")(sec=1, nanosec=0), frame_id="")
+    hand = make(ros_type)(header=header, name=["rudder", "engine"], position=np.zeros(2),
+                          velocity=np.zeros(0), effort=np.array([3.0, 80.0]))
+    assert effort.decode(hand)[1] == (pytest.approx(0.8),)
+
+
+@pytest.mark.parametrize("ros_type", ["geometry_msgs/msg/Wrench", "geometry_msgs/msg/WrenchStamped"])
+def test_wrench_mixing_by_hand(ros_type: str) -> None:
+    make = FACTORIES["rosbags"]
+    wrench = make("geometry_msgs/msg/Wrench")(force=make("geometry_msgs/msg/Vector3")(x=0.5, y=0.0, z=0.0),
+                                              torque=make("geometry_msgs/msg/Vector3")(x=0.0, y=0.0, z=-0.2))
+    msg = wrench if ros_type.endswith("Wrench") else make(ros_type)(
+        header=make("std_msgs/msg/Header")(stamp=make("builtin_interfaces/msg/Time")(sec=2, nanosec=0), frame_id=""),
+        wrench=wrench)
+    # torque.z -0.2 (FLU: clockwise from above) asks to turn to starboard: yaw y = +0.2, port = s + y
+    port, starboard = _pair(ros_type, {}, {})
+    assert port.decode(msg)[1] == (pytest.approx(0.7),) and starboard.decode(msg)[1] == (pytest.approx(0.3),)
+    flipped = _pair(ros_type, {"sign": -1}, {"sign": -1})  # a driver whose torque.z + turns to starboard
+    assert [a.decode(msg)[1][0] for a in flipped] == pytest.approx([0.3, 0.7])
+    scaled = _pair(ros_type, {"surge_full_scale": 200.0, "yaw_full_scale": 50.0},
+                   {"surge_full_scale": 200.0, "yaw_full_scale": 50.0})
+    back = msg_adapters.encode_shared(scaled, T_NS, [(0.9,), (-0.3,)], make)
+    force = (back if ros_type.endswith("Wrench") else back.wrench).force.x
+    assert force == pytest.approx(0.3 * 200.0)  # surge (0.9 - 0.3) / 2 of full scale
+    assert [a.decode(back)[1][0] for a in scaled] == pytest.approx([0.9, -0.3], abs=1e-12)
+
+
+def test_wrench_beyond_full_is_refused_or_saturated() -> None:
+    make = FACTORIES["rclpy"]
+    msg = make("geometry_msgs/msg/Wrench")()
+    msg.force.x, msg.torque.z = 1.0, -0.5  # full ahead and half a turn to starboard: port 1.5
+    with pytest.raises(AdapterError, match=r"thruster_port = 1\.5 \(force\.x and torque\.z mixed\).*saturate: true"):
+        get_adapter("thruster_port", "geometry_msgs/msg/Wrench").decode(msg)
+    assert get_adapter("thruster_port", "geometry_msgs/msg/Wrench", saturate=True).decode(msg)[1] == (1.0,)
+    assert get_adapter("thruster_starboard", "geometry_msgs/msg/Wrench", saturate=True).decode(msg)[1] == (
+        pytest.approx(0.5),)
+    msg.force.x = 120.0  # a wrench in N read with the normalised default scale
+    with pytest.raises(AdapterError, match=r"= 120 \(force\.x, the surge\).*120 x full scale"):
+        get_adapter("thruster_port", "geometry_msgs/msg/Wrench", saturate=True).decode(msg)
+
+
+def test_check_shared_refuses_roles_that_cannot_share_a_topic() -> None:
+    with pytest.raises(AdapterError, match=r"topic 'thrusters': roles \['thruster_port', 'thruster_starboard'\] "
+                                           r"cannot share a std_msgs/msg/Float64 topic"):
+        msg_adapters.check_shared("thrusters", _pair("std_msgs/msg/Float64", {}, {}))
+    with pytest.raises(AdapterError, match=r"read the same part of the message \(0\)"):
+        msg_adapters.check_shared("thrusters", _pair("std_msgs/msg/Float64MultiArray", {"index": 0}, {"index": 0}))
+    with pytest.raises(AdapterError, match=r"different types"):
+        msg_adapters.check_shared("thrusters", [get_adapter("thruster_port", "std_msgs/msg/Float64MultiArray", index=0),
+                                                get_adapter("thruster_starboard", "sensor_msgs/msg/JointState", joint="r")])
+    with pytest.raises(AdapterError, match=r"same message options.*surge_full_scale"):
+        msg_adapters.check_shared("cmd", _pair("geometry_msgs/msg/Wrench", {}, {"yaw_full_scale": 2.0}))
+    msg_adapters.check_shared("cmd", _pair("geometry_msgs/msg/Wrench", {}, {}))  # these can
+    msg_adapters.check_shared("joints", _pair("sensor_msgs/msg/JointState", {"joint": "a"}, {"joint": "b"}))
+
+
+def test_shared_encoding_through_cdr_and_the_bulk_decoder() -> None:
+    """Raw CDR: what encode_shared builds serialises with rosbags and decodes through cdr_fast (the bag path)."""
+    from usv_predictor.replay.cdr_fast import decode_many, has_fast_layout
+
+    ros_type = "geometry_msgs/msg/WrenchStamped"
+    pair = _pair(ros_type, {"yaw_full_scale": 40.0}, {"yaw_full_scale": 40.0})
+    rows = np.random.default_rng(9).uniform(-1.0, 1.0, size=(7, 2))
+    raws = [bytes(TYPESTORE.serialize_cdr(msg_adapters.encode_shared(pair, T_NS + k, [(p,), (s,)],
+                                                                     FACTORIES["rosbags"]), ros_type))
+            for k, (p, s) in enumerate(rows)]
+    assert has_fast_layout(ros_type, TYPESTORE)
+    columns = decode_many(ros_type, raws, TYPESTORE)
+    for k, adapter in enumerate(pair):
+        stamp, (c,) = adapter.decode(columns)
+        np.testing.assert_allclose(c, rows[:, k], atol=1e-12)
+        np.testing.assert_array_equal(stamp, T_NS + np.arange(7))

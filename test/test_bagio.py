@@ -86,7 +86,7 @@ def small_bag(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[tupl
 @pytest.mark.parametrize(("role", "ros_type"), registered())
 def test_bulk_cdr_equals_rosbags_serialize_cdr(role: str, ros_type: str) -> None:
     typestore = bagio.jazzy_typestore()
-    options = JOINT if ros_type.endswith("JointState") else {}
+    options = JOINT if ros_type.endswith("JointState") else {"index": 2} if "MultiArray" in ros_type else {}
     adapter = get_adapter(role, ros_type, **options)
     signal = _signal(role, 10.0, 0.7, np.random.default_rng(1))
     columns = adapter.encode(signal.t_ns, list(signal.values.T), columnar_factory(), "some_frame")
@@ -271,3 +271,60 @@ def test_bulk_read_equals_message_by_message_read(small_bag, monkeypatch: pytest
     for spec in specs:
         np.testing.assert_array_equal(bulk[spec.topic].t_ns, one_by_one[spec.topic].t_ns)
         np.testing.assert_array_equal(bulk[spec.topic].values, one_by_one[spec.topic].values)  # NaN-aware
+
+
+SHARED_TOPICS = {  # both thrusters on one topic: the conventions of issue 10
+    "std_msgs/msg/Float64MultiArray": ({"index": 0, "units": "pwm"}, {"index": 1, "units": "pwm"}),
+    "sensor_msgs/msg/JointState": ({"joint": "left", "units": "rpm", "full_scale": 2000.0},
+                                   {"joint": "right", "units": "rpm", "full_scale": 2000.0}),
+    "geometry_msgs/msg/WrenchStamped": ({"yaw_full_scale": 0.5}, {"yaw_full_scale": 0.5}),
+}
+
+
+def _thruster_streams(ros_type: str, rows: int = 40) -> list[tuple[TopicSpec, Signal]]:
+    rng = np.random.default_rng(11)
+    t_ns = T0 + np.arange(rows, dtype=np.int64) * 100_000_000
+    port, starboard = SHARED_TOPICS[ros_type]
+    commands = rng.uniform(-1.0, 1.0, size=(rows, 2)) * 0.5  # |port - starboard| / 2 stays within the yaw scale
+    return [(TopicSpec("thrusters", "thruster_port", ros_type, port, "base_link"),
+             Signal(t_ns, commands[:, :1], ROLE_FIELDS["thruster_port"])),
+            (TopicSpec("thrusters", "thruster_starboard", ros_type, starboard, "base_link"),
+             Signal(t_ns, commands[:, 1:], ROLE_FIELDS["thruster_starboard"]))]
+
+
+@pytest.mark.parametrize("ros_type", sorted(SHARED_TOPICS))
+def test_two_roles_on_one_topic_round_trip(tmp_path: Path, ros_type: str) -> None:
+    streams = _thruster_streams(ros_type)
+    path = write_bag(tmp_path / "bag", streams)
+    assert [(t["topic"], t["type"], t["count"]) for t in bag_info(path)["topics"]] == [("thrusters", ros_type, 40)]
+    signals = bagio.read_signals(path, [spec for spec, _ in streams])
+    for (_, written), read in zip(streams, signals):
+        np.testing.assert_array_equal(read.t_ns, written.t_ns)
+        np.testing.assert_allclose(read.values, written.values, atol=1e-12)
+    with pytest.raises(BagError, match=r"topic\(s\) \['thrusters'\] carry several roles: read them with read_signals"):
+        read_bag(path, [spec for spec, _ in streams])
+
+
+def test_shared_topic_refusals(tmp_path: Path) -> None:
+    streams = _thruster_streams("std_msgs/msg/Float64MultiArray")
+    (port, a), (starboard, b) = streams
+    late = Signal(b.t_ns + 1, b.values, b.fields)
+    with pytest.raises(BagError, match=r"share the topic but not their sample times"):
+        write_bag(tmp_path / "bag", [(port, a), (starboard, late)])
+    same = TopicSpec("thrusters", "thruster_starboard", port.ros_type, {"index": 0, "units": "pwm"})
+    with pytest.raises(BagError, match=r"'thruster_port' and 'thruster_starboard' read the same part"):
+        write_bag(tmp_path / "bag", [(port, a), (same, b)])
+    path = write_bag(tmp_path / "bag", streams)
+    with pytest.raises(BagError, match=r"bag: topic 'thrusters'.*read the same part"):
+        bagio.read_signals(path, [port, same])
+    assert not (tmp_path / "bag.partial").exists()
+
+
+def test_pwm_outside_the_configured_range_names_bag_topic_and_field(tmp_path: Path) -> None:
+    streams = _thruster_streams("std_msgs/msg/Float64MultiArray")
+    path = write_bag(tmp_path / "bag", streams)
+    wrong = TopicSpec("thrusters", "thruster_starboard", "std_msgs/msg/Float64MultiArray",
+                      {"index": 1, "units": "newton", "full_scale": 120.0})  # a PWM read as thrust in N
+    with pytest.raises(BagError, match=r"bag: topic 'thrusters' \(thruster_starboard\): thruster_starboard = 1[\d.]+ "
+                                       r"\(data\[1\]\) with units newton.*PWM in microseconds configured as a thrust"):
+        bagio.read_signals(path, [wrong])

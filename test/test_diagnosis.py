@@ -4,6 +4,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -17,7 +18,7 @@ from usv_predictor.analysis.diagnosis import (
     physical_parameters,
     scripted_rollout,
 )
-from usv_predictor.data.recording import recording_from_signals
+from usv_predictor.data.recording import Recording, recording_from_signals
 from usv_predictor.physics import effects as fx
 from usv_predictor.physics.dynamics import ManoeuvringModel
 from usv_predictor.physics.environment import Environment
@@ -53,6 +54,21 @@ def test_vectors_become_the_design_vocabulary():
 def test_a_single_manoeuvre_is_refused():
     with pytest.raises(DiagnosisError, match="at least two"):
         check_data(trial(runs=diagnosis_runs()[:1]))
+
+
+def _twin(differential: float, n: int = 40) -> Recording:
+    """A twin-thruster recording turning with a held thrust difference (port - starboard), heading all round."""
+    controls = np.column_stack([np.full(n, 0.5 + differential / 2), np.full(n, 0.5 - differential / 2)])
+    return Recording(name=f"d{differential:g}", source="", t0_ns=0, dt=0.5, t_s=np.arange(n) * 0.5,
+                     nu=np.zeros((n, 3)), psi=np.linspace(-math.pi, math.pi, n, endpoint=False), controls=controls,
+                     position=np.zeros((n, 2)), layout="twin_thrusters")
+
+
+def test_check_data_reads_turn_sides_through_the_layouts_steering_signal():
+    # both twins have a positive first column (the port command): the rudder column would call them one side
+    assert not any("same way" in note for note in check_data([_twin(0.4), _twin(-0.4)]))
+    notes = check_data([_twin(0.4), _twin(0.2)])
+    assert any("all manoeuvres turn the same way" in note and "thruster imbalance" in note for note in notes)
 
 
 def test_current_shows_as_a_steady_track_drift():

@@ -161,6 +161,43 @@ def test_classify_straight_run_and_random_rudder_at_fixed_rpm_are_other():
 # ------------------------------------------------------------------ seed 000 metrics plumbing
 
 
+def _twin_recording(differential: np.ndarray, mean: float) -> Recording:
+    """Controls of a twin-thruster boat: port = mean + d/2, starboard = mean - d/2 (normalised commands)."""
+    n = len(differential)
+    noise = np.random.default_rng(2).normal(0.0, 0.002, n)  # command quantisation and logging noise (-)
+    controls = np.column_stack([mean + 0.5 * differential + noise, mean - 0.5 * differential - noise])
+    return Recording(name="twin", source="", t0_ns=0, dt=DT, t_s=np.arange(n) * DT, nu=np.zeros((n, 3)),
+                     psi=np.zeros(n), controls=controls, position=np.zeros((n, 2)), layout="twin_thrusters")
+
+
+def test_classify_twin_thrusters_reports_the_normalised_differential():
+    held = np.concatenate([np.zeros(20), np.full(180, 0.4)])  # 10 s straight, then port 0.8 / starboard 0.4
+    found = ev.classify(_twin_recording(held, 0.6))
+    assert (found.kind, found.side) == ("turning_circle", "starboard")
+    assert found.turn_command == pytest.approx(0.4, abs=0.01) and found.turn_unit == "-"  # not degrees of 0.4 rad
+    assert found.propulsion == pytest.approx(0.6, abs=0.01) and found.propulsion_unit == "-"
+    assert found.execute_time_s == pytest.approx(10.0, abs=DT)
+    assert math.isnan(found.rudder_deg) and math.isnan(found.rpm)
+    record = found.to_json()
+    assert record["rudder_deg"] is None and record["rpm"] is None  # the rudder keys stay, null: there is no rudder
+    assert (record["turn_command"], record["turn_unit"]) == (pytest.approx(0.4, abs=0.01), "-")
+    assert found.label() == "turning circle, starboard, differential 0.40, throttle 0.60"
+    zigzag = np.concatenate([np.zeros(20), np.repeat(np.tile([-0.3, 0.3], 6), 15)])  # port first
+    found = ev.classify(_twin_recording(zigzag, 0.5))
+    assert (found.kind, found.side, found.turn_unit) == ("zigzag", "port", "-")
+    assert found.turn_command == pytest.approx(0.3, abs=0.01)
+    assert ev.classify(_twin_recording(np.full(200, 0.01), 0.5)).kind == "other"  # below straight_below (0.02)
+
+
+def test_classify_rudder_boat_keeps_degrees_and_rpm():
+    found = ev.classify(_controls_recording(np.concatenate([np.zeros(20), np.full(180, 15.0)]), np.full(200, 650.0)))
+    assert (found.kind, found.turn_unit, found.propulsion_unit) == ("turning_circle", "deg", "rpm")
+    assert found.rudder_deg == pytest.approx(15.0, abs=0.1) and found.rpm == pytest.approx(650.0)
+    record = found.to_json()
+    assert record["rudder_deg"] == pytest.approx(record["turn_command"]) and record["rpm"] == record["propulsion"]
+    assert found.label() == "turning circle, starboard, 15 deg, 650 rpm"
+
+
 def test_turning_metrics_are_exact_for_a_perfect_model(turn):
     result = ev.evaluate_recording(TruthReplay(turn), turn, reference="truth")
     assert result.manoeuvre.kind == "turning_circle"
@@ -180,7 +217,7 @@ def test_a_model_off_by_a_radius_factor_shows_that_relative_error(turn, scale):
     errors = result.turning.errors
     expected_pct = 100.0 * (scale - 1.0)
     for key in ("turning_radius_rel_pct", "steady_turning_radius_rel_pct", "drift_distance_rel_pct",
-                "advance_rel_pct", "tactical_diameter_rel_pct"):
+                "advance_rel_pct", "transfer_rel_pct", "tactical_diameter_rel_pct"):
         assert errors[key] == pytest.approx(expected_pct, abs=1e-3), key
     assert errors["drift_direction_abs_deg"] == pytest.approx(0.0, abs=1e-6)  # same shape, same direction
 
@@ -256,7 +293,7 @@ def test_evaluate_summary_and_json_carry_units(turn, vessel_model):
     rec = data["recordings"][0]
     assert set(rec["turning"]["errors"]) == {"turning_radius_rel_pct", "steady_turning_radius_rel_pct",
                                              "drift_distance_rel_pct", "drift_direction_abs_deg",
-                                             "advance_rel_pct", "tactical_diameter_rel_pct"}
+                                             "advance_rel_pct", "transfer_rel_pct", "tactical_diameter_rel_pct"}
     assert {"position_error_after_10s_m", "position_error_after_30s_m", "position_error_after_60s_m"} <= set(
         rec["open_loop"])
     assert set(rec["closed_loop_rmse"]) >= {"u_mps", "v_mps", "r_deg_s", "psi_deg", "position_m"}

@@ -4,6 +4,11 @@ Each case draws an effect's parameters from a seed this module keeps to itself; 
 --blind, so the only way to the answer is through the data. `replay diagnose` must name the cause, estimate
 the parameters within the stated tolerances (usv_predictor.analysis.hidden_effects.TOLERANCES) and, for a real cause,
 improve the held-out track error. The clean control must come out `none`.
+
+The twin-thruster preset (otter) has its own lean part: one draw of every effect that applies to its layout
+(clean control included), diagnosed at the steps that suit the vessel (analysis.diagnosis_steps: 0.25 s, 10 s
+segments every 2.5 s), with one cause at most (`--max-causes 1`: the primary cause is what is tested) and the gain
+measured on the twin's own effect; the confusion matrix over more draws is benchmarks/bench_diagnosis.py --vessel otter.
 """
 from __future__ import annotations
 
@@ -14,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from usv_predictor.analysis.hidden_effects import EFFECTS, draw, within_tolerance
+from usv_predictor.analysis.hidden_effects import EFFECTS, draw, effect_names, within_tolerance
 from usv_predictor.replay.bagio import read_custom_data
 from usv_predictor.replay.cli import main
 
@@ -25,10 +30,11 @@ def run_cli(*argv: str) -> None:
     assert main(list(argv)) == 0, f"replay {' '.join(argv)} failed"
 
 
-def simulate_trial(tmp_path: Path, flags: list[str], seed: int, programme: str = "diagnosis") -> Path:
+def simulate_trial(tmp_path: Path, flags: list[str], seed: int, programme: str = "diagnosis",
+                   vessel: str = "jari_usv") -> Path:
     bags = tmp_path / "bags"
-    run_cli("simulate", "--programme", programme, *flags, "--blind", "--seed", str(seed), "--heading", str(seed % 360),
-            "--output", str(bags))
+    run_cli("simulate", "--programme", programme, "--vessel", vessel, *flags, "--blind", "--seed", str(seed),
+            "--heading", str(seed % 360), "--output", str(bags))
     for bag in bags.iterdir():  # blind: nothing in the bag says what is in the water
         assert "scenario" not in read_custom_data(bag)
     return bags
@@ -57,6 +63,44 @@ def test_diagnose_finds_the_hidden_effect(tmp_path, effect, draw_index):
     elif draw_index == 0:
         gain = result["gain"]
         assert gain["mean_position_error_after_30s_m"] > 0.05, gain  # the extension predicts held-out tracks better
+        assert result["extended"]["mean_position_error_after_30s_m"] < result["baseline"]["mean_position_error_after_30s_m"]
+
+
+TWIN_VESSEL = "otter"
+TWIN_EFFECTS = effect_names("twin_thrusters")
+# Known limits on the 2 m boat (README, the otter's confusion matrix), both found by this suite on 2026-11-23.
+# Strict: the day these cases pass, the marks must go.
+TWIN_NOT_FOUND = {
+    # the preset's windage and wave-drift coefficients are estimates with similar heading dependence: the 10 m/s
+    # wind of this draw is named wave_drift (0.45 m from 47 deg, evidence 16): confounded, a wrong cause
+    "wind": "wind on the Otter preset is taken for wave drift (similar estimated coefficients)",
+    # a hypothesis' rollout diverges (overflow), its held-out loss is NaN and the strict JSON writer refuses it:
+    # `replay diagnose` exits 2 (the diagnosis' handling of diverged fits must write null or drop it)
+    "wave_drift": "diagnose exits 2: a diverged hypothesis' held-out loss is NaN in the JSON",
+}
+TWIN_CASES = [pytest.param(e, marks=pytest.mark.xfail(reason=TWIN_NOT_FOUND[e], raises=AssertionError,
+                                                           strict=True))
+              if e in TWIN_NOT_FOUND else e for e in TWIN_EFFECTS]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect", TWIN_CASES)
+def test_diagnose_finds_the_hidden_effect_of_a_twin_thruster_boat(tmp_path, effect):
+    rng = np.random.default_rng([_SECRET, 2, TWIN_EFFECTS.index(effect)])  # stream 2: not the jari_usv draws
+    truth = draw(rng, effect, "twin_thrusters")
+    seed = int(rng.integers(0, 2**31))
+    bags = simulate_trial(tmp_path, truth.cli_flags(), seed, vessel=TWIN_VESSEL)
+    measure_gain = effect == "thruster_imbalance"  # the twin's own effect; the others' gain is the jari_usv suite's
+    result = diagnose(tmp_path, bags, "--vessel", TWIN_VESSEL, "--max-causes", "1",
+                      *(() if measure_gain else ("--no-gain",)))
+    assert (result["steps"]["dt_s"], result["steps"]["horizon_s"], result["steps"]["stride_s"]) == (0.25, 10.0, 2.5)
+    assert result["cause"] == effect, (truth, result["message"], result["evidence"][:3])
+    ok, errors = within_tolerance(truth, result["parameters"])
+    assert ok, f"{truth}: errors {errors} beyond the tolerances"
+    if effect == "none":
+        assert result["parameters"] == {} and result["gain"] == {}
+    elif measure_gain:
+        assert result["gain"]["mean_position_error_after_30s_m"] > 0.05, result["gain"]
         assert result["extended"]["mean_position_error_after_30s_m"] < result["baseline"]["mean_position_error_after_30s_m"]
 
 

@@ -208,10 +208,32 @@ def test_turning_radius_one_circle_with_given_axis() -> None:
     circle = Circle(current_n=0.0, current_e=0.0, duration_s=70.0)  # 401 deg
     result = turning_radius(*circle.track(), drift_direction_deg=0.0)
     assert result.per_circle_m == pytest.approx((circle.radius,), abs=circle.chord_error + 1e-6)
-    with pytest.raises(ValueError, match="720 deg of heading change .* 540 deg is needed"):
-        turning_radius(*circle.track())
+    assert result.note == ""
     with pytest.raises(ValueError, match="360 deg"):
         turning_radius(*Circle(duration_s=40.0).track(), drift_direction_deg=0.0)
+    with pytest.raises(ValueError, match="360 deg"):
+        turning_radius(*Circle(duration_s=40.0).track())
+
+
+@pytest.mark.parametrize("duration_s", [70.0, 100.0, 120.0])  # 401, 573, 688 deg
+def test_turning_radius_of_one_to_two_turns_uses_the_first_circle_with_a_note(duration_s: float) -> None:
+    calm = Circle(current_n=0.0, current_e=0.0, duration_s=duration_s)
+    result = turning_radius(*calm.track())  # no axis given, too short for the eq. 27 drift
+    assert len(result.per_circle_m) == 1
+    assert result.radius_m == pytest.approx(calm.radius, abs=calm.chord_error + 1e-6)
+    assert "first full circle" in result.note and "< 720" in result.note
+    drifting = Circle(duration_s=duration_s)  # 0.25 m/s of current: the half-extent is off by <= drift / 2
+    off = turning_radius(*drifting.track()).radius_m - drifting.radius
+    assert abs(off) <= 0.5 * math.hypot(drifting.current_n, drifting.current_e) * drifting.period + 1e-6
+    two = Circle(current_n=0.0, current_e=0.0, duration_s=140.0)  # 802 deg: eq. 27 drift, no note
+    assert turning_radius(*two.track()).note == ""
+
+
+def test_turning_circle_reports_the_imo_transfer() -> None:
+    calm = Circle(current_n=0.0, current_e=0.0, duration_s=70.0)
+    imo = turning_circle_criteria(*calm.track(), 0.0)
+    assert imo.transfer_m == pytest.approx(calm.radius, rel=1e-3)  # a circle from execute: transfer = R at 90 deg
+    assert imo.advance_m == pytest.approx(calm.radius, rel=1e-3)
 
 
 @pytest.mark.parametrize("yaw_rate", [0.1, -0.1])
@@ -505,3 +527,20 @@ def test_open_loop_errors_at_horizons() -> None:
         open_loop_errors(predicted, measured, horizons_s=(10.2,), dt=dt)
     with pytest.raises(ValueError, match="starts, steps, 2"):
         open_loop_errors(predicted[0], measured[0], dt=dt)
+
+
+def test_evaluation_turning_metrics_of_one_and_a_half_turns() -> None:
+    """A measured turning circle of 540 deg: no eq. 27 drift, yet a radius from the first circle (with a note),
+    and the IMO transfer beside advance and tactical diameter."""
+    from usv_predictor.analysis import evaluation
+
+    calm = Circle(current_n=0.0, current_e=0.0, duration_s=100.0)
+    t, x_n, y_e, psi = calm.track()
+    series = np.zeros((len(t), 6))  # (T, 6) u v r x_n y_e psi
+    series[:, evaluation.X_N], series[:, evaluation.Y_E], series[:, evaluation.PSI] = x_n, y_e, psi
+    notes: list[str] = []
+    values = evaluation.turning_metrics(t, series, 0.0, None, notes, "measured")
+    assert values["drift_distance_m"] is None
+    assert values["turning_radius_m"] == pytest.approx(calm.radius, abs=calm.chord_error + 1e-6)
+    assert values["transfer_m"] == pytest.approx(calm.radius, rel=1e-3)
+    assert any("first full circle" in n for n in notes) and any("drift (eq. 27" in n for n in notes)

@@ -282,10 +282,11 @@ def check_data(recordings: Sequence[Recording]) -> list[str]:
             f"{len(recordings)} manoeuvre(s): a diagnosis needs at least two (it fits on one and checks on the "
             "other); add a turning circle each way and a zig-zag")
     notes = []
-    turns = [float(np.sign(np.nanmean(rec.controls[:, 0]))) for rec in recordings]
+    # the turn side through the layout's steering signal: a rudder angle, or the thrust difference port - starboard
+    turns = [float(np.sign(np.nanmean(rec.actuator_layout.steering_signal(rec.controls)))) for rec in recordings]
     if not (any(t > 0 for t in turns) and any(t < 0 for t in turns)):
-        notes.append("all manoeuvres turn the same way: rudder offset and current/wind can be confounded; "
-                     "turn both ways to separate them")
+        notes.append("all manoeuvres turn the same way: a steering offset (rudder offset, thruster imbalance) and "
+                     "current/wind can be confounded; turn both ways to separate them")
     headings = np.concatenate([np.mod(rec.psi, 2 * math.pi) for rec in recordings])
     coverage = len(np.unique(np.floor(headings / (math.pi / 4)))) / 8.0
     if coverage < 0.75:
@@ -398,8 +399,9 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
 
 
 def _folds(recordings: Sequence[Recording]) -> tuple[list[int], list[int]]:
-    """Two folds by manoeuvre, alternating in order of the mean rudder so both folds turn both ways."""
-    order = sorted(range(len(recordings)), key=lambda i: float(np.nanmean(recordings[i].controls[:, 0])))
+    """Two folds by manoeuvre, alternating in order of the mean turn command so both folds turn both ways."""
+    order = sorted(range(len(recordings)),
+                   key=lambda i: float(np.nanmean(recordings[i].actuator_layout.steering_signal(recordings[i].controls))))
     return order[0::2], order[1::2]
 
 
@@ -432,7 +434,7 @@ def discrepancy(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments,
     rate = err[valid]
     drift = rate.mean(axis=0) if len(rate) else np.zeros(2)
     yaw_err = (target[:, :, 2] - predicted[:, :, 2]).mean(axis=1)
-    side = np.sign(seg.controls[:, :, 0].mean(dim=1).numpy())
+    side = np.sign(recordings[0].actuator_layout.steering_signal(seg.controls.numpy()).mean(axis=1))  # (B,)
     psi0 = seg.state[:, 3].numpy()[valid]
     along = rate[:, 0] * np.cos(psi0) + rate[:, 1] * np.sin(psi0)
     cross = -rate[:, 0] * np.sin(psi0) + rate[:, 1] * np.cos(psi0)

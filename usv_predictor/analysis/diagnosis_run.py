@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from usv_predictor.analysis import diagnosis as dg
+from usv_predictor.analysis.diagnosis_steps import DiagnosisSteps
 from usv_predictor.config import load_predictor_config
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import DatasetError, ModelError
@@ -53,8 +54,12 @@ def calm_water_vessel(vessel: str | None, model: Path | None, config: Path | Non
 def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, *, dt: float,
                   hypotheses: Sequence[str] | None = None, max_causes: int = 2, horizon_s: float = 20.0,
                   stride_s: float = 5.0, gain: bool = True, export: Path | None = None, report: Path | None = None,
-                  progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+                  progress: Callable[[str], None] = lambda _: None,
+                  suited_steps: DiagnosisSteps | None = None) -> dict[str, Any]:
     """Diagnose `recordings` (resampled at dt) against the calm-water `vessel` (from `source`).
+
+    suited_steps: the steps that suit the vessel (analysis.diagnosis_steps), recorded in the JSON's `steps` with
+    the ones used (they differ where the caller gave its own).
 
     gain: also evaluate the extended model on held-out manoeuvres (when a cause is named); export: write the
     extended model (TorchScript artifact) there; report: write report.md + plots into that directory.
@@ -83,6 +88,8 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         "calm_water_model": {"vessel": vessel.name, "source": source},
         "recordings": [{"name": r.name, "source": r.source, "duration_s": r.duration_s} for r in recordings],
         "seconds": result.seconds,
+        "steps": {"dt_s": dt, "horizon_s": horizon_s, "stride_s": stride_s,
+                  "suited": None if suited_steps is None else suited_steps.to_json()},
     }
     if result.cause != "none" and gain:
         progress("measuring the gain on held-out manoeuvres")

@@ -17,7 +17,7 @@ Open loop: the same rollout from many start points (every `stride_s`), position 
 
 Manoeuvre metrics on measured vs predicted tracks (metrics.py for the definitions):
     turning circles  turning radius eq. 29 and the steady circle fit, drift distance eq. 27, drift direction
-                     eq. 28 (compass, toward), IMO advance and tactical diameter;
+                     eq. 28 (compass, toward), IMO advance, transfer and tactical diameter;
     zig-zags         first and second overshoot angles (ITTC);
     every recording  RMSE of u, v, r, psi and of the position along the closed-loop rollout.
 Errors follow seed 000 Tables 7-8: relative (%) for lengths, absolute (deg) for angles, always
@@ -39,7 +39,7 @@ from usv_predictor.errors import EvaluationError, ModelError
 from usv_predictor.frames import angle_difference_deg
 from usv_predictor.models import loading
 from usv_predictor.models.loading import check_dt
-from usv_predictor.physics.actuators import DEFAULT_LAYOUT, actuator_layout
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, CommandInput, actuator_layout
 from usv_predictor.records import whole_steps
 
 U, V, R, X_N, Y_E, PSI = range(6)  # columns of predicted and measured series (model output order)
@@ -80,24 +80,56 @@ class Prediction:
 
 @dataclass(frozen=True)
 class ManoeuvreKind:
-    """What the controls say the recording is."""
+    """What the controls say the recording is.
+
+    The held turn command and the propulsion level are in the units the layout states them in (its turn_input and
+    propulsion_input, physics/actuators.py): a rudder angle in deg and an engine speed in rpm for rudder boats, the
+    normalised thrust difference port - starboard and the mean command (-) for twin thrusters. `rudder_deg` and
+    `rpm` (the JSON keys of rudder boats) are NaN / null for a layout without a rudder or without an engine speed.
+    """
 
     kind: str  # "turning_circle" | "zigzag" | "other"
-    side: str  # "starboard" | "port" | "" (first rudder side)
-    rudder_deg: float  # held rudder magnitude (deg); NaN for "other" without rudder
-    rpm: float  # median engine speed (rpm)
-    execute_time_s: float  # first rudder execute (s from the start); NaN without one
+    side: str  # "starboard" | "port" | "" (first side of the turn command)
+    turn_command: float  # held |turn command| in turn_unit; NaN for "other" without a turn
+    propulsion: float  # median propulsion level in propulsion_unit; NaN when the layout reports none
+    execute_time_s: float  # first execute of the turn command (s from the start); NaN without one
+    turn_unit: str = "deg"  # "deg" (a rudder angle) or "-" (a normalised differential)
+    propulsion_unit: str = "rpm"  # "rpm" (engine speed) or "-" (a normalised throttle / mean thruster command)
+    turn_name: str = "rudder"  # what the turn command is, for labels ("rudder", "differential")
+    propulsion_name: str = "rpm"  # what the propulsion level is, for labels ("rpm", "throttle")
+
+    @property
+    def rudder_deg(self) -> float:
+        """Held rudder magnitude (deg); NaN when the turn command is not a rudder angle."""
+        return self.turn_command if self.turn_unit == "deg" else float("nan")
+
+    @property
+    def rpm(self) -> float:
+        """Median engine speed (rpm); NaN when the propulsion level is not an engine speed."""
+        return self.propulsion if self.propulsion_unit == "rpm" else float("nan")
+
+    def _amount(self, value: float, unit: str, name: str) -> str:
+        if not math.isfinite(value):
+            return ""
+        if unit in ("deg", "rpm"):
+            return f"{value:.0f} {unit}"
+        return f"{name} {value:.2f}"
 
     def label(self) -> str:
-        """'turning circle, starboard, 15 deg, 650 rpm' for titles and tables."""
+        """'turning circle, starboard, 15 deg, 650 rpm' (rudder boats) or 'turning circle, starboard, differential
+        0.40, throttle 0.60' (twin thrusters) for titles and tables."""
+        power = self._amount(self.propulsion, self.propulsion_unit, self.propulsion_name)
         if self.kind == "other":
-            return f"other manoeuvre, {self.rpm:.0f} rpm"
-        return f"{self.kind.replace('_', ' ')}, {self.side}, {self.rudder_deg:.0f} deg, {self.rpm:.0f} rpm"
+            return ", ".join(p for p in ("other manoeuvre", power) if p)
+        turn = self._amount(self.turn_command, self.turn_unit, self.turn_name)
+        return ", ".join(p for p in (self.kind.replace("_", " "), self.side, turn, power) if p)
 
     def to_json(self) -> dict:
-        """JSON (null where undefined: no held rudder, no execute)."""
+        """JSON (null where undefined: no held turn, no execute, no rudder or engine speed in the layout)."""
         return {"kind": self.kind, "side": self.side, "rudder_deg": finite_or_none(self.rudder_deg),
-                "rpm": finite_or_none(self.rpm), "execute_time_s": finite_or_none(self.execute_time_s)}
+                "rpm": finite_or_none(self.rpm), "turn_command": finite_or_none(self.turn_command),
+                "turn_unit": self.turn_unit, "propulsion": finite_or_none(self.propulsion),
+                "propulsion_unit": self.propulsion_unit, "execute_time_s": finite_or_none(self.execute_time_s)}
 
 
 @dataclass(frozen=True)
@@ -298,22 +330,38 @@ def _side_states(delta: np.ndarray, threshold: float) -> np.ndarray:
     return np.where(last >= 0, side[np.maximum(last, 0)], 0)
 
 
+def _stated(command: CommandInput | None, fallback_unit: str, fallback_name: str) -> tuple[float, str, str]:
+    """(factor from the layout's steering/propulsion unit to the stated unit, the unit, a name for labels)."""
+    if command is None:
+        return 1.0, fallback_unit, fallback_name
+    return 1.0 / command.to_command, command.unit, command.option.lstrip("-")
+
+
 def classify(recording: Recording) -> ManoeuvreKind:
     """turning circle (one steady turn command), zig-zag (reversals of one amplitude) or other, from the controls.
 
-    delta below is the layout's turn command (the rudder angle of rudder_propeller), rpm its propulsion level.
+    delta below is the layout's turn command (the rudder angle of rudder_propeller, the thrust difference port -
+    starboard of twin thrusters), rpm its propulsion level; both are reported in the units the layout states them
+    in (deg for a rudder angle, the normalised differential as it is).
     """
     layout = recording.actuator_layout
+    turn_factor, turn_unit, turn_name = _stated(layout.turn_input, "-", "turn")
+    power_factor, power_unit, power_name = _stated(layout.propulsion_input, "-", "propulsion")
     delta, rpm = layout.steering_signal(recording.controls), layout.propulsion_signal(recording.controls)
-    rpm_median = float(np.median(rpm))
+    rpm_median = float(np.median(rpm)) * power_factor if layout.propulsion else float("nan")
+
+    def kind_of(kind: str, side: str, turn: float, t_execute: float) -> ManoeuvreKind:
+        return ManoeuvreKind(kind, side, turn * turn_factor, rpm_median, t_execute, turn_unit, power_unit, turn_name,
+                             power_name)
+
     amplitude = float(np.percentile(np.abs(delta), 95.0))
     if amplitude < layout.straight_below:
-        return ManoeuvreKind("other", "", float("nan"), rpm_median, float("nan"))
+        return kind_of("other", "", float("nan"), float("nan"))
     moved = np.flatnonzero(np.abs(delta) >= 0.1 * amplitude)
     execute = int(moved[0])
     after = slice(execute, None)
     spread = np.percentile(rpm[after], 95.0) - np.percentile(rpm[after], 5.0)
-    rpm_steady = spread <= RPM_STEADY_FRACTION * max(abs(rpm_median), 1.0)
+    rpm_steady = spread <= RPM_STEADY_FRACTION * max(abs(float(np.median(rpm))), 1.0)
     states = _side_states(delta, 0.5 * amplitude)
     first_side = int(states[np.flatnonzero(states)[0]])
     side = "starboard" if first_side > 0 else "port"
@@ -324,16 +372,15 @@ def classify(recording: Recording) -> ManoeuvreKind:
     if len(changes) == 0:
         steady = np.mean(np.abs(held - np.median(held)) <= tolerance) >= HELD_FRACTION
         kind = "turning_circle" if steady and rpm_steady else "other"
-        return ManoeuvreKind(kind, side, math.degrees(float(np.median(held))), rpm_median, t_execute)
-    # Zig-zag: every side segment holds about the same |rudder| (a spiral or random run does not).
+        return kind_of(kind, side, float(np.median(held)), t_execute)
+    # Zig-zag: every side segment holds about the same |turn command| (a spiral or random run does not).
     bounds = np.flatnonzero(np.diff(states) != 0) + 1
     segments = np.split(delta, bounds)
     holds = [float(np.median(np.abs(s[np.abs(s) >= 0.75 * np.percentile(np.abs(s), 95.0)])))
              for s, st in zip(segments, np.split(states, bounds)) if st[0] != 0 and len(s) >= 3]
     same = bool(holds) and max(holds) - min(holds) <= tolerance
     kind = "zigzag" if same and rpm_steady else "other"
-    return ManoeuvreKind(kind, side, math.degrees(float(np.median(holds))) if holds else float("nan"),
-                         rpm_median, t_execute)
+    return kind_of(kind, side, float(np.median(holds)) if holds else float("nan"), t_execute)
 
 
 # --------------------------------------------------------------------------------------------
@@ -364,9 +411,11 @@ def turning_metrics(t_s: np.ndarray, series: np.ndarray, execute_time_s: float, 
     drift = _attempt(notes, f"{what} drift (eq. 27, 28)", lambda: metrics.drift(t, x_n, y_e, psi))
     axis = drift_axis_deg if drift_axis_deg is not None else (drift.direction_deg if drift else None)
     radius = None
-    if axis is not None and math.isfinite(axis):
+    if axis is None or math.isfinite(axis):  # None: no eq. 27 drift; a 360-720 deg track uses its first circle
         radius = _attempt(notes, f"{what} turning radius (eq. 29)",
                           lambda: metrics.turning_radius(t, x_n, y_e, psi, drift_direction_deg=axis))
+        if radius is not None and radius.note:
+            notes.append(f"{what} turning radius (eq. 29): {radius.note}")
     steady = _attempt(notes, f"{what} steady circle fit", lambda: metrics.steady_turning_radius(t, x_n, y_e, psi))
     imo = None
     if math.isfinite(execute_time_s):
@@ -381,6 +430,7 @@ def turning_metrics(t_s: np.ndarray, series: np.ndarray, execute_time_s: float, 
         "drift_angle_seed_eq28_deg": metrics.seed_drift_angle_deg(drift.direction_deg) if drift else None,
         "drift_speed_mps": drift.speed_mps if drift else None,
         "advance_m": imo.advance_m if imo else None,
+        "transfer_m": imo.transfer_m if imo else None,
         "tactical_diameter_m": imo.tactical_diameter_m if imo else None,
     }
 
@@ -419,6 +469,7 @@ def compare_turning(prediction: Prediction, execute_time_s: float) -> Comparison
         "drift_distance_rel_pct": relative_error_pct(predicted["drift_distance_m"], measured["drift_distance_m"]),
         "drift_direction_abs_deg": angle_error_deg(predicted["drift_direction_deg"], measured["drift_direction_deg"]),
         "advance_rel_pct": relative_error_pct(predicted["advance_m"], measured["advance_m"]),
+        "transfer_rel_pct": relative_error_pct(predicted["transfer_m"], measured["transfer_m"]),
         "tactical_diameter_rel_pct": relative_error_pct(predicted["tactical_diameter_m"],
                                                         measured["tactical_diameter_m"]),
     }

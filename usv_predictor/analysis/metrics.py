@@ -45,7 +45,8 @@ Turning radius, two estimators:
 Turning circle (IMO MSC.137(76) definitions / ITTC 7.5-04-02-01), from position and heading at
 rudder execute: advance = displacement along the original heading when the heading has changed
 90 deg; transfer = |displacement across it| at 90 deg; tactical diameter = |displacement across
-it| at 180 deg.
+it| at 180 deg. A track of 360-720 deg of heading change (no eq. 27 drift) still gets an eq. 29
+radius, from its first full circle, with a note.
 
 Zigzag (IMO MSC.137(76) definitions; ITTC 7.5-04-02-01 sec. 2.2.2): the rudder is reversed each
 time the heading deviation from the base heading (heading at first execute) reaches the check
@@ -99,6 +100,7 @@ class TurningRadius:
     radius_m: float
     per_circle_m: tuple[float, ...]
     drift_direction_deg: float  # axis used for the rotation (compass deg)
+    note: str = ""  # how the radius was obtained when the track did not allow eq. 29 as written ("" it did)
 
 
 @dataclass(frozen=True)
@@ -301,11 +303,20 @@ def turning_radius(
 
     Periods are [0, 360), [360, 720), ... deg of heading change from the first sample. Without
     `drift_direction_deg` the direction comes from `drift` (needs 720 deg); pass it (e.g. 0.0
-    when there is no current) to measure a track of one to two turns.
+    when there is no current) to measure a track of one to two turns. A track of 360-720 deg without
+    it still gets the radius of its first full circle, across a north axis (no drift correction), and
+    `note` says so: on a drifting circle that half-extent is off by up to the drift over one circle / 2.
     """
     t, x_n, y_e, psi = _as_series(t, x_n=x_n, y_e=y_e, psi=psi)
+    note = ""
     if drift_direction_deg is None:
-        drift_direction_deg = drift(t, x_n, y_e, psi).direction_deg
+        turned = float(np.degrees(np.max(np.abs(unwrap_heading(psi) - unwrap_heading(psi)[0]))))
+        if 360.0 <= turned < 720.0:
+            drift_direction_deg = 0.0
+            note = (f"the track turns {turned:.0f} deg (< 720): no drift estimate (eq. 27 needs two circles), so the "
+                    f"radius is the half-extent of the first full circle without drift correction")
+        else:
+            drift_direction_deg = drift(t, x_n, y_e, psi).direction_deg
     if not math.isfinite(drift_direction_deg):
         raise ValueError("drift direction is undefined (no drift); pass drift_direction_deg explicitly")
     axis = math.radians(drift_direction_deg)
@@ -331,6 +342,7 @@ def turning_radius(
         radius_m=float(np.mean(per_circle)),
         per_circle_m=tuple(per_circle),
         drift_direction_deg=float(drift_direction_deg % 360.0),
+        note=note,
     )
 
 

@@ -95,7 +95,7 @@ def _turning_tables(turning: list[dict], letters: dict[str, str]) -> list[str]:
     head = ["Test indices"] + [f"({letters[r['name']]})" for r in turning]
 
     def row(label: str, section: str, key: str, digits: int = 2, suffix: str = "") -> list[str]:
-        return [label] + [num(r["turning"][section][key], digits, suffix) for r in turning]
+        return [label] + [num(r["turning"][section].get(key), digits, suffix) for r in turning]  # older files: -
 
     t7 = [row("Measured radius eq. 29 (m)", "measured", "turning_radius_m"),
           row("Predicted radius eq. 29 (m)", "predicted", "turning_radius_m"),
@@ -114,6 +114,9 @@ def _turning_tables(turning: list[dict], letters: dict[str, str]) -> list[str]:
     imo = [row("Measured advance (m)", "measured", "advance_m"),
            row("Predicted advance (m)", "predicted", "advance_m"),
            row("Relative error of advance", "errors", "advance_rel_pct", 2, "%"),
+           row("Measured transfer (m)", "measured", "transfer_m"),
+           row("Predicted transfer (m)", "predicted", "transfer_m"),
+           row("Relative error of transfer", "errors", "transfer_rel_pct", 2, "%"),
            row("Measured tactical diameter (m)", "measured", "tactical_diameter_m"),
            row("Predicted tactical diameter (m)", "predicted", "tactical_diameter_m"),
            row("Relative error of tactical diameter", "errors", "tactical_diameter_rel_pct", 2, "%")]

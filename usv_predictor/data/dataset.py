@@ -12,9 +12,10 @@ see replay.recordings) are one manoeuvre and always share a split.
 
 File format "usv_predictor.dataset/1" (np.savez_compressed, no pickles):
     metadata        () str: JSON with format, dt, feature_set, feature_names/units, target_names/units,
-                    state_names, control_names, recordings [{name, source, t0_ns, length, split,
+                    state_names, control_layout (the actuator layout: physics/actuators.py; a file
+                    without it is rudder_propeller), control_names/units (its C columns), recordings [{name, source, t0_ns, length, split,
                     bag_sha256, datum}], software_version, created_utc, provenance
-    seq_t_s (T,) seq_nu (T, 3) seq_psi (T,) seq_controls (T, 2) seq_position (T, 2) seq_truth (T, 6)
+    seq_t_s (T,) seq_nu (T, 3) seq_psi (T,) seq_controls (T, C) seq_position (T, 2) seq_truth (T, 6)
                     the Recordings concatenated (truth NaN where a recording has none);
     seq_offsets (M + 1,) int64: recording m is rows seq_offsets[m]:seq_offsets[m + 1]
     X (N, F) Y (N, 3) sample_recording (N,) int64 sample_step (N,) int64
@@ -36,8 +37,6 @@ import numpy as np
 
 from usv_predictor.atomic import atomic_open
 from usv_predictor.data.features import (
-    CONTROL_NAMES,
-    CONTROL_UNITS,
     STATE_NAMES,
     STATE_UNITS,
     TARGET_NAMES,
@@ -46,8 +45,9 @@ from usv_predictor.data.features import (
     feature_units,
     features,
 )  # fmt: skip
-from usv_predictor.data.recording import Recording
-from usv_predictor.errors import DatasetError
+from usv_predictor.data.recording import Recording, recording_layout
+from usv_predictor.errors import ConfigError, DatasetError
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, actuator_layout
 
 FORMAT = "usv_predictor.dataset/1"
 SPLITS = ("train", "val", "test")
@@ -76,13 +76,14 @@ def _check_steps(recordings: Sequence[Recording]) -> float:
 
 def make_samples(recordings: Sequence[Recording], feature_set: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(X (N, F), Y (N, 3), rec_index (N,), step_index (N,)): sample k of recording m pairs step k with k + 1."""
-    width = len(feature_names(feature_set))
+    layout = recording_layout(recordings)
+    width = len(feature_names(feature_set, layout))
     xs, ys, recs, steps = [np.zeros((0, width))], [np.zeros((0, 3))], [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for m, rec in enumerate(recordings):
         n = len(rec) - 1
         if n < 1:
             continue
-        xs.append(features(feature_set, rec.state()[:-1], rec.controls[:-1]))  # (n, F)
+        xs.append(features(feature_set, rec.state()[:-1], rec.controls[:-1], layout))  # (n, F)
         ys.append(rec.nu[1:])  # (n, 3)
         recs.append(np.full(n, m, dtype=np.int64))
         steps.append(np.arange(n, dtype=np.int64))
@@ -175,6 +176,11 @@ class Dataset:
     def Y(self) -> np.ndarray:  # noqa: N802
         return self.arrays["Y"]
 
+    @property
+    def control_layout(self) -> str:
+        """The actuator layout of the controls columns (physics/actuators.py; files without one: the default's)."""
+        return str(self.metadata.get("control_layout", DEFAULT_LAYOUT.name))
+
     def recordings(self) -> list[Recording]:
         """The Recordings, as they were given to build_dataset."""
         a, off = self.arrays, self.arrays["seq_offsets"]
@@ -188,7 +194,7 @@ class Dataset:
                 t_s=a["seq_t_s"][rows], nu=a["seq_nu"][rows], psi=a["seq_psi"][rows],
                 controls=a["seq_controls"][rows], position=a["seq_position"][rows],
                 truth=None if entry.get("has_truth") is False else truth,
-                datum=None if datum is None else (float(datum[0]), float(datum[1])),
+                datum=None if datum is None else (float(datum[0]), float(datum[1])), layout=self.control_layout,
             ))  # fmt: skip
         return out
 
@@ -248,13 +254,15 @@ def build_dataset(recordings: Sequence[Recording], feature_set: str, *, splits: 
     missing = [n for n in names if splits.get(n) not in SPLITS]
     if missing:
         raise DatasetError(f"no split (one of {list(SPLITS)}) for recording(s) {missing}")
+    layout = recording_layout(recordings)  # RecordingError when they mix layouts
+    width = len(layout.controls)  # C
     X, Y, rec_index, step_index = make_samples(recordings, feature_set)  # noqa: N806
     lengths = [len(r) for r in recordings]
     arrays = {
         "seq_t_s": np.concatenate([r.t_s for r in recordings]).astype(np.float64),
         "seq_nu": np.concatenate([r.nu for r in recordings]).astype(np.float64).reshape(-1, 3),
         "seq_psi": np.concatenate([r.psi for r in recordings]).astype(np.float64),
-        "seq_controls": np.concatenate([r.controls for r in recordings]).astype(np.float64).reshape(-1, 2),
+        "seq_controls": np.concatenate([r.controls for r in recordings]).astype(np.float64).reshape(-1, width),
         "seq_position": np.concatenate([r.position for r in recordings]).astype(np.float64).reshape(-1, 2),
         "seq_truth": np.concatenate([np.full((len(r), 6), np.nan) if r.truth is None else r.truth
                                      for r in recordings]).astype(np.float64).reshape(-1, 6),
@@ -267,10 +275,12 @@ def build_dataset(recordings: Sequence[Recording], feature_set: str, *, splits: 
                for r in recordings]
     metadata = {
         "format": FORMAT, "dt": float(dt), "feature_set": feature_set,
-        "feature_names": list(feature_names(feature_set)), "feature_units": list(feature_units(feature_set)),
+        "feature_names": list(feature_names(feature_set, layout)),
+        "feature_units": list(feature_units(feature_set, layout)),
         "target_names": list(TARGET_NAMES), "target_units": list(TARGET_UNITS),
         "state_names": list(STATE_NAMES), "state_units": list(STATE_UNITS),
-        "control_names": list(CONTROL_NAMES), "control_units": list(CONTROL_UNITS),
+        "control_layout": layout.name, "control_names": list(layout.control_names),
+        "control_units": list(layout.control_units),
         "recordings": entries, "software_version": __version__,
         "created_utc": created_utc or datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "provenance": provenance,
@@ -326,7 +336,12 @@ def _check_consistent(ds: Dataset) -> None:
     problems = []
     if off.shape != (len(entries) + 1,) or (len(off) and (off[0] != 0 or not np.array_equal(np.diff(off), lengths))):
         problems.append(f"seq_offsets {off.shape} disagree with {len(entries)} recordings of lengths {lengths}")
-    for name, tail in (("seq_nu", (3,)), ("seq_psi", ()), ("seq_controls", (2,)), ("seq_position", (2,)), ("seq_truth", (6,))):
+    try:
+        controls = len(actuator_layout(ds.control_layout).controls)  # C
+    except ConfigError as err:
+        raise DatasetError(f"{where}: {err}") from err
+    for name, tail in (("seq_nu", (3,)), ("seq_psi", ()), ("seq_controls", (controls,)), ("seq_position", (2,)),
+                       ("seq_truth", (6,))):
         if a[name].shape != (rows, *tail):
             problems.append(f"{name} has shape {a[name].shape}, expected {(rows, *tail)}")
     for name, shape in (("X", (n, width)), ("Y", (n, 3)), ("sample_recording", (n,)), ("sample_step", (n,))):
@@ -346,7 +361,7 @@ FINITE_ARRAYS = ("seq_t_s", "seq_nu", "seq_psi", "seq_controls", "X", "Y")
 def _check_finite(ds: Dataset) -> None:
     """DatasetError naming the array, the first bad row, its column and recording when a value is NaN or inf."""
     columns = {"X": list(ds.metadata.get("feature_names", [])), "Y": list(TARGET_NAMES), "seq_nu": list(STATE_NAMES[:3]),
-               "seq_controls": list(CONTROL_NAMES)}
+               "seq_controls": list(actuator_layout(ds.control_layout).control_names)}
     for name in FINITE_ARRAYS:
         values = np.asarray(ds.arrays[name])
         if values.dtype.kind != "f":

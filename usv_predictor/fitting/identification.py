@@ -321,6 +321,11 @@ def design(vessel: Vessel, data: Sequence[ForceData], structure: str, equation: 
                   np.concatenate(scales))
 
 
+VIF_SINGULAR = 1e10  # (-) a VIF above this (1 - R^2 < 1e-10) is exact collinearity within rounding
+VIF_NOTE = ("null: infinite variance inflation (the regressor is an exact linear combination of the others: the "
+            "correlation matrix is singular); strict JSON holds no inf")
+
+
 @dataclass(frozen=True)
 class Collinearity:
     equation: str
@@ -337,6 +342,7 @@ class Collinearity:
         return {"equation": self.equation, "condition_number": finite_or_none(self.condition_number),
                 "singular": not math.isfinite(self.condition_number) or any(not math.isfinite(v) for v in self.vif.values()),
                 "vif": {name: finite_or_none(v) for name, v in self.vif.items()},
+                **({"vif_note": VIF_NOTE} if any(not math.isfinite(v) for v in self.vif.values()) else {}),
                 "constant_regressors": list(self.constant),
                 "multicollinear_pairs": [{"a": a, "b": b, "rho": rho} for a, b, rho in self.pairs],
                 "names": list(self.names),
@@ -361,7 +367,12 @@ def collinearity(d: Design) -> Collinearity:
     names = [name for name, var in zip(d.names, varying) if var]
     sub = corr[np.ix_(varying, varying)]
     try:
-        vif = {name: float(v) for name, v in zip(names, np.diag(np.linalg.inv(sub)))}
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            diagonal = np.diag(np.linalg.inv(sub))
+        # VIF = 1 / (1 - R^2) >= 1; below 1, above VIF_SINGULAR or not finite: a numerically singular R (exact
+        # collinearity to rounding), whose inverse is rounding noise
+        vif = {name: float(v) if math.isfinite(v) and 1.0 - 1e-6 <= v <= VIF_SINGULAR else math.inf
+               for name, v in zip(names, diagonal)}
     except np.linalg.LinAlgError:
         vif = {name: math.inf for name in names}
     pairs = tuple((d.names[i], d.names[j], float(corr[i, j])) for i in range(len(d.names))
@@ -381,8 +392,9 @@ class Coefficient:
 
     def to_json(self) -> dict:
         """Strict JSON: an unbounded CI or rel_ci (no excitation) is null."""
-        return {"name": self.name, "estimate": self.estimate, "ci95": [finite_or_none(x) for x in self.ci95],
-                "prior": self.prior, "status": self.status, "rel_ci": finite_or_none(self.rel_ci)}
+        return {"name": self.name, "estimate": finite_or_none(self.estimate),
+                "ci95": [finite_or_none(x) for x in self.ci95], "prior": self.prior, "status": self.status,
+                "rel_ci": finite_or_none(self.rel_ci)}
 
 
 @dataclass(frozen=True)
@@ -509,9 +521,12 @@ def _message(names: Sequence[str], fits: Sequence[EquationFit], data_names: Sequ
             f"{', '.join(names)} (95 % CI wider than {REL_CI_LIMIT:.0%} of their size, or a sign no ship has: "
             f"{MMG_SIGN_TEXT}); condition numbers {conds}"
             + (f"; multicollinear regressors: {', '.join(pairs)}" if pairs else "")
-            + ". Options: prior='fix' (--prior fix) holds them at the vessel preset's values, prior='ridge' "
-              "(--prior ridge) pulls every coefficient towards the preset; or record more informative manoeuvres "
-              "(turning circles, larger zig-zags, random rudder and rpm)")
+            + ". Use --prior fix (prior='fix'): it holds only these at the vessel description's values and fits every "
+              "other coefficient from the data alone, so the description's errors stay in the terms the data cannot "
+              "see; --prior ridge (prior='ridge') pulls EVERY coefficient towards the description, identifiable ones "
+              "included, and is better only when the whole description is trusted (compare the cross-validation "
+              "scores). Or record more informative manoeuvres (turning circles both ways, larger zig-zags, straight "
+              "runs at two speeds, random rudder and rpm)")
 
 
 def _ridge_by_cv(designs: Sequence[Design], prior: Mapping[str, float], fixed: Sequence[str] = ()) -> float:
@@ -584,7 +599,8 @@ class CrossValidation:
     score: float  # mean over the equations
 
     def to_json(self) -> dict:
-        return {"structure": self.structure, "per_equation_nmse": self.per_equation, "score": self.score}
+        return {"structure": self.structure, "per_equation_nmse": {k: finite_or_none(v) for k, v in self.per_equation.items()},
+                "score": finite_or_none(self.score)}
 
 
 def cross_validate(vessel: Vessel, data: Sequence[ForceData], fit: HullFit) -> CrossValidation:

@@ -323,3 +323,17 @@ def actuator_layout(name: str) -> ActuatorLayout:
         return ACTUATOR_LAYOUTS[name]
     except (KeyError, TypeError):
         raise ConfigError(f"unknown actuator layout {name!r}; known: {', '.join(ACTUATOR_LAYOUTS)}") from None
+
+
+def check_layout_inputs(layout: ActuatorLayout, inputs: Mapping[str, str], source: str) -> tuple[str, ...]:
+    """The configured inputs (role -> topic) against a vessel's layout: ConfigError (one line naming the roles and
+    the layout) when a control role of the layout has no input; returns one note per configured control role of
+    another layout, which is ignored (no subscription, not read from bags): e.g. a rudder topic on a twin-thruster
+    boat. For the node's start-up log or /diagnostics and replay's warnings."""
+    missing = [role for role in layout.roles if role not in inputs]
+    if missing:
+        raise ConfigError(f"{source}: actuator layout {layout.name} needs input(s) {missing} "
+                          f"(controls {list(layout.control_names)}); configure their topics and types")
+    unused = unused_roles(layout)
+    return tuple(f"input {role} (topic {inputs[role]!r}) is ignored: not a control of actuator layout {layout.name}"
+                 for role in sorted(inputs) if role in unused)

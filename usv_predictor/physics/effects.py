@@ -18,7 +18,9 @@ An Effect holds
                   not apply to; hypothesis_names(layout) and simulated(layout) give the applicable ones.
 
 The vocabulary (simulator parameters):
-  current              current_speed (m/s), current_to_deg (flows TOWARD), current_turn_rate_deg_s
+  current              current_speed (m/s), current_to_deg (flows TOWARD), current_turn_rate_deg_s; a change
+                       during the run: current_step_time_s (0 = none), current_step_speed (m/s),
+                       current_step_to_deg (TOWARD), current_step_ramp_s
   wind                 wind_speed (m/s), wind_from_deg (blows FROM), gust_std (m/s)
   wave_drift           wave_height (m, H_s), wave_from_deg, wave_period_s
   rudder_offset        rudder_offset_deg (true rudder = reported + offset)
@@ -367,6 +369,14 @@ EFFECTS: Mapping[str, Effect] = _registry(
             sea_parameter("current_to_deg", 90.0, 0.0, 360.0, "deg", "direction the current flows toward",
                           Uniform(0.0, 360.0)),
             sea_parameter("current_turn_rate_deg_s", 0.0, -0.5, 0.5, "deg/s", "slow turning of the current"),
+            sea_parameter("current_step_time_s", 0.0, 0.0, 86400.0, "s",
+                          "time into the run at which the current changes to the step's speed and direction "
+                          "(0: no step)"),
+            sea_parameter("current_step_speed", 0.0, 0.0, 3.0, "m/s", "current speed after the step"),
+            sea_parameter("current_step_to_deg", 0.0, 0.0, 360.0, "deg",
+                          "direction the current flows toward after the step"),
+            sea_parameter("current_step_ramp_s", 10.0, 0.1, 600.0, "s",
+                          "the step is a linear blend of the two current velocities over this time"),
         ),
         tolerance={"speed_mps": 0.05, "direction_deg": 10.0},  # (m/s), (deg)
     ),
@@ -432,6 +442,14 @@ EFFECTS: Mapping[str, Effect] = _registry(
                                   SimulatorField(ActuatorFaults, "thruster_imbalance", "-", divide=100.0),
                                   Uniform(5.0, 15.0, random_sign=True)), layouts=("twin_thrusters",)),
 )
+
+
+# ---- the online estimator (fitting/online.py) ---------------------------------------------------------------
+# The grey-box terms it estimates as states, in its state order (current north/east, gyro bias, resistance change)
+ONLINE_TERMS = ("current_ne", "yaw_rate_bias", "resistance_change")
+# The terms its float process model takes as the model carries them: a rudder offset, the propeller side force, the
+# thrust imbalance, the wind and the wave drift (their equations: physics/dynamics.py, as models/greybox.py's)
+FIXED_TERMS = ("rudder_offset", "propeller_side_force", "thrust_imbalance", "wind_ne", "wave_ne")
 
 
 # ---- what consumers derive -------------------------------------------------------------------------------

@@ -20,6 +20,10 @@ class Environment:
     current_speed: float = 0.0  # (m/s)
     current_to_deg: float = 0.0  # direction the current flows toward, clockwise from north (deg)
     current_turn_rate_deg_s: float = 0.0  # slow rotation of the current direction (deg/s), e.g. tidal
+    current_step_time_s: float = 0.0  # time the current changes to the step's speed and direction (s); 0 = no step
+    current_step_speed: float = 0.0  # current speed after the step (m/s)
+    current_step_to_deg: float = 0.0  # direction the current flows toward after the step (deg)
+    current_step_ramp_s: float = 10.0  # the change is a linear blend of the two velocities over this time (s)
     wind_speed: float = 0.0  # mean true wind speed at 10 m (m/s)
     wind_from_deg: float = 0.0  # direction the wind blows from (deg)
     gust_std: float = 0.0  # standard deviation of the gust speed (m/s)
@@ -38,28 +42,72 @@ class Environment:
             "wave_height": (self.wave_height, Range(0.0, 6.0, "m")),
             "wave_period_s": (self.wave_period_s, Range(0.5, 25.0, "s")),
             "current_turn_rate_deg_s": (self.current_turn_rate_deg_s, Range(-1.0, 1.0, "deg/s")),
+            "current_step_time_s": (self.current_step_time_s, Range(0.0, 86400.0, "s")),
+            "current_step_speed": (self.current_step_speed, Range(0.0, 5.0, "m/s")),
+            "current_step_ramp_s": (self.current_step_ramp_s, Range(0.1, 600.0, "s")),
         }
         for name, (value, allowed) in checks.items():
             allowed.check(name, value, "environment")
 
     @property
     def is_calm(self) -> bool:
-        return self.current_speed == 0.0 and self.wind_speed == 0.0 and self.wave_height == 0.0 and self.gust_std == 0.0
+        return self.current_speed == 0.0 and not self.has_current_step and self.wind_speed == 0.0 and self.wave_height == 0.0 and self.gust_std == 0.0
 
     def calm(self) -> "Environment":
         """The calm-water twin: same settings, no current, wind or waves."""
-        return replace(self, current_speed=0.0, wind_speed=0.0, gust_std=0.0, wave_height=0.0)
+        return replace(self, current_speed=0.0, current_step_time_s=0.0, current_step_speed=0.0, wind_speed=0.0,
+                       gust_std=0.0, wave_height=0.0)
+
+    @property
+    def has_current_step(self) -> bool:
+        """Whether the current changes speed and direction during the run (current_step_time_s > 0)."""
+        return self.current_step_time_s > 0.0
 
     def current_ned(self, t_s: float) -> tuple[float, float]:
         """Current velocity (north, east) in m/s at time t (s)."""
+        if self.has_current_step and t_s > self.current_step_time_s:
+            return tuple(float(x) for x in self.current_arrays(np.array([t_s]))[0][0])  # type: ignore[return-value]
         direction = math.radians(self.current_to_deg + self.current_turn_rate_deg_s * t_s)
         return self.current_speed * math.cos(direction), self.current_speed * math.sin(direction)
 
     def current_accel_ned(self, t_s: float) -> tuple[float, float]:
-        """Time derivative of the current velocity (m/s^2): non-zero only for a turning current."""
+        """Time derivative of the current velocity (m/s^2): non-zero for a turning current and during a step."""
+        if self.has_current_step and t_s > self.current_step_time_s:
+            return tuple(float(x) for x in self.current_arrays(np.array([t_s]))[1][0])  # type: ignore[return-value]
         omega = math.radians(self.current_turn_rate_deg_s)
         direction = math.radians(self.current_to_deg) + omega * t_s
         return -self.current_speed * omega * math.sin(direction), self.current_speed * omega * math.cos(direction)
+
+    def current_arrays(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 2) current velocity (north, east, m/s) and (N, 2) its time derivative (m/s^2) at the times t_s (s).
+
+        Before the step (or without one): speed V toward chi_0 + omega t (omega the turn rate), derivative
+        V omega (-sin, cos). After the step at t_1, the step's speed V_1 toward chi_1 + omega (t - t_1); during the
+        ramp t_1 < t < t_1 + T the velocity is the linear blend (1 - w) c_0(t) + w c_1(t), w = (t - t_1) / T, whose
+        derivative adds (c_1 - c_0) / T: the water accelerates at a finite rate, and the rigid body feels it
+        (dynamics.ManoeuvringModel.accelerations, Fossen 2021 sec. 10.3)."""
+        t_s = np.asarray(t_s, dtype=float)
+        omega = math.radians(self.current_turn_rate_deg_s)
+        direction = math.radians(self.current_to_deg) + omega * t_s
+        c, s = np.cos(direction), np.sin(direction)
+        speed = self.current_speed
+        velocity = np.column_stack([speed * c, speed * s])
+        accel = np.column_stack([-speed * omega * s, speed * omega * c])
+        if not self.has_current_step:
+            return velocity, accel
+        after = t_s > self.current_step_time_s
+        if not after.any():
+            return velocity, accel
+        t1, ramp, speed1 = self.current_step_time_s, self.current_step_ramp_s, self.current_step_speed
+        direction1 = math.radians(self.current_step_to_deg) + omega * (t_s - t1)
+        c1, s1 = np.cos(direction1), np.sin(direction1)
+        velocity1 = np.column_stack([speed1 * c1, speed1 * s1])
+        accel1 = np.column_stack([-speed1 * omega * s1, speed1 * omega * c1])
+        w = np.clip((t_s - t1) / ramp, 0.0, 1.0)[:, None]  # (N, 1) blend weight
+        ramping = ((t_s > t1) & (t_s < t1 + ramp))[:, None]  # (N, 1)
+        blend_v = (1.0 - w) * velocity + w * velocity1
+        blend_a = (1.0 - w) * accel + w * accel1 + np.where(ramping, (velocity1 - velocity) / ramp, 0.0)
+        return (np.where(after[:, None], blend_v, velocity), np.where(after[:, None], blend_a, accel))
 
 
 def gust_series(env: Environment, t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -159,6 +159,8 @@ def simulate(model: ManoeuvringModel, manoeuvre: Manoeuvre, env: Environment | N
 
 def current_arrays(env: Environment, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Current velocity and its time derivative (north, east) at the times t_s, vectorised."""
+    if env.has_current_step:
+        return env.current_arrays(t_s)
     omega = math.radians(env.current_turn_rate_deg_s)
     direction = math.radians(env.current_to_deg) + omega * t_s
     c, s = np.cos(direction), np.sin(direction)

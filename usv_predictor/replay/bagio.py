@@ -17,7 +17,10 @@ compression that every mcap tool reads directly).
 Bags are written into a temporary directory beside the target and renamed at the end.
 
 Reading decodes each topic in bulk (cdr_fast.decode_many -> structure of arrays -> one vectorised
-adapter.decode); types without a fixed layout (JointState) go one rosbags message at a time.
+adapter.decode); types without a fixed layout (JointState, MultiArrays) go one rosbags message at a time. A topic
+may carry several roles (both thrusters in one Float64MultiArray, JointState or Wrench): its messages are decoded
+once and each role's adapter reads its part (read_signals); writing encodes the roles into one message per stamp
+(msg_adapters.encode_shared).
 """
 from __future__ import annotations
 
@@ -27,7 +30,7 @@ import sqlite3
 import struct
 import sys
 import tempfile
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,7 +45,7 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, ReaderError, Sto
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
-from msg_adapters import columnar_factory, get_adapter, rosbags_factory
+from msg_adapters import check_shared, columnar_factory, encode_shared, get_adapter, rosbags_factory
 from usv_predictor.atomic import NO_SPACE_ERRNOS, write_failure
 from usv_predictor.config import PredictorConfig, input_topics
 from usv_predictor.errors import AdapterError, BagError, one_line
@@ -209,22 +212,41 @@ def _row_values(signal: Signal, row: int) -> list[float]:
 
 def encode_stream(spec: TopicSpec, signal: Signal, typestore: Any) -> list[memoryview | bytes]:
     """CDR bytes of every row of `signal` as `spec.ros_type` messages, via the topic's adapter."""
-    adapter = spec.adapter()
-    if tuple(signal.fields) != tuple(adapter.fields):
-        raise BagError(
-            f"topic {spec.topic!r} ({spec.role}): signal fields {signal.fields} do not match the role's {adapter.fields}"
-        )
-    rows = len(signal)
+    return encode_group([(spec, signal)], typestore)
+
+
+def encode_group(streams: Sequence[tuple[TopicSpec, Signal]], typestore: Any) -> list[memoryview | bytes]:
+    """CDR bytes of the messages of one topic: one stream, or several roles sharing the topic (both thrusters in
+    one Float64MultiArray, JointState or Wrench: msg_adapters.encode_shared), whose rows must share their stamps."""
+    spec = streams[0][0]
+    adapters = [s.adapter() for s, _ in streams]
+    for (each, signal), adapter in zip(streams, adapters):
+        if tuple(signal.fields) != tuple(adapter.fields):
+            raise BagError(f"topic {each.topic!r} ({each.role}): signal fields {signal.fields} do not match the "
+                           f"role's {adapter.fields}")
+    try:
+        check_shared(spec.topic, adapters)
+    except AdapterError as err:
+        raise BagError(str(err)) from err
+    t_ns = np.asarray(streams[0][1].t_ns, dtype=np.int64)
+    for each, signal in streams[1:]:
+        if not np.array_equal(np.asarray(signal.t_ns, dtype=np.int64), t_ns):
+            raise BagError(f"topic {spec.topic!r}: roles {streams[0][0].role} and {each.role} share the topic but "
+                           "not their sample times (one message carries both)")
+    rows = len(t_ns)
     if rows == 0:
         return []
-    t_ns = np.asarray(signal.t_ns, dtype=np.int64)
+    columns = [list(signal.values.T) for _, signal in streams]
     try:
-        columns = adapter.encode(t_ns, list(signal.values.T), columnar_factory(), spec.frame_id)
-        return serialize_columns(typestore, spec.ros_type, columns, rows)
+        message = encode_shared(adapters, t_ns, columns, columnar_factory(), spec.frame_id, spec.topic)
+        return serialize_columns(typestore, spec.ros_type, message, rows)
     except _NotColumnar:
         make = rosbags_factory(typestore)
         return [
-            typestore.serialize_cdr(adapter.encode(int(t_ns[i]), _row_values(signal, i), make, spec.frame_id), spec.ros_type)
+            typestore.serialize_cdr(
+                encode_shared(adapters, int(t_ns[i]), [_row_values(signal, i) for _, signal in streams], make,
+                              spec.frame_id, spec.topic),
+                spec.ros_type)
             for i in range(rows)
         ]
 
@@ -232,12 +254,16 @@ def encode_stream(spec: TopicSpec, signal: Signal, typestore: Any) -> list[memor
 # ------------------------------------------------------------------ writing
 
 
-def _check_streams(streams: Sequence[tuple[TopicSpec, Signal]]) -> None:
-    seen: set[str] = set()
-    for spec, _ in streams:
-        if spec.topic in seen:
+def _group_streams(streams: Sequence[tuple[TopicSpec, Signal]]) -> list[list[tuple[TopicSpec, Signal]]]:
+    """The streams per topic, in first-appearance order; a topic may carry several roles (encode_group checks them),
+    never one role twice."""
+    groups: dict[str, list[tuple[TopicSpec, Signal]]] = {}
+    for spec, signal in streams:
+        group = groups.setdefault(spec.topic, [])
+        if any(other.role == spec.role for other, _ in group):
             raise BagError(f"topic {spec.topic!r} appears twice in the streams to write")
-        seen.add(spec.topic)
+        group.append((spec, signal))
+    return list(groups.values())
 
 
 def _install(built: Path, target: Path) -> None:
@@ -287,12 +313,13 @@ def write_bag(
         raise BagError(f"{path}: unknown storage {storage!r}; use one of {sorted(STORAGES)}")
     if path.exists() and not overwrite:
         raise BagError(f"{path} exists already; use --overwrite to replace it")
-    _check_streams(streams)
+    groups = _group_streams(streams)
     typestore = jazzy_typestore()
-    encoded = [encode_stream(spec, signal, typestore) for spec, signal in streams]
-    stamps = np.concatenate([np.asarray(s.t_ns, dtype=np.int64) for _, s in streams] or [np.zeros(0, np.int64)])
-    topic_index = np.concatenate([np.full(len(s), i) for i, (_, s) in enumerate(streams)] or [np.zeros(0, int)])
-    row_index = np.concatenate([np.arange(len(s)) for _, s in streams] or [np.zeros(0, int)])
+    encoded = [encode_group(group, typestore) for group in groups]
+    firsts = [group[0] for group in groups]  # the stamps and type of each topic
+    stamps = np.concatenate([np.asarray(s.t_ns, dtype=np.int64) for _, s in firsts] or [np.zeros(0, np.int64)])
+    topic_index = np.concatenate([np.full(len(s), i) for i, (_, s) in enumerate(firsts)] or [np.zeros(0, int)])
+    row_index = np.concatenate([np.arange(len(s)) for _, s in firsts] or [np.zeros(0, int)])
     order = np.argsort(stamps, kind="stable")
 
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -305,7 +332,7 @@ def write_bag(
         for key, value in (metadata or {}).items():
             writer.set_custom_data(str(key), str(value))
         with writer:
-            connections = [writer.add_connection(spec.topic, spec.ros_type, typestore=typestore) for spec, _ in streams]
+            connections = [writer.add_connection(spec.topic, spec.ros_type, typestore=typestore) for spec, _ in firsts]
             for stamp, topic, row in zip(stamps[order].tolist(), topic_index[order].tolist(), row_index[order].tolist()):
                 writer.write(connections[topic], stamp, encoded[topic][row])
         _install(built, path)
@@ -336,8 +363,26 @@ def _open_reader(path: Path) -> Iterator[AnyReader]:
         raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {one_line(err)})") from err
 
 
+def absolute_topic(name: str) -> str:
+    """A topic name resolved in the root namespace, as ROS 2 resolves a relative name of a node in "/" (REP-144):
+    `imu/data` -> `/imu/data`; an absolute name stays. The config's names are relative (remappable), while
+    `ros2 bag record` writes the resolved, fully qualified ones."""
+    return name if name.startswith("/") else "/" + name
+
+
+def resolve_topic(configured: str, present: Iterable[str]) -> str | None:
+    """The bag's name for a configured topic: the same name, else the one that resolves to the same absolute name
+    (`imu/data` matches a recorded `/imu/data` and the reverse); None when the bag has neither."""
+    names = list(present)
+    if configured in names:
+        return configured
+    wanted = absolute_topic(configured)
+    return next((name for name in names if absolute_topic(name) == wanted), None)
+
+
 def _select_connections(path: Path, reader: AnyReader, spec: TopicSpec) -> list[Any]:
-    connections = [c for c in reader.connections if c.topic == spec.topic]
+    name = resolve_topic(spec.topic, {c.topic for c in reader.connections})
+    connections = [c for c in reader.connections if c.topic == name]
     if not connections:
         present = sorted({c.topic for c in reader.connections})
         raise BagError(f"{path}: no topic {spec.topic!r}; topics present: {present}")
@@ -347,74 +392,117 @@ def _select_connections(path: Path, reader: AnyReader, spec: TopicSpec) -> list[
     return connections
 
 
-def _decode_one_by_one(
-    path: Path, spec: TopicSpec, adapter: Any, reader: AnyReader, raws: list, log_times: list[int]
-) -> tuple[np.ndarray, np.ndarray]:
-    """One rosbags object per message: for types the bulk decoder cannot lay out (JointState)."""
-    stamps: list[int] = []
-    rows: list[tuple[float, ...]] = []
-    for raw, log_time in zip(raws, log_times):
+def _deserialize_all(path: Path, spec: TopicSpec, reader: AnyReader, raws: list) -> list[Any]:
+    """One rosbags object per message: for types the bulk decoder cannot lay out (JointState, MultiArrays)."""
+    messages = []
+    for raw in raws:
         try:
-            msg = reader.deserialize(raw, spec.ros_type)
+            messages.append(reader.deserialize(raw, spec.ros_type))
         except _DESERIALIZE_ERRORS as err:
             raise BagError(f"{path}: topic {spec.topic!r}: cannot deserialise a {spec.ros_type}: {err}") from err
+    return messages
+
+
+def _decode_one_by_one(
+    path: Path, spec: TopicSpec, adapter: Any, messages: list, log_times: list[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Decode deserialised messages one at a time."""
+    stamps: list[int] = []
+    rows: list[tuple[float, ...]] = []
+    for msg, log_time in zip(messages, log_times):
         try:
             stamp, values = adapter.decode(msg)
         except AdapterError as err:
-            raise BagError(f"{path}: topic {spec.topic!r}: {err}") from err
+            raise BagError(f"{path}: topic {spec.topic!r} ({spec.role}): {err}") from err
         stamps.append(log_time if stamp is None else stamp)
         rows.append(values)
     return np.asarray(stamps, dtype=np.int64), np.asarray(rows, dtype=np.float64).reshape(len(rows), len(adapter.fields))
 
 
 def _decode_in_bulk(
-    path: Path, spec: TopicSpec, adapter: Any, raws: list, log_times: list[int], typestore: Any
+    path: Path, spec: TopicSpec, adapter: Any, columns_in: Any, raws: list, log_times: list[int]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """All messages at once: cdr_fast structure of arrays -> one vectorised adapter.decode."""
+    """All messages at once: one vectorised adapter.decode of the cdr_fast structure of arrays."""
     try:
-        stamp, columns = adapter.decode(decode_many(spec.ros_type, raws, typestore))
+        stamp, columns = adapter.decode(columns_in)
     except (AdapterError, BagError) as err:
-        raise BagError(f"{path}: topic {spec.topic!r}: {err}") from err
+        raise BagError(f"{path}: topic {spec.topic!r} ({spec.role}): {err}") from err
     t_ns = np.asarray(log_times, dtype=np.int64) if stamp is None else np.asarray(stamp, dtype=np.int64)
     return t_ns, np.column_stack(columns).reshape(len(raws), len(adapter.fields))
 
 
 def _decode_topic(
-    path: Path, spec: TopicSpec, adapter: Any, reader: AnyReader, raws: list, log_times: list[int]
-) -> Signal:
-    """Signal of one topic from its raw CDR messages, rows sorted by stamp."""
+    path: Path, specs: Sequence[TopicSpec], adapters: Sequence[Any], reader: AnyReader, raws: list,
+    log_times: list[int]
+) -> list[Signal]:
+    """Signals of one topic (one per role it carries) from its raw CDR messages, rows sorted by stamp; the messages
+    are decoded (bulk or one by one) once, whatever the number of roles."""
     typestore = reader.typestore  # built by AnyReader from the bag's own message definitions
-    if raws and spec.ros_type in typestore.fielddefs and has_fast_layout(spec.ros_type, typestore):
-        t_ns, values = _decode_in_bulk(path, spec, adapter, raws, log_times, typestore)
+    ros_type = specs[0].ros_type
+    bulk = bool(raws) and ros_type in typestore.fielddefs and has_fast_layout(ros_type, typestore)
+    if bulk:
+        try:
+            columns_in = decode_many(ros_type, raws, typestore)
+        except BagError as err:
+            raise BagError(f"{path}: topic {specs[0].topic!r}: {err}") from err
     else:
-        t_ns, values = _decode_one_by_one(path, spec, adapter, reader, raws, log_times)
-    order = np.argsort(t_ns, kind="stable")
-    return Signal(t_ns[order], values[order], adapter.fields)
+        messages = _deserialize_all(path, specs[0], reader, raws)
+    signals = []
+    for spec, adapter in zip(specs, adapters):
+        if bulk:
+            t_ns, values = _decode_in_bulk(path, spec, adapter, columns_in, raws, log_times)
+        else:
+            t_ns, values = _decode_one_by_one(path, spec, adapter, messages, log_times)
+        order = np.argsort(t_ns, kind="stable")
+        signals.append(Signal(t_ns[order], values[order], adapter.fields))
+    return signals
 
 
-def read_bag(path: Path, topics: Sequence[TopicSpec]) -> dict[str, Signal]:
-    """topic -> Signal of the requested topics, decoded through their adapters.
+def read_signals(path: Path, topics: Sequence[TopicSpec]) -> list[Signal]:
+    """The Signal of each TopicSpec (same order), decoded through their adapters; several specs may name one topic
+    (both thrusters in one Float64MultiArray, JointState or Wrench: msg_adapters.check_shared says which can).
 
     Stamps are the header stamps (log time for header-less types), rows sorted by stamp.
     The bag is only read, never modified.
     """
     path = Path(path)
-    adapters = {spec.topic: spec.adapter() for spec in topics}
+    adapters = [spec.adapter() for spec in topics]
+    by_topic: dict[str, list[int]] = {}
+    for k, spec in enumerate(topics):
+        by_topic.setdefault(spec.topic, []).append(k)
+    for topic, members in by_topic.items():
+        if len(members) > 1:
+            try:
+                check_shared(topic, [adapters[k] for k in members])
+            except AdapterError as err:
+                raise BagError(f"{path}: {err}") from err
     with _open_reader(path) as reader:
         topic_of = {}
-        for spec in topics:
-            for connection in _select_connections(path, reader, spec):
-                topic_of[connection.id] = spec.topic
-        raws: dict[str, list] = {spec.topic: [] for spec in topics}
-        log_times: dict[str, list[int]] = {spec.topic: [] for spec in topics}
+        for topic, members in by_topic.items():
+            for connection in _select_connections(path, reader, topics[members[0]]):
+                topic_of[connection.id] = topic
+        raws: dict[str, list] = {topic: [] for topic in by_topic}
+        log_times: dict[str, list[int]] = {topic: [] for topic in by_topic}
         selected = [c for c in reader.connections if c.id in topic_of]
         for connection, log_time, raw in reader.messages(connections=selected):
             raws[topic_of[connection.id]].append(raw)
             log_times[topic_of[connection.id]].append(log_time)
-        return {
-            spec.topic: _decode_topic(path, spec, adapters[spec.topic], reader, raws[spec.topic], log_times[spec.topic])
-            for spec in topics
-        }
+        out: list[Signal | None] = [None] * len(topics)
+        for topic, members in by_topic.items():
+            decoded = _decode_topic(path, [topics[k] for k in members], [adapters[k] for k in members], reader,
+                                    raws[topic], log_times[topic])
+            for k, signal in zip(members, decoded):
+                out[k] = signal
+    return [signal for signal in out if signal is not None]
+
+
+def read_bag(path: Path, topics: Sequence[TopicSpec]) -> dict[str, Signal]:
+    """topic -> Signal of the requested topics (read_signals keyed by topic; a topic carrying several roles needs
+    read_signals). The bag is only read, never modified."""
+    repeated = sorted({s.topic for s in topics if sum(1 for o in topics if o.topic == s.topic) > 1})
+    if repeated:
+        raise BagError(f"{path}: topic(s) {repeated} carry several roles: read them with read_signals")
+    return {spec.topic: signal for spec, signal in zip(topics, read_signals(path, topics))}
 
 
 def read_custom_data(path: Path) -> dict[str, str]:

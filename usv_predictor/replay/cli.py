@@ -39,6 +39,7 @@ COMMANDS: tuple[str, ...] = (
     "usv_predictor.replay.cmd_report",
     "usv_predictor.replay.cmd_identify",
     "usv_predictor.replay.cmd_diagnose",
+    "usv_predictor.replay.cmd_vessel",
 )
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C

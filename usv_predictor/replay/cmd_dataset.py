@@ -45,6 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     split.add_argument("--seed", type=non_negative_int, default=0, help="seed of the random split (default 0)")
     data = parser.add_argument_group("input")
     data.add_argument("--config", type=Path, default=None, help="predictor parameter file (default config/predictor.yaml)")
+    data.add_argument("--vessel", default=None, metavar="PRESET",
+                      help="vessel preset whose actuator layout the bags record (which control topics are read; "
+                           "stored in the dataset); default: the config's vessel")
     data.add_argument("--topic", action="append", default=[], metavar="ROLE=TOPIC",
                       help="read ROLE from TOPIC instead of the config's (repeatable), e.g. velocity=ins/twist")
     data.add_argument("--include-calm", action="store_true", help="also read calm/ twins found under directories")
@@ -94,6 +97,7 @@ def _command_line(args: argparse.Namespace) -> str:
             words += [f"--{flag}", value]
     words += ["--config", str(args.config)] if args.config else []
     words += ["--include-calm"] if args.include_calm else []
+    words += ["--vessel", args.vessel] if args.vessel else []
     return shlex.join(words)
 
 
@@ -105,7 +109,7 @@ def run(args: argparse.Namespace) -> dict:
         val=_fraction_or_globs(args.val, "--val", 0.2), test=_fraction_or_globs(args.test, "--test", 0.0),
         train=args.train, seed=args.seed, config=args.config, topics=_topics(args.topic),
         include_calm=args.include_calm, min_duration_s=args.min_duration, jobs=args.jobs, horizon_s=args.horizon,
-        provenance=_command_line(args), warn=lambda message: print(f"replay {NAME}: warning: {message}", file=sys.stderr),
+        provenance=_command_line(args), vessel=args.vessel, warn=lambda message: print(f"replay {NAME}: warning: {message}", file=sys.stderr),
         progress=log)
     _print_table(result)
     return result

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from usv_predictor.replay.options import log, positive_float, positive_int
+from usv_predictor.replay.options import add_config_argument, log, positive_float, positive_int
 
 NAME = "diagnose"
 HELP = "name the physical cause of what the calm-water model gets wrong, extend the model, measure the gain"
@@ -27,21 +27,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vessel", default=None, help="vessel preset of the calm-water model (default: config's vessel)")
     parser.add_argument("--model", type=Path, default=None, metavar="M",
                         help="a grey-box model artifact (from `replay identify`) as the calm-water model instead of the preset")
-    parser.add_argument("--dt", type=positive_float, default=0.5, help="model step (s, default 0.5)")
+    parser.add_argument("--dt", type=positive_float, default=None,
+                        help="model step (s; default: what suits the vessel, the largest of 0.5, 0.25, 0.2, 0.1, "
+                             "0.05 s that RK4 integrates its fastest hull mode with: 0.5 for jari_usv, 0.25 for otter)")
     parser.add_argument("--hypotheses", nargs="+", default=None, metavar="H", choices=hypothesis_names(),
                         help=f"hypotheses to test (default: those of the vessel's actuator layout among "
                              f"{' '.join(hypothesis_names())})")
     parser.add_argument("--max-causes", type=positive_int, default=2,
                         help="name up to this many causes, added one at a time while each passes the evidence test "
                              "(default 2)")
-    parser.add_argument("--horizon", type=positive_float, default=20.0, help="segment horizon (s, default 20)")
-    parser.add_argument("--stride", type=positive_float, default=5.0, help="time between segment starts (s, default 5)")
+    parser.add_argument("--horizon", type=positive_float, default=None,
+                        help="segment horizon (s; default 40 of the vessel's model steps: 20 for jari_usv, 10 for otter)")
+    parser.add_argument("--stride", type=positive_float, default=None,
+                        help="time between segment starts (s; default 10 of the vessel's model steps: 5 for jari_usv, "
+                             "2.5 for otter)")
     parser.add_argument("--no-gain", action="store_true", help="skip the held-out evaluation of the extended model")
     parser.add_argument("--export", type=Path, default=None, metavar="PATH",
                         help="write the extended model (TorchScript artifact) for the node")
     parser.add_argument("--report", type=Path, default=None, metavar="DIR", help="write report.md + plots into DIR")
     parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
-    parser.add_argument("--config", type=Path, default=None, help="predictor.yaml with the topics (default: shipped)")
+    add_config_argument(parser)
 
 
 def run(args: argparse.Namespace) -> dict:

@@ -18,7 +18,7 @@ from usv_predictor.replay.options import add_model_arguments, evaluation_request
 
 NAME = "evaluate"
 HELP = "evaluate a model on bags: closed-loop tracks, turning-circle and zig-zag metrics, open-loop errors"
-INPUTS = ("bags", "model")
+INPUTS = ("bags", "model", "config")
 OUTPUTS = {"output": "dir"}
 
 
@@ -26,6 +26,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bags", nargs="*", type=Path, metavar="BAG",
                         help="bags or directories of bags (default: the shipped bags/sea_trial, calm twins skipped)")
     add_model_arguments(parser)
+    parser.add_argument("--adaptive", action="store_true",
+                        help="also run the online estimator of the current (docs/online.md) over each bag and score "
+                             "the open loop with its live estimate in the grey box's terms (JSON section "
+                             "`adaptive`; a learned model without those terms gets the estimate reported, not "
+                             "applied)")
     parser.add_argument("--output", type=Path, default=None, metavar="DIR",
                         help=f"write {EVALUATION_FILE} and {SERIES_FILE} (time series for `replay report`) into DIR")
 
@@ -37,4 +42,9 @@ def run(args: argparse.Namespace) -> dict:
 
     data = evaluate(evaluation_request(args, args.bags), args.output, progress=log)
     print(evaluation_table(jsonable(data)))
+    if "adaptive" in data:
+        summary = data["adaptive"]["summary"]
+        errors = ", ".join(f"{k.removeprefix('mean_position_error_after_').removesuffix('_m')} {v:.2f} m"
+                           for k, v in summary.items() if k.startswith("mean_position_error") and v is not None)
+        print(f"adaptive ({'applied' if summary['applied'] else 'not applied'}): open-loop error {errors}")
     return data

@@ -19,12 +19,12 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from usv_predictor.replay.options import log, positive_float, positive_int
+from usv_predictor.replay.options import add_config_argument, log, positive_float, positive_int
 
 NAME = "identify"
 HELP = ("identify the grey box of any actuator layout from bags (hull coefficients, thrust-map gains, engine speeds; "
         "EKF/RTS + inverse-dynamics regression) and export the model")
-INPUTS = ("bags", "vessel")
+INPUTS = ("bags", "vessel", "config")
 OUTPUTS = {"output": "file", "report": "dir"}
 
 
@@ -46,6 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--blocks", type=positive_int, default=1, metavar="K",
                         help="cut each recording into K contiguous pieces, each held out in turn by the cross-"
                              "validation (a single long record; default 1)")
+    add_config_argument(parser)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -53,4 +54,4 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     return identify_bags(args.bags, args.output, vessel=args.vessel, structure=args.structure, prior=args.prior,
                          hybrid=args.hybrid, dt=args.dt, validation=args.val, report=args.report, blocks=args.blocks,
-                         progress=log)
+                         config=args.config, progress=log)

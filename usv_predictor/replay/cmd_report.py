@@ -17,7 +17,7 @@ from usv_predictor.replay.options import add_model_arguments, evaluation_request
 
 NAME = "report"
 HELP = "write a Markdown report (report.md, report.json, PNG figures) of an evaluation file or of bags"
-INPUTS = ("inputs", "model")
+INPUTS = ("inputs", "model", "config")
 OUTPUTS = {"output": "dir"}
 
 

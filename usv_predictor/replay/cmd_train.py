@@ -48,7 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ensemble", type=positive_int, default=1, metavar="E", help="ensemble members (default 1)")
     parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed (default 0)")
     parser.add_argument("--threads", type=positive_int, default=1, help="torch threads while training (default 1)")
-    parser.add_argument("--vessel", default=None, help="vessel recorded in the model (default: the config's)")
+    parser.add_argument("--vessel", default=None,
+                        help="vessel recorded in the model; its actuator layout must be the dataset's (default: the "
+                             "config's)")
     parser.add_argument("--horizon-steps", type=positive_int, default=None,
                         help="default prediction horizon in steps recorded in the model (default: the config's)")
     parser.add_argument("--dtype", choices=("float32", "float64"), default="float32",
@@ -85,6 +87,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         windows_from_recordings,
     )  # fmt: skip
     from usv_predictor.models.dnn import DnnConfig, export
+    from usv_predictor.physics.actuators import actuator_layout
+    from usv_predictor.physics.vessel import load_vessel
 
     dataset = load_dataset(args.dataset)
     feature_set = args.features or dataset.feature_set
@@ -102,9 +106,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     recipe = TrainingConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr,
                             lr_schedule=args.lr_schedule, weight_decay=args.l2, patience=args.patience or None,
                             multi_step=args.multi_step, ensemble=args.ensemble, seed=args.seed, threads=args.threads)
-    config = DnnConfig.for_features(feature_set, width=args.width, depth=args.depth, activation=args.activation,
-                                    ceiling=args.ceiling, batch_norm=not args.no_batch_norm,
-                                    predict_increment=not args.absolute_target)
+    predictor = load_predictor_config()
+    vessel = args.vessel or predictor.vessel
+    layout = actuator_layout(dataset.control_layout)  # the bags' layout, stored by `replay dataset`
+    if load_vessel(vessel).actuator_layout.name != layout.name:
+        raise ConfigError(f"{args.dataset}: the dataset's control layout is {layout.name} {list(layout.control_names)}"
+                          f" but vessel {vessel} is {load_vessel(vessel).actuator_layout.name}: give --vessel of the "
+                          "vessel the bags were recorded on")
+    config = DnnConfig.for_features(feature_set, layout, width=args.width, depth=args.depth,
+                                    activation=args.activation, ceiling=args.ceiling,
+                                    batch_norm=not args.no_batch_norm, predict_increment=not args.absolute_target)
     windows = {}
     if recipe.multi_step > 1:
         windows = {"train_windows": windows_from_recordings(train_split.recordings(), recipe.multi_step),
@@ -113,8 +124,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
           f"(val {len(val)}), {recipe.epochs} epochs max, ensemble {recipe.ensemble}", file=sys.stderr)
     result = train_dnn(config, train, val if len(val) else None, recipe,
                        progress=_Throttled(args.progress_s, recipe.epochs), **windows)
-    predictor = load_predictor_config()
-    artifact = export(args.output, result.models, config, dt=dataset.dt, vessel=args.vessel or predictor.vessel,
+    artifact = export(args.output, result.models, config, dt=dataset.dt, vessel=vessel,
                       training_data_sha256=dataset.digest(), training={**result.summary(), "dataset": str(args.dataset)},
                       horizon_steps=args.horizon_steps or round(predictor.horizon_s / dataset.dt), dtype=args.dtype)
     summary = {

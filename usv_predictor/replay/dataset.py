@@ -16,18 +16,21 @@ def dataset_from_bags(bags: Sequence[Path], output: Path, *, features: str = "NT
                       test: tuple[float, Sequence[str]] = (0.0, ()), train: Sequence[str] = (), seed: int = 0,
                       config: Path | None = None, topics: Mapping[str, str] | None = None, include_calm: bool = False,
                       min_duration_s: float = 10.0, jobs: int = 0, horizon_s: float | None = None,
-                      provenance: str = "", warn: Callable[[str], None] = lambda _: None,
+                      provenance: str = "", vessel: str | None = None, warn: Callable[[str], None] = lambda _: None,
                       progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """Build and save the dataset; the result of `replay dataset` (per-recording rows, splits, digest, warnings).
 
     val / test: (fraction of the manoeuvres no pattern pins, name globs); train: globs pinned to training;
-    dt None: the predictor config's step; topics: role -> topic overrides; provenance: the command that rebuilds it.
+    dt None: the predictor config's step; topics: role -> topic overrides; provenance: the command that rebuilds it;
+    vessel: the preset whose actuator layout says which control topics the bags carry (None: the config's vessel);
+    the layout is stored in the dataset (metadata control_layout).
     """
     import numpy as np
 
     from usv_predictor.config import load_predictor_config
     from usv_predictor.data.dataset import build_dataset, save_dataset, split_by_manoeuvre
     from usv_predictor.errors import DatasetError
+    from usv_predictor.physics.vessel import load_vessel
     from usv_predictor.replay.recordings import bag_sha256, load_recordings
 
     started = time.perf_counter()
@@ -37,11 +40,13 @@ def dataset_from_bags(bags: Sequence[Path], output: Path, *, features: str = "NT
         warnings.append(message)
         warn(message)
 
-    step = dt if dt is not None else load_predictor_config(config).dt
+    predictor = load_predictor_config(config)
+    step = dt if dt is not None else predictor.dt
+    layout = load_vessel(vessel or predictor.vessel).actuator_layout
     (val_fraction, val_globs), (test_fraction, test_globs) = val, test
     recordings = load_recordings(bags, step, config_path=config, topics=topics, segment=segment,
                                  min_duration_s=min_duration_s, horizon_s=horizon_s, include_calm=include_calm,
-                                 jobs=jobs, warn=warned, progress=progress)
+                                 jobs=jobs, warn=warned, progress=progress, layout=layout)
     if not recordings:
         raise DatasetError(f"no usable recording in {[str(b) for b in bags]} (see the warnings above)")
     splits = split_by_manoeuvre([r.name for r in recordings], val_fraction=val_fraction, test_fraction=test_fraction,
@@ -62,5 +67,6 @@ def dataset_from_bags(bags: Sequence[Path], output: Path, *, features: str = "NT
                  for s in ("train", "val", "test")}
     return {"output": str(output), "format": dataset.metadata["format"], "digest": dataset.digest(),
             "feature_set": dataset.feature_set, "feature_names": dataset.metadata["feature_names"], "dt": dataset.dt,
+            "control_layout": dataset.control_layout, "control_names": dataset.metadata["control_names"],
             "recordings": rows, "splits": per_split, "samples": int(len(dataset.X)), "warnings": warnings,
             "seconds": time.perf_counter() - started, "provenance": dataset.metadata["provenance"]}

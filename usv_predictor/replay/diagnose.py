@@ -6,19 +6,26 @@ from pathlib import Path
 from typing import Any
 
 
-def diagnose_bags(bags: Sequence[Path], *, vessel: str | None = None, model: Path | None = None, dt: float = 0.5,
-                  hypotheses: Sequence[str] | None = None, max_causes: int = 2, horizon_s: float = 20.0,
-                  stride_s: float = 5.0, gain: bool = True, export: Path | None = None, report: Path | None = None,
+def diagnose_bags(bags: Sequence[Path], *, vessel: str | None = None, model: Path | None = None,
+                  dt: float | None = None, hypotheses: Sequence[str] | None = None, max_causes: int = 2,
+                  horizon_s: float | None = None, stride_s: float | None = None, gain: bool = True, export: Path | None = None, report: Path | None = None,
                   include_calm: bool = False, config: Path | None = None,
                   progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """The calm-water model (preset `vessel` or grey-box artifact `model`), the bags' recordings at step dt
-    (topics of the predictor config `config`), and the diagnosis run on them (run_diagnosis: the arguments)."""
+    (topics of the predictor config `config`), and the diagnosis run on them (run_diagnosis: the arguments).
+    dt, horizon_s, stride_s: None = what suits the calm-water vessel (analysis.diagnosis_steps)."""
     from usv_predictor.analysis.diagnosis_run import calm_water_vessel, run_diagnosis
+    from usv_predictor.analysis.diagnosis_steps import diagnosis_steps
     from usv_predictor.replay.recordings import load_recordings
 
     calm_water, source = calm_water_vessel(vessel, model, config)
+    suited = diagnosis_steps(calm_water)
+    dt = suited.dt if dt is None else dt
+    horizon_s = suited.horizon_s if horizon_s is None else horizon_s
+    stride_s = suited.stride_s if stride_s is None else stride_s
+    progress(f"model step {dt:g} s, segments of {horizon_s:g} s every {stride_s:g} s ({suited.reason})")
     recordings = load_recordings(bags, dt, config_path=config, include_calm=include_calm, horizon_s=horizon_s,
                                  progress=progress, layout=calm_water.actuator_layout)
     return run_diagnosis(recordings, calm_water, source, dt=dt, hypotheses=hypotheses, max_causes=max_causes,
                          horizon_s=horizon_s, stride_s=stride_s, gain=gain, export=export, report=report,
-                         progress=progress)
+                         progress=progress, suited_steps=suited)

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import datetime
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from usv_predictor.errors import BagError, ConfigError, EvaluationError
 
@@ -39,6 +39,9 @@ class EvaluationRequest:
     horizons_s: tuple[float, ...] = (10.0, 30.0, 60.0)  # open-loop horizons (s)
     stride_s: float = 5.0  # time between open-loop start points (s)
     include_calm: bool = False  # also read calm/ twins under bag directories
+    config: Path | None = None  # predictor.yaml with the input topics (None: the shipped one)
+    vessel: str | None = None  # preset the bags were recorded on (its actuator layout); None: the model's, else the config's
+    adaptive: bool = False  # also run the online estimator and the adaptive open loop (analysis/adaptive.py)
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(x) and x > 0.0 for x in (self.stride_s, *self.horizons_s)):
@@ -72,6 +75,28 @@ def _output_apart(request: EvaluationRequest, output: Path | None, writes: Seque
         check_outputs(outputs, [*(request.bags or default_bags()), request.model], {"--output"})
 
 
+def bags_layout(vessel: str | None, metadata: Mapping[str, Any], source: str, config: Path | None = None) -> Any:
+    """The actuator layout the bags are read with: of `vessel`, else of the model's vessel (a known preset), else of
+    the config's; EvaluationError (one line naming both) when the model's control_layout is not that layout's."""
+    from usv_predictor.config import load_predictor_config
+    from usv_predictor.physics.vessel import load_vessel
+
+    if vessel is None:
+        try:
+            preset = load_vessel(str(metadata.get("vessel", "")))
+        except ConfigError:  # a model of a vessel that is no preset here: the configured vessel's bags
+            preset = load_vessel(load_predictor_config(config).vessel)
+    else:
+        preset = load_vessel(vessel)
+    layout = preset.actuator_layout
+    controls = list(metadata.get("control_layout", []))
+    if controls != list(layout.control_names):
+        raise EvaluationError(f"model {source} has control_layout {controls} but the bags of vessel {preset.name} have "
+                              f"{layout.name} {list(layout.control_names)}: evaluate a model of that layout (or "
+                              "give the bags' vessel)")
+    return layout
+
+
 def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = lambda _: None) -> EvaluationResult:
     """The EvaluationResult of the request, its `extra` holding the provenance (time, version, model, data)."""
     import numpy as np
@@ -86,12 +111,16 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
     bags = list(request.bags) or default_bags()
     progress(f"model {model.metadata.get('model_id', '?')} ({model.metadata.get('model_type', '?')}), dt {dt:g} s; "
              f"reading {', '.join(map(str, bags))}")
-    recordings = load_recordings(bags, dt, include_calm=request.include_calm, warn=lambda m: progress(f"warning: {m}"),
-                                 progress=progress)
+    layout = bags_layout(request.vessel, model.metadata, request.model or str(loading.default_model_path()),
+                         config=request.config)
+    recordings = load_recordings(bags, dt, config_path=request.config, include_calm=request.include_calm,
+                                 warn=lambda m: progress(f"warning: {m}"), progress=progress, layout=layout)
     if not recordings:
         raise BagError(f"no usable recording in {', '.join(map(str, bags))} (see the warnings above)")
     result = evaluation.evaluate(model, recordings, request.reference, tuple(request.horizons_s), request.stride_s,
                                  progress=progress)
+    if request.adaptive:
+        result.extra["adaptive"] = adaptive_section(model, recordings, request, progress)
     result.extra.update({
         "generated_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "software_version": __version__,
@@ -102,6 +131,34 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
                                  "has_truth": r.truth is not None} for r in recordings]},
     })
     return result
+
+
+def adaptive_section(model: object, recordings: Sequence[object], request: EvaluationRequest,
+                     progress: Callable[[str], None] = lambda _: None) -> dict:
+    """`--adaptive`: the online estimator (fitting/online.py) over each recording and the open-loop errors with
+    its live estimate in the model's terms (analysis/adaptive.py), beside the plain ones."""
+    from dataclasses import asdict
+
+    from usv_predictor.analysis import adaptive
+    from usv_predictor.fitting.online import STATE_NAMES, STATE_UNITS, OnlineConfig
+
+    config = OnlineConfig()
+    runs = []
+    for k, recording in enumerate(recordings):
+        progress(f"[{k + 1}/{len(recordings)}] online estimate and adaptive open loop on {recording.name}")
+        runs.append(adaptive.adaptive_open_loop(model, recording, request.reference, tuple(request.horizons_s),
+                                                request.stride_s, config))
+    applied = bool(runs) and runs[0].applied
+    return {
+        "method": "extended Kalman filter on the float grey box, states " + ", ".join(
+            f"{n} ({u})" for n, u in zip(STATE_NAMES, STATE_UNITS)) + " (docs/online.md)",
+        "applied": applied,
+        "how": ("the live current_ne, yaw_rate_bias and resistance_change are set in the grey box's terms before "
+                "each rollout" if applied else adaptive.NOT_APPLIED),
+        "config": asdict(config),
+        "summary": adaptive.summarise(runs, tuple(request.horizons_s)),
+        "recordings": [run.to_json(recording.dt) for run, recording in zip(runs, recordings)],
+    }
 
 
 def save_evaluation(result: EvaluationResult, directory: Path) -> dict:

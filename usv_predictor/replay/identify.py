@@ -12,19 +12,19 @@ import numpy as np
 from usv_predictor.errors import BagError, DatasetError
 
 
-def identification_recordings(paths: Sequence[Path], dt: float, progress: Callable[[str], None] = lambda _: None, *,
-                               layout: Any = None, blocks: int = 1) -> list:
-    """The recordings of `paths` at step dt, read with the vessel's actuator `layout` (physics/actuators.py; None:
-    rudder_propeller); a bag without engine speed is a DatasetError saying why it matters. blocks > 1 cuts each
-    recording into that many contiguous pieces of equal length, NAME~1, NAME~2, ... (blocked cross-validation of
-    a single long record: each piece is held out in turn)."""
+def identification_recordings(paths: Sequence[Path], dt: float, progress: Callable[[str], None] = lambda _: None,
+                               config: Path | None = None, *, layout: Any = None, blocks: int = 1) -> list:
+    """The recordings of `paths` at step dt (topics of `config`, default the shipped predictor.yaml), read with the
+    vessel's actuator `layout` (physics/actuators.py; None: rudder_propeller); a bag without engine speed is a
+    DatasetError saying why it matters. blocks > 1 cuts each recording into that many contiguous pieces of equal
+    length, NAME~1, NAME~2, ... (blocked cross-validation of a single long record: each piece is held out in turn)."""
     from usv_predictor.physics.actuators import DEFAULT_LAYOUT
     from usv_predictor.replay.recordings import load_recordings, slice_recording
 
     if blocks < 1:
         raise DatasetError(f"--blocks {blocks}: expected a whole number >= 1")
     try:
-        recordings = load_recordings(paths, dt, progress=progress, layout=layout or DEFAULT_LAYOUT)
+        recordings = load_recordings(paths, dt, config_path=config, progress=progress, layout=layout or DEFAULT_LAYOUT)
     except BagError as err:
         if "engine_rpm" in str(err):
             raise DatasetError(f"identification needs the engine speed (engine_rpm): without it the propeller thrust "
@@ -44,19 +44,21 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
 
 def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure: str = "auto", prior: str = "none",
                   hybrid: bool = False, dt: float = 0.2, validation: str | None = None, report: Path | None = None,
-                  blocks: int = 1, progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+                  blocks: int = 1, config: Path | None = None,
+                  progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """Identify the hull (and what the layout lets the data set: thrust gains, engine speeds) of the vessel file
     `vessel` (a preset name or a YAML path) from `bags`, read with its actuator layout (structure mmg / abkowitz /
     diagonal / coupled / auto, prior none / fix / ridge), export the grey box (with hybrid: plus an MLP residual)
     to `output`; validation: a glob of bags only evaluated; report: a directory for summary.md and the force plots;
-    blocks: pieces per recording for cross-validation. The result of `replay identify`."""
+    blocks: pieces per recording for cross-validation; config: the predictor.yaml whose topics are read (default
+    the shipped one). The result of `replay identify`."""
     from usv_predictor.analysis.evaluation import evaluate
     from usv_predictor.fitting import hybrid_fit, identification
     from usv_predictor.physics.vessel import load_vessel
 
     preset = load_vessel(vessel)
     layout = preset.actuator_layout
-    recordings = identification_recordings(list(bags), dt, progress, layout=layout, blocks=blocks)
+    recordings = identification_recordings(list(bags), dt, progress, config, layout=layout, blocks=blocks)
     if not recordings:
         raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
     result = identification.identify(preset, recordings, structure=structure, prior=prior, progress=progress)
@@ -78,7 +80,7 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
         paths = sorted(Path(p) for p in glob.glob(validation))
         if not paths:
             raise DatasetError(f"--val {validation!r} matches no bag")
-        out["validation"] = evaluate(artifact, identification_recordings(paths, dt, progress, layout=layout),
+        out["validation"] = evaluate(artifact, identification_recordings(paths, dt, progress, config, layout=layout),
                                      progress=progress).to_json()
     for c in result.coefficients():
         progress(f"  {c.name:7s} {c.estimate:+.5g}  [{c.ci95[0]:+.5g}, {c.ci95[1]:+.5g}]  prior {c.prior:+.5g}  "

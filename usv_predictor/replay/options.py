@@ -61,6 +61,14 @@ def log(message: str) -> None:
     print(message, file=sys.stderr)
 
 
+def add_config_argument(parser: argparse.ArgumentParser) -> None:
+    """--config: the predictor parameter file whose input topics (and their options) the bags are read with.
+    Every command that reads bags takes it (list "config" in the command's INPUTS)."""
+    parser.add_argument("--config", type=Path, default=None, metavar="YAML",
+                        help="predictor.yaml with the input topics and their options (default: the shipped "
+                             "config/predictor.yaml)")
+
+
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     """The model and how to compare it: options of `replay evaluate` and `replay report` (which can evaluate bags)."""
     parser.add_argument("--model", default=None, metavar="M",
@@ -76,9 +84,16 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--stride", type=positive_float, default=5.0, metavar="S",
                         help="time between open-loop start points (s, default 5)")
     parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
+    add_config_argument(parser)
+    parser.add_argument("--vessel", default=None, metavar="PRESET",
+                        help="vessel preset the bags were recorded on: its actuator layout says which control topics "
+                             "are read and must be the model's control_layout (default: the model's vessel, else "
+                             "the config's)")
 
 
 def evaluation_request(args: argparse.Namespace, bags: Sequence[Path]) -> EvaluationRequest:
     """The options of add_model_arguments (and the bags) as an EvaluationRequest."""
     return EvaluationRequest(bags=tuple(bags), model=args.model, dt=args.dt, reference=args.reference,
-                             horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm)
+                             horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm,
+                             config=args.config, vessel=args.vessel,
+                             adaptive=bool(getattr(args, "adaptive", False)))

@@ -9,6 +9,8 @@ Recording names are the shortest trailing part of the bag path that is unique am
 (`zigzag_10_10_stbd_650rpm`, or `training/zigzag_...` next to `calm/zigzag_...`).
 
 What happens to imperfect input (warnings go through `warn`, by default to stderr):
+- topic names: a configured (relative) name matches the bag's fully qualified one, as ROS resolves names in the
+  root namespace (`imu/data` reads `/imu/data`, written so by `ros2 bag record`; bagio.resolve_topic);
 - missing or unreadable bag, unreadable metadata, a required topic missing or empty, a topic of another
   message type: BagError naming the bag, the topic and what is present;
 - a missing optional topic (GNSS, ground truth): that role is left out, with a warning;
@@ -53,10 +55,16 @@ from usv_predictor.data.recording import (
     required_roles,
 )
 from usv_predictor.errors import BagError, ConfigError, DatasetError, one_line
-from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout, unused_roles
+from usv_predictor.physics.actuators import (
+    DEFAULT_LAYOUT,
+    ActuatorLayout,
+    actuator_layout,
+    check_layout_inputs,
+    unused_roles,
+)
 from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.records import NS_PER_S, Signal, whole_steps
-from usv_predictor.replay.bagio import TopicSpec, read_bag
+from usv_predictor.replay.bagio import TopicSpec, read_signals, resolve_topic
 
 OPTIONAL_ROLES = ("gnss", "odometry")
 # Fields of each role that recording_from_signals uses: a NaN there would poison a window mean.
@@ -190,7 +198,9 @@ def topic_specs(config_path: str | Path | None = None, topics: Mapping[str, str]
     if unknown:
         raise ConfigError(f"topic override for unknown role(s) {unknown}; roles of {cfg.source}: {sorted(roles)}")
     overrides = dict(topics or {})
-    unused = unused_roles(layout or load_vessel(cfg.vessel).actuator_layout)
+    layout = layout or load_vessel(cfg.vessel).actuator_layout
+    check_layout_inputs(layout, {e.role: overrides.get(e.role, e.topic) for e in entries}, cfg.source)
+    unused = unused_roles(layout)
     return [TopicSpec(overrides.get(e.role, e.topic), e.role, e.ros_type, e.options, e.frame_id) for e in entries
             if e.role not in unused]
 
@@ -206,6 +216,9 @@ def _present_specs(path: Path, present: Mapping[str, tuple[str, int]] | None, sp
     required = required_roles(layout)
     chosen = []
     for spec in specs:
+        name = resolve_topic(spec.topic, present)  # `imu/data` of the config is `/imu/data` of `ros2 bag record`
+        if name is not None and name != spec.topic:
+            spec = dataclasses.replace(spec, topic=name)
         ros_type, count = present.get(spec.topic, (None, 0))
         if spec.role in required:
             if ros_type is None:
@@ -375,6 +388,20 @@ def _long_enough(rec: Recording, min_duration_s: float, horizon_s: float | None,
     return True
 
 
+def _check_recorded_layout(path: Path, vessel: str | None, layout: ActuatorLayout) -> None:
+    """A bag that names its vessel (custom_data `vessel`, written by `replay simulate`) is read with that vessel's
+    actuator layout: BagError naming both otherwise. A vessel that is no preset here is not checked."""
+    if not vessel:
+        return
+    try:
+        recorded = load_vessel(vessel).actuator_layout
+    except ConfigError:
+        return
+    if recorded.name != layout.name:
+        raise BagError(f"{path}: recorded on vessel {vessel} ({recorded.name} {list(recorded.control_names)}) but read "
+                       f"as {layout.name} {list(layout.control_names)}: read it with the vessel of the bag")
+
+
 def recordings_from_bag(source: BagSource, specs: Sequence[TopicSpec], dt: float, *, segment: str = "bag",
                         min_duration_s: float = 10.0, horizon_s: float | None = None,
                         warn: Warn = warn_stderr, layout: str = DEFAULT_LAYOUT.name) -> list[Recording]:
@@ -388,13 +415,15 @@ def recordings_from_bag(source: BagSource, specs: Sequence[TopicSpec], dt: float
     required = required_roles(actuators)
     path = source.path
     metadata = bag_metadata(path)
+    if metadata is not None:
+        _check_recorded_layout(path, metadata[1].get("vessel"), actuators)
     chosen = _present_specs(path, None if metadata is None else metadata[0], specs, warn, actuators)
-    raw = read_bag(path, chosen)
+    raw = dict(zip((spec.role for spec in chosen), read_signals(path, chosen)))  # role -> Signal (topics may be shared)
     t_ref = min((int(s.t_ns[0]) for s in raw.values() if len(s)), default=0)
     topic_of = {spec.role: spec.topic for spec in chosen}
     signals = {}
     for spec in chosen:
-        cleaned = clean_signal(raw[spec.topic], where=f"{path}: topic {spec.topic!r}", role=spec.role, dt=dt,
+        cleaned = clean_signal(raw[spec.role], where=f"{path}: topic {spec.topic!r}", role=spec.role, dt=dt,
                                t_ref_ns=t_ref, warn=warn, layout=actuators)
         if len(cleaned) == 0:
             if spec.role in required:

@@ -1,0 +1,287 @@
+"""Online estimation of the sea (fitting/online.py, analysis/adaptive.py, `replay evaluate --adaptive`) and the
+current that steps during a simulated run (physics/environment.py). Bags are simulated once per module."""
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from usv_predictor.analysis import adaptive, evaluation
+from usv_predictor.errors import ConfigError
+from usv_predictor.fitting.online import B_R, C_E, C_N, K_R, OnlineConfig, OnlineEstimator, chi2_quantile, \
+    estimate_recording
+from usv_predictor.frames import angle_difference_deg
+from usv_predictor.models.loading import load_model, physics_predictor
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.manoeuvres import TurningCircle
+from usv_predictor.physics.scenario import make_scenario
+from usv_predictor.physics.simulator import simulate as simulate_trajectory
+from usv_predictor.physics.vessel import load_vessel
+from usv_predictor.replay.evaluate import EvaluationRequest, evaluate
+from usv_predictor.replay.recordings import load_recordings
+from usv_predictor.replay.simulate import SimulationRequest, simulate
+
+DT = 0.5  # s
+STEP_AT_S = 100.0  # s
+STEP = {"current": {"current_speed": 0.3, "current_to_deg": 90.0, "current_step_time_s": STEP_AT_S,
+                    "current_step_speed": 0.5, "current_step_to_deg": 220.0}}  # (m/s, deg toward)
+SEAS = {
+    "step": ("random", STEP, None),
+    "calm": ("random", {}, None),
+    "straight": ("turning-circle", {}, 0.0),  # rudder 0: a straight run
+    "bias": ("zigzag", {"yaw_rate_bias": {"yaw_rate_bias_deg_s": 0.5}}, None),
+    "heading": ("zigzag", {"heading_offset": {"heading_offset_deg": 3.0}}, None),
+}
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("online")
+    out = {}
+    for name, (manoeuvre, effects, rudder) in SEAS.items():
+        out[name] = root / name
+        simulate(SimulationRequest(output=out[name], manoeuvre=manoeuvre, duration_s=240.0, effects=effects,
+                                   rudder_deg=rudder, seed=5))
+    return out
+
+
+def recording(bags, name):
+    (rec,) = load_recordings([bags[name]], DT, warn=lambda _: None)
+    return rec
+
+
+def truth_current(name: str, t_s: float) -> tuple[float, float]:
+    return make_scenario("jari_usv", SEAS[name][1]).environment.current_ned(t_s)
+
+
+# ---- the simulator: a current that steps ---------------------------------------------------------------
+
+def test_the_step_is_a_ramp_between_two_currents_and_its_derivative_is_consistent():
+    env = Environment(current_speed=0.3, current_to_deg=90.0, current_step_time_s=50.0, current_step_speed=0.5,
+                      current_step_to_deg=220.0, current_step_ramp_s=10.0)
+    t = np.array([0.0, 49.9, 55.0, 60.0, 100.0])
+    velocity, accel = env.current_arrays(t)
+    assert velocity[0] == pytest.approx((0.0, 0.3), abs=1e-12) and velocity[1] == pytest.approx((0.0, 0.3), abs=1e-12)
+    after = (0.5 * math.cos(math.radians(220.0)), 0.5 * math.sin(math.radians(220.0)))
+    assert velocity[3] == pytest.approx(after, abs=1e-12) and velocity[4] == pytest.approx(after, abs=1e-12)
+    assert velocity[2] == pytest.approx(0.5 * (np.array(after) + (0.0, 0.3)), abs=1e-12)  # half way
+    h = 1e-4
+    numeric = (env.current_arrays(np.array([55.0 + h]))[0] - env.current_arrays(np.array([55.0 - h]))[0]) / (2 * h)
+    assert accel[2] == pytest.approx(numeric[0], abs=1e-8) and np.abs(accel[2]).max() > 0.01
+    assert env.current_ned(55.0) == pytest.approx(tuple(velocity[2]), abs=1e-12)  # scalar and vector agree
+    assert not Environment(current_speed=0.3).has_current_step and env.calm().is_calm
+    with pytest.raises(ConfigError, match="current_step_ramp_s"):
+        Environment(current_step_time_s=10.0, current_step_ramp_s=0.0)
+
+
+def test_the_simulated_drift_follows_the_step():
+    """Over-ground velocity from the integrated positions minus the velocity through the water = the current,
+    before and after the step (the simulator integrates the stepped current, deterministically)."""
+    model = ManoeuvringModel(load_vessel("jari_usv"))
+    env = dataclasses.replace(make_scenario("jari_usv", STEP).environment, current_step_time_s=60.0)
+    straight = TurningCircle(0.0, 650.0, duration_s=140.0)
+    traj = simulate_trajectory(model, straight, env, heading_deg=30.0)
+    again = simulate_trajectory(model, straight, env, heading_deg=30.0)
+    assert np.array_equal(traj.eta, again.eta)
+    t = traj.t_s
+    ground = np.gradient(traj.eta[:, :2], t, axis=0)  # (N, 2) d(x_n, y_e)/dt
+    c, s = np.cos(traj.psi_unwrapped), np.sin(traj.psi_unwrapped)
+    water = np.column_stack([traj.nu_r[:, 0] * c - traj.nu_r[:, 1] * s, traj.nu_r[:, 0] * s + traj.nu_r[:, 1] * c])
+    drift = ground - water
+    for when in (30.0, 50.0, 80.0, 130.0):
+        k = int(np.argmin(abs(t - when)))
+        assert drift[k] == pytest.approx(env.current_ned(when), abs=2e-3), when
+    before, after = drift[int(np.argmin(abs(t - 50.0)))], drift[int(np.argmin(abs(t - 130.0)))]
+    assert np.hypot(*(after - before)) > 0.5  # the step is there, not only in the bookkeeping
+
+
+# ---- the filter on simulated bags -----------------------------------------------------------------------
+
+def test_after_a_step_the_estimate_is_within_5_cm_s_and_10_deg_within_60_s(bags):
+    rec = recording(bags, "step")
+    estimates = estimate_recording(rec, load_vessel("jari_usv"))
+    checked = 0
+    for t, e in zip(rec.t_s, estimates):
+        if t < STEP_AT_S + 60.0:
+            continue
+        truth = truth_current("step", t)
+        assert e.current_speed_m_s == pytest.approx(math.hypot(*truth), abs=0.05), t
+        assert abs(angle_difference_deg(e.current_to_deg, math.degrees(math.atan2(truth[1], truth[0])))) < 10.0, t
+        assert e.converged
+        checked += 1
+    assert checked > 100
+    before = estimates[int(np.searchsorted(rec.t_s, STEP_AT_S - 5.0))]
+    assert before.current_speed_m_s == pytest.approx(0.3, abs=0.05)  # it had the first current too
+    assert estimates[-1].changes >= 1  # the persistent innovation was taken as a change of the sea
+
+
+def test_a_calm_run_gets_no_current(bags):
+    estimates = estimate_recording(recording(bags, "calm"), load_vessel("jari_usv"))
+    settled = [e for e in estimates[60:]]
+    assert all(e.converged for e in settled)
+    assert max(e.current_speed_m_s for e in settled) < 0.03
+    # within its noise: the speed is at most 3 of its standard deviations
+    assert all(e.current_speed_m_s < 3.0 * e.current_std_max_m_s + 0.01 for e in settled)
+    assert 0.3 < settled[-1].nis_mean < 6.0 and settled[-1].rejections < 5
+
+
+def test_a_straight_run_is_not_converged_and_invents_no_current(bags):
+    """On a straight course the along-track current and a resistance error are confounded: it says so."""
+    estimates = estimate_recording(recording(bags, "straight"), load_vessel("jari_usv"))
+    assert not any(e.converged for e in estimates)
+    assert all(e.current_std_max_m_s > 0.05 for e in estimates)
+    assert all(e.current_speed_m_s < 2.0 * e.current_std_max_m_s for e in estimates)
+    last = estimates[-1]
+    assert math.sqrt(last.current_cov[2]) < 0.02  # the cross-track (east) current is known ...
+    assert math.sqrt(last.current_cov[0]) > 0.05  # ... the along-track (north) one is not
+
+
+def test_a_yaw_rate_bias_is_estimated_and_not_taken_for_current(bags):
+    estimates = estimate_recording(recording(bags, "bias"), load_vessel("jari_usv"))
+    last = estimates[-1]
+    assert math.degrees(last.state[B_R]) == pytest.approx(0.5, abs=0.05)
+    assert max(e.current_speed_m_s for e in estimates[60:]) < 0.04
+
+
+def test_a_heading_offset_is_not_taken_for_current(bags):
+    estimates = estimate_recording(recording(bags, "heading"), load_vessel("jari_usv"))
+    assert max(e.current_speed_m_s for e in estimates[60:]) < 0.04
+
+
+# ---- bad input ------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def turning():
+    """A turning circle in a 0.4 m/s current, noiseless truth at 0.5 s: t, nu (T, 3), psi, controls (T, 2)."""
+    model = ManoeuvringModel(load_vessel("jari_usv"))
+    env = Environment(current_speed=0.4, current_to_deg=135.0)
+    traj = simulate_trajectory(model, TurningCircle(20.0, 650.0, duration_s=120.0), env)
+    k = np.arange(0, len(traj.t_s), 50)
+    return traj.t_s[k], traj.nu[k], traj.psi_unwrapped[k], traj.actuators[k]
+
+
+def test_nan_never_enters_the_state_and_outliers_are_gated(turning):
+    t, nu, psi, controls = turning
+    est = OnlineEstimator(load_vessel("jari_usv"))
+    for k in range(120):
+        est.step(t[k], *nu[k], psi[k], controls[k])
+    before = est.step(t[120], *nu[120], psi[120], controls[120])
+    assert before.current_speed_m_s == pytest.approx(0.4, abs=0.02)
+    partial = est.step(t[121], math.nan, nu[121, 1], nu[121, 2], psi[121], controls[121])
+    assert partial.status == "updated" and all(map(math.isfinite, partial.state))
+    skipped = est.step(t[122], *nu[122], math.nan, controls[122])
+    assert skipped.status.startswith("skipped") and skipped.state == partial.state
+    skipped = est.step(t[123], *nu[123], psi[123], [math.inf, 650.0])
+    assert skipped.status.startswith("skipped")
+    spike = est.step(t[124], nu[124, 0] + 3.0, nu[124, 1], nu[124, 2], psi[124], controls[124])
+    assert spike.status.startswith("rejected") and spike.rejections == 1
+    assert spike.current_speed_m_s == pytest.approx(0.4, abs=0.02)
+    after = est.step(t[125], *nu[125], psi[125], controls[125])
+    assert after.status == "updated" and after.changes == 0
+    with pytest.raises(ConfigError, match="controls must be"):
+        est.step(t[126], *nu[126], psi[126], [0.0])
+
+
+def test_gaps_and_clock_jumps(turning):
+    t, nu, psi, controls = turning
+    est = OnlineEstimator(load_vessel("jari_usv"))
+    for k in range(100):
+        e = est.step(t[k], *nu[k], psi[k], controls[k])
+    std_before = e.current_std_max_m_s
+    gap = est.step(t[110], *nu[110], psi[110], controls[110])  # 5 s of stale inputs
+    assert gap.status == "restarted after a gap" and gap.resets == 0
+    assert gap.current_speed_m_s == pytest.approx(0.4, abs=0.02) and gap.current_std_max_m_s >= std_before
+    nxt = est.step(t[111], *nu[111], psi[111], controls[111])
+    assert nxt.status == "updated"
+    jump = est.step(t[50], *nu[50], psi[50], controls[50])  # the clock went back 30 s
+    assert jump.status == "reset: clock jump" and jump.resets == 1 and not jump.converged
+    assert jump.current_std_max_m_s == pytest.approx(0.5)  # the prior again
+    far = est.step(t[51] + 1e4, *nu[51], psi[51], controls[51])  # and far forward
+    assert far.resets == 2
+    waiting = OnlineEstimator(load_vessel("jari_usv")).step(0.0, math.nan, 0.0, 0.0, 0.0, [0.0, 650.0])
+    assert waiting.status == "waiting for a complete measurement" and all(map(math.isfinite, waiting.state))
+
+
+def test_the_configuration_is_checked():
+    with pytest.raises(ConfigError, match="current_noise"):
+        OnlineConfig(current_noise=-1.0)
+    with pytest.raises(ConfigError, match="gate_probability"):
+        OnlineConfig(gate_probability=1.0)
+    with pytest.raises(ConfigError, match="velocity_std_m_s"):
+        OnlineConfig(velocity_std_m_s=math.nan)
+    assert chi2_quantile(0.999, 3) == pytest.approx(16.266, abs=1e-3)  # tables of the chi^2 distribution
+    assert chi2_quantile(0.999, 2) == pytest.approx(13.816, abs=1e-3)
+    assert chi2_quantile(0.999, 1) == pytest.approx(10.828, abs=1e-3)
+
+
+def test_the_covariance_stays_bounded(turning):
+    t, nu, psi, controls = turning
+    config = OnlineConfig()
+    est = OnlineEstimator(load_vessel("jari_usv"), config)
+    prior = config.prior_std() ** 2
+    for k in range(len(t)):
+        est.step(t[k], *nu[k], psi[k], controls[k])
+        d = np.diag(est.P)
+        assert np.all(d <= config.covariance_ceiling * prior * (1 + 1e-9))
+        assert np.all(d >= config.covariance_floor * prior * (1 - 1e-9))
+        assert np.all(np.linalg.eigvalsh(est.P) > 0.0)
+    assert est.x[K_R] == pytest.approx(0.0, abs=0.02) and math.hypot(est.x[C_N], est.x[C_E]) == pytest.approx(0.4, abs=0.01)
+
+
+# ---- adaptive prediction --------------------------------------------------------------------------------
+
+def test_per_start_terms_predict_as_each_start_with_its_own_terms():
+    model = physics_predictor("jari_usv", DT)
+    state = np.array([[5.5, 0.1, 0.02, 0.3], [5.0, -0.1, -0.05, 2.0]])  # (2, 4)
+    controls = np.zeros((2, 12, 2))
+    controls[..., 1] = 650.0
+    controls[:, 4:, 0] = 0.3
+    terms = [{"current_ne": [0.2, -0.1], "yaw_rate_bias": [0.01], "resistance_change": [0.1]},
+             {"current_ne": [-0.3, 0.05], "yaw_rate_bias": [-0.002], "resistance_change": [-0.05]}]
+    with adaptive.per_start_terms(model, terms):
+        batched = evaluation.rollout(model, state, controls)
+    single = []
+    for b in range(2):
+        adaptive.set_terms(model, terms[b])
+        single.append(evaluation.rollout(model, state[b:b + 1], controls[b:b + 1]))
+    adaptive.set_terms(model, {"current_ne": [0.0, 0.0], "yaw_rate_bias": [0.0], "resistance_change": [0.0]})
+    assert np.array_equal(batched, np.concatenate(single, axis=1))
+    assert adaptive.model_terms(model)["current_ne"] == [0.0, 0.0]
+
+
+def test_adaptive_prediction_halves_the_error_in_a_changing_sea_and_costs_nothing_in_calm(bags):
+    model = physics_predictor("jari_usv", DT)
+    ratios = {}
+    for sea in ("step", "calm"):
+        rec = recording(bags, sea)
+        plain = evaluation.open_loop(model, rec, "gnss", (60.0,), 5.0)
+        live = adaptive.adaptive_open_loop(model, rec, "gnss", (60.0,), 5.0)
+        assert live.applied and live.open_loop.starts == plain.starts
+        ratios[sea] = live.open_loop.horizons[0].mean_m / plain.horizons[0].mean_m
+    assert ratios["step"] <= 0.5, ratios
+    assert ratios["calm"] <= 1.05, ratios
+    assert adaptive.model_terms(model)["current_ne"] == [0.0, 0.0]  # the model is left as it was
+
+
+def test_replay_evaluate_adaptive_reports_the_estimate(bags):
+    data = evaluate(EvaluationRequest(bags=(bags["step"],), model="physics", adaptive=True, horizons_s=(30.0, 60.0)))
+    section = data["adaptive"]
+    assert section["applied"] and section["summary"]["mean_position_error_after_60s_m"] < \
+        data["summary"]["mean_position_error_after_60s_m"]
+    final = section["recordings"][0]["final_estimate"]
+    assert final["current_speed_mps"] == pytest.approx(0.5, abs=0.05) and final["converged"] is True
+    assert section["config"]["current_noise"] == OnlineConfig().current_noise
+
+
+def test_a_learned_model_gets_the_estimate_reported_not_applied(bags):
+    model = load_model(None, dt=DT)  # the shipped DNN ensemble
+    rec = recording(bags, "calm")
+    live = adaptive.adaptive_open_loop(model, rec, "gnss", (30.0,), 10.0)
+    plain = evaluation.open_loop(model, rec, "gnss", (30.0,), 10.0)
+    assert not live.applied and adaptive.model_terms(model) is None
+    assert live.open_loop.horizons[0].mean_m == plain.horizons[0].mean_m
+    assert len(live.estimates) == len(rec) and adaptive.summarise([live], (30.0,))["reason"] == adaptive.NOT_APPLIED
