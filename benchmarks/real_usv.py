@@ -10,9 +10,9 @@ Dalian twin-thruster USV (../shared/data/raw/usv_2345vor_dalian, closed-loop pat
     `replay evaluate`);
   - the circle's radius: each model predicts the circle run open loop from t = 40 s (after the approach) to its end
     with the recorded commands; a circle fitted to the predicted track against the 22.5 m the GNSS track makes;
-  - `replay diagnose --dt 0.2` of both runs (at 0.5 s the rollout of this 1.2 m boat is unstable in yaw beyond
-    ~0.3 rad/s) against the vessel file and against each identified grey box, and the gain of the
-    extended model on the held-out run.
+  - `replay diagnose --dt 0.2 --horizon 20 --stride 5` of both runs (at 0.5 s the rollout of this 1.2 m boat is
+    unstable in yaw beyond ~0.3 rad/s) against the vessel file and against each identified grey box, and the gain
+    of the extended model on the held-out run.
 Fuzhou rudder USV (../shared/data/raw/usv_alexandersson2022_fuzhou, a 30 deg zig-zag at sea, no propeller data):
   the grey box of docs/vessels/fuzhou_usv.yaml (rudder_only: the engine speed of each piece from its approach speed)
   identified on the first half of the zig-zag (two pieces for cross-validation; --prior none refuses, --prior fix),
@@ -197,7 +197,8 @@ def dalian(bags: Path, work: Path) -> dict:
     for label, model in (("vessel file", None), ("identified on the circle", identified["circle"]),
                          ("identified on the sine", identified["sine"])):
         log(f"Dalian: diagnose both runs against the {label}")
-        d = diagnose_bags(both, vessel=str(DALIAN_VESSEL), model=model, dt=DT, progress=log)  # 0.5 s: RK4 unstable in yaw
+        d = diagnose_bags(both, vessel=str(DALIAN_VESSEL), model=model, dt=DT, horizon_s=20.0, stride_s=5.0,
+                          progress=log)  # 0.5 s: RK4 unstable in yaw (analysis/diagnosis_steps.py)
         out["diagnose"][label] = {"cause": d["cause"], "parameters": d["parameters"], "message": d["message"],
                                   "additional_causes": d["additional_causes"], "gain": d["gain"],
                                   "evidence": [{k: e[k] for k in ("hypothesis", "heldout_loss", "gain_vs_none",
