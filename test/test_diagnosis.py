@@ -164,3 +164,23 @@ def test_a_hypothesis_whose_start_diverges_is_a_diverged_fit_but_a_diverging_cal
     assert fit_hypothesis(_FakeRollout(seg.target), seg, "current").loss == pytest.approx(0.0, abs=1e-12)
     with pytest.raises(DiagnosisError, match="not finite.*smaller --dt"):
         fit_hypothesis(_FakeRollout(seg.target, broken=True), seg, "current")
+
+
+def test_a_diverged_hypothesis_is_written_as_null_and_reported() -> None:
+    """A hypothesis whose fit diverged has NaN/inf loss and evidence: the strict JSON writer refuses NaN, so the
+    diagnosis writes them as null (undefined) and the report says the fit diverged instead of failing."""
+    import json
+
+    from usv_predictor.analysis.diagnosis_run import _undefined_as_null
+    from usv_predictor.atomic import json_text
+    from usv_predictor.errors import OutputError
+
+    record = {"hypothesis": "wave_drift", "heldout_loss": float("nan"), "gain_vs_none": float("-inf"),
+              "evidence_vs_none": 1.5, "evidence_of_best": float("inf"),
+              "fold_parameters": [{"wave_height_m": float("nan")}, {"wave_height_m": 0.4}]}
+    with pytest.raises(OutputError, match="heldout_loss"):
+        json_text({"evidence": [record]})  # the writer stays strict
+    written = json.loads(json_text({"evidence": [_undefined_as_null(record)]}))["evidence"][0]
+    assert written["heldout_loss"] is None and written["gain_vs_none"] is None and written["evidence_of_best"] is None
+    assert written["evidence_vs_none"] == 1.5 and written["hypothesis"] == "wave_drift"
+    assert written["fold_parameters"] == [{"wave_height_m": None}, {"wave_height_m": 0.4}]

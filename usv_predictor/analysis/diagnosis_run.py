@@ -17,6 +17,7 @@ from typing import Any
 
 from usv_predictor.analysis import diagnosis as dg
 from usv_predictor.analysis.diagnosis_steps import DiagnosisSteps
+from usv_predictor.atomic import finite_or_none
 from usv_predictor.config import load_predictor_config
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import DatasetError, ModelError
@@ -82,8 +83,9 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     out: dict[str, Any] = {
         "cause": result.cause, "parameters": result.parameters, "uncertainty": result.uncertainty,
         "confounded_with": list(result.confounded_with), "message": result.message, "notes": list(result.notes),
-        "additional_causes": [dataclasses.asdict(a) for a in result.additional_causes],
-        "evidence": [dataclasses.asdict(e) for e in result.evidence],
+        "additional_causes": [_undefined_as_null(dataclasses.asdict(a)) for a in result.additional_causes],
+        # a hypothesis whose fit diverged has a non-finite held-out loss and evidence: written as null (undefined)
+        "evidence": [_undefined_as_null(dataclasses.asdict(e)) for e in result.evidence],
         "folds": [list(f) for f in result.folds], "discrepancy": discrepancy,
         "calm_water_model": {"vessel": vessel.name, "source": source},
         "recordings": [{"name": r.name, "source": r.source, "duration_s": r.duration_s} for r in recordings],
@@ -110,3 +112,14 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         out["report"] = str(write_report(report, out, recordings, vessel, result, per_recording))
         progress(f"report written to {out['report']}")
     return out
+
+
+def _undefined_as_null(value: Any) -> Any:
+    """A record's numbers with the non-finite ones (a diverged fit's loss, evidence, parameters) as None (JSON null)."""
+    if isinstance(value, dict):
+        return {k: _undefined_as_null(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_undefined_as_null(v) for v in value]
+    if isinstance(value, float):
+        return finite_or_none(value)
+    return value
