@@ -10,6 +10,7 @@ Unique ROS_DOMAIN_IDs (from the pid) and localhost-only discovery (ros_helpers),
 """
 from __future__ import annotations
 
+import itertools
 import math
 import subprocess
 import sys
@@ -94,7 +95,8 @@ def lockstep(context: Context, bag: Path, recording, *, seconds: float, config_p
             player.publish_clock(stamp)
             spin_until(node_executor, lambda: node.get_clock().now().nanoseconds == stamp, "the clock")
             before = received()
-            due = sum(fanout[m.topic] for m in player.messages[player.cursor:] if m.log_time_ns <= stamp)
+            due = sum(fanout[m.topic] for m in itertools.takewhile(lambda m: m.log_time_ns <= stamp,
+                                                                    player.messages[player.cursor:]))
             player.publish_until(stamp)
             spin_until(node_executor, lambda: received() == before + due, "the messages", also=peer_executor)
         spin_until(peer_executor, lambda: len(velocities) >= node.published, "the last outputs")
