@@ -6,17 +6,20 @@ import math
 
 import numpy as np
 import pytest
+import torch
 
 from usv_predictor.analysis.diagnosis import (
     DiagnosisError,
     check_data,
     diagnose,
     discrepancy,
+    fit_hypothesis,
     make_segments,
     physical_parameters,
     scripted_rollout,
 )
 from usv_predictor.data.recording import Recording, recording_from_signals
+from usv_predictor.physics import effects as fx
 from usv_predictor.physics.dynamics import ManoeuvringModel
 from usv_predictor.physics.environment import Environment
 from usv_predictor.physics.manoeuvres import diagnosis_runs
@@ -135,5 +138,49 @@ def test_the_calm_water_model_is_a_preset_or_refuses_what_is_not_a_plain_grey_bo
     vessel, source = calm_water_vessel("kvlcc2_model", None)
     assert (vessel.name, source) == ("kvlcc2_model", "preset")
     shipped_dnn = Path(__file__).resolve().parents[1] / "models" / "default.pt"
-    with pytest.raises(ModelError, match=r"default\.pt: diagnose needs an MMG grey box .* not model_type"):
+    with pytest.raises(ModelError, match=r"default\.pt: diagnose needs a grey box .* not model_type"):
         calm_water_vessel(None, shipped_dnn)
+
+
+class _FakeRollout(torch.nn.Module):
+    """Every grey-box term as a buffer; the prediction is the target itself, NaN wherever `wave_ne` is non-zero or
+    `broken` is set (a hypothesis whose start diverges; a calm-water model that does)."""
+
+    def __init__(self, target: torch.Tensor, broken: bool = False) -> None:
+        super().__init__()
+        for name, term in fx.grey_box_terms().items():
+            self.register_buffer(name, torch.zeros(term.size, dtype=torch.float64))
+        self.target, self.broken = target, broken
+
+    def forward(self, state: torch.Tensor, controls: torch.Tensor) -> tuple[torch.Tensor]:
+        bad = self.broken or bool(self.wave_ne.abs().sum() > 0)
+        return (self.target * (math.nan if bad else 1.0),)
+
+
+def test_a_hypothesis_whose_start_diverges_is_a_diverged_fit_but_a_diverging_calm_water_model_is_an_error():
+    seg = make_segments(trial(runs=diagnosis_runs()[:1]), 20.0, 20.0)
+    fit = fit_hypothesis(_FakeRollout(seg.target), seg, "wave_drift")
+    assert fit.loss == math.inf and fit.iterations == 0  # ranks last in diagnose, never named
+    assert fit_hypothesis(_FakeRollout(seg.target), seg, "current").loss == pytest.approx(0.0, abs=1e-12)
+    with pytest.raises(DiagnosisError, match="not finite.*smaller --dt"):
+        fit_hypothesis(_FakeRollout(seg.target, broken=True), seg, "current")
+
+
+def test_a_diverged_hypothesis_is_written_as_null_and_reported() -> None:
+    """A hypothesis whose fit diverged has NaN/inf loss and evidence: the strict JSON writer refuses NaN, so the
+    diagnosis writes them as null (undefined) and the report says the fit diverged instead of failing."""
+    import json
+
+    from usv_predictor.analysis.diagnosis_run import _undefined_as_null
+    from usv_predictor.atomic import json_text
+    from usv_predictor.errors import OutputError
+
+    record = {"hypothesis": "wave_drift", "heldout_loss": float("nan"), "gain_vs_none": float("-inf"),
+              "evidence_vs_none": 1.5, "evidence_of_best": float("inf"),
+              "fold_parameters": [{"wave_height_m": float("nan")}, {"wave_height_m": 0.4}]}
+    with pytest.raises(OutputError, match="heldout_loss"):
+        json_text({"evidence": [record]})  # the writer stays strict
+    written = json.loads(json_text({"evidence": [_undefined_as_null(record)]}))["evidence"][0]
+    assert written["heldout_loss"] is None and written["gain_vs_none"] is None and written["evidence_of_best"] is None
+    assert written["evidence_vs_none"] == 1.5 and written["hypothesis"] == "wave_drift"
+    assert written["fold_parameters"] == [{"wave_height_m": None}, {"wave_height_m": 0.4}]

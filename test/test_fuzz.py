@@ -640,7 +640,7 @@ def test_interrupted_in_the_middle(command: str, base: dict[str, Path], tmp_path
 @pytest.mark.parametrize("command", ["dataset", "train"])
 def test_sigint_to_the_process_group(command: str, base: dict[str, Path], tmp_path: Path) -> None:
     """Ctrl-C in a terminal signals the whole process group (dataset's worker processes too)."""
-    argv = {"dataset": ["dataset", str(REPO / "bags"), "--include-calm", "--jobs", "2", "--output",
+    argv = {"dataset": ["dataset", str(REPO / "bags" / "sea_trial"), str(REPO / "bags" / "training"), "--include-calm", "--jobs", "2", "--output",
                         str(tmp_path / "ds.npz")],
             "train": ["train", str(base["dataset"]), "--output", str(tmp_path / "m.pt"), "--epochs", "100000",
                       "--patience", "0"]}[command]

@@ -391,7 +391,7 @@ INTERRUPTED = {
     "train": (["train", "{dataset}", "--output", "out/m.pt", "--epochs", "100000", "--patience", "0",
                "--progress-s", "0"], "epoch 3/"),
     "simulate": (["simulate", "--programme", "training", "--output", "out/bags"], "[1/4]"),
-    "dataset": (["dataset", str(BAGS), "--include-calm", "--jobs", "2", "--output", "out/ds.npz"], "[1/20]"),
+    "dataset": (["dataset", str(BAGS / "sea_trial"), str(BAGS / "training"), "--include-calm", "--jobs", "2", "--output", "out/ds.npz"], "[1/20]"),
     "evaluate": (["evaluate", "--output", "out/eval"], "[1/6]"),
     "report": (["report", "--output", "out/report"], "[1/6]"),
     "identify": (["identify", str(BAGS / "training"), "--vessel", "jari_usv", "--prior", "fix", "--output",

@@ -68,15 +68,12 @@ def test_diagnose_finds_the_hidden_effect(tmp_path, effect, draw_index):
 
 TWIN_VESSEL = "otter"
 TWIN_EFFECTS = effect_names("twin_thrusters")
-# Known limits on the 2 m boat (README, the otter's confusion matrix), both found by this suite on 2026-11-23.
+# Known limit on the 2 m boat (README, the otter's confusion matrix), found by this suite on 2026-11-23.
 # Strict: the day these cases pass, the marks must go.
 TWIN_NOT_FOUND = {
     # the preset's windage and wave-drift coefficients are estimates with similar heading dependence: the 10 m/s
     # wind of this draw is named wave_drift (0.45 m from 47 deg, evidence 16): confounded, a wrong cause
     "wind": "wind on the Otter preset is taken for wave drift (similar estimated coefficients)",
-    # a hypothesis' rollout diverges (overflow), its held-out loss is NaN and the strict JSON writer refuses it:
-    # `replay diagnose` exits 2 (the diagnosis' handling of diverged fits must write null or drop it)
-    "wave_drift": "diagnose exits 2: a diverged hypothesis' held-out loss is NaN in the JSON",
 }
 TWIN_CASES = [pytest.param(e, marks=pytest.mark.xfail(reason=TWIN_NOT_FOUND[e], raises=AssertionError,
                                                            strict=True))

@@ -1,4 +1,4 @@
-"""`replay identify` on the real KVLCC2 HSVA zig-zags (model scale) and the Fuzhou USV sea trial.
+"""`replay identify` on the real KVLCC2 HSVA zig-zags (model scale), the Fuzhou USV sea trial and a Dalian USV run.
 
 Split by manoeuvre (docs/identification.md): fit on 8 zig-zags (10/10 S, 20/10 S, 15/05, 25/05, 35/05, 10/05,
 05/01, 15/01), predict the 5 held-out ones (10/10 P, 20/10 P, 20/05, 30/05, 10/01) closed loop from their
@@ -6,6 +6,10 @@ first state with the recorded rudder, and the 35 deg turning circles both ways (
 narrow) against SIMMAN 2008's advance ~3.1 L and tactical diameter ~3.2 L.
 Measured (prior fix, dt 0.2 s): held-out first overshoot errors -0.3 .. -2.5 deg (preset: -0.5 .. -3.8 deg);
 turning circle advance 3.22 / 3.07 L, tactical diameter 3.32 / 3.03 L (starboard / port).
+Fuzhou (docs/vessels/fuzhou_usv.yaml, rudder_only, the zig-zag in two pieces): without a prior the hull is refused in
+one line naming the coefficients; with --prior fix it runs, holding R0 (it defines the equivalent engine speed).
+Dalian (docs/vessels/dalian_usv.yaml, twin_thrusters, the sine run in four pieces): no astern command, so the reverse
+thrust gains are refused without a prior (no excitation) and held at the vessel file's with --prior fix.
 """
 from __future__ import annotations
 
@@ -22,6 +26,10 @@ from usv_predictor.physics.manoeuvres import TurningCircle
 from usv_predictor.physics.simulator import simulate
 from usv_predictor.physics.vessel import Hull, load_vessel
 from usv_predictor.replay import cli
+
+REPO = Path(__file__).resolve().parents[1]
+FUZHOU_VESSEL = REPO / "docs" / "vessels" / "fuzhou_usv.yaml"
+DALIAN_VESSEL = REPO / "docs" / "vessels" / "dalian_usv.yaml"
 
 TRAIN = ("hsva_z_10_10_s", "hsva_z_20_10_s", "hsva_z_15_05", "hsva_z_25_05", "hsva_z_35_05", "hsva_z_10_05",
          "hsva_z_05_01", "hsva_z_15_01")
@@ -92,3 +100,48 @@ def test_fuzhou_sea_trial_is_refused_for_lack_of_rpm(bags, tmp_path, capsys):
     assert cli.main(args) == 2
     err = capsys.readouterr().err
     assert "engine_rpm" in err and "cannot be" in err
+
+
+def test_fuzhou_rudder_only_refuses_without_a_prior_and_runs_with_one(bags, tmp_path, capsys):
+    base = ["identify", str(bags / "all" / "fuzhou_zigzag_30"), "--vessel", str(FUZHOU_VESSEL), "--dt", "0.5",
+            "--blocks", "2", "--structure", "mmg"]
+    assert cli.main([*base, "--output", str(tmp_path / "none.pt")]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]  # progress goes to stderr too
+    assert len(err) == 1 and "not identifiable" in err[0] and "--prior fix" in err[0] and "N_rrr" in err[0]
+    assert not (tmp_path / "none.pt").exists()
+    result = tmp_path / "fix.json"
+    assert cli.main([*base, "--prior", "fix", "--output", str(tmp_path / "fix.pt"), "--json", str(result)]) == 0
+    ident = json.loads(result.read_text())["identification"]
+    assert ident["actuator_layout"] == "rudder_only" and ident["hull_model"] == "mmg"
+    found = {c["name"]: c for c in ident["coefficients"]}
+    assert found["R0"]["status"] == "fixed to prior" and found["R0"]["estimate"] == found["R0"]["prior"]
+    assert found["Y_vvv"]["estimate"] <= 0.0  # the zig-zag alone drives it positive: a sign no ship has, held
+    engines = ident["actuators"]
+    assert set(engines) == {"fuzhou_zigzag_30~1", "fuzhou_zigzag_30~2"}
+    for piece in engines.values():  # the engine speed that holds 0.5-0.7 m/s with the vessel file's resistance
+        assert 0.5 < piece["approach_speed_mps"] < 0.8 and piece["engine_speed_rpm"] > 0.0
+    assert any("constant engine setting" in note for note in ident["notes"])
+    assert (tmp_path / "fix.pt").is_file()
+
+
+@pytest.fixture(scope="module")
+def dalian_sine(raw_data_dir: Path, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("dalian")
+    assert cli.main(["convert", str(raw_data_dir / "usv_2345vor_dalian" / "boat1_2_sin.xlsx"), "--output", str(out)]) == 0
+    return out / "dalian_sine"
+
+
+def test_dalian_twin_thrusters_name_what_one_run_cannot_determine(dalian_sine, tmp_path, capsys):
+    base = ["identify", str(dalian_sine), "--vessel", str(DALIAN_VESSEL), "--blocks", "4", "--structure", "diagonal"]
+    assert cli.main([*base, "--output", str(tmp_path / "none.pt")]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]  # progress goes to stderr too
+    assert len(err) == 1 and "thrusters.port.reverse_N: no excitation in the data" in err[0] and "--prior fix" in err[0]
+    result = tmp_path / "fix.json"
+    assert cli.main([*base, "--prior", "fix", "--output", str(tmp_path / "fix.pt"), "--json", str(result)]) == 0
+    out = json.loads(result.read_text())
+    coefficients = {c["name"]: c for c in out["identification"]["coefficients"]}
+    for side in ("port", "starboard"):
+        reverse = coefficients[f"thrusters.{side}.reverse_N"]
+        assert reverse["status"] == "fixed to prior" and reverse["estimate"] == 6.0
+        assert coefficients[f"thrusters.{side}.forward_N"]["estimate"] > 0.0
+    assert out["identification"]["actuator_layout"] == "twin_thrusters"

@@ -15,6 +15,7 @@ from usv_predictor.data.smoother import (
     measurements,
     smooth_measurements,
     smooth_recording,
+    tune,
 )
 from usv_predictor.errors import DatasetError
 from usv_predictor.physics.dynamics import ManoeuvringModel
@@ -68,10 +69,30 @@ def test_missing_gnss_is_tolerated(zigzag):
     assert gappy.std[400, 0] > 1.2 * gappy.std[100, 0]
 
 
+def test_velocities_from_track_and_heading_alone(zigzag):
+    """A GNSS receiver and a compass only, at half the grid rate (the Dalian USV's record): u, v, r come from the
+    kinematics. Measured: rms error 0.073 / 0.088 m/s and 0.0026 rad/s against a signal std of 0.60 / 0.74 m/s and
+    0.22 rad/s (with the velocity sensors: 0.009 / 0.011 m/s, 0.0003 rad/s)."""
+    rec, _ = zigzag
+    z = measurements(rec)
+    z[:, 3:6] = np.nan
+    z[1::2, 0:3] = np.nan
+    track = tune(z, DT)
+    err = _rms(track.nu - rec.truth[:, 3:6])
+    assert err[0] < 0.12 and err[1] < 0.15 and err[2] < 0.005, err  # m/s, m/s, rad/s
+    assert np.all(err < 0.25 * rec.truth[:, 3:6].std(axis=0))
+    assert np.all(np.isfinite(track.state))
+
+
 def test_required_signals():
     z = np.zeros((50, 6))
     z[:, 2] = np.nan
     with pytest.raises(DatasetError, match="psi"):
+        smooth_measurements(z, 0.1)
+    z = np.zeros((50, 6))
+    z[:, 3:6] = np.nan
+    z[:, 0:2] = np.nan
+    with pytest.raises(DatasetError, match="unless GNSS positions"):
         smooth_measurements(z, 0.1)
     with pytest.raises(DatasetError, match=r"\(T, 6\)"):
         smooth_measurements(np.zeros((50, 5)), 0.1)

@@ -156,8 +156,17 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
     count = max(int(torch.count_nonzero(seg.weight)), 1)
     r = res(theta)
     if not np.all(np.isfinite(r)):
+        set_terms(model, {})
+        if terms and bool(torch.isfinite(residuals(model, seg)).all()):
+            # the calm-water model rolls out, this hypothesis's start does not: a diverged fit (infinite loss), which
+            # ranks last and is never named (diagnose); not an error of the data
+            values = unpack(theta)
+            set_terms(model, values)
+            return Fit(hypothesis, values, math.inf, {name: (math.inf,) * len(v) for name, v in values.items()}, 0,
+                       time.perf_counter() - started)
         raise DiagnosisError(f"hypothesis {hypothesis}: the calm-water model's residuals are not finite on these "
-                             "segments (NaN/inf in the recordings?)")
+                             "segments (NaN/inf in the recordings, or a rollout that diverges at this step: try a "
+                             "smaller --dt)")
     cost = float(r @ r)
     lam, it = 1e-2, 0
     jac = np.zeros((len(r), len(theta)))
@@ -167,6 +176,7 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
             step = theta.copy()
             step[j] += eps
             jac[:, j] = (res(step) - r) / eps
+        jac[~np.isfinite(jac)] = 0.0  # a perturbation whose rollout diverged gives no direction
         jtj, jtr = jac.T @ jac, jac.T @ r
         improved = False
         for _ in range(8):
@@ -174,6 +184,9 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
             if not np.all(np.isfinite(delta)):  # a non-finite Jacobian: no step (a NaN parameter would reach the
                 break                            # rollout's indexing, e.g. the actuator delay)
             trial = np.clip(theta + delta, low / scale, high / scale)
+            if not np.all(np.isfinite(trial)):  # never roll out non-finite parameters (a NaN delay indexes nothing)
+                lam *= 10.0
+                continue
             r_trial = res(trial)
             c_trial = float(r_trial @ r_trial)
             if c_trial < cost:
@@ -327,7 +340,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         return 0.5 * n_eff * math.log(max(per_segment[over].mean(), 1e-12) / max(per_segment[a].mean(), 1e-12))
 
     base = per_segment["none"]
-    ranked = sorted(names, key=lambda n: per_segment[n].mean())
+    # a hypothesis whose fit diverged (non-finite held-out loss) ranks last, never first (NaN does not sort)
+    ranked = sorted(names, key=lambda n: (not math.isfinite(per_segment[n].mean()), per_segment[n].mean()))
     best = ranked[0]
     evidence = tuple(Evidence(n, float(per_segment[n].mean()), float(1.0 - per_segment[n].mean() / base.mean()),
                               evidence_for(n, "none"), 0.0 if n == best else evidence_for(best, n),
@@ -360,6 +374,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                 losses.append(segment_losses(model, seg.select(np.isin(seg.recording, folds[test_fold]))))
             trials[name] = np.concatenate(losses)
             progress(f"{'+'.join((*chosen, name)):30s} held-out loss {trials[name].mean():9.3f}")
+        trials = {n: t for n, t in trials.items() if math.isfinite(t.mean())}  # a diverged fit is no cause
         if not trials:
             break
         name = min(trials, key=lambda n: trials[n].mean())

@@ -29,7 +29,7 @@ def _evidence_plot(out: dict, path: Path) -> None:
 
     from usv_predictor.analysis.plots import save_figure
 
-    evidence = out["evidence"]
+    evidence = [e for e in out["evidence"] if e["heldout_loss"] is not None]  # a diverged fit (null) has no bar
     fig = Figure(figsize=(7.0, 3.2))
     ax = fig.add_subplot()
     names = [e["hypothesis"] for e in evidence]
@@ -127,7 +127,8 @@ def write_report(directory: Path, out: dict, recordings: Sequence[Recording], ve
               "winner's evidence over it | parameters fitted on fold 1 / fold 2 |", "|---|---|---|---|---|---|"]
     for e in out["evidence"]:
         params = " / ".join(", ".join(f"{k} {_fmt(v, 3)}" for k, v in p.items()) or "—" for p in e["fold_parameters"])
-        lines.append(f"| {e['hypothesis']} | {_fmt(e['heldout_loss'])} | {e['gain_vs_none'] * 100:.1f} % | "
+        share = "— (the fit diverged)" if e["gain_vs_none"] is None else f"{e['gain_vs_none'] * 100:.1f} %"
+        lines.append(f"| {e['hypothesis']} | {_fmt(e['heldout_loss'])} | {share} | "
                      f"{_fmt(e['evidence_vs_none'])} | {_fmt(e['evidence_of_best'])} | {params} |")
     lines += ["", "![evidence](evidence.png)", "", "## What the calm-water model gets wrong", "",
               "| quantity | value |", "|---|---|"]

@@ -1,7 +1,8 @@
 """One diagnosis run: the calm-water model, the named cause, what the model gets wrong, the gain, the outputs.
 
-    calm_water_vessel  the calm-water model of a diagnosis: a vessel preset, or the identified hull of a grey-box
-                       artifact (`replay identify --structure mmg`, or an earlier `replay diagnose --export`)
+    calm_water_vessel  the calm-water model of a diagnosis: a vessel preset, or the identified hull (and thrust maps)
+                       of a grey-box artifact (`replay identify`: an MMG or a small-craft hull; or an earlier
+                       `replay diagnose --export`)
     run_diagnosis      diagnose + discrepancy + held-out gain + export + report (usv_predictor.analysis.diagnosis),
                        with the segments and the scripted grey box built once and shared by every step
 
@@ -16,11 +17,12 @@ from typing import Any
 
 from usv_predictor.analysis import diagnosis as dg
 from usv_predictor.analysis.diagnosis_steps import DiagnosisSteps
+from usv_predictor.atomic import finite_or_none
 from usv_predictor.config import load_predictor_config
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import DatasetError, ModelError
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
-from usv_predictor.models.greybox import HULL_NAMES, hull_from_metadata
+from usv_predictor.models.greybox import hull_from_metadata, vessel_from_metadata
 from usv_predictor.physics.vessel import Vessel, load_vessel
 
 
@@ -38,15 +40,16 @@ def calm_water_vessel(vessel: str | None, model: Path | None, config: Path | Non
     hull = hull_from_metadata(meta)
     family = MODEL_FAMILIES.get(family_name(str(meta.get("model_type", ""))))
     if family is None or not family.physics or hull is None:
-        raise ModelError(f"model {model}: diagnose needs an MMG grey box without learned or extra terms "
-                         f"(`replay identify --structure mmg`), not model_type {meta.get('model_type')!r}; "
-                         "compare other models with `replay evaluate`")
+        raise ModelError(f"model {model}: diagnose needs a grey box without learned or extra terms "
+                         f"(`replay identify --structure mmg`, or a small-craft structure), not model_type "
+                         f"{meta.get('model_type')!r}; compare other models with `replay evaluate`")
     preset = load_vessel(vessel or str(meta.get("vessel")))
-    missing = [n for n in HULL_NAMES if n not in hull]
-    if missing:
-        raise ModelError(f"model {model}: hull coefficients {missing} missing from its metadata")
-    identified = dataclasses.replace(preset.hull, **{n: float(hull[n]) for n in HULL_NAMES})
-    return dataclasses.replace(preset, hull=identified), f"identified ({meta.get('model_id')})"
+    try:
+        identified = vessel_from_metadata(meta, preset)
+    except ValueError as err:
+        raise ModelError(f"model {model}: {err}") from None
+    assert identified is not None  # hull_from_metadata accepted it above
+    return identified, f"identified ({meta.get('model_id')})"
 
 
 def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, *, dt: float,
@@ -64,7 +67,7 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     """
     if not recordings:
         raise DatasetError("no usable recording in the bags (see the warnings above)")
-    missing = [r.name for r in recordings if not (r.controls[:, 1] > 0).any()]
+    missing = [r.name for r in recordings if vessel.layout == "rudder_propeller" and not (r.controls[:, 1] > 0).any()]
     if missing:
         raise DatasetError(f"no engine speed in {missing}: the calm-water model needs rudder and rpm; record engine_rpm")
     progress(f"diagnosing {len(recordings)} manoeuvre(s) against the {source} calm-water model of {vessel.name}")
@@ -80,8 +83,9 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     out: dict[str, Any] = {
         "cause": result.cause, "parameters": result.parameters, "uncertainty": result.uncertainty,
         "confounded_with": list(result.confounded_with), "message": result.message, "notes": list(result.notes),
-        "additional_causes": [dataclasses.asdict(a) for a in result.additional_causes],
-        "evidence": [dataclasses.asdict(e) for e in result.evidence],
+        "additional_causes": [_undefined_as_null(dataclasses.asdict(a)) for a in result.additional_causes],
+        # a hypothesis whose fit diverged has a non-finite held-out loss and evidence: written as null (undefined)
+        "evidence": [_undefined_as_null(dataclasses.asdict(e)) for e in result.evidence],
         "folds": [list(f) for f in result.folds], "discrepancy": discrepancy,
         "calm_water_model": {"vessel": vessel.name, "source": source},
         "recordings": [{"name": r.name, "source": r.source, "duration_s": r.duration_s} for r in recordings],
@@ -108,3 +112,14 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         out["report"] = str(write_report(report, out, recordings, vessel, result, per_recording))
         progress(f"report written to {out['report']}")
     return out
+
+
+def _undefined_as_null(value: Any) -> Any:
+    """A record's numbers with the non-finite ones (a diverged fit's loss, evidence, parameters) as None (JSON null)."""
+    if isinstance(value, dict):
+        return {k: _undefined_as_null(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_undefined_as_null(v) for v in value]
+    if isinstance(value, float):
+        return finite_or_none(value)
+    return value

@@ -426,9 +426,10 @@ def write_identification_report(directory: Path, result: IdentificationResult, o
              f"Model `{out['model']}` ({out['model_type']}, id `{out['model_id']}`), structure **{result.structure}**, "
              f"prior policy **{result.fit.prior_policy}**, data sha256 `{out['training_data_sha256'][:16]}`.", "",
              "Manoeuvres: " + ", ".join(d.name for d in result.data), "",
-             "## Coefficients (non-dimensional, 95 % CI)", "", "| name | estimate | 95 % CI | prior | status |",
+             f"## Coefficients ({'non-dimensional' if result.vessel.hull_model_name == 'mmg' else 'SI'} hull terms, "
+             "thrust gains in N; 95 % CI)", "", "| name | estimate | 95 % CI | prior | status |",
              "|---|---|---|---|---|"]
-    for c in result.fit.coefficients():
+    for c in result.coefficients():
         lines.append(f"| {c.name} | {c.estimate:+.5f} | [{c.ci95[0]:+.5f}, {c.ci95[1]:+.5f}] | {c.prior:+.5f} | {c.status} |")
     lines += ["", "## Collinearity", ""]
     for e in result.fit.equations:

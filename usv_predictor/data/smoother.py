@@ -16,7 +16,10 @@ h^2/2); the Jacobian F = df/dx is taken numerically (9 columns at once). Process
     acceleration) -- here used on (velocity, acceleration) as the lower 2x2 block, plus a small q_pose on x, y, psi
     for the model error of the position kinematics.
 Measurement: z = [x_n, y_e, psi, u, v, r] (GNSS, compass, INS/DVL, gyro), H a selection; any NaN component of
-z (GNSS drop-out) is left out of that update (NaN-tolerant).
+z (GNSS drop-out) is left out of that update (NaN-tolerant). A record without velocity or gyro (a GNSS receiver and
+a compass only, e.g. the Dalian USV of replay/convert.py) is smoothed from positions and heading alone: the
+kinematics [x_n, y_e]' = R(psi) [u, v] make u, v observable from the track and psi' = r makes r observable from the
+heading, so all three velocities come out of the smoother (over ground: a current is not removed).
 
 Measurement noise: given, or estimated from the data by the second difference of each signal
 (var(d2 z) = 6 sigma^2 for white noise on a signal smooth at the sample rate). Jerk spectral densities: given,
@@ -76,12 +79,15 @@ def measurements(recording: Recording) -> np.ndarray:
 
 
 def estimate_measurement_std(z: np.ndarray) -> np.ndarray:
-    """(6,) white-noise std per column from second differences: robust (median) version of var(d2z) = 6 sigma^2."""
+    """(6,) white-noise std per column from second differences: robust (median) version of var(d2z) = 6 sigma^2.
+
+    The differences are taken over the finite samples of each column in order (a sparse column, e.g. GNSS fixes at
+    a third of the grid's rate, is judged at its own rate; a column's drop-outs are skipped, not differenced across).
+    """
     out = np.empty(z.shape[1])
     for k in range(z.shape[1]):
-        col = z[:, k]
+        col = z[:, k][np.isfinite(z[:, k])]
         d2 = col[2:] - 2.0 * col[1:-1] + col[:-2]
-        d2 = d2[np.isfinite(d2)]
         if len(d2) < 10:
             out[k] = NOISE_FLOOR[k] * 100.0  # too few samples to tell: weak but finite
             continue
@@ -90,12 +96,38 @@ def estimate_measurement_std(z: np.ndarray) -> np.ndarray:
     return out
 
 
+def rough_velocities(z: np.ndarray, dt: float) -> np.ndarray:
+    """(T, 3) u, v, r: the measured columns, or where a column has no finite sample at all, a rough estimate from the
+    track and heading (positions and psi interpolated over their gaps, differenced over +-1 s, rotated into the body
+    by psi: Fossen 2021 eq. 2.40 inverted). Used for starting values and the jerk scale, never as measurements."""
+    nu = z[:, 3:6].copy()
+    missing = [k for k in range(3) if not np.isfinite(nu[:, k]).any()]
+    if not missing:
+        return nu
+    t = np.arange(len(z)) * dt
+    filled = []
+    for k in range(3):
+        finite = np.isfinite(z[:, k])
+        filled.append(np.interp(t, t[finite], z[finite, k]) if finite.sum() >= 2 else np.zeros(len(z)))
+    half = max(1, int(round(1.0 / dt)))
+    idx = np.arange(len(z))
+    hi, lo = np.minimum(idx + half, len(z) - 1), np.maximum(idx - half, 0)
+    span = np.maximum(t[hi] - t[lo], dt)
+    vn, ve, rate = ((filled[k][hi] - filled[k][lo]) / span for k in range(3))
+    c, s = np.cos(filled[2]), np.sin(filled[2])
+    rough = (vn * c + ve * s, -vn * s + ve * c, rate)
+    for k in missing:
+        nu[:, k] = rough[k]
+    return nu
+
+
 def jerk_scale(z: np.ndarray, dt: float) -> np.ndarray:
     """(3,) data-derived jerk spectral density scale of u, v, r: (rms of the acceleration)^2 / (10 s)."""
     window = max(1, int(round(2.0 / dt)))  # 2 s moving average, then centred difference: a rough acceleration
+    nu = rough_velocities(z, dt)
     out = np.empty(3)
     for k in range(3):
-        col = z[:, 3 + k]
+        col = nu[:, k]
         if len(col) < 2 * window + 3:
             out[k] = 1e-6
             continue
@@ -144,14 +176,20 @@ def process_noise(h: float, jerk_psd: np.ndarray, pose_psd: np.ndarray) -> np.nd
     return q
 
 
-def _initial(z: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """First state from the first finite measurements, with a wide covariance."""
+def _initial(z: np.ndarray, std: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """First state from the first finite measurements, with a wide covariance; a velocity that is never measured
+    starts at its rough value from the track (rough_velocities) with a (1 m/s)^2, (0.3 rad/s)^2 variance."""
     x0 = np.zeros(9)
     p0 = np.zeros(9)
+    rough = rough_velocities(z, dt)
     for k in range(6):
         finite = np.flatnonzero(np.isfinite(z[:, k]))
-        x0[k] = z[finite[0], k] if len(finite) else 0.0
-        p0[k] = (10.0 * std[k]) ** 2 if len(finite) else 1e6
+        if len(finite):
+            x0[k], p0[k] = z[finite[0], k], (10.0 * std[k]) ** 2
+        elif k >= 3:
+            x0[k], p0[k] = rough[0, k - 3], (1.0 if k < 5 else 0.1)
+        else:
+            x0[k], p0[k] = 0.0, 1e6
     p0[6:9] = [1.0, 1.0, 0.1]  # accelerations unknown: (1 m/s^2)^2, (0.3 rad/s^2)^2
     return x0, np.diag(p0)
 
@@ -159,7 +197,7 @@ def _initial(z: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _forward(z: np.ndarray, dt: float, std: np.ndarray, jerk: np.ndarray, pose: np.ndarray):
     """EKF over the record: filtered/predicted means and covariances, Jacobians, log-likelihood."""
     n = len(z)
-    x, p = _initial(z, std)
+    x, p = _initial(z, std, dt)
     q = process_noise(dt, jerk, pose)
     r_full = np.diag(std**2)
     xf, pf = np.empty((n, 9)), np.empty((n, 9, 9))
@@ -208,9 +246,10 @@ def smooth_measurements(z: np.ndarray, dt: float, config: SmootherConfig = Smoot
     if len(z) < 10:
         raise DatasetError(f"smoother needs at least 10 samples, got {len(z)}")
     missing = [MEASURED_NAMES[k] for k in range(2, 6) if not np.isfinite(z[:, k]).any()]
-    if missing:
-        raise DatasetError(f"smoother: no finite samples of {missing} (heading and velocities are required; "
-                           "only GNSS may be missing)")
+    track = bool(np.isfinite(z[:, 0:2]).all(axis=1).sum() >= 10)
+    if "psi" in missing or (missing and not track):
+        raise DatasetError(f"smoother: no finite samples of {missing} (the heading is required, and the velocities "
+                           "unless GNSS positions are measured: then the track gives them)")
     if not dt > 0.0:
         raise DatasetError(f"smoother step dt={dt} s must be > 0")
     std = np.asarray(config.measurement_std, dtype=float) if config.measurement_std else estimate_measurement_std(z)

@@ -13,11 +13,12 @@ import numpy as np
 import torch
 from torch import nn
 
-from usv_predictor.data.features import CONTROL_NAMES, STATE_NAMES
+from usv_predictor.data.features import STATE_NAMES
 from usv_predictor.errors import ModelError
 from usv_predictor.fitting.identification import ForceData, IdentificationResult
 from usv_predictor.models.artifact import OUTPUT_LAYOUT, UNITS, ModelArtifact, export_module
-from usv_predictor.models.hybrid import RESIDUAL_INPUTS, MlpResidual, PolynomialResidual, ResidualGreyBox, ZeroResidual
+from usv_predictor.models.greybox import actuator_sections_metadata, hull_coefficients
+from usv_predictor.models.hybrid import MlpResidual, PolynomialResidual, ResidualGreyBox, ZeroResidual
 
 
 def greybox_module(result: IdentificationResult, dt: float, substeps: int = 2) -> ResidualGreyBox:
@@ -38,7 +39,8 @@ class HybridTraining:
 
 
 def residual_targets(module: ResidualGreyBox, data: Sequence[ForceData]) -> tuple[np.ndarray, np.ndarray]:
-    """(inputs (N, 5) [u, v, r, delta, rpm], residual accelerations (N, 3)) over the kept samples."""
+    """(inputs (N, 5) [u, v, r, a, b], residual accelerations (N, 3)) over the kept samples; a, b the actuator
+    levels of the layout (delta and rpm of a rudder boat, the lagged port and starboard commands of twins)."""
     nu = np.vstack([d.nu[d.keep] for d in data])
     controls = np.vstack([d.controls[d.keep] for d in data])
     measured = np.vstack([d.nu_dot[d.keep] for d in data])
@@ -85,23 +87,31 @@ def export_identified(path: str, module: ResidualGreyBox, result: Identification
     """One TorchScript file with the identification in its metadata (coefficients, CIs, structure, digest)."""
     if model_type not in ("greybox", "hybrid"):
         raise ModelError(f"model_type {model_type!r}: expected 'greybox' or 'hybrid'")
+    vessel = result.vessel
+    layout = vessel.actuator_layout
+    identification = result.to_json()
+    identification["actuator_sections"] = actuator_sections_metadata(vessel)  # the identified thrust maps, in full
+    names, values = hull_coefficients(vessel)
     metadata = {
         "model_type": model_type,
-        "feature_set": "MMG grey box" + (" + MLP residual" if model_type == "hybrid" else ""),
-        "feature_names": list(RESIDUAL_INPUTS),
+        "feature_set": f"{vessel.hull_model.label} grey box" + (" + MLP residual" if model_type == "hybrid" else ""),
+        "feature_names": ["u", "v", "r", *layout.commands],  # the residual's inputs (the state and actuator levels)
         "state_layout": list(STATE_NAMES),
-        "control_layout": list(CONTROL_NAMES),
+        "control_layout": list(layout.control_names),
+        "actuator_layout": layout.name,
+        "hull_model": vessel.hull_model_name,
         "output_layout": list(OUTPUT_LAYOUT),
         "dt": float(dt),
         "horizon_steps": int(horizon_steps),
         "normalisation": {},
-        "vessel": result.vessel.name.removesuffix("_identified"),
+        "vessel": vessel.name.removesuffix("_identified"),
         "training_data_sha256": training_data_sha256,
         "ensemble_size": 1,
-        "architecture": {"structure": result.structure, "substeps": module.substeps,
-                         "residual": type(module.residual).__name__, **dict(hybrid or {})},
+        "architecture": {"structure": result.structure, "hull_structure": vessel.hull_model.structure,
+                         "substeps": module.substeps, "residual": type(module.residual).__name__,
+                         "hull": dict(zip(names, values)), **dict(hybrid or {})},
         "training": {"method": "inverse-dynamics regression (EKF/RTS accelerations)", "prior": result.fit.prior_policy},
-        "identification": result.to_json(),
+        "identification": identification,
         "units": UNITS,
         "dtype": "float64",
         **dict(extra or {}),

@@ -32,6 +32,20 @@ Pipeline (one Recording = one manoeuvre):
                 cross-validation across manoeuvres;
  7. candidate structures are compared by leave-one-manoeuvre-out cross-validation of the hull forces.
 Result: the vessel with its hull replaced (usable by GreyBoxRollout) and, for "abkowitz", the extra terms.
+
+Actuator layouts (physics/actuators.py), each through the actuator levels the forces act with (actuator_levels):
+    rudder_propeller  rudder angle and engine speed as measured (the method above).
+    rudder_throttle   the throttle command lagged by its thrust map's time constant (the exact first-order lag of the
+                      grey box); the map's gain (throttle.forward_N, the static thrust at full command) is identified
+                      by a profile over the gain (the propeller thrust is not linear in it: n = sqrt(T0 / rho D^4 k0)),
+                      the hull by the regression at each gain; its 95 % CI from the profile (likelihood ratio).
+    rudder_only       no propulsion data: the equivalent engine speed of each manoeuvre is the one that holds its
+                      approach speed (the first APPROACH_S) in straight running with the vessel file's resistance
+                      (dynamics.RudderPropellerForces.engine_speed_for), held over the manoeuvre. R0 is then fixed to
+                      the vessel file's: it defines that engine speed, the data cannot tell it apart from the thrust.
+                      Supports heading and track at a constant engine setting, not speed changes.
+    twin_thrusters    with the small_craft hull: fitting/small_craft_identification.py (hull damping and the thrust
+                      gain of each side in one regression of the three equations).
 """
 from __future__ import annotations
 
@@ -49,10 +63,12 @@ from usv_predictor.errors import ConfigError, DatasetError, NotIdentifiableError
 from usv_predictor.models.greybox import HULL_NAMES
 from usv_predictor.models.hybrid import EXTRA_NAMES
 from usv_predictor.physics.dynamics import ManoeuvringModel
-from usv_predictor.physics.vessel import Hull, Vessel
+from usv_predictor.physics.vessel import Hull, ThrustMap, Vessel
 
 EQUATIONS = ("X", "Y", "N")
-STRUCTURES = ("mmg", "abkowitz")
+STRUCTURES = ("mmg", "abkowitz")  # of the MMG hull
+STRUCTURES_OF = {"mmg": STRUCTURES, "small_craft": ("diagonal", "coupled")}  # hull model -> candidate structures
+ALL_STRUCTURES = tuple(s for names in STRUCTURES_OF.values() for s in names)
 PRIORS = ("none", "fix", "ridge")
 COLLINEAR_RHO = 0.9  # |rho| above which a regressor pair is reported as multicollinear
 REL_CI_LIMIT = 0.5  # a 95 % CI half-width above this fraction of the magnitude: not identifiable
@@ -61,6 +77,10 @@ MIN_MANOEUVRES = 2  # cross-validation needs at least one manoeuvre to hold out
 SPEED_RATIO_RANGE = (0.6, 1.6)  # measured / preset straight-running speed accepted as "the same vessel and scale"
 RIDGE_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # penalty weights (relative to the data term) tried by CV
 Z95 = 1.959964
+CHI2_95 = 3.841459  # 95 % quantile of chi-square with 1 degree of freedom (profile-likelihood intervals)
+APPROACH_S = 5.0  # (s) the start of a manoeuvre whose median speed is its approach speed (rudder_only)
+PROFILE_SPAN = 4.0  # a profiled gain is searched within [prior / span, prior * span]
+PROFILE_POINTS = 17  # coarse grid of the profile (log-spaced), refined by golden section
 
 
 # ------------------------------------------------------------------------------------------ structures
@@ -111,11 +131,12 @@ class ForceData:
     nu: np.ndarray  # (T, 3) smoothed u, v, r
     nu_dot: np.ndarray  # (T, 3) smoothed accelerations
     nu_dot_std: np.ndarray  # (T, 3)
-    controls: np.ndarray  # (T, 2) delta (rad), rpm
+    controls: np.ndarray  # (T, 2) actuator levels the forces act with (actuator_levels): delta (rad), rpm, ...
     total: np.ndarray  # (T, 3) M nu_dot + C(nu) nu: all external forces
-    rudder: np.ndarray  # (T, 3) semi-empirical rudder model (prior)
-    propeller: np.ndarray  # (T, 3) propeller thrust (prior)
+    rudder: np.ndarray  # (T, 3) steering forces: the rudder model (prior), a twin's thrust difference
+    propeller: np.ndarray  # (T, 3) propulsion forces: the propeller (prior), a twin's summed thrust
     keep: np.ndarray  # (T,) bool: samples used for regression (speed, smoother edges)
+    actuator: Mapping[str, float] = field(default_factory=dict)  # per-manoeuvre actuator estimates (rudder_only)
 
     @property
     def hull(self) -> np.ndarray:
@@ -123,18 +144,70 @@ class ForceData:
 
 
 def inverse_dynamics_forces(vessel: Vessel, nu: np.ndarray, nu_dot: np.ndarray) -> np.ndarray:
-    """(T, 3) [X, Y, N] = M nu_dot + C(nu) nu (module docstring, step 2)."""
+    """(T, 3) [X, Y, N] = M nu_dot + C(nu) nu (module docstring, step 2); for the small-craft hull C includes the
+    added-mass Coriolis yaw term, the Munk moment -(Y_vdot - X_udot) u v (Fossen 2021 eq. 6.43; MMG has it in N_v)."""
     m = ManoeuvringModel(vessel)
     u, v, r = nu[:, 0], nu[:, 1], nu[:, 2]
     ud, vd, rd = nu_dot[:, 0], nu_dot[:, 1], nu_dot[:, 2]
     x = m.m11 * ud - m.m22 * v * r - m.x_G * m.m * r * r
     y = m.m22 * vd + m.m23 * rd + m.m11 * u * r
-    n = m.m32 * vd + m.m33 * rd + m.x_G * m.m * u * r
+    n = m.m32 * vd + m.m33 * rd + m.x_G * m.m * u * r - m.munk * u * v
     return np.column_stack([x, y, n])
 
 
+def lagged_command(command: np.ndarray, time_constant_s: float, dt: float) -> np.ndarray:
+    """(T,) level of a first-order motor (time constant T, 0 = instantaneous) following a command sampled at dt and
+    moving linearly between samples, starting at the first command (steady running): the exact solution
+    y_{k+1} = c_{k+1} - T s + (y_k - c_k + T s) exp(-dt / T), s = (c_{k+1} - c_k) / dt, as models/greybox.CommandLag."""
+    c = np.asarray(command, dtype=float)
+    if time_constant_s <= 0.0 or len(c) == 0:
+        return c.copy()
+    decay = math.exp(-dt / time_constant_s)
+    y = np.empty_like(c)
+    y[0] = c[0]
+    for k in range(len(c) - 1):
+        trail = time_constant_s * (c[k + 1] - c[k]) / dt
+        y[k + 1] = c[k + 1] - trail + (y[k] - c[k] + trail) * decay
+    return y
+
+
+def approach_speed(recording: Recording) -> float:
+    """Median speed (m/s) over the first APPROACH_S of a recording: the speed its engine setting holds."""
+    start = slice(0, max(2, int(round(APPROACH_S / recording.dt))))
+    return float(np.median(np.hypot(recording.nu[start, 0], recording.nu[start, 1])))
+
+
+def actuator_levels(vessel: Vessel, recording: Recording) -> tuple[np.ndarray, dict[str, float]]:
+    """((T, 2) the actuator levels the force model acts with, per-manoeuvre estimates) for the vessel's layout:
+    rudder_propeller the measured [delta, rpm]; rudder_throttle [delta, lagged throttle]; rudder_only [delta, the
+    equivalent engine speed of the approach speed] (estimates: engine_speed_rpm, approach_speed_mps);
+    twin_thrusters [lagged port, lagged starboard] commands."""
+    layout = vessel.actuator_layout
+    controls = recording.controls
+    if controls.shape[1:] != (len(layout.controls),):
+        raise DatasetError(f"{recording.name}: controls {controls.shape} are not those of the vessel's actuator layout "
+                           f"{layout.name} {list(layout.control_names)}")
+    if layout.name == "rudder_propeller":
+        return controls.copy(), {}
+    if layout.name == "rudder_throttle":
+        return np.column_stack([controls[:, 0], lagged_command(controls[:, 1], vessel.throttle.time_constant_s,
+                                                               recording.dt)]), {}
+    if layout.name == "rudder_only":
+        speed = approach_speed(recording)
+        rpm = ManoeuvringModel(vessel).engine_speed_for(speed)
+        return (np.column_stack([controls[:, 0], np.full(len(controls), rpm)]),
+                {"approach_speed_mps": speed, "engine_speed_rpm": rpm})
+    if layout.name == "twin_thrusters":
+        t = vessel.thrusters
+        return np.column_stack([lagged_command(controls[:, 0], t.port.time_constant_s, recording.dt),
+                                lagged_command(controls[:, 1], t.starboard.time_constant_s, recording.dt)]), {}
+    raise ConfigError(f"identification does not know the actuator layout {layout.name!r}")
+
+
 def known_forces(vessel: Vessel, nu: np.ndarray, controls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(rudder (T, 3), propeller (T, 3)) of the preset's semi-empirical models (calm water, nu through water)."""
+    """(steering (T, 3), propulsion (T, 3)) of the vessel's actuator force model at the actuator levels `controls`
+    (actuator_levels): the rudder and propeller of the preset's semi-empirical models, or the thrusters' maps
+    (calm water, nu through water)."""
     model = ManoeuvringModel(vessel)
     rudder = np.empty((len(nu), 3))
     propeller = np.empty((len(nu), 3))
@@ -146,16 +219,29 @@ def known_forces(vessel: Vessel, nu: np.ndarray, controls: np.ndarray) -> tuple[
 
 
 def check_vessel_matches(vessel: Vessel, recording: Recording) -> None:
-    """ConfigError when the data cannot come from this vessel description (scale, speed, rpm)."""
-    rpm = recording.controls[:, 1]
-    if not np.all(np.isfinite(rpm)) or float(np.median(rpm)) <= 0.0:
-        raise DatasetError(f"{recording.name}: no engine speed (rpm) in the data: the propeller thrust, the "
-                           "rudder inflow and with them R0 and every speed-dependent term cannot be separated; "
-                           "identification needs the engine_rpm topic")
-    start = slice(0, max(2, int(round(5.0 / recording.dt))))
-    rpm0 = float(np.median(rpm[start]))
+    """ConfigError when the data cannot come from this vessel description (scale, speed, rpm): the measured speed
+    against the vessel's straight-running speed at the recorded propulsion command (rudder_propeller: the approach
+    rpm; rudder_throttle: the approach throttle; twin_thrusters: the median mean command against the median speed).
+    rudder_only has no propulsion record: its engine speed is defined by the speed (nothing to check)."""
+    layout = vessel.actuator_layout
+    if layout.name == "rudder_only":
+        return
+    if layout.name == "rudder_propeller":
+        rpm = recording.controls[:, 1]
+        if not np.all(np.isfinite(rpm)) or float(np.median(rpm)) <= 0.0:
+            raise DatasetError(f"{recording.name}: no engine speed (rpm) in the data: the propeller thrust, the "
+                               "rudder inflow and with them R0 and every speed-dependent term cannot be separated; "
+                               "identification needs the engine_rpm topic (or a vessel of layout rudder_only)")
+    start: slice | np.ndarray = slice(0, max(2, int(round(APPROACH_S / recording.dt))))
+    if layout.name == "twin_thrusters":  # runs start anywhere: judge the samples with equal commands on both sides
+        start = np.abs(layout.steering_signal(recording.controls)) < layout.straight_below
+        if start.sum() * recording.dt < APPROACH_S:
+            return  # hardly ever straight: nothing to compare with
+    rpm0 = float(np.median(layout.propulsion_signal(recording.controls[start])))
     speed0 = float(np.median(np.hypot(recording.nu[start, 0], recording.nu[start, 1])))
     expected = ManoeuvringModel(vessel).straight_speed(rpm0)
+    if expected <= 0.0 and layout.name != "rudder_propeller":
+        return  # a command inside the dead band: no straight speed to compare with
     L = vessel.geometry.L_pp
     froude = speed0 / math.sqrt(9.81 * L)
     low, high = SPEED_RATIO_RANGE
@@ -163,7 +249,8 @@ def check_vessel_matches(vessel: Vessel, recording: Recording) -> None:
     if not low <= ratio <= high:
         raise ConfigError(
             f"vessel description {vessel.name!r} (L_pp {L:g} m) is inconsistent with the data of {recording.name}: "
-            f"at {rpm0:.1f} rpm the preset runs straight at {expected:.2f} m/s, the data show {speed0:.2f} m/s "
+            f"at the propulsion command {rpm0:.4g} ({layout.propulsion_input.unit if layout.propulsion_input else ''}) "
+            f"the preset runs straight at {expected:.2f} m/s, the data show {speed0:.2f} m/s "
             f"(ratio {ratio:.2f}, accepted {low}-{high}; Froude number {froude:.2f} for this L_pp). A recording of "
             "another scale (model vs full) or another vessel? Use the preset of that vessel and scale, or "
             "Froude-scale the data first")
@@ -174,14 +261,15 @@ def force_data(vessel: Vessel, recording: Recording, smoothed: Smoothed, *, edge
     """Inverse dynamics and the known forces of one smoothed manoeuvre."""
     nu, nu_dot = smoothed.nu, smoothed.nu_dot
     total = inverse_dynamics_forces(vessel, nu, nu_dot)
-    rudder, propeller = known_forces(vessel, nu, recording.controls)
+    levels, estimates = actuator_levels(vessel, recording)
+    rudder, propeller = known_forces(vessel, nu, levels)
     speed = np.hypot(nu[:, 0], nu[:, 1])
     edge = int(round(edge_s / recording.dt))
     keep = speed >= min_speed_fraction * float(np.median(speed))
     keep[:edge] = False
     keep[len(keep) - edge:] = False
-    return ForceData(recording.name, recording.t_s, nu, nu_dot, smoothed.nu_dot_std, recording.controls, total,
-                     rudder, propeller, keep)
+    return ForceData(recording.name, recording.t_s, nu, nu_dot, smoothed.nu_dot_std, levels, total,
+                     rudder, propeller, keep, estimates)
 
 
 def prepare(vessel: Vessel, recordings: Sequence[Recording], *, smoother: SmootherConfig = SmootherConfig(),
@@ -303,6 +391,7 @@ class Coefficient:
     rel_ci: float  # 95 % CI half-width / max(|estimate|, |prior|, floor)
 
     def to_json(self) -> dict:
+        """Strict JSON: an unbounded CI or rel_ci (no excitation) is null."""
         return {"name": self.name, "estimate": finite_or_none(self.estimate),
                 "ci95": [finite_or_none(x) for x in self.ci95], "prior": self.prior, "status": self.status,
                 "rel_ci": finite_or_none(self.rel_ci)}
@@ -385,8 +474,17 @@ def fit_equation(d: Design, prior: Mapping[str, float], *, fixed: Sequence[str] 
                        float(np.sqrt(np.mean(residual**2))), n_eff, ridge)
 
 
+MMG_SIGN = {"R0": +1, "Y_v": -1, "N_r": -1, "Y_vvv": -1}  # +1: >= 0, -1: <= 0 for every ship (resistance, sway
+# and yaw damping, the growth of sway damping with drift; Yasukawa & Yoshimura 2015 Table 3 and Table 4's ships)
+
+
+MMG_SIGN_TEXT = ", ".join(f"{n} {'>=' if v > 0 else '<='} 0" for n, v in MMG_SIGN.items())
+
+
 def not_identifiable(fit: EquationFit, rel_ci_limit: float = REL_CI_LIMIT) -> list[str]:
-    return [c.name for c in fit.coefficients if c.status == "identified" and c.rel_ci > rel_ci_limit]
+    """Free coefficients whose CI is too wide, or whose estimate has the sign no ship has (MMG_SIGN: not physical)."""
+    return [c.name for c in fit.coefficients if c.status == "identified"
+            and (c.rel_ci > rel_ci_limit or MMG_SIGN.get(c.name, 0) * c.estimate < 0.0)]
 
 
 # ------------------------------------------------------------------------------------------ prior policies
@@ -420,7 +518,8 @@ def _message(names: Sequence[str], fits: Sequence[EquationFit], data_names: Sequ
     pairs = [f"{a}~{b} (rho {rho:+.2f})" for f in fits for a, b, rho in f.collinearity.pairs]
     conds = ", ".join(f"{f.equation}: {f.collinearity.condition_number:.3g}" for f in fits)
     return (f"coefficients not identifiable from {len(data_names)} manoeuvre(s) ({', '.join(data_names)}): "
-            f"{', '.join(names)} (95 % CI wider than {REL_CI_LIMIT:.0%} of their size); condition numbers {conds}"
+            f"{', '.join(names)} (95 % CI wider than {REL_CI_LIMIT:.0%} of their size, or a sign no ship has: "
+            f"{MMG_SIGN_TEXT}); condition numbers {conds}"
             + (f"; multicollinear regressors: {', '.join(pairs)}" if pairs else "")
             + ". Use --prior fix (prior='fix'): it holds only these at the vessel description's values and fits every "
               "other coefficient from the data alone, so the description's errors stay in the terms the data cannot "
@@ -430,32 +529,34 @@ def _message(names: Sequence[str], fits: Sequence[EquationFit], data_names: Sequ
               "runs at two speeds, random rudder and rpm)")
 
 
-def _ridge_by_cv(designs: Sequence[Design], prior: Mapping[str, float]) -> float:
+def _ridge_by_cv(designs: Sequence[Design], prior: Mapping[str, float], fixed: Sequence[str] = ()) -> float:
     """Ridge weight of RIDGE_GRID with the lowest leave-one-manoeuvre-out error (all equations)."""
     best, best_score = RIDGE_GRID[-1], math.inf
     for weight in RIDGE_GRID:
-        score = sum(_cv_error(d, prior, (), weight) for d in designs)
+        score = sum(_cv_error(d, prior, fixed, weight) for d in designs)
         if score < best_score:
             best, best_score = weight, score
     return best
 
 
 def fit_hull(vessel: Vessel, data: Sequence[ForceData], structure: str = "mmg", prior: str = "none", *,
-             rel_ci_limit: float = REL_CI_LIMIT, u0: float | None = None) -> HullFit:
-    """Regression of every equation with the prior policy of the module docstring (step 6)."""
+             rel_ci_limit: float = REL_CI_LIMIT, u0: float | None = None, held: Sequence[str] = ()) -> HullFit:
+    """Regression of every equation with the prior policy of the module docstring (step 6). held: coefficients the
+    layout fixes to the vessel file's values whatever the data (rudder_only's R0), never flagged."""
     if prior not in PRIORS:
         raise ConfigError(f"unknown prior policy {prior!r}; use one of {list(PRIORS)}")
     u0 = float(np.median(np.concatenate([d.nu[:, 0] for d in data]))) if u0 is None else u0
     priors = prior_values(vessel, structure)
     designs = [design(vessel, data, structure, eq, u0) for eq in EQUATIONS]
-    fits = [fit_equation(d, priors) for d in designs]
+    held = tuple(held)
+    fits = [fit_equation(d, priors, fixed=held) for d in designs]
     flagged = [n for f in fits for n in not_identifiable(f, rel_ci_limit)]
     if flagged and prior == "none":
         raise NotIdentifiableError(_message(flagged, fits, [d.name for d in data]))
     if flagged and prior == "fix":
         # one at a time, the widest CI of each equation first: fixing one of a collinear pair often makes the
         # other identifiable, so fixing the whole flagged set at once would throw information away
-        fixed: set[str] = set()
+        fixed: set[str] = set(held)
         for _ in range(len(coefficient_names(structure))):
             worst = [max((c for c in f.coefficients if c.name in not_identifiable(f, rel_ci_limit)),
                          key=lambda c: c.rel_ci) for f in fits if not_identifiable(f, rel_ci_limit)]
@@ -464,8 +565,8 @@ def fit_hull(vessel: Vessel, data: Sequence[ForceData], structure: str = "mmg", 
             fixed.update(c.name for c in worst)
             fits = [fit_equation(d, priors, fixed=tuple(fixed)) for d in designs]
     elif flagged and prior == "ridge":
-        weight = _ridge_by_cv(designs, priors) if len({int(g) for g in designs[0].groups}) >= 2 else 1e-2
-        fits = [fit_equation(d, priors, ridge=weight) for d in designs]
+        weight = _ridge_by_cv(designs, priors, held) if len({int(g) for g in designs[0].groups}) >= 2 else 1e-2
+        fits = [fit_equation(d, priors, fixed=held, ridge=weight) for d in designs]
     return HullFit(structure, prior, tuple(fits), tuple(flagged), u0)
 
 
@@ -518,23 +619,31 @@ def cross_validate(vessel: Vessel, data: Sequence[ForceData], fit: HullFit) -> C
 
 @dataclass(frozen=True)
 class IdentificationResult:
-    vessel: Vessel  # the preset with the identified MMG hull
-    fit: HullFit  # of the chosen structure, on all data
+    vessel: Vessel  # the preset with the identified hull (and thrust maps)
+    fit: HullFit  # of the chosen structure, on all data (small craft: small_craft_identification.JointFit)
     cross_validation: tuple[CrossValidation, ...]  # every candidate structure
     extra_terms: dict[str, float]  # abkowitz terms beyond the MMG hull (empty for mmg)
     data: tuple[ForceData, ...] = field(repr=False)
     notes: tuple[str, ...] = ()
+    actuator_coefficients: tuple[Coefficient, ...] = ()  # profiled actuator gains (rudder_throttle's map gain)
 
     @property
     def structure(self) -> str:
         return self.fit.structure
 
+    def coefficients(self) -> list[Coefficient]:
+        """Every coefficient: the fit's, then the profiled actuator gains."""
+        return [*self.fit.coefficients(), *self.actuator_coefficients]
+
     def to_json(self) -> dict:
         return {
             "structure": self.structure,
+            "hull_model": self.vessel.hull_model_name,
+            "actuator_layout": self.vessel.layout,
             "prior": self.fit.prior_policy,
             "u0_mps": self.fit.u0,
-            "coefficients": [c.to_json() for c in self.fit.coefficients()],
+            "coefficients": [c.to_json() for c in self.coefficients()],
+            "actuators": {d.name: dict(d.actuator) for d in self.data if d.actuator},
             "not_identifiable_without_prior": list(self.fit.not_identifiable),
             "collinearity": [e.collinearity.to_json() for e in self.fit.equations],
             "residual_rms": {e.equation: finite_or_none(e.residual_rms) for e in self.fit.equations},
@@ -554,6 +663,106 @@ def identified_vessel(vessel: Vessel, fit: HullFit) -> Vessel:
                               f"(structure {fit.structure}, prior {fit.prior_policy}; usv_predictor.fitting.identification).")
 
 
+def scaled_thrust_map(m: ThrustMap, forward_N: float, reverse_N: float) -> ThrustMap:
+    """The map with new full-command thrusts (N): a power law takes them as they are, a table has its ahead part
+    (commands >= 0) scaled by forward_N / m.forward_N and its astern part by reverse_N / m.reverse_N (the shape of
+    the datasheet curve kept, the ends set exactly)."""
+    if not m.table_command:
+        return replace(m, forward_N=float(forward_N), reverse_N=float(reverse_N))
+    ahead = forward_N / m.forward_N
+    astern = reverse_N / m.reverse_N if m.reverse_N > 0.0 else 0.0
+    thrust = [t * (ahead if c >= 0.0 else astern) for c, t in zip(m.table_command, m.table_thrust_N)]
+    thrust[0], thrust[-1] = -float(reverse_N), float(forward_N)
+    return replace(m, forward_N=float(forward_N), reverse_N=float(reverse_N), table_thrust_N=tuple(thrust))
+
+
+def with_known_forces(vessel: Vessel, data: Sequence[ForceData]) -> list[ForceData]:
+    """The data with the steering and propulsion forces of `vessel` (another actuator gain) at their levels."""
+    out = []
+    for d in data:
+        rudder, propeller = known_forces(vessel, d.nu, d.controls)
+        out.append(replace(d, rudder=rudder, propeller=propeller))
+    return out
+
+
+def _least_squares_rss(vessel: Vessel, data: Sequence[ForceData], structure: str, u0: float,
+                       held: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(RSS (3,), samples (3,), residual lag-1 correlation factor (3,) n/n_eff) of the plain least-squares hull fit
+    of each equation (the coefficients in `held` at their values)."""
+    rss, count, inflation = np.empty(3), np.empty(3), np.empty(3)
+    for k, eq in enumerate(EQUATIONS):
+        d = design(vessel, data, structure, eq, u0)
+        free = np.array([n not in held for n in d.names])
+        target = d.target - d.matrix[:, ~free] @ np.array([held[n] for n in d.names if n in held])
+        theta, *_ = np.linalg.lstsq(d.matrix[:, free], target, rcond=None)
+        residual = target - d.matrix[:, free] @ theta
+        rss[k], count[k] = float(residual @ residual), len(residual)
+        inflation[k] = len(residual) / effective_samples(residual, d.groups)
+    return rss, count, inflation
+
+
+def profile_throttle_gain(vessel: Vessel, data: Sequence[ForceData], structure: str, u0: float, *,
+                          rel_ci_limit: float = REL_CI_LIMIT) -> Coefficient:
+    """The throttle map's gain (throttle.forward_N, N) by profile likelihood: at each gain the hull is fitted by least
+    squares and J(g) = sum over the equations of RSS_e(g) / sigma_e^2 (sigma_e of the vessel file's gain); the
+    estimate minimises J over [g0 / PROFILE_SPAN, g0 PROFILE_SPAN] (log grid, then golden section), its 95 % CI is
+    where J rises by CHI2_95 x n / n_eff (the likelihood-ratio interval, widened for autocorrelated residuals;
+    Venzon & Moolgavkar 1988). A CI reaching the search span: not identifiable (rel_ci inf)."""
+    g0 = vessel.throttle.forward_N
+
+    def parts(gain: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        v = replace(vessel, throttle=scaled_thrust_map(vessel.throttle, gain, vessel.throttle.reverse_N))
+        return _least_squares_rss(v, with_known_forces(v, data), structure, u0, {})
+
+    rss0, count, _ = parts(g0)
+    sigma2 = np.maximum(rss0 / np.maximum(count - 1.0, 1.0), 1e-30)
+
+    def objective(log_gain: float) -> float:
+        return float(np.sum(parts(math.exp(log_gain))[0] / sigma2))
+
+    low, high = math.log(g0 / PROFILE_SPAN), math.log(g0 * PROFILE_SPAN)
+    grid = np.linspace(low, high, PROFILE_POINTS)
+    values = np.array([objective(x) for x in grid])
+    best = int(np.argmin(values))
+    a, b = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
+    golden = (math.sqrt(5.0) - 1.0) / 2.0
+    for _ in range(20):  # golden section on [a, b] (bracket of two grid steps: 0.618^20 of it)
+        c, d = b - golden * (b - a), a + golden * (b - a)
+        if objective(c) < objective(d):
+            b = d
+        else:
+            a = c
+    x_best = 0.5 * (a + b)
+    j_best = objective(x_best)
+    _, _, inflation = parts(math.exp(x_best))
+    rise = CHI2_95 * float(np.mean(inflation))
+
+    def crossing(direction: int) -> float:
+        """The log gain where J = j_best + rise on one side (bisection), or nan when it is not reached in the span."""
+        edge = high if direction > 0 else low
+        if objective(edge) - j_best < rise:
+            return math.nan
+        inner, outer = x_best, edge
+        for _ in range(20):
+            mid = 0.5 * (inner + outer)
+            if objective(mid) - j_best < rise:
+                inner = mid
+            else:
+                outer = mid
+        return 0.5 * (inner + outer)
+
+    lo_ci, hi_ci = crossing(-1), crossing(+1)
+    estimate = math.exp(x_best)
+    if math.isnan(lo_ci) or math.isnan(hi_ci):
+        ci, rel = (math.exp(lo_ci) if not math.isnan(lo_ci) else 0.0,
+                   math.exp(hi_ci) if not math.isnan(hi_ci) else math.inf), math.inf
+    else:
+        ci = (math.exp(lo_ci), math.exp(hi_ci))
+        rel = 0.5 * (ci[1] - ci[0]) / max(estimate, g0)
+    status = "identified" if rel <= rel_ci_limit else "not identifiable"
+    return Coefficient("throttle.forward_N", estimate, ci, g0, status, rel)
+
+
 def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str = "auto", prior: str = "none",
              smoother: SmootherConfig = SmootherConfig(), rel_ci_limit: float = REL_CI_LIMIT,
              data: Sequence[ForceData] | None = None,
@@ -561,24 +770,63 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     """Smoother -> inverse dynamics -> regression of each candidate structure -> CV -> identified vessel.
 
     structure "auto" fits mmg and abkowitz and keeps abkowitz only if its CV error is lower by more than 5 %
-    (the simpler structure wins ties: its coefficients are those the grey box and the preset share).
+    (the simpler structure wins ties: its coefficients are those the grey box and the preset share). A small-craft
+    hull (twin thrusters) goes to fitting/small_craft_identification.py (structures diagonal / coupled). The
+    actuator layout decides the levels and what is held (module docstring, "Actuator layouts").
     """
+    if vessel.hull_model_name == "small_craft":
+        from usv_predictor.fitting.small_craft_identification import identify_small_craft
+
+        return identify_small_craft(vessel, recordings, structure=structure, prior=prior, smoother=smoother,
+                                    rel_ci_limit=rel_ci_limit, data=data, progress=progress)
+    if vessel.layout == "twin_thrusters":
+        raise ConfigError(f"vessel {vessel.name}: identification of twin thrusters needs the small_craft hull model "
+                          "(the MMG hull is singular at the low speeds a twin-thruster boat turns at)")
     if structure not in STRUCTURES + ("auto",):
-        raise ConfigError(f"unknown model structure {structure!r}; use one of {list(STRUCTURES) + ['auto']}")
+        raise ConfigError(f"unknown model structure {structure!r} for the MMG hull of {vessel.name}; use one of "
+                          f"{list(STRUCTURES) + ['auto']}")
+    if prior not in PRIORS:
+        raise ConfigError(f"unknown prior policy {prior!r}; use one of {list(PRIORS)}")
     names = sorted({r.name.split("#")[0].split("@")[0] for r in recordings})
     if len(names) < MIN_MANOEUVRES:
         raise DatasetError(f"identification needs at least {MIN_MANOEUVRES} manoeuvres (one is held out in turn "
                            f"for cross-validation); got {len(names)}: {', '.join(names) or 'none'}")
     forces = list(data) if data is not None else prepare(vessel, recordings, smoother=smoother, progress=progress)
     candidates = STRUCTURES if structure == "auto" else (structure,)
+    notes: list[str] = []
+    held: tuple[str, ...] = ()
+    gains: tuple[Coefficient, ...] = ()
+    if vessel.layout == "rudder_only":
+        held = ("R0",)
+        notes.append("rudder_only: the equivalent engine speed of each manoeuvre holds its approach speed with the "
+                     "vessel file's resistance, so R0 is held at the vessel file's value (the data cannot separate it "
+                     "from the unknown thrust); the model supports heading and track at a constant engine setting, "
+                     "not speed changes")
+    if vessel.layout == "rudder_throttle":
+        if progress is not None:
+            progress("profiling the throttle map's gain (throttle.forward_N)")
+        u0 = float(np.median(np.concatenate([d.nu[:, 0] for d in forces])))
+        gain = profile_throttle_gain(vessel, forces, candidates[0], u0, rel_ci_limit=rel_ci_limit)
+        if gain.status != "identified":
+            if prior == "none":
+                raise NotIdentifiableError(
+                    f"the throttle map's gain throttle.forward_N is not identifiable from {len(names)} manoeuvre(s) "
+                    f"({', '.join(names)}): 95 % CI [{gain.ci95[0]:.4g}, {gain.ci95[1]:.4g}] N around {gain.estimate:.4g} "
+                    "N. Options: prior='fix' (--prior fix) or 'ridge' holds it at the vessel file's value; or record "
+                    "throttle steps (the accelerations separate thrust from resistance)")
+            gain = replace(gain, estimate=gain.prior, status="fixed to prior")
+            notes.append("throttle.forward_N not identifiable: held at the vessel file's value (a profiled gain is "
+                         "held, not ridged)")
+        vessel = replace(vessel, throttle=scaled_thrust_map(vessel.throttle, gain.estimate, vessel.throttle.reverse_N))
+        forces = with_known_forces(vessel, forces)
+        gains = (gain,)
     fits, cvs = {}, []
     for s in candidates:
         if progress is not None:
             progress(f"fitting structure {s} (prior {prior})")
-        fits[s] = fit_hull(vessel, forces, s, prior, rel_ci_limit=rel_ci_limit)
+        fits[s] = fit_hull(vessel, forces, s, prior, rel_ci_limit=rel_ci_limit, held=held)
         cvs.append(cross_validate(vessel, forces, fits[s]))
     chosen = candidates[0]
-    notes = []
     if structure == "auto":
         by = {cv.structure: cv.score for cv in cvs}
         chosen = "abkowitz" if by["abkowitz"] < 0.95 * by["mmg"] else "mmg"
@@ -588,12 +836,17 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
         notes.append(f"not identifiable without the prior: {', '.join(fit.not_identifiable)} -> {prior}")
     values = fit.values()
     extra = {n: values[n] for n in EXTRA_NAMES if n in values}
-    return IdentificationResult(identified_vessel(vessel, fit), fit, tuple(cvs), extra, tuple(forces), tuple(notes))
+    return IdentificationResult(identified_vessel(vessel, fit), fit, tuple(cvs), extra, tuple(forces), tuple(notes),
+                                gains)
 
 
 def hull_forces(vessel: Vessel, values: Mapping[str, float], nu: np.ndarray, u0: float,
                 names: Sequence[str] | None = None) -> np.ndarray:
     """(T, 3) hull [X, Y, N] of coefficient `values` (any structure) at velocities nu (N, N, N m)."""
+    if vessel.hull_model_name == "small_craft":
+        from usv_predictor.fitting.small_craft_identification import hull_forces as small_craft_forces
+
+        return small_craft_forces(vessel, values, nu, names)
     g = vessel.geometry
     q = 0.5 * 1025.0 * g.L_pp * g.d
     u, v, r = nu[:, 0], nu[:, 1], nu[:, 2]

@@ -74,12 +74,14 @@ class ModelArtifact:
         return int(self.metadata["ensemble_size"])
 
     def predict(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        """(E, B, H, 6) [u, v, r, x_n, y_e, psi] from state (B, 4) and controls (B, H, 2), float64 numpy."""
+        """(E, B, H, 6) [u, v, r, x_n, y_e, psi] from state (B, 4) and controls (B, H, C), C the columns of the
+        model's control_layout (2 for rudder and engine speed, 1 for rudder_only), float64 numpy."""
         state = np.asarray(state, dtype=np.float64)
         controls = np.asarray(controls, dtype=np.float64)
-        if state.ndim != 2 or state.shape[1] != 4 or controls.ndim != 3 or controls.shape[2] != 2 \
+        width = len(self.metadata.get("control_layout") or (0, 0))
+        if state.ndim != 2 or state.shape[1] != 4 or controls.ndim != 3 or controls.shape[2] != width \
                 or controls.shape[0] != state.shape[0]:
-            raise ModelError(f"model {self.path}: predict needs state (B, 4) and controls (B, H, 2), "
+            raise ModelError(f"model {self.path}: predict needs state (B, 4) and controls (B, H, {width}), "
                              f"got {state.shape} and {controls.shape}")
         try:
             with torch.inference_mode():

@@ -38,7 +38,7 @@ A term acts only where its layout has the part (effects.Effect.layouts); the oth
 from __future__ import annotations
 
 import math
-from dataclasses import fields
+from dataclasses import asdict, fields, replace
 from typing import Any, Dict, List, Mapping, Tuple
 
 import torch
@@ -46,7 +46,7 @@ from torch import Tensor, nn
 
 from usv_predictor.physics import dynamics, effects
 from usv_predictor.physics.dynamics import SPEED_FLOOR, SeaConstants, constants_of
-from usv_predictor.physics.vessel import RHO_WATER, Hull, ThrustMap, Vessel
+from usv_predictor.physics.vessel import RHO_WATER, Hull, Thrusters, ThrustMap, Vessel
 
 HULL_NAMES = tuple(f.name for f in fields(Hull))  # the MMG hull's coefficients, R0 ... N_rrr (vessel.Hull)
 
@@ -512,14 +512,61 @@ def greybox_predictor(vessel: Vessel, dt: float, substeps: int = 2) -> GreyBoxPr
 
 
 def hull_from_metadata(meta: Mapping[str, Any]) -> dict[str, float] | None:
-    """The MMG hull derivatives of a grey-box artifact's metadata: from `replay identify`
-    (identification.coefficients) or from `replay diagnose --export` (architecture.hull); None for anything
-    the plain grey box cannot carry (Abkowitz structure, extra terms, a learned residual, another family)."""
+    """The hull coefficients of a grey-box artifact's metadata, for either hull model (the fields of its hull model's
+    section: vessel.Hull of the MMG hull, vessel.SmallCraftHull of the small-craft one; an identification's actuator
+    gains come along under their section-qualified names, e.g. thrusters.port.forward_N): from `replay identify`
+    (identification.coefficients) or from `replay diagnose --export` (architecture.hull); None for anything the
+    plain grey box cannot carry (Abkowitz structure, extra terms, a learned residual, another family)."""
     ident = meta.get("identification")
     arch = meta.get("architecture")
     if isinstance(ident, dict):
         residual = arch.get("residual", "ZeroResidual") if isinstance(arch, dict) else "ZeroResidual"
-        if ident.get("structure") != "mmg" or ident.get("extra_terms") or residual != "ZeroResidual":
+        if ident.get("structure") == "abkowitz" or ident.get("extra_terms") or residual != "ZeroResidual":
             return None
         return {c["name"]: c["estimate"] for c in ident.get("coefficients", []) if isinstance(c, dict)}
     return arch.get("hull") if isinstance(arch, dict) and isinstance(arch.get("hull"), dict) else None
+
+
+def _thrust_map(raw: Mapping[str, Any]) -> ThrustMap:
+    return ThrustMap(**{k: tuple(float(x) for x in v) if isinstance(v, (list, tuple)) else float(v)
+                        for k, v in raw.items()})
+
+
+def actuator_sections_metadata(vessel: Vessel) -> Dict[str, Any]:
+    """The vessel's identifiable actuator sections as plain data (artifact metadata): thrusters, throttle."""
+    out: Dict[str, Any] = {}
+    if vessel.thrusters is not None:
+        t = vessel.thrusters
+        out["thrusters"] = {"spacing": t.spacing, "x": t.x, "port": asdict(t.port), "starboard": asdict(t.starboard)}
+    if vessel.throttle is not None:
+        out["throttle"] = asdict(vessel.throttle)
+    return out
+
+
+def vessel_from_metadata(meta: Mapping[str, Any], preset: Vessel) -> Vessel | None:
+    """The calm-water vessel a grey-box artifact describes: `preset` (the vessel file it was made with) with the
+    artifact's hull coefficients and, when the metadata carry them (an identification of thrusters or a throttle),
+    its actuator sections; None when hull_from_metadata refuses the artifact. ValueError naming the difference when
+    the artifact's hull model or actuator layout is not the preset's, or a hull coefficient is missing."""
+    hull = hull_from_metadata(meta)
+    if hull is None:
+        return None
+    for key, mine in (("hull_model", preset.hull_model_name), ("actuator_layout", preset.layout)):
+        theirs = meta.get(key) or (meta.get("identification") or {}).get(key)
+        if theirs is not None and theirs != mine:
+            raise ValueError(f"the model's {key} is {theirs!r}, the vessel {preset.name}'s is {mine!r}")
+    names, _ = hull_coefficients(preset)
+    missing = [n for n in names if n not in hull and preset.hull_model_name == "mmg"]
+    if missing:
+        raise ValueError(f"hull coefficients {missing} missing from its metadata")
+    section = preset.hull_model.coefficients
+    vessel = replace(preset, **{section: replace(getattr(preset, section),
+                                                 **{n: float(hull[n]) for n in names if n in hull})})
+    sections = (meta.get("identification") or {}).get("actuator_sections") or {}
+    if "thrusters" in sections and vessel.thrusters is not None:
+        t = sections["thrusters"]
+        vessel = replace(vessel, thrusters=Thrusters(float(t["spacing"]), float(t["x"]), _thrust_map(t["port"]),
+                                                     _thrust_map(t["starboard"])))
+    if "throttle" in sections and vessel.throttle is not None:
+        vessel = replace(vessel, throttle=_thrust_map(sections["throttle"]))
+    return vessel

@@ -1,4 +1,4 @@
-"""`replay convert`: public measured manoeuvres (HSVA/MARIN KVLCC2, Fuzhou USV) -> one rosbag2 per manoeuvre.
+"""`replay convert`: public measured manoeuvres (HSVA/MARIN KVLCC2, Fuzhou and Dalian USVs) -> one rosbag2 each.
 
 Bags carry the default input topics of config/predictor.yaml (no ground truth: measured data have
 none) and custom_data with source, licence note, scale, conventions and conversion version. The readers
@@ -14,7 +14,8 @@ from pathlib import Path
 from usv_predictor.replay.options import log
 
 NAME = "convert"
-HELP = "convert public measured manoeuvres (HSVA/MARIN KVLCC2 zig-zags, Fuzhou USV zig-zag) to rosbag2 bags"
+HELP = ("convert public measured manoeuvres (HSVA/MARIN KVLCC2 zig-zags, Fuzhou USV zig-zag, Dalian twin-thruster "
+        "USV runs) to rosbag2 bags")
 INPUTS = ("sources",)
 OUTPUTS = {"output": "dir"}
 
@@ -23,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("sources", nargs="+", type=Path, metavar="SOURCE_DIR_OR_FILE",
                         help="data directories (e.g. ../shared/data/raw/kvlcc2_hsva_simman2008) or manoeuvre files")
     parser.add_argument("--output", type=Path, required=True, help="directory for the bags (one per manoeuvre)")
-    parser.add_argument("--format", choices=("auto", "hsva", "marin", "fuzhou"), default="auto",
+    parser.add_argument("--format", choices=("auto", "hsva", "marin", "fuzhou", "dalian"), default="auto",
                         help="input format (default auto: from the file names)")
     parser.add_argument("--storage", choices=("sqlite3", "mcap"), default="sqlite3", help="rosbag2 storage (default sqlite3)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing bags")

@@ -7,7 +7,11 @@ coefficients, their 95 % CIs, the structure and the data digest in the metadata.
 and docs/identification.md. Coefficients the data cannot determine are an error naming them unless --prior says
 what to do (fix: hold at the preset's value; ridge: pull towards it). --val GLOB: bags (or directories) whose
 manoeuvres are only evaluated, never fitted. --report DIR: summary.md and force-decomposition plots
-(seed 001 Fig. 13) per manoeuvre. The work: usv_predictor.replay.identify.
+(seed 001 Fig. 13) per manoeuvre. The bags are read with the vessel's actuator layout: a small-craft twin-thruster
+boat identifies its damping and each side's thrust gain (structures diagonal / coupled), a throttle boat its thrust
+map's gain, a rudder boat without propulsion data (rudder_only) the hull at an equivalent engine speed per manoeuvre.
+--blocks K cuts each recording into K pieces for cross-validation (one long record). The work:
+usv_predictor.replay.identify.
 """
 from __future__ import annotations
 
@@ -15,10 +19,11 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from usv_predictor.replay.options import add_config_argument, log, positive_float
+from usv_predictor.replay.options import add_config_argument, log, positive_float, positive_int
 
 NAME = "identify"
-HELP = "identify the grey-box hull coefficients from bags (EKF/RTS + inverse-dynamics regression) and export the model"
+HELP = ("identify the grey box of any actuator layout from bags (hull coefficients, thrust-map gains, engine speeds; "
+        "EKF/RTS + inverse-dynamics regression) and export the model")
 INPUTS = ("bags", "vessel", "config")
 OUTPUTS = {"output": "file", "report": "dir"}
 
@@ -26,9 +31,11 @@ OUTPUTS = {"output": "file", "report": "dir"}
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bags", nargs="+", type=Path, metavar="BAG", help="bags or directories of bags to fit")
     parser.add_argument("--vessel", required=True, help="vessel preset name or YAML path (mass, added mass, rudder, "
-                                                        "propeller: the prior knowledge)")
-    parser.add_argument("--structure", choices=("mmg", "abkowitz", "auto"), default="auto",
-                        help="hull model structure (auto: compare by cross-validation, default)")
+                                                        "propeller, thrusters: the prior knowledge); its actuator "
+                                                        "layout says which control topics the bags must carry")
+    parser.add_argument("--structure", choices=("mmg", "abkowitz", "diagonal", "coupled", "auto"), default="auto",
+                        help="hull model structure: mmg / abkowitz for the MMG hull, diagonal / coupled for the "
+                             "small-craft hull (auto: compare the hull model's by cross-validation, default)")
     parser.add_argument("--prior", choices=("none", "fix", "ridge"), default="none",
                         help="what to do with coefficients the data cannot determine (default none: refuse, naming them)")
     parser.add_argument("--hybrid", action="store_true", help="add an MLP residual on the accelerations (model_type hybrid)")
@@ -36,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--val", default=None, metavar="GLOB", help="bags to validate on only (glob)")
     parser.add_argument("--output", type=Path, required=True, help="model file to write (.pt)")
     parser.add_argument("--report", type=Path, default=None, metavar="DIR", help="write summary.md and plots into DIR")
+    parser.add_argument("--blocks", type=positive_int, default=1, metavar="K",
+                        help="cut each recording into K contiguous pieces, each held out in turn by the cross-"
+                             "validation (a single long record; default 1)")
     add_config_argument(parser)
 
 
@@ -43,5 +53,5 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from usv_predictor.replay.identify import identify_bags
 
     return identify_bags(args.bags, args.output, vessel=args.vessel, structure=args.structure, prior=args.prior,
-                         hybrid=args.hybrid, dt=args.dt, validation=args.val, report=args.report, config=args.config,
-                         progress=log)
+                         hybrid=args.hybrid, dt=args.dt, validation=args.val, report=args.report, blocks=args.blocks,
+                         config=args.config, progress=log)

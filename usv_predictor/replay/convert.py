@@ -20,7 +20,12 @@ DatasetError naming file, line and column):
           The reader detects the unit from the track (knots or m/s, else error). u, v: over-ground
           velocity of the GNSS track (centred difference over 2 s) rotated into the body; r: centred
           difference of the unwrapped heading over 1 s. No propeller data: no engine_rpm topic.
-The Dalian twin-thruster USV (.xlsx) has no rudder and no rpm: it is refused (UNSUPPORTED_FORMATS).
+  dalian  a small twin-thruster USV (differential thrust, PWM commands), closed-loop path following at sea,
+          .xlsx (read with openpyxl, imported only here). The x, y columns are NOT metres (11.2 % inflated) and t is
+          NOT time (a nominal 0.1 s per row): time from DateTime, position from Longitude/Latitude; rows without a
+          new GNSS fix (about every second row) carry no position or heading measurement; u, v, r are derived by
+          the EKF/RTS smoother (data/smoother.py) from the fixes and the heading (velocity over ground); PWM_L is
+          the port thruster (checked on every file: more PWM_L turns to starboard), c = (PWM - 1500) / 500.
 """
 from __future__ import annotations
 
@@ -50,7 +55,7 @@ EPOCH_NS = {
     "hsva": 1_136_073_600 * NS_PER_S,  # 2006-01-01 00:00 UTC (year of the HSVA report)
     "marin": 1_199_145_600 * NS_PER_S,  # 2008-01-01 00:00 UTC (SIMMAN 2008)
     "fuzhou": 1_640_995_200 * NS_PER_S,  # 2022-01-01 00:00 UTC (year of the publication)
-}
+}  # dalian: the file's DateTime (Manoeuvre.epoch_ns)
 # Arbitrary GNSS datums of the tank data (nominal, NOT measured): lat/lon = datum + the tank track.
 DATUM_DEG = {
     "hsva": (53.5680, 10.0110),  # HSVA, Hamburg (nominal)
@@ -63,13 +68,12 @@ LICENCE = {
              "files into a repository.",
     "fuzhou": "none stated; research use. Cite Alexandersson, Zhang, Mao, Ringsberg (2022), Ships and Offshore "
               "Structures, doi:10.1080/17445302.2022.2067409. Do not commit the raw file into a repository.",
+    "dalian": "MIT (github.com/2345vor/USV-ASW-NMPC, 'MI Project Contributors'; the same files as 2345vor/MI "
+              "datas/ at commit 54d75c029cc43fe2f4443e9449e8ae1cb0a026c9). Do not commit the raw files or bags made "
+              "from them into this repository.",
 }
-FORMATS = ("hsva", "marin", "fuzhou")
-UNSUPPORTED_FORMATS = {
-    "dalian": "the Dalian twin-thruster USV (.xlsx) steers by differential thrust: it has no rudder angle and no "
-              "rpm (only PWM commands), so it does not fit the default topics (rudder_angle, engine_rpm); "
-              "not converted (see docs/data.md)",
-}
+FORMATS = ("hsva", "marin", "fuzhou", "dalian")
+UNSUPPORTED_FORMATS: dict[str, str] = {}
 
 HSVA_LAMBDA = 45.714  # model scale 1:45.714 (SOURCE.txt)
 HSVA_DT_S = 0.05  # (s)
@@ -94,6 +98,9 @@ class Manoeuvre:
 
     rpm is the PROPELLER speed (rpm), None when not measured. lat_deg/lon_deg are the measured fixes
     when the source has them, else None (then the bag's fixes are x_n, y_e about a nominal datum).
+    A twin-thruster record has delta None and `thrusters` = (port, starboard) normalised commands in [-1, 1];
+    `fix` marks the rows that carry a GNSS fix (None: every row); x_n, y_e, lat, lon are NaN on the others and
+    only the fixes are written. epoch_ns: the stamp of t_s = 0 (None: EPOCH_NS[source]).
     """
 
     name: str  # bag name, e.g. hsva_z_10_05
@@ -106,7 +113,7 @@ class Manoeuvre:
     u: np.ndarray  # (N,) m/s, body forward
     v: np.ndarray  # (N,) m/s, body starboard
     r: np.ndarray  # (N,) rad/s, positive turning to starboard
-    delta: np.ndarray  # (N,) rad, positive turns the vessel to starboard
+    delta: np.ndarray | None  # (N,) rad, positive turns the vessel to starboard; None without a rudder
     rpm: np.ndarray | None  # (N,) propeller rpm, or None
     scale: ScaleInfo
     rudder_amplitude_deg: float  # nominal rudder angle of the zig-zag (from the file name/header)
@@ -115,6 +122,10 @@ class Manoeuvre:
     lat_deg: np.ndarray | None = None
     lon_deg: np.ndarray | None = None
     notes: Mapping[str, str] = field(default_factory=dict)  # conventions and conversions, for custom_data
+    thrusters: tuple[np.ndarray, np.ndarray] | None = None  # (N,) port and starboard commands (-), twin thrusters
+    fix: np.ndarray | None = None  # (N,) bool: rows with a new GNSS fix and heading (None: every row)
+    epoch_ns: int | None = None  # stamp of t_s = 0 (ns since the Unix epoch); None: EPOCH_NS[source]
+    extra: Mapping[str, str] = field(default_factory=dict)  # further custom_data keys of the source
 
     @property
     def duration_s(self) -> float:
@@ -513,9 +524,214 @@ def read_fuzhou(path: Path) -> Manoeuvre:
     )
 
 
+# ----------------------------------------------------------------------------- Dalian twin-thruster USV
+
+DALIAN_REQUIRED = ("DateTime", "t", "Longitude", "Latitude", "x", "y", "Heading", "course", "Speed", "PWM_L", "PWM_R")
+DALIAN_TIME_FORMAT = "%Y-%m-%d %H:%M:%S.%f"
+DALIAN_UTC_OFFSET_H = 8  # DateTime read as China Standard Time (UTC+8): the boat ran near Dalian; the file names no zone
+PWM_NEUTRAL_US = 1500.0  # (us) thruster command at zero thrust (SOURCE.txt)
+PWM_FULL_SCALE_US = 500.0  # (us) command above neutral that means full ahead (1000-2000 us range)
+PWM_RANGE_US = (1000.0, 2000.0)  # (us) what a hobby ESC accepts
+DALIAN_SMOOTHER_DT_S = 0.05  # (s) grid of the EKF/RTS smoother; a fix is placed on the nearest grid step (<= 25 ms)
+DALIAN_MOVING_MPS = 0.3  # (m/s) speed over ground above which course, drift and turn-sign checks use a row
+DALIAN_MIN_TURN_CORRELATION = 0.3  # (-) yaw rate vs PWM_L - PWM_R below this: the sides cannot be told (refused)
+DALIAN_SPEED_RATIO = (0.9, 1.1)  # smoothed speed over ground / the Speed column accepted as "Speed is m/s"
+
+
+def _dalian_sheets(path: Path) -> tuple[list[str], list[tuple], dict[str, str]]:
+    """(Sheet1 header, Sheet1 data rows, Sheet2 parameters) of a Dalian .xlsx (openpyxl, read-only)."""
+    try:
+        import openpyxl  # noqa: PLC0415 (lazy: only this reader needs it; `replay --help` stays light)
+    except ImportError as err:
+        raise DatasetError(f"{path}: reading .xlsx needs openpyxl (pip install openpyxl==3.1.5, requirements.txt)") from err
+    try:
+        book = openpyxl.load_workbook(path, read_only=True, data_only=True)
+    except Exception as err:  # noqa: BLE001 (openpyxl raises zipfile, KeyError, its own InvalidFileException ...)
+        raise DatasetError(f"{path}: not a readable .xlsx workbook ({type(err).__name__}: {err})") from err
+    try:
+        if "Sheet1" not in book.sheetnames:
+            raise DatasetError(f"{path}: no sheet 'Sheet1' (the time series); sheets: {book.sheetnames}")
+        rows = list(book["Sheet1"].iter_rows(values_only=True))
+        params: dict[str, str] = {}
+        if "Sheet2" in book.sheetnames:
+            sheet2 = list(book["Sheet2"].iter_rows(values_only=True))
+            if len(sheet2) >= 2:
+                params = {str(k): str(v) for k, v in zip(sheet2[0], sheet2[1]) if k is not None}
+    finally:
+        book.close()
+    if not rows:
+        raise DatasetError(f"{path}: Sheet1 is empty, expected a header with {', '.join(DALIAN_REQUIRED)}")
+    header = [str(h).strip() if h is not None else "" for h in rows[0]]
+    missing = [c for c in DALIAN_REQUIRED if c not in header]
+    if missing:
+        raise DatasetError(f"{path}: Sheet1 row 1: missing column(s) {', '.join(missing)}; header has {', '.join(header)}")
+    data = [r for r in rows[1:] if any(c is not None for c in r)]
+    if len(data) < MIN_ROWS:
+        raise DatasetError(f"{path}: Sheet1 has only {len(data)} data rows, expected at least {MIN_ROWS}")
+    return header, data, params
+
+
+def _dalian_columns(path: Path, header: list[str], data: list[tuple]) -> tuple[np.ndarray, int, dict[str, np.ndarray]]:
+    """(t_s from DateTime (N,), epoch_ns of the first row, numeric columns by name); errors name row and column."""
+    import datetime as _dt
+
+    index = {name: header.index(name) for name in DALIAN_REQUIRED}
+    zone = _dt.timezone(_dt.timedelta(hours=DALIAN_UTC_OFFSET_H))
+    micros = np.empty(len(data), dtype=np.int64)
+    for k, row in enumerate(data):
+        text = row[index["DateTime"]]
+        try:
+            stamp = _dt.datetime.strptime(str(text).strip(), DALIAN_TIME_FORMAT).replace(tzinfo=zone)
+        except ValueError:
+            raise DatasetError(f"{path}: Sheet1 row {k + 2}: column 'DateTime': {text!r} is not a time like "
+                               f"'2025-07-24 15:45:54.179' ({DALIAN_TIME_FORMAT})") from None
+        micros[k] = int(stamp.timestamp()) * 1_000_000 + stamp.microsecond
+    columns: dict[str, np.ndarray] = {}
+    for name in DALIAN_REQUIRED[1:]:
+        values = np.empty(len(data))
+        for k, row in enumerate(data):
+            cell = row[index[name]]
+            try:
+                values[k] = float(cell)
+            except (TypeError, ValueError):
+                raise DatasetError(f"{path}: Sheet1 row {k + 2}: column {name!r}: {cell!r} is not a number") from None
+            if not math.isfinite(values[k]):
+                raise DatasetError(f"{path}: Sheet1 row {k + 2}: column {name!r}: {cell!r} is not finite")
+        columns[name] = values
+    t_s = (micros - micros[0]) / 1e6
+    _check_time(path, t_s, 2, None, "DateTime")
+    return t_s, int(micros[0]) * 1000, columns
+
+
+def _new_fixes(col: Mapping[str, np.ndarray]) -> np.ndarray:
+    """(N,) bool: rows whose position, heading or speed differs from the previous row's (the log repeats the last
+    GNSS message on rows in between: about every second row)."""
+    fields = np.column_stack([col["Longitude"], col["Latitude"], col["Heading"], col["Speed"]])
+    return np.r_[True, np.any(fields[1:] != fields[:-1], axis=1)]
+
+
+def _grid_and_smooth(t_s: np.ndarray, x: np.ndarray, y: np.ndarray, psi: np.ndarray, fix: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(grid (G,) s, slot of each fix (F,), smoothed states (G, 9)): the EKF/RTS smoother of data/smoother.py on the
+    fixes and the heading alone, on a uniform DALIAN_SMOOTHER_DT_S grid (a fix on its nearest step, a later fix in
+    the same step wins), jerk densities tuned by likelihood."""
+    from usv_predictor.data.smoother import tune
+
+    dt = DALIAN_SMOOTHER_DT_S
+    grid = np.arange(int(np.floor(t_s[-1] / dt)) + 1) * dt
+    z = np.full((len(grid), 6), np.nan)
+    slots = np.clip(np.round(t_s[fix] / dt).astype(int), 0, len(grid) - 1)
+    z[slots, 0], z[slots, 1], z[slots, 2] = x[fix], y[fix], psi[fix]
+    return grid, slots, tune(z, dt).state
+
+
+def read_dalian(path: Path) -> Manoeuvre:
+    """A Dalian twin-thruster USV run (.xlsx, Sheet1 time series, Sheet2 path parameters); see the module
+    docstring. Every SOURCE.txt statement the data contradict is measured and written into the notes."""
+    path = Path(path)
+    header, data, params = _dalian_sheets(path)
+    t_s, epoch_ns, col = _dalian_columns(path, header, data)
+    for side in ("PWM_L", "PWM_R"):
+        low, high = PWM_RANGE_US
+        outside = np.flatnonzero((col[side] < low) | (col[side] > high))
+        if len(outside):
+            k = int(outside[0])
+            raise DatasetError(f"{path}: Sheet1 row {k + 2}: column {side!r}: {col[side][k]:g} is outside {low:g}-{high:g}; "
+                               f"expected a PWM pulse width in microseconds with {PWM_NEUTRAL_US:g} neutral")
+    lat, lon = col["Latitude"], col["Longitude"]
+    if not (np.all(np.abs(lat) < 90.0) and np.all(np.abs(lon) <= 180.0)):
+        raise DatasetError(f"{path}: columns 'Latitude', 'Longitude' are not latitude/longitude in degrees")
+    _check_range(path, "Heading", np.abs(col["Heading"]), 0.0, 180.0, "a heading in degrees within (-180, 180]")
+    if np.abs(col["Heading"]).max() > 360.0:
+        raise DatasetError(f"{path}: column 'Heading' exceeds 360; expected degrees")
+    try:
+        datum = (float(params["LatitudeStart"]), float(params["LongitudeStart"]))
+        datum_note = "Sheet2 LatitudeStart/LongitudeStart (the path's origin)"
+    except (KeyError, ValueError):
+        datum = (float(lat[0]), float(lon[0]))
+        datum_note = "the first fix (Sheet2 has no LatitudeStart/LongitudeStart)"
+    plane = LocalTangentPlane(*datum)
+    x_all, y_all = plane.to_ned(lat, lon)
+    fix = _new_fixes(col)
+    psi_fix = np.radians(np.unwrap(col["Heading"][fix], period=360.0))
+    tf, xf, yf = t_s[fix], x_all[fix], y_all[fix]
+    course_deg = _check_track_follows_heading(path, tf, xf, yf, psi_fix, 4, 30.0)
+    # SOURCE.txt says x[m], y[m]: the data say they are a scaled copy of the lon/lat metres (x north, y east)
+    scale_xy = float((col["x"] @ x_all + col["y"] @ y_all) / max(x_all @ x_all + y_all @ y_all, 1e-12))
+    xy_rms = float(np.sqrt(np.mean((col["x"] - scale_xy * x_all) ** 2 + (col["y"] - scale_xy * y_all) ** 2)))
+    psi_rows = np.full(len(t_s), np.nan)
+    psi_rows[fix] = psi_fix
+    grid, slots, state = _grid_and_smooth(t_s, x_all, y_all, psi_rows, fix)
+    u, v, r = state[:, 3], state[:, 4], state[:, 5]
+    speed = np.hypot(u, v)
+    moving_fix = col["Speed"][fix] > DALIAN_MOVING_MPS
+    speed_ratio = float(np.median(speed[slots][moving_fix]) / np.median(col["Speed"][fix][moving_fix]))
+    if not DALIAN_SPEED_RATIO[0] <= speed_ratio <= DALIAN_SPEED_RATIO[1]:
+        raise DatasetError(f"{path}: column 'Speed': the track from Longitude/Latitude and DateTime moves "
+                           f"{speed_ratio:.3f} m/s per unit of Speed; expected 1 (Speed in m/s over ground)")
+    # course over ground against the track's, where the boat moves
+    cog = np.degrees(np.arctan2(centred_derivative(tf, yf, 4), centred_derivative(tf, xf, 4)))
+    course_gap = float(np.median(np.abs(wrap_angle(np.radians(col["course"][fix] - cog))[moving_fix])))
+    # the commands hold from their row to the next (zero-order hold) on the grid
+    held = np.clip(np.searchsorted(t_s, grid + 1e-9, side="right") - 1, 0, len(t_s) - 1)
+    pwm_l, pwm_r = col["PWM_L"][held], col["PWM_R"][held]
+    # which thruster is port: more port thrust turns the bow to starboard (r > 0; Fossen 2021 sec. 2.2)
+    window = int(round(1.0 / DALIAN_SMOOTHER_DT_S))
+    difference = np.convolve(pwm_l - pwm_r, np.ones(2 * window + 1) / (2 * window + 1), mode="same")
+    moving = speed > DALIAN_MOVING_MPS
+    turn_correlation = float(np.corrcoef(r[moving], difference[moving])[0, 1])
+    if not turn_correlation > DALIAN_MIN_TURN_CORRELATION:
+        raise DatasetError(f"{path}: columns 'PWM_L', 'PWM_R': the yaw rate correlates {turn_correlation:+.2f} with "
+                           f"PWM_L - PWM_R; expected > {DALIAN_MIN_TURN_CORRELATION:g} (PWM_L the port thruster: more "
+                           "port thrust turns to starboard)")
+    drift_s = float(col["t"][-1] - t_s[-1])
+    stem = path.stem.lower()
+    kind = "circle" if "circle" in stem else "sine" if "sin" in stem else re.sub(r"[^a-z0-9]+", "_", stem)
+    on_grid = np.zeros(len(grid), dtype=bool)
+    on_grid[slots] = True
+    nan = np.full(len(grid), np.nan)
+    x_n, y_e, lat_fix, lon_fix = nan.copy(), nan.copy(), nan.copy(), nan.copy()
+    x_n[slots], y_e[slots], lat_fix[slots], lon_fix[slots] = xf, yf, lat[fix], lon[fix]
+    return Manoeuvre(
+        name=f"dalian_{kind}", source="dalian", path=path, t_s=grid, x_n=x_n, y_e=y_e, psi=wrap_angle(state[:, 2]),
+        u=u, v=v, r=r, delta=None, rpm=None, scale=ScaleInfo("full", 1.0, math.nan, math.nan),
+        rudder_amplitude_deg=math.nan, check_angle_deg=math.nan, first_side="none", lat_deg=lat_fix,
+        lon_deg=lon_fix, thrusters=((pwm_l - PWM_NEUTRAL_US) / PWM_FULL_SCALE_US,
+                                    (pwm_r - PWM_NEUTRAL_US) / PWM_FULL_SCALE_US), fix=on_grid, epoch_ns=epoch_ns,
+        notes={
+            "time": f"DateTime read as UTC+{DALIAN_UTC_OFFSET_H} (no zone in the file); column 't' is a nominal 0.1 s "
+                    f"per row, not time: it ends {drift_s:+.1f} s from DateTime (SOURCE.txt calls it t[s])",
+            "positions": f"from Longitude/Latitude, local tangent plane at {datum_note} {datum[0]:.8f},{datum[1]:.8f}; "
+                         f"columns 'x', 'y' are {scale_xy:.5f} x these metres (rms {xy_rms:.3f} after scaling), "
+                         "not metres as SOURCE.txt says (x[m], y[m]): not used",
+            "fixes": f"{int(fix.sum())} of {len(fix)} rows carry a new fix (position, heading, speed change; median "
+                     f"{float(np.median(np.diff(tf))):.3f} s apart); the others repeat it and are not measurements. "
+                     f"Written on a uniform {DALIAN_SMOOTHER_DT_S} s grid: gps/fix at the fixes (each on its nearest "
+                     "grid step), everything else at every step",
+            "heading": "Heading (deg, clockwise from north) at the fixes; the track follows it (median |course over "
+                       f"ground - heading| {course_deg:.2f} deg); the heading topic carries the smoothed heading "
+                       "(EKF/RTS) at every grid step, so the tools see no gaps between fixes",
+            "course": f"column 'course' is the course over ground of the track (median |difference| "
+                      f"{math.degrees(course_gap):.2f} deg); not written",
+            "velocity": "u, v, r: EKF/RTS smoother (usv_predictor.data.smoother) on the fixes and heading alone "
+                        f"(grid {DALIAN_SMOOTHER_DT_S} s, jerk densities tuned by likelihood); velocity over ground "
+                        "(a current is not removed)",
+            "speed": f"column 'Speed' is speed over ground in m/s: smoothed speed / Speed = {speed_ratio:.3f}",
+            "thrusters": "PWM_L = port, PWM_R = starboard (the yaw rate correlates "
+                         f"{turn_correlation:+.2f} with PWM_L - PWM_R: more port thrust turns to starboard); "
+                         f"c = (PWM - {PWM_NEUTRAL_US:g}) / {PWM_FULL_SCALE_US:g}, written as thruster_port/thruster_starboard, "
+                         "each logged command held until the next row (zero-order hold)",
+            "unused": "x, y, t, course, HeadingSet, SpeedSet, w, varsigma_w, Voltage, tracking errors and bounds, x_p, y_p",
+            "length": "not published (no mass, length, thrusters): L_pp_m nan",
+        },
+        extra={"path_following": json.dumps(params, sort_keys=True)},
+    )
+
+
 # ----------------------------------------------------------------------------- discovery
 
-READERS: dict[str, Callable[[Path], Manoeuvre]] = {"hsva": read_hsva, "marin": read_marin, "fuzhou": read_fuzhou}
+READERS: dict[str, Callable[[Path], Manoeuvre]] = {"hsva": read_hsva, "marin": read_marin, "fuzhou": read_fuzhou,
+                                                   "dalian": read_dalian}
 
 
 def detect_format(path: Path) -> str:
@@ -530,7 +746,7 @@ def detect_format(path: Path) -> str:
     if name.lower().endswith(".xlsx"):
         return "dalian"
     raise DatasetError(f"{path}: unknown data format (expected HSVA_*.dat, MARIN_*.dat, a zigzag*.csv of the "
-                       f"Fuzhou USV; give --format)")
+                       f"Fuzhou USV, a .xlsx of the Dalian USV; give --format)")
 
 
 def find_sources(inputs: Sequence[Path], fmt: str = "auto") -> list[tuple[Path, str]]:
@@ -570,7 +786,8 @@ def read_manoeuvre(path: Path, fmt: str) -> Manoeuvre:
 
 def time_ns(m: Manoeuvre) -> np.ndarray:
     """Stamps: the source's nominal epoch + the file's time base, int ns, strictly increasing."""
-    t_ns = EPOCH_NS[m.source] + np.round(m.t_s * NS_PER_S).astype(np.int64)
+    epoch = EPOCH_NS[m.source] if m.epoch_ns is None else int(m.epoch_ns)
+    t_ns = epoch + np.round(m.t_s * NS_PER_S).astype(np.int64)
     if np.any(np.diff(t_ns) <= 0):
         raise DatasetError(f"{m.path}: time base is not strictly increasing at nanosecond resolution")
     return t_ns
@@ -582,7 +799,9 @@ def to_signals(m: Manoeuvre) -> dict[str, Signal]:
     imu: yaw_rate = r; accel_x/accel_y = specific force from a smoothing differentiation of u, v
     (centred over +-0.5 s): a_x = du/dt - r v, a_y = dv/dt + r u; accel_z = -g; heading NaN (orientation
     absent, REP-145), as the simulator writes it. gnss: measured fixes when the source has them, else
-    the track about the source's nominal datum (DATUM_DEG). engine_rpm only when rpm is measured.
+    the track about the source's nominal datum (DATUM_DEG). engine_rpm only when rpm is measured; rudder_angle
+    only with a rudder; thruster_port / thruster_starboard (field command) for twin thrusters. With `fix`, gnss
+    carries only the rows of a fix.
     """
     t_ns = time_ns(m)
     dt = float(np.median(np.diff(m.t_s)))
@@ -595,8 +814,12 @@ def to_signals(m: Manoeuvre) -> dict[str, Signal]:
                       ("yaw_rate", "accel_x", "accel_y", "accel_z", "heading")),
         "velocity": Signal(t_ns, np.column_stack([m.u, m.v, m.r]), ("u", "v", "r")),
         "heading": Signal(t_ns, m.psi[:, None].copy(), ("psi",)),
-        "rudder_angle": Signal(t_ns, m.delta[:, None].copy(), ("delta",)),
     }
+    if m.delta is not None:
+        signals["rudder_angle"] = Signal(t_ns, m.delta[:, None].copy(), ("delta",))
+    if m.thrusters is not None:
+        signals["thruster_port"] = Signal(t_ns, m.thrusters[0][:, None].copy(), ("command",))
+        signals["thruster_starboard"] = Signal(t_ns, m.thrusters[1][:, None].copy(), ("command",))
     if m.rpm is not None:
         signals["engine_rpm"] = Signal(t_ns, m.rpm[:, None].copy(), ("rpm",))
     if m.lat_deg is not None and m.lon_deg is not None:
@@ -604,6 +827,9 @@ def to_signals(m: Manoeuvre) -> dict[str, Signal]:
     else:
         lat, lon = LocalTangentPlane(*DATUM_DEG[m.source]).to_geodetic(m.x_n, m.y_e)
     signals["gnss"] = Signal(t_ns, np.column_stack([lat, lon, np.zeros(n)]), ("lat", "lon", "alt"))
+    if m.fix is not None:  # positions only where the receiver delivered them
+        sig = signals["gnss"]
+        signals["gnss"] = Signal(sig.t_ns[m.fix], sig.values[m.fix], sig.fields)
     return signals
 
 
@@ -612,30 +838,42 @@ def custom_data(m: Manoeuvre, command: str = "replay convert") -> dict[str, str]
     from usv_predictor import __version__
 
     datum = "measured fixes" if m.lat_deg is not None else "nominal datum %.4f,%.4f (arbitrary)" % DATUM_DEG[m.source]
-    return {
+    out = {
         "generator": "usv_predictor replay convert", "version": __version__, "conversion_version": CONVERSION_VERSION,
         "command": command, "source": m.source, "source_file": m.path.name, "source_sha256": _file_digest(m.path),
         "licence": LICENCE[m.source], "manoeuvre": m.name,
-        "zigzag": json.dumps({"rudder_deg": m.rudder_amplitude_deg, "check_deg": m.check_angle_deg,
-                              "first_side": m.first_side}),
         "scale": m.scale.scale, "scale_factor": repr(m.scale.scale_factor), "L_pp_m": repr(m.scale.L_pp_m),
         "full_scale_L_pp_m": repr(m.scale.full_scale_L_pp_m),
-        "conventions": "NED, body FRD, psi clockwise from north, delta > 0 turns to starboard; engine_rpm carries "
-                       "PROPELLER rpm; no ground truth",
-        "epoch_ns": str(EPOCH_NS[m.source]), "gnss": datum, "notes": json.dumps(dict(m.notes), sort_keys=True),
+        "conventions": ("NED, body FRD, psi clockwise from north, " + (
+            "delta > 0 turns to starboard; engine_rpm carries PROPELLER rpm" if m.delta is not None else
+            "thruster commands normalised to [-1, 1] (+ ahead), port = the thruster at body y < 0") + "; no ground truth"),
+        "epoch_ns": str(EPOCH_NS[m.source] if m.epoch_ns is None else m.epoch_ns), "gnss": datum,
+        "notes": json.dumps(dict(m.notes), sort_keys=True),
     }
+    if m.delta is not None:
+        out["zigzag"] = json.dumps({"rudder_deg": m.rudder_amplitude_deg, "check_deg": m.check_angle_deg,
+                                    "first_side": m.first_side})
+    out.update(m.extra)
+    return out
 
 
 def summarise(m: Manoeuvre) -> dict:
     speed = np.hypot(m.u, m.v)
-    return {
+    psi = m.psi[np.isfinite(m.psi)]
+    out = {
         "manoeuvre": m.name, "source": m.source, "file": str(m.path), "samples": len(m.t_s),
         "duration_s": m.duration_s, "rate_hz": m.rate_hz, "scale": m.scale.scale,
         "speed_mps": [float(speed.min()), float(speed.max())],
-        "rudder_deg": [float(np.degrees(m.delta.min())), float(np.degrees(m.delta.max()))],
+        "rudder_deg": None if m.delta is None else [float(np.degrees(m.delta.min())), float(np.degrees(m.delta.max()))],
         "rpm": None if m.rpm is None else [float(m.rpm.min()), float(m.rpm.max())],
-        "heading_range_deg": float(np.degrees(np.ptp(np.unwrap(m.psi)))),
+        "heading_range_deg": float(np.degrees(np.ptp(np.unwrap(psi)))),
     }
+    if m.thrusters is not None:
+        out["thruster_commands"] = {side: [float(c.min()), float(c.max())] for side, c in zip(("port", "starboard"),
+                                                                                              m.thrusters)}
+    if m.fix is not None:
+        out["fixes"] = int(m.fix.sum())
+    return out
 
 
 def write_manoeuvre_bag(path: Path, m: Manoeuvre, specs: Mapping[str, object], *, storage: str = "sqlite3",

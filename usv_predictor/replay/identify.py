@@ -7,38 +7,58 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from usv_predictor.errors import BagError, DatasetError
 
 
 def identification_recordings(paths: Sequence[Path], dt: float, progress: Callable[[str], None] = lambda _: None,
-                              config: Path | None = None) -> list:
-    """The recordings of `paths` at step dt (topics of `config`, default the shipped predictor.yaml); a bag without
-    engine speed is a DatasetError saying why it matters."""
-    from usv_predictor.replay.recordings import load_recordings
+                               config: Path | None = None, *, layout: Any = None, blocks: int = 1) -> list:
+    """The recordings of `paths` at step dt (topics of `config`, default the shipped predictor.yaml), read with the
+    vessel's actuator `layout` (physics/actuators.py; None: rudder_propeller); a bag without engine speed is a
+    DatasetError saying why it matters. blocks > 1 cuts each recording into that many contiguous pieces of equal
+    length, NAME~1, NAME~2, ... (blocked cross-validation of a single long record: each piece is held out in turn)."""
+    from usv_predictor.physics.actuators import DEFAULT_LAYOUT
+    from usv_predictor.replay.recordings import load_recordings, slice_recording
 
+    if blocks < 1:
+        raise DatasetError(f"--blocks {blocks}: expected a whole number >= 1")
     try:
-        return load_recordings(paths, dt, config_path=config, progress=progress)
+        recordings = load_recordings(paths, dt, config_path=config, progress=progress, layout=layout or DEFAULT_LAYOUT)
     except BagError as err:
         if "engine_rpm" in str(err):
             raise DatasetError(f"identification needs the engine speed (engine_rpm): without it the propeller thrust "
                                f"and the rudder inflow are unknown, so R0 and every speed-dependent hull term cannot be "
-                               f"separated from them ({err})") from err
+                               f"separated from them ({err}); a vessel file of layout rudder_only identifies what such "
+                               "a record supports") from err
         raise
+    if blocks == 1:
+        return recordings
+    pieces = []
+    for rec in recordings:
+        bounds = np.linspace(0, len(rec), blocks + 1).round().astype(int)
+        pieces += [slice_recording(rec, int(a), int(b), f"{rec.name}~{k + 1}")
+                   for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
+    return pieces
 
 
 def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure: str = "auto", prior: str = "none",
                   hybrid: bool = False, dt: float = 0.2, validation: str | None = None, report: Path | None = None,
-                  config: Path | None = None, progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
-    """Identify the hull of preset `vessel` from `bags` (structure mmg / abkowitz / auto, prior none / fix / ridge),
-    export the grey box (with hybrid: plus an MLP residual) to `output`; validation: a glob of bags only
-    evaluated; report: a directory for summary.md and the force plots; config: the predictor.yaml whose topics
-    are read (default the shipped one). The result of `replay identify`."""
+                  blocks: int = 1, config: Path | None = None,
+                  progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+    """Identify the hull (and what the layout lets the data set: thrust gains, engine speeds) of the vessel file
+    `vessel` (a preset name or a YAML path) from `bags`, read with its actuator layout (structure mmg / abkowitz /
+    diagonal / coupled / auto, prior none / fix / ridge), export the grey box (with hybrid: plus an MLP residual)
+    to `output`; validation: a glob of bags only evaluated; report: a directory for summary.md and the force plots;
+    blocks: pieces per recording for cross-validation; config: the predictor.yaml whose topics are read (default
+    the shipped one). The result of `replay identify`."""
     from usv_predictor.analysis.evaluation import evaluate
     from usv_predictor.fitting import hybrid_fit, identification
     from usv_predictor.physics.vessel import load_vessel
 
     preset = load_vessel(vessel)
-    recordings = identification_recordings(list(bags), dt, progress, config)
+    layout = preset.actuator_layout
+    recordings = identification_recordings(list(bags), dt, progress, config, layout=layout, blocks=blocks)
     if not recordings:
         raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
     result = identification.identify(preset, recordings, structure=structure, prior=prior, progress=progress)
@@ -60,10 +80,10 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
         paths = sorted(Path(p) for p in glob.glob(validation))
         if not paths:
             raise DatasetError(f"--val {validation!r} matches no bag")
-        out["validation"] = evaluate(artifact, identification_recordings(paths, dt, progress, config),
+        out["validation"] = evaluate(artifact, identification_recordings(paths, dt, progress, config, layout=layout),
                                      progress=progress).to_json()
-    for c in result.fit.coefficients():
-        progress(f"  {c.name:7s} {c.estimate:+.5f}  [{c.ci95[0]:+.5f}, {c.ci95[1]:+.5f}]  prior {c.prior:+.5f}  "
+    for c in result.coefficients():
+        progress(f"  {c.name:7s} {c.estimate:+.5g}  [{c.ci95[0]:+.5g}, {c.ci95[1]:+.5g}]  prior {c.prior:+.5g}  "
                  f"{c.status}")
     if report is not None:
         from usv_predictor.analysis.reports import write_identification_report
