@@ -56,10 +56,11 @@ def level(status: Any) -> int:
 class Harness:
     """The node under test (wall clock), a peer node that publishes its inputs, and what comes back."""
 
-    def __init__(self, context: Context, overrides: list[Parameter], peer_name: str = "test_peer") -> None:
+    def __init__(self, context: Context, overrides: list[Parameter], peer_name: str = "test_peer",
+                 config_path: Any = None) -> None:
         if not any(p.name == "diagnostics_rate_hz" for p in overrides):
             overrides = [*overrides, Parameter("diagnostics_rate_hz", value=DIAGNOSTICS_RATE_HZ)]
-        self.node = predictor_node.PredictorNode(context=context, parameter_overrides=overrides)
+        self.node = predictor_node.PredictorNode(config_path=config_path, context=context, parameter_overrides=overrides)
         self.peer = Node(peer_name, context=context)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)

@@ -10,6 +10,7 @@ Unique ROS_DOMAIN_IDs (from the pid) and localhost-only discovery (ros_helpers),
 """
 from __future__ import annotations
 
+import itertools
 import math
 import subprocess
 import sys
@@ -53,20 +54,26 @@ def spin_until(executor: SingleThreadedExecutor, condition: Callable[[], bool], 
             also.spin_once(timeout_sec=0.0)
 
 
-def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Context) -> None:
-    recording = load_recordings([BAG], DT, jobs=1, warn=lambda _: None)[0]  # what `replay evaluate` reads
-    node = predictor_node.PredictorNode(context=ros_context, parameter_overrides=[
+HEADERLESS_TYPES = ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Float64MultiArray")
+
+
+def lockstep(context: Context, bag: Path, recording, *, seconds: float, config_path: Path | None = None,
+             overrides: tuple[Parameter, ...] = ()) -> tuple[predictor_node.PredictorNode, list, list, int]:
+    """Play `seconds` of `bag` to a node over DDS one stamp at a time (use_sim_time, windows on the Recording's
+    grid); returns the node, the Paths and MultiDOFJointTrajectories it published, and the messages sent."""
+    node = predictor_node.PredictorNode(config_path=config_path, context=context, parameter_overrides=[
         Parameter("use_sim_time", value=True), Parameter("rate_hz", value=2.0),
         # windows end on whole half-seconds of the bag, like the Recording's (t0 = first stamp + dt/2)
         Parameter("state_delay_s", value=DT),
         Parameter("datum_lat_deg", value=recording.datum[0]), Parameter("datum_lon_deg", value=recording.datum[1]),
+        *overrides,
     ])
-    peer = Node("lockstep_player", context=ros_context)
-    node_executor, peer_executor = SingleThreadedExecutor(context=ros_context), SingleThreadedExecutor(context=ros_context)
+    peer = Node("lockstep_player", context=context)
+    node_executor, peer_executor = SingleThreadedExecutor(context=context), SingleThreadedExecutor(context=context)
     node_executor.add_node(node)
     peer_executor.add_node(peer)
     try:
-        player = play_bag.BagPlayer(peer, play_bag.read_messages(BAG, 0.0, 10.0))
+        player = play_bag.BagPlayer(peer, play_bag.read_messages(bag, 0.0, seconds, config_path))
         listener = play_bag.PathListener(peer)
         velocities: list = []
         peer.create_subscription(msg_adapters.rclpy_factory()("trajectory_msgs/msg/MultiDOFJointTrajectory"),
@@ -77,17 +84,21 @@ def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Co
         def received() -> int:  # arrived at the node (kept as bytes; decoded in bulk at its next timer)
             return sum(node.arrived.values())
 
-        # Header-less inputs (Float64) are stamped by the node on arrival, as the recorder stamped them: the
-        # clock must read their log time when they arrive. So the clock steps to each of their stamps, then
-        # every message up to that stamp goes out (stamped ones carry their own time).
-        headerless = {"heading", "rudder_angle", "engine_rpm"}
-        ticks = sorted({m.log_time_ns for m in player.messages if m.topic in headerless})
+        # Header-less inputs (Float64, Float64MultiArray) are stamped by the node on arrival, as the recorder
+        # stamped them: the clock must read their log time when they arrive. So the clock steps to each of their
+        # stamps, then every message up to that stamp goes out (stamped ones carry their own time). A topic that
+        # carries two roles (both thrusters) arrives once per role.
+        fanout = {topic: sum(node._entries[role].topic == topic for role in node._entries)
+                  for topic in {m.topic for m in player.messages}}
+        ticks = sorted({m.log_time_ns for m in player.messages if m.ros_type in HEADERLESS_TYPES})
         for stamp in ticks:
             player.publish_clock(stamp)
             spin_until(node_executor, lambda: node.get_clock().now().nanoseconds == stamp, "the clock")
             before = received()
-            sent = player.publish_until(stamp)
-            spin_until(node_executor, lambda: received() == before + sent, "the messages", also=peer_executor)
+            due = sum(fanout[m.topic] for m in itertools.takewhile(lambda m: m.log_time_ns <= stamp,
+                                                                    player.messages[player.cursor:]))
+            player.publish_until(stamp)
+            spin_until(node_executor, lambda: received() == before + due, "the messages", also=peer_executor)
         spin_until(peer_executor, lambda: len(velocities) >= node.published, "the last outputs")
         node._catch_up(node.get_clock().now().nanoseconds)  # decode what arrived after the last timer
     finally:
@@ -95,28 +106,136 @@ def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Co
         peer_executor.shutdown()
         node.destroy_node()
         peer.destroy_node()
+    return node, listener.paths, velocities, player.published
 
+
+def check_equal_to_replay(node: predictor_node.PredictorNode, recording, paths: list, velocities: list,
+                          horizon_steps: int, yaw_atol: float = 1e-6, nu_atol: float = 1e-6) -> None:
+    """Every Path (and its velocities) equals the artifact's prediction on the Recording's state at the same time,
+    controls held, anchored at the Recording's position: what `replay evaluate` predicts for the bag."""
     artifact = node.rollout.artifact
-    assert node.published >= 16 and len(listener.paths) == node.published
-    assert sum(track.received for track in node.inputs.tracks.values()) == player.published
-    assert all(not track.rejected for track in node.inputs.tracks.values())
     dt_ns = int(DT * NS)
     first_n = []
-    for (stamp, t_ns, eta, frame), trajectory in zip(listener.paths, velocities, strict=True):
+    for (stamp, t_ns, eta, frame), trajectory in zip(paths, velocities, strict=True):
         n = (stamp - dt_ns - dt_ns // 2 - recording.t0_ns) // dt_ns  # the Recording's step at the state time
         first_n.append(n)
         assert recording.t0_ns + n * dt_ns == stamp - dt_ns - dt_ns // 2
-        controls = np.repeat(recording.controls[n:n + 1, None], 120, axis=1)
+        controls = np.repeat(recording.controls[n:n + 1, None], horizon_steps, axis=1)  # (1, H, C)
         reference = artifact.predict(recording.state()[n:n + 1], controls).mean(axis=0)[0]  # (H, 6)
         np.testing.assert_allclose(eta[:, :2], reference[:, 3:5] + recording.position[n], rtol=0, atol=1e-4)
         yaw_error = np.remainder(eta[:, 2] - reference[:, 5] + math.pi, 2 * math.pi) - math.pi
-        np.testing.assert_allclose(yaw_error, 0.0, atol=1e-6)
+        np.testing.assert_allclose(yaw_error, 0.0, atol=yaw_atol)
         t_v, nu = decode_predicted_velocities(trajectory)
-        np.testing.assert_allclose(nu, reference[:, :3], rtol=0, atol=1e-6)
-        expected_t = recording.t0_ns + (n + 1 + np.arange(120)) * dt_ns
+        np.testing.assert_allclose(nu, reference[:, :3], rtol=0, atol=nu_atol)
+        expected_t = recording.t0_ns + (n + 1 + np.arange(horizon_steps)) * dt_ns
         assert np.array_equal(t_ns, expected_t) and np.array_equal(t_v, expected_t)
         assert frame == "odom"
     assert first_n[0] == 0  # the first whole window, as the Recording's first step
+
+
+def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Context) -> None:
+    recording = load_recordings([BAG], DT, jobs=1, warn=lambda _: None)[0]  # what `replay evaluate` reads
+    node, paths, velocities, sent = lockstep(ros_context, BAG, recording, seconds=10.0)
+    assert node.published >= 16 and len(paths) == node.published
+    assert sum(track.received for track in node.inputs.tracks.values()) == sent
+    assert all(not track.rejected for track in node.inputs.tracks.values())
+    check_equal_to_replay(node, recording, paths, velocities, horizon_steps=120)
+
+
+# ----------------------------------------------------------------------------- a twin-thruster boat (issue 10)
+
+OTTER_BAG = REPO / "bags" / "otter" / "sea_trial" / "turning_circle_port_d0.4_p0.6"
+OTTER_HORIZON_S = 10.0  # a short horizon: the grey box's RK4 in TorchScript is ~3 ms per step on CI
+OTTER_SECONDS = 13.0  # s of the bag played: 10 s approach, then the turn
+
+
+@pytest.fixture(scope="module")
+def otter_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The otter preset's calm-water grey box as a model artifact (models/greybox + models/artifact)."""
+    from usv_predictor.models.artifact import export_module
+    from usv_predictor.models.greybox import GreyBoxRollout, greybox_metadata
+    from usv_predictor.physics.vessel import load_vessel
+
+    vessel = load_vessel("otter")
+    rollout = GreyBoxRollout(vessel, dt=DT)
+    path = tmp_path_factory.mktemp("otter_model") / "otter_greybox.pt"
+    export_module(path, rollout, greybox_metadata(vessel, rollout, horizon_steps=int(OTTER_HORIZON_S / DT)))
+    return path
+
+
+def otter_overrides(model: Path) -> tuple[Parameter, ...]:
+    return (Parameter("vessel", value="otter"), Parameter("model_path", value=str(model)),
+            Parameter("horizon_s", value=OTTER_HORIZON_S), Parameter("ensemble_size", value=1))
+
+
+def test_twin_thruster_node_predictions_equal_replay_evaluate(ros_context: Context, otter_model: Path) -> None:
+    """The otter (twin_thrusters) bag with its thrusters on two Float64 topics (normalised commands): the node
+    subscribes to the layout's roles only (the config's rudder, engine and throttle topics are ignored and said
+    so), and its Paths equal the grey box's prediction on the Recording `replay evaluate` builds from the bag."""
+    from usv_predictor.physics.vessel import load_vessel
+
+    layout = load_vessel("otter").actuator_layout
+    recording = load_recordings([OTTER_BAG], DT, jobs=1, warn=lambda _: None, layout=layout)[0]
+    node, paths, velocities, sent = lockstep(ros_context, OTTER_BAG, recording, seconds=OTTER_SECONDS,
+                                             overrides=otter_overrides(otter_model))
+    assert sorted(node.inputs.tracks) == ["gnss", "heading", "imu", "thruster_port", "thruster_starboard", "velocity"]
+    assert sorted(node.ignored) == ["engine_rpm", "rudder_angle", "throttle"]
+    assert node.published >= 20 and len(paths) == node.published
+    assert sum(track.received for track in node.inputs.tracks.values()) == sent
+    assert all(not track.rejected for track in node.inputs.tracks.values())
+    steps = int(OTTER_SECONDS / DT) - 2
+    assert np.ptp(recording.controls[:steps, 0] - recording.controls[:steps, 1]) > 0.3  # straight, then the turn
+    check_equal_to_replay(node, recording, paths, velocities, horizon_steps=int(OTTER_HORIZON_S / DT))
+
+
+PWM_THRUSTERS = {  # both thrusters in one std_msgs/Float64MultiArray, PWM in us (1500 neutral, 500 us to full)
+    "thruster_port": {"topic": "thrusters/pwm", "type": "std_msgs/msg/Float64MultiArray", "index": 0,
+                      "units": "pwm", "neutral": 1500.0, "full_scale": 500.0, "max_age_s": 1.0},
+    "thruster_starboard": {"topic": "thrusters/pwm", "type": "std_msgs/msg/Float64MultiArray", "index": 1,
+                           "units": "pwm", "neutral": 1500.0, "full_scale": 500.0, "max_age_s": 1.0},
+}
+
+
+def test_twin_thrusters_on_one_pwm_topic_equal_replay_evaluate(ros_context: Context, otter_model: Path,
+                                                               tmp_path: Path) -> None:
+    """The same otter run rewritten with both thrusters as PWM in one Float64MultiArray (bagio.write_bag through
+    the adapters), read by `replay evaluate` and played to the node with one configuration: equal predictions."""
+    import yaml
+
+    from usv_predictor.config import load_predictor_config
+    from usv_predictor.physics.vessel import load_vessel
+    from usv_predictor.records import Signal
+    from usv_predictor.replay.bagio import config_topic_specs, read_signals, write_bag
+
+    params = yaml.safe_load(Path(load_predictor_config().source).read_text(encoding="utf-8"))
+    inner = params["predictor"]["ros__parameters"]
+    inner.update(vessel="otter", model_path=str(otter_model), horizon_s=OTTER_HORIZON_S, ensemble_size=1)
+    inner["inputs"].update(PWM_THRUSTERS)
+    for role in ("rudder_angle", "engine_rpm", "throttle"):
+        del inner["inputs"][role]
+    config = tmp_path / "otter_pwm.yaml"
+    config.write_text(yaml.safe_dump(params), encoding="utf-8")
+
+    layout = load_vessel("otter").actuator_layout
+    source = config_topic_specs(load_predictor_config())
+    target = config_topic_specs(load_predictor_config(config))
+    roles = ["imu", "velocity", "heading", "gnss", "thruster_port", "thruster_starboard"]
+    signals = read_signals(OTTER_BAG, [source[role] for role in roles])
+    end_ns = int(signals[0].t_ns[0]) + int((OTTER_SECONDS + 2.0) * NS)
+    cut = [Signal(s.t_ns[s.t_ns <= end_ns], s.values[s.t_ns <= end_ns], s.fields) for s in signals]
+    bag = write_bag(tmp_path / "otter_pwm", [(target[role], signal) for role, signal in zip(roles, cut)])
+
+    recording = load_recordings([bag], DT, config_path=config, jobs=1, warn=lambda _: None, layout=layout)[0]
+    reference = load_recordings([OTTER_BAG], DT, jobs=1, warn=lambda _: None, layout=layout)[0]
+    n = len(recording.controls)
+    np.testing.assert_allclose(recording.controls, reference.controls[:n], rtol=0, atol=1e-9)  # PWM decodes back
+    node, paths, velocities, sent = lockstep(ros_context, bag, recording, seconds=OTTER_SECONDS, config_path=config)
+    assert node._entries["thruster_port"].topic == node._entries["thruster_starboard"].topic == "thrusters/pwm"
+    assert node.ignored == {} and node.published >= 20 and len(paths) == node.published
+    assert node.arrived["thruster_port"] == node.arrived["thruster_starboard"] > 0  # one message, both roles
+    assert sum(track.received for track in node.inputs.tracks.values()) == sent + node.arrived["thruster_port"]
+    assert all(not track.rejected for track in node.inputs.tracks.values())
+    check_equal_to_replay(node, recording, paths, velocities, horizon_steps=int(OTTER_HORIZON_S / DT))
 
 
 def node_environment(offset: int) -> dict[str, str]:

@@ -65,9 +65,16 @@ def test_inputs_are_decoded_and_reported(harness: Harness) -> None:
     assert statuses["prediction"].level[0] == predictor_node.WARN
     assert "no message yet" in statuses["prediction"].message
     # every configured input the vessel's actuator layout uses is reported; the controls of other layouts are not
+    # subscribed, and one status says so (check_layout_inputs)
     used = [i.role for i in harness.node.config.inputs if i.role not in unused_roles(harness.node.layout)]
     assert "throttle" not in used and "thruster_port" not in used and "rudder_angle" in used
-    assert sorted(statuses) == sorted([*used, "model", "prediction", "plan", "candidate plans"])
+    assert sorted(statuses) == sorted([*used, "model", "prediction", "plan", "candidate plans", "ignored inputs"])
+    ignored = statuses["ignored inputs"]
+    assert ignored.level[0] == predictor_node.OK
+    assert ignored.message == ("not subscribed: throttle, thruster_port, thruster_starboard (controls of other "
+                               "actuator layouts than rudder_propeller)")
+    assert values_of(ignored) == {"actuator_layout": "rudder_propeller", "vessel": "jari_usv", "throttle": "/throttle",
+                                  "thruster_port": "/thrusters/port", "thruster_starboard": "/thrusters/starboard"}
 
 
 def test_stale_input_turns_to_warn_and_limit_is_live(harness: Harness) -> None:
@@ -103,21 +110,50 @@ def test_invalid_overrides_are_config_errors(ros_context: Context, override: Par
 
 
 def test_config_option_file_becomes_the_defaults(ros_context: Context, tmp_path: Path) -> None:
-    """A custom file (integer rate, one input) is declared as typed, ranged parameters."""
+    """A custom file (integer rate, only the two control inputs of the vessel) is declared as typed, ranged
+    parameters."""
     params = yaml.safe_load(Path(load_predictor_config().source).read_text(encoding="utf-8"))
     inner = params["predictor"]["ros__parameters"]
     inner["rate_hz"] = 4  # an int in YAML: still the double parameter rate_hz
-    inner["inputs"] = {"engine_rpm": inner["inputs"]["engine_rpm"]}
+    inner["inputs"] = {role: inner["inputs"][role] for role in ("engine_rpm", "rudder_angle")}
     path = tmp_path / "custom.yaml"
     path.write_text(yaml.safe_dump(params), encoding="utf-8")
     node = predictor_node.PredictorNode(config_path=path, context=ros_context)
     try:
         assert node.get_parameter("rate_hz").value == 4.0
         assert node.describe_parameter("rate_hz").floating_point_range[0].to_value == 100.0
-        assert [i.role for i in node.config.inputs] == ["engine_rpm"]
-        assert not node.has_parameter("inputs.imu.topic")
+        assert [i.role for i in node.config.inputs] == ["engine_rpm", "rudder_angle"]
+        assert not node.has_parameter("inputs.imu.topic") and node.ignored == {}
     finally:
         node.destroy_node()
+
+
+@pytest.mark.parametrize(("vessel", "drop", "message"), [
+    ("otter", ("thruster_starboard",), "vessel otter: actuator layout twin_thrusters needs input(s) "
+                                       "['thruster_starboard'] (controls ['port', 'starboard'])"),
+    ("jari_usv", ("rudder_angle", "engine_rpm"), "vessel jari_usv: actuator layout rudder_propeller needs input(s) "
+                                                 "['rudder_angle', 'engine_rpm'] (controls ['delta', 'rpm'])"),
+])
+def test_a_missing_control_input_is_one_line_and_exit_2(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture[str], vessel: str,
+                                                          drop: tuple[str, ...], message: str) -> None:
+    """A configuration without an input of a control of the vessel's actuator layout is refused at start-up
+    (physics.actuators.check_layout_inputs), before the model is loaded: one line naming the roles and the layout."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain_id(44)))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    params = yaml.safe_load(Path(load_predictor_config().source).read_text(encoding="utf-8"))
+    inner = params["predictor"]["ros__parameters"]
+    inner["vessel"] = vessel
+    for role in drop:
+        del inner["inputs"][role]
+    path = tmp_path / "missing_control.yaml"
+    path.write_text(yaml.safe_dump(params), encoding="utf-8")
+    code = predictor_node.main(["predictor", "--config", str(path)])
+    err = capsys.readouterr().err
+    assert code == predictor_node.EXIT_ERROR == 2, err
+    lines = [line for line in err.strip().splitlines() if not line.startswith("[")]  # rcl's own log lines
+    assert len(lines) == 1 and lines[0].startswith(f"predictor: error: {path} (with the node's parameter overrides), ")
+    assert message in lines[0] and "Traceback" not in err
 
 
 def test_help_exits_before_ros_starts(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:

@@ -37,9 +37,11 @@ class RawMessage(NamedTuple):
     data: bytes  # CDR, as recorded
 
 
-def read_messages(bag: Path, start_s: float = 0.0, seconds: float | None = None) -> list[RawMessage]:
-    """The configured input topics of `bag` in log-time order, from start_s for `seconds` (s since its start)."""
-    wanted = {spec.topic for spec in input_topics(load_predictor_config())}
+def read_messages(bag: Path, start_s: float = 0.0, seconds: float | None = None,
+                  config_path: Path | None = None) -> list[RawMessage]:
+    """The input topics configured in `config_path` (default: config/predictor.yaml) of `bag` in log-time order,
+    from start_s for `seconds` (s since its start)."""
+    wanted = {spec.topic for spec in input_topics(load_predictor_config(config_path))}
     out: list[RawMessage] = []
     with AnyReader([Path(bag)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         first = reader.start_time + int(start_s * 1e9)

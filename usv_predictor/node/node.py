@@ -36,7 +36,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import rclpy
@@ -87,7 +87,7 @@ from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredi
 from usv_predictor.models import loading
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.node import live, plans
-from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, unused_roles
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, check_layout_inputs, unused_roles
 from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.records import NS_PER_S
 
@@ -256,9 +256,14 @@ class PredictorNode(Node):
         defaults_path = Path(config_path) if config_path is not None else default_config_path()
         self.config = self._declare_parameters(defaults_path)
         self.layout = load_vessel(self.config.vessel).actuator_layout  # ConfigError: fatal at start-up
+        # every control role of the layout configured (ConfigError naming the roles and the layout: fatal); the
+        # control roles of other layouts (the shipped config lists every layout's) are ignored: logged once here,
+        # reported on /diagnostics ("ignored inputs")
+        ignored_notes = check_layout_inputs(self.layout, {entry.role: entry.topic for entry in self.config.inputs},
+                                            f"{self.config.source}, vessel {self.config.vessel}")
+        self.ignored = {entry.role: entry.topic for entry in self.config.inputs if entry.role in unused_roles(self.layout)}
         self.rollout = load_model(self.config.model_path, self.config, self.layout)  # ModelError: fatal at start-up
-        # the inputs this vessel uses: the config may list control roles of other actuator layouts (it does)
-        used = [entry for entry in self.config.inputs if entry.role not in unused_roles(self.layout)]
+        used = [entry for entry in self.config.inputs if entry.role not in self.ignored]
         self.inputs = live.InputSet(
             {entry.role: msg_adapters.ROLE_FIELDS[entry.role] for entry in used},
             {entry.role: float(self.get_parameter(f"inputs.{entry.role}.max_age_s").value) for entry in used},
@@ -272,17 +277,25 @@ class PredictorNode(Node):
             entry.role: msg_adapters.get_adapter(entry.role, entry.ros_type, **entry.options)
             for entry in used
         }
-        self._deserializers = {entry.role: partial(deserialize_message, message_type=make(entry.ros_type))
-                               for entry in used}
+        self._deserializers = {entry.role: _deserializer(make(entry.ros_type), entry.ros_type) for entry in used}
         self._failures = {role: DecodeFailures() for role in self._entries}
         # CDR bytes and their arrival clock, decoded in bulk at the next timer (bounded: the oldest go first)
         capacity = self.inputs.settings.capacity
         self._pending: dict[str, deque[tuple[bytes, int]]] = {role: deque(maxlen=capacity) for role in self._entries}
         self.arrived = {role: 0 for role in self._entries}  # messages received per input (decoded or pending)
         self.dropped = {role: 0 for role in self._entries}  # pushed out of a full pending queue undecoded
+        # one subscription per topic; roles sharing one (both thrusters in one Float64MultiArray, JointState or
+        # Wrench) each decode their own part of its messages (msg_adapters.check_shared: which can share)
+        by_topic: dict[str, list[str]] = {}
         for entry in used:
-            self.create_subscription(make(entry.ros_type), entry.topic, partial(self._on_message, entry.role),
-                                     qos_profile_sensor_data, raw=True)
+            by_topic.setdefault(self.resolve_topic_name(entry.topic), []).append(entry.role)
+        for topic, roles in by_topic.items():
+            try:
+                msg_adapters.check_shared(topic, [self._adapters[role] for role in roles])
+            except AdapterError as err:
+                raise ConfigError(f"{self.config.source}: {err}") from err
+            self.create_subscription(make(self._entries[roles[0]].ros_type), self._entries[roles[0]].topic,
+                                     partial(self._on_message, tuple(roles)), qos_profile_sensor_data, raw=True)
         outputs = self.config.outputs
         self._path_pub = self.create_publisher(make(PATH_TYPE), outputs["predicted_path"].topic, 10)
         self._velocities_pub = self.create_publisher(make(TRAJECTORY_TYPE), outputs["predicted_velocities"].topic, 10)
@@ -305,6 +318,8 @@ class PredictorNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.create_timer(1.0 / self.config.rate_hz, self._on_timer)
         self.create_timer(1.0 / float(self.get_parameter("diagnostics_rate_hz").value), self._on_diagnostics_timer)
+        for note in ignored_notes:
+            self.get_logger().info(note)
         self.get_logger().info(
             f"usv_predictor {__version__}: model {self.rollout.artifact.path} ({self.rollout.artifact.model_id}, "
             f"{self.rollout.members} member(s)), {len(self._entries)} inputs ({', '.join(self._entries)}), "
@@ -360,13 +375,16 @@ class PredictorNode(Node):
         return SetParametersResult(successful=True)
 
     # --------------------------------------------------------------- inputs: bytes in, decoded in bulk
-    def _on_message(self, role: str, raw: bytes) -> None:
-        """Keep the CDR bytes and the arrival clock; decoding waits for the next timer (one bulk call per input)."""
-        pending = self._pending[role]
-        if len(pending) == pending.maxlen:
-            self.dropped[role] += 1
-        pending.append((raw, self._clock.now().nanoseconds))
-        self.arrived[role] += 1
+    def _on_message(self, roles: tuple[str, ...], raw: bytes) -> None:
+        """Keep the CDR bytes and the arrival clock for each role of the topic; decoding waits for the next timer
+        (one bulk call per input, each role's adapter reading its part of a shared topic's messages)."""
+        arrival_ns = self._clock.now().nanoseconds
+        for role in roles:
+            pending = self._pending[role]
+            if len(pending) == pending.maxlen:
+                self.dropped[role] += 1
+            pending.append((raw, arrival_ns))
+            self.arrived[role] += 1
 
     def _catch_up(self, now_ns: int) -> None:
         """Clear the buffers if the clock jumped back, then decode and buffer every pending message."""
@@ -516,6 +534,8 @@ class PredictorNode(Node):
         statuses = [self._input_status(role, now_ns) for role in self._entries]
         statuses += [self._model_status(), self._prediction_status(), self._plan_status(now_ns),
                      self._candidates_status(now_ns)]
+        if self.ignored:
+            statuses.append(self._ignored_status())
         self._diagnostics.publish(diagnostics_cdr(now_ns, statuses))
 
     def _status(self, level: int, what: str, message: str, values: dict[str, Any]) -> Status:
@@ -562,6 +582,13 @@ class PredictorNode(Node):
         if recent_reject:
             return self._status(WARN, f"input {role}", f"messages refused: {track.last_reject}", values)
         return self._status(OK, f"input {role}", "fresh", values)
+
+    def _ignored_status(self) -> Status:
+        """The configured control inputs of other actuator layouts: not subscribed (check_layout_inputs)."""
+        values = {"actuator_layout": self.layout.name, "vessel": self.config.vessel,
+                  **{role: self.resolve_topic_name(topic) for role, topic in sorted(self.ignored.items())}}
+        return self._status(OK, "ignored inputs", f"not subscribed: {', '.join(sorted(self.ignored))} (controls of "
+                            f"other actuator layouts than {self.layout.name})", values)
 
     def _model_status(self) -> Status:
         artifact = self.rollout.artifact
@@ -640,6 +667,19 @@ def _percentiles(name: str, seconds: deque[float]) -> dict[str, str]:
     ms = np.array(seconds) * 1e3
     return {f"{name}_p50": f"{np.percentile(ms, 50):.3f}", f"{name}_p99": f"{np.percentile(ms, 99):.3f}",
             f"{name}_max": f"{ms.max():.3f}"}
+
+
+def _deserializer(message_type: Any, ros_type: str) -> Callable[[bytes], Any]:
+    """rclpy's deserialize_message for the types msg_adapters.cdr decodes one by one (JointState,
+    Float64MultiArray); a message it cannot read (rclpy raises RMWError, a RuntimeError) is an AdapterError, so
+    decode_values counts it for its input and keeps the others."""
+    def deserialize(raw: bytes) -> Any:
+        try:
+            return deserialize_message(raw, message_type)
+        except RuntimeError as err:
+            raise AdapterError(f"cannot decode {ros_type} message: {_first_line(err)}") from err
+
+    return deserialize
 
 
 def _check_output_types(config: PredictorConfig) -> None:
