@@ -16,6 +16,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -26,9 +27,17 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 import msg_adapters
+from msg_adapters import outputs
 from msg_adapters.outputs import decode_predicted_velocities
-from usv_predictor.data.recording import NS
+from usv_predictor.analysis import adaptive
+from usv_predictor.config import load_predictor_config
+from usv_predictor.data.recording import NS, Recording
+from usv_predictor.fitting.online import OnlineConfig
+from usv_predictor.models import loading
+from usv_predictor.models.artifact import export_module
+from usv_predictor.models.greybox import greybox_predictor
 from usv_predictor.node import node as predictor_node
+from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.replay.recordings import load_recordings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -53,26 +62,42 @@ def spin_until(executor: SingleThreadedExecutor, condition: Callable[[], bool], 
             also.spin_once(timeout_sec=0.0)
 
 
-def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Context) -> None:
-    recording = load_recordings([BAG], DT, jobs=1, warn=lambda _: None)[0]  # what `replay evaluate` reads
+class Lockstep(NamedTuple):
+    """What a lock-step run published: Paths, velocities, estimated currents (rclpy messages), and the node."""
+
+    node: predictor_node.PredictorNode
+    player: play_bag.BagPlayer
+    listener: play_bag.PathListener
+    velocities: list
+    currents: list
+
+
+def lockstep(ros_context: Context, recording: Recording, *parameters: Parameter) -> Lockstep:
+    """The first 10 s of BAG through DDS in lock-step: each state window on the Recording's grid (rate 2 Hz,
+    state_delay dt), so the node's cycle k assembles the Recording's state k."""
     node = predictor_node.PredictorNode(context=ros_context, parameter_overrides=[
         Parameter("use_sim_time", value=True), Parameter("rate_hz", value=2.0),
         # windows end on whole half-seconds of the bag, like the Recording's (t0 = first stamp + dt/2)
         Parameter("state_delay_s", value=DT),
         Parameter("datum_lat_deg", value=recording.datum[0]), Parameter("datum_lon_deg", value=recording.datum[1]),
+        *parameters,
     ])
     peer = Node("lockstep_player", context=ros_context)
     node_executor, peer_executor = SingleThreadedExecutor(context=ros_context), SingleThreadedExecutor(context=ros_context)
     node_executor.add_node(node)
     peer_executor.add_node(peer)
+    make = msg_adapters.rclpy_factory()
     try:
         player = play_bag.BagPlayer(peer, play_bag.read_messages(BAG, 0.0, 10.0))
         listener = play_bag.PathListener(peer)
         velocities: list = []
-        peer.create_subscription(msg_adapters.rclpy_factory()("trajectory_msgs/msg/MultiDOFJointTrajectory"),
-                                 "predicted_velocities", velocities.append, 10)
+        currents: list = []
+        peer.create_subscription(make("trajectory_msgs/msg/MultiDOFJointTrajectory"), "predicted_velocities",
+                                 velocities.append, 10)
+        peer.create_subscription(make(outputs.CURRENT_TYPE), "estimated_current", currents.append, 10)
         spin_until(node_executor, lambda: peer.count_subscribers("imu/data") > 0
-                   and peer.count_publishers("predicted_path") > 0, "discovery", also=peer_executor)
+                   and peer.count_publishers("predicted_path") > 0
+                   and peer.count_publishers("estimated_current") > 0, "discovery", also=peer_executor)
 
         def received() -> int:  # arrived at the node (kept as bytes; decoded in bulk at its next timer)
             return sum(node.arrived.values())
@@ -88,24 +113,40 @@ def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Co
             before = received()
             sent = player.publish_until(stamp)
             spin_until(node_executor, lambda: received() == before + sent, "the messages", also=peer_executor)
-        spin_until(peer_executor, lambda: len(velocities) >= node.published, "the last outputs")
+        spin_until(peer_executor, lambda: len(velocities) >= node.published and len(currents) >= node.sea.fed,
+                   "the last outputs")
         node._catch_up(node.get_clock().now().nanoseconds)  # decode what arrived after the last timer
     finally:
         node_executor.shutdown()
         peer_executor.shutdown()
         node.destroy_node()
         peer.destroy_node()
-
-    artifact = node.rollout.artifact
     assert node.published >= 16 and len(listener.paths) == node.published
     assert sum(track.received for track in node.inputs.tracks.values()) == player.published
     assert all(not track.rejected for track in node.inputs.tracks.values())
+    return Lockstep(node, player, listener, velocities, currents)
+
+
+def recording_step(recording: Recording, stamp: int) -> int:
+    """The Recording's step whose state the Path stamped `stamp` starts from (state_delay dt, t_c = end - dt/2)."""
+    dt_ns = int(DT * NS)
+    n = (stamp - dt_ns - dt_ns // 2 - recording.t0_ns) // dt_ns
+    assert recording.t0_ns + n * dt_ns == stamp - dt_ns - dt_ns // 2
+    return n
+
+
+def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Context) -> None:
+    """The shipped DNN: the online estimator runs (on by default) but is not applied, so every Path is the plain
+    prediction of `replay evaluate`; the estimate is still published."""
+    recording = load_recordings([BAG], DT, jobs=1, warn=lambda _: None)[0]  # what `replay evaluate` reads
+    run = lockstep(ros_context, recording)
+    artifact = run.node.rollout.artifact
+    assert not run.node.sea.applied and run.node.sea.enabled and len(run.currents) == run.node.sea.fed >= 16
     dt_ns = int(DT * NS)
     first_n = []
-    for (stamp, t_ns, eta, frame), trajectory in zip(listener.paths, velocities, strict=True):
-        n = (stamp - dt_ns - dt_ns // 2 - recording.t0_ns) // dt_ns  # the Recording's step at the state time
+    for (stamp, t_ns, eta, frame), trajectory in zip(run.listener.paths, run.velocities, strict=True):
+        n = recording_step(recording, stamp)
         first_n.append(n)
-        assert recording.t0_ns + n * dt_ns == stamp - dt_ns - dt_ns // 2
         controls = np.repeat(recording.controls[n:n + 1, None], 120, axis=1)
         reference = artifact.predict(recording.state()[n:n + 1], controls).mean(axis=0)[0]  # (H, 6)
         np.testing.assert_allclose(eta[:, :2], reference[:, 3:5] + recording.position[n], rtol=0, atol=1e-4)
@@ -117,6 +158,52 @@ def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Co
         assert np.array_equal(t_ns, expected_t) and np.array_equal(t_v, expected_t)
         assert frame == "odom"
     assert first_n[0] == 0  # the first whole window, as the Recording's first step
+
+
+@pytest.fixture(scope="module")
+def greybox_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The preset's calm-water grey box exported as a TorchScript artifact (what `replay identify` writes)."""
+    predictor = greybox_predictor(load_vessel("jari_usv"), DT)
+    path = tmp_path_factory.mktemp("greybox") / "greybox.pt"
+    export_module(path, predictor.rollout, predictor.metadata)
+    return path
+
+
+def test_with_the_online_estimator_the_node_predicts_as_replay_evaluate_adaptive(ros_context: Context,
+                                                                                greybox_model: Path) -> None:
+    """A grey box with the estimator on: every Path equals `replay evaluate --adaptive`'s prediction from the same
+    step (the estimate after that sample in the model's terms, analysis/adaptive.py), and every published current
+    equals that estimate (ENU, its covariance)."""
+    recording = load_recordings([BAG], DT, jobs=1, warn=lambda _: None)[0]
+    run = lockstep(ros_context, recording, Parameter("model_path", value=str(greybox_model)),
+                   Parameter("ensemble_size", value=1))
+    assert run.node.sea.applied and run.node.sea.fed == len(run.currents) >= 16
+    model = loading.load_model(str(greybox_model), dt=DT)  # as evaluate_bags loads it
+    config = OnlineConfig(**load_predictor_config().online)  # as adaptive_section configures it
+    evaluated = adaptive.adaptive_open_loop(model, recording, "gnss", (30.0,), 5.0, config)
+    assert evaluated.applied
+    estimates, original = evaluated.estimates, adaptive.model_terms(model)
+    moved = 0.0
+    for stamp, _, eta, _ in run.listener.paths:
+        n = recording_step(recording, stamp)
+        state, controls = recording.state()[n:n + 1], np.repeat(recording.controls[n:n + 1, None], 120, axis=1)
+        plain = model.predict(state, controls)[0, 0]  # (H, 6)
+        with adaptive.per_start_terms(model, [adaptive.live_terms(estimates[n], original)]):
+            reference = model.predict(state, controls)[0, 0]  # (H, 6)
+        np.testing.assert_allclose(eta[:, :2], reference[:, 3:5] + recording.position[n], rtol=0, atol=1e-4)
+        moved = max(moved, float(np.abs(reference[-1, 3:5] - plain[-1, 3:5]).max()))
+    assert moved > 1.0, f"the estimate moves the 60 s prediction by {moved:.3f} m at most: the test would not see it"
+    dt_ns = int(DT * NS)
+    for msg in run.currents:
+        stamp, current_ne, covariance = outputs.decode_current(msg)
+        assert msg.header.frame_id == "odom"
+        n, rest = divmod(stamp - recording.t0_ns, dt_ns)  # stamped with the sample's time, on the grid
+        assert rest == 0
+        expected = estimates[n]
+        np.testing.assert_allclose(current_ne, expected.current_ne, rtol=0, atol=1e-9)
+        p_nn, p_ne, p_ee = expected.current_cov
+        np.testing.assert_allclose(covariance, [[p_nn, p_ne], [p_ne, p_ee]], rtol=1e-6, atol=1e-12)
+    assert outputs.decode_current(run.currents[0])[0] == recording.t0_ns  # the first sample is the Recording's first
 
 
 def node_environment(offset: int) -> dict[str, str]:
