@@ -67,7 +67,7 @@ def test_inputs_are_decoded_and_reported(harness: Harness) -> None:
     # every configured input the vessel's actuator layout uses is reported; the controls of other layouts are not
     used = [i.role for i in harness.node.config.inputs if i.role not in unused_roles(harness.node.layout)]
     assert "throttle" not in used and "thruster_port" not in used and "rudder_angle" in used
-    assert sorted(statuses) == sorted([*used, "model", "prediction", "plan", "candidate plans"])
+    assert sorted(statuses) == sorted([*used, "model", "prediction", "plan", "candidate plans", "sea estimate"])
 
 
 def test_stale_input_turns_to_warn_and_limit_is_live(harness: Harness) -> None:
