@@ -11,6 +11,10 @@ messages are REP-103/105:
     joint_names are the N candidate names; points[k].transforms[i] / velocities[i] are candidate i's
     pose and twist at t_ns[k] as above; header.stamp = the candidates' stamp.
   std_msgs/Float64MultiArray covariance: dim [("step", H), ("cov_x_y_yaw_enu", 9)], data H row-major 3 x 3.
+  geometry_msgs/TwistWithCovarianceStamped, the estimated current (fitting/online.py): header frame_id e.g.
+    "odom" (ENU), twist.linear = (c_e, c_n, 0) m/s (x east, y north), angular = 0; covariance 6 x 6 row-major
+    over (x, y, z, rot x, rot y, rot z): the 2 x 2 block of the current converted NED -> ENU, the four components
+    the estimator does not estimate marked unknown by UNKNOWN_VARIANCE on their diagonal (zero correlations).
   diagnostic_msgs/DiagnosticArray from plain `Status` records.
 
 Two builders per message: `encode_*` makes message objects with make(type_name) (rclpy, rosbags,
@@ -35,6 +39,12 @@ PATH_TYPE = "nav_msgs/msg/Path"
 TRAJECTORY_TYPE = "trajectory_msgs/msg/MultiDOFJointTrajectory"
 COVARIANCE_TYPE = "std_msgs/msg/Float64MultiArray"
 DIAGNOSTICS_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
+CURRENT_TYPE = "geometry_msgs/msg/TwistWithCovarianceStamped"
+# Variance of a twist component that is not estimated ((m/s)^2 or (rad/s)^2): "unknown" in the convention of
+# robot_localization and REP-145's spirit (a huge variance: a consumer that fuses the message gives it no weight).
+# Not -1: a negative variance makes the matrix invalid for a consumer that inverts it (only sensor_msgs/Imu
+# documents -1, and only in its first element).
+UNKNOWN_VARIANCE = 1e6
 COVARIANCE_LABELS = ("step", "cov_x_y_yaw_enu")
 
 
@@ -243,6 +253,53 @@ def covariance_cdr(covariance: np.ndarray) -> bytes:
     """Serialized Float64MultiArray of (H, 3, 3) covariances, byte-equal to rclpy's of encode_covariance."""
     covariance = _check_covariance(covariance)
     return _covariance_layout(covariance.shape[0]).fill(data=covariance.reshape(1, -1))
+
+
+def current_twist(current_ne: Sequence[float], current_cov: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """(6,) Twist [linear x y z, angular x y z] ENU and (36,) row-major covariance of a current estimate.
+
+    current_ne (2,) toward north / east (m/s); current_cov (3,) P_nn, P_ne, P_ee ((m/s)^2) of the same, NED.
+    ENU x = east, y = north: var x = P_ee, var y = P_nn, cov xy = P_ne; z and the angular rates UNKNOWN_VARIANCE.
+    """
+    c_n, c_e = (float(v) for v in current_ne)
+    p_nn, p_ne, p_ee = (float(v) for v in current_cov)
+    twist = np.array([c_e, c_n, 0.0, 0.0, 0.0, 0.0])
+    covariance = np.diag([0.0, 0.0] + [UNKNOWN_VARIANCE] * 4)  # (6, 6)
+    covariance[:2, :2] = [[p_ee, p_ne], [p_ne, p_nn]]
+    return twist, covariance.reshape(36)
+
+
+def encode_current(stamp_ns: int, current_ne: Sequence[float], current_cov: Sequence[float], frame_id: str,
+                   make: c.MakeFn) -> Any:
+    """geometry_msgs/TwistWithCovarianceStamped of a current estimate (current_twist) in frame_id (ENU)."""
+    twist, covariance = current_twist(current_ne, current_cov)
+    body = make("geometry_msgs/msg/Twist")(linear=c.vector3(make, *twist[:3]), angular=c.vector3(make, *twist[3:]))
+    return make(CURRENT_TYPE)(header=c.header(make, int(stamp_ns), frame_id),
+                              twist=make("geometry_msgs/msg/TwistWithCovariance")(twist=body, covariance=covariance))
+
+
+def decode_current(msg: Any) -> tuple[int, np.ndarray, np.ndarray]:
+    """TwistWithCovarianceStamped -> (stamp_ns, current_ne (2,) m/s, its (2, 2) NED covariance)."""
+    linear = c.field(msg, "twist.twist.linear", CURRENT_TYPE)
+    covariance = np.asarray(c.field(msg, "twist.covariance", CURRENT_TYPE), dtype=np.float64).reshape(6, 6)
+    current_ne = np.array([c.field(linear, "y", CURRENT_TYPE), c.field(linear, "x", CURRENT_TYPE)])
+    return c.stamp_ns(msg, CURRENT_TYPE), current_ne, covariance[np.ix_([1, 0], [1, 0])]
+
+
+@functools.lru_cache(maxsize=16)
+def _current_layout(frame_id: str) -> CdrLayout:
+    w = CdrWriter()
+    w.slot("stamp", "<i4", 2)
+    w.string(frame_id)
+    w.slot("twist", "<f8", 6)  # geometry_msgs/Twist: two Vector3
+    w.slot("covariance", "<f8", 36)  # float64[36]: a fixed array, no length
+    return w.layout()
+
+
+def current_cdr(stamp_ns: int, current_ne: Sequence[float], current_cov: Sequence[float], frame_id: str) -> bytes:
+    """Serialized TwistWithCovarianceStamped, byte-equal to rclpy's serialisation of encode_current(...)."""
+    twist, covariance = current_twist(current_ne, current_cov)
+    return _current_layout(frame_id).fill(stamp=time_parts(stamp_ns), twist=twist, covariance=covariance)
 
 
 class Status(NamedTuple):

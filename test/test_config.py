@@ -11,7 +11,9 @@ import yaml
 import msg_adapters
 from usv_predictor.config import (
     FLOAT_RANGES,
+    ONLINE_RANGES,
     PredictorConfig,
+    default_config_path,
     Range,
     flatten_ros_parameters,
     input_topics,
@@ -222,3 +224,25 @@ def test_a_range_check_names_source_name_value_and_unit() -> None:
             speed.check("current_speed", value, "environment")
     with pytest.raises(ConfigError, match=r"^zigzag: rudder_deg=99.0 is outside the allowed range \[0.0, 90.0\]$"):
         Range(0.0, 90.0, "").check("rudder_deg", 99.0, "zigzag")  # no unit: nothing after the value
+
+
+def test_the_online_section_is_onlineconfigs_defaults_and_is_checked() -> None:
+    """The shipped `online` section changes none of OnlineConfig's defaults (replay evaluate --adaptive and the node
+    read it); a file without it gets them, enabled; a wrong value or key is refused naming it."""
+    from usv_predictor.fitting.online import OnlineConfig
+
+    shipped = load_predictor_config()
+    assert shipped.online_enabled and set(shipped.online) == set(ONLINE_RANGES)
+    assert OnlineConfig(**shipped.online) == OnlineConfig()
+    assert shipped.outputs["estimated_current"].ros_type == "geometry_msgs/msg/TwistWithCovarianceStamped"
+    params = read_ros_parameters(default_config_path())
+    without = {k: v for k, v in params.items() if k != "online"}
+    without["outputs"] = {k: v for k, v in params["outputs"].items() if k != "estimated_current"}
+    older = parse_predictor_config(without, "older.yaml")
+    assert older.online_enabled and dict(older.online) == {}
+    assert older.outputs["estimated_current"].topic == "estimated_current"
+    for online, message in (({"enabled": "yes"}, r"online.enabled = 'yes' must be true or false"),
+                            ({"current_noise": -1.0}, r"online.current_noise = -1.0 is out of range"),
+                            ({"gate": 0.9}, r"unknown key\(s\) \['gate'\]")):
+        with pytest.raises(ConfigError, match=message):
+            parse_predictor_config({**params, "online": online}, "bad.yaml")

@@ -17,6 +17,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -27,9 +28,17 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 import msg_adapters
+from msg_adapters import outputs
 from msg_adapters.outputs import decode_predicted_velocities
-from usv_predictor.data.recording import NS
+from usv_predictor.analysis import adaptive
+from usv_predictor.config import load_predictor_config
+from usv_predictor.data.recording import NS, Recording
+from usv_predictor.fitting.online import OnlineConfig
+from usv_predictor.models import loading
+from usv_predictor.models.artifact import export_module
+from usv_predictor.models.greybox import greybox_predictor
 from usv_predictor.node import node as predictor_node
+from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.replay.recordings import load_recordings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -57,10 +66,20 @@ def spin_until(executor: SingleThreadedExecutor, condition: Callable[[], bool], 
 HEADERLESS_TYPES = ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Float64MultiArray")
 
 
-def lockstep(context: Context, bag: Path, recording, *, seconds: float, config_path: Path | None = None,
-             overrides: tuple[Parameter, ...] = ()) -> tuple[predictor_node.PredictorNode, list, list, int]:
-    """Play `seconds` of `bag` to a node over DDS one stamp at a time (use_sim_time, windows on the Recording's
-    grid); returns the node, the Paths and MultiDOFJointTrajectories it published, and the messages sent."""
+class Lockstep(NamedTuple):
+    """What a lock-step run published (rclpy messages), the messages sent, and the node."""
+
+    node: predictor_node.PredictorNode
+    paths: list  # play_bag.PathListener.paths: (stamp, t_ns, eta, frame)
+    velocities: list  # MultiDOFJointTrajectory
+    currents: list  # TwistWithCovarianceStamped of estimated_current
+    sent: int  # messages the player published
+
+
+def lockstep(context: Context, bag: Path, recording: Recording, *, seconds: float, config_path: Path | None = None,
+             overrides: tuple[Parameter, ...] = ()) -> Lockstep:
+    """Play `seconds` of `bag` to a node over DDS one stamp at a time (use_sim_time, rate 2 Hz, state_delay dt:
+    each state window on the Recording's grid, so the node's cycle k assembles the Recording's state k)."""
     node = predictor_node.PredictorNode(config_path=config_path, context=context, parameter_overrides=[
         Parameter("use_sim_time", value=True), Parameter("rate_hz", value=2.0),
         # windows end on whole half-seconds of the bag, like the Recording's (t0 = first stamp + dt/2)
@@ -72,14 +91,18 @@ def lockstep(context: Context, bag: Path, recording, *, seconds: float, config_p
     node_executor, peer_executor = SingleThreadedExecutor(context=context), SingleThreadedExecutor(context=context)
     node_executor.add_node(node)
     peer_executor.add_node(peer)
+    make = msg_adapters.rclpy_factory()
     try:
         player = play_bag.BagPlayer(peer, play_bag.read_messages(bag, 0.0, seconds, config_path))
         listener = play_bag.PathListener(peer)
         velocities: list = []
-        peer.create_subscription(msg_adapters.rclpy_factory()("trajectory_msgs/msg/MultiDOFJointTrajectory"),
-                                 "predicted_velocities", velocities.append, 10)
+        currents: list = []
+        peer.create_subscription(make("trajectory_msgs/msg/MultiDOFJointTrajectory"), "predicted_velocities",
+                                 velocities.append, 10)
+        peer.create_subscription(make(outputs.CURRENT_TYPE), "estimated_current", currents.append, 10)
         spin_until(node_executor, lambda: peer.count_subscribers("imu/data") > 0
-                   and peer.count_publishers("predicted_path") > 0, "discovery", also=peer_executor)
+                   and peer.count_publishers("predicted_path") > 0
+                   and peer.count_publishers("estimated_current") > 0, "discovery", also=peer_executor)
 
         def received() -> int:  # arrived at the node (kept as bytes; decoded in bulk at its next timer)
             return sum(node.arrived.values())
@@ -99,14 +122,23 @@ def lockstep(context: Context, bag: Path, recording, *, seconds: float, config_p
                                                                     player.messages[player.cursor:]))
             player.publish_until(stamp)
             spin_until(node_executor, lambda: received() == before + due, "the messages", also=peer_executor)
-        spin_until(peer_executor, lambda: len(velocities) >= node.published, "the last outputs")
+        spin_until(peer_executor, lambda: len(velocities) >= node.published and len(currents) >= node.sea.fed,
+                   "the last outputs")
         node._catch_up(node.get_clock().now().nanoseconds)  # decode what arrived after the last timer
     finally:
         node_executor.shutdown()
         peer_executor.shutdown()
         node.destroy_node()
         peer.destroy_node()
-    return node, listener.paths, velocities, player.published
+    return Lockstep(node, listener.paths, velocities, currents, player.published)
+
+
+def recording_step(recording: Recording, stamp: int) -> int:
+    """The Recording's step whose state the Path stamped `stamp` starts from (state_delay dt, t_c = end - dt/2)."""
+    dt_ns = int(DT * NS)
+    n = (stamp - dt_ns - dt_ns // 2 - recording.t0_ns) // dt_ns
+    assert recording.t0_ns + n * dt_ns == stamp - dt_ns - dt_ns // 2
+    return n
 
 
 def check_equal_to_replay(node: predictor_node.PredictorNode, recording, paths: list, velocities: list,
@@ -117,9 +149,8 @@ def check_equal_to_replay(node: predictor_node.PredictorNode, recording, paths: 
     dt_ns = int(DT * NS)
     first_n = []
     for (stamp, t_ns, eta, frame), trajectory in zip(paths, velocities, strict=True):
-        n = (stamp - dt_ns - dt_ns // 2 - recording.t0_ns) // dt_ns  # the Recording's step at the state time
+        n = recording_step(recording, stamp)
         first_n.append(n)
-        assert recording.t0_ns + n * dt_ns == stamp - dt_ns - dt_ns // 2
         controls = np.repeat(recording.controls[n:n + 1, None], horizon_steps, axis=1)  # (1, H, C)
         reference = artifact.predict(recording.state()[n:n + 1], controls).mean(axis=0)[0]  # (H, 6)
         np.testing.assert_allclose(eta[:, :2], reference[:, 3:5] + recording.position[n], rtol=0, atol=1e-4)
@@ -134,12 +165,63 @@ def check_equal_to_replay(node: predictor_node.PredictorNode, recording, paths: 
 
 
 def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Context) -> None:
+    """The shipped DNN: the online estimator runs (on by default) but is not applied, so every Path is the plain
+    prediction of `replay evaluate`; the estimate is still published."""
     recording = load_recordings([BAG], DT, jobs=1, warn=lambda _: None)[0]  # what `replay evaluate` reads
-    node, paths, velocities, sent = lockstep(ros_context, BAG, recording, seconds=10.0)
-    assert node.published >= 16 and len(paths) == node.published
-    assert sum(track.received for track in node.inputs.tracks.values()) == sent
+    run = lockstep(ros_context, BAG, recording, seconds=10.0)
+    node = run.node
+    assert node.published >= 16 and len(run.paths) == node.published
+    assert sum(track.received for track in node.inputs.tracks.values()) == run.sent
     assert all(not track.rejected for track in node.inputs.tracks.values())
-    check_equal_to_replay(node, recording, paths, velocities, horizon_steps=120)
+    assert not node.sea.applied and node.sea.enabled and len(run.currents) == node.sea.fed >= 16
+    check_equal_to_replay(node, recording, run.paths, run.velocities, horizon_steps=120)
+
+
+@pytest.fixture(scope="module")
+def greybox_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The preset's calm-water grey box exported as a TorchScript artifact (what `replay identify` writes)."""
+    predictor = greybox_predictor(load_vessel("jari_usv"), DT)
+    path = tmp_path_factory.mktemp("greybox") / "greybox.pt"
+    export_module(path, predictor.rollout, predictor.metadata)
+    return path
+
+
+def test_with_the_online_estimator_the_node_predicts_as_replay_evaluate_adaptive(ros_context: Context,
+                                                                                greybox_model: Path) -> None:
+    """A grey box with the estimator on: every Path equals `replay evaluate --adaptive`'s prediction from the same
+    step (the estimate after that sample in the model's terms, analysis/adaptive.py), and every published current
+    equals that estimate (ENU, its covariance)."""
+    recording = load_recordings([BAG], DT, jobs=1, warn=lambda _: None)[0]
+    run = lockstep(ros_context, BAG, recording, seconds=10.0, overrides=(
+        Parameter("model_path", value=str(greybox_model)), Parameter("ensemble_size", value=1)))
+    assert run.node.published >= 16 and len(run.paths) == run.node.published
+    assert run.node.sea.applied and run.node.sea.fed == len(run.currents) >= 16
+    model = loading.load_model(str(greybox_model), dt=DT)  # as evaluate_bags loads it
+    config = OnlineConfig(**load_predictor_config().online)  # as adaptive_section configures it
+    evaluated = adaptive.adaptive_open_loop(model, recording, "gnss", (30.0,), 5.0, config)
+    assert evaluated.applied
+    estimates, original = evaluated.estimates, adaptive.model_terms(model)
+    moved = 0.0
+    for stamp, _, eta, _ in run.paths:
+        n = recording_step(recording, stamp)
+        state, controls = recording.state()[n:n + 1], np.repeat(recording.controls[n:n + 1, None], 120, axis=1)
+        plain = model.predict(state, controls)[0, 0]  # (H, 6)
+        with adaptive.per_start_terms(model, [adaptive.live_terms(estimates[n], original)]):
+            reference = model.predict(state, controls)[0, 0]  # (H, 6)
+        np.testing.assert_allclose(eta[:, :2], reference[:, 3:5] + recording.position[n], rtol=0, atol=1e-4)
+        moved = max(moved, float(np.abs(reference[-1, 3:5] - plain[-1, 3:5]).max()))
+    assert moved > 1.0, f"the estimate moves the 60 s prediction by {moved:.3f} m at most: the test would not see it"
+    dt_ns = int(DT * NS)
+    for msg in run.currents:
+        stamp, current_ne, covariance = outputs.decode_current(msg)
+        assert msg.header.frame_id == "odom"
+        n, rest = divmod(stamp - recording.t0_ns, dt_ns)  # stamped with the sample's time, on the grid
+        assert rest == 0
+        expected = estimates[n]
+        np.testing.assert_allclose(current_ne, expected.current_ne, rtol=0, atol=1e-9)
+        p_nn, p_ne, p_ee = expected.current_cov
+        np.testing.assert_allclose(covariance, [[p_nn, p_ne], [p_ne, p_ee]], rtol=1e-6, atol=1e-12)
+    assert outputs.decode_current(run.currents[0])[0] == recording.t0_ns  # the first sample is the Recording's first
 
 
 # ----------------------------------------------------------------------------- a twin-thruster boat (issue 10)
@@ -152,9 +234,7 @@ OTTER_SECONDS = 13.0  # s of the bag played: 10 s approach, then the turn
 @pytest.fixture(scope="module")
 def otter_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The otter preset's calm-water grey box as a model artifact (models/greybox + models/artifact)."""
-    from usv_predictor.models.artifact import export_module
     from usv_predictor.models.greybox import GreyBoxRollout, greybox_metadata
-    from usv_predictor.physics.vessel import load_vessel
 
     vessel = load_vessel("otter")
     rollout = GreyBoxRollout(vessel, dt=DT)
@@ -164,20 +244,21 @@ def otter_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def otter_overrides(model: Path) -> tuple[Parameter, ...]:
+    """The otter's model; the online estimator off (the plain prediction of `replay evaluate`; the adaptive one is
+    test_with_the_online_estimator_the_node_predicts_as_replay_evaluate_adaptive's)."""
     return (Parameter("vessel", value="otter"), Parameter("model_path", value=str(model)),
-            Parameter("horizon_s", value=OTTER_HORIZON_S), Parameter("ensemble_size", value=1))
+            Parameter("horizon_s", value=OTTER_HORIZON_S), Parameter("ensemble_size", value=1),
+            Parameter("online.enabled", value=False))
 
 
 def test_twin_thruster_node_predictions_equal_replay_evaluate(ros_context: Context, otter_model: Path) -> None:
     """The otter (twin_thrusters) bag with its thrusters on two Float64 topics (normalised commands): the node
     subscribes to the layout's roles only (the config's rudder, engine and throttle topics are ignored and said
     so), and its Paths equal the grey box's prediction on the Recording `replay evaluate` builds from the bag."""
-    from usv_predictor.physics.vessel import load_vessel
-
     layout = load_vessel("otter").actuator_layout
     recording = load_recordings([OTTER_BAG], DT, jobs=1, warn=lambda _: None, layout=layout)[0]
-    node, paths, velocities, sent = lockstep(ros_context, OTTER_BAG, recording, seconds=OTTER_SECONDS,
-                                             overrides=otter_overrides(otter_model))
+    node, paths, velocities, _, sent = lockstep(ros_context, OTTER_BAG, recording, seconds=OTTER_SECONDS,
+                                                overrides=otter_overrides(otter_model))
     assert sorted(node.inputs.tracks) == ["gnss", "heading", "imu", "thruster_port", "thruster_starboard", "velocity"]
     assert sorted(node.ignored) == ["engine_rpm", "rudder_angle", "throttle"]
     assert node.published >= 20 and len(paths) == node.published
@@ -202,8 +283,6 @@ def test_twin_thrusters_on_one_pwm_topic_equal_replay_evaluate(ros_context: Cont
     the adapters), read by `replay evaluate` and played to the node with one configuration: equal predictions."""
     import yaml
 
-    from usv_predictor.config import load_predictor_config
-    from usv_predictor.physics.vessel import load_vessel
     from usv_predictor.records import Signal
     from usv_predictor.replay.bagio import config_topic_specs, read_signals, write_bag
 
@@ -211,6 +290,7 @@ def test_twin_thrusters_on_one_pwm_topic_equal_replay_evaluate(ros_context: Cont
     inner = params["predictor"]["ros__parameters"]
     inner.update(vessel="otter", model_path=str(otter_model), horizon_s=OTTER_HORIZON_S, ensemble_size=1)
     inner["inputs"].update(PWM_THRUSTERS)
+    inner["online"]["enabled"] = False  # the plain prediction, as otter_overrides
     for role in ("rudder_angle", "engine_rpm", "throttle"):
         del inner["inputs"][role]
     config = tmp_path / "otter_pwm.yaml"
@@ -229,7 +309,8 @@ def test_twin_thrusters_on_one_pwm_topic_equal_replay_evaluate(ros_context: Cont
     reference = load_recordings([OTTER_BAG], DT, jobs=1, warn=lambda _: None, layout=layout)[0]
     n = len(recording.controls)
     np.testing.assert_allclose(recording.controls, reference.controls[:n], rtol=0, atol=1e-9)  # PWM decodes back
-    node, paths, velocities, sent = lockstep(ros_context, bag, recording, seconds=OTTER_SECONDS, config_path=config)
+    node, paths, velocities, _, sent = lockstep(ros_context, bag, recording, seconds=OTTER_SECONDS,
+                                                config_path=config)
     assert node._entries["thruster_port"].topic == node._entries["thruster_starboard"].topic == "thrusters/pwm"
     assert node.ignored == {} and node.published >= 20 and len(paths) == node.published
     assert node.arrived["thruster_port"] == node.arrived["thruster_starboard"] > 0  # one message, both roles

@@ -68,7 +68,8 @@ def test_inputs_are_decoded_and_reported(harness: Harness) -> None:
     # subscribed, and one status says so (check_layout_inputs)
     used = [i.role for i in harness.node.config.inputs if i.role not in unused_roles(harness.node.layout)]
     assert "throttle" not in used and "thruster_port" not in used and "rudder_angle" in used
-    assert sorted(statuses) == sorted([*used, "model", "prediction", "plan", "candidate plans", "ignored inputs"])
+    assert sorted(statuses) == sorted([*used, "model", "prediction", "plan", "candidate plans", "sea estimate",
+                                       "ignored inputs"])
     ignored = statuses["ignored inputs"]
     assert ignored.level[0] == predictor_node.OK
     assert ignored.message == ("not subscribed: throttle, thruster_port, thruster_starboard (controls of other "

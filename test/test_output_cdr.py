@@ -158,6 +158,39 @@ def test_covariance_bytes_equal_rclpy(steps: int) -> None:
     assert_same_bytes(ours, outputs.encode_covariance(covariance, RCLPY), rosbags_msg, outputs.COVARIANCE_TYPE)
 
 
+CURRENTS = [  # (current_ne m/s, P_nn, P_ne, P_ee (m/s)^2): typical, signed zero and correlation, extremes
+    ((0.3, -0.2), (0.0004, -0.0001, 0.0009)),
+    ((-0.0, 0.0), (0.25, 0.0, 0.25)),
+    ((1e300, -5e-324), (5e-324, -1e-300, 1e300)),
+]
+
+
+@pytest.mark.parametrize(("current", "cov"), CURRENTS)
+@pytest.mark.parametrize("frame", FRAMES)
+def test_estimated_current_bytes_equal_rclpy(current: tuple[float, float], cov: tuple[float, float, float],
+                                             frame: str) -> None:
+    stamp = 1_700_000_000 * NS + 987_654_321 + len(frame)
+    ours = outputs.current_cdr(stamp, current, cov, frame)
+    assert_same_bytes(ours, outputs.encode_current(stamp, current, cov, frame, RCLPY),
+                      outputs.encode_current(stamp, current, cov, frame, ROSBAGS), outputs.CURRENT_TYPE)
+
+
+def test_the_estimated_current_is_enu_with_the_unknown_components_marked() -> None:
+    """x east, y north; the 2 x 2 block swapped NED -> ENU; z and the rates UNKNOWN_VARIANCE, uncorrelated."""
+    msg = deserialize_message(outputs.current_cdr(5 * NS, (0.3, -0.2), (0.0004, -0.0001, 0.0009), "odom"),
+                              RCLPY(outputs.CURRENT_TYPE))
+    assert (msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.linear.z) == (-0.2, 0.3, 0.0)
+    assert msg.header.frame_id == "odom" and msg.header.stamp.sec == 5
+    covariance = np.asarray(msg.twist.covariance).reshape(6, 6)
+    np.testing.assert_array_equal(covariance[:2, :2], [[0.0009, -0.0001], [-0.0001, 0.0004]])
+    np.testing.assert_array_equal(np.diag(covariance)[2:], [outputs.UNKNOWN_VARIANCE] * 4)
+    assert np.count_nonzero(covariance) == 4 + 4
+    stamp, current, block = outputs.decode_current(msg)
+    assert stamp == 5 * NS
+    np.testing.assert_array_equal(current, [0.3, -0.2])
+    np.testing.assert_array_equal(block, [[0.0004, -0.0001], [-0.0001, 0.0009]])
+
+
 def statuses(count: int, values: int, seed: int) -> list[outputs.Status]:
     rng = np.random.default_rng(seed)
 

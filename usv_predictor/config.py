@@ -19,7 +19,7 @@ import math
 import os
 import re
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Iterator, Mapping, NamedTuple
@@ -66,8 +66,29 @@ ENSEMBLE_RANGE = Range(1, 64, "members")
 INPUT_KEYS = frozenset({"topic", "type", "frame_id", "max_age_s"})
 GROUND_TRUTH_KEYS = frozenset({"topic", "type", "frame_id", "role"})
 OUTPUT_ROLES = ("predicted_path", "predicted_velocities")
+# Outputs a parameter file may leave out (older files): role -> (default topic, type)
+OPTIONAL_OUTPUTS: Mapping[str, tuple[str, str]] = MappingProxyType(
+    {"estimated_current": ("estimated_current", "geometry_msgs/msg/TwistWithCovarianceStamped")}
+)
+# The online estimator of the sea (fitting/online.py OnlineConfig: the fields a parameter file may set, with the
+# node's parameter ranges). `online.enabled` switches it off; the node and `replay evaluate --adaptive` read the
+# same values. A file without an `online` section gets OnlineConfig's defaults, enabled.
+ONLINE_RANGES: Mapping[str, Range] = MappingProxyType(
+    {
+        "prior_current_std_m_s": Range(0.001, 5.0, "m/s"),
+        "prior_yaw_rate_bias_std_rad_s": Range(1e-5, 0.2, "rad/s"),
+        "prior_resistance_std": Range(0.001, 2.0, "-"),
+        "current_noise": Range(1e-6, 1.0, "(m/s)/sqrt(s)"),
+        "bias_noise": Range(0.0, 0.01, "(rad/s)/sqrt(s)"),
+        "resistance_noise": Range(0.0, 0.1, "1/sqrt(s)"),
+        "velocity_std_m_s": Range(1e-4, 2.0, "m/s"),
+        "yaw_rate_std_rad_s": Range(1e-5, 0.5, "rad/s"),
+    }
+)
+ONLINE_KEYS = frozenset({"enabled"} | set(ONLINE_RANGES))
 TOP_LEVEL_KEYS = frozenset(
-    {"model_path", "vessel", "ensemble_size", "frame_id", "base_frame_id", "inputs", "outputs", "ground_truth"}
+    {"model_path", "vessel", "ensemble_size", "frame_id", "base_frame_id", "inputs", "outputs", "ground_truth",
+     "online"}
     | set(FLOAT_RANGES)
 )
 # Standard parameters every rclpy node has; a parameter file may set them.
@@ -122,6 +143,9 @@ class PredictorConfig:
     inputs: tuple[InputConfig, ...]
     outputs: Mapping[str, OutputConfig]
     ground_truth: InputConfig  # reference only, never an input for fitting
+    online_enabled: bool = True  # run the online estimator of the sea (docs/online.md)
+    # OnlineConfig fields the file sets (ONLINE_RANGES); the others keep OnlineConfig's defaults
+    online: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
 
     @property
     def horizon_steps(self) -> int:
@@ -326,12 +350,26 @@ def parse_predictor_config(params: Mapping[str, Any], source: str) -> PredictorC
         raise ConfigError(f"{inputs_section.source}: {inputs_section.path} has no inputs")
 
     outputs_section = top.section("outputs")
-    _check_keys(outputs_section, frozenset(OUTPUT_ROLES))
+    _check_keys(outputs_section, frozenset(OUTPUT_ROLES) | set(OPTIONAL_OUTPUTS))
     outputs = {}
-    for role in OUTPUT_ROLES:
+    for role in OUTPUT_ROLES + tuple(OPTIONAL_OUTPUTS):
+        if role in OPTIONAL_OUTPUTS and role not in outputs_section.data:
+            outputs[role] = OutputConfig(*OPTIONAL_OUTPUTS[role])
+            continue
         entry = outputs_section.section(role)
         _check_keys(entry, frozenset({"topic", "type"}))
         outputs[role] = OutputConfig(entry.text("topic", _TOPIC), entry.text("type", _ROS_TYPE))
+
+    online_enabled, online = True, {}
+    if "online" in top.data:
+        online_section = top.section("online")
+        _check_keys(online_section, ONLINE_KEYS)
+        if "enabled" in online_section.data:
+            online_enabled = online_section.raw("enabled")
+            if not isinstance(online_enabled, bool):
+                raise ConfigError(f"{online_section.where('enabled')} = {online_enabled!r} must be true or false")
+        online = {key: float(online_section.number(key, allowed)) for key, allowed in ONLINE_RANGES.items()
+                  if key in online_section.data}
 
     truth_section = top.section("ground_truth")
     truth = _parse_input(truth_section, truth_section.text("role", _NAME), frame_id, GROUND_TRUTH_KEYS)
@@ -349,6 +387,8 @@ def parse_predictor_config(params: Mapping[str, Any], source: str) -> PredictorC
         inputs=tuple(inputs),
         outputs=MappingProxyType(outputs),
         ground_truth=truth,
+        online_enabled=online_enabled,
+        online=MappingProxyType(online),
     )
 
 

@@ -554,12 +554,16 @@ def step_times(live: LiveState, settings: LiveSettings, first: int = 0) -> np.nd
     return live.t_c_ns + settings.dt_ns * np.arange(first, first + settings.horizon_steps, dtype=np.int64)
 
 
-def predict(inputs: InputSet, rollout: Rollout, now_ns: int, schedule: Schedule | None = None) -> Prediction:
+def predict(inputs: InputSet, rollout: Rollout, now_ns: int, schedule: Schedule | None = None,
+            observe: Callable[[LiveState], object] | None = None) -> Prediction:
     """State at now -> rollout -> anchored, checked prediction (CycleSkipped when it cannot be trusted).
 
-    The controls are the current ones held, or schedule's (one plan, plans.py) at t_c + k dt.
+    The controls are the current ones held, or schedule's (one plan, plans.py) at t_c + k dt. `observe` sees the
+    state before the rollout (the online estimator, sea.py: it may set the model's terms for this rollout).
     """
     live = inputs.assemble(now_ns)
+    if observe is not None:
+        observe(live)
     controls = live.controls if schedule is None else schedule(step_times(live, inputs.settings), live.controls)[0]
     started = time.perf_counter()
     out = rollout(live.state, controls)  # (E, H, 6)

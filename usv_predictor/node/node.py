@@ -15,8 +15,10 @@ current actuator commands held (or under the plan on `plan`), and publishes CDR 
     predicted_path_covariance    std_msgs/Float64MultiArray, ensemble covariance of (x, y, yaw) ENU per step
     candidate_predictions        trajectory_msgs/MultiDOFJointTrajectory, one joint per candidate plan, published
                                  as soon as a batch arrives on `candidate_plans` (plans.py)
+    estimated_current            geometry_msgs/TwistWithCovarianceStamped, the online estimate of the current
+                                 (sea.py, fitting/online.py) in frame_id (ENU), once per dt, stamped with its time
     /diagnostics                 at diagnostics_rate_hz: inputs (age, rate, rejections), model, prediction
-                                 (latency), plan and candidate plans (refusals)
+                                 (latency), plan and candidate plans (refusals), the sea estimate
 
 A cycle that cannot be trusted (no input yet, stale input, non-finite model output) publishes nothing
 (/diagnostics says why) and logs a throttled warning. Parameters are declared from
@@ -57,12 +59,14 @@ import msg_adapters
 from msg_adapters.cdr import decode_joint_trajectory, decode_values
 from msg_adapters.outputs import (
     COVARIANCE_TYPE,
+    CURRENT_TYPE,
     DIAGNOSTICS_TYPE,
     PATH_TYPE,
     TRAJECTORY_TYPE,
     Status,
     candidate_predictions_cdr,
     covariance_cdr,
+    current_cdr,
     diagnostics_cdr,
     path_cdr,
     predicted_velocities_cdr,
@@ -73,6 +77,7 @@ from usv_predictor.config import (
     FLOAT_RANGES,
     MAX_AGE_RANGE,
     NODE_NAME,
+    ONLINE_RANGES,
     InputConfig,
     PredictorConfig,
     Range,
@@ -84,9 +89,10 @@ from usv_predictor.config import (
 )
 from usv_predictor.data.recording import PLAUSIBLE
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredictorError
+from usv_predictor.fitting.online import OnlineConfig
 from usv_predictor.models import loading
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
-from usv_predictor.node import live, plans
+from usv_predictor.node import live, plans, sea
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, check_layout_inputs, unused_roles
 from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.records import NS_PER_S
@@ -162,8 +168,24 @@ def datum_of(lat: Any, lon: Any) -> tuple[float, float] | None:
     return values["datum_lat_deg"], values["datum_lon_deg"]
 
 
+ONLINE_PREFIX = "online."
+
+
+def _online_leaf(name: str) -> str | None:
+    """The OnlineConfig field of an `online.*` parameter (None for another parameter, or online.enabled)."""
+    leaf = name.removeprefix(ONLINE_PREFIX)
+    return leaf if name.startswith(ONLINE_PREFIX) and leaf in ONLINE_RANGES else None
+
+
+def online_defaults() -> dict[str, Any]:
+    """online.enabled and every ONLINE_RANGES field with OnlineConfig's default: declared when the file lacks them."""
+    default = OnlineConfig()
+    return {f"{ONLINE_PREFIX}enabled": True,
+            **{f"{ONLINE_PREFIX}{leaf}": float(getattr(default, leaf)) for leaf in ONLINE_RANGES}}
+
+
 def _is_float_parameter(name: str) -> bool:
-    return name in FLOAT_RANGES or name.endswith(".max_age_s")
+    return name in FLOAT_RANGES or name.endswith(".max_age_s") or _online_leaf(name) is not None
 
 
 def _declared_value(name: str, value: Any) -> Any:
@@ -192,9 +214,11 @@ def _descriptor(name: str, value: Any) -> ParameterDescriptor:
     descriptor = ParameterDescriptor(
         name=name,
         description=_DESCRIPTIONS.get(name, f"{name.replace('.', ' ')} (see config/predictor.yaml)"),
-        read_only=leaf != "max_age_s" and name != "model_path",  # topics and types are fixed once subscribed
+        # topics and types are fixed once subscribed; the online estimator restarts with new values
+        read_only=leaf != "max_age_s" and name != "model_path" and not name.startswith(ONLINE_PREFIX),
     )
-    allowed: Range | None = FLOAT_RANGES.get(name) or (MAX_AGE_RANGE if _is_float_parameter(name) else None)
+    allowed: Range | None = FLOAT_RANGES.get(name) or ONLINE_RANGES.get(leaf if _online_leaf(name) else "") or (
+        MAX_AGE_RANGE if _is_float_parameter(name) else None)
     if name == "ensemble_size":
         allowed = ENSEMBLE_RANGE
     return _ranged(descriptor, leaf, value, allowed)
@@ -302,6 +326,8 @@ class PredictorNode(Node):
         self._covariance_pub = self.create_publisher(make(COVARIANCE_TYPE), COVARIANCE_TOPIC, 10)
         self._diagnostics = self.create_publisher(make(DIAGNOSTICS_TYPE), DIAGNOSTICS_TOPIC, 10)
         self._candidates_pub = self.create_publisher(make(TRAJECTORY_TYPE), CANDIDATE_PREDICTIONS_TOPIC, 10)
+        self._current_pub = self.create_publisher(make(CURRENT_TYPE), outputs["estimated_current"].topic, 10)
+        self.sea = self._make_sea(self.rollout, {})
         self.plan = PlanInput(PLAN_TOPIC)
         self.candidates = PlanInput(CANDIDATE_PLANS_TOPIC)
         self.following: plans.Plan | None = None  # the plan the predictions are made under
@@ -330,6 +356,7 @@ class PredictorNode(Node):
     def _declare_parameters(self, defaults_path: Path) -> PredictorConfig:
         """Declare every parameter of the defaults file and the node's own; validate the effective values."""
         defaults = flatten_ros_parameters(read_ros_parameters(defaults_path))
+        defaults = {**online_defaults(), **defaults}  # a file without an `online` section: OnlineConfig's defaults
         try:
             for name, raw in defaults.items():
                 value = _declared_value(name, raw)
@@ -358,6 +385,11 @@ class PredictorNode(Node):
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """Swap the model (validated first; the old one stays on failure) and apply new staleness limits."""
         swap: live.Rollout | None = None
+        online = {p.name: p.value for p in parameters if p.name.startswith(ONLINE_PREFIX)}
+        try:
+            self._online_config(online)
+        except ConfigError as err:
+            return SetParametersResult(successful=False, reason=str(err))
         for parameter in parameters:
             if parameter.name == "model_path":
                 try:
@@ -368,6 +400,10 @@ class PredictorNode(Node):
         if swap is not None:
             self.rollout = swap
             self.get_logger().info(f"model swapped to {swap.artifact.path} ({swap.artifact.model_id})")
+        if swap is not None or online:
+            self.sea.restore()
+            self.sea = self._make_sea(self.rollout, online)
+            self.sea.last_reset = "the model was swapped" if swap is not None else "online parameters changed"
         for parameter in parameters:
             role = parameter.name.removeprefix("inputs.").removesuffix(".max_age_s")
             if parameter.name.endswith(".max_age_s") and role in self.inputs.tracks:
@@ -389,7 +425,8 @@ class PredictorNode(Node):
     def _catch_up(self, now_ns: int) -> None:
         """Clear the buffers if the clock jumped back, then decode and buffer every pending message."""
         if self.inputs.observe_clock(now_ns):
-            self.get_logger().warning("the clock jumped back: input buffers cleared")
+            self.get_logger().warning("the clock jumped back: input buffers cleared, sea estimate reset")
+            self.sea.reset("the clock jumped back")
             for pending in self._pending.values():  # what arrived before the jump belongs to the old time line
                 kept = [(raw, at_ns) for raw, at_ns in pending if at_ns <= now_ns]
                 pending.clear()
@@ -498,7 +535,8 @@ class PredictorNode(Node):
         self._catch_up(now_ns)
         plan = self._current_plan(now_ns)
         try:
-            prediction = live.predict(self.inputs, self.rollout, now_ns, None if plan is None else plan.schedule)
+            prediction = live.predict(self.inputs, self.rollout, now_ns, None if plan is None else plan.schedule,
+                                      observe=self._observe_sea)
             self._publish(prediction, prediction.stamp_ns if plan is None else plan.stamp_ns)
         except (live.CycleSkipped, ModelError, AdapterError, RuntimeError) as err:
             # RuntimeError: what a TorchScript module raises; the cycle is lost, the node carries on
@@ -521,6 +559,34 @@ class PredictorNode(Node):
         if len(prediction.eta_members) > 1:
             self._covariance_pub.publish(covariance_cdr(live.enu_covariance(prediction.eta_members)))
 
+    # --------------------------------------------------------------- the sea estimate (sea.py)
+    def _online_config(self, changes: dict[str, Any]) -> tuple[bool, OnlineConfig]:
+        """(enabled, OnlineConfig) of the `online.*` parameters with `changes` (name -> new value) applied;
+        ConfigError naming the parameter when OnlineConfig refuses the combination."""
+        value = {name: self.get_parameter(name).value for name in online_defaults()}
+        value.update(changes)
+        fields = {leaf: float(value[name]) for name in value if (leaf := _online_leaf(name)) is not None}
+        try:
+            return bool(value[f"{ONLINE_PREFIX}enabled"]), OnlineConfig(**fields)
+        except ConfigError as err:
+            raise ConfigError(f"node {NODE_NAME}: parameters online.*: {err}") from err
+
+    def _make_sea(self, rollout: live.Rollout, changes: dict[str, Any]) -> sea.LiveSea:
+        enabled, config = self._online_config(changes)
+        return sea.LiveSea(rollout.artifact, self.config.vessel, config, enabled, self.config.dt, self.config.rate_hz)
+
+    def _observe_sea(self, state: live.LiveState) -> None:
+        """Before the cycle's rollout: feed the estimator when the state is on its dt grid, publish the estimate."""
+        fed = self.sea.observe(state)
+        if fed is not None and self.sea.started():
+            estimate = fed.estimate
+            self._current_pub.publish(current_cdr(fed.t_c_ns, estimate.current_ne, estimate.current_cov,
+                                                  self.config.frame_id))
+
+    def _sea_status(self, now_ns: int) -> Status:
+        warn, message, values = self.sea.report(now_ns)
+        return self._status(WARN if warn else OK, "sea estimate", message, values)
+
     # --------------------------------------------------------------- /diagnostics (own rate)
     def _on_diagnostics_timer(self) -> None:
         if not self.context.ok():
@@ -533,7 +599,7 @@ class PredictorNode(Node):
         self._current_plan(now_ns)  # a plan that went stale is dropped before any status reads it: one story per report
         statuses = [self._input_status(role, now_ns) for role in self._entries]
         statuses += [self._model_status(), self._prediction_status(), self._plan_status(now_ns),
-                     self._candidates_status(now_ns)]
+                     self._candidates_status(now_ns), self._sea_status(now_ns)]
         if self.ignored:
             statuses.append(self._ignored_status())
         self._diagnostics.publish(diagnostics_cdr(now_ns, statuses))
@@ -684,7 +750,7 @@ def _deserializer(message_type: Any, ros_type: str) -> Callable[[bytes], Any]:
 
 def _check_output_types(config: PredictorConfig) -> None:
     """The outputs are written as CDR of fixed types: another configured type is a ConfigError naming it."""
-    expected = {"predicted_path": PATH_TYPE, "predicted_velocities": TRAJECTORY_TYPE}
+    expected = {"predicted_path": PATH_TYPE, "predicted_velocities": TRAJECTORY_TYPE, "estimated_current": CURRENT_TYPE}
     for role, ros_type in expected.items():
         if config.outputs[role].ros_type != ros_type:
             raise ConfigError(f"{config.source}: outputs.{role}.type is {config.outputs[role].ros_type!r}; "

@@ -136,13 +136,15 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
 def adaptive_section(model: object, recordings: Sequence[object], request: EvaluationRequest,
                      progress: Callable[[str], None] = lambda _: None) -> dict:
     """`--adaptive`: the online estimator (fitting/online.py) over each recording and the open-loop errors with
-    its live estimate in the model's terms (analysis/adaptive.py), beside the plain ones."""
+    its live estimate in the model's terms (analysis/adaptive.py), beside the plain ones. Tuned by the `online`
+    section of the predictor config (--config), as the node is; `online.enabled` is the node's switch only."""
     from dataclasses import asdict
 
     from usv_predictor.analysis import adaptive
+    from usv_predictor.config import load_predictor_config
     from usv_predictor.fitting.online import STATE_NAMES, STATE_UNITS, OnlineConfig
 
-    config = OnlineConfig()
+    config = OnlineConfig(**load_predictor_config(request.config).online)  # the node's `online` parameters
     runs = []
     for k, recording in enumerate(recordings):
         progress(f"[{k + 1}/{len(recordings)}] online estimate and adaptive open loop on {recording.name}")
