@@ -8,7 +8,8 @@ throttle or a mean thruster command) and the measured motion has settled:
     straight-running speed  measured u (mean over the window's last STEADY_S) against the model's steady u at the
                             window's commands: the model is rolled out from the measured state with the commands
                             held for SETTLE_S and its last STEADY_S averaged (a right model stays where it starts,
-                            a wrong one runs to its own equilibrium);
+                            a wrong one runs to its own equilibrium); a rudder_only model, whose engine speed is
+                            the one that holds the speed it starts from, starts where the commands were first held;
     steady yaw rate         the same for r in held turns (|r| >= MIN_YAW_RATE);
     length scale            the data's Froude number Fn = U / sqrt(g L_pp) on the vessel's length, the model's at the
                             same commands, the Froude scale lambda = (U_measured / U_model)^2 a geometrically similar
@@ -164,7 +165,9 @@ def steady_windows(predictor: Predictor, recordings: Sequence[Recording], layout
             if not (_settled(last[:, 0], SETTLED_SPEED, SETTLED_SPEED_ABS)
                     and _settled(last[:, 2], SETTLED_YAW, SETTLED_YAW_ABS)):
                 continue
-            k = max(first, end - steady_n)
+            # the model starts from the settled state; without a propulsion control (rudder_only) it holds the engine
+            # speed of the speed it starts from, so it starts where the commands were first held (the approach speed)
+            k = max(first, end - steady_n) if layout.propulsion else first
             found.append((rec, first, end, np.array([*rec.nu[k], rec.psi[k]]), rec.controls[first:end].mean(axis=0)))
     if not found:
         return []
@@ -220,6 +223,12 @@ def check_fit(predictor: Predictor, recordings: Sequence[Recording], *, vessel: 
     label = label or f"model {meta.get('model_id', '?')} ({meta.get('model_type', '?')})"
     windows = steady_windows(predictor, recordings, layout) if recordings else []
     reasons: list[str] = []
+    diverged = [w for w in windows if not (math.isfinite(w.predicted_speed_mps)
+                                           and math.isfinite(w.predicted_yaw_rate_rad_s))]
+    if diverged:
+        reasons.append(f"its prediction is not finite at the held commands of {len(diverged)} of {len(windows)} "
+                       f"steady window(s) (first: {diverged[0].recording} at {diverged[0].start_s:.0f} s)")
+        windows = [w for w in windows if w not in diverged]
 
     usable = [w for w in windows if w.measured_speed_mps >= MIN_SPEED]
     straight = [w for w in usable if w.kind == "straight"]

@@ -16,7 +16,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from usv_predictor.errors import BagError, ConfigError, EvaluationError
 
@@ -39,6 +39,7 @@ class EvaluationRequest:
     horizons_s: tuple[float, ...] = (10.0, 30.0, 60.0)  # open-loop horizons (s)
     stride_s: float = 5.0  # time between open-loop start points (s)
     include_calm: bool = False  # also read calm/ twins under bag directories
+    fit_check: bool = True  # refuse a model that does not fit the bags at all (analysis/fit_check.py)
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(x) and x > 0.0 for x in (self.stride_s, *self.horizons_s)):
@@ -90,9 +91,16 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
                                  progress=progress)
     if not recordings:
         raise BagError(f"no usable recording in {', '.join(map(str, bags))} (see the warnings above)")
+    check = model_fit_check(model, recordings)
+    progress(check.summary())
+    if request.fit_check:
+        from usv_predictor.analysis.fit_check import require_fit
+
+        require_fit(check)
     result = evaluation.evaluate(model, recordings, request.reference, tuple(request.horizons_s), request.stride_s,
                                  progress=progress)
     result.extra.update({
+        "fit_check": check.to_json(),
         "generated_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "software_version": __version__,
         "model_source": request.model or str(loading.default_model_path()),
@@ -102,6 +110,23 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
                                  "has_truth": r.truth is not None} for r in recordings]},
     })
     return result
+
+
+def model_fit_check(model, recordings: Sequence) -> Any:
+    """The fit check (usv_predictor.analysis.fit_check) of a loaded model on the recordings, with its vessel's length
+    and top speed when the vessel its metadata names is a preset here (an unknown vessel: speeds and yaw rates only)."""
+    from usv_predictor.analysis.fit_check import check_fit
+    from usv_predictor.physics.vessel import load_vessel
+
+    meta = model.metadata
+    try:
+        vessel = load_vessel(str(meta.get("vessel")))
+    except ConfigError:
+        vessel = None
+    physics = str(meta.get("model_type", "")).startswith("physics")
+    label = (f"the preset {meta.get('vessel')}" if physics
+             else f"model {meta.get('model_id', '?')} ({meta.get('model_type', '?')}, vessel {meta.get('vessel', '?')})")
+    return check_fit(model, recordings, vessel=vessel, label=label)
 
 
 def save_evaluation(result: EvaluationResult, directory: Path) -> dict:

@@ -76,9 +76,13 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--stride", type=positive_float, default=5.0, metavar="S",
                         help="time between open-loop start points (s, default 5)")
     parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
+    parser.add_argument("--no-fit-check", action="store_true",
+                        help="evaluate even when the model does not fit the bags at all (its steady speed or yaw rate "
+                             "at the recorded commands, or its length scale, is far off: refused otherwise)")
 
 
 def evaluation_request(args: argparse.Namespace, bags: Sequence[Path]) -> EvaluationRequest:
     """The options of add_model_arguments (and the bags) as an EvaluationRequest."""
     return EvaluationRequest(bags=tuple(bags), model=args.model, dt=args.dt, reference=args.reference,
-                             horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm)
+                             horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm,
+                             fit_check=not args.no_fit_check)
