@@ -287,7 +287,6 @@ class CalmWaterFit:
     heldout_loss: float  # mean squared weighted residual (1 = errors at the noise scale)
     heldout_track_error_m: float  # mean position error at the end of the held-out segments (m)
     horizon_s: float  # the segments' length (s)
-    fits: bool  # heldout_loss <= MISMATCH_LOSS
 
 
 @dataclass(frozen=True)
@@ -395,8 +394,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         return not math.isfinite(gain) or gain > MIN_TRACK_GAIN
 
     base = per_segment["none"]
-    calm = CalmWaterFit(float(base.mean()), _mean_track(per_track["none"]), float(horizon_s),
-                        bool(base.mean() <= MISMATCH_LOSS))
+    calm = CalmWaterFit(float(base.mean()), _mean_track(per_track["none"]), float(horizon_s))
     ranked = sorted(names, key=lambda n: per_segment[n].mean())
     best = ranked[0]
     evidence = tuple(Evidence(n, float(per_segment[n].mean()), float(1.0 - per_segment[n].mean() / base.mean()),
