@@ -8,9 +8,10 @@ throttle or a mean thruster command) and the measured motion has settled:
     straight-running speed  measured u (mean over the window's last STEADY_S) against the model's steady u at the
                             window's commands: the model is rolled out from the measured state with the commands
                             held for SETTLE_S and its last STEADY_S averaged (a right model stays where it starts,
-                            a wrong one runs to its own equilibrium); a rudder_only model, whose engine speed is
-                            the one that holds the speed it starts from, starts where the commands were first held;
-    steady yaw rate         the same for r in held turns (|r| >= MIN_YAW_RATE);
+                            a wrong one runs to its own equilibrium);
+    steady yaw rate         r (and u) at the end of held turns (|r| >= MIN_YAW_RATE), the model rolled out from the
+                            turn's start with the recorded commands (the same stage of the turn: a slow ship's
+                            zig-zag never reaches its steady turn);
     length scale            the data's Froude number Fn = U / sqrt(g L_pp) on the vessel's length, the model's at the
                             same commands, the Froude scale lambda = (U_measured / U_model)^2 a geometrically similar
                             hull would need (Froude similarity, e.g. ITTC 7.5-02-06-01), and the data's speed against
@@ -156,35 +157,40 @@ def _settled(values: np.ndarray, share: float, floor: float) -> bool:
 
 
 def steady_windows(predictor: Predictor, recordings: Sequence[Recording], layout: ActuatorLayout) -> list[SteadyWindow]:
-    """Every window of held commands whose measured u and r have settled, with the model's steady u and r."""
-    found: list[tuple[Recording, int, int, np.ndarray, np.ndarray]] = []
+    """Every window of held commands whose measured u and r have settled, with the model's u and r for it.
+
+    Straight windows: the model starts from the settled measured state and runs SETTLE_S at the held commands (its
+    own straight-running equilibrium). Turns: the model starts where the commands were first held and runs with the
+    recorded commands to the window's end, so a turn that has not reached its steady state in the data (a zig-zag
+    of a slow ship) is compared with the same stage of the model's turn, never with the model's steady turn.
+    """
+    dt = recordings[0].dt if recordings else 1.0
+    settle_n = max(int(round(SETTLE_S / dt)), 2)
+    steady_n = max(int(round(STEADY_S / dt)), 2)
+    windows = []
     for rec in recordings:
-        steady_n = max(int(round(STEADY_S / rec.dt)), 2)
         for first, end in held_windows(rec, layout):
             last = rec.nu[max(first, end - steady_n):end]  # (n, 3)
             if not (_settled(last[:, 0], SETTLED_SPEED, SETTLED_SPEED_ABS)
                     and _settled(last[:, 2], SETTLED_YAW, SETTLED_YAW_ABS)):
                 continue
-            # the model starts from the settled state; without a propulsion control (rudder_only) it holds the engine
-            # speed of the speed it starts from, so it starts where the commands were first held (the approach speed)
-            k = max(first, end - steady_n) if layout.propulsion else first
-            found.append((rec, first, end, np.array([*rec.nu[k], rec.psi[k]]), rec.controls[first:end].mean(axis=0)))
-    if not found:
-        return []
-    dt = recordings[0].dt
-    settle_n = max(int(round(SETTLE_S / dt)), 2)
-    steady_n = max(int(round(STEADY_S / dt)), 2)
-    states = np.array([f[3] for f in found])  # (B, 4)
-    controls = np.repeat(np.array([f[4] for f in found])[:, None, :], settle_n, axis=1)  # (B, H, C)
-    predicted = rollout(predictor, states, controls).mean(axis=0)[:, -steady_n:, :]  # (B, steady_n, 6)
-    windows = []
-    for (rec, first, end, _, held), pred in zip(found, predicted):
-        measured = rec.nu[max(first, end - steady_n):end].mean(axis=0)  # (3,)
-        steering = float(layout.steering_signal(held))
-        windows.append(SteadyWindow(
-            rec.name, "straight" if abs(steering) < layout.straight_below else "turn",
-            float(rec.t_s[first]), float(rec.t_s[end - 1]), steering, float(layout.propulsion_signal(held)),
-            float(measured[0]), float(pred[:, 0].mean()), float(measured[2]), float(pred[:, 2].mean())))
+            held = rec.controls[first:end].mean(axis=0)  # (C,)
+            steering = float(layout.steering_signal(held))
+            straight = abs(steering) < layout.straight_below
+            # a rudder_only model holds the engine speed of the speed it starts from: it starts where the commands
+            # were first held (the approach speed), as in a turn
+            k = max(first, end - steady_n) if straight and layout.propulsion else first
+            state = np.array([[*rec.nu[k], rec.psi[k]]])  # (1, 4)
+            if straight:
+                controls = np.repeat(held[None, None, :], max(settle_n, end - k), axis=1)  # (1, H, C)
+            else:
+                controls = rec.controls[None, k:end]  # (1, H, C) the recorded commands
+            predicted = rollout(predictor, state, controls).mean(axis=0)[0, -min(steady_n, controls.shape[1]):]
+            measured = last.mean(axis=0)  # (3,)
+            windows.append(SteadyWindow(
+                rec.name, "straight" if straight else "turn", float(rec.t_s[first]), float(rec.t_s[end - 1]),
+                steering, float(layout.propulsion_signal(held)), float(measured[0]), float(predicted[:, 0].mean()),
+                float(measured[2]), float(predicted[:, 2].mean())))
     return windows
 
 
