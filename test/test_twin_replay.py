@@ -41,10 +41,16 @@ def test_dataset_train_evaluate_on_otter_bags(otter_bags: Path, tmp_path: Path, 
     code, err = replay(capsys, "train", dataset, "--output", model, "--vessel", "otter", "--epochs", "2",
                        "--width", "8", "--depth", "1", "--patience", "0")
     assert code == 0, err
+    # a 2-epoch network does not fit the bags: the fit check refuses it, --no-fit-check evaluates it anyway
     code, err = replay(capsys, "evaluate", otter_bags, "--model", model, "--reference", "truth",
-                       "--horizons", "10", "--output", tmp_path / "eval")
+                       "--horizons", "10", "--output", tmp_path / "refused")
+    assert_one_line(code, err, "evaluate", (2,))
+    assert "does not fit these bags" in err and not (tmp_path / "refused").exists()
+    code, err = replay(capsys, "evaluate", otter_bags, "--model", model, "--reference", "truth",
+                       "--horizons", "10", "--no-fit-check", "--output", tmp_path / "eval")
     assert code == 0, err
     result = json.loads((tmp_path / "eval" / "evaluation.json").read_text())
+    assert result["fit_check"]["verdict"] == "mismatch"
     manoeuvres = {r["name"]: r["manoeuvre"] for r in result["recordings"]}
     assert len(manoeuvres) == 2
     for found in manoeuvres.values():

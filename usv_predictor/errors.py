@@ -41,6 +41,11 @@ class EvaluationError(UsvPredictorError):
     """A recording cannot be evaluated as asked (no reference track, no truth, too short); says which."""
 
 
+class FitCheckError(UsvPredictorError):
+    """A model does not fit the bags far beyond what any environmental cause explains (analysis/fit_check.py): its
+    steady speed or yaw rate at the recorded commands, or its length scale, is off; the message names the numbers."""
+
+
 class DiagnosisError(UsvPredictorError):
     """The data cannot support a diagnosis; the message says what data would be needed."""
 

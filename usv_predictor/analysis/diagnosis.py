@@ -13,10 +13,23 @@ log-likelihood ratio of their held-out losses L (mean squared weighted residual)
 penalty is needed. A cause is named only when its evidence over the calm-water model is at least
 EVIDENCE_CAUSE (5: "strong" on the Kass & Raftery scale, 2 ln B > 10) and it removes at least MIN_GAIN of
 its held-out loss; a runner-up that is itself a cause and that the winner beats by less than
-EVIDENCE_CONFOUND is reported as confounded with it. Otherwise the answer is `none`.
+EVIDENCE_CONFOUND is reported as confounded with it.
+
+A cause is also named only when its extension lowers the held-out TRACK error (the mean distance between the
+predicted and the GNSS position at the end of the held-out segments, MIN_TRACK_GAIN): a term that lowers the
+loss by bending the velocities while the predicted track gets worse is no physical cause (run_diagnosis applies
+the same rule to the measured 30 s open-loop gain and withdraws a cause whose extension raises it).
+
+Otherwise the answer is `none` — unless the calm-water model itself does not fit: then it is `model_mismatch`
+(identify the boat first), when the fit check failed (analysis/fit_check.py, the caller passes its reasons), when a
+cause had the evidence of the loss but not of the track (above), or when the best model (the calm-water one with
+the named causes) leaves a held-out loss above MISMATCH_LOSS noise units and more than MISMATCH_SHARE of the
+calm-water model's. The calm-water model's held-out loss
+and track error before any hypothesis are reported beside the answer (Diagnosis.calm_water_fit).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 import warnings
@@ -39,6 +52,14 @@ SIGMA = (0.05, 0.05, 0.005, 1.0, 1.0, 0.01)  # u, v (m/s), r (rad/s), x_n, y_e (
 EVIDENCE_CAUSE = 5.0  # held-out log-likelihood ratio over the calm-water model needed to name a cause
 MIN_GAIN = 0.05  # ... and the share of the calm-water model's held-out loss it must remove
 EVIDENCE_CONFOUND = 2.0  # a winner beating a runner-up cause by less than this is confounded with it
+MIN_TRACK_GAIN = 0.0  # share of the calm-water model's held-out track error (m, at the segment end) a cause must
+#                       remove: a cause whose extension does not lower it is never named
+MISMATCH_LOSS = 25.0  # held-out loss (mean squared error in noise units) the best model may leave ...
+MISMATCH_SHARE = 0.5  # ... unless its causes removed more than half of the calm-water model's: above both, no
+#                       environmental cause explains the data and the answer is model_mismatch (waves of 1.1 m
+#                       leave 27 of 95 after wave_drift: explained; a clean day leaves 0.1)
+MODEL_MISMATCH = "model_mismatch"  # the answer when the calm-water model itself is wrong (identify it first)
+REMEDY = "identify this boat first (docs/your_boat.md)"
 
 
 # Every hypothesis and the grey-box terms (physics.effects.Term) it fits: `none` (none) and each effect record.
@@ -101,8 +122,25 @@ def loss(model: GreyBoxRollout, seg: Segments) -> float:
 
 def segment_losses(model: GreyBoxRollout, seg: Segments) -> np.ndarray:
     """(B,) mean squared weighted residual of each segment."""
-    r = residuals(model, seg)
-    return ((r * r).sum(dim=(1, 2)) / torch.count_nonzero(seg.weight, dim=(1, 2)).clamp(min=1)).numpy()
+    return segment_scores(model, seg)[0]
+
+
+def segment_scores(model: GreyBoxRollout, seg: Segments) -> tuple[np.ndarray, np.ndarray]:
+    """(B,) mean squared weighted residual and (B,) track error (m) of each segment: the distance between the
+    predicted and the GNSS position at the segment's end (NaN without a fix there), from one rollout."""
+    r = residuals(model, seg)  # (B, H, 6)
+    losses = ((r * r).sum(dim=(1, 2)) / torch.count_nonzero(seg.weight, dim=(1, 2)).clamp(min=1)).numpy()
+    end = r[:, -1, 3:5].numpy()  # (B, 2) weighted position residuals at the end
+    weight = seg.weight[:, -1, 3:5].numpy()  # (B, 2) 1/sigma, 0 without a fix
+    with np.errstate(divide="ignore", invalid="ignore"):
+        track = np.where((weight > 0).all(axis=1), np.hypot(*(end / np.where(weight > 0, weight, 1.0)).T), np.nan)
+    return losses, track
+
+
+def _mean_track(track: np.ndarray) -> float:
+    """Mean of the finite segment track errors (m); NaN when no segment ends with a fix."""
+    finite = track[np.isfinite(track)]
+    return float(finite.mean()) if len(finite) else float("nan")
 
 
 def set_terms(model: GreyBoxRollout, values: dict[str, Sequence[float]]) -> None:
@@ -241,6 +279,8 @@ class Evidence:
     evidence_vs_none: float  # held-out log-likelihood ratio over the calm-water model (module docstring)
     evidence_of_best: float  # how clearly the winner beats this hypothesis (0 for the winner)
     fold_parameters: tuple[dict[str, float], ...]  # the physical parameters fitted on each fold
+    heldout_track_error_m: float = float("nan")  # mean held-out position error at the segment end (m)
+    track_gain_vs_none: float = float("nan")  # relative reduction of the calm-water model's held-out track error
 
 
 @dataclass(frozen=True)
@@ -253,6 +293,16 @@ class AddedCause:
     heldout_loss: float
     evidence: float  # held-out log-likelihood ratio over the model with the causes before it
     gain: float  # share of that model's held-out loss it removes
+    track_gain: float = float("nan")  # share of that model's held-out track error it removes
+
+
+@dataclass(frozen=True)
+class CalmWaterFit:
+    """How well the calm-water model fits the held-out data before any hypothesis."""
+
+    heldout_loss: float  # mean squared weighted residual (1 = errors at the noise scale)
+    heldout_track_error_m: float  # mean position error at the end of the held-out segments (m)
+    horizon_s: float  # the segments' length (s)
 
 
 @dataclass(frozen=True)
@@ -268,11 +318,16 @@ class Diagnosis:
     seconds: float = 0.0
     notes: tuple[str, ...] = field(default_factory=tuple)
     additional_causes: tuple[AddedCause, ...] = ()
+    calm_water_fit: CalmWaterFit | None = None
+    mismatch_reasons: tuple[str, ...] = ()  # why the answer is model_mismatch (empty otherwise)
+    best_environmental_cause: str = ""  # with model_mismatch: the cause that would have been named ("" none)
 
     @property
     def hypotheses(self) -> tuple[str, ...]:
         """Every named cause, primary first (what the extended model contains)."""
-        return () if self.cause == "none" else (self.cause, *(a.cause for a in self.additional_causes))
+        if self.cause in ("none", MODEL_MISMATCH):
+            return ()
+        return (self.cause, *(a.cause for a in self.additional_causes))
 
 
 def check_data(recordings: Sequence[Recording]) -> list[str]:
@@ -298,7 +353,7 @@ def check_data(recordings: Sequence[Recording]) -> list[str]:
 def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Sequence[str] | None = None,
              horizon_s: float = 20.0, stride_s: float = 5.0, substeps: int = 1, max_causes: int = 2,
              progress: Callable[[str], None] = lambda _: None, segments: Segments | None = None,
-             rollout: torch.jit.ScriptModule | None = None) -> Diagnosis:
+             rollout: torch.jit.ScriptModule | None = None, fit_mismatch: str = "") -> Diagnosis:
     """Name the cause of what the calm-water grey box gets wrong on these recordings.
 
     After the primary cause, up to max_causes - 1 further ones are added one at a time (forward selection)
@@ -325,77 +380,142 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     folds = _folds(recordings)
     model = rollout if rollout is not None else scripted_rollout(vessel, dt, substeps)
     per_segment: dict[str, np.ndarray] = {}
+    per_track: dict[str, np.ndarray] = {}
     fold_params: dict[str, tuple[dict[str, float], ...]] = {}
-    for name in names:
-        losses, params = [], []
+
+    def heldout(hypothesis: str | Sequence[str]) -> tuple[np.ndarray, np.ndarray, tuple[dict[str, float], ...]]:
+        """Held-out segment losses and track errors of the hypothesis fitted on the other fold, and its parameters."""
+        losses, tracks, params = [], [], []
         for fit_fold, test_fold in ((0, 1), (1, 0)):
-            fit = fit_hypothesis(model, seg.select(np.isin(seg.recording, folds[fit_fold])), name)
-            losses.append(segment_losses(model, seg.select(np.isin(seg.recording, folds[test_fold]))))
-            params.append(physical_parameters(name, fit.terms))
-        per_segment[name], fold_params[name] = np.concatenate(losses), tuple(params)
-        progress(f"{name:15s} held-out loss {per_segment[name].mean():9.3f}")
+            fit = fit_hypothesis(model, seg.select(np.isin(seg.recording, folds[fit_fold])), hypothesis)
+            loss_, track_ = segment_scores(model, seg.select(np.isin(seg.recording, folds[test_fold])))
+            losses.append(loss_)
+            tracks.append(track_)
+            params.append(physical_parameters(hypothesis, fit.terms) if isinstance(hypothesis, str) else {})
+        return np.concatenate(losses), np.concatenate(tracks), tuple(params)
+
+    for name in names:
+        per_segment[name], per_track[name], fold_params[name] = heldout(name)
+        progress(f"{name:15s} held-out loss {per_segment[name].mean():9.3f}, track error after {horizon_s:g} s "
+                 f"{_mean_track(per_track[name]):7.2f} m")
     n_eff = max(len(per_segment["none"]) * stride_s / horizon_s, 2.0)
 
     def evidence_for(a: str, over: str) -> float:
         return 0.5 * n_eff * math.log(max(per_segment[over].mean(), 1e-12) / max(per_segment[a].mean(), 1e-12))
 
+    def track_gain(track: np.ndarray, over: np.ndarray) -> float:
+        before = _mean_track(over)
+        return 1.0 - _mean_track(track) / before if before > 0 else float("nan")
+
+    def lowers_track(gain: float) -> bool:  # without GNSS at the segment ends there is no track to judge by
+        return not math.isfinite(gain) or gain > MIN_TRACK_GAIN
+
     base = per_segment["none"]
+    calm = CalmWaterFit(float(base.mean()), _mean_track(per_track["none"]), float(horizon_s))
     # a hypothesis whose fit diverged (non-finite held-out loss) ranks last, never first (NaN does not sort)
     ranked = sorted(names, key=lambda n: (not math.isfinite(per_segment[n].mean()), per_segment[n].mean()))
     best = ranked[0]
     evidence = tuple(Evidence(n, float(per_segment[n].mean()), float(1.0 - per_segment[n].mean() / base.mean()),
                               evidence_for(n, "none"), 0.0 if n == best else evidence_for(best, n),
-                              fold_params[n]) for n in ranked)
+                              fold_params[n], _mean_track(per_track[n]), track_gain(per_track[n], per_track["none"]))
+                     for n in ranked)
     top = evidence[0]
     cause, confounded, message = "none", (), "the calm-water model explains the held-out data within the noise"
-    if top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CAUSE and top.gain_vs_none >= MIN_GAIN:
+    rejected = ""  # a cause with the evidence of the loss whose extension does not lower the held-out track error
+    strong = top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CAUSE and top.gain_vs_none >= MIN_GAIN
+    if strong and lowers_track(top.track_gain_vs_none):
         cause = top.hypothesis
         confounded = tuple(e.hypothesis for e in evidence[1:] if e.hypothesis != "none"
                            and e.evidence_vs_none >= EVIDENCE_CAUSE and e.evidence_of_best < EVIDENCE_CONFOUND)
         message = (f"{cause} removes {top.gain_vs_none * 100:.0f} % of the calm-water model's held-out error "
-                   f"(evidence {top.evidence_vs_none:.1f})")
+                   f"(evidence {top.evidence_vs_none:.1f}) and {top.track_gain_vs_none * 100:.0f} % of its held-out "
+                   f"track error after {horizon_s:g} s")
         if confounded:
             message += f"; {', '.join(confounded)} explain(s) it almost as well: the data cannot tell them apart"
+    elif strong:
+        rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error (evidence "
+                    f"{top.evidence_vs_none:.1f}) but its extension does not lower the held-out track error after "
+                    f"{horizon_s:g} s ({calm.heldout_track_error_m:.3g} -> {top.heldout_track_error_m:.3g} m): not named")
+        message = rejected
     elif top.hypothesis != "none":
         message = (f"best hypothesis {top.hypothesis} removes {top.gain_vs_none * 100:.1f} % of the held-out error "
                    f"with evidence {top.evidence_vs_none:.1f} (a cause needs >= {EVIDENCE_CAUSE:g} and "
                    f">= {MIN_GAIN * 100:.0f} %): no cause named")
     chosen = [] if cause == "none" else [cause]
     current_loss = per_segment.get(cause, base)
-    added_raw: list[tuple[str, float, float, float]] = []
+    current_track = per_track.get(cause, per_track["none"])
+    added_raw: list[tuple[str, float, float, float, float]] = []
     while chosen and len(chosen) < max_causes:
-        trials = {}
+        trials: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         for name in names:
             if name == "none" or name in chosen or name in confounded:
                 continue
-            losses = []
-            for fit_fold, test_fold in ((0, 1), (1, 0)):
-                fit_hypothesis(model, seg.select(np.isin(seg.recording, folds[fit_fold])), (*chosen, name))
-                losses.append(segment_losses(model, seg.select(np.isin(seg.recording, folds[test_fold]))))
-            trials[name] = np.concatenate(losses)
-            progress(f"{'+'.join((*chosen, name)):30s} held-out loss {trials[name].mean():9.3f}")
-        trials = {n: t for n, t in trials.items() if math.isfinite(t.mean())}  # a diverged fit is no cause
+            losses, tracks, _ = heldout((*chosen, name))
+            trials[name] = (losses, tracks)
+            progress(f"{'+'.join((*chosen, name)):30s} held-out loss {losses.mean():9.3f}, track error "
+                     f"{_mean_track(tracks):7.2f} m")
+        trials = {n: t for n, t in trials.items() if math.isfinite(t[0].mean())}  # a diverged fit is no cause
         if not trials:
             break
-        name = min(trials, key=lambda n: trials[n].mean())
-        gain = 1.0 - trials[name].mean() / current_loss.mean()
-        evidence_added = 0.5 * n_eff * math.log(max(current_loss.mean(), 1e-12) / max(trials[name].mean(), 1e-12))
-        if evidence_added < EVIDENCE_CAUSE or gain < MIN_GAIN:
+        name = min(trials, key=lambda n: trials[n][0].mean())
+        losses, tracks = trials[name]
+        gain = 1.0 - losses.mean() / current_loss.mean()
+        evidence_added = 0.5 * n_eff * math.log(max(current_loss.mean(), 1e-12) / max(losses.mean(), 1e-12))
+        added_track = track_gain(tracks, current_track)
+        if evidence_added < EVIDENCE_CAUSE or gain < MIN_GAIN or not lowers_track(added_track):
             break
         chosen.append(name)
-        added_raw.append((name, float(trials[name].mean()), evidence_added, gain))
-        current_loss = trials[name]
+        added_raw.append((name, float(losses.mean()), evidence_added, gain, added_track))
+        current_loss, current_track = losses, tracks
+
+    # model_mismatch: the calm-water model itself is wrong, so no environmental answer (nor `none`) can be trusted
+    mismatch: list[str] = []
+    if fit_mismatch:
+        mismatch.append(f"the fit check failed ({fit_mismatch})")
+    if rejected:
+        mismatch.append(rejected)
+    if current_loss.mean() > MISMATCH_LOSS and current_loss.mean() > MISMATCH_SHARE * base.mean():
+        best_model = "+".join(chosen) or "the calm-water model"
+        mismatch.append(f"{best_model} leaves a held-out loss of {current_loss.mean():.3g} noise units "
+                        f"(a model that fits leaves <= {MISMATCH_LOSS:g}, or its causes remove more than "
+                        f"{MISMATCH_SHARE:.0%} of the calm-water model's)")
+    best_environmental = cause if cause != "none" else ""
+    if mismatch:
+        message = (f"{MODEL_MISMATCH}: the calm-water model does not fit these bags (held-out loss {calm.heldout_loss:.3g} "
+                   f"noise units, track error {calm.heldout_track_error_m:.3g} m after {horizon_s:g} s before any "
+                   f"hypothesis): {'; '.join(mismatch)}"
+                   + (f"; the best environmental cause would be {best_environmental}" if best_environmental else "")
+                   + f": {REMEDY}")
+        cause, confounded, chosen, added_raw = MODEL_MISMATCH, (), [], []
+    progress(f"calm-water model before any hypothesis: held-out loss {calm.heldout_loss:.3g} noise units, track "
+             f"error {calm.heldout_track_error_m:.3g} m after {horizon_s:g} s")
     final = fit_hypothesis(model, seg, chosen or "none")
     parameters = physical_parameters(cause, final.terms)
     uncertainty = _physical_uncertainty(cause, final)
-    added = tuple(AddedCause(n, physical_parameters(n, final.terms), _physical_uncertainty(n, final), loss_, ev, g)
-                  for n, loss_, ev, g in added_raw)
+    added = tuple(AddedCause(n, physical_parameters(n, final.terms), _physical_uncertainty(n, final), loss_, ev, g, tg)
+                  for n, loss_, ev, g, tg in added_raw)
     if added:
         message += "; further: " + ", ".join(f"{a.cause} (removes {a.gain * 100:.0f} % more, evidence {a.evidence:.1f})"
                                             for a in added)
     return Diagnosis(cause, parameters, uncertainty, confounded, tuple(evidence), final,
                      (tuple(recordings[i].name for i in folds[0]), tuple(recordings[i].name for i in folds[1])),
-                     message, time.perf_counter() - started, tuple(notes), added)
+                     message, time.perf_counter() - started, tuple(notes), added, calm, tuple(mismatch),
+                     best_environmental)
+
+
+def withdraw_causes(diagnosis: Diagnosis, reason: str, model: GreyBoxRollout | torch.jit.ScriptModule,
+                    seg: Segments) -> Diagnosis:
+    """The diagnosis with its named causes withdrawn for `reason` (their extension made the held-out prediction
+    worse, measure_gain): model_mismatch, the calm-water model refitted (no terms) on all segments."""
+    calm = diagnosis.calm_water_fit
+    reasons = (*diagnosis.mismatch_reasons, reason)
+    before = (f" (held-out loss {calm.heldout_loss:.3g} noise units, track error {calm.heldout_track_error_m:.3g} m "
+              f"after {calm.horizon_s:g} s before any hypothesis)") if calm is not None else ""
+    message = (f"{MODEL_MISMATCH}: the calm-water model does not fit these bags{before}: {'; '.join(reasons)}; the best "
+               f"environmental cause would be {'+'.join(diagnosis.hypotheses)}: {REMEDY}")
+    return dataclasses.replace(diagnosis, cause=MODEL_MISMATCH, parameters={}, uncertainty={}, confounded_with=(),
+                               fit=fit_hypothesis(model, seg, "none"), message=message, additional_causes=(),
+                               mismatch_reasons=reasons, best_environmental_cause="+".join(diagnosis.hypotheses))
 
 
 def _folds(recordings: Sequence[Recording]) -> tuple[list[int], list[int]]:

@@ -111,6 +111,16 @@ def write_report(directory: Path, out: dict, recordings: Sequence[Recording], ve
     lines = [f"# Diagnosis: {out['cause']}", "", out["message"] + ".", ""]
     if out["confounded_with"]:
         lines += [f"**Confounded with:** {', '.join(out['confounded_with'])}.", ""]
+    calm = out.get("calm_water_fit")
+    if calm:
+        lines += [f"Calm-water model before any hypothesis: held-out loss {_fmt(calm['heldout_loss'])} (noise units, 1 = "
+                  f"errors at the noise scale), track error {_fmt(calm['heldout_track_error_m'])} m after "
+                  f"{_fmt(calm['horizon_s'])} s.", ""]
+    if out.get("fit_check"):
+        lines += [f"Fit check: {out['fit_check']['verdict']} (speed ratio {_fmt(out['fit_check']['speed_ratio'])}, "
+                  f"yaw-rate ratio {_fmt(out['fit_check']['yaw_rate_ratio'])}).", ""]
+    for reason in out.get("mismatch_reasons", []):
+        lines += [f"> model mismatch: {reason}", ""]
     for note in out["notes"]:
         lines += [f"> {note}", ""]
     lines += ["## Named cause", "", "| parameter | estimate | standard error |", "|---|---|---|"]

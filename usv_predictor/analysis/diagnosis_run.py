@@ -25,6 +25,8 @@ from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.models.greybox import hull_from_metadata, vessel_from_metadata
 from usv_predictor.physics.vessel import Vessel, load_vessel
 
+GAIN_METRIC = "mean_position_error_after_30s_m"  # the held-out error a named cause's extension must lower
+
 
 def calm_water_vessel(vessel: str | None, model: Path | None, config: Path | None = None) -> tuple[Vessel, str]:
     """(the calm-water vessel, where it comes from: "preset" or "identified (<model_id>)").
@@ -55,15 +57,17 @@ def calm_water_vessel(vessel: str | None, model: Path | None, config: Path | Non
 def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, *, dt: float,
                   hypotheses: Sequence[str] | None = None, max_causes: int = 2, horizon_s: float = 20.0,
                   stride_s: float = 5.0, gain: bool = True, export: Path | None = None, report: Path | None = None,
-                  progress: Callable[[str], None] = lambda _: None,
+                  fit_check: bool = True, progress: Callable[[str], None] = lambda _: None,
                   suited_steps: DiagnosisSteps | None = None) -> dict[str, Any]:
     """Diagnose `recordings` (resampled at dt) against the calm-water `vessel` (from `source`).
 
     suited_steps: the steps that suit the vessel (analysis.diagnosis_steps), recorded in the JSON's `steps` with
     the ones used (they differ where the caller gave its own).
-
-    gain: also evaluate the extended model on held-out manoeuvres (when a cause is named); export: write the
-    extended model (TorchScript artifact) there; report: write report.md + plots into that directory.
+    fit_check: refuse (FitCheckError, one line) a calm-water model that does not fit the bags at all
+    (analysis/fit_check.py); False: proceed, the failed check then makes the answer model_mismatch.
+    gain: also evaluate the extended model on held-out manoeuvres (when a cause is named) and withdraw the cause
+    when its extension does not lower the held-out 30 s position error; export: write the extended model
+    (TorchScript artifact) there; report: write report.md + plots into that directory.
     """
     if not recordings:
         raise DatasetError("no usable recording in the bags (see the warnings above)")
@@ -74,12 +78,38 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     if max_causes < 1:
         raise DatasetError(f"--max-causes {max_causes} must be >= 1")
     dg.check_data(recordings)  # its refusals come before those of the segments, as in dg.diagnose
+    from usv_predictor.analysis.fit_check import check_fit, require_fit
+    from usv_predictor.models.loading import physics_predictor
+
+    named = f"the preset {vessel.name}" if source == "preset" else f"the {source} calm-water model of {vessel.name}"
+    fitted = check_fit(physics_predictor(vessel, dt), recordings, vessel=vessel, label=named)
+    progress(fitted.summary())
+    if fit_check:
+        require_fit(fitted)
     segments = dg.make_segments(recordings, horizon_s, stride_s)  # built once: diagnose, discrepancy and gain share
     rollout = dg.scripted_rollout(vessel, dt)  # ... the segments and the compiled grey box
     result = dg.diagnose(recordings, vessel, hypotheses=hypotheses, horizon_s=horizon_s, stride_s=stride_s,
-                         max_causes=max_causes, progress=progress, segments=segments, rollout=rollout)
+                         max_causes=max_causes, progress=progress, segments=segments, rollout=rollout,
+                         fit_mismatch="; ".join(fitted.reasons))
     discrepancy = dg.discrepancy(rollout, segments, recordings)
+    rejected = None
+    if result.hypotheses and gain:
+        progress("measuring the gain on held-out manoeuvres")
+        measured = dg.measure_gain(recordings, vessel, result, horizon_s=horizon_s, segment_stride_s=stride_s,
+                                   segments=segments, rollout=rollout)
+        before = measured["baseline"].get(GAIN_METRIC)
+        after = measured["extended"].get(GAIN_METRIC)
+        if before is not None and after is not None and not after < before:
+            rejected = {"causes": list(result.hypotheses), "baseline": measured["baseline"],
+                        "extended": measured["extended"], "gain": measured["relative_improvement"]}
+            result = dg.withdraw_causes(result, f"the extension with {'+'.join(result.hypotheses)} raises the held-out "
+                                                f"open-loop position error after 30 s from {before:.3g} to {after:.3g} m",
+                                        rollout, segments)
+            measured = None
+    else:
+        measured = None
     progress(f"cause: {result.cause} {result.parameters} — {result.message}")
+    calm = result.calm_water_fit
     out: dict[str, Any] = {
         "cause": result.cause, "parameters": result.parameters, "uncertainty": result.uncertainty,
         "confounded_with": list(result.confounded_with), "message": result.message, "notes": list(result.notes),
@@ -87,22 +117,25 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         # a hypothesis whose fit diverged has a non-finite held-out loss and evidence: written as null (undefined)
         "evidence": [_undefined_as_null(dataclasses.asdict(e)) for e in result.evidence],
         "folds": [list(f) for f in result.folds], "discrepancy": discrepancy,
+        "calm_water_fit": dataclasses.asdict(calm) if calm is not None else None,
+        "fit_check": fitted.to_json(), "mismatch_reasons": list(result.mismatch_reasons),
+        "best_environmental_cause": result.best_environmental_cause, "rejected_extension": rejected,
         "calm_water_model": {"vessel": vessel.name, "source": source},
         "recordings": [{"name": r.name, "source": r.source, "duration_s": r.duration_s} for r in recordings],
         "seconds": result.seconds,
         "steps": {"dt_s": dt, "horizon_s": horizon_s, "stride_s": stride_s,
                   "suited": None if suited_steps is None else suited_steps.to_json()},
     }
-    if result.cause != "none" and gain:
-        progress("measuring the gain on held-out manoeuvres")
-        measured = dg.measure_gain(recordings, vessel, result, horizon_s=horizon_s, segment_stride_s=stride_s,
-                                   segments=segments, rollout=rollout)
+    if measured is not None:
         out.update(baseline=measured["baseline"], extended=measured["extended"], gain=measured["relative_improvement"])
         per_recording = measured["per_recording"]
     else:
         out.update(baseline=None, extended=None, gain={})
         per_recording = None
-    if export is not None:
+    if export is not None and result.cause == dg.MODEL_MISMATCH:
+        out["exported_model"] = None
+        progress(f"no model written to {export}: the calm-water model does not fit ({dg.MODEL_MISMATCH}); {dg.REMEDY}")
+    elif export is not None:
         artifact = dg.export_extended(export, vessel, result, dt)
         out["exported_model"] = {"path": str(export), "model_id": artifact.model_id}
         progress(f"extended model written to {export} ({artifact.model_id})")

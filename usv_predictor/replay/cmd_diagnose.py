@@ -4,7 +4,11 @@ model and its measured gain on held-out manoeuvres (usv_predictor.analysis.diagn
 JSON result: cause, parameters (DESIGN.md vocabulary and units), uncertainty, confounded_with, additional_causes
 (further causes added one at a time while the evidence holds, with their parameters), evidence (every
 hypothesis: held-out loss, gain, log-likelihood evidence, per-fold parameters), discrepancy (what the calm-water
-model gets wrong), baseline / extended / gain (evaluation metrics on held-out manoeuvres), notes.
+model gets wrong), baseline / extended / gain (evaluation metrics on held-out manoeuvres), notes, calm_water_fit (the
+calm-water model's held-out loss and track error before any hypothesis), fit_check (analysis/fit_check.py: a model
+that does not fit the bags at all is refused, exit 2, unless --no-fit-check), mismatch_reasons and
+best_environmental_cause (cause model_mismatch: the calm-water model itself is wrong, identify it first),
+rejected_extension (causes withdrawn because their extension raised the held-out 30 s position error).
 The work: usv_predictor.replay.diagnose and usv_predictor.analysis.diagnosis_run.
 """
 from __future__ import annotations
@@ -47,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--report", type=Path, default=None, metavar="DIR", help="write report.md + plots into DIR")
     parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
     add_config_argument(parser)
+    parser.add_argument("--no-fit-check", action="store_true",
+                        help="proceed when the calm-water model does not fit the bags at all (its steady speed or yaw "
+                             "rate at the recorded commands is far off): the answer is then model_mismatch")
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -55,4 +62,5 @@ def run(args: argparse.Namespace) -> dict:
     return diagnose_bags(args.bags, vessel=args.vessel, model=args.model, dt=args.dt, hypotheses=args.hypotheses,
                          max_causes=args.max_causes, horizon_s=args.horizon, stride_s=args.stride,
                          gain=not args.no_gain, export=args.export, report=args.report,
-                         include_calm=args.include_calm, config=args.config, progress=log)
+                         include_calm=args.include_calm, config=args.config, fit_check=not args.no_fit_check,
+                         progress=log)

@@ -6,6 +6,9 @@ manoeuvring model of a vessel preset instead: the physics baseline a learned mod
 Prints one row per test (turning radius eq. 29, drift direction eq. 28, drift distance eq. 27, open-loop error),
 writes the full result with --json and, with --output DIR, evaluation.json plus the time series
 (evaluation_series.npz) that `replay report DIR/evaluation.json` draws from. Bags are only read.
+A model that does not fit the bags at all (its steady speed or yaw rate at the recorded commands, or its length
+scale: usv_predictor.analysis.fit_check) is refused in one line (exit 2) unless --no-fit-check; the check is in the
+JSON (`fit_check`).
 The work: usv_predictor.replay.evaluate.
 """
 from __future__ import annotations

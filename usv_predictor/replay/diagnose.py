@@ -9,7 +9,7 @@ from typing import Any
 def diagnose_bags(bags: Sequence[Path], *, vessel: str | None = None, model: Path | None = None,
                   dt: float | None = None, hypotheses: Sequence[str] | None = None, max_causes: int = 2,
                   horizon_s: float | None = None, stride_s: float | None = None, gain: bool = True, export: Path | None = None, report: Path | None = None,
-                  include_calm: bool = False, config: Path | None = None,
+                  include_calm: bool = False, config: Path | None = None, fit_check: bool = True,
                   progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """The calm-water model (preset `vessel` or grey-box artifact `model`), the bags' recordings at step dt
     (topics of the predictor config `config`), and the diagnosis run on them (run_diagnosis: the arguments).
@@ -28,4 +28,4 @@ def diagnose_bags(bags: Sequence[Path], *, vessel: str | None = None, model: Pat
                                  progress=progress, layout=calm_water.actuator_layout)
     return run_diagnosis(recordings, calm_water, source, dt=dt, hypotheses=hypotheses, max_causes=max_causes,
                          horizon_s=horizon_s, stride_s=stride_s, gain=gain, export=export, report=report,
-                         progress=progress, suited_steps=suited)
+                         fit_check=fit_check, progress=progress, suited_steps=suited)

@@ -42,6 +42,7 @@ class EvaluationRequest:
     config: Path | None = None  # predictor.yaml with the input topics (None: the shipped one)
     vessel: str | None = None  # preset the bags were recorded on (its actuator layout); None: the model's, else the config's
     adaptive: bool = False  # also run the online estimator and the adaptive open loop (analysis/adaptive.py)
+    fit_check: bool = True  # refuse a model that does not fit the bags at all (analysis/fit_check.py)
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(x) and x > 0.0 for x in (self.stride_s, *self.horizons_s)):
@@ -117,11 +118,18 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
                                  warn=lambda m: progress(f"warning: {m}"), progress=progress, layout=layout)
     if not recordings:
         raise BagError(f"no usable recording in {', '.join(map(str, bags))} (see the warnings above)")
+    check = model_fit_check(model, recordings)
+    progress(check.summary())
+    if request.fit_check:
+        from usv_predictor.analysis.fit_check import require_fit
+
+        require_fit(check)
     result = evaluation.evaluate(model, recordings, request.reference, tuple(request.horizons_s), request.stride_s,
                                  progress=progress)
     if request.adaptive:
         result.extra["adaptive"] = adaptive_section(model, recordings, request, progress)
     result.extra.update({
+        "fit_check": check.to_json(),
         "generated_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "software_version": __version__,
         "model_source": request.model or str(loading.default_model_path()),
@@ -161,6 +169,23 @@ def adaptive_section(model: object, recordings: Sequence[object], request: Evalu
         "summary": adaptive.summarise(runs, tuple(request.horizons_s)),
         "recordings": [run.to_json(recording.dt) for run, recording in zip(runs, recordings)],
     }
+
+
+def model_fit_check(model, recordings: Sequence) -> Any:
+    """The fit check (usv_predictor.analysis.fit_check) of a loaded model on the recordings, with its vessel's length
+    and top speed when the vessel its metadata names is a preset here (an unknown vessel: speeds and yaw rates only)."""
+    from usv_predictor.analysis.fit_check import check_fit
+    from usv_predictor.physics.vessel import load_vessel
+
+    meta = model.metadata
+    try:
+        vessel = load_vessel(str(meta.get("vessel")))
+    except ConfigError:
+        vessel = None
+    physics = str(meta.get("model_type", "")).startswith("physics")
+    label = (f"the preset {meta.get('vessel')}" if physics
+             else f"model {meta.get('model_id', '?')} ({meta.get('model_type', '?')}, vessel {meta.get('vessel', '?')})")
+    return check_fit(model, recordings, vessel=vessel, label=label)
 
 
 def save_evaluation(result: EvaluationResult, directory: Path) -> dict:

@@ -62,6 +62,12 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
     if not recordings:
         raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
     result = identification.identify(preset, recordings, structure=structure, prior=prior, progress=progress)
+    from usv_predictor.fitting.candidates import candidate_scores, cv_warning
+
+    candidates = candidate_scores(preset, list(result.data), result)
+    warning = cv_warning(candidates)
+    if warning:
+        progress(f"warning: {warning}")
     digest = identification.data_digest(recordings)
     hybrid_info = None
     if hybrid:
@@ -75,7 +81,8 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
              f"{result.structure})")
     out: dict[str, Any] = {"model": str(output), "model_id": artifact.model_id,
                            "model_type": artifact.metadata["model_type"], "training_data_sha256": digest,
-                           "identification": result.to_json(), "hybrid": hybrid_info}
+                           "identification": result.to_json(), "hybrid": hybrid_info,
+                           "cv_candidates": [c.to_json() for c in candidates], "cv_warning": warning}
     if validation:
         paths = sorted(Path(p) for p in glob.glob(validation))
         if not paths:

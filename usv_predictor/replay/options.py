@@ -89,6 +89,9 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                         help="vessel preset the bags were recorded on: its actuator layout says which control topics "
                              "are read and must be the model's control_layout (default: the model's vessel, else "
                              "the config's)")
+    parser.add_argument("--no-fit-check", action="store_true",
+                        help="evaluate even when the model does not fit the bags at all (its steady speed or yaw rate "
+                             "at the recorded commands, or its length scale, is far off: refused otherwise)")
 
 
 def evaluation_request(args: argparse.Namespace, bags: Sequence[Path]) -> EvaluationRequest:
@@ -96,4 +99,4 @@ def evaluation_request(args: argparse.Namespace, bags: Sequence[Path]) -> Evalua
     return EvaluationRequest(bags=tuple(bags), model=args.model, dt=args.dt, reference=args.reference,
                              horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm,
                              config=args.config, vessel=args.vessel,
-                             adaptive=bool(getattr(args, "adaptive", False)))
+                             adaptive=bool(getattr(args, "adaptive", False)), fit_check=not args.no_fit_check)

@@ -1,0 +1,203 @@
+"""The fit check (usv_predictor.analysis.fit_check): refuse a model that cannot describe the bags, pass every model on
+its own bags, whatever the hidden effect, for every actuator layout."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+import yaml
+
+from usv_predictor.analysis.fit_check import SPEED_RATIO_LIMIT, YAW_RATE_RATIO_LIMIT, check_fit
+from usv_predictor.data.recording import recording_from_signals
+from usv_predictor.models.loading import physics_predictor
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.manoeuvres import programme
+from usv_predictor.physics.sensors import measure
+from usv_predictor.physics.simulator import simulate
+from usv_predictor.physics.vessel import load_vessel, vessel_dir, vessel_from_dict
+from usv_predictor.replay.cli import main
+from usv_predictor.replay.recordings import load_recordings
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def raw_preset(name: str) -> dict:
+    return yaml.safe_load((vessel_dir() / f"{name}.yaml").read_text())
+
+
+def scaled_preset(name: str, new_name: str, scale: float, *, froude_actuators: bool) -> dict:
+    """Preset `name` with every length times `scale` (areas scale^2, mass scale^3; non-dimensional coefficients kept).
+    froude_actuators: engine speeds / sqrt(scale), rates / sqrt(scale) and time constants * sqrt(scale) (the
+    Froude-similar ship); otherwise the actuators are left as they are (another boat with the same engine)."""
+    raw = raw_preset(name)
+    g = raw["geometry"]
+    for key in ("L_pp", "L_oa", "B", "d", "x_G"):
+        g[key] *= scale  # (m)
+    g["displacement_kg"] *= scale ** 3  # (kg)
+    raw["propeller"]["D_P"] *= scale  # (m)
+    raw["rudder"]["A_R"] *= scale ** 2  # (m^2)
+    for key in ("A_F", "A_L"):
+        raw["windage"][key] *= scale ** 2  # (m^2)
+    if froude_actuators:
+        a, root = raw["actuators"], math.sqrt(scale)
+        a["rpm_min"], a["rpm_max"] = a["rpm_min"] / root, a["rpm_max"] / root  # (rpm)
+        a["rudder_rate_deg_s"] /= root  # (deg/s)
+        a["rudder_time_constant_s"] *= root  # (s)
+        a["engine_time_constant_s"] *= root  # (s)
+    raw["name"] = new_name
+    return raw
+
+
+def write_vessel(tmp_path: Path, raw: dict) -> Path:
+    path = tmp_path / f"{raw['name']}.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return path
+
+
+def small_single_screw(tmp_path: Path) -> Path:
+    """A 4.5 m single-screw USV: the jari_usv hull at one third of its size, with the same engine (so 700 rpm drives
+    it at about 2 m/s, where the 15 m preset runs at 5.9 m/s)."""
+    return write_vessel(tmp_path, scaled_preset("jari_usv", "usv_4m5", 4.5 / 13.5, froude_actuators=False))
+
+
+def trial(vessel, env: Environment = Environment()) -> list:
+    """The diagnosis programme of the vessel's layout, simulated and measured (recordings at 0.5 s)."""
+    model = ManoeuvringModel(vessel)
+    recordings = []
+    for k, manoeuvre in enumerate(programme("diagnosis", vessel.actuator_layout)):
+        traj = simulate(model, manoeuvre, env, heading_deg=50.0 * k, seed=k)
+        recordings.append(recording_from_signals(measure(traj, env, seed=20 + k), 0.5, name=manoeuvre.name,
+                                                 layout=vessel.actuator_layout))
+    return recordings
+
+
+def run(*argv: str) -> int:
+    return main([str(a) for a in argv])
+
+
+# ---- what must pass --------------------------------------------------------------------------------------------
+
+def test_the_shipped_bags_fit_their_own_preset():
+    vessel = load_vessel("jari_usv")
+    for bags in ("sea_trial", "training"):  # simulated with current, wind and waves: they still fit
+        check = check_fit(physics_predictor(vessel, 0.5), load_recordings([ROOT / "bags" / bags], 0.5), vessel=vessel)
+        assert check.verdict == "fits", check.summary()
+        assert check.speed_windows == "straight" and abs(check.speed_ratio - 1.0) < 0.1
+        assert abs(check.yaw_rate_ratio - 1.0) < 0.1
+        assert check.froude_measured == pytest.approx(check.froude_model, rel=0.1)
+        assert check.froude_scale == pytest.approx(1.0, abs=0.2)
+
+
+VARIANT_THROTTLE = {"forward_N": 9000.0, "reverse_N": 3500.0, "exponent": 2.0, "dead_band": 0.05,  # (N), (N), (-), (-)
+                    "time_constant_s": 1.2}  # (s)
+
+
+def layout_variants() -> dict:
+    """One vessel per actuator layout (the jari hull as each rudder layout, the Otter for twin thrusters)."""
+    jari = raw_preset("jari_usv")
+    return {
+        "rudder_propeller": load_vessel("jari_usv"),
+        "rudder_throttle": vessel_from_dict({**jari, "actuator_layout": "rudder_throttle",
+                                             "throttle": VARIANT_THROTTLE}, "jari as rudder_throttle"),
+        "rudder_only": vessel_from_dict({**jari, "actuator_layout": "rudder_only"}, "jari as rudder_only"),
+        "twin_thrusters": load_vessel("otter"),
+    }
+
+
+@pytest.mark.parametrize("layout", ["rudder_propeller", "rudder_throttle", "rudder_only", "twin_thrusters"])
+def test_every_layout_fits_its_own_bags_and_a_slower_turner_is_refused(layout):
+    from usv_predictor.physics.actuators import ACTUATOR_LAYOUTS
+
+    assert set(ACTUATOR_LAYOUTS) == {"rudder_propeller", "rudder_throttle", "rudder_only", "twin_thrusters"}
+    vessel = layout_variants()[layout]
+    recordings = trial(vessel)
+    own = check_fit(physics_predictor(vessel, 0.5), recordings, vessel=vessel)
+    assert own.verdict == "fits", own.summary()
+    assert abs(own.yaw_rate_ratio - 1.0) < 0.15
+    if layout == "rudder_only":  # the model holds the speed it starts from: no speed to compare
+        assert own.speed_ratio is None
+    else:
+        assert abs(own.speed_ratio - 1.0) < 0.1
+    # a model that turns far too slowly for the recorded turn commands: eight times the yaw damping of the MMG hull,
+    # a tenth of the twin's thruster spacing (a tenth of the yaw moment of a thrust difference)
+    import dataclasses
+
+    if vessel.hull_model_name == "mmg":
+        stiff = dataclasses.replace(vessel, hull=dataclasses.replace(vessel.hull, N_r=vessel.hull.N_r * 8.0))
+    else:
+        stiff = dataclasses.replace(vessel, thrusters=dataclasses.replace(vessel.thrusters,
+                                                                          spacing=vessel.thrusters.spacing / 10.0))
+    wrong = check_fit(physics_predictor(stiff, 0.5), recordings, vessel=stiff)
+    assert wrong.verdict == "mismatch" and wrong.yaw_rate_ratio < 1.0 / YAW_RATE_RATIO_LIMIT, wrong.summary()
+    assert "deg/s for a held turn command" in wrong.refusal()
+
+
+# the hidden-effect suite's effects at the top of their ranges (and beyond: a 0.6 m/s current, 15 m/s wind) all pass
+@pytest.mark.parametrize("flags", [
+    ["--effect", "current", "--current-speed", "0.6", "--current-to", "30"],
+    ["--effect", "wind", "--wind-speed", "15", "--wind-from", "100"],
+    ["--effect", "wave_drift", "--wave-height", "1.5", "--wave-from", "45"],
+    ["--effect", "rudder_offset", "--rudder-offset", "-4"],
+    ["--effect", "yaw_rate_bias", "--yaw-rate-bias", "1"],
+    ["--effect", "propeller_asymmetry", "--propeller-side-force-pct", "6"],
+], ids=["current", "wind", "waves", "rudder_offset", "yaw_rate_bias", "propeller_asymmetry"])
+def test_no_hidden_effect_fails_the_check(tmp_path, flags):
+    bags = tmp_path / "bags"
+    assert run("simulate", "--programme", "diagnosis", *flags, "--seed", "5", "--heading", "37", "--output", bags) == 0
+    vessel = load_vessel("jari_usv")
+    check = check_fit(physics_predictor(vessel, 0.5), load_recordings([bags], 0.5), vessel=vessel)
+    assert check.verdict == "fits", check.summary()
+    if check.speed_ratio is not None:  # measured: within 5 % (README "Fit check")
+        assert abs(check.speed_ratio - 1.0) < 0.1 < SPEED_RATIO_LIMIT - 1.0
+    if check.yaw_rate_ratio is not None:
+        assert abs(check.yaw_rate_ratio - 1.0) < 0.1
+
+
+# ---- what must be refused: the issue's two cases -----------------------------------------------------------------
+
+def test_a_small_boat_diagnosed_with_the_default_preset_is_refused_in_one_line(tmp_path, capsys):
+    boat = small_single_screw(tmp_path)
+    bags = tmp_path / "bags"
+    assert run("simulate", "--programme", "diagnosis", "--vessel", boat, "--effect", "current", "--current-speed",
+               "0.3", "--seed", "3", "--blind", "--output", bags) == 0
+    capsys.readouterr()
+    assert run("diagnose", bags) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("replay diagnose: error: the preset jari_usv does not fit these bags: it runs at 5.5 m/s at "
+                          "650 rpm, these bags at "), err
+    measured = float(err.split("these bags at ")[1].split(" m/s")[0])
+    assert 1.6 < measured < 2.3  # (m/s) the small boat's 1.8 m/s at 650 rpm, +-0.3 m/s of current over ground
+    assert "identify this boat first (docs/your_boat.md)" in err and "--no-fit-check" in err
+    # the expert proceeds: the answer is model_mismatch, never a confident environmental cause or `none`
+    out = tmp_path / "d.json"
+    assert run("diagnose", bags, "--no-fit-check", "--no-gain", "--hypotheses", "current", "resistance",
+               "--max-causes", "1", "--json", out) == 0
+    result = json.loads(out.read_text())
+    assert result["cause"] == "model_mismatch" and result["parameters"] == {}
+    assert result["fit_check"]["verdict"] == "mismatch" and result["fit_check"]["speed_ratio"] > SPEED_RATIO_LIMIT
+    assert any("fit check failed" in r for r in result["mismatch_reasons"])
+    assert result["calm_water_fit"]["heldout_loss"] > 1.0
+    assert "identify this boat first" in result["message"]
+
+
+def test_the_kvlcc2_model_evaluated_on_full_scale_bags_is_refused(tmp_path, capsys):
+    ship = write_vessel(tmp_path, scaled_preset("kvlcc2_model", "kvlcc2_full_scale", 45.714, froude_actuators=True))
+    bags = tmp_path / "bags"
+    for side in ("starboard", "port"):
+        assert run("simulate", "--vessel", ship, "--manoeuvre", "turning-circle", "--rudder", "35", "--rpm", "76",
+                   "--side", side, "--duration", "400", "--seed", "4", "--output", bags) == 0
+    capsys.readouterr()
+    assert run("evaluate", bags, "--model", "physics:kvlcc2_model") == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("replay evaluate: error: the preset kvlcc2_model does not fit these bags: it runs at 0.69 "
+                          "m/s at 76 rpm, these bags at 5.8 m/s"), err
+    assert "times its top speed" in err and "Froude-similar to a hull" in err and "docs/your_boat.md" in err
+    out = tmp_path / "e.json"
+    assert run("evaluate", bags, "--model", "physics:kvlcc2_model", "--no-fit-check", "--json", out) == 0
+    assert json.loads(out.read_text())["fit_check"]["verdict"] == "mismatch"
+    # its own (full-scale) description fits the same bags
+    vessel = load_vessel(ship)
+    assert check_fit(physics_predictor(vessel, 0.5), load_recordings([bags], 0.5), vessel=vessel).verdict == "fits"
