@@ -253,3 +253,19 @@ def test_rudder_only_estimates_the_engine_speed_of_each_manoeuvre(tmp_path):
     assert np.sqrt(np.mean((pred[0, 0, :, 2] - rec.truth[1:, 5]) ** 2)) < 0.2 * np.abs(rec.truth[:, 5]).max()
     with pytest.raises(Exception, match=r"controls \(B, H, 1\)"):
         art.predict(rec.state()[:1], np.zeros((1, 5, 2)))
+
+
+def test_the_cv_candidates_of_a_small_craft_are_its_own_structures(otter):
+    """identify's comparison of every structure x prior (fitting/candidates.py) refits a small-craft hull with the
+    small-craft regression (it crashed on the MMG one: a small craft has no R0)."""
+    from usv_predictor.fitting.candidates import candidate_scores
+
+    vessel, recordings, _ = otter
+    result = idf.identify(vessel, recordings, structure="diagonal", prior="fix")
+    candidates = candidate_scores(vessel, list(result.data), result)
+    assert {(c.structure, c.prior) for c in candidates} == {(s, p) for s in ("diagonal", "coupled") for p in idf.PRIORS}
+    chosen = [c for c in candidates if c.chosen]
+    assert [(c.structure, c.prior) for c in chosen] == [("diagonal", "fix")]
+    assert chosen[0].score == pytest.approx(result.cross_validation[0].score)
+    coupled_fix = next(c for c in candidates if (c.structure, c.prior) == ("coupled", "fix"))
+    assert coupled_fix.score is not None and 0.0 < coupled_fix.score < 1.0  # the otter's forces are predicted

@@ -15,9 +15,10 @@ from typing import Sequence
 import numpy as np
 
 from usv_predictor.errors import UsvPredictorError
+from usv_predictor.fitting import small_craft_identification as small_craft
 from usv_predictor.fitting.identification import (
     PRIORS,
-    STRUCTURES,
+    STRUCTURES_OF,
     ForceData,
     IdentificationResult,
     cross_validate,
@@ -43,14 +44,22 @@ def candidate_scores(vessel: Vessel, data: Sequence[ForceData], result: Identifi
     """Every structure x prior on the same hull forces (the chosen one from `result`, the others refitted)."""
     chosen = (result.structure, result.fit.prior_policy)
     computed = {cv.structure: cv.score for cv in result.cross_validation}
+    hull_model = vessel.hull_model_name
+
+    def refit_score(structure: str, prior: str) -> float:  # the hull model's own regression and cross-validation
+        if hull_model == "small_craft":
+            return small_craft.cross_validate(vessel, data,
+                                              small_craft.fit_small_craft(vessel, data, structure, prior)).score
+        return cross_validate(vessel, data, fit_hull(vessel, data, structure, prior, u0=result.fit.u0)).score
+
     out = []
-    for structure in STRUCTURES:
+    for structure in STRUCTURES_OF[hull_model]:
         for prior in PRIORS:
             if (structure, prior) == chosen or (prior == chosen[1] and structure in computed):
                 score: float | None = computed[structure]
             else:
                 try:
-                    score = cross_validate(vessel, data, fit_hull(vessel, data, structure, prior, u0=result.fit.u0)).score
+                    score = refit_score(structure, prior)
                 except (UsvPredictorError, np.linalg.LinAlgError):  # prior none refuses what the data cannot
                     score = None                                   # determine; a singular design has no score
                 if score is not None and not math.isfinite(score):
