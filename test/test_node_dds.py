@@ -426,3 +426,62 @@ def test_the_node_process_stops_on_a_signal(signal_name: str) -> None:
         rclpy.try_shutdown(context=context)
         if process.poll() is None:
             process.kill()
+
+
+# ----------------------------------------------------------------------------- a rudder boat without rpm (issue 10)
+
+RUDDER_THROTTLE = "jari_rudder_throttle"  # jari_usv as rudder_throttle (test_norpm_pipeline.write_vessel)
+
+
+@pytest.fixture(scope="module")
+def rudder_throttle_presets(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
+    """(preset directory, bag, grey box): the node's `vessel` is a preset name, so the jari_usv variant sits in a
+    copy of config/vessels (the tests point physics.vessel.vessel_dir at it); a turning circle of it (10 s approach,
+    throttle 0.6, 20 deg) simulated from its file; its calm-water grey box exported."""
+    import shutil
+
+    from test_norpm_pipeline import write_vessel
+    from usv_predictor.models.greybox import GreyBoxRollout, greybox_metadata
+    from usv_predictor.physics.vessel import vessel_dir
+    from usv_predictor.replay.simulate import SimulationRequest, simulate
+
+    root = tmp_path_factory.mktemp("rudder_throttle")
+    presets = root / "vessels"
+    shutil.copytree(vessel_dir(), presets)
+    vessel_file = write_vessel(presets, "rudder_throttle")
+    assert vessel_file.stem == RUDDER_THROTTLE
+    summary = simulate(SimulationRequest(output=root / "bags", vessel=str(vessel_file), manoeuvre="turning-circle",
+                                         rudder_deg=20.0, throttle=0.6, duration_s=20.0, dt=0.1))
+    vessel = load_vessel(vessel_file)
+    rollout = GreyBoxRollout(vessel, dt=DT)
+    model = root / "rudder_throttle_greybox.pt"
+    export_module(model, rollout, greybox_metadata(vessel, rollout, horizon_steps=int(OTTER_HORIZON_S / DT)))
+    return presets, Path(summary["bags"][0]["bag"]), model
+
+
+def test_rudder_throttle_node_predictions_equal_replay_evaluate(ros_context: Context, rudder_throttle_presets,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """A rudder boat that logs its throttle command, not its rpm: the node subscribes to rudder and throttle only
+    (engine_rpm and the thrusters are ignored and said so), and its Paths equal the grey box's prediction (the
+    throttle through the motor lag and the thrust map) on the Recording `replay evaluate` builds from the bag."""
+    from usv_predictor.physics import vessel as vessel_module
+
+    presets, bag, model = rudder_throttle_presets
+    monkeypatch.setattr(vessel_module, "vessel_dir", lambda: presets)
+    layout = load_vessel(RUDDER_THROTTLE).actuator_layout
+    assert layout.name == "rudder_throttle"
+    recording = load_recordings([bag], DT, jobs=1, warn=lambda _: None, layout=layout)[0]
+    overrides = (Parameter("vessel", value=RUDDER_THROTTLE), Parameter("model_path", value=str(model)),
+                 Parameter("horizon_s", value=OTTER_HORIZON_S), Parameter("ensemble_size", value=1),
+                 Parameter("online.enabled", value=False))
+    node, paths, velocities, _, sent = lockstep(ros_context, bag, recording, seconds=OTTER_SECONDS,
+                                                overrides=overrides)
+    assert sorted(node.inputs.tracks) == ["gnss", "heading", "imu", "rudder_angle", "throttle", "velocity"]
+    assert sorted(node.ignored) == ["engine_rpm", "thruster_port", "thruster_starboard"]
+    assert node.published >= 20 and len(paths) == node.published
+    assert sum(track.received for track in node.inputs.tracks.values()) == sent
+    assert all(not track.rejected for track in node.inputs.tracks.values())
+    steps = int(OTTER_SECONDS / DT) - 2
+    assert np.ptp(recording.controls[:steps, 0]) > math.radians(15.0)  # straight, then the rudder over
+    assert np.median(recording.controls[:steps, 1]) == pytest.approx(0.6, abs=0.01)  # the throttle column
+    check_equal_to_replay(node, recording, paths, velocities, horizon_steps=int(OTTER_HORIZON_S / DT))

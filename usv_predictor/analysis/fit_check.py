@@ -239,8 +239,9 @@ def check_fit(predictor: Predictor, recordings: Sequence[Recording], *, vessel: 
     usable = [w for w in windows if w.measured_speed_mps >= MIN_SPEED]
     straight = [w for w in usable if w.kind == "straight"]
     speed_set, speed_kind = (straight, "straight") if straight else (usable, "turn" if usable else "")
-    if not layout.propulsion:  # rudder_only: the model holds the speed it starts from (its engine speed is fitted)
-        speed_set, speed_kind = [], ""
+    if not layout.propulsion:  # rudder_only: the engine speed is the model's own; straight running from the
+        # approach speed holds that speed in a right model (a grey box by construction), turns say nothing of it
+        speed_set, speed_kind = (straight, "straight") if straight else ([], "")
     speed_ratio = None
     if speed_set:
         speed_ratio = float(np.median([w.predicted_speed_mps / w.measured_speed_mps for w in speed_set]))
