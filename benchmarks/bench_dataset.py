@@ -24,8 +24,8 @@ from pathlib import Path
 
 from rosbags.highlevel import AnyReader
 
-from usv_predictor.replay.bagio import jazzy_typestore, read_bag
 from msg_adapters.cdr import decode_many
+from usv_predictor.replay.bagio import jazzy_typestore, read_bag
 from usv_predictor.replay.cli import main as replay_main
 from usv_predictor.replay.recordings import default_jobs, find_bags, topic_specs
 

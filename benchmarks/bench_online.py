@@ -70,14 +70,14 @@ def node_share(cycles: int) -> None:
     import os
     import tempfile
 
+    import torch
+
     from usv_predictor.fitting.online import OnlineConfig
     from usv_predictor.models.artifact import export_module, load_artifact
     from usv_predictor.models.greybox import greybox_predictor
     from usv_predictor.models.loading import default_model_path
     from usv_predictor.node.live import LiveState, Rollout
     from usv_predictor.node.sea import LiveSea
-
-    import torch
 
     torch.set_num_threads(1)  # as the node's main()
     vessel = load_vessel("jari_usv")

@@ -51,6 +51,7 @@ def ros_context(monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
     (the node tests; rclpy is imported here, not when a test without ROS collects this file)."""
     import rclpy
     from rclpy.context import Context
+
     from ros_helpers import domain_id
 
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")

@@ -9,12 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from replay_helpers import bag_streams, write_variant
 
 from usv_predictor.replay import cli
 from usv_predictor.replay.bagio import absolute_topic, resolve_topic
 from usv_predictor.replay.recordings import bag_metadata, load_recordings
-
-from replay_helpers import bag_streams, write_variant
 
 
 def test_names_resolve_in_the_root_namespace() -> None:

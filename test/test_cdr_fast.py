@@ -12,8 +12,8 @@ from rosbags.interfaces import Nodetype
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
-from usv_predictor.errors import BagError
 from msg_adapters.cdr import decode_many, has_fast_layout, supported_types
+from usv_predictor.errors import BagError
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 

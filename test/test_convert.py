@@ -396,8 +396,8 @@ def test_dalian_port_is_pwm_l_and_turns_to_starboard(dalian):
 
 
 def test_dalian_bag_round_trip(dalian, tmp_path):
-    from usv_predictor.replay.recordings import load_recordings
     from usv_predictor.physics.actuators import actuator_layout
+    from usv_predictor.replay.recordings import load_recordings
 
     m = dalian["dalian_sine"]
     specs = _specs()

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from replay_helpers import assert_one_line, bag_streams, digest, leftovers, replay, write_variant
 
 from usv_predictor.models.artifact import export_module, read_metadata
 from usv_predictor.physics.scenario import EFFECTS
@@ -35,8 +36,6 @@ from usv_predictor.records import Signal
 from usv_predictor.replay import cli
 from usv_predictor.replay.bagio import TopicSpec
 from usv_predictor.replay.options import NUMBER_TYPES
-
-from replay_helpers import assert_one_line, bag_streams, digest, leftovers, replay, write_variant
 
 SEED = 12
 REPO = Path(__file__).resolve().parents[1]

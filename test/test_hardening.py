@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from replay_helpers import assert_one_line, bag_streams, digest, leftovers, replay, write_variant
 
 from msg_adapters import ROLE_FIELDS
 from usv_predictor.atomic import check_outputs, jsonable, write_json_atomic
@@ -29,8 +30,6 @@ from usv_predictor.records import Signal
 from usv_predictor.replay import cli
 from usv_predictor.replay.options import NUMBER_TYPES
 from usv_predictor.replay.recordings import clean_signal
-
-from replay_helpers import assert_one_line, bag_streams, digest, leftovers, replay, write_variant
 
 REPO = Path(__file__).resolve().parents[1]
 BAGS = REPO / "bags"

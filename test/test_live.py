@@ -14,8 +14,8 @@ from usv_predictor.data.recording import NS
 from usv_predictor.errors import ModelError
 from usv_predictor.models.artifact import load_artifact
 from usv_predictor.node import live
-from usv_predictor.replay.bagio import read_bag
 from usv_predictor.physics.vessel import load_vessel
+from usv_predictor.replay.bagio import read_bag
 from usv_predictor.replay.recordings import bag_metadata, load_recordings, topic_specs
 
 BAG = Path(__file__).resolve().parents[1] / "bags" / "sea_trial" / "turning_circle_stbd_20deg_700rpm"

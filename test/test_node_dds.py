@@ -44,7 +44,6 @@ from usv_predictor.replay.recordings import load_recordings
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
 import play_bag  # noqa: E402  (tools/ is not a package)
-
 from ros_helpers import domain_id, localhost_env  # noqa: E402 (ros_context: a fixture of conftest.py)
 
 BAG = REPO / "bags" / "sea_trial" / "turning_circle_stbd_20deg_700rpm"
@@ -441,6 +440,7 @@ def rudder_throttle_presets(tmp_path_factory: pytest.TempPathFactory) -> tuple[P
     import shutil
 
     from test_norpm_pipeline import write_vessel
+
     from usv_predictor.models.greybox import GreyBoxRollout, greybox_metadata
     from usv_predictor.physics.vessel import vessel_dir
     from usv_predictor.replay.simulate import SimulationRequest, simulate

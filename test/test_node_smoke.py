@@ -26,8 +26,8 @@ from rclpy.parameter import Parameter
 import msg_adapters
 from usv_predictor.config import load_predictor_config, package_share_path
 from usv_predictor.errors import ConfigError
-from usv_predictor.physics.actuators import unused_roles
 from usv_predictor.node import node as predictor_node
+from usv_predictor.physics.actuators import unused_roles
 
 from ros_helpers import GOOD, Harness, domain_id, localhost_env, values_of
 

@@ -17,6 +17,7 @@ import pytest
 import yaml
 from rclpy.context import Context
 from rclpy.parameter import Parameter
+from test_node_plans import joint_trajectory, now_ns, publisher, stamp_of, wait_for
 
 import msg_adapters
 from msg_adapters.outputs import decode_path
@@ -25,7 +26,6 @@ from usv_predictor.node import node as predictor_node
 from usv_predictor.node import plans
 
 from ros_helpers import GOOD, Harness, level, statuses, values_of
-from test_node_plans import joint_trajectory, now_ns, publisher, stamp_of, wait_for
 
 HORIZON_S = 10.0  # s: 20 steps of the grey box
 PWM = {"port": 1800.0, "starboard": 1700.0}  # us: c = (pwm - 1500) / 500 = 0.6 and 0.4 (a turn to starboard)

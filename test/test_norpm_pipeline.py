@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
 from replay_helpers import assert_one_line, replay
+
 from usv_predictor.data.dataset import load_dataset
 from usv_predictor.models.artifact import load_artifact
 from usv_predictor.physics.vessel import vessel_dir

@@ -11,8 +11,16 @@ import pytest
 
 from usv_predictor.analysis import adaptive, evaluation
 from usv_predictor.errors import ConfigError
-from usv_predictor.fitting.online import B_R, C_E, C_N, K_R, OnlineConfig, OnlineEstimator, chi2_quantile, \
-    estimate_recording
+from usv_predictor.fitting.online import (
+    B_R,
+    C_E,
+    C_N,
+    K_R,
+    OnlineConfig,
+    OnlineEstimator,
+    chi2_quantile,
+    estimate_recording,
+)
 from usv_predictor.frames import angle_difference_deg
 from usv_predictor.models.loading import load_model, physics_predictor
 from usv_predictor.physics.dynamics import ManoeuvringModel

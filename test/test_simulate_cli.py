@@ -15,8 +15,8 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from usv_predictor.config import input_topics, load_predictor_config
-from usv_predictor.physics.vessel import vessel_dir
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout, unused_roles
+from usv_predictor.physics.vessel import vessel_dir
 from usv_predictor.replay.bagio import TopicSpec, read_bag, read_custom_data
 from usv_predictor.replay.cli import main
 

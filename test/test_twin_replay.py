@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from replay_helpers import assert_one_line, replay
+
 from usv_predictor.data.dataset import load_dataset
 from usv_predictor.replay.simulate import SimulationRequest, simulate
 

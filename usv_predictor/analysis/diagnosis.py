@@ -41,12 +41,12 @@ import torch
 
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import ConfigError, DiagnosisError
-from usv_predictor.records import whole_steps
 from usv_predictor.frames import compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
 from usv_predictor.physics import effects as fx
 from usv_predictor.physics.effects import Term
 from usv_predictor.physics.vessel import Vessel
+from usv_predictor.records import whole_steps
 
 SIGMA = (0.05, 0.05, 0.005, 1.0, 1.0, 0.01)  # u, v (m/s), r (rad/s), x_n, y_e (m), psi (rad): noise scales
 EVIDENCE_CAUSE = 5.0  # held-out log-likelihood ratio over the calm-water model needed to name a cause

@@ -46,11 +46,11 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from msg_adapters import check_shared, columnar_factory, encode_shared, get_adapter, rosbags_factory
+from msg_adapters.cdr import decode_many, has_fast_layout
 from usv_predictor.atomic import NO_SPACE_ERRNOS, write_failure
 from usv_predictor.config import PredictorConfig, input_topics
 from usv_predictor.errors import AdapterError, BagError, one_line
 from usv_predictor.records import Signal
-from msg_adapters.cdr import decode_many, has_fast_layout
 
 if sys.version_info >= (3, 14):
     from compression.zstd import ZstdError
