@@ -79,9 +79,11 @@ TWIN_NOT_FOUND = {
     # small boat a sea state moves the ratio beyond what the check allows (found by CI on 2026-11-23)
     "wave_drift": "the fit check refuses the otter in this draw's waves (turn speed ratio 5.8, limit 1.5)",
 }
-# Not run in CI: the wind case is a full two-minute diagnosis whose wrong answer is known (above; README's confusion
-# matrix, benchmarks/bench_diagnosis.py --vessel otter); CI stays under its time budget. The wave case fails fast.
-TWIN_NOT_IN_CI = ("wind",)
+# Not run in CI, to keep it near its 30 min budget (each case is a ~1.5 min diagnosis): the wind case, a known wrong
+# answer (above), and the sensor/actuator faults the jari_usv draws above already cover for the same hypotheses
+# (their otter results are the README's confusion matrix: benchmarks/bench_diagnosis.py --vessel otter). CI keeps
+# the clean control, the current and the twin's own thruster imbalance; the wave case fails fast.
+TWIN_NOT_IN_CI = ("wind", "yaw_rate_bias", "heading_offset", "actuator_delay")
 TWIN_CASES = [pytest.param(e, marks=pytest.mark.xfail(reason=TWIN_NOT_FOUND[e], raises=AssertionError,
                                                            strict=True))
               if e in TWIN_NOT_FOUND else e for e in TWIN_EFFECTS if e not in TWIN_NOT_IN_CI]
