@@ -443,6 +443,13 @@ def _solve(a: np.ndarray, y: np.ndarray, prior: np.ndarray, free: np.ndarray, ri
     return theta, cov / np.outer(norms, norms)
 
 
+
+def coefficient_status(free: bool, ridge: float) -> str:
+    """How a coefficient was estimated: held at the prior, pulled towards it by a ridge, or identified."""
+    if not free:
+        return "fixed to prior"
+    return "ridge towards prior" if ridge > 0.0 else "identified"
+
 def fit_equation(d: Design, prior: Mapping[str, float], *, fixed: Sequence[str] = (),
                  ridge: float = 0.0) -> EquationFit:
     """Least squares (or ridge) of one equation; CIs with the effective sample count."""
@@ -462,14 +469,9 @@ def fit_equation(d: Design, prior: Mapping[str, float], *, fixed: Sequence[str] 
     for k, name in enumerate(names):
         half = Z95 * math.sqrt(max(var[k], 0.0))
         magnitude = max(abs(theta[k]), abs(prior_vec[k]), MAGNITUDE_FLOOR)
-        if not free[k]:
-            status = "fixed to prior"
-        elif ridge > 0.0:
-            status = "ridge towards prior"
-        else:
-            status = "identified"
         coefficients.append(Coefficient(name, float(theta[k]), (float(theta[k] - half), float(theta[k] + half)),
-                                        float(prior_vec[k]), status, half / magnitude))
+                                        float(prior_vec[k]), coefficient_status(bool(free[k]), ridge),
+                                        half / magnitude))
     return EquationFit(d.equation, tuple(coefficients), collinearity(d),
                        float(np.sqrt(np.mean(residual**2))), n_eff, ridge)
 

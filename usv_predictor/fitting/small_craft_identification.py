@@ -68,6 +68,7 @@ from usv_predictor.fitting.identification import (
     ForceData,
     IdentificationResult,
     _solve,
+    coefficient_status,
     collinearity,
     effective_samples,
     known_forces,
@@ -278,14 +279,8 @@ def fit_joint(d: JointDesign, priors: Mapping[str, float], *, fixed: Sequence[st
             half, rel = math.inf, math.inf
         else:
             rel = half / max(abs(theta[k]), abs(prior[k]), floors[k])
-        if not free[k]:
-            status = "fixed to prior"
-        elif ridge > 0.0:
-            status = "ridge towards prior"
-        else:
-            status = "identified"
         coefficients.append(Coefficient(name, float(theta[k]), (float(theta[k] - half), float(theta[k] + half)),
-                                        float(prior[k]), status, rel))
+                                        float(prior[k]), coefficient_status(bool(free[k]), ridge), rel))
     per_equation = []
     residual = d.target - d.matrix @ theta
     for e, eq in enumerate(EQUATIONS):
