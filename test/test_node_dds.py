@@ -140,6 +140,14 @@ def recording_step(recording: Recording, stamp: int) -> int:
     return n
 
 
+def check_every_message_taken(node: predictor_node.PredictorNode, paths: list, *, received: int,
+                              min_paths: int) -> None:
+    """A Path per prediction (at least min_paths), every message sent received by an input, none refused."""
+    assert node.published >= min_paths and len(paths) == node.published
+    assert sum(track.received for track in node.inputs.tracks.values()) == received
+    assert all(not track.rejected for track in node.inputs.tracks.values())
+
+
 def check_equal_to_replay(node: predictor_node.PredictorNode, recording, paths: list, velocities: list,
                           horizon_steps: int, yaw_atol: float = 1e-6, nu_atol: float = 1e-6) -> None:
     """Every Path (and its velocities) equals the artifact's prediction on the Recording's state at the same time,
@@ -169,9 +177,7 @@ def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Co
     recording = load_recordings([BAG], DT, jobs=1, warn=lambda _: None)[0]  # what `replay evaluate` reads
     run = lockstep(ros_context, BAG, recording, seconds=10.0)
     node = run.node
-    assert node.published >= 16 and len(run.paths) == node.published
-    assert sum(track.received for track in node.inputs.tracks.values()) == run.sent
-    assert all(not track.rejected for track in node.inputs.tracks.values())
+    check_every_message_taken(node, run.paths, received=run.sent, min_paths=16)
     assert not node.sea.applied and node.sea.enabled and len(run.currents) == node.sea.fed >= 16
     check_equal_to_replay(node, recording, run.paths, run.velocities, horizon_steps=120)
 
@@ -260,9 +266,7 @@ def test_twin_thruster_node_predictions_equal_replay_evaluate(ros_context: Conte
                                                 overrides=otter_overrides(otter_model))
     assert sorted(node.inputs.tracks) == ["gnss", "heading", "imu", "thruster_port", "thruster_starboard", "velocity"]
     assert sorted(node.ignored) == ["engine_rpm", "rudder_angle", "throttle"]
-    assert node.published >= 20 and len(paths) == node.published
-    assert sum(track.received for track in node.inputs.tracks.values()) == sent
-    assert all(not track.rejected for track in node.inputs.tracks.values())
+    check_every_message_taken(node, paths, received=sent, min_paths=20)
     steps = int(OTTER_SECONDS / DT) - 2
     assert np.ptp(recording.controls[:steps, 0] - recording.controls[:steps, 1]) > 0.3  # straight, then the turn
     check_equal_to_replay(node, recording, paths, velocities, horizon_steps=int(OTTER_HORIZON_S / DT))
@@ -311,10 +315,9 @@ def test_twin_thrusters_on_one_pwm_topic_equal_replay_evaluate(ros_context: Cont
     node, paths, velocities, _, sent = lockstep(ros_context, bag, recording, seconds=OTTER_SECONDS,
                                                 config_path=config)
     assert node._entries["thruster_port"].topic == node._entries["thruster_starboard"].topic == "thrusters/pwm"
-    assert node.ignored == {} and node.published >= 20 and len(paths) == node.published
+    assert node.ignored == {}
     assert node.arrived["thruster_port"] == node.arrived["thruster_starboard"] > 0  # one message, both roles
-    assert sum(track.received for track in node.inputs.tracks.values()) == sent + node.arrived["thruster_port"]
-    assert all(not track.rejected for track in node.inputs.tracks.values())
+    check_every_message_taken(node, paths, received=sent + node.arrived["thruster_port"], min_paths=20)
     check_equal_to_replay(node, recording, paths, velocities, horizon_steps=int(OTTER_HORIZON_S / DT))
 
 
@@ -478,9 +481,7 @@ def test_rudder_throttle_node_predictions_equal_replay_evaluate(ros_context: Con
                                                 overrides=overrides)
     assert sorted(node.inputs.tracks) == ["gnss", "heading", "imu", "rudder_angle", "throttle", "velocity"]
     assert sorted(node.ignored) == ["engine_rpm", "thruster_port", "thruster_starboard"]
-    assert node.published >= 20 and len(paths) == node.published
-    assert sum(track.received for track in node.inputs.tracks.values()) == sent
-    assert all(not track.rejected for track in node.inputs.tracks.values())
+    check_every_message_taken(node, paths, received=sent, min_paths=20)
     steps = int(OTTER_SECONDS / DT) - 2
     assert np.ptp(recording.controls[:steps, 0]) > math.radians(15.0)  # straight, then the rudder over
     assert np.median(recording.controls[:steps, 1]) == pytest.approx(0.6, abs=0.01)  # the throttle column
