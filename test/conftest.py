@@ -15,6 +15,12 @@ from typing import Any
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # Two workers share two cores (./run.sh test -n 2): one math thread each (torch, numpy's BLAS, and the
+    # commands the tests start), or OpenMP's spinning threads of one worker steal the other's core.
+    for _name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ.setdefault(_name, "1")
 RAW_DATA_DIR = REPO_ROOT.parent / "shared" / "data" / "raw"
 
 

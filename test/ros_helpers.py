@@ -1,7 +1,7 @@
 """Shared helpers of the node tests: domain ids, the node harness, /diagnostics lookups (the isolated rclpy
 context `ros_context` is a fixture of conftest.py).
 
-Every test process talks on its own ROS_DOMAIN_ID (derived from the pid, an offset per use) with discovery
+Every test process talks on its own ROS_DOMAIN_ID (derived from the xdist worker or the pid, an offset per use) with discovery
 on this host only, so parallel runs on one machine do not hear each other.
 """
 from __future__ import annotations
@@ -30,8 +30,16 @@ GOOD = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), 
 
 
 def domain_id(offset: int = 0) -> int:
-    """A ROS_DOMAIN_ID in 1..200 for this process; different offsets give different domains."""
-    return 1 + (3 * os.getpid() + offset) % 200
+    """A ROS_DOMAIN_ID in 1..200 for this process; different offsets (0..49) give different domains.
+
+    Under pytest-xdist (./run.sh test runs two workers) worker gwK owns the block 50 K + 1 .. 50 K + 50, so
+    the workers' nodes never meet (up to four workers); a plain pytest process derives its base from its pid,
+    which keeps concurrent runs apart."""
+    if not 0 <= offset < 50:
+        raise ValueError(f"domain offset {offset}: expected 0..49 (one block per xdist worker)")
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")  # "gw0", "gw1", ...
+    base = 50 * int(worker[2:]) if worker.startswith("gw") and worker[2:].isdigit() else 3 * os.getpid()
+    return 1 + (base + offset) % 200
 
 
 def localhost_env(offset: int = 0) -> dict[str, str]:
