@@ -200,3 +200,24 @@ def test_loads_decomposition_sums_to_the_total(model):
     assert forces.steering[1] < 0.0  # positive rudder: side force to port ...
     assert forces.steering[2] > 0.0  # ... and a starboard yaw moment
     assert model.loads(4.0, 0.0, 0.0, 0.0, 4.0, 0.0, 0.0, 650.0, CALM).wind == (0.0, 0.0, 0.0)
+
+
+def test_a_force_model_missing_an_equation_cannot_be_combined(model, monkeypatch):
+    """ManoeuvringModel's hull/actuator methods are abstract: a layout whose force model lacks one (here
+    initial_actuators) is refused when the model is built, naming the method, not at the first call."""
+    from usv_predictor.physics import dynamics
+
+    class NoInitialActuators:
+        constants = ()
+
+        def actuator_loads(self, u_r, v_r, r, a, b):
+            return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+
+        def actuator_rates(self, a, b, cmd_a, cmd_b):
+            return 0.0, 0.0
+
+    vessel = model.vessel
+    monkeypatch.setitem(dynamics.ACTUATOR_FORCES, vessel.layout, NoInitialActuators)
+    monkeypatch.setattr(dynamics, "_CLASSES", {})
+    with pytest.raises(TypeError, match="initial_actuators"):
+        ManoeuvringModel(vessel)

@@ -41,6 +41,7 @@ the vessel's hull model and layout once (a mixin of each) and caches it.
 from __future__ import annotations
 
 import math
+from abc import ABCMeta, abstractmethod
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar, NamedTuple
 
@@ -278,11 +279,13 @@ def constants_of(vessel: Vessel, records: tuple[type, ...] | None = None) -> dic
 
 # ---- the float model ------------------------------------------------------------------------------------
 
-class ManoeuvringModel:
+class ManoeuvringModel(metaclass=ABCMeta):
     """The vessel's equations of motion, with every constant precomputed in SI units (constants_of).
 
     ManoeuvringModel(vessel) is an instance of the class that combines the vessel's hull model (HULL_FORCES) and
-    its layout's force model (ACTUATOR_FORCES) with this base; see the module docstring for the equations.
+    its layout's force model (ACTUATOR_FORCES) with this base; see the module docstring for the equations. The
+    abstract methods are what a hull model or a force model supplies: a combination that misses one cannot be
+    instantiated (TypeError naming it).
     """
 
     constants: ClassVar[tuple[type, ...]] = ()  # the constants records of the combined class
@@ -419,22 +422,26 @@ class ManoeuvringModel:
         return states
 
     # ---- supplied by the hull model and the actuator force model -----------------------------------------
+    @abstractmethod
     def hull_loads(self, u_r: float, v_r: float, r: float) -> tuple[float, float, float]:
-        raise NotImplementedError
+        """(X_H (N), Y_H (N), N_H (N m)) of the hull at midship for the water-relative velocities."""
 
+    @abstractmethod
     def resistance_coefficients(self) -> tuple[float, float]:
         """(r1 (N s/m), r2 (N s^2/m^2)) of the straight-running resistance R(u) = r1 u + r2 u^2 of the hull."""
-        raise NotImplementedError
 
+    @abstractmethod
     def actuator_loads(self, u_r: float, v_r: float, r: float, a: float, b: float
                        ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-        raise NotImplementedError
+        """(steering, propulsion) loads (X (N), Y (N), N (N m)) each, at the actuator levels (a, b)."""
 
+    @abstractmethod
     def actuator_rates(self, a: float, b: float, cmd_a: float, cmd_b: float) -> tuple[float, float]:
-        raise NotImplementedError
+        """(da/dt, db/dt) of the actuator levels toward the commands (the layout's rate limits and motor lags)."""
 
+    @abstractmethod
     def initial_actuators(self, command: float) -> tuple[float, float]:
-        raise NotImplementedError
+        """(a, b) actuator levels of steady straight running at the propulsion command."""
 
 
 # ---- hull models ----------------------------------------------------------------------------------------
