@@ -215,6 +215,32 @@ def test_an_unwritable_report_directory_is_refused_before_any_work(tmp_path, cap
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
 
 
+def test_simulate_below_a_regular_file_is_refused_naming_it(tmp_path, capsys) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    code, err = replay(capsys, "simulate", "--manoeuvre", "zigzag", "--duration", "5", "--output", blocker / "bags")
+    assert_one_line(code, err, "simulate", allowed=(2,))
+    assert f"cannot write --output {blocker / 'bags'}: {blocker} is not a directory" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_a_simulation_that_fails_before_its_first_bag_leaves_no_empty_directory(tmp_path, capsys,
+                                                                               monkeypatch) -> None:
+    """Was: the output directory was made before any work, so a run that failed left it behind, empty."""
+    from usv_predictor.errors import BagError
+    from usv_predictor.replay import simulate as simulate_module
+
+    def fails(path, *args, **kwargs):
+        raise BagError(f"{path}: the simulation failed (made up by the test)")
+
+    monkeypatch.setattr(simulate_module, "simulate_bag", fails)
+    out = tmp_path / "new" / "bags"
+    code, err = replay(capsys, "simulate", "--manoeuvre", "zigzag", "--duration", "5", "--output", out)
+    assert_one_line(code, err, "simulate", allowed=(2,))
+    assert "made up by the test" in err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_info_on_metadata_that_is_not_utf8(tmp_path, capsys) -> None:
     bag = tmp_path / "bag"
     bag.mkdir()

@@ -281,14 +281,19 @@ def _install(built: Path, target: Path) -> None:
 
 
 def prepare_outputs(directory: Path, bags: Sequence[Path], overwrite: bool) -> None:
-    """Before any work: create the output directory, check it is writable, refuse existing bags without overwrite."""
+    """Before any work: check the output directory can be made (or is) a writable directory and refuse existing
+    bags without overwrite. Nothing is created here: write_bag makes the directory with its first bag, so a run
+    that fails before writing one leaves no empty directory behind."""
     directory = Path(directory)
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise BagError(f"--output {directory}: cannot create the output directory ({err.strerror})") from err
-    if not os.access(directory, os.W_OK):
-        raise BagError(f"--output {directory}: directory is not writable")
+    existing_parent = directory
+    while not existing_parent.exists() and existing_parent != existing_parent.parent:
+        existing_parent = existing_parent.parent  # the nearest ancestor that exists: the directory is made below it
+    if not existing_parent.is_dir():
+        raise BagError(f"--output {directory}: cannot create the output directory ({existing_parent} is not a "
+                       "directory)")
+    if not os.access(existing_parent, os.W_OK | os.X_OK):
+        what = "directory is" if existing_parent == directory else f"cannot create it: {existing_parent} is"
+        raise BagError(f"--output {directory}: {what} not writable")
     existing = [str(p) for p in bags if Path(p).exists()]
     if existing and not overwrite:
         raise BagError(f"{existing[0]} exists already; use --overwrite to replace it")
