@@ -121,8 +121,8 @@ class Manoeuvre:
     delta: np.ndarray | None  # (N,) rad, positive turns the vessel to starboard; None without a rudder
     rpm: np.ndarray | None  # (N,) propeller rpm, or None
     scale: ScaleInfo
-    rudder_amplitude_deg: float  # nominal rudder angle of the zig-zag (from the file name/header)
-    check_angle_deg: float  # nominal heading check angle (deg)
+    rudder_amplitude_deg: float  # nominal rudder angle of the zig-zag or turn (from the file name/header) (deg)
+    check_angle_deg: float  # nominal heading check angle of a zig-zag (deg); NaN for a turn or pull-out
     first_side: str  # "starboard" or "port": side of the first rudder execute
     lat_deg: np.ndarray | None = None
     lon_deg: np.ndarray | None = None
@@ -379,16 +379,18 @@ MARIN_TYPES = {"zig-zag": ("zigzag", "zz"), "turning / pull-out": ("turning_pull
                "turning": ("turning", "tc")}
 MARIN_HOLD_TOLERANCE_DEG = 0.2  # (deg) the rudder is "held" within this of its median hold (3 digits: 0.1 deg steps)
 MARIN_MIDSHIPS_FRACTION = 0.25  # after a pull-out the median |rudder| must be below this fraction of the turn's
+MARIN_EXECUTE_DEG = 0.5  # (deg) the turn's execute: the first row the rudder is this far from its approach angle
 
 
-def _marin_type(path: Path, title_line: str) -> tuple[str, str]:
-    """(type, the title's arguments) of a MARIN file from its 2nd line; DatasetError naming the known types."""
+def _marin_type(path: Path, title_line: str) -> tuple[str, str, str]:
+    """(type, file-name tag, the title's arguments) of a MARIN file from its 2nd line; DatasetError naming the
+    known types."""
     title = _MARIN_TITLE.match(title_line)
     kind = re.sub(r"\s*/\s*", " / ", title.group("kind").strip().lower()) if title else None
     if title is None or kind not in MARIN_TYPES:
         known = ", ".join(f"'{k.capitalize()} manoeuvring for KVLCC2 : ...'" for k in MARIN_TYPES)
         raise DatasetError(f"{path}:2: expected a manoeuvre title ({known}), found {title_line.strip()!r}")
-    return MARIN_TYPES[kind][0], title.group("args")
+    return (*MARIN_TYPES[kind], title.group("args"))
 
 
 def read_marin(path: Path) -> list[Manoeuvre]:
@@ -398,7 +400,7 @@ def read_marin(path: Path) -> list[Manoeuvre]:
     lines = _read_text(path, "cp1252").splitlines()
     if len(lines) < MARIN_HEADER_LINES or "MARIN" not in lines[0]:
         raise DatasetError(f"{path}:1: expected the MARIN header ('MARIN(Maritime Research Institute ...', 3 lines)")
-    kind, args = _marin_type(path, lines[1])
+    kind, tag, args = _marin_type(path, lines[1])
     if kind == "zigzag":
         title = _MARIN_ZIGZAG_ARGS.search(args)
         if title is None:
@@ -409,7 +411,6 @@ def read_marin(path: Path) -> list[Manoeuvre]:
             raise DatasetError(f"{path}:2: expected the turn's rudder angle like ': 35 (deg)', found {lines[1].strip()!r}")
     first_rudder = float(title.group(1))  # file convention: positive to port
     named = _MARIN_NAME.match(path.stem)
-    tag = MARIN_TYPES[next(k for k, v in MARIN_TYPES.items() if v[0] == kind)][1]
     if named and named.group(1).lower() != tag:
         raise DatasetError(f"{path}:2: title says {lines[1].split(' manoeuvring')[0].strip()!r} but the file name says "
                            f"{named.group(1)!r} (zz: zig-zag, tc: turning / pull-out)")
@@ -493,11 +494,11 @@ def _marin_turn(m: Manoeuvre, amplitude: float, side: str, *, pullout_expected: 
     sign = 1.0 if side == "starboard" else -1.0
     toward = sign * np.degrees(m.delta)  # (N,) deg, positive toward the turn's side
     held = np.flatnonzero(toward >= 0.5 * amplitude)
-    execute = int(np.flatnonzero(np.abs(toward - toward[0]) > 0.5)[0])  # the rudder leaves the approach (0.5 deg)
+    execute = int(np.flatnonzero(np.abs(toward - toward[0]) > MARIN_EXECUTE_DEG)[0])
     hold_deg = float(np.median(toward[held]))
     back = np.flatnonzero(toward[held[0]:] < 0.5 * amplitude)
     turn_note = (f"rudder {hold_deg:.1f} deg to {side} from t = {m.t_s[execute]:.1f} s (execute: the rudder leaves the "
-                 "approach by 0.5 deg)")
+                 f"approach by {MARIN_EXECUTE_DEG:g} deg)")
     if len(back) == 0:
         if pullout_expected:
             raise DatasetError(f"{m.path}: title says 'Turning / Pull-out' but the rudder never returns from its "
