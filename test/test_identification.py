@@ -199,3 +199,16 @@ def test_excitation_is_the_range_the_data_cover(noisy, vessel):
     assert zigzags["r_prime_p99"] < 0.8 * everything["r_prime_p99"]
     assert zigzags["beta_deg_p99"] < everything["beta_deg_p99"]
     assert everything["v_prime_p99"] == pytest.approx(np.sin(np.radians(everything["beta_deg_p99"])), rel=0.1)
+
+
+def test_report_names_what_the_prior_supplies(noisy, vessel, tmp_path):
+    from usv_predictor.analysis.reports import write_identification_report
+
+    recs, data = noisy
+    result = idf.identify(vessel, recs, structure="mmg", prior="fix", data=data)
+    out = {"model": "m.pt", "model_type": "greybox", "model_id": "x", "training_data_sha256": "0" * 64}
+    text = write_identification_report(tmp_path, result, out).read_text()
+    used = result.prior_used()
+    assert used and f"Not determined by these manoeuvres; prior used: {', '.join(used)}." in text
+    ex = result.excitation()
+    assert f"|beta| {ex['beta_deg_p99']:.1f} deg" in text and f"|r'| {ex['r_prime_p99']:.3f}" in text
