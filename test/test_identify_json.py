@@ -54,3 +54,16 @@ def test_prior_none_refusal_names_the_prior_to_use_and_why() -> None:
     assert "--prior ridge" in message and "EVERY coefficient" in message  # why not ridge
     assert "turning circles both ways" in message
     assert "\n" not in message
+
+
+def test_coefficient_flags_say_which_values_are_the_priors() -> None:
+    fixed = idf.Coefficient("N_rrr", -0.013, (-0.013, -0.013), -0.013, "fixed to prior", 0.0)
+    free = idf.Coefficient("N_r", -0.03, (-0.031, -0.029), -0.05, "identified", 0.03)
+    ridged = idf.Coefficient("N_vvr", -0.2, (-0.5, 0.1), -0.29, "ridge towards prior", 1.4)
+    assert idf.coefficient_flags(free, ("N_rrr",), "fix") == {"determined_by_data": True, "note": None}
+    flags = idf.coefficient_flags(fixed, ("N_rrr",), "fix")
+    assert flags == {"determined_by_data": False,
+                     "note": "not determined by these manoeuvres; prior used (held at the vessel file's value)"}
+    assert idf.coefficient_flags(ridged, ("N_vvr",), "ridge")["determined_by_data"] is False
+    assert idf.coefficient_flags(ridged, (), "ridge")["determined_by_data"] is True  # identifiable, only pulled
+    json.loads(json_text(free.to_json() | idf.coefficient_flags(free, (), "fix")))  # strict JSON

@@ -431,6 +431,12 @@ def write_identification_report(directory: Path, result: IdentificationResult, o
              "|---|---|---|---|---|"]
     for c in result.coefficients():
         lines.append(f"| {c.name} | {c.estimate:+.5f} | [{c.ci95[0]:+.5f}, {c.ci95[1]:+.5f}] | {c.prior:+.5f} | {c.status} |")
+    used = result.prior_used()
+    lines += ["", "Not determined by these manoeuvres; prior used: " + (", ".join(used) if used else "none") + "."]
+    ex = result.excitation()
+    if ex["beta_deg_p99"] is not None:
+        lines += ["", f"Excitation (99th percentiles): |beta| {ex['beta_deg_p99']:.1f} deg, |v'| {ex['v_prime_p99']:.3f}, "
+                      f"|r'| {ex['r_prime_p99']:.3f}: {ex['note']}."]
     lines += ["", "## Collinearity", ""]
     for e in result.fit.equations:
         pairs = ", ".join(f"{a}~{b} ({rho:+.2f})" for a, b, rho in e.collinearity.pairs) or "none"

@@ -637,6 +637,15 @@ class IdentificationResult:
         """Every coefficient: the fit's, then the profiled actuator gains."""
         return [*self.fit.coefficients(), *self.actuator_coefficients]
 
+    def prior_used(self) -> list[str]:
+        """The coefficients these manoeuvres do not determine (held at, or pulled to, the prior)."""
+        return [c.name for c in self.coefficients() if not determined_by_data(c, self.fit.not_identifiable)]
+
+    def excitation(self) -> dict:
+        """The range of drift angle and non-dimensional yaw rate the data cover (what the identified terms are fitted
+        on); a manoeuvre beyond it extrapolates the nonlinear terms."""
+        return excitation_range(self.data, self.vessel.geometry.L_pp)
+
     def to_json(self) -> dict:
         return {
             "structure": self.structure,
@@ -644,7 +653,10 @@ class IdentificationResult:
             "actuator_layout": self.vessel.layout,
             "prior": self.fit.prior_policy,
             "u0_mps": self.fit.u0,
-            "coefficients": [c.to_json() for c in self.coefficients()],
+            "coefficients": [c.to_json() | coefficient_flags(c, self.fit.not_identifiable, self.fit.prior_policy)
+                             for c in self.coefficients()],
+            "prior_used": self.prior_used(),
+            "excitation": self.excitation(),
             "actuators": {d.name: dict(d.actuator) for d in self.data if d.actuator},
             "not_identifiable_without_prior": list(self.fit.not_identifiable),
             "collinearity": [e.collinearity.to_json() for e in self.fit.equations],
@@ -655,6 +667,41 @@ class IdentificationResult:
             "manoeuvres": [d.name for d in self.data],
             "notes": list(self.notes),
         }
+
+
+NOT_DETERMINED = "not determined by these manoeuvres; prior used"
+PRIOR_HOW = {"fixed to prior": "held at the vessel file's value",
+             "ridge towards prior": "pulled towards the vessel file's value by the ridge"}
+EXCITATION_MIN_SPEED_FRACTION = 0.2  # samples slower than this fraction of the fastest are left out of v', r' (-)
+
+
+def determined_by_data(c: Coefficient, not_identifiable: Sequence[str]) -> bool:
+    """True when the data set the coefficient: identified, or ridged but identifiable without the prior."""
+    return c.status == "identified" or (c.status == "ridge towards prior" and c.name not in not_identifiable)
+
+
+def coefficient_flags(c: Coefficient, not_identifiable: Sequence[str], prior_policy: str) -> dict:
+    """JSON flags of one coefficient: determined_by_data, and for a coefficient the data do not determine the note
+    "not determined by these manoeuvres; prior used (how)" (issue 15: say which values are the prior's)."""
+    determined = determined_by_data(c, not_identifiable)
+    how = PRIOR_HOW.get(c.status, f"prior policy {prior_policy}")
+    return {"determined_by_data": determined, "note": None if determined else f"{NOT_DETERMINED} ({how})"}
+
+
+def excitation_range(data: Sequence[ForceData], L_pp: float) -> dict:
+    """99th percentiles of |beta| (deg), |v'| = |v| / U and |r'| = |r| L / U over the samples faster than
+    EXCITATION_MIN_SPEED_FRACTION of the fastest (MMG prime system, Yasukawa & Yoshimura 2015 eq. 2)."""
+    nu = np.concatenate([d.nu for d in data]) if data else np.zeros((0, 3))  # (T, 3)
+    speed = np.hypot(nu[:, 0], nu[:, 1])
+    keep = speed > EXCITATION_MIN_SPEED_FRACTION * (speed.max() if len(speed) else 0.0)
+    if not np.any(keep):
+        return {"beta_deg_p99": None, "v_prime_p99": None, "r_prime_p99": None, "note": "no moving samples"}
+    u, v, r, U = nu[keep, 0], nu[keep, 1], nu[keep, 2], speed[keep]
+    beta = np.degrees(np.abs(np.arctan2(-v, u)))
+    return {"beta_deg_p99": float(np.percentile(beta, 99.0)), "v_prime_p99": float(np.percentile(np.abs(v) / U, 99.0)),
+            "r_prime_p99": float(np.percentile(np.abs(r) * L_pp / U, 99.0)),
+            "note": "the range the identified terms are fitted on; a manoeuvre beyond it (a hard-over turning circle "
+                    "usually is) extrapolates the nonlinear terms"}
 
 
 def identified_vessel(vessel: Vessel, fit: HullFit) -> Vessel:

@@ -373,11 +373,14 @@ def estimate_vessel(o: OwnerData) -> Estimate:
     return e
 
 
-def _mmg_hull(e: Estimate, o: OwnerData, d: float, c_b: float, cbbl: float) -> None:
-    L, B = o.L_pp, o.B
+def mmg_hull_estimates(L: float, B: float, d: float, c_b: float) -> dict[str, dict[str, Value]]:
+    """Semi-empirical MMG added masses and hull derivatives (non-dimensional, prime system) of a monohull from L_pp,
+    B, d (m) and C_b: {"added_mass": {...}, "hull": {...}}, each a Value with its formula, source and KVLCC2 error
+    (research note /work/notes/empirical_formulas.md). R0 is not estimated here (0: set from a speed or friction)."""
+    cbbl = c_b * B / L
     m_p = 2.0 * cbbl  # m' = nabla / (0.5 L^2 d) = 2 C_b B / L
     mx, my, kj = zhou_added_mass(L, B, d, c_b)
-    e.sections["added_mass"] = {
+    added_mass = {
         "m_x": Value(m_p * mx, "Zhou et al. 1983 (Motora-chart regression), m' m_x/m; KVLCC2 +5 %"),
         "m_y": Value(m_p * my, "Zhou et al. 1983, m' m_y/m; KVLCC2 +1 %"),
         "J_z": Value(m_p * kj**2, "Zhou et al. 1983, m' k_J^2; KVLCC2 +2 %"),
@@ -387,7 +390,7 @@ def _mmg_hull(e: Estimate, o: OwnerData, d: float, c_b: float, cbbl: float) -> N
     cf = cross_flow_cubics(hoerner_cd(B / (2 * d)))
     cubic = 7.0 / (6.0 * V_RANGE)  # x|x| ~ c x^3 on [-a, a]
     unreliable = "cross-flow drag strip theory (Fossen crossFlowDrag, Hoerner C_d) fitted to cubics; UNRELIABLE +-100 %"
-    e.sections["hull"] = {
+    hull = {
         "R0": Value(0.0, "set below"),
         "X_vv": Value(0.4 * B / L - 0.006 * L / d, "Kijima 1990 0.4B/L - 0.006L/d (one implementation, unverified); "
                                                    "KVLCC2 abs. err 0.02"),
@@ -409,7 +412,12 @@ def _mmg_hull(e: Estimate, o: OwnerData, d: float, c_b: float, cbbl: float) -> N
         "N_rrr": Value(cf["N_rrr"], unreliable + "; KVLCC2 -142 %"),
     }
     for key in ("Y_vvr", "Y_rrr", "N_vvv", "N_vrr"):  # identically 0 for fore-aft symmetric strips
-        e.sections["hull"][key] = Value(0.0 if abs(cf[key]) < 1e-9 else cf[key], unreliable)
+        hull[key] = Value(0.0 if abs(cf[key]) < 1e-9 else cf[key], unreliable)
+    return {"added_mass": added_mass, "hull": hull}
+
+
+def _mmg_hull(e: Estimate, o: OwnerData, d: float, c_b: float, cbbl: float) -> None:
+    e.sections.update(mmg_hull_estimates(o.L_pp, o.B, d, c_b))
 
 
 def _small_craft_hull(e: Estimate, o: OwnerData, d: float, c_b: float) -> None:

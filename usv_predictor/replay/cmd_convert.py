@@ -1,4 +1,5 @@
-"""`replay convert`: public measured manoeuvres (HSVA/MARIN KVLCC2, Fuzhou and Dalian USVs) -> one rosbag2 each.
+"""`replay convert`: public measured manoeuvres (HSVA/MARIN KVLCC2, Fuzhou and Dalian USVs) -> one rosbag2 each
+(a MARIN turning / pull-out file -> two: the turning circle and the pull-out).
 
 Bags carry the default input topics of config/predictor.yaml (no ground truth: measured data have
 none) and custom_data with source, licence note, scale, conventions and conversion version. The readers
@@ -14,8 +15,8 @@ from pathlib import Path
 from usv_predictor.replay.options import log
 
 NAME = "convert"
-HELP = ("convert public measured manoeuvres (HSVA/MARIN KVLCC2 zig-zags, Fuzhou USV zig-zag, Dalian twin-thruster "
-        "USV runs) to rosbag2 bags")
+HELP = ("convert public measured manoeuvres (HSVA/MARIN KVLCC2 zig-zags, MARIN KVLCC2 turning circles and pull-outs, "
+        "Fuzhou USV zig-zag, Dalian twin-thruster USV runs) to rosbag2 bags")
 INPUTS = ("sources",)
 OUTPUTS = {"output": "dir"}
 

@@ -12,9 +12,13 @@ DatasetError naming file, line and column):
           the 7th column (labelled p) is the yaw rate - it equals d(psi)/dt - and the 8th (labelled r)
           is not; u, v are earth-fixed dx0/dt, dy0/dt. The reader picks the column that IS d(psi)/dt and
           the velocity frame the positions prove, and refuses a file where neither fits.
-  marin   KVLCC2 zig-zags, MARIN for SIMMAN 2008, FULL scale (L_pp 320 m). 3 significant digits: the time
-          base is rebuilt as row * 0.13535 s (the time column must agree within its rounding); positions
-          (10 m steps at 4 km) are rebuilt by integrating the earth-fixed u, v from the first position.
+  marin   KVLCC2 free-running tests, MARIN for SIMMAN 2008, FULL scale (L_pp 320 m): every manoeuvre type of
+          the format, named by the title line ("Zig-zag manoeuvring for KVLCC2 : 10 / -10", "Turning / Pull-out
+          manoeuvring for KVLCC2 : 35 (deg)", "Turning manoeuvring ..."). A turning / pull-out file is split at
+          the instant the rudder leaves its hold into two manoeuvres: the turning circle (approach + steady
+          rudder) and the pull-out (rudder back to midships). 3 significant digits: the time base is rebuilt as
+          row * 0.13535 s (the time column must agree within its rounding); positions (10 m steps at 4 km) are
+          rebuilt by integrating the earth-fixed u, v from the first position.
   fuzhou  3.6 m rudder-steered USV, 30 deg zig-zag at sea, 0.5 s interpolated. The `speed` column is in
           KNOTS, not m/s as SOURCE.txt says: the GNSS track moves 0.51 m per second per unit of speed.
           The reader detects the unit from the track (knots or m/s, else error). u, v: over-ground
@@ -35,7 +39,7 @@ import json
 import math
 import re
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
@@ -45,7 +49,7 @@ from usv_predictor.errors import DatasetError
 from usv_predictor.frames import LocalTangentPlane, ned_to_body, wrap_angle
 from usv_predictor.records import NS_PER_S, Signal
 
-CONVERSION_VERSION = "1"
+CONVERSION_VERSION = "2"  # 2: MARIN turning / pull-out files; custom_data manoeuvre_type
 GRAVITY = 9.81  # (m/s^2), the value the simulator writes as accel_z = -g
 KNOT = 1852.0 / 3600.0  # (m/s per knot)
 MIN_ROWS = 20  # a manoeuvre shorter than this is a truncated file
@@ -73,6 +77,7 @@ LICENCE = {
               "from them into this repository.",
 }
 FORMATS = ("hsva", "marin", "fuzhou", "dalian")
+MANOEUVRE_KINDS = ("zigzag", "turning_circle", "pullout", "path_following")
 UNSUPPORTED_FORMATS: dict[str, str] = {}
 
 HSVA_LAMBDA = 45.714  # model scale 1:45.714 (SOURCE.txt)
@@ -116,8 +121,8 @@ class Manoeuvre:
     delta: np.ndarray | None  # (N,) rad, positive turns the vessel to starboard; None without a rudder
     rpm: np.ndarray | None  # (N,) propeller rpm, or None
     scale: ScaleInfo
-    rudder_amplitude_deg: float  # nominal rudder angle of the zig-zag (from the file name/header)
-    check_angle_deg: float  # nominal heading check angle (deg)
+    rudder_amplitude_deg: float  # nominal rudder angle of the zig-zag or turn (from the file name/header) (deg)
+    check_angle_deg: float  # nominal heading check angle of a zig-zag (deg); NaN for a turn or pull-out
     first_side: str  # "starboard" or "port": side of the first rudder execute
     lat_deg: np.ndarray | None = None
     lon_deg: np.ndarray | None = None
@@ -126,6 +131,7 @@ class Manoeuvre:
     fix: np.ndarray | None = None  # (N,) bool: rows with a new GNSS fix and heading (None: every row)
     epoch_ns: int | None = None  # stamp of t_s = 0 (ns since the Unix epoch); None: EPOCH_NS[source]
     extra: Mapping[str, str] = field(default_factory=dict)  # further custom_data keys of the source
+    kind: str = "zigzag"  # one of MANOEUVRE_KINDS: what the record is (custom_data manoeuvre_type)
 
     @property
     def duration_s(self) -> float:
@@ -364,23 +370,52 @@ def read_hsva(path: Path) -> Manoeuvre:
 
 MARIN_COLUMNS = ("time", "x0", "y0", "phi", "psi", "u", "v", "p", "r", "delta", "rev")
 MARIN_HEADER_LINES = 3
-_MARIN_NAME = re.compile(r"MARIN_FREE_KVLCC2_zz_(-?\d+)_m$", re.IGNORECASE)
-_MARIN_TITLE = re.compile(r"(-?\d+)\s*/\s*(-?\d+)")
+_MARIN_NAME = re.compile(r"MARIN_FREE_KVLCC2_(zz|tc)_(-?\d+)_m$", re.IGNORECASE)
+_MARIN_TITLE = re.compile(r"^\s*(?P<kind>.+?)\s+manoeuvring\s+for\s+\S+\s*:\s*(?P<args>.*?)\s*$", re.IGNORECASE)
+_MARIN_ZIGZAG_ARGS = re.compile(r"(-?\d+)\s*/\s*(-?\d+)")
+_MARIN_TURN_ARGS = re.compile(r"^(-?\d+(?:\.\d+)?)\s*(?:\(deg\))?$", re.IGNORECASE)
+# title words -> (what the file holds, file-name tag); the manoeuvre types of the SIMMAN 2008 MARIN format
+MARIN_TYPES = {"zig-zag": ("zigzag", "zz"), "turning / pull-out": ("turning_pullout", "tc"),
+               "turning": ("turning", "tc")}
+MARIN_HOLD_TOLERANCE_DEG = 0.2  # (deg) the rudder is "held" within this of its median hold (3 digits: 0.1 deg steps)
+MARIN_MIDSHIPS_FRACTION = 0.25  # after a pull-out the median |rudder| must be below this fraction of the turn's
+MARIN_EXECUTE_DEG = 0.5  # (deg) the turn's execute: the first row the rudder is this far from its approach angle
 
 
-def read_marin(path: Path) -> Manoeuvre:
-    """One MARIN KVLCC2 zig-zag (.dat, tab-separated, full scale, 3 significant digits)."""
+def _marin_type(path: Path, title_line: str) -> tuple[str, str, str]:
+    """(type, file-name tag, the title's arguments) of a MARIN file from its 2nd line; DatasetError naming the
+    known types."""
+    title = _MARIN_TITLE.match(title_line)
+    kind = re.sub(r"\s*/\s*", " / ", title.group("kind").strip().lower()) if title else None
+    if title is None or kind not in MARIN_TYPES:
+        known = ", ".join(f"'{k.capitalize()} manoeuvring for KVLCC2 : ...'" for k in MARIN_TYPES)
+        raise DatasetError(f"{path}:2: expected a manoeuvre title ({known}), found {title_line.strip()!r}")
+    return (*MARIN_TYPES[kind], title.group("args"))
+
+
+def read_marin(path: Path) -> list[Manoeuvre]:
+    """The manoeuvres of one MARIN KVLCC2 file (.dat, tab-separated, full scale, 3 significant digits): a zig-zag,
+    or a turning circle followed by its pull-out (two manoeuvres), by the title line."""
     path = Path(path)
     lines = _read_text(path, "cp1252").splitlines()
     if len(lines) < MARIN_HEADER_LINES or "MARIN" not in lines[0]:
         raise DatasetError(f"{path}:1: expected the MARIN header ('MARIN(Maritime Research Institute ...', 3 lines)")
-    title = _MARIN_TITLE.search(lines[1])
-    if "zig-zag" not in lines[1].lower() or title is None:
-        raise DatasetError(f"{path}:2: expected 'Zig-zag manoeuvring for KVLCC2 : A / -A', found {lines[1].strip()!r}")
+    kind, tag, args = _marin_type(path, lines[1])
+    if kind == "zigzag":
+        title = _MARIN_ZIGZAG_ARGS.search(args)
+        if title is None:
+            raise DatasetError(f"{path}:2: expected 'Zig-zag manoeuvring for KVLCC2 : A / -A', found {lines[1].strip()!r}")
+    else:
+        title = _MARIN_TURN_ARGS.match(args)
+        if title is None:
+            raise DatasetError(f"{path}:2: expected the turn's rudder angle like ': 35 (deg)', found {lines[1].strip()!r}")
     first_rudder = float(title.group(1))  # file convention: positive to port
     named = _MARIN_NAME.match(path.stem)
-    if named and float(named.group(1)) != first_rudder:
-        raise DatasetError(f"{path}:2: title says first rudder {first_rudder:g} but the file name says {named.group(1)}")
+    if named and named.group(1).lower() != tag:
+        raise DatasetError(f"{path}:2: title says {lines[1].split(' manoeuvring')[0].strip()!r} but the file name says "
+                           f"{named.group(1)!r} (zz: zig-zag, tc: turning / pull-out)")
+    if named and float(named.group(2)) != first_rudder:
+        raise DatasetError(f"{path}:2: title says first rudder {first_rudder:g} but the file name says {named.group(2)}")
     a = _parse_table(path, lines[MARIN_HEADER_LINES:], MARIN_HEADER_LINES + 1, MARIN_COLUMNS,
                      lambda line: line.split("\t"), allow_trailing_blank=True)
     first = MARIN_HEADER_LINES + 1
@@ -391,7 +426,9 @@ def read_marin(path: Path) -> Manoeuvre:
         k = int(np.flatnonzero(mismatch)[0])
         raise DatasetError(f"{path}:{first + k}: column 'time': {a[k, 0]:g} s disagrees with the rebuilt time "
                            f"base row * {MARIN_DT_S:g} s = {t_s[k]:.4f} s beyond the 3-digit rounding")
-    _check_range(path, "u", np.hypot(a[:, 5], a[:, 6]), 4.0, 12.0, "full-scale speed in m/s (~7.97)")
+    # a turn slows the ship to ~35 % of its approach speed: the median is checked on the approach for a turn
+    approach = slice(None) if kind == "zigzag" else slice(0, max(MIN_ROWS, int(round(20.0 / MARIN_DT_S))))
+    _check_range(path, "u", np.hypot(a[approach, 5], a[approach, 6]), 4.0, 12.0, "full-scale speed in m/s (~7.97)")
     _check_range(path, "rev", a[:, 10], 50.0, 150.0, "propeller speed in rpm (~91.7)")
     _check_range(path, "delta", np.abs(a[:, 9]), 0.0, 40.0, "rudder angle in deg")
     psi_unwrapped = np.radians(np.unwrap(a[:, 4], period=360.0))
@@ -420,7 +457,7 @@ def read_marin(path: Path) -> Manoeuvre:
     if first_side != expected_side:
         raise DatasetError(f"{path}: title says first rudder {first_rudder:g} (to {expected_side}, file delta "
                            f"positive to port) but the rudder column goes {first_side} first")
-    return Manoeuvre(
+    whole = Manoeuvre(
         name=f"marin_zz_{int(amplitude):02d}_{int(amplitude):02d}_{expected_side[0]}", source="marin", path=path,
         t_s=t_s, x_n=x, y_e=y, psi=wrap_angle(psi_unwrapped), u=u, v=v, r=np.radians(a[:, 8]), delta=delta,
         rpm=a[:, 10].copy(), scale=ScaleInfo("full", 1.0, KVLCC2_LPP_FULL_M, KVLCC2_LPP_FULL_M),
@@ -437,6 +474,66 @@ def read_marin(path: Path) -> Manoeuvre:
             "course_minus_heading_median_deg": f"{course_deg:.2f}",
         },
     )
+    if kind == "zigzag":
+        return [whole]
+    return _marin_turn(whole, amplitude, expected_side, pullout_expected=kind == "turning_pullout")
+
+
+def _slice(m: Manoeuvre, start: int, stop: int, **changes: object) -> Manoeuvre:
+    """Rows [start, stop) of a manoeuvre (its own time base kept: stamps continue the file's clock)."""
+    arrays = {name: getattr(m, name)[start:stop].copy() for name in ("t_s", "x_n", "y_e", "psi", "u", "v", "r")}
+    arrays["delta"] = None if m.delta is None else m.delta[start:stop].copy()
+    arrays["rpm"] = None if m.rpm is None else m.rpm[start:stop].copy()
+    return replace(m, **arrays, **changes)
+
+
+def _marin_turn(m: Manoeuvre, amplitude: float, side: str, *, pullout_expected: bool) -> list[Manoeuvre]:
+    """A turning (/ pull-out) record -> [turning circle] or [turning circle, pull-out], split at the last row the
+    rudder holds the turn's angle before it returns (the pull-out's execute). DatasetError when a pull-out is
+    announced but the rudder never returns, or does not return to midships."""
+    sign = 1.0 if side == "starboard" else -1.0
+    toward = sign * np.degrees(m.delta)  # (N,) deg, positive toward the turn's side
+    held = np.flatnonzero(toward >= 0.5 * amplitude)
+    execute = int(np.flatnonzero(np.abs(toward - toward[0]) > MARIN_EXECUTE_DEG)[0])
+    hold_deg = float(np.median(toward[held]))
+    back = np.flatnonzero(toward[held[0]:] < 0.5 * amplitude)
+    turn_note = (f"rudder {hold_deg:.1f} deg to {side} from t = {m.t_s[execute]:.1f} s (execute: the rudder leaves the "
+                 f"approach by {MARIN_EXECUTE_DEG:g} deg)")
+    if len(back) == 0:
+        if pullout_expected:
+            raise DatasetError(f"{m.path}: title says 'Turning / Pull-out' but the rudder never returns from its "
+                               f"{hold_deg:.1f} deg hold (truncated file?)")
+        return [_slice(m, 0, len(m.t_s), name=f"marin_tc_{int(amplitude):02d}_{side[0]}", kind="turning_circle",
+                       check_angle_deg=math.nan, notes={**m.notes, "turn": turn_note},
+                       extra={"turning_circle": json.dumps({"rudder_deg": hold_deg, "side": side,
+                                                            "execute_s": float(m.t_s[execute])})})]
+    returning = held[0] + int(back[0])
+    holding = np.flatnonzero(toward[:returning] >= hold_deg - MARIN_HOLD_TOLERANCE_DEG)
+    split = int(holding[-1])  # the last row of the hold: the pull-out's execute
+    if len(m.t_s) - split < MIN_ROWS or split < MIN_ROWS:
+        raise DatasetError(f"{m.path}: the pull-out starts at row {split + MARIN_HEADER_LINES + 1} of {len(m.t_s)}: "
+                           f"expected at least {MIN_ROWS} rows of turn and of pull-out")
+    after = np.abs(toward[returning:])
+    if np.median(after) > MARIN_MIDSHIPS_FRACTION * amplitude:
+        raise DatasetError(f"{m.path}:{returning + MARIN_HEADER_LINES + 1}: after the pull-out execute the rudder "
+                           f"stays at a median {np.median(after):.1f} deg; expected it back to midships (below "
+                           f"{MARIN_MIDSHIPS_FRACTION * amplitude:.1f} deg)")
+    name = f"marin_tc_{int(amplitude):02d}_{side[0]}"
+    psi = np.unwrap(m.psi)
+    heading_deg = float(np.degrees(psi[split] - psi[0]))
+    split_note = (f"one file, two manoeuvres: the turning circle is rows 0-{split} (t <= {m.t_s[split]:.1f} s, "
+                  f"{abs(heading_deg):.0f} deg of heading change), the pull-out rows {split}- (from the last row of "
+                  "the rudder hold); both bags keep the file's clock")
+    turn = _slice(m, 0, split + 1, name=name, kind="turning_circle", check_angle_deg=math.nan,
+                  notes={**m.notes, "turn": turn_note, "split": split_note},
+                  extra={"turning_circle": json.dumps({"rudder_deg": hold_deg, "side": side,
+                                                       "execute_s": float(m.t_s[execute])})})
+    pullout = _slice(m, split, len(m.t_s), name=f"{name}_pullout", kind="pullout", check_angle_deg=math.nan,
+                     notes={**m.notes, "split": split_note,
+                            "pullout": f"rudder from {hold_deg:.1f} deg to midships from t = {m.t_s[split]:.1f} s"},
+                     extra={"pullout": json.dumps({"rudder_deg": hold_deg, "side": side,
+                                                   "execute_s": float(m.t_s[split])})})
+    return [turn, pullout]
 
 
 # ----------------------------------------------------------------------------- Fuzhou USV
@@ -724,14 +821,15 @@ def read_dalian(path: Path) -> Manoeuvre:
             "unused": "x, y, t, course, HeadingSet, SpeedSet, w, varsigma_w, Voltage, tracking errors and bounds, x_p, y_p",
             "length": "not published (no mass, length, thrusters): L_pp_m nan",
         },
-        extra={"path_following": json.dumps(params, sort_keys=True)},
+        extra={"path_following": json.dumps(params, sort_keys=True)}, kind="path_following",
     )
 
 
 # ----------------------------------------------------------------------------- discovery
 
-READERS: dict[str, Callable[[Path], Manoeuvre]] = {"hsva": read_hsva, "marin": read_marin, "fuzhou": read_fuzhou,
-                                                   "dalian": read_dalian}
+READERS: dict[str, Callable[[Path], Sequence[Manoeuvre]]] = {
+    "hsva": lambda p: [read_hsva(p)], "marin": read_marin, "fuzhou": lambda p: [read_fuzhou(p)],
+    "dalian": lambda p: [read_dalian(p)]}  # format -> the manoeuvres of one file (a MARIN turn file holds two)
 
 
 def detect_format(path: Path) -> str:
@@ -777,8 +875,9 @@ def find_sources(inputs: Sequence[Path], fmt: str = "auto") -> list[tuple[Path, 
     return found
 
 
-def read_manoeuvre(path: Path, fmt: str) -> Manoeuvre:
-    return READERS[fmt](Path(path))
+def read_manoeuvres(path: Path, fmt: str) -> list[Manoeuvre]:
+    """Every manoeuvre of one file (one, or a MARIN turning circle and its pull-out)."""
+    return list(READERS[fmt](Path(path)))
 
 
 # ----------------------------------------------------------------------------- conversion
@@ -841,7 +940,7 @@ def custom_data(m: Manoeuvre, command: str = "replay convert") -> dict[str, str]
     out = {
         "generator": "usv_predictor replay convert", "version": __version__, "conversion_version": CONVERSION_VERSION,
         "command": command, "source": m.source, "source_file": m.path.name, "source_sha256": _file_digest(m.path),
-        "licence": LICENCE[m.source], "manoeuvre": m.name,
+        "licence": LICENCE[m.source], "manoeuvre": m.name, "manoeuvre_type": m.kind,
         "scale": m.scale.scale, "scale_factor": repr(m.scale.scale_factor), "L_pp_m": repr(m.scale.L_pp_m),
         "full_scale_L_pp_m": repr(m.scale.full_scale_L_pp_m),
         "conventions": ("NED, body FRD, psi clockwise from north, " + (
@@ -850,7 +949,7 @@ def custom_data(m: Manoeuvre, command: str = "replay convert") -> dict[str, str]
         "epoch_ns": str(EPOCH_NS[m.source] if m.epoch_ns is None else m.epoch_ns), "gnss": datum,
         "notes": json.dumps(dict(m.notes), sort_keys=True),
     }
-    if m.delta is not None:
+    if m.delta is not None and m.kind == "zigzag":
         out["zigzag"] = json.dumps({"rudder_deg": m.rudder_amplitude_deg, "check_deg": m.check_angle_deg,
                                     "first_side": m.first_side})
     out.update(m.extra)
@@ -861,7 +960,8 @@ def summarise(m: Manoeuvre) -> dict:
     speed = np.hypot(m.u, m.v)
     psi = m.psi[np.isfinite(m.psi)]
     out = {
-        "manoeuvre": m.name, "source": m.source, "file": str(m.path), "samples": len(m.t_s),
+        "manoeuvre": m.name, "manoeuvre_type": m.kind, "source": m.source, "file": str(m.path),
+        "samples": len(m.t_s),
         "duration_s": m.duration_s, "rate_hz": m.rate_hz, "scale": m.scale.scale,
         "speed_mps": [float(speed.min()), float(speed.max())],
         "rudder_deg": None if m.delta is None else [float(np.degrees(m.delta.min())), float(np.degrees(m.delta.max()))],
@@ -895,7 +995,7 @@ def convert(inputs: Sequence[Path], output: Path, *, fmt: str = "auto", storage:
     from usv_predictor.config import load_predictor_config
     from usv_predictor.replay.bagio import config_topic_specs, prepare_outputs
 
-    manoeuvres = [read_manoeuvre(path, f) for path, f in find_sources(inputs, fmt)]
+    manoeuvres = [m for path, f in find_sources(inputs, fmt) for m in read_manoeuvres(path, f)]
     names: dict[str, Path] = {}
     for m in manoeuvres:
         if m.name in names:
