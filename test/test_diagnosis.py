@@ -152,7 +152,8 @@ class _FakeRollout(torch.nn.Module):
             self.register_buffer(name, torch.zeros(term.size, dtype=torch.float64))
         self.target, self.broken = target, broken
 
-    def forward(self, state: torch.Tensor, controls: torch.Tensor) -> tuple[torch.Tensor]:
+    def forward(self, state: torch.Tensor, controls: torch.Tensor, reference: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor]:
         bad = self.broken or bool(self.wave_ne.abs().sum() > 0)
         return (self.target * (math.nan if bad else 1.0),)
 

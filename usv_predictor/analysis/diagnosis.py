@@ -39,7 +39,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from usv_predictor.data.recording import Recording
+from usv_predictor.data.recording import Recording, approach_state
 from usv_predictor.errors import ConfigError, DiagnosisError
 from usv_predictor.frames import compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
@@ -76,10 +76,13 @@ class Segments:
     target: torch.Tensor  # (B, H, 6) measured u, v, r, x_n, y_e (from the start), psi
     weight: torch.Tensor  # (B, H, 6) 1/sigma where measured, 0 where missing (no GNSS)
     recording: np.ndarray  # (B,) index of the recording each segment comes from
+    reference: torch.Tensor  # (B, 4) measured u, v, r, psi of the approach of the segment's manoeuvre: the straight
+    #                          running whose engine speed a rudder_only grey box holds (models/greybox.py)
 
     def select(self, mask: np.ndarray) -> "Segments":
         m = torch.as_tensor(mask)
-        return Segments(self.state[m], self.controls[m], self.target[m], self.weight[m], self.recording[mask])
+        return Segments(self.state[m], self.controls[m], self.target[m], self.weight[m], self.recording[mask],
+                        self.reference[m])
 
     def __len__(self) -> int:
         return int(self.state.shape[0])
@@ -87,9 +90,12 @@ class Segments:
 
 def make_segments(recordings: Sequence[Recording], horizon_s: float = 20.0, stride_s: float = 5.0,
                   sigma: Sequence[float] = SIGMA) -> Segments:
-    """Cut every recording into segments of horizon_s starting every stride_s."""
-    states, controls, targets, weights, index = [], [], [], [], []
+    """Cut every recording into segments of horizon_s starting every stride_s; each carries its manoeuvre's approach
+    state (data.recording.approach_state: a rudder_only boat holds the engine speed of its approach all manoeuvre
+    long, not the one of the slower speed a segment inside a turn starts from)."""
+    states, controls, targets, weights, index, references = [], [], [], [], [], []
     for i, rec in enumerate(recordings):
+        approach = approach_state(rec.nu, rec.psi, rec.dt)  # (4,)
         h = whole_steps(horizon_s, rec.dt, "segment horizon")
         stride = whole_steps(min(stride_s, len(rec) * rec.dt), rec.dt, "segment stride")
         for k in range(0, len(rec) - h, stride):
@@ -101,16 +107,17 @@ def make_segments(recordings: Sequence[Recording], horizon_s: float = 20.0, stri
             targets.append(np.where(finite, target, 0.0))
             weights.append(finite / np.asarray(sigma))
             index.append(i)
+            references.append(np.where(np.isfinite(approach), approach, [*rec.nu[k], rec.psi[k]]))
     if not states:
         raise DiagnosisError(f"no recording is longer than the {horizon_s:.0f} s segment horizon; record longer manoeuvres")
     as_t = lambda a: torch.tensor(np.array(a), dtype=torch.float64)  # noqa: E731
-    return Segments(as_t(states), as_t(controls), as_t(targets), as_t(weights), np.array(index))
+    return Segments(as_t(states), as_t(controls), as_t(targets), as_t(weights), np.array(index), as_t(references))
 
 
 def residuals(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments) -> torch.Tensor:
     """Weighted residuals (B, H, 6) of the rollout against the measurements."""
     with torch.no_grad():
-        predicted = model(seg.state, seg.controls)[0]  # (B, H, 6)
+        predicted = model(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
     return (predicted - seg.target) * seg.weight
 
 
@@ -546,7 +553,7 @@ def discrepancy(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments,
     """
     set_terms(model, {})
     with torch.no_grad():
-        predicted = model(seg.state, seg.controls)[0].numpy()  # (B, H, 6)
+        predicted = model(seg.state, seg.controls, seg.reference)[0].numpy()  # (B, H, 6)
     target = seg.target.numpy()
     valid = seg.weight.numpy()[:, -1, 3] > 0
     horizon = target.shape[1] * recordings[0].dt

@@ -29,6 +29,23 @@ NS = NS_PER_S  # the name tests import from here
 MOTION_ROLES = ("imu", "velocity", "heading")  # the state [u, v, r, psi]; the controls' roles come from the layout
 
 
+APPROACH_S = 5.0  # (s) the start of a manoeuvre: its approach, the straight running its engine setting holds
+
+
+def approach_state(nu: np.ndarray, psi: np.ndarray, dt: float) -> np.ndarray:
+    """(4,) [u, v, r, psi] of a manoeuvre's approach from its (T, 3) nu and (T,) psi at step dt (s): the medians over
+    the first APPROACH_S (the heading as a circular mean), NaN samples left out. A rudder_only boat's engine speed is
+    the one that holds this state's speed in straight running (models/greybox.py `reference`; identification's
+    equivalent engine speed of the manoeuvre)."""
+    start = slice(0, max(2, int(round(APPROACH_S / dt))))
+    rows = np.column_stack([nu[start], psi[start]])  # (n, 4)
+    rows = rows[np.all(np.isfinite(rows), axis=1)]
+    if not len(rows):
+        return np.full(4, np.nan)
+    heading = float(np.arctan2(np.sin(rows[:, 3]).mean(), np.cos(rows[:, 3]).mean()))
+    return np.array([*np.median(rows[:, :3], axis=0), heading])
+
+
 def required_roles(layout: ActuatorLayout = DEFAULT_LAYOUT) -> tuple[str, ...]:
     """The input roles a Recording (and the node's state) needs: the motion, then the layout's controls."""
     return MOTION_ROLES + layout.roles

@@ -17,7 +17,7 @@ from usv_predictor.data.features import STATE_NAMES
 from usv_predictor.errors import ModelError
 from usv_predictor.fitting.identification import ForceData, IdentificationResult
 from usv_predictor.models.artifact import OUTPUT_LAYOUT, UNITS, ModelArtifact, export_module
-from usv_predictor.models.greybox import actuator_sections_metadata, hull_coefficients
+from usv_predictor.models.greybox import actuator_sections_metadata, engine_speed_metadata, hull_coefficients
 from usv_predictor.models.hybrid import MlpResidual, PolynomialResidual, ResidualGreyBox, ZeroResidual
 
 
@@ -114,6 +114,8 @@ def export_identified(path: str, module: ResidualGreyBox, result: Identification
         "identification": identification,
         "units": UNITS,
         "dtype": "float64",
+        **engine_speed_metadata(vessel, module),  # rudder_only: how the engine speed is held (identification's
+        #                                           per-manoeuvre estimates: identification.actuators)
         **dict(extra or {}),
     }
     return export_module(path, module, metadata)

@@ -57,7 +57,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from usv_predictor.atomic import finite_or_none
-from usv_predictor.data.recording import Recording
+from usv_predictor.data.recording import APPROACH_S, Recording
 from usv_predictor.data.smoother import Smoothed, SmootherConfig, smooth_recording
 from usv_predictor.errors import ConfigError, DatasetError, NotIdentifiableError
 from usv_predictor.models.greybox import HULL_NAMES
@@ -78,7 +78,6 @@ SPEED_RATIO_RANGE = (0.6, 1.6)  # measured / preset straight-running speed accep
 RIDGE_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # penalty weights (relative to the data term) tried by CV
 Z95 = 1.959964
 CHI2_95 = 3.841459  # 95 % quantile of chi-square with 1 degree of freedom (profile-likelihood intervals)
-APPROACH_S = 5.0  # (s) the start of a manoeuvre whose median speed is its approach speed (rudder_only)
 PROFILE_SPAN = 4.0  # a profiled gain is searched within [prior / span, prior * span]
 PROFILE_POINTS = 17  # coarse grid of the profile (log-spaced), refined by golden section
 
