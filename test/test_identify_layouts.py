@@ -21,7 +21,7 @@ import pytest
 import torch
 import yaml
 
-from usv_predictor.data.recording import APPROACH_S, approach_state, recording_from_signals
+from usv_predictor.data.recording import APPROACH_S, approach_state, recording_from_signals, straight_samples
 from usv_predictor.errors import ConfigError, NotIdentifiableError
 from usv_predictor.fitting import hybrid_fit
 from usv_predictor.fitting import identification as idf
@@ -259,7 +259,7 @@ def test_rudder_only_estimates_the_engine_speed_of_each_manoeuvre(tmp_path):
     assert art.accepts_reference and art.metadata["engine_speed"]["held_rpm"] is None
     assert art.metadata["engine_speed"]["approach_s"] == APPROACH_S
     late = len(rec) // 2  # (sample) well inside the turn, the boat slowed down
-    approach = approach_state(rec.nu, rec.psi, rec.dt)[None, :]  # (1, 4)
+    approach = approach_state(rec.nu, rec.psi, rec.dt, straight_samples(rec.controls, rec.actuator_layout))[None, :]
     with torch.no_grad():
         art.module.engine_speed_rpm[:] = engines[runs[2].name]["engine_speed_rpm"]
         known = art.predict(rec.state()[late:late + 1], rec.controls[None, late:])

@@ -39,7 +39,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from usv_predictor.data.recording import Recording, approach_state
+from usv_predictor.data.recording import Recording, approach_state, straight_samples
 from usv_predictor.errors import ConfigError, DiagnosisError
 from usv_predictor.frames import compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
@@ -95,7 +95,7 @@ def make_segments(recordings: Sequence[Recording], horizon_s: float = 20.0, stri
     long, not the one of the slower speed a segment inside a turn starts from)."""
     states, controls, targets, weights, index, references = [], [], [], [], [], []
     for i, rec in enumerate(recordings):
-        approach = approach_state(rec.nu, rec.psi, rec.dt)  # (4,)
+        approach = approach_state(rec.nu, rec.psi, rec.dt, straight_samples(rec.controls, rec.actuator_layout))  # (4,)
         h = whole_steps(horizon_s, rec.dt, "segment horizon")
         stride = whole_steps(min(stride_s, len(rec) * rec.dt), rec.dt, "segment stride")
         for k in range(0, len(rec) - h, stride):

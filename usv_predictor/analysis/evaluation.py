@@ -37,7 +37,7 @@ import numpy as np
 
 from usv_predictor.analysis import metrics
 from usv_predictor.atomic import finite_or_none
-from usv_predictor.data.recording import Recording, approach_state
+from usv_predictor.data.recording import Recording, approach_state, straight_samples
 from usv_predictor.errors import EvaluationError, ModelError
 from usv_predictor.frames import angle_difference_deg
 from usv_predictor.models import loading
@@ -251,9 +251,11 @@ def held_reference(recording: Recording, series: np.ndarray) -> np.ndarray | Non
     """(4,) the approach state [u, v, r, psi] of the recording's reference `series` (T, 6) for a layout that reports
     no propulsion (rudder_only: the straight running whose engine speed its grey box holds); None for the others
     (and when the approach has no finite sample)."""
-    if actuator_layout(recording.layout).propulsion:
+    layout = actuator_layout(recording.layout)
+    if layout.propulsion:
         return None
-    approach = approach_state(series[:, [U, V, R]], series[:, PSI], recording.dt)
+    approach = approach_state(series[:, [U, V, R]], series[:, PSI], recording.dt,
+                              straight_samples(recording.controls, layout))
     return approach if np.all(np.isfinite(approach)) else None
 
 
