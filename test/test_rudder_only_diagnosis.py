@@ -89,14 +89,16 @@ def test_own_bags_are_diagnosed_none_and_predicted_to_the_noise(boat, tmp_path, 
 
 
 @pytest.mark.slow
-def test_a_hidden_current_is_named_with_its_parameters(boat, tmp_path, capsys):
-    """A current in the rudder_only bags: named, speed and direction within the current record's tolerance. The
-    engine holds the approach's speed through the WATER (the grey box takes the current's share out of the measured
-    approach), so the current is not absorbed into the engine speed."""
-    rng = np.random.default_rng([_SECRET, 1])
-    truth = draw(rng, "current", layout="rudder_only")
+@pytest.mark.parametrize("effect", ["current", "wave_drift"])
+def test_a_hidden_effect_is_named_with_its_parameters(boat, tmp_path, capsys, effect):
+    """A current or waves in the rudder_only bags: named, parameters within the effect record's tolerance. The engine
+    holds the approach's speed through the WATER (the grey box takes the current's share out of the measured approach)
+    against the sea's surge force there (a head sea slows the approach at the same engine setting), so neither is
+    absorbed into the engine speed."""
+    rng = np.random.default_rng([_SECRET, 1 + ["current", "wave_drift"].index(effect)])
+    truth = draw(rng, effect, layout="rudder_only")
     bags = trial(capsys, tmp_path, boat, seed=int(rng.integers(0, 2**31)), flags=truth.cli_flags())
     result = diagnose(capsys, bags, boat, tmp_path, "--no-gain", "--max-causes", "1")
-    assert result["cause"] == "current", (truth, result["message"])
+    assert result["cause"] == effect, (truth, result["message"])
     ok, errors = within_tolerance(truth, result["parameters"])
     assert ok, f"{truth}: errors {errors} beyond the tolerances"
