@@ -524,7 +524,8 @@ def engine_speed_metadata(vessel: Vessel, rollout: GreyBoxRollout) -> Dict[str, 
     return {"engine_speed": {
         "held_rpm": fixed if fixed > 0.0 else None,
         "rule": "held over a prediction: held_rpm when set, else the engine speed that holds the water speed of the "
-                "reference state in straight running (calm-water resistance)",
+                "reference state in straight running against the calm-water resistance less the surge force of the "
+                "model's wind and wave terms at the reference heading",
         "reference": "forward's third argument (B, 4) [u, v, r, psi] as measured; replay evaluate, diagnose and the "
                      "fit check pass the manoeuvre's approach (medians over its straight running before the first "
                      "turn command, at least approach_s); without it (the predictor node, which knows no manoeuvre "
