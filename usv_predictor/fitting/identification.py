@@ -628,6 +628,7 @@ class IdentificationResult:
     data: tuple[ForceData, ...] = field(repr=False)
     notes: tuple[str, ...] = ()
     actuator_coefficients: tuple[Coefficient, ...] = ()  # profiled actuator gains (rudder_throttle's map gain)
+    prior: Vessel | None = None  # the vessel file identified (what the exported model embeds: models/artifact.py)
 
     @property
     def structure(self) -> str:
@@ -826,8 +827,8 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     if vessel.hull_model_name == "small_craft":
         from usv_predictor.fitting.small_craft_identification import identify_small_craft
 
-        return identify_small_craft(vessel, recordings, structure=structure, prior=prior, smoother=smoother,
-                                    rel_ci_limit=rel_ci_limit, data=data, progress=progress)
+        return replace(identify_small_craft(vessel, recordings, structure=structure, prior=prior, smoother=smoother,
+                                            rel_ci_limit=rel_ci_limit, data=data, progress=progress), prior=vessel)
     if vessel.layout == "twin_thrusters":
         raise ConfigError(f"vessel {vessel.name}: identification of twin thrusters needs the small_craft hull model "
                           "(the MMG hull is singular at the low speeds a twin-thruster boat turns at)")
@@ -886,7 +887,7 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     values = fit.values()
     extra = {n: values[n] for n in EXTRA_NAMES if n in values}
     return IdentificationResult(identified_vessel(vessel, fit), fit, tuple(cvs), extra, tuple(forces), tuple(notes),
-                                gains)
+                                gains, prior=vessel)
 
 
 def hull_forces(vessel: Vessel, values: Mapping[str, float], nu: np.ndarray, u0: float,

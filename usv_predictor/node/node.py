@@ -93,8 +93,8 @@ from usv_predictor.fitting.online import OnlineConfig
 from usv_predictor.models import loading
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.node import live, plans, sea
-from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, check_layout_inputs, unused_roles
-from usv_predictor.physics.vessel import load_vessel
+from usv_predictor.physics.actuators import check_layout_inputs, unused_roles
+from usv_predictor.physics.vessel import Vessel
 from usv_predictor.records import NS_PER_S
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
@@ -237,12 +237,24 @@ def _family_description(metadata: dict[str, Any]) -> str:
     return family.description if family is not None else "not a model family of usv_predictor"
 
 
-def load_model(model_path: str, config: PredictorConfig, layout: ActuatorLayout = DEFAULT_LAYOUT) -> live.Rollout:
-    """The model of `model_path` ("" = the shipped one), checked against the configuration: its step, vessel and
-    control columns (the vessel's actuator layout); ModelError naming the file and the mismatch."""
-    expect = {"dt": config.dt, "vessel": config.vessel, "control_layout": list(layout.control_names)}
+def load_model(model_path: str, config: PredictorConfig, vessel: Vessel | None = None) -> tuple[live.Rollout, Vessel]:
+    """The model of `model_path` ("" = the shipped one) and its vessel, checked against the configuration: its step,
+    vessel and control columns (the vessel's actuator layout); ModelError naming the file and the mismatch.
+
+    The vessel is the configured one (`vessel`: a preset, or, when no preset of that name is installed, the
+    description the model embeds under that name); a model that embeds a description differing from it is refused
+    naming the fields (models/loading.model_vessel). vessel: the node's vessel when a model is swapped (the new
+    model must be made for it)."""
+    expect = {"dt": config.dt, "vessel": config.vessel}
     artifact = loading.load_model(model_path, expect=expect, option="model_path", physics=False)
-    return live.Rollout(artifact, config.horizon_steps, config.ensemble_size)
+    source = f"model {artifact.path}"
+    chosen = loading.model_vessel(artifact, vessel or config.vessel, option="vessel", source=source)
+    layout = chosen.actuator_layout
+    controls = list(artifact.metadata.get("control_layout") or [])
+    if controls != list(layout.control_names):
+        raise ModelError(f"{source} does not match the configuration: control_layout: model {controls}, config "
+                         f"{list(layout.control_names)} (vessel {chosen.name}, actuator layout {layout.name})")
+    return live.Rollout(artifact, config.horizon_steps, config.ensemble_size), chosen
 
 
 @dataclass
@@ -279,14 +291,16 @@ class PredictorNode(Node):
         super().__init__(NODE_NAME, **node_options)
         defaults_path = Path(config_path) if config_path is not None else default_config_path()
         self.config = self._declare_parameters(defaults_path)
-        self.layout = load_vessel(self.config.vessel).actuator_layout  # ConfigError: fatal at start-up
+        # the model and its vessel (ModelError, ConfigError: fatal at start-up); the vessel's actuator layout says
+        # which inputs are read
+        self.rollout, self.vessel = load_model(self.config.model_path, self.config)
+        self.layout = self.vessel.actuator_layout
         # every control role of the layout configured (ConfigError naming the roles and the layout: fatal); the
         # control roles of other layouts (the shipped config lists every layout's) are ignored: logged once here,
         # reported on /diagnostics ("ignored inputs")
         ignored_notes = check_layout_inputs(self.layout, {entry.role: entry.topic for entry in self.config.inputs},
                                             f"{self.config.source}, vessel {self.config.vessel}")
         self.ignored = {entry.role: entry.topic for entry in self.config.inputs if entry.role in unused_roles(self.layout)}
-        self.rollout = load_model(self.config.model_path, self.config, self.layout)  # ModelError: fatal at start-up
         used = [entry for entry in self.config.inputs if entry.role not in self.ignored]
         self.inputs = live.InputSet(
             {entry.role: msg_adapters.ROLE_FIELDS[entry.role] for entry in used},
@@ -393,7 +407,7 @@ class PredictorNode(Node):
         for parameter in parameters:
             if parameter.name == "model_path":
                 try:
-                    swap = load_model(str(parameter.value), self.config, self.layout)
+                    swap, _ = load_model(str(parameter.value), self.config, self.vessel)
                 except (ModelError, ConfigError) as err:
                     self.get_logger().error(f"model_path not changed, keeping {self.rollout.artifact.path}: {err}")
                     return SetParametersResult(successful=False, reason=str(err))
@@ -573,7 +587,7 @@ class PredictorNode(Node):
 
     def _make_sea(self, rollout: live.Rollout, changes: dict[str, Any]) -> sea.LiveSea:
         enabled, config = self._online_config(changes)
-        return sea.LiveSea(rollout.artifact, self.config.vessel, config, enabled, self.config.dt, self.config.rate_hz)
+        return sea.LiveSea(rollout.artifact, self.vessel, config, enabled, self.config.dt, self.config.rate_hz)
 
     def _observe_sea(self, state: live.LiveState) -> None:
         """Before the cycle's rollout: feed the estimator when the state is on its dt grid, publish the estimate."""

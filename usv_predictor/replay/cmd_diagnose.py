@@ -28,7 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from usv_predictor.physics.effects import hypothesis_names
 
     parser.add_argument("bags", nargs="+", type=Path, metavar="BAG", help="bags or directories of bags (a trial programme)")
-    parser.add_argument("--vessel", default=None, help="vessel preset of the calm-water model (default: config's vessel)")
+    parser.add_argument("--vessel", default=None,
+                        help="vessel preset or YAML file of the calm-water model (default: with --model the vessel the "
+                             "model embeds, else the config's vessel); with --model it must be the model's: one that "
+                             "differs is refused, naming the fields")
     parser.add_argument("--model", type=Path, default=None, metavar="M",
                         help="a grey-box model artifact (from `replay identify`) as the calm-water model instead of the preset")
     parser.add_argument("--dt", type=positive_float, default=None,

@@ -85,10 +85,11 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                         help="time between open-loop start points (s, default 5)")
     parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
     add_config_argument(parser)
-    parser.add_argument("--vessel", default=None, metavar="PRESET",
-                        help="vessel preset the bags were recorded on: its actuator layout says which control topics "
-                             "are read and must be the model's control_layout (default: the model's vessel, else "
-                             "the config's)")
+    parser.add_argument("--vessel", default=None, metavar="PRESET|YAML",
+                        help="vessel preset or YAML file the bags were recorded on: its actuator layout says which "
+                             "control topics are read and must be the model's control_layout, the fit check uses its "
+                             "length; a model that embeds a different description is refused, naming the fields "
+                             "(default: the vessel the model embeds or names, else the config's)")
     parser.add_argument("--no-fit-check", action="store_true",
                         help="evaluate even when the model does not fit the bags at all (its steady speed or yaw rate "
                              "at the recorded commands, or its length scale, is far off: refused otherwise)")
