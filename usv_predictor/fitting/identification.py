@@ -253,7 +253,7 @@ def check_vessel_matches(vessel: Vessel, recording: Recording) -> None:
             f"the preset runs straight at {expected:.2f} m/s, the data show {speed0:.2f} m/s "
             f"(ratio {ratio:.2f}, accepted {low}-{high}; Froude number {froude:.2f} for this L_pp). A recording of "
             "another scale (model vs full) or another vessel? Use the preset of that vessel and scale, or "
-            "Froude-scale the data first")
+            "Froude-scale the data first (--scale L_data / L_vessel)")
 
 
 def force_data(vessel: Vessel, recording: Recording, smoothed: Smoothed, *, edge_s: float = 2.0,

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from usv_predictor.replay.options import add_config_argument, log, positive_float, positive_int
+from usv_predictor.replay.options import add_config_argument, add_scale_argument, log, positive_float, positive_int
 
 NAME = "diagnose"
 HELP = "name the physical cause of what the calm-water model gets wrong, extend the model, measure the gain"
@@ -53,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write the extended model (TorchScript artifact) for the node")
     parser.add_argument("--report", type=Path, default=None, metavar="DIR", help="write report.md + plots into DIR")
     parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
+    add_scale_argument(parser)
     add_config_argument(parser)
     parser.add_argument("--no-fit-check", action="store_true",
                         help="proceed when the calm-water model does not fit the bags at all (its steady speed or yaw "
@@ -66,4 +67,4 @@ def run(args: argparse.Namespace) -> dict:
                          max_causes=args.max_causes, horizon_s=args.horizon, stride_s=args.stride,
                          gain=not args.no_gain, export=args.export, report=args.report,
                          include_calm=args.include_calm, config=args.config, fit_check=not args.no_fit_check,
-                         progress=log)
+                         scale=args.scale, progress=log)

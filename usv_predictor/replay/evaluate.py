@@ -43,6 +43,7 @@ class EvaluationRequest:
     vessel: str | None = None  # preset or vessel file of the bags' vessel; None: the model's (embedded or its preset), else the config's
     adaptive: bool = False  # also run the online estimator and the adaptive open loop (analysis/adaptive.py)
     fit_check: bool = True  # refuse a model that does not fit the bags at all (analysis/fit_check.py)
+    scale: float = 1.0  # Froude scale L_bags / L_model: the bags are scaled to the model's size (data/recording.py)
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(x) and x > 0.0 for x in (self.stride_s, *self.horizons_s)):
@@ -52,6 +53,8 @@ class EvaluationRequest:
             raise EvaluationError("--horizons needs at least one horizon (s)")
         if self.dt is not None and not (math.isfinite(self.dt) and self.dt > 0.0):
             raise EvaluationError(f"--dt {self.dt:g} must be finite and positive (s)")
+        if not (math.isfinite(self.scale) and self.scale > 0.0):
+            raise EvaluationError(f"--scale {self.scale:g} must be finite and positive (L_bags / L_model)")
         if self.reference not in REFERENCES:
             raise EvaluationError(f"--reference {self.reference!r}: expected one of {', '.join(REFERENCES)}")
 
@@ -125,7 +128,8 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
     vessel = evaluation_vessel(request.vessel, model, source)
     layout = bags_layout(vessel, model.metadata, source, config=request.config)
     recordings = load_recordings(bags, dt, config_path=request.config, include_calm=request.include_calm,
-                                 warn=lambda m: progress(f"warning: {m}"), progress=progress, layout=layout)
+                                 warn=lambda m: progress(f"warning: {m}"), progress=progress, layout=layout,
+                                 scale=request.scale)
     if not recordings:
         raise BagError(f"no usable recording in {', '.join(map(str, bags))} (see the warnings above)")
     check = model_fit_check(model, recordings, vessel)
@@ -134,6 +138,7 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
         from usv_predictor.analysis.fit_check import require_fit
 
         require_fit(check)
+        require_confirmed_scale(check, request.scale)
     result = evaluation.evaluate(model, recordings, request.reference, tuple(request.horizons_s), request.stride_s,
                                  progress=progress)
     if request.adaptive:
@@ -144,6 +149,7 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
         "software_version": __version__,
         "model_source": request.model or str(loading.default_model_path()),
         "data": {"bags": [str(b) for b in bags], "dt_s": dt, "reference": request.reference,
+                 "froude_scale": request.scale,
                  "recordings": [{"name": r.name, "source": r.source, "duration_s": r.duration_s,
                                  "has_gnss": bool(np.isfinite(r.position).any()),
                                  "has_truth": r.truth is not None} for r in recordings]},
@@ -193,6 +199,17 @@ def model_fit_check(model, recordings: Sequence, vessel: Any = None) -> Any:
     label = (f"the preset {meta.get('vessel')}" if physics
              else f"model {meta.get('model_id', '?')} ({meta.get('model_type', '?')}, vessel {meta.get('vessel', '?')})")
     return check_fit(model, recordings, vessel=vessel, label=label)
+
+
+def require_confirmed_scale(check: Any, scale: float) -> None:
+    """A Froude scale (--scale) is trusted only when the fit check compared the model's steady speed with the scaled
+    bags' (a held, settled window): without one only the top-speed check ran, which cannot see a factor in the wrong
+    direction (the scaled boat then merely runs slowly). EvaluationError in one line otherwise."""
+    if scale != 1.0 and check.speed_ratio is None:
+        raise EvaluationError(f"--scale {scale:g}: the scaled bags have no held, settled window (>= 5 s held, settled "
+                              "over 10 s) where the fit check can compare the model's steady speed with theirs, so "
+                              "the factor cannot be confirmed (a wrong direction only makes the boat slow); give bags "
+                              "with a straight run or a held turn, or pass --no-fit-check to proceed anyway")
 
 
 def save_evaluation(result: EvaluationResult, directory: Path) -> dict:
