@@ -139,6 +139,9 @@ def test_evaluate_and_the_fit_check_take_the_vessel_from_the_model(tmp_path, cap
     check = json.loads(out.read_text())["fit_check"]
     assert check["verdict"] == "fits" and check["actuator_layout"] == "twin_thrusters"
     assert check["length_m"] == 2.0 and check["top_speed_mps"] == pytest.approx(3.086, abs=0.01)  # the embedded boat's
+    assert main(["evaluate", str(OTTER_BAGS), "--model", str(tmp_path / "m.pt"), "--vessel", "my_otter",
+                 "--json", str(out)]) == 0  # its name: no preset here, the model's description
+    assert json.loads(out.read_text())["fit_check"]["length_m"] == 2.0
     capsys.readouterr()
     other, _ = my_boat(tmp_path, folder="x", L_pp=2.5)
     assert main(["evaluate", str(OTTER_BAGS), "--model", str(tmp_path / "m.pt"), "--vessel", str(other)]) == 2

@@ -91,10 +91,11 @@ from usv_predictor.data.recording import PLAUSIBLE
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredictorError
 from usv_predictor.fitting.online import OnlineConfig
 from usv_predictor.models import loading
+from usv_predictor.models.artifact import metadata_differences
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.node import live, plans, sea
-from usv_predictor.physics.actuators import check_layout_inputs, unused_roles
-from usv_predictor.physics.vessel import Vessel
+from usv_predictor.physics.actuators import ActuatorLayout, check_layout_inputs, unused_roles
+from usv_predictor.physics.vessel import Vessel, load_vessel, vessel_preset_exists
 from usv_predictor.records import NS_PER_S
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
@@ -245,15 +246,13 @@ def load_model(model_path: str, config: PredictorConfig, vessel: Vessel | None =
     description the model embeds under that name); a model that embeds a description differing from it is refused
     naming the fields (models/loading.model_vessel). vessel: the node's vessel when a model is swapped (the new
     model must be made for it)."""
-    expect = {"dt": config.dt, "vessel": config.vessel}
-    artifact = loading.load_model(model_path, expect=expect, option="model_path", physics=False)
+    artifact = loading.load_model(model_path, expect={"dt": config.dt}, option="model_path", physics=False)
     source = f"model {artifact.path}"
     chosen = loading.model_vessel(artifact, vessel or config.vessel, option="vessel", source=source)
-    layout = chosen.actuator_layout
-    controls = list(artifact.metadata.get("control_layout") or [])
-    if controls != list(layout.control_names):
-        raise ModelError(f"{source} does not match the configuration: control_layout: model {controls}, config "
-                         f"{list(layout.control_names)} (vessel {chosen.name}, actuator layout {layout.name})")
+    diffs = metadata_differences(artifact.metadata, {"vessel": config.vessel,
+                                                     "control_layout": list(chosen.actuator_layout.control_names)})
+    if diffs:
+        raise ModelError(f"{source} does not match the configuration: {'; '.join(diffs)}")
     return live.Rollout(artifact, config.horizon_steps, config.ensemble_size), chosen
 
 
@@ -291,6 +290,8 @@ class PredictorNode(Node):
         super().__init__(NODE_NAME, **node_options)
         defaults_path = Path(config_path) if config_path is not None else default_config_path()
         self.config = self._declare_parameters(defaults_path)
+        if vessel_preset_exists(self.config.vessel):  # the configuration's own errors before the model's
+            self._layout_inputs(load_vessel(self.config.vessel).actuator_layout)
         # the model and its vessel (ModelError, ConfigError: fatal at start-up); the vessel's actuator layout says
         # which inputs are read
         self.rollout, self.vessel = load_model(self.config.model_path, self.config)
@@ -298,8 +299,7 @@ class PredictorNode(Node):
         # every control role of the layout configured (ConfigError naming the roles and the layout: fatal); the
         # control roles of other layouts (the shipped config lists every layout's) are ignored: logged once here,
         # reported on /diagnostics ("ignored inputs")
-        ignored_notes = check_layout_inputs(self.layout, {entry.role: entry.topic for entry in self.config.inputs},
-                                            f"{self.config.source}, vessel {self.config.vessel}")
+        ignored_notes = self._layout_inputs(self.layout)
         self.ignored = {entry.role: entry.topic for entry in self.config.inputs if entry.role in unused_roles(self.layout)}
         used = [entry for entry in self.config.inputs if entry.role not in self.ignored]
         self.inputs = live.InputSet(
@@ -395,6 +395,11 @@ class PredictorNode(Node):
     def _plan_limits(self) -> plans.PlanLimits:
         return plans.PlanLimits(max_age_s=float(self.get_parameter("plan_max_age_s").value),
                                 max_future_s=self.inputs.settings.max_future_s)
+
+    def _layout_inputs(self, layout: ActuatorLayout) -> list[str]:
+        """check_layout_inputs of the configured inputs for `layout` (ConfigError naming the missing roles)."""
+        return check_layout_inputs(layout, {entry.role: entry.topic for entry in self.config.inputs},
+                                   f"{self.config.source}, vessel {self.config.vessel}")
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """Swap the model (validated first; the old one stays on failure) and apply new staleness limits."""

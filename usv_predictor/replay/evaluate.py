@@ -85,7 +85,15 @@ def evaluation_vessel(vessel: str | None, model: Any, source: str) -> Any:
     model embeds, else the preset its metadata names; None for a model of before (name only) whose vessel is no
     preset here and no --vessel (the bags are then read with the config's vessel, the fit check has no length)."""
     from usv_predictor.models.loading import model_vessel
+    from usv_predictor.physics.vessel import load_vessel
 
+    if vessel is not None:
+        try:
+            given = load_vessel(vessel)
+        except ConfigError:  # no such preset: perhaps the name of the vessel the model embeds (model_vessel)
+            given = None
+        if given is not None and list(given.actuator_layout.control_names) != list(model.metadata.get("control_layout", [])):
+            return given  # another layout altogether: bags_layout says so, naming both
     try:
         return model_vessel(model, vessel, source=f"model {source}")
     except ConfigError:
