@@ -824,11 +824,13 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     hull (twin thrusters) goes to fitting/small_craft_identification.py (structures diagonal / coupled). The
     actuator layout decides the levels and what is held (module docstring, "Actuator layouts").
     """
+    prior_vessel = vessel  # the vessel file as given (what the exported model embeds); `vessel` may take fitted gains
     if vessel.hull_model_name == "small_craft":
         from usv_predictor.fitting.small_craft_identification import identify_small_craft
 
         return replace(identify_small_craft(vessel, recordings, structure=structure, prior=prior, smoother=smoother,
-                                            rel_ci_limit=rel_ci_limit, data=data, progress=progress), prior=vessel)
+                                            rel_ci_limit=rel_ci_limit, data=data, progress=progress),
+                       prior=prior_vessel)
     if vessel.layout == "twin_thrusters":
         raise ConfigError(f"vessel {vessel.name}: identification of twin thrusters needs the small_craft hull model "
                           "(the MMG hull is singular at the low speeds a twin-thruster boat turns at)")
@@ -887,7 +889,7 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     values = fit.values()
     extra = {n: values[n] for n in EXTRA_NAMES if n in values}
     return IdentificationResult(identified_vessel(vessel, fit), fit, tuple(cvs), extra, tuple(forces), tuple(notes),
-                                gains, prior=vessel)
+                                gains, prior=prior_vessel)
 
 
 def hull_forces(vessel: Vessel, values: Mapping[str, float], nu: np.ndarray, u0: float,
