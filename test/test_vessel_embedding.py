@@ -181,3 +181,22 @@ def test_the_node_uses_the_embedded_vessel_when_its_file_is_not_installed(tmp_pa
     # the shipped model (name only) still runs on its preset
     rollout, chosen = predictor_node.load_model("", load_predictor_config())
     assert chosen == load_vessel("jari_usv")
+
+
+def test_a_node_runs_a_boat_whose_vessel_file_is_not_installed(ros_context, tmp_path):
+    """The rclpy node itself: vessel my_otter (no preset) and its model: the twin-thruster inputs are subscribed."""
+    from rclpy.parameter import Parameter
+
+    _, vessel = my_boat(tmp_path)
+    greybox_artifact(tmp_path / "m.pt", vessel)
+    node = predictor_node.PredictorNode(context=ros_context, parameter_overrides=[
+        Parameter("vessel", value="my_otter"), Parameter("model_path", value=str(tmp_path / "m.pt")),
+        Parameter("dt", value=DT), Parameter("ensemble_size", value=1)])
+    try:
+        assert node.vessel == vessel and node.layout.name == "twin_thrusters"
+        assert {"thruster_port", "thruster_starboard"} <= set(node.inputs.tracks) and node.inputs.missing == []
+        assert "rudder_angle" in node.ignored and "thruster_port" not in node.ignored
+        assert node.sea.estimator is not None and node.sea.estimator.layout.name == "twin_thrusters"
+        assert node.sea.estimator.model.vessel.small_craft == vessel.small_craft  # the online estimator's boat
+    finally:
+        node.destroy_node()
