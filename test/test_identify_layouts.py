@@ -26,6 +26,7 @@ from usv_predictor.errors import ConfigError, NotIdentifiableError
 from usv_predictor.fitting import hybrid_fit
 from usv_predictor.fitting import identification as idf
 from usv_predictor.fitting import small_craft_identification as sc
+from usv_predictor.models import loading
 from usv_predictor.models.artifact import load_artifact
 from usv_predictor.models.greybox import hull_from_metadata, vessel_from_metadata
 from usv_predictor.physics.dynamics import ManoeuvringModel
@@ -155,6 +156,8 @@ def test_identify_exports_a_small_craft_grey_box_that_predicts(otter, tmp_path):
     names = {c["name"] for c in meta["identification"]["coefficients"]}
     assert set(sc.GAIN_NAMES) <= names and {"X_u", "N_rr", "cross_flow_cd"} <= names
     assert meta["architecture"]["hull"]["X_u"] == result.vessel.small_craft.X_u
+    assert art.embedded_vessel == vessel  # the vessel file identified, whole, not the identified hull
+    assert loading.model_vessel(art) == vessel  # what evaluate, diagnose and the node take without --vessel
     rebuilt = vessel_from_metadata(meta, vessel)  # what `replay diagnose --model` uses
     assert rebuilt.small_craft == result.vessel.small_craft and rebuilt.thrusters == result.vessel.thrusters
     with pytest.raises(ValueError, match="hull_model is 'small_craft', the vessel jari_usv's is 'mmg'"):

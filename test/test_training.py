@@ -193,6 +193,7 @@ def test_replay_train_end_to_end(dataset_file: Path, tmp_path: Path, capsys: pyt
     assert summary["model_id"] == artifact.model_id and summary["epochs_run"] == [3]
     assert artifact.metadata["training"]["recipe"]["epochs"] == 3
     assert artifact.metadata["architecture"]["width"] == 8
+    assert artifact.embedded_vessel == load_vessel("jari_usv")  # the config's vessel, whole, in the model
     assert artifact.predict(np.array([[5.0, 0.0, 0.0, 0.0]]), np.zeros((1, 4, 2)) + [0.0, 650.0]).shape == (1, 1, 4, 6)
 
 

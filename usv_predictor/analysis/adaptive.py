@@ -90,12 +90,19 @@ def set_terms(model: Any, terms: Mapping[str, Sequence[float]]) -> None:
 
 
 def model_vessel(model: Any, vessel: str | Vessel | None = None) -> Vessel:
-    """The vessel of the model's grey box: the preset its metadata names (or `vessel`) with the hull coefficients
-    the metadata carries (identified or diagnosed), where they are the preset's hull model's."""
+    """The vessel of the model's grey box: `vessel`, else the description the artifact embeds or the preset its
+    metadata names (models/loading.model_vessel), with the hull coefficients the metadata carries (identified or
+    diagnosed), where they are that vessel's hull model's."""
     from usv_predictor.models.greybox import hull_from_metadata
+    from usv_predictor.models.loading import model_vessel as described_vessel
 
     meta = dict(model.metadata)
-    base = vessel if isinstance(vessel, Vessel) else load_vessel(vessel or str(meta.get("vessel", "jari_usv")))
+    if isinstance(vessel, Vessel):
+        base = vessel
+    elif vessel is None and (getattr(model, "embedded_vessel", None) is not None or meta.get("vessel")):
+        base = described_vessel(model)
+    else:
+        base = load_vessel(vessel or "jari_usv")
     hull = hull_from_metadata(meta) if meta.get("feature_set") == "physics" else None
     if not hull:
         return base
@@ -183,8 +190,12 @@ def live_terms(estimate: OnlineEstimate, original: Mapping[str, Sequence[float]]
     return out
 
 
-def recording_vessel(recording: Recording, model: Any) -> str | None:
-    """The vessel preset of the model's metadata (the recording carries only its layout)."""
+def recording_vessel(recording: Recording, model: Any) -> str | Vessel | None:
+    """The model's vessel (the recording carries only its layout): the description it embeds, else the preset its
+    metadata names."""
+    embedded = getattr(model, "embedded_vessel", None)
+    if embedded is not None:
+        return embedded
     name = dict(model.metadata).get("vessel")
     return str(name) if name else None
 

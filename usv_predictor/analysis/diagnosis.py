@@ -635,8 +635,10 @@ def measure_gain(recordings: Sequence[Recording], vessel: Vessel, diagnosis: Dia
             "per_recording": {"baseline": [e.to_json() for e in before], "extended": [e.to_json() for e in after]}}
 
 
-def export_extended(path, vessel: Vessel, diagnosis: Diagnosis, dt: float, *, data_digest: str = ""):
-    """The extended grey box (calm-water model + the named cause, refitted on all manoeuvres) as an artifact."""
+def export_extended(path, vessel: Vessel, diagnosis: Diagnosis, dt: float, *, data_digest: str = "",
+                    description: Vessel | None = None):
+    """The extended grey box (calm-water model + the named cause, refitted on all manoeuvres) as an artifact, with
+    `description` (the vessel file the calm-water model came from; None: `vessel` itself) embedded."""
     from usv_predictor.models.artifact import export_module
     from usv_predictor.models.greybox import greybox_metadata
 
@@ -645,4 +647,4 @@ def export_extended(path, vessel: Vessel, diagnosis: Diagnosis, dt: float, *, da
                             training={"method": "diagnosis (usv_predictor.analysis.diagnosis)", "cause": diagnosis.cause,
                                       "parameters": diagnosis.parameters,
                                       "additional_causes": [a.cause for a in diagnosis.additional_causes]})
-    return export_module(path, rollout, meta)
+    return export_module(path, rollout, meta, vessel=description or vessel)

@@ -1,8 +1,8 @@
 """One diagnosis run: the calm-water model, the named cause, what the model gets wrong, the gain, the outputs.
 
-    calm_water_vessel  the calm-water model of a diagnosis: a vessel preset, or the identified hull (and thrust maps)
+    calm_water_model   the calm-water model of a diagnosis: a vessel preset, or the identified hull (and thrust maps)
                        of a grey-box artifact (`replay identify`: an MMG or a small-craft hull; or an earlier
-                       `replay diagnose --export`)
+                       `replay diagnose --export`) on the vessel it embeds
     run_diagnosis      diagnose + discrepancy + held-out gain + export + report (usv_predictor.analysis.diagnosis),
                        with the segments and the scripted grey box built once and shared by every step
 
@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from usv_predictor.analysis import diagnosis as dg
 from usv_predictor.analysis.diagnosis_steps import DiagnosisSteps
@@ -28,41 +28,58 @@ from usv_predictor.physics.vessel import Vessel, load_vessel
 GAIN_METRIC = "mean_position_error_after_30s_m"  # the held-out error a named cause's extension must lower
 
 
-def calm_water_vessel(vessel: str | None, model: Path | None, config: Path | None = None) -> tuple[Vessel, str]:
-    """(the calm-water vessel, where it comes from: "preset" or "identified (<model_id>)").
+class CalmWater(NamedTuple):
+    vessel: Vessel  # the calm-water model's vessel (a preset, or one with an artifact's identified hull)
+    source: str  # "preset" or "identified (<model_id>)"
+    description: Vessel  # the vessel file it was made from (what an exported extension embeds)
 
-    vessel: a preset name (None: the model's vessel, or else the predictor config's); model: a grey-box
-    artifact whose identified hull replaces the preset's (ModelError when it carries anything else).
+
+def calm_water_model(vessel: str | Path | None, model: Path | None, config: Path | None = None) -> CalmWater:
+    """The calm-water model of a diagnosis.
+
+    vessel: a preset name or vessel file (None: the model's vessel, the description it embeds or the preset it names;
+    without a model the predictor config's); model: a grey-box artifact whose identified hull replaces the vessel's
+    (ModelError when it carries anything else, or when `vessel` differs from the description it embeds).
     """
     if model is None:
-        return load_vessel(vessel or load_predictor_config(config).vessel), "preset"
+        preset = load_vessel(vessel or load_predictor_config(config).vessel)
+        return CalmWater(preset, "preset", preset)
     from usv_predictor.models.artifact import load_artifact
+    from usv_predictor.models.loading import model_vessel
 
-    meta = load_artifact(model).metadata
+    artifact = load_artifact(model)
+    meta = artifact.metadata
     hull = hull_from_metadata(meta)
     family = MODEL_FAMILIES.get(family_name(str(meta.get("model_type", ""))))
     if family is None or not family.physics or hull is None:
         raise ModelError(f"model {model}: diagnose needs a grey box without learned or extra terms "
                          f"(`replay identify --structure mmg`, or a small-craft structure), not model_type "
                          f"{meta.get('model_type')!r}; compare other models with `replay evaluate`")
-    preset = load_vessel(vessel or str(meta.get("vessel")))
+    preset = model_vessel(artifact, vessel, source=f"model {model}")
     try:
         identified = vessel_from_metadata(meta, preset)
     except ValueError as err:
         raise ModelError(f"model {model}: {err}") from None
     assert identified is not None  # hull_from_metadata accepted it above
-    return identified, f"identified ({meta.get('model_id')})"
+    return CalmWater(identified, f"identified ({meta.get('model_id')})", preset)
+
+
+def calm_water_vessel(vessel: str | Path | None, model: Path | None, config: Path | None = None) -> tuple[Vessel, str]:
+    """(the calm-water vessel, where it comes from): calm_water_model without the description."""
+    calm = calm_water_model(vessel, model, config)
+    return calm.vessel, calm.source
 
 
 def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, *, dt: float,
                   hypotheses: Sequence[str] | None = None, max_causes: int = 2, horizon_s: float = 20.0,
                   stride_s: float = 5.0, gain: bool = True, export: Path | None = None, report: Path | None = None,
                   fit_check: bool = True, progress: Callable[[str], None] = lambda _: None,
-                  suited_steps: DiagnosisSteps | None = None) -> dict[str, Any]:
+                  suited_steps: DiagnosisSteps | None = None, description: Vessel | None = None) -> dict[str, Any]:
     """Diagnose `recordings` (resampled at dt) against the calm-water `vessel` (from `source`).
 
     suited_steps: the steps that suit the vessel (analysis.diagnosis_steps), recorded in the JSON's `steps` with
-    the ones used (they differ where the caller gave its own).
+    the ones used (they differ where the caller gave its own). description: the vessel file the calm-water model
+    was made from, embedded in the exported extension (None: `vessel`).
     fit_check: refuse (FitCheckError, one line) a calm-water model that does not fit the bags at all
     (analysis/fit_check.py); False: proceed, the failed check then makes the answer model_mismatch.
     gain: also evaluate the extended model on held-out manoeuvres (when a cause is named) and withdraw the cause
@@ -138,7 +155,7 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         out["exported_model"] = None
         progress(f"no model written to {export}: the calm-water model does not fit ({dg.MODEL_MISMATCH}); {dg.REMEDY}")
     elif export is not None:
-        artifact = dg.export_extended(export, vessel, result, dt)
+        artifact = dg.export_extended(export, vessel, result, dt, description=description)
         out["exported_model"] = {"path": str(export), "model_id": artifact.model_id}
         progress(f"extended model written to {export} ({artifact.model_id})")
     if report is not None:

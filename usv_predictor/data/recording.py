@@ -15,8 +15,9 @@ are interpolated linearly. The grid spans the time where every required signal c
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -121,6 +122,35 @@ def recording_layout(recordings: Sequence[Recording]) -> ActuatorLayout:
     if len(layouts) > 1:
         raise RecordingError(f"recordings of different actuator layouts {layouts} cannot be used together")
     return actuator_layout(layouts[0]) if layouts else DEFAULT_LAYOUT
+
+
+FROUDE_CONTROL_EXPONENTS = {"rad": 0.0, "rpm": 0.5}  # unit -> exponent e: a control is multiplied by scale**e
+# (angles keep their value; a propeller's rate turns sqrt(lambda) times faster on the smaller hull). Other units
+# (normalised, throttle, PWM commands: "-") are commands, kept as recorded: their thrust map is the model vessel's.
+
+
+def froude_scaled(recording: Recording, scale: float) -> Recording:
+    """The recording of a Froude-similar hull `scale` times SMALLER (scale = L_recorded / L_model; < 1: larger).
+
+    Equal Froude number Fn = U / sqrt(g L) (ITTC 7.5-02-06-01, model-ship correlation of manoeuvres): lengths and
+    positions / scale, times, the step and speeds / sqrt(scale), yaw rates and engine/propeller speeds
+    (rpm) * sqrt(scale), angles (heading, rudder) unchanged, accelerations unchanged; forces would scale by
+    scale^3 (times the density ratio), which no recorded topic carries. Normalised / PWM / throttle commands are
+    kept (module constant FROUDE_CONTROL_EXPONENTS). The datum stays: positions are about it, in the scaled plane.
+    """
+    if not (math.isfinite(scale) and scale > 0.0):
+        raise RecordingError(f"Froude scale {scale!r}: expected a finite number > 0 (L_recorded / L_model)")
+    if scale == 1.0:
+        return recording
+    root = math.sqrt(scale)
+    layout = recording.actuator_layout
+    factors = np.array([scale ** FROUDE_CONTROL_EXPONENTS.get(c.unit, 0.0) for c in layout.controls])
+    nu = recording.nu * np.array([1.0 / root, 1.0 / root, root])
+    truth = None
+    if recording.truth is not None:  # x_n, y_e, psi, u, v, r
+        truth = recording.truth * np.array([1.0 / scale, 1.0 / scale, 1.0, 1.0 / root, 1.0 / root, root])
+    return replace(recording, dt=recording.dt / root, t_s=recording.t_s / root, nu=nu,
+                   controls=recording.controls * factors, position=recording.position / scale, truth=truth)
 
 
 def window_resample(t_ns: np.ndarray, values: np.ndarray, grid_ns: np.ndarray, dt_ns: int) -> np.ndarray:

@@ -84,7 +84,8 @@ def train_hybrid(result: IdentificationResult, dt: float, config: HybridTraining
 def export_identified(path: str, module: ResidualGreyBox, result: IdentificationResult, *, dt: float,
                       training_data_sha256: str, model_type: str = "greybox", hybrid: Mapping[str, Any] | None = None,
                       horizon_steps: int = 120, extra: Mapping[str, Any] | None = None) -> ModelArtifact:
-    """One TorchScript file with the identification in its metadata (coefficients, CIs, structure, digest)."""
+    """One TorchScript file with the identification in its metadata (coefficients, CIs, structure, digest) and the
+    vessel file identified (result.prior) embedded."""
     if model_type not in ("greybox", "hybrid"):
         raise ModelError(f"model_type {model_type!r}: expected 'greybox' or 'hybrid'")
     vessel = result.vessel
@@ -118,4 +119,4 @@ def export_identified(path: str, module: ResidualGreyBox, result: Identification
         #                                           per-manoeuvre estimates: identification.actuators)
         **dict(extra or {}),
     }
-    return export_module(path, module, metadata)
+    return export_module(path, module, metadata, vessel=result.prior)

@@ -255,7 +255,7 @@ def check_vessel_matches(vessel: Vessel, recording: Recording) -> None:
             f"the preset runs straight at {expected:.2f} m/s, the data show {speed0:.2f} m/s "
             f"(ratio {ratio:.2f}, accepted {low}-{high}; Froude number {froude:.2f} for this L_pp). A recording of "
             "another scale (model vs full) or another vessel? Use the preset of that vessel and scale, or "
-            "Froude-scale the data first")
+            "Froude-scale the data first (--scale L_data / L_vessel)")
 
 
 def force_data(vessel: Vessel, recording: Recording, smoothed: Smoothed, *, edge_s: float = 2.0,
@@ -630,6 +630,7 @@ class IdentificationResult:
     data: tuple[ForceData, ...] = field(repr=False)
     notes: tuple[str, ...] = ()
     actuator_coefficients: tuple[Coefficient, ...] = ()  # profiled actuator gains (rudder_throttle's map gain)
+    prior: Vessel | None = None  # the vessel file identified (what the exported model embeds: models/artifact.py)
 
     @property
     def structure(self) -> str:
@@ -825,11 +826,13 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     hull (twin thrusters) goes to fitting/small_craft_identification.py (structures diagonal / coupled). The
     actuator layout decides the levels and what is held (module docstring, "Actuator layouts").
     """
+    prior_vessel = vessel  # the vessel file as given (what the exported model embeds); `vessel` may take fitted gains
     if vessel.hull_model_name == "small_craft":
         from usv_predictor.fitting.small_craft_identification import identify_small_craft
 
-        return identify_small_craft(vessel, recordings, structure=structure, prior=prior, smoother=smoother,
-                                    rel_ci_limit=rel_ci_limit, data=data, progress=progress)
+        return replace(identify_small_craft(vessel, recordings, structure=structure, prior=prior, smoother=smoother,
+                                            rel_ci_limit=rel_ci_limit, data=data, progress=progress),
+                       prior=prior_vessel)
     if vessel.layout == "twin_thrusters":
         raise ConfigError(f"vessel {vessel.name}: identification of twin thrusters needs the small_craft hull model "
                           "(the MMG hull is singular at the low speeds a twin-thruster boat turns at)")
@@ -888,7 +891,7 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     values = fit.values()
     extra = {n: values[n] for n in EXTRA_NAMES if n in values}
     return IdentificationResult(identified_vessel(vessel, fit), fit, tuple(cvs), extra, tuple(forces), tuple(notes),
-                                gains)
+                                gains, prior=prior_vessel)
 
 
 def hull_forces(vessel: Vessel, values: Mapping[str, float], nu: np.ndarray, u0: float,

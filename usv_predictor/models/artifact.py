@@ -12,6 +12,10 @@ module has the same interface (what the node, evaluate and diagnose call; loadin
     E = ensemble size (1 for a single model).
 
 Metadata (extra file `metadata.json`, format `usv_predictor.model/1`): see REQUIRED_KEYS and export_module().
+The vessel (extra file `vessel.json`): the whole description of the vessel the model was made for, as its vessel file
+reads (physics/vessel.vessel_to_dict: geometry, hull, actuators, ...), canonical JSON whose sha256 is the metadata's
+`vessel_sha256`; a model can then be used where its vessel file is not installed (models/loading.model_vessel).
+Artifacts written before it carry the vessel's name only (`vessel`), looked up among the presets.
 """
 from __future__ import annotations
 
@@ -32,10 +36,14 @@ from torch import nn
 
 import usv_predictor
 from usv_predictor.atomic import json_text, write_bytes_atomic
-from usv_predictor.errors import ModelError, OutputError
+from usv_predictor.errors import ConfigError, ModelError, OutputError
+from usv_predictor.physics.vessel import (Vessel, description_sha256, description_text, vessel_from_dict,
+                                          vessel_to_dict)
 
 FORMAT = "usv_predictor.model/1"
 METADATA_FILE = "metadata.json"
+VESSEL_FILE = "vessel.json"  # the embedded vessel description
+VESSEL_DIGEST_KEY = "vessel_sha256"  # metadata key: sha256 of VESSEL_FILE's text
 OUTPUT_LAYOUT = ("u", "v", "r", "x_n", "y_e", "psi")
 DEFAULT_HORIZON_STEPS = 120
 REQUIRED_KEYS = ("format", "model_type", "model_id", "feature_set", "feature_names", "state_layout", "control_layout",
@@ -60,6 +68,14 @@ class ModelArtifact:
     path: Path
     metadata: dict[str, Any]
     module: torch.jit.ScriptModule
+    vessel_description: dict[str, Any] | None = None  # the embedded vessel file (None: an artifact of before)
+
+    @property
+    def embedded_vessel(self) -> Vessel | None:
+        """The Vessel the artifact embeds (checked when loaded), None for an artifact that names its vessel only."""
+        if self.vessel_description is None:
+            return None
+        return vessel_from_dict(self.vessel_description, source=f"model {self.path} ({VESSEL_FILE})")
 
     @property
     def dt(self) -> float:
@@ -156,10 +172,13 @@ def model_id(module: nn.Module, metadata: Mapping[str, Any]) -> str:
     return h.hexdigest()[:16]
 
 
-def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, Any]) -> ModelArtifact:
+def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, Any],
+                  vessel: Vessel | None = None) -> ModelArtifact:
     """Script `module` (any rollout with the forward contract above) and write it with its metadata.
 
-    Fills format, software_version, created_utc and model_id; the other REQUIRED_KEYS must be given.
+    Fills format, software_version, created_utc and model_id; the other REQUIRED_KEYS must be given. vessel: the
+    vessel description the model was made for (its vessel file, before any identification: what a user passes as
+    --vessel), embedded as VESSEL_FILE with its digest in the metadata and its name as `vessel`.
     Serialised in memory, then written atomically (temporary file in the target folder, then os.replace);
     metadata holding NaN or infinity is a ModelError naming the field.
     """
@@ -167,6 +186,11 @@ def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, An
     meta = dict(metadata)
     meta.update(format=FORMAT, software_version=usv_predictor.__version__,
                 created_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"))
+    extra: dict[str, str] = {}
+    if vessel is not None:
+        description = vessel_to_dict(vessel)
+        extra[VESSEL_FILE] = description_text(description)
+        meta.update(vessel=vessel.name, **{VESSEL_DIGEST_KEY: description_sha256(description)})
     meta["model_id"] = model_id(module, meta)
     missing = [k for k in REQUIRED_KEYS if k not in meta]
     if missing:
@@ -182,7 +206,7 @@ def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, An
     # with one line and removes its temporary file.
     buffer = io.BytesIO()
     with _quiet_jit():
-        torch.jit.save(scripted, buffer, _extra_files={METADATA_FILE: text})
+        torch.jit.save(scripted, buffer, _extra_files={METADATA_FILE: text, **extra})
     write_bytes_atomic(path, buffer.getvalue(), ModelError, "model")
     return load_artifact(path)
 
@@ -233,10 +257,18 @@ def metadata_differences(metadata: Mapping[str, Any], expect: Mapping[str, Any])
 
 def read_metadata(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any]]:
     """The scripted module and its metadata, checked for format and required keys (ModelError otherwise)."""
+    module, metadata, _ = read_files(path)
+    return module, metadata
+
+
+def read_files(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any], dict[str, Any] | None]:
+    """The scripted module, its metadata (checked for format and required keys) and its embedded vessel description
+    (checked against its digest and loadable as a vessel; None when the metadata has no `vessel_sha256`: an artifact
+    of before); ModelError naming the file otherwise."""
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"model file {path} does not exist")
-    extra = {METADATA_FILE: ""}
+    extra = {METADATA_FILE: "", VESSEL_FILE: ""}
     try:
         with _quiet_jit():
             module = torch.jit.load(str(path), map_location="cpu", _extra_files=extra)
@@ -256,15 +288,36 @@ def read_metadata(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, A
     missing = [k for k in REQUIRED_KEYS if k not in metadata]
     if missing:
         raise ModelError(f"model file {path}: {METADATA_FILE} lacks {missing}")
-    return module, metadata
+    return module, metadata, _embedded_description(path, metadata, extra[VESSEL_FILE])
+
+
+def _embedded_description(path: Path, metadata: Mapping[str, Any], text: str | bytes) -> dict[str, Any] | None:
+    digest = metadata.get(VESSEL_DIGEST_KEY)
+    if digest is None:
+        return None
+    if not text:
+        raise ModelError(f"model file {path}: its metadata has {VESSEL_DIGEST_KEY} but the file has no {VESSEL_FILE}")
+    raw = text.encode() if isinstance(text, str) else bytes(text)
+    if hashlib.sha256(raw).hexdigest() != digest:
+        raise ModelError(f"model file {path}: {VESSEL_FILE} does not match its digest {VESSEL_DIGEST_KEY} "
+                         "(modified or corrupt)")
+    try:
+        description = json.loads(raw)
+        vessel = vessel_from_dict(description, source=f"model file {path} ({VESSEL_FILE})")
+    except (json.JSONDecodeError, UnicodeDecodeError, ConfigError) as err:
+        raise ModelError(f"model file {path}: {VESSEL_FILE} is not a vessel description: {err}") from err
+    if vessel.name != metadata.get("vessel"):
+        raise ModelError(f"model file {path}: {VESSEL_FILE} describes vessel {vessel.name!r}, its metadata names "
+                         f"{metadata.get('vessel')!r}")
+    return description
 
 
 def load_artifact(path: str | Path, expect: Mapping[str, Any] | None = None) -> ModelArtifact:
     """Load a model file; ModelError naming the file and every field that differs from `expect`."""
-    module, metadata = read_metadata(path)
+    module, metadata, description = read_files(path)
     if expect:
         diffs = metadata_differences(metadata, expect)
         if diffs:
             raise ModelError(f"model {path} does not match the configuration: {'; '.join(diffs)}")
     module.eval()
-    return ModelArtifact(Path(path), metadata, module)
+    return ModelArtifact(Path(path), metadata, module, description)

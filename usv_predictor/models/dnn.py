@@ -57,6 +57,7 @@ from usv_predictor.data.features import HEADING_COLUMNS, HEADING_SETS, STATE_NAM
 from usv_predictor.errors import ConfigError, ModelError
 from usv_predictor.models.artifact import DEFAULT_HORIZON_STEPS, OUTPUT_LAYOUT, UNITS, ModelArtifact, export_module
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
+from usv_predictor.physics.vessel import Vessel
 
 ACTIVATIONS = ("tanh", "clipped_relu")
 MIN_STD = 1e-6  # a (nearly) constant input, e.g. one engine speed in the data, is centred, not scaled
@@ -385,11 +386,12 @@ class DnnRollout(nn.Module):
         return torch.cat([path[..., 0:3], position, path[..., 3:4]], dim=-1)  # (E, B, H, 6)
 
 
-def export(path: str | Path, members: Sequence[DnnModel], config: DnnConfig, *, dt: float, vessel: str,
+def export(path: str | Path, members: Sequence[DnnModel], config: DnnConfig, *, dt: float, vessel: str | Vessel,
            training_data_sha256: str, training: Mapping[str, Any] | None = None,
            horizon_steps: int = DEFAULT_HORIZON_STEPS, dtype: str = "float32",
            extra: Mapping[str, Any] | None = None) -> ModelArtifact:
-    """Export trained seed-000 networks (one, or an ensemble sharing normalisation) as one artifact."""
+    """Export trained seed-000 networks (one, or an ensemble sharing normalisation) as one artifact; vessel: the
+    vessel the bags were recorded on, embedded (a Vessel) or named only (a preset name)."""
     if not members:
         raise ModelError(f"model {path}: no trained network to export")
     if not (dt > 0.0 and math.isfinite(dt)):
@@ -414,7 +416,7 @@ def export(path: str | Path, members: Sequence[DnnModel], config: DnnConfig, *, 
         "dt": float(dt),
         "horizon_steps": int(horizon_steps),
         "normalisation": {**norm.to_dict(), "target": "increment" if config.predict_increment else "absolute"},
-        "vessel": vessel,
+        "vessel": vessel if isinstance(vessel, str) else vessel.name,
         "training_data_sha256": training_data_sha256,
         "ensemble_size": len(members),
         "architecture": config.to_dict(),
@@ -423,4 +425,4 @@ def export(path: str | Path, members: Sequence[DnnModel], config: DnnConfig, *, 
         "dtype": dtype,
         **dict(extra or {}),
     }
-    return export_module(path, module, metadata)
+    return export_module(path, module, metadata, vessel=None if isinstance(vessel, str) else vessel)

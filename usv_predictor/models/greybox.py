@@ -501,9 +501,10 @@ class GreyBoxRollout(nn.Module):
 class GreyBoxPredictor:
     """A GreyBoxRollout behind the artifact's predict/metadata interface (numpy in, numpy out)."""
 
-    def __init__(self, rollout: GreyBoxRollout, metadata: Dict[str, object]) -> None:
+    def __init__(self, rollout: GreyBoxRollout, metadata: Dict[str, object], vessel: Vessel | None = None) -> None:
         self.rollout = rollout
         self.metadata = dict(metadata)
+        self.embedded_vessel = vessel  # the vessel it was built from (models/loading.model_vessel)
 
     accepts_reference = True  # predict takes the reference state of rudder_only's engine speed (module docstring)
 
@@ -559,7 +560,7 @@ def greybox_predictor(vessel: Vessel, dt: float, substeps: int = 2) -> GreyBoxPr
     meta = greybox_metadata(vessel, rollout, model_type=f"physics (calm-water {vessel.hull_model.label} grey box of the "
                                                         f"preset)")
     meta["model_id"] = f"physics-{vessel.name}"
-    return GreyBoxPredictor(rollout, meta)
+    return GreyBoxPredictor(rollout, meta, vessel)
 
 
 def hull_from_metadata(meta: Mapping[str, Any]) -> dict[str, float] | None:

@@ -7,7 +7,9 @@ A model spec is
                        the physics baseline a learned model must beat at sea (only where `physics=True`);
     anything else      a model artifact file (usv_predictor.models.artifact), checked against `expect`
                        (metadata fields) and `dt` (the step the data is resampled at).
-Every failure is a ModelError naming the file (or option) and what differs; a model whose code raises when
+The vessel a model was made for: model_vessel (the description the artifact embeds, else the preset its metadata
+names; a given vessel that differs from the embedded one is refused). Every failure is a ModelError naming the file
+(or option) and what differs; a model whose code raises when
 called (or answers in another shape, or NaN) is "model X fails when run: ..." (artifact.check_runs). torch is
 imported only when a model is loaded, so command-line help stays light.
 """
@@ -84,6 +86,46 @@ def physics_predictor(vessel: str | Vessel, dt: float) -> GreyBoxPredictor:
         raise ModelError(f"physics predictor step dt={dt} s must be > 0")
     config.FLOAT_RANGES["dt"].check("dt", dt, "physics predictor step")
     return greybox_predictor(load_vessel(vessel) if isinstance(vessel, str) else vessel, dt)
+
+
+def model_vessel(model: HasMetadata, given: str | Path | Vessel | None = None, *, option: str = "--vessel",
+                 source: str | None = None) -> Vessel:
+    """The vessel of a loaded model (an artifact or a physics predictor).
+
+    given None: the description the artifact embeds, else (an artifact of before, which names its vessel only) the
+    preset of that name (ConfigError naming it and saying to pass --vessel when there is none here).
+    given (a preset name, a vessel file or a Vessel): that vessel; a name that is no preset here but the name of the
+    embedded vessel is the embedded one (a node whose vessel file is not installed). When the artifact embeds a
+    description and the given one differs in any field but the free text, ModelError in one line naming the fields
+    (`option` says how the caller names the given vessel, `source` the model).
+    """
+    from usv_predictor.physics.vessel import (Vessel, description_differences, load_vessel, vessel_preset_exists,
+                                              vessel_to_dict)
+
+    embedded: Vessel | None = getattr(model, "embedded_vessel", None)
+    name = str(model.metadata.get("vessel", ""))
+    label = source or f"model {model.metadata.get('model_id', '?')}"
+    if given is None:
+        if embedded is not None:
+            return embedded
+        try:
+            return load_vessel(name)
+        except ConfigError as err:
+            raise ConfigError(f"{label} names vessel {name!r} but embeds no description (made before models carried "
+                              f"one) and {err}: pass {option} FILE") from None
+    if isinstance(given, Vessel):
+        vessel = given
+    elif embedded is not None and str(given) == embedded.name and not vessel_preset_exists(str(given)):
+        return embedded
+    else:
+        vessel = load_vessel(given)
+    if embedded is not None:
+        diffs = description_differences(vessel_to_dict(embedded), vessel_to_dict(vessel), ("model", option))
+        if diffs:
+            shown = "; ".join(diffs[:6]) + (f"; and {len(diffs) - 6} more" if len(diffs) > 6 else "")
+            raise ModelError(f"{label} was made for vessel {embedded.name!r} (the description it embeds), {option} "
+                             f"{given if not isinstance(given, Vessel) else given.name} differs: {shown}")
+    return vessel
 
 
 def load_model(spec: str | None, *, dt: float | None = None, vessel: str | None = None,

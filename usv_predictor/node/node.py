@@ -91,10 +91,11 @@ from usv_predictor.data.recording import PLAUSIBLE
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredictorError
 from usv_predictor.fitting.online import OnlineConfig
 from usv_predictor.models import loading
+from usv_predictor.models.artifact import metadata_differences
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.node import live, plans, sea
-from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, check_layout_inputs, unused_roles
-from usv_predictor.physics.vessel import load_vessel
+from usv_predictor.physics.actuators import ActuatorLayout, check_layout_inputs, unused_roles
+from usv_predictor.physics.vessel import Vessel, load_vessel, vessel_preset_exists
 from usv_predictor.records import NS_PER_S
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
@@ -237,12 +238,22 @@ def _family_description(metadata: dict[str, Any]) -> str:
     return family.description if family is not None else "not a model family of usv_predictor"
 
 
-def load_model(model_path: str, config: PredictorConfig, layout: ActuatorLayout = DEFAULT_LAYOUT) -> live.Rollout:
-    """The model of `model_path` ("" = the shipped one), checked against the configuration: its step, vessel and
-    control columns (the vessel's actuator layout); ModelError naming the file and the mismatch."""
-    expect = {"dt": config.dt, "vessel": config.vessel, "control_layout": list(layout.control_names)}
-    artifact = loading.load_model(model_path, expect=expect, option="model_path", physics=False)
-    return live.Rollout(artifact, config.horizon_steps, config.ensemble_size)
+def load_model(model_path: str, config: PredictorConfig, vessel: Vessel | None = None) -> tuple[live.Rollout, Vessel]:
+    """The model of `model_path` ("" = the shipped one) and its vessel, checked against the configuration: its step,
+    vessel and control columns (the vessel's actuator layout); ModelError naming the file and the mismatch.
+
+    The vessel is the configured one (`vessel`: a preset, or, when no preset of that name is installed, the
+    description the model embeds under that name); a model that embeds a description differing from it is refused
+    naming the fields (models/loading.model_vessel). vessel: the node's vessel when a model is swapped (the new
+    model must be made for it)."""
+    artifact = loading.load_model(model_path, expect={"dt": config.dt}, option="model_path", physics=False)
+    source = f"model {artifact.path}"
+    chosen = loading.model_vessel(artifact, vessel or config.vessel, option="vessel", source=source)
+    diffs = metadata_differences(artifact.metadata, {"vessel": config.vessel,
+                                                     "control_layout": list(chosen.actuator_layout.control_names)})
+    if diffs:
+        raise ModelError(f"{source} does not match the configuration: {'; '.join(diffs)}")
+    return live.Rollout(artifact, config.horizon_steps, config.ensemble_size), chosen
 
 
 @dataclass
@@ -279,14 +290,17 @@ class PredictorNode(Node):
         super().__init__(NODE_NAME, **node_options)
         defaults_path = Path(config_path) if config_path is not None else default_config_path()
         self.config = self._declare_parameters(defaults_path)
-        self.layout = load_vessel(self.config.vessel).actuator_layout  # ConfigError: fatal at start-up
+        if vessel_preset_exists(self.config.vessel):  # the configuration's own errors before the model's
+            self._layout_inputs(load_vessel(self.config.vessel).actuator_layout)
+        # the model and its vessel (ModelError, ConfigError: fatal at start-up); the vessel's actuator layout says
+        # which inputs are read
+        self.rollout, self.vessel = load_model(self.config.model_path, self.config)
+        self.layout = self.vessel.actuator_layout
         # every control role of the layout configured (ConfigError naming the roles and the layout: fatal); the
         # control roles of other layouts (the shipped config lists every layout's) are ignored: logged once here,
         # reported on /diagnostics ("ignored inputs")
-        ignored_notes = check_layout_inputs(self.layout, {entry.role: entry.topic for entry in self.config.inputs},
-                                            f"{self.config.source}, vessel {self.config.vessel}")
+        ignored_notes = self._layout_inputs(self.layout)
         self.ignored = {entry.role: entry.topic for entry in self.config.inputs if entry.role in unused_roles(self.layout)}
-        self.rollout = load_model(self.config.model_path, self.config, self.layout)  # ModelError: fatal at start-up
         used = [entry for entry in self.config.inputs if entry.role not in self.ignored]
         self.inputs = live.InputSet(
             {entry.role: msg_adapters.ROLE_FIELDS[entry.role] for entry in used},
@@ -382,6 +396,11 @@ class PredictorNode(Node):
         return plans.PlanLimits(max_age_s=float(self.get_parameter("plan_max_age_s").value),
                                 max_future_s=self.inputs.settings.max_future_s)
 
+    def _layout_inputs(self, layout: ActuatorLayout) -> list[str]:
+        """check_layout_inputs of the configured inputs for `layout` (ConfigError naming the missing roles)."""
+        return check_layout_inputs(layout, {entry.role: entry.topic for entry in self.config.inputs},
+                                   f"{self.config.source}, vessel {self.config.vessel}")
+
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """Swap the model (validated first; the old one stays on failure) and apply new staleness limits."""
         swap: live.Rollout | None = None
@@ -393,7 +412,7 @@ class PredictorNode(Node):
         for parameter in parameters:
             if parameter.name == "model_path":
                 try:
-                    swap = load_model(str(parameter.value), self.config, self.layout)
+                    swap, _ = load_model(str(parameter.value), self.config, self.vessel)
                 except (ModelError, ConfigError) as err:
                     self.get_logger().error(f"model_path not changed, keeping {self.rollout.artifact.path}: {err}")
                     return SetParametersResult(successful=False, reason=str(err))
@@ -573,7 +592,7 @@ class PredictorNode(Node):
 
     def _make_sea(self, rollout: live.Rollout, changes: dict[str, Any]) -> sea.LiveSea:
         enabled, config = self._online_config(changes)
-        return sea.LiveSea(rollout.artifact, self.config.vessel, config, enabled, self.config.dt, self.config.rate_hz)
+        return sea.LiveSea(rollout.artifact, self.vessel, config, enabled, self.config.dt, self.config.rate_hz)
 
     def _observe_sea(self, state: live.LiveState) -> None:
         """Before the cycle's rollout: feed the estimator when the state is on its dt grid, publish the estimate."""

@@ -47,7 +47,7 @@ class Fed:
 class LiveSea:
     """The estimator of one model: feeds it on the dt grid, applies its estimate, reports it."""
 
-    def __init__(self, model: Any, vessel: str, config: OnlineConfig, enabled: bool, dt: float, rate_hz: float
+    def __init__(self, model: Any, vessel: Any, config: OnlineConfig, enabled: bool, dt: float, rate_hz: float
                  ) -> None:
         self.model = model  # the ModelArtifact whose module's terms are set
         self.config = config

@@ -17,8 +17,10 @@ Frames: body x forward, y to starboard, z down (Fossen 2021 sec. 2.2); a thruste
 """
 from __future__ import annotations
 
+import hashlib
+import json
 import math
-from dataclasses import MISSING, dataclass, fields, is_dataclass
+from dataclasses import MISSING, asdict, dataclass, fields, is_dataclass
 from pathlib import Path
 from typing import Any, Mapping, get_type_hints
 
@@ -358,6 +360,16 @@ def available_vessels() -> list[str]:
     return sorted(p.stem for p in vessel_dir().glob("*.yaml"))
 
 
+def vessel_preset_exists(name: str) -> bool:
+    """True when `name` is a preset here (config/vessels/<name>.yaml), not a path."""
+    if Path(name).suffix in (".yaml", ".yml"):
+        return False
+    try:
+        return (vessel_dir() / f"{name}.yaml").is_file()
+    except ConfigError:
+        return False
+
+
 def load_vessel(name_or_path: str | Path) -> Vessel:
     """Load a preset by name (config/vessels/<name>.yaml) or from a YAML path."""
     path = Path(name_or_path)
@@ -372,6 +384,77 @@ def load_vessel(name_or_path: str | Path) -> Vessel:
     except (OSError, yaml.YAMLError) as err:
         raise ConfigError(f"cannot read vessel description {path}: {err}") from err
     return vessel_from_dict(raw, source=str(path))
+
+
+def vessel_to_dict(vessel: Vessel) -> dict[str, Any]:
+    """The vessel as the plain mapping of a vessel file (YAML keys, sections of its hull model and layout, lists for
+    tuples): vessel_from_dict(vessel_to_dict(v)) == v. What a model artifact embeds (models/artifact.py)."""
+    out: dict[str, Any] = {"name": vessel.name, "description": vessel.description, "provenance": vessel.provenance,
+                           "actuator_layout": vessel.layout, "hull_model": vessel.hull_model_name}
+    for key in vessel.sections:
+        out[key] = _plain(asdict(getattr(vessel, key)))
+    return out
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
+
+
+def description_text(description: Mapping[str, Any]) -> str:
+    """The canonical JSON text of a vessel description (sorted keys, no spaces): what is embedded and digested."""
+    return json.dumps(description, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def description_sha256(description: Mapping[str, Any]) -> str:
+    return hashlib.sha256(description_text(description).encode()).hexdigest()
+
+
+# free text of a vessel file: two descriptions that differ only there describe the same boat
+FREE_TEXT_KEYS = ("description", "provenance")
+
+
+def _flatten(value: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(value, Mapping):
+        out: dict[str, Any] = {}
+        for k, v in value.items():
+            out.update(_flatten(v, f"{prefix}{k}."))
+        return out
+    return {prefix.rstrip("."): value}
+
+
+def description_differences(mine: Mapping[str, Any], theirs: Mapping[str, Any],
+                            labels: tuple[str, str] = ("model", "given")) -> list[str]:
+    """['geometry.L_pp: model 2, given 2.1', ...]: every field (dotted) of two vessel descriptions (vessel_to_dict)
+    that differs, numbers to 1e-9 relative; the free text (FREE_TEXT_KEYS) is not compared."""
+    a = {k: v for k, v in _flatten(mine).items() if k not in FREE_TEXT_KEYS}
+    b = {k: v for k, v in _flatten(theirs).items() if k not in FREE_TEXT_KEYS}
+    out = []
+    for key in sorted(set(a) | set(b)):
+        if key not in a or key not in b:
+            out.append(f"{key}: {labels[0]} {_shown(a.get(key))}, {labels[1]} {_shown(b.get(key))}")
+        elif not _same_value(a[key], b[key]):
+            out.append(f"{key}: {labels[0]} {_shown(a[key])}, {labels[1]} {_shown(b[key])}")
+    return out
+
+
+def _same_value(x: Any, y: Any) -> bool:
+    if isinstance(x, list) and isinstance(y, list):
+        return len(x) == len(y) and all(_same_value(p, q) for p, q in zip(x, y))
+    if _finite(x) and _finite(y):
+        return math.isclose(float(x), float(y), rel_tol=1e-9, abs_tol=1e-12)
+    return x == y
+
+
+def _shown(value: Any) -> str:
+    if value is None:
+        return "none"
+    if isinstance(value, float):
+        return f"{value:g}"
+    return str(value)
 
 
 def _record(cls: type, raw: Any, where: str) -> Any:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from usv_predictor.replay.options import add_config_argument, log, positive_float, positive_int
+from usv_predictor.replay.options import add_config_argument, add_scale_argument, log, positive_float, positive_int
 
 NAME = "diagnose"
 HELP = "name the physical cause of what the calm-water model gets wrong, extend the model, measure the gain"
@@ -28,7 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from usv_predictor.physics.effects import hypothesis_names
 
     parser.add_argument("bags", nargs="+", type=Path, metavar="BAG", help="bags or directories of bags (a trial programme)")
-    parser.add_argument("--vessel", default=None, help="vessel preset of the calm-water model (default: config's vessel)")
+    parser.add_argument("--vessel", default=None,
+                        help="vessel preset or YAML file of the calm-water model (default: with --model the vessel the "
+                             "model embeds, else the config's vessel); with --model it must be the model's: one that "
+                             "differs is refused, naming the fields")
     parser.add_argument("--model", type=Path, default=None, metavar="M",
                         help="a grey-box model artifact (from `replay identify`) as the calm-water model instead of the preset")
     parser.add_argument("--dt", type=positive_float, default=None,
@@ -50,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write the extended model (TorchScript artifact) for the node")
     parser.add_argument("--report", type=Path, default=None, metavar="DIR", help="write report.md + plots into DIR")
     parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
+    add_scale_argument(parser)
     add_config_argument(parser)
     parser.add_argument("--no-fit-check", action="store_true",
                         help="proceed when the calm-water model does not fit the bags at all (its steady speed or yaw "
@@ -63,4 +67,4 @@ def run(args: argparse.Namespace) -> dict:
                          max_causes=args.max_causes, horizon_s=args.horizon, stride_s=args.stride,
                          gain=not args.no_gain, export=args.export, report=args.report,
                          include_calm=args.include_calm, config=args.config, fit_check=not args.no_fit_check,
-                         progress=log)
+                         scale=args.scale, progress=log)

@@ -10,7 +10,8 @@ manoeuvres are only evaluated, never fitted. --report DIR: summary.md and force-
 (seed 001 Fig. 13) per manoeuvre. The bags are read with the vessel's actuator layout: a small-craft twin-thruster
 boat identifies its damping and each side's thrust gain (structures diagonal / coupled), a throttle boat its thrust
 map's gain, a rudder boat without propulsion data (rudder_only) the hull at an equivalent engine speed per manoeuvre.
---blocks K cuts each recording into K pieces for cross-validation (one long record). The work:
+--blocks K cuts each recording into K pieces for cross-validation (one long record). --scale LAMBDA Froude-scales
+bags of a hull LAMBDA times as long as the vessel file's (full-scale bags, a model-scale vessel) to its size first. The work:
 usv_predictor.replay.identify.
 """
 from __future__ import annotations
@@ -19,7 +20,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from usv_predictor.replay.options import add_config_argument, log, positive_float, positive_int
+from usv_predictor.replay.options import add_config_argument, add_scale_argument, log, positive_float, positive_int
 
 NAME = "identify"
 HELP = ("identify the grey box of any actuator layout from bags (hull coefficients, thrust-map gains, engine speeds; "
@@ -46,6 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--blocks", type=positive_int, default=1, metavar="K",
                         help="cut each recording into K contiguous pieces, each held out in turn by the cross-"
                              "validation (a single long record; default 1)")
+    add_scale_argument(parser)
     add_config_argument(parser)
 
 
@@ -54,4 +56,4 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     return identify_bags(args.bags, args.output, vessel=args.vessel, structure=args.structure, prior=args.prior,
                          hybrid=args.hybrid, dt=args.dt, validation=args.val, report=args.report, blocks=args.blocks,
-                         config=args.config, progress=log)
+                         config=args.config, scale=args.scale, progress=log)

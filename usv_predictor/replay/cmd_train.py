@@ -49,8 +49,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed (default 0)")
     parser.add_argument("--threads", type=positive_int, default=1, help="torch threads while training (default 1)")
     parser.add_argument("--vessel", default=None,
-                        help="vessel recorded in the model; its actuator layout must be the dataset's (default: the "
-                             "config's)")
+                        help="vessel preset or YAML file the bags were recorded on, embedded in the model (its whole "
+                             "description); its actuator layout must be the dataset's (default: the config's)")
     parser.add_argument("--horizon-steps", type=positive_int, default=None,
                         help="default prediction horizon in steps recorded in the model (default: the config's)")
     parser.add_argument("--dtype", choices=("float32", "float64"), default="float32",
@@ -107,11 +107,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                             lr_schedule=args.lr_schedule, weight_decay=args.l2, patience=args.patience or None,
                             multi_step=args.multi_step, ensemble=args.ensemble, seed=args.seed, threads=args.threads)
     predictor = load_predictor_config()
-    vessel = args.vessel or predictor.vessel
+    vessel = load_vessel(args.vessel or predictor.vessel)  # embedded in the model
     layout = actuator_layout(dataset.control_layout)  # the bags' layout, stored by `replay dataset`
-    if load_vessel(vessel).actuator_layout.name != layout.name:
+    if vessel.actuator_layout.name != layout.name:
         raise ConfigError(f"{args.dataset}: the dataset's control layout is {layout.name} {list(layout.control_names)}"
-                          f" but vessel {vessel} is {load_vessel(vessel).actuator_layout.name}: give --vessel of the "
+                          f" but vessel {vessel.name} is {vessel.actuator_layout.name}: give --vessel of the "
                           "vessel the bags were recorded on")
     config = DnnConfig.for_features(feature_set, layout, width=args.width, depth=args.depth,
                                     activation=args.activation, ceiling=args.ceiling,

@@ -40,9 +40,10 @@ class EvaluationRequest:
     stride_s: float = 5.0  # time between open-loop start points (s)
     include_calm: bool = False  # also read calm/ twins under bag directories
     config: Path | None = None  # predictor.yaml with the input topics (None: the shipped one)
-    vessel: str | None = None  # preset the bags were recorded on (its actuator layout); None: the model's, else the config's
+    vessel: str | None = None  # preset or vessel file of the bags' vessel; None: the model's (embedded or its preset), else the config's
     adaptive: bool = False  # also run the online estimator and the adaptive open loop (analysis/adaptive.py)
     fit_check: bool = True  # refuse a model that does not fit the bags at all (analysis/fit_check.py)
+    scale: float = 1.0  # Froude scale L_bags / L_model: the bags are scaled to the model's size (data/recording.py)
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(x) and x > 0.0 for x in (self.stride_s, *self.horizons_s)):
@@ -52,6 +53,8 @@ class EvaluationRequest:
             raise EvaluationError("--horizons needs at least one horizon (s)")
         if self.dt is not None and not (math.isfinite(self.dt) and self.dt > 0.0):
             raise EvaluationError(f"--dt {self.dt:g} must be finite and positive (s)")
+        if not (math.isfinite(self.scale) and self.scale > 0.0):
+            raise EvaluationError(f"--scale {self.scale:g} must be finite and positive (L_bags / L_model)")
         if self.reference not in REFERENCES:
             raise EvaluationError(f"--reference {self.reference!r}: expected one of {', '.join(REFERENCES)}")
 
@@ -76,19 +79,36 @@ def _output_apart(request: EvaluationRequest, output: Path | None, writes: Seque
         check_outputs(outputs, [*(request.bags or default_bags()), request.model], {"--output"})
 
 
-def bags_layout(vessel: str | None, metadata: Mapping[str, Any], source: str, config: Path | None = None) -> Any:
-    """The actuator layout the bags are read with: of `vessel`, else of the model's vessel (a known preset), else of
-    the config's; EvaluationError (one line naming both) when the model's control_layout is not that layout's."""
+def evaluation_vessel(vessel: str | None, model: Any, source: str) -> Any:
+    """The vessel the bags are read and the model is checked with (models/loading.model_vessel): `vessel` (a preset or
+    a vessel file; refused in one line when the model embeds a description that differs), else the description the
+    model embeds, else the preset its metadata names; None for a model of before (name only) whose vessel is no
+    preset here and no --vessel (the bags are then read with the config's vessel, the fit check has no length)."""
+    from usv_predictor.models.loading import model_vessel
+    from usv_predictor.physics.vessel import load_vessel
+
+    if vessel is not None:
+        try:
+            given = load_vessel(vessel)
+        except ConfigError:  # no such preset: perhaps the name of the vessel the model embeds (model_vessel)
+            given = None
+        if given is not None and list(given.actuator_layout.control_names) != list(model.metadata.get("control_layout", [])):
+            return given  # another layout altogether: bags_layout says so, naming both
+    try:
+        return model_vessel(model, vessel, source=f"model {source}")
+    except ConfigError:
+        if vessel is not None or getattr(model, "embedded_vessel", None) is not None:
+            raise
+        return None
+
+
+def bags_layout(vessel: Any, metadata: Mapping[str, Any], source: str, config: Path | None = None) -> Any:
+    """The actuator layout the bags are read with: of `vessel` (evaluation_vessel), else of the config's vessel;
+    EvaluationError (one line naming both) when the model's control_layout is not that layout's."""
     from usv_predictor.config import load_predictor_config
     from usv_predictor.physics.vessel import load_vessel
 
-    if vessel is None:
-        try:
-            preset = load_vessel(str(metadata.get("vessel", "")))
-        except ConfigError:  # a model of a vessel that is no preset here: the configured vessel's bags
-            preset = load_vessel(load_predictor_config(config).vessel)
-    else:
-        preset = load_vessel(vessel)
+    preset = vessel if vessel is not None else load_vessel(load_predictor_config(config).vessel)
     layout = preset.actuator_layout
     controls = list(metadata.get("control_layout", []))
     if controls != list(layout.control_names):
@@ -112,18 +132,21 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
     bags = list(request.bags) or default_bags()
     progress(f"model {model.metadata.get('model_id', '?')} ({model.metadata.get('model_type', '?')}), dt {dt:g} s; "
              f"reading {', '.join(map(str, bags))}")
-    layout = bags_layout(request.vessel, model.metadata, request.model or str(loading.default_model_path()),
-                         config=request.config)
+    source = request.model or str(loading.default_model_path())
+    vessel = evaluation_vessel(request.vessel, model, source)
+    layout = bags_layout(vessel, model.metadata, source, config=request.config)
     recordings = load_recordings(bags, dt, config_path=request.config, include_calm=request.include_calm,
-                                 warn=lambda m: progress(f"warning: {m}"), progress=progress, layout=layout)
+                                 warn=lambda m: progress(f"warning: {m}"), progress=progress, layout=layout,
+                                 scale=request.scale)
     if not recordings:
         raise BagError(f"no usable recording in {', '.join(map(str, bags))} (see the warnings above)")
-    check = model_fit_check(model, recordings)
+    check = model_fit_check(model, recordings, vessel)
     progress(check.summary())
     if request.fit_check:
         from usv_predictor.analysis.fit_check import require_fit
 
         require_fit(check)
+        require_confirmed_scale(check, request.scale)
     result = evaluation.evaluate(model, recordings, request.reference, tuple(request.horizons_s), request.stride_s,
                                  progress=progress)
     if request.adaptive:
@@ -134,6 +157,7 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
         "software_version": __version__,
         "model_source": request.model or str(loading.default_model_path()),
         "data": {"bags": [str(b) for b in bags], "dt_s": dt, "reference": request.reference,
+                 "froude_scale": request.scale,
                  "recordings": [{"name": r.name, "source": r.source, "duration_s": r.duration_s,
                                  "has_gnss": bool(np.isfinite(r.position).any()),
                                  "has_truth": r.truth is not None} for r in recordings]},
@@ -171,21 +195,29 @@ def adaptive_section(model: object, recordings: Sequence[object], request: Evalu
     }
 
 
-def model_fit_check(model, recordings: Sequence) -> Any:
-    """The fit check (usv_predictor.analysis.fit_check) of a loaded model on the recordings, with its vessel's length
-    and top speed when the vessel its metadata names is a preset here (an unknown vessel: speeds and yaw rates only)."""
+def model_fit_check(model, recordings: Sequence, vessel: Any = None) -> Any:
+    """The fit check (usv_predictor.analysis.fit_check) of a loaded model on the recordings, with the length and top
+    speed of `vessel` (default: evaluation_vessel of the model; None: speeds and yaw rates only)."""
     from usv_predictor.analysis.fit_check import check_fit
-    from usv_predictor.physics.vessel import load_vessel
 
     meta = model.metadata
-    try:
-        vessel = load_vessel(str(meta.get("vessel")))
-    except ConfigError:
-        vessel = None
+    if vessel is None:
+        vessel = evaluation_vessel(None, model, str(meta.get("model_id", "?")))
     physics = str(meta.get("model_type", "")).startswith("physics")
     label = (f"the preset {meta.get('vessel')}" if physics
              else f"model {meta.get('model_id', '?')} ({meta.get('model_type', '?')}, vessel {meta.get('vessel', '?')})")
     return check_fit(model, recordings, vessel=vessel, label=label)
+
+
+def require_confirmed_scale(check: Any, scale: float) -> None:
+    """A Froude scale (--scale) is trusted only when the fit check compared the model's steady speed with the scaled
+    bags' (a held, settled window): without one only the top-speed check ran, which cannot see a factor in the wrong
+    direction (the scaled boat then merely runs slowly). EvaluationError in one line otherwise."""
+    if scale != 1.0 and check.speed_ratio is None:
+        raise EvaluationError(f"--scale {scale:g}: the scaled bags have no held, settled window (>= 5 s held, settled "
+                              "over 10 s) where the fit check can compare the model's steady speed with theirs, so "
+                              "the factor cannot be confirmed (a wrong direction only makes the boat slow); give bags "
+                              "with a straight run or a held turn, or pass --no-fit-check to proceed anyway")
 
 
 def save_evaluation(result: EvaluationResult, directory: Path) -> dict:

@@ -13,18 +13,21 @@ from usv_predictor.errors import BagError, DatasetError
 
 
 def identification_recordings(paths: Sequence[Path], dt: float, progress: Callable[[str], None] = lambda _: None,
-                               config: Path | None = None, *, layout: Any = None, blocks: int = 1) -> list:
+                               config: Path | None = None, *, layout: Any = None, blocks: int = 1,
+                               scale: float = 1.0) -> list:
     """The recordings of `paths` at step dt (topics of `config`, default the shipped predictor.yaml), read with the
     vessel's actuator `layout` (physics/actuators.py; None: rudder_propeller); a bag without engine speed is a
     DatasetError saying why it matters. blocks > 1 cuts each recording into that many contiguous pieces of equal
-    length, NAME~1, NAME~2, ... (blocked cross-validation of a single long record: each piece is held out in turn)."""
+    length, NAME~1, NAME~2, ... (blocked cross-validation of a single long record: each piece is held out in turn).
+    scale: Froude scale L_bags / L_vessel (replay.recordings.load_recordings; 1: none)."""
     from usv_predictor.physics.actuators import DEFAULT_LAYOUT
     from usv_predictor.replay.recordings import load_recordings, slice_recording
 
     if blocks < 1:
         raise DatasetError(f"--blocks {blocks}: expected a whole number >= 1")
     try:
-        recordings = load_recordings(paths, dt, config_path=config, progress=progress, layout=layout or DEFAULT_LAYOUT)
+        recordings = load_recordings(paths, dt, config_path=config, progress=progress, layout=layout or DEFAULT_LAYOUT,
+                                     scale=scale)
     except BagError as err:
         if "engine_rpm" in str(err):
             raise DatasetError(f"identification needs the engine speed (engine_rpm): without it the propeller thrust "
@@ -44,21 +47,23 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
 
 def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure: str = "auto", prior: str = "none",
                   hybrid: bool = False, dt: float = 0.2, validation: str | None = None, report: Path | None = None,
-                  blocks: int = 1, config: Path | None = None,
+                  blocks: int = 1, config: Path | None = None, scale: float = 1.0,
                   progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """Identify the hull (and what the layout lets the data set: thrust gains, engine speeds) of the vessel file
     `vessel` (a preset name or a YAML path) from `bags`, read with its actuator layout (structure mmg / abkowitz /
     diagonal / coupled / auto, prior none / fix / ridge), export the grey box (with hybrid: plus an MLP residual)
     to `output`; validation: a glob of bags only evaluated; report: a directory for summary.md and the force plots;
     blocks: pieces per recording for cross-validation; config: the predictor.yaml whose topics are read (default
-    the shipped one). The result of `replay identify`."""
+    the shipped one); scale: Froude scale L_bags / L_vessel, the bags scaled to the vessel's size (1: none). The
+    result of `replay identify`."""
     from usv_predictor.analysis.evaluation import evaluate
     from usv_predictor.fitting import hybrid_fit, identification
     from usv_predictor.physics.vessel import load_vessel
 
     preset = load_vessel(vessel)
     layout = preset.actuator_layout
-    recordings = identification_recordings(list(bags), dt, progress, config, layout=layout, blocks=blocks)
+    recordings = identification_recordings(list(bags), dt, progress, config, layout=layout, blocks=blocks,
+                                           scale=scale)
     if not recordings:
         raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
     result = identification.identify(preset, recordings, structure=structure, prior=prior, progress=progress)
@@ -82,12 +87,14 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
     out: dict[str, Any] = {"model": str(output), "model_id": artifact.model_id,
                            "model_type": artifact.metadata["model_type"], "training_data_sha256": digest,
                            "identification": result.to_json(), "hybrid": hybrid_info,
-                           "cv_candidates": [c.to_json() for c in candidates], "cv_warning": warning}
+                           "cv_candidates": [c.to_json() for c in candidates], "cv_warning": warning,
+                           "froude_scale": scale}
     if validation:
         paths = sorted(Path(p) for p in glob.glob(validation))
         if not paths:
             raise DatasetError(f"--val {validation!r} matches no bag")
-        out["validation"] = evaluate(artifact, identification_recordings(paths, dt, progress, config, layout=layout),
+        out["validation"] = evaluate(artifact, identification_recordings(paths, dt, progress, config, layout=layout,
+                                                                         scale=scale),
                                      progress=progress).to_json()
     for c in result.coefficients():
         progress(f"  {c.name:7s} {c.estimate:+.5g}  [{c.ci95[0]:+.5g}, {c.ci95[1]:+.5g}]  prior {c.prior:+.5g}  "

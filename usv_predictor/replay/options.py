@@ -53,7 +53,28 @@ def non_negative_int(text: str) -> int:
     return int(_number(text, int, "a whole number >= 0", lambda v: v >= 0))
 
 
-NUMBER_TYPES = (finite_float, positive_float, non_negative_float, positive_int, non_negative_int)
+SCALE_RANGE = (0.01, 100.0)  # accepted Froude scales L_bags / L_model (-): towing-tank models are 1:10 to 1:100
+
+
+def froude_scale(text: str) -> float:
+    """A Froude scale L_bags / L_model within SCALE_RANGE."""
+    low, high = SCALE_RANGE
+    return float(_number(text, float, f"a scale between {low:g} and {high:g} (L_bags / L_model)",
+                         lambda v: low <= v <= high))
+
+
+NUMBER_TYPES = (finite_float, positive_float, non_negative_float, positive_int, non_negative_int, froude_scale)
+
+SCALE_HELP = ("Froude-scale the bags to the model's size first: LAMBDA = L_bags / L_model, the bags' vessel is LAMBDA "
+              "times as long as the model's (full-scale bags, model-scale model: > 1, KVLCC2 45.714; model-scale "
+              "bags, full-scale model: < 1, 1/45.714 = 0.021875). Lengths / LAMBDA, times and speeds / sqrt(LAMBDA), "
+              "yaw rates and rpm x sqrt(LAMBDA), angles and normalised commands kept; results are at the model's "
+              "scale. A wrong direction or factor is refused by the fit check (default 1: none)")
+
+
+def add_scale_argument(parser: argparse.ArgumentParser) -> None:
+    """--scale LAMBDA: Froude scaling of the bags (usv_predictor.data.recording.froude_scaled)."""
+    parser.add_argument("--scale", type=froude_scale, default=1.0, metavar="LAMBDA", help=SCALE_HELP)
 
 
 def log(message: str) -> None:
@@ -85,10 +106,12 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                         help="time between open-loop start points (s, default 5)")
     parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
     add_config_argument(parser)
-    parser.add_argument("--vessel", default=None, metavar="PRESET",
-                        help="vessel preset the bags were recorded on: its actuator layout says which control topics "
-                             "are read and must be the model's control_layout (default: the model's vessel, else "
-                             "the config's)")
+    parser.add_argument("--vessel", default=None, metavar="PRESET|YAML",
+                        help="vessel preset or YAML file the bags were recorded on: its actuator layout says which "
+                             "control topics are read and must be the model's control_layout, the fit check uses its "
+                             "length; a model that embeds a different description is refused, naming the fields "
+                             "(default: the vessel the model embeds or names, else the config's)")
+    add_scale_argument(parser)
     parser.add_argument("--no-fit-check", action="store_true",
                         help="evaluate even when the model does not fit the bags at all (its steady speed or yaw rate "
                              "at the recorded commands, or its length scale, is far off: refused otherwise)")
@@ -99,4 +122,5 @@ def evaluation_request(args: argparse.Namespace, bags: Sequence[Path]) -> Evalua
     return EvaluationRequest(bags=tuple(bags), model=args.model, dt=args.dt, reference=args.reference,
                              horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm,
                              config=args.config, vessel=args.vessel,
-                             adaptive=bool(getattr(args, "adaptive", False)), fit_check=not args.no_fit_check)
+                             adaptive=bool(getattr(args, "adaptive", False)), fit_check=not args.no_fit_check,
+                             scale=args.scale)

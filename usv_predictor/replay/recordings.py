@@ -50,6 +50,7 @@ from usv_predictor.config import FLOAT_RANGES, input_topics, load_predictor_conf
 from usv_predictor.data.recording import (
     Recording,
     RecordingError,
+    froude_scaled,
     plausible_ranges,
     recording_from_signals,
     required_roles,
@@ -508,8 +509,12 @@ def load_recordings(bag_paths: Iterable[str | Path], dt: float, *, config_path: 
                     topics: Mapping[str, str] | None = None, segment: str = "bag", min_duration_s: float = 10.0,
                     horizon_s: float | None = None, include_calm: bool = False, jobs: int = 1,
                     warn: Warn = warn_stderr, progress: Callable[[str], None] | None = None,
-                    layout: ActuatorLayout = DEFAULT_LAYOUT) -> list[Recording]:
+                    layout: ActuatorLayout = DEFAULT_LAYOUT, scale: float = 1.0) -> list[Recording]:
     """Recordings of the bags (or directories of bags) in `bag_paths`, resampled to step dt.
+
+    scale: Froude scaling (data/recording.froude_scaled) of bags recorded on a hull `scale` times as long as the
+    model's (`--scale LAMBDA` of evaluate, identify, diagnose; 1: none): the bags are read at the step, horizon and
+    minimum duration that become dt, horizon_s and min_duration_s at the model's scale, then scaled.
 
     topics: role -> topic name overrides of the config's input topics. jobs: processes reading bags in
     parallel (0: default_jobs). layout: the vessel's actuator layout (which roles carry the controls). May return [] when every piece was skipped (each skip has its warning);
@@ -518,6 +523,19 @@ def load_recordings(bag_paths: Iterable[str | Path], dt: float, *, config_path: 
     if not dt > 0.0 or not math.isfinite(dt):
         raise DatasetError(f"step dt={dt} s must be a positive number")
     FLOAT_RANGES["dt"].check("dt", dt, "the resampling step")  # 1e-300 s would ask for an astronomical grid
+    if not (math.isfinite(scale) and scale > 0.0):
+        raise DatasetError(f"--scale {scale!r}: expected a finite number > 0 (L_bags / L_model)")
+    if scale != 1.0:  # the bags' own clock: every time in it is sqrt(scale) times the model's
+        root = math.sqrt(scale)
+        if progress is not None:
+            progress(f"Froude scale {scale:g}: the bags' vessel is {scale:g} x the model's; read at {dt * root:.4g} s "
+                     f"of their clock (= {dt:g} s at the model's scale), lengths / {scale:g}, speeds and times / "
+                     f"{root:.4g}, yaw rates and rpm x {root:.4g}")
+        found = load_recordings(bag_paths, dt * root, config_path=config_path, topics=topics, segment=segment,
+                                min_duration_s=min_duration_s * root,
+                                horizon_s=None if horizon_s is None else horizon_s * root, include_calm=include_calm,
+                                jobs=jobs, warn=warn, progress=progress, layout=layout)
+        return [dataclasses.replace(froude_scaled(rec, scale), dt=dt) for rec in found]
     if segment not in SEGMENTS:
         raise DatasetError(f"unknown segment mode {segment!r}; use one of {list(SEGMENTS)}")
     specs = topic_specs(config_path, topics, layout)
