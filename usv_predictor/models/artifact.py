@@ -47,7 +47,7 @@ EXPECT_UNITS = {"dt": "s"}  # units shown in mismatch messages
 # ----------------------------------------------------------------------------- file
 
 @contextlib.contextmanager
-def _quiet_jit() -> Iterator[None]:
+def quiet_jit() -> Iterator[None]:
     """TorchScript is the artifact format on purpose (DESIGN.md: one file, torch-only loading);
     torch >= 2.9 warns on every script/save/load call that it is deprecated."""
     with warnings.catch_warnings():
@@ -59,7 +59,16 @@ def _quiet_jit() -> Iterator[None]:
 class ModelArtifact:
     path: Path
     metadata: dict[str, Any]
-    module: torch.jit.ScriptModule
+    module: torch.jit.ScriptModule  # the file's rollout, as exported
+    # what predict() runs: the file's module, or a faster form of it that models/loading.py checked equal
+    # (a DNN's fused rollout, models/dnn.fused_rollout); `inference_note` says which and why
+    inference: torch.jit.ScriptModule | None = None
+    inference_note: str = "the file's rollout"
+
+    @property
+    def runner(self) -> torch.jit.ScriptModule:
+        """The module predictions run: `inference` when set, else the file's module."""
+        return self.module if self.inference is None else self.inference
 
     @property
     def dt(self) -> float:
@@ -85,7 +94,7 @@ class ModelArtifact:
                              f"got {state.shape} and {controls.shape}")
         try:
             with torch.inference_mode():
-                out = self.module(torch.from_numpy(state), torch.from_numpy(controls))
+                out = self.runner(torch.from_numpy(state), torch.from_numpy(controls))
             return out.double().numpy()
         except MODEL_RUN_ERRORS as err:
             raise ModelError(f"model {self.path} fails when run: {failure_reason(err)}") from err
@@ -151,7 +160,7 @@ def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, An
     missing = [k for k in REQUIRED_KEYS if k not in meta]
     if missing:
         raise ModelError(f"model {path}: metadata lacks {missing}")
-    with _quiet_jit():
+    with quiet_jit():
         scripted = module if isinstance(module, torch.jit.ScriptModule) else torch.jit.script(module.eval())
     try:
         text = json_text(meta, f"model {path}: metadata")
@@ -161,7 +170,7 @@ def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, An
     # limit is hit, leaving its temporary file behind; the bytes then go through the atomic writer, which fails
     # with one line and removes its temporary file.
     buffer = io.BytesIO()
-    with _quiet_jit():
+    with quiet_jit():
         torch.jit.save(scripted, buffer, _extra_files={METADATA_FILE: text})
     write_bytes_atomic(path, buffer.getvalue(), ModelError, "model")
     return load_artifact(path)
@@ -218,7 +227,7 @@ def read_metadata(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, A
         raise ModelError(f"model file {path} does not exist")
     extra = {METADATA_FILE: ""}
     try:
-        with _quiet_jit():
+        with quiet_jit():
             module = torch.jit.load(str(path), map_location="cpu", _extra_files=extra)
     except (RuntimeError, ValueError, OSError, EOFError) as err:
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__

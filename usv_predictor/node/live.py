@@ -486,7 +486,10 @@ class Prediction(NamedTuple):
 
 
 class Rollout:
-    """The TorchScript model with preallocated inputs: one (1, 4) state and (1, H, C) controls."""
+    """The TorchScript model with preallocated inputs: one (1, 4) state and (1, H, C) controls.
+
+    It runs `artifact.runner`: for a DNN the rollout fused at load time (models/loading.with_fused_rollout), the
+    module `replay evaluate` runs too; for other families the file's module (whose terms the sea estimate sets)."""
 
     def __init__(self, artifact: ModelArtifact, horizon_steps: int, ensemble_size: int | None = None) -> None:
         available = artifact.ensemble_size
@@ -511,7 +514,7 @@ class Rollout:
         self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)))  # broadcasts (C,) to (H, C)
         try:
             with torch.inference_mode():
-                out = self.artifact.module(self._state, self._controls)  # (E, 1, H, 6)
+                out = self.artifact.runner(self._state, self._controls)  # (E, 1, H, 6)
             return out[: self.members, 0].double().numpy()
         except MODEL_RUN_ERRORS as err:
             raise ModelError(f"model {self.artifact.path} fails when run: {failure_reason(err)}") from err
@@ -525,7 +528,7 @@ class Rollout:
         states = torch.from_numpy(np.asarray(state, dtype=np.float64)).to(self.dtype).expand(count, 4)  # (B, 4)
         try:
             with torch.inference_mode():
-                out = self.artifact.module(states, torch.from_numpy(controls).to(self.dtype))  # (E, B, H, 6)
+                out = self.artifact.runner(states, torch.from_numpy(controls).to(self.dtype))  # (E, B, H, 6)
             return out[: self.members].double().numpy()
         except MODEL_RUN_ERRORS as err:
             raise ModelError(f"model {self.artifact.path} fails when run: {failure_reason(err)}") from err
