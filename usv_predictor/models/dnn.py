@@ -512,6 +512,13 @@ class FusedDnnRollout(DnnRollout):
             return h.clamp_(0.0, self.ceiling)
         return h.sigmoid_()  # sigmoid_form: the tanh's shift and scale are in the weights
 
+    def _heading_features_(self, columns: torch.Tensor) -> None:
+        """In place, as DnnRollout._psi_features_ on a view of the T heading columns (E, B, T)."""
+        if self.trig_mode == 2:
+            columns.sin_()
+        elif self.trig_mode == 1:
+            columns.remainder_(2.0 * math.pi)
+
     def forward(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
         if state.dim() != 2 or state.size(1) != 4:
             raise ValueError("state must be (B, 4) [u, v, r, psi]")
@@ -529,14 +536,21 @@ class FusedDnnRollout(DnnRollout):
         per_step = (torch.matmul(ctrl, self.w_c).reshape(e, b, horizon, -1) + self.bias.unsqueeze(2)).unbind(2)
         hidden_w = self.hidden_w.unbind(1)  # one (E, W, W) per hidden layer
         hidden_b = self.hidden_b.unbind(1)
+        # every tensor the loop writes is allocated here and every view it reads is taken here: a step is its three
+        # products and its activations only (no allocation, no slicing op)
         steps = torch.empty(horizon, e, b, n_s, dtype=self.m_s.dtype)  # (H, E, B, S): step k written in place
+        outs = steps.unbind(0)  # H x (E, B, S)
+        heading_columns = steps.narrow(3, 4, self.n_trig).unbind(0)  # H x (E, B, T): the psi-feature arguments
+        y = torch.empty(e, b, n_s + self.width, dtype=self.m_s.dtype)  # (E, B, S + W): [s_lin | pre-activation]
+        s_lin = y.narrow(2, 0, n_s)  # (E, B, S)
+        pre = y.narrow(2, n_s, self.width)  # (E, B, W)
         for k in range(horizon):
-            y = torch.baddbmm(per_step[k], s, self.m_s)  # (E, B, S + W): [s_lin | pre-activation]
-            h = self._activation_(y.narrow(2, n_s, self.width))  # (E, B, W)
+            torch.baddbmm(per_step[k], s, self.m_s, out=y)
+            h = self._activation_(pre)  # (E, B, W)
             for i in range(len(hidden_w)):
                 h = self._activation_(torch.baddbmm(hidden_b[i], h, hidden_w[i]))  # (E, B, W)
-            s = torch.baddbmm(y.narrow(2, 0, n_s), h, self.head, out=steps[k])  # (E, B, S) at k+1
-            self._psi_features_(s)
+            s = torch.baddbmm(s_lin, h, self.head, out=outs[k])  # (E, B, S) at k+1
+            self._heading_features_(heading_columns[k])
         path = steps.permute(1, 2, 0, 3)[..., 0:4]  # (E, B, H, 4)
         full = torch.cat([z0.unsqueeze(2), path], dim=2)  # (E, B, H+1, 4)
         cos_psi = torch.cos(full[..., 3])
