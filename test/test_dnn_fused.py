@@ -159,7 +159,7 @@ def test_the_node_rollout_runs_the_fused_module() -> None:
     """live.Rollout (the node) and artifact.predict (`replay evaluate`) run the same fused module."""
     model = _loaded(SHIPPED)
     rollout = live.Rollout(model, 120)
-    assert rollout.artifact.runner is model.inference
+    assert rollout.artifact.runner is model.inference and rollout.module is model.inference
     state, held = np.array([5.0, 0.1, 0.02, 0.3]), np.array([0.2, 650.0])
     controls = np.tile(held, (1, 120, 1))
     np.testing.assert_array_equal(rollout(state, held), model.predict(state[None], controls)[:, 0])
@@ -200,3 +200,19 @@ def test_probe_inputs_are_the_training_data_statistics() -> None:
     np.testing.assert_allclose(state[:, 0].mean(), mean[names.index("u")], rtol=1e-12)
     np.testing.assert_allclose(controls[:, 0, 1].mean(), mean[names.index("rpm")], rtol=1e-12)
     assert np.ptp(state[:, 3]) > 5.0  # headings round the circle
+
+
+def test_the_node_computes_only_the_members_it_uses() -> None:
+    """ensemble_size 2 of the shipped 5: the node's module is fused with the first two members only, and its
+    predictions are those two members of the full ensemble."""
+    model = _loaded(SHIPPED)
+    rollout = live.Rollout(model, 120, ensemble_size=2)
+    state, held = np.array([5.0, 0.1, 0.02, 0.3]), np.array([0.2, 650.0])
+    with torch.inference_mode():
+        raw = rollout.module(torch.tensor(state[None], dtype=torch.float32),
+                             torch.tensor(np.tile(held, (1, 120, 1)), dtype=torch.float32))
+    assert raw.shape[0] == 2  # not five computed and three dropped
+    got = rollout(state, held)
+    full = model.predict(state[None], np.tile(held, (1, 120, 1)))[:, 0]
+    assert got.shape == (2, 120, 6)
+    np.testing.assert_allclose(got, full[:2], rtol=0, atol=1e-4)
