@@ -39,7 +39,9 @@ For speed (node budget: p99 <= 1.5 ms for B=1, H=120) the network is folded into
 batched matrix products over the ensemble: the controls' share of the first layer is computed for all
 steps before the loop, the state update z_{k+1} = z_k A + c + h W (z = [u, v, r, psi]) folds the
 increment and the heading integration into the output layer, positions are integrated after the loop
-(they do not feed back).
+(they do not feed back). The node and `replay evaluate` run this network fused once more at load time
+(FusedDnnRollout, from the artifact's buffers: tanh as sigmoid with its shift and scale folded into the
+weights, no allocation or slicing op in the step loop); the artifact keeps DnnRollout.
 """
 from __future__ import annotations
 
