@@ -476,7 +476,7 @@ class FusedDnnRollout(DnnRollout):
     batch B rides in the same products. The artifact format is unchanged: old artifacts are fused when loaded.
     """
 
-    __constants__ = DnnRollout.__constants__ + ["sigmoid", "width"]
+    __constants__ = DnnRollout.__constants__ + ["sigmoid", "width", "n_hidden"]
 
     def __init__(self, buffers: Mapping[str, torch.Tensor], *, feature_set: str, activation: str, ceiling: float,
                  dt: float, members: int | None = None) -> None:
@@ -500,6 +500,7 @@ class FusedDnnRollout(DnnRollout):
                              f"matrix is {tuple(params['m_s'].shape)}")
         self.n_controls = int(params["w_c"].shape[1])
         self.width = int(params["m_s"].shape[2]) - n_s
+        self.n_hidden = int(params["hidden_w"].shape[1])  # hidden layers after the first (depth - 1)
         self.clipped = activation == "clipped_relu"
         self.sigmoid = not self.clipped
         self.ceiling = float(ceiling)
@@ -551,7 +552,7 @@ class FusedDnnRollout(DnnRollout):
         y = torch.empty(e, b, n_s + self.width, dtype=dtype)  # (E, B, S + W): [s_lin | pre-activation]
         s_lin_t = y.narrow(2, 0, n_s).transpose(1, 2)  # (E, S, B)
         pre = y.narrow(2, n_s, self.width)  # (E, B, W)
-        n_hidden = len(hidden_w)
+        n_hidden = self.n_hidden  # a constant: TorchScript unrolls the layer loop
         last = torch.empty(e, b, self.width, dtype=dtype) if n_hidden > 0 else pre  # (E, B, W): the last layer's
         last_t = last.transpose(1, 2)  # (E, W, B)
         for k in range(horizon):
