@@ -216,3 +216,21 @@ def test_the_node_computes_only_the_members_it_uses() -> None:
     full = model.predict(state[None], np.tile(held, (1, 120, 1)))[:, 0]
     assert got.shape == (2, 120, 6)
     np.testing.assert_allclose(got, full[:2], rtol=0, atol=1e-4)
+
+
+def test_a_fused_rollout_that_cannot_be_scripted_leaves_the_file_running(tmp_path: Path, monkeypatch) -> None:
+    """TorchScript compiles the fused rollout when a model is loaded (also on a model swap in a running node):
+    if that fails, the model loads with its own rollout and says why, instead of failing to load."""
+    members = [_member("NTF", 1, "tanh", 2)]
+    _export(tmp_path / "m.pt", members, dtype="float64")
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("compilation failed\nsome TorchScript detail")
+
+    monkeypatch.setattr(torch.jit, "script", broken)
+    model = _loaded(tmp_path / "m.pt")
+    assert model.inference is None and "cannot be built or run: some TorchScript detail" in model.inference_note
+    state, controls = _inputs()
+    with torch.inference_mode():
+        own = model.module(torch.from_numpy(state), torch.from_numpy(controls)).numpy()
+    np.testing.assert_array_equal(model.predict(state, controls), own)

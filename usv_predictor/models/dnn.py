@@ -57,8 +57,8 @@ from torch import nn
 
 from usv_predictor.data.features import HEADING_COLUMNS, HEADING_SETS, STATE_NAMES, feature_names, feature_units
 from usv_predictor.errors import ConfigError, ModelError
-from usv_predictor.models.artifact import (DEFAULT_HORIZON_STEPS, OUTPUT_LAYOUT, UNITS, ModelArtifact, export_module,
-                                          quiet_jit)
+from usv_predictor.models.artifact import (DEFAULT_HORIZON_STEPS, MODEL_RUN_ERRORS, OUTPUT_LAYOUT, UNITS, ModelArtifact,
+                                          export_module, failure_reason, quiet_jit)
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
 
 ACTIVATIONS = ("tanh", "clipped_relu")
@@ -615,13 +615,16 @@ def fused_rollout(artifact: ModelArtifact, members: int | None = None, freeze: b
     except (KeyError, TypeError, ValueError, IndexError, ConfigError) as err:
         raise ModelError(f"model {artifact.path}: its network cannot be fused ({type(err).__name__}: {err})") from err
     dtype = buffers["m_s"].dtype
-    with quiet_jit():
-        scripted = torch.jit.script(module.eval())
-        if freeze:
-            scripted = torch.jit.freeze(scripted)
-    with torch.inference_mode():
-        expected = artifact.module(state.to(dtype), controls.to(dtype))[: module.ensemble_size].double()  # (E, B, H, 6)
-        got = scripted(state.to(dtype), controls.to(dtype)).double()
+    try:  # TorchScript compiles FusedDnnRollout from its source file now: a failure keeps the file's module
+        with quiet_jit():
+            scripted = torch.jit.script(module.eval())
+            if freeze:
+                scripted = torch.jit.freeze(scripted)
+        with torch.inference_mode():
+            expected = artifact.module(state.to(dtype), controls.to(dtype))[: module.ensemble_size].double()  # (E, B, H, 6)
+            got = scripted(state.to(dtype), controls.to(dtype)).double()
+    except MODEL_RUN_ERRORS as err:
+        raise ModelError(f"model {artifact.path}: the fused rollout cannot be built or run: {failure_reason(err)}") from err
     scale = 1.0 + expected.abs().amax(dim=(0, 1, 2))  # (6,)
     error = ((got - expected).abs().amax(dim=(0, 1, 2)) / scale).max().item() if got.shape == expected.shape else math.inf
     if not error <= FUSED_CHECK_RTOL:

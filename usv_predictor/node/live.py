@@ -503,7 +503,10 @@ class Rollout:
         self.artifact = artifact
         self.module = artifact.runner
         if artifact.inference is not None and self.members < available:
-            self.module = fused_rollout(artifact, members=self.members)
+            try:
+                self.module = fused_rollout(artifact, members=self.members)
+            except ModelError:  # then every member is computed and the output sliced, as for other modules
+                self.module = artifact.runner
         self.horizon_steps = int(horizon_steps)
         self.dtype = artifact.module.m_s.dtype if hasattr(artifact.module, "m_s") else torch.float64
         self._state = torch.zeros(1, 4, dtype=self.dtype)
