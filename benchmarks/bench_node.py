@@ -4,11 +4,14 @@
     python benchmarks/bench_node.py [--repeats 2000] [--seconds 10] [--baseline 67fb230] [--json out/bench_node.json]
 
 1. Rollout compute, one 60 s / dt 0.5 s rollout (120 steps) of the shipped 5-member model, torch.set_num_threads(1),
-   warm-up first, p50 / p99 over --repeats calls: the artifact as the node calls it (live.Rollout: preallocated
-   inputs); the same module after torch.jit.freeze, and after freeze + optimize_for_inference; the same folded
+   warm-up first, p50 / p99 over --repeats calls: the node's call now (live.Rollout on the model as
+   models/loading.load_model returns it: the DNN rollout fused at load time, models/dnn.FusedDnnRollout) and the
+   file's own rollout as the node called it before (live.Rollout on load_artifact's module), measured in
+   alternating rounds so that a change of load hits both; the file's module after torch.jit.freeze, and after
+   freeze + optimize_for_inference; the same folded
    network as a plain eager loop (members one by one, no fused batched matmuls) and as a numpy loop; the
    network re-scripted with tanh(x) = 2 sigmoid(2x) - 1 (torch's tanh is the slow kernel of a batch); and the
-   64-candidate batch (B = 64, one call) for the artifact, freeze and the sigmoid form.
+   64-candidate batch (B = 64, one call) for the fused rollout, the artifact, freeze and the sigmoid form.
 2. The node in its own process at 10 Hz, fed from this process over DDS (loopback, localhost discovery) with the
    inputs as CDR bytes (stamps patched in place: the feeder costs next to nothing), IMU at 200 Hz then at 1 kHz,
    the other inputs at 20/20/10/10/5 Hz; the Path arrives on a raw subscription (its header stamp read from the
@@ -43,6 +46,7 @@ import numpy as np
 import torch
 
 from usv_predictor.config import package_share_path
+from usv_predictor.models import loading
 from usv_predictor.models.artifact import export_module, load_artifact
 from usv_predictor.models.dnn import DnnConfig, DnnModel, DnnRollout, _heading_fold
 from usv_predictor.node import live
@@ -72,6 +76,22 @@ def timed(fn, repeats: int) -> dict[str, float]:
         fn()
         out.append(time.perf_counter() - start)
     return percentiles(out)
+
+
+def timed_alternating(fns: dict[str, Any], repeats: int, rounds: int = 10) -> dict[str, dict[str, float]]:
+    """timed() of several calls in `rounds` alternating rounds of repeats / rounds calls each: on a shared machine a
+    change of load then falls on every call alike, and their figures compare."""
+    for fn in fns.values():
+        for _ in range(20):
+            fn()
+    out: dict[str, list[float]] = {name: [] for name in fns}
+    for _ in range(rounds):
+        for name, fn in fns.items():
+            for _ in range(max(1, repeats // rounds)):
+                start = time.perf_counter()
+                fn()
+                out[name].append(time.perf_counter() - start)
+    return {name: percentiles(times) for name, times in out.items()}
 
 
 def load() -> str:
@@ -150,8 +170,11 @@ def rescripted(artifact, cls: type[DnnRollout]) -> torch.jit.ScriptModule:
 def bench_compute(repeats: int, tmp: Path) -> dict:
     torch.set_num_threads(1)
     path = package_share_path("models", "default.pt")
-    artifact = load_artifact(path)
+    artifact = load_artifact(path)  # the file's module only (no fusing)
     rollout = live.Rollout(artifact, H)
+    fused_model = loading.load_model(str(path), physics=False)  # what the node and `replay evaluate` load
+    assert fused_model.inference is not None, fused_model.inference_note
+    fused = live.Rollout(fused_model, H)
     state, controls = np.array([5.0, 0.1, 0.02, 0.3]), np.array([0.2, 650.0])
     params = folded(artifact.module)
     t_state = torch.tensor(state[None], dtype=params["m_s"].dtype)
@@ -165,11 +188,16 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
     batch_controls = t_controls.expand(64, H, 2).contiguous()
     with torch.inference_mode():
         reference = rollout(state, controls)  # (E, H, 6)
+        fused_out = fused(state, controls)
+        fused_batch = fused.batch(state, np.tile(controls, (64, H, 1)))
+        file_batch = rollout.batch(state, np.tile(controls, (64, H, 1)))
         eager = eager_rollout(params, t_state, t_controls)[:, 0, 1:].double().numpy()
         variants = {name: module(t_state, t_controls)[:, 0].double().numpy()
                     for name, module in (("freeze", frozen), ("optimize_for_inference", optimised), ("sigmoid", sigmoid))}
     numpy_out = numpy_rollout(np_params, state, np_controls)[:, 1:]
-    agreement = {"eager_vs_torchscript_max_abs": float(np.abs(eager - reference[..., [0, 1, 2, 5]]).max()),
+    agreement = {"fused_vs_torchscript_max_abs": float(np.abs(fused_out - reference).max()),
+                 "fused_vs_torchscript_64_candidates_max_abs": float(np.abs(fused_batch - file_batch).max()),
+                 "eager_vs_torchscript_max_abs": float(np.abs(eager - reference[..., [0, 1, 2, 5]]).max()),
                  "numpy_vs_torchscript_max_abs": float(np.abs(numpy_out - reference[..., [0, 1, 2, 5]]).max()),
                  **{f"{name}_vs_torchscript_max_abs": float(np.abs(out - reference).max()) for name, out in variants.items()}}
 
@@ -184,14 +212,21 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
             eager_rollout(params, t_state, t_controls)
 
     few = max(50, repeats // 10)
+    pair = timed_alternating({"fused_5 (the node's call now)": lambda: fused(state, controls),
+                              "torchscript_5 (the file's rollout, the node's call before)": lambda: rollout(state, controls)},
+                             repeats)
+    pair_64 = timed_alternating({"batch 64 candidates fused (the node's call now)":
+                                 lambda: fused.batch(state, np.tile(controls, (64, H, 1))),
+                                 "batch 64 candidates torchscript_5 (before)":
+                                 lambda: rollout.batch(state, np.tile(controls, (64, H, 1)))}, few)
     results = {
-        "torchscript_5 (the node's call)": timed(lambda: rollout(state, controls), repeats),
+        **pair,
         "torchscript_5 jit.freeze": timed(call(frozen, t_state, t_controls), repeats),
         "torchscript_5 freeze+optimize_for_inference": timed(call(optimised, t_state, t_controls), repeats),
         "torchscript_5 tanh as 2 sigmoid(2x) - 1": timed(call(sigmoid, t_state, t_controls), repeats),
         "eager_5 (members looped, no fused bmm)": timed(run_eager, few),
         "numpy_5": timed(lambda: numpy_rollout(np_params, state, np_controls), few),
-        "batch 64 candidates torchscript_5": timed(call(artifact.module, batch_state, batch_controls), few),
+        **pair_64,
         "batch 64 candidates jit.freeze": timed(call(frozen, batch_state, batch_controls), few),
         "batch 64 candidates sigmoid tanh": timed(call(sigmoid, batch_state, batch_controls), few),
     }
@@ -419,7 +454,7 @@ def baseline_tree(revision: str, tmp: Path) -> Path:
     return target
 
 
-def bench_node(variant: str, seconds: float, tmp: Path, baseline: str) -> dict:
+def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candidates: bool = False) -> dict:
     domain = 150 + (os.getpid() + len(variant)) % 80
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -441,7 +476,7 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str) -> dict:
         feeder.wait_for([process, receiver])
         runs["imu_200"] = feeder.run(seconds, 200.0, process)
         runs["imu_1000"] = feeder.run(seconds, 1000.0, process)
-        if variant == "events":
+        if variant == "events" or (variant == "old" and old_candidates):
             runs["candidates_64"] = feeder.run(seconds, 200.0, process, candidates_hz=2.0)
     finally:
         feeder.close()
@@ -469,6 +504,8 @@ def main() -> int:
     parser.add_argument("--baseline", default=BASELINE, help="git revision of the old node ('' to skip it)")
     parser.add_argument("--variants", default="old,events,single")
     parser.add_argument("--skip-compute", action="store_true")
+    parser.add_argument("--old-candidates", action="store_true",
+                        help="the candidate-plans phase for the old node too (a --baseline that has candidate_plans)")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     result: dict[str, Any] = {"started": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "load_at_start": load(),
@@ -483,10 +520,11 @@ def main() -> int:
                     print(f"  {name:45s} {figures['p50_ms']:7.3f}  {figures['p99_ms']:7.3f}   (n={figures['n']})")
             print(f"  agreement with the artifact (max abs): {result['compute']['agreement']}")
         variants = [v for v in args.variants.split(",") if v and (v != "old" or args.baseline)]
-        result["node"] = {v: bench_node(v, args.seconds, Path(tmp), args.baseline) for v in variants}
+        result["node"] = {v: bench_node(v, args.seconds, Path(tmp), args.baseline, args.old_candidates)
+                          for v in variants}
     print("\nnode at 10 Hz over DDS; e2e = cycle start -> Path received        p50 / p99 ms      CPU % of one core")
     for variant, runs in result["node"].items():
-        label = {"old": f"old ({args.baseline}, message objects)", "events": "new, EventsExecutor",
+        label = {"old": f"old ({args.baseline})", "events": "new, EventsExecutor",
                  "single": "new, SingleThreadedExecutor"}[variant]
         for name, run in runs.items():
             print(f"  {label:38s} IMU {run['imu_hz']:6.0f} Hz  e2e {run['end_to_end']['p50_ms']:6.2f} / "

@@ -39,6 +39,7 @@ def test_no_input_yet_reports_why_and_publishes_nothing(harness: Harness) -> Non
     found = harness.spin_until(lambda s: "prediction" in s)
     assert level(found["prediction"]) == predictor_node.WARN and "no message yet" in found["prediction"].message
     assert level(found["model"]) == predictor_node.OK and values_of(found["model"])["model_id"]
+    assert values_of(found["model"])["rollout"].startswith("fused")  # the shipped DNN, fused when loaded
     assert harness.paths == []
 
 

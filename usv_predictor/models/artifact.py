@@ -55,7 +55,7 @@ EXPECT_UNITS = {"dt": "s"}  # units shown in mismatch messages
 # ----------------------------------------------------------------------------- file
 
 @contextlib.contextmanager
-def _quiet_jit() -> Iterator[None]:
+def quiet_jit() -> Iterator[None]:
     """TorchScript is the artifact format on purpose (DESIGN.md: one file, torch-only loading);
     torch >= 2.9 warns on every script/save/load call that it is deprecated."""
     with warnings.catch_warnings():
@@ -67,8 +67,12 @@ def _quiet_jit() -> Iterator[None]:
 class ModelArtifact:
     path: Path
     metadata: dict[str, Any]
-    module: torch.jit.ScriptModule
+    module: torch.jit.ScriptModule  # the file's rollout, as exported
     vessel_description: dict[str, Any] | None = None  # the embedded vessel file (None: an artifact of before)
+    # what predict() runs: the file's module, or a faster form of it that models/loading.py checked equal
+    # (a DNN's fused rollout, models/dnn.fused_rollout); `inference_note` says which and why
+    inference: torch.jit.ScriptModule | None = None
+    inference_note: str = "the file's rollout"
 
     @property
     def embedded_vessel(self) -> Vessel | None:
@@ -76,6 +80,11 @@ class ModelArtifact:
         if self.vessel_description is None:
             return None
         return vessel_from_dict(self.vessel_description, source=f"model {self.path} ({VESSEL_FILE})")
+
+    @property
+    def runner(self) -> torch.jit.ScriptModule:
+        """The module predictions run: `inference` when set, else the file's module."""
+        return self.module if self.inference is None else self.inference
 
     @property
     def dt(self) -> float:
@@ -119,7 +128,7 @@ class ModelArtifact:
         try:
             with torch.inference_mode():
                 if reference is None:
-                    out = self.module(torch.from_numpy(state), torch.from_numpy(controls))
+                    out = self.runner(torch.from_numpy(state), torch.from_numpy(controls))
                 else:
                     out = self.module(torch.from_numpy(state), torch.from_numpy(controls), torch.from_numpy(reference))
             return out.double().numpy()
@@ -195,7 +204,7 @@ def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, An
     missing = [k for k in REQUIRED_KEYS if k not in meta]
     if missing:
         raise ModelError(f"model {path}: metadata lacks {missing}")
-    with _quiet_jit():
+    with quiet_jit():
         scripted = module if isinstance(module, torch.jit.ScriptModule) else torch.jit.script(module.eval())
     try:
         text = json_text(meta, f"model {path}: metadata")
@@ -205,7 +214,7 @@ def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, An
     # limit is hit, leaving its temporary file behind; the bytes then go through the atomic writer, which fails
     # with one line and removes its temporary file.
     buffer = io.BytesIO()
-    with _quiet_jit():
+    with quiet_jit():
         torch.jit.save(scripted, buffer, _extra_files={METADATA_FILE: text, **extra})
     write_bytes_atomic(path, buffer.getvalue(), ModelError, "model")
     return load_artifact(path)
@@ -270,7 +279,7 @@ def read_files(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any]
         raise ModelError(f"model file {path} does not exist")
     extra = {METADATA_FILE: "", VESSEL_FILE: ""}
     try:
-        with _quiet_jit():
+        with quiet_jit():
             module = torch.jit.load(str(path), map_location="cpu", _extra_files=extra)
     except (RuntimeError, ValueError, OSError, EOFError) as err:
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__

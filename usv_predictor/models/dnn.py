@@ -39,7 +39,9 @@ For speed (node budget: p99 <= 1.5 ms for B=1, H=120) the network is folded into
 batched matrix products over the ensemble: the controls' share of the first layer is computed for all
 steps before the loop, the state update z_{k+1} = z_k A + c + h W (z = [u, v, r, psi]) folds the
 increment and the heading integration into the output layer, positions are integrated after the loop
-(they do not feed back).
+(they do not feed back). The node and `replay evaluate` run this network fused once more at load time
+(FusedDnnRollout, from the artifact's buffers: tanh as sigmoid with its shift and scale folded into the
+weights, no allocation or slicing op in the step loop); the artifact keeps DnnRollout.
 """
 from __future__ import annotations
 
@@ -55,7 +57,8 @@ from torch import nn
 
 from usv_predictor.data.features import HEADING_COLUMNS, HEADING_SETS, STATE_NAMES, feature_names, feature_units
 from usv_predictor.errors import ConfigError, ModelError
-from usv_predictor.models.artifact import DEFAULT_HORIZON_STEPS, OUTPUT_LAYOUT, UNITS, ModelArtifact, export_module
+from usv_predictor.models.artifact import (DEFAULT_HORIZON_STEPS, MODEL_RUN_ERRORS, OUTPUT_LAYOUT, UNITS, ModelArtifact,
+                                          export_module, failure_reason, quiet_jit)
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
 from usv_predictor.physics.vessel import Vessel
 
@@ -426,3 +429,207 @@ def export(path: str | Path, members: Sequence[DnnModel], config: DnnConfig, *, 
         **dict(extra or {}),
     }
     return export_module(path, module, metadata, vessel=None if isinstance(vessel, str) else vessel)
+
+
+# ----------------------------------------------------------------------------- the node's fused rollout
+
+ROLLOUT_BUFFERS = ("m_s", "w_c", "bias", "head", "phase", "hidden_w", "hidden_b")  # a DnnRollout's folded network
+FUSED_CHECK_RTOL = 1e-4  # fused vs the artifact's own rollout at load: relative to the output's scale (float32 ~1e-7)
+
+
+def sigmoid_form(params: Mapping[str, torch.Tensor], n_state: int) -> dict[str, torch.Tensor]:
+    """A tanh DnnRollout's buffers (float64) rewritten so that every activation is a sigmoid, same function:
+
+        tanh(z) = 2 sigmoid(2 z) - 1
+    layer 1     z = s M + c W_c + b                  ->  2 z = s (2 M) + c (2 W_c) + 2 b,        g_1 = sigmoid(2 z)
+    hidden i    z = h W + b, h = 2 g - 1             ->  2 z = g (4 W) + 2 (b - 1 W),          g_i = sigmoid(2 z)
+    output      s' = s_lin + h head, h = 2 g - 1     ->  s' = s_lin + g (2 head) - 1 head     (the -1 head to the bias)
+
+    with 1 W the column sums (over the input units). The scalings by 2 and 4 are exact; only the folded biases are
+    rounded once more. Why: torch's float tanh kernel costs ~4 ns per element on this machine, its sigmoid ~0.2 ns
+    (benchmarks/bench_node.py), and the rollout's activations are every step's elementwise cost (the 64-candidate
+    batch: 2 x 32000 per step). The shift and scale ride on products the rollout computes anyway: no extra op.
+    """
+    p = {k: v.clone() for k, v in params.items()}
+    p["m_s"][..., n_state:] *= 2.0  # (E, S, S + W): the pre-activation columns
+    p["w_c"][..., n_state:] *= 2.0  # (E, C, S + W)
+    p["bias"][..., n_state:] *= 2.0  # (E, 1, S + W)
+    if p["hidden_w"].numel():
+        # (E, depth-1, W_in, W_out), (E, depth-1, 1, W_out)
+        p["hidden_b"] = 2.0 * (p["hidden_b"] - p["hidden_w"].sum(dim=2, keepdim=True))
+        p["hidden_w"] = 4.0 * p["hidden_w"]
+    p["bias"][..., :n_state] -= p["head"].sum(dim=1, keepdim=True)  # (E, 1, S) - (E, 1, S)
+    p["head"] = 2.0 * p["head"]  # (E, W, S)
+    return p
+
+
+class FusedDnnRollout(DnnRollout):
+    """The rollout the node runs for a DNN artifact: the artifact's folded network (its DnnRollout buffers), fused
+    once more at load time. Same interface and function as DnnRollout (forward: (B, 4), (B, H, C) -> (E, B, H, 6));
+    equal to the artifact's own rollout within float rounding (test_dnn_fused.py). What differs, per step:
+
+    * tanh activations run as sigmoids of the same products (sigmoid_form: the affine shift and scale folded into
+      the neighbouring layers, no extra op);
+    * the steps are written into one preallocated (H, E, B, S) tensor by the output product itself (`out=`), no
+      list of 120 tensors stacked after the loop, and the hidden activations work on a view of the step's product;
+    * only the members asked for are kept (the node's `ensemble_size`), so a smaller ensemble costs less.
+
+    The ensemble is one batched product per layer (E the batch of baddbmm), as in DnnRollout; the candidates'
+    batch B rides in the same products. The artifact format is unchanged: old artifacts are fused when loaded.
+    """
+
+    __constants__ = DnnRollout.__constants__ + ["sigmoid", "width", "n_hidden"]
+
+    def __init__(self, buffers: Mapping[str, torch.Tensor], *, feature_set: str, activation: str, ceiling: float,
+                 dt: float, members: int | None = None) -> None:
+        nn.Module.__init__(self)
+        missing = [name for name in ROLLOUT_BUFFERS if name not in buffers]
+        if missing:
+            raise ModelError(f"not a DnnRollout's network: buffers {missing} missing")
+        if activation not in ACTIVATIONS:
+            raise ModelError(f"activation {activation!r}; expected one of {list(ACTIVATIONS)}")
+        self.trig_mode, phases = _heading_fold(feature_set)
+        self.n_trig = len(phases)
+        dtype = buffers["m_s"].dtype
+        available = int(buffers["m_s"].shape[0])
+        self.ensemble_size = available if members is None else int(members)
+        if not 1 <= self.ensemble_size <= available:
+            raise ModelError(f"{self.ensemble_size} member(s) asked for, the network has {available}")
+        params = {k: buffers[k].detach()[: self.ensemble_size].to(torch.float64) for k in ROLLOUT_BUFFERS}
+        n_s = 4 + self.n_trig
+        if params["m_s"].shape[1] != n_s or params["phase"].shape[-1] != self.n_trig:
+            raise ModelError(f"feature set {feature_set} has {self.n_trig} heading column(s), the network's step "
+                             f"matrix is {tuple(params['m_s'].shape)}")
+        self.n_controls = int(params["w_c"].shape[1])
+        self.width = int(params["m_s"].shape[2]) - n_s
+        self.n_hidden = int(params["hidden_w"].shape[1])  # hidden layers after the first (depth - 1)
+        self.clipped = activation == "clipped_relu"
+        self.sigmoid = not self.clipped
+        self.ceiling = float(ceiling)
+        self.dt = float(dt)
+        if self.sigmoid:
+            params = sigmoid_form(params, n_s)
+        params["head_t"] = params.pop("head").transpose(1, 2)  # (E, S, W): the output product runs transposed
+        for name, value in params.items():
+            self.register_buffer(name, value.to(dtype).contiguous())
+
+    def _activation_(self, h: torch.Tensor) -> torch.Tensor:
+        if self.clipped:
+            return h.clamp_(0.0, self.ceiling)
+        return h.sigmoid_()  # sigmoid_form: the tanh's shift and scale are in the weights
+
+    def _heading_features_(self, columns: torch.Tensor) -> None:
+        """In place, as DnnRollout._psi_features_ on a view of the T heading columns (E, B, T)."""
+        if self.trig_mode == 2:
+            columns.sin_()
+        elif self.trig_mode == 1:
+            columns.remainder_(2.0 * math.pi)
+
+    def forward(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
+        if state.dim() != 2 or state.size(1) != 4:
+            raise ValueError("state must be (B, 4) [u, v, r, psi]")
+        if controls.dim() != 3 or controls.size(2) != self.n_controls or controls.size(0) != state.size(0):
+            raise ValueError("controls must be (B, H, C) in the model's control_layout, with the B of state")
+        e = self.ensemble_size
+        b = state.size(0)
+        horizon = controls.size(1)
+        n_s = 4 + self.n_trig
+        z0 = state.to(self.m_s.dtype).unsqueeze(0).expand(e, b, 4)  # (E, B, 4)
+        s = torch.cat([z0, z0[:, :, 3:4] + self.phase], dim=2)  # (E, B, S)
+        self._psi_features_(s)
+        ctrl = controls.to(self.m_s.dtype).reshape(1, b * horizon, self.n_controls)
+        # the controls' share of every step's first layer, before the loop: H x (E, B, S + W)
+        per_step = (torch.matmul(ctrl, self.w_c).reshape(e, b, horizon, -1) + self.bias.unsqueeze(2)).unbind(2)
+        hidden_w = self.hidden_w.unbind(1)  # one (E, W, W) per hidden layer
+        hidden_b = self.hidden_b.unbind(1)
+        # every tensor the loop writes is allocated here and every view it reads is taken here: a step is its three
+        # products and its activations only (no allocation, no slicing op). The steps are kept transposed, (E, S, B):
+        # the output product is then head^T h^T, which BLAS runs ~4x faster than h head for the candidates' B = 64
+        # (an N of S = 6 columns is its slow case; benchmarks/bench_node.py)
+        dtype = self.m_s.dtype
+        steps = torch.empty(horizon, e, n_s, b, dtype=dtype)  # (H, E, S, B): step k written in place
+        outs = steps.unbind(0)  # H x (E, S, B)
+        states = steps.transpose(2, 3).unbind(0)  # H x (E, B, S): the same memory, the next step's input
+        heading_columns = steps.narrow(2, 4, self.n_trig).unbind(0)  # H x (E, T, B): the psi-feature arguments
+        y = torch.empty(e, b, n_s + self.width, dtype=dtype)  # (E, B, S + W): [s_lin | pre-activation]
+        s_lin_t = y.narrow(2, 0, n_s).transpose(1, 2)  # (E, S, B)
+        pre = y.narrow(2, n_s, self.width)  # (E, B, W)
+        n_hidden = self.n_hidden  # a constant: TorchScript unrolls the layer loop
+        last = torch.empty(e, b, self.width, dtype=dtype) if n_hidden > 0 else pre  # (E, B, W): the last layer's
+        last_t = last.transpose(1, 2)  # (E, W, B)
+        for k in range(horizon):
+            torch.baddbmm(per_step[k], s, self.m_s, out=y)
+            h = self._activation_(pre)  # (E, B, W)
+            for i in range(n_hidden):
+                if i == n_hidden - 1:
+                    h = self._activation_(torch.baddbmm(hidden_b[i], h, hidden_w[i], out=last))
+                else:
+                    h = self._activation_(torch.baddbmm(hidden_b[i], h, hidden_w[i]))  # (E, B, W)
+            torch.baddbmm(s_lin_t, self.head_t, last_t, out=outs[k])  # (E, S, B): [u, v, r, psi, args] at k+1
+            self._heading_features_(heading_columns[k])
+            s = states[k]
+        path = steps.permute(1, 3, 0, 2)[..., 0:4]  # (E, B, H, 4)
+        full = torch.cat([z0.unsqueeze(2), path], dim=2)  # (E, B, H+1, 4)
+        cos_psi = torch.cos(full[..., 3])
+        sin_psi = torch.sin(full[..., 3])
+        v_north = full[..., 0] * cos_psi - full[..., 1] * sin_psi  # (E, B, H+1)
+        v_east = full[..., 0] * sin_psi + full[..., 1] * cos_psi
+        velocity = torch.stack([v_north, v_east], dim=-1)  # (E, B, H+1, 2)
+        position = torch.cumsum(0.5 * self.dt * (velocity[:, :, 1:] + velocity[:, :, :-1]), dim=2)  # (E, B, H, 2)
+        return torch.cat([path[..., 0:3], position, path[..., 3:4]], dim=-1)  # (E, B, H, 6)
+
+
+def _probe(metadata: Mapping[str, Any], batch: int = 4) -> tuple[torch.Tensor, torch.Tensor]:
+    """Realistic inputs of a model for checking a fused rollout against the file's own: states and held controls
+    at the training data's mean and +-1 std (normalisation.feature_mean / feature_std), headings round the circle.
+    float64 (B, 4), (B, H, C) with H the model's horizon_steps."""
+    names = list(metadata["feature_names"])
+    norm = metadata["normalisation"]
+    mean = np.asarray(norm["feature_mean"], dtype=np.float64)
+    std = np.asarray(norm["feature_std"], dtype=np.float64)
+    offsets = np.linspace(-1.0, 1.0, batch)[:, None]  # (B, 1) in std
+    state = np.zeros((batch, 4))
+    for j, name in enumerate(("u", "v", "r")):
+        state[:, j] = mean[names.index(name)] + offsets[:, 0] * std[names.index(name)]
+    state[:, 3] = np.linspace(-3.0, 3.0, batch)  # rad
+    columns = [names.index(c) for c in metadata["control_layout"]]
+    controls = mean[columns] - offsets * std[columns]  # (B, C): the opposite side of the state's offset
+    horizon = int(metadata["horizon_steps"])
+    return torch.from_numpy(state), torch.from_numpy(np.repeat(controls[:, None], horizon, axis=1))
+
+
+def fused_rollout(artifact: ModelArtifact, members: int | None = None, freeze: bool = True) -> torch.jit.ScriptModule:
+    """The artifact's DNN rollout fused for inference (FusedDnnRollout), scripted and frozen (torch.jit.freeze:
+    the buffers become constants of the graph), checked against the file's own module on _probe's inputs.
+
+    ModelError when the file's module is not a DnnRollout's network (another model family, a DnnRollout of other
+    buffers) or when the fused rollout differs from it by more than FUSED_CHECK_RTOL of each output column's scale
+    (the caller then keeps the file's module: old or unknown artifacts always run, models/loading.py)."""
+    metadata = artifact.metadata
+    if str(metadata.get("model_type")) != "dnn":
+        raise ModelError(f"model {artifact.path}: model_type {metadata.get('model_type')!r}, not a plain dnn")
+    buffers = dict(artifact.module.named_buffers())
+    try:
+        arch = metadata["architecture"]
+        module = FusedDnnRollout(buffers, feature_set=str(metadata["feature_set"]), activation=str(arch["activation"]),
+                                 ceiling=float(arch["ceiling"]), dt=float(metadata["dt"]), members=members)
+        state, controls = _probe(metadata)
+    except (KeyError, TypeError, ValueError, IndexError, ConfigError) as err:
+        raise ModelError(f"model {artifact.path}: its network cannot be fused ({type(err).__name__}: {err})") from err
+    dtype = buffers["m_s"].dtype
+    try:  # TorchScript compiles FusedDnnRollout from its source file now: a failure keeps the file's module
+        with quiet_jit():
+            scripted = torch.jit.script(module.eval())
+            if freeze:
+                scripted = torch.jit.freeze(scripted)
+        with torch.inference_mode():
+            expected = artifact.module(state.to(dtype), controls.to(dtype))[: module.ensemble_size].double()  # (E, B, H, 6)
+            got = scripted(state.to(dtype), controls.to(dtype)).double()
+    except MODEL_RUN_ERRORS as err:
+        raise ModelError(f"model {artifact.path}: the fused rollout cannot be built or run: {failure_reason(err)}") from err
+    scale = 1.0 + expected.abs().amax(dim=(0, 1, 2))  # (6,)
+    error = ((got - expected).abs().amax(dim=(0, 1, 2)) / scale).max().item() if got.shape == expected.shape else math.inf
+    if not error <= FUSED_CHECK_RTOL:
+        raise ModelError(f"model {artifact.path}: the fused rollout differs from the file's by {error:.3g} of the "
+                         f"output's scale (limit {FUSED_CHECK_RTOL:g}): not a DnnRollout of this version?")
+    return scripted

@@ -155,4 +155,23 @@ def load_model(spec: str | None, *, dt: float | None = None, vessel: str | None 
     if dt is not None:
         check_dt(model, dt, f"{dt_option} for {path}")
     check_runs(model)  # a model whose code raises is refused here, naming the file, not in the middle of a run
-    return model
+    return with_fused_rollout(model)
+
+
+def with_fused_rollout(model: ModelArtifact) -> ModelArtifact:
+    """A DNN artifact with its rollout fused for inference (models/dnn.fused_rollout: checked equal to the file's
+    own within float rounding), so that the node and `replay evaluate` run the same, faster code. The file is not
+    changed (its format neither): an artifact of any version is fused when loaded. A DNN file whose network cannot
+    be fused, or whose fused rollout differs from its own, keeps its own module (inference_note says why); other
+    families run their own module."""
+    import dataclasses
+
+    from usv_predictor.models.dnn import fused_rollout
+
+    if str(model.metadata.get("model_type")) != "dnn":
+        return model
+    try:
+        fused = fused_rollout(model)
+    except ModelError as err:
+        return dataclasses.replace(model, inference_note=f"the file's rollout (not fused: {err})")
+    return dataclasses.replace(model, inference=fused, inference_note="fused (models/dnn.FusedDnnRollout, frozen)")

@@ -55,6 +55,7 @@ from usv_predictor.data.recording import plausible_ranges, required_roles, windo
 from usv_predictor.errors import CycleSkipped, InputRejected, ModelError
 from usv_predictor.frames import LocalTangentPlane, angle_difference_deg, body_to_ned, compass_deg, wrap_angle
 from usv_predictor.models.artifact import MODEL_RUN_ERRORS, ModelArtifact, failure_reason
+from usv_predictor.models.dnn import fused_rollout
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
 from usv_predictor.records import NS_PER_S
 
@@ -486,7 +487,12 @@ class Prediction(NamedTuple):
 
 
 class Rollout:
-    """The TorchScript model with preallocated inputs: one (1, 4) state and (1, H, C) controls."""
+    """The TorchScript model with preallocated inputs: one (1, 4) state and (1, H, C) controls.
+
+    It runs `artifact.runner`: for a DNN the rollout fused at load time (models/loading.with_fused_rollout), the
+    module `replay evaluate` runs too; for other families the file's module (whose terms the sea estimate sets).
+    A fused DNN asked for fewer members than it has is fused again with those members only (what is not published
+    is not computed); other modules compute every member and the output is sliced."""
 
     def __init__(self, artifact: ModelArtifact, horizon_steps: int, ensemble_size: int | None = None) -> None:
         available = artifact.ensemble_size
@@ -495,6 +501,12 @@ class Rollout:
             raise ModelError(f"model {artifact.path}: ensemble_size {self.members} requested, the model has "
                              f"{available} member(s)")
         self.artifact = artifact
+        self.module = artifact.runner
+        if artifact.inference is not None and self.members < available:
+            try:
+                self.module = fused_rollout(artifact, members=self.members)
+            except ModelError:  # then every member is computed and the output sliced, as for other modules
+                self.module = artifact.runner
         self.horizon_steps = int(horizon_steps)
         self.dtype = artifact.module.m_s.dtype if hasattr(artifact.module, "m_s") else torch.float64
         self._state = torch.zeros(1, 4, dtype=self.dtype)
@@ -511,7 +523,7 @@ class Rollout:
         self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)))  # broadcasts (C,) to (H, C)
         try:
             with torch.inference_mode():
-                out = self.artifact.module(self._state, self._controls)  # (E, 1, H, 6)
+                out = self.module(self._state, self._controls)  # (E, 1, H, 6)
             return out[: self.members, 0].double().numpy()
         except MODEL_RUN_ERRORS as err:
             raise ModelError(f"model {self.artifact.path} fails when run: {failure_reason(err)}") from err
@@ -525,7 +537,7 @@ class Rollout:
         states = torch.from_numpy(np.asarray(state, dtype=np.float64)).to(self.dtype).expand(count, 4)  # (B, 4)
         try:
             with torch.inference_mode():
-                out = self.artifact.module(states, torch.from_numpy(controls).to(self.dtype))  # (E, B, H, 6)
+                out = self.module(states, torch.from_numpy(controls).to(self.dtype))  # (E, B, H, 6)
             return out[: self.members].double().numpy()
         except MODEL_RUN_ERRORS as err:
             raise ModelError(f"model {self.artifact.path} fails when run: {failure_reason(err)}") from err

@@ -683,6 +683,7 @@ class PredictorNode(Node):
             "family": _family_description(meta),
             "feature_set": meta.get("feature_set"), "vessel": meta.get("vessel"), "dt": f"{artifact.dt:g}",
             "ensemble_size": f"{self.rollout.members}/{artifact.ensemble_size}",
+            "rollout": artifact.inference_note,  # fused at load (a DNN) or the file's own, and why
             "training_data_sha256": meta.get("training_data_sha256"), "created_utc": meta.get("created_utc"),
             "horizon_s": f"{self.config.horizon_s:g}", "version": __version__,
         }

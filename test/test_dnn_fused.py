@@ -1,0 +1,236 @@
+"""The node's fused DNN rollout (models/dnn.FusedDnnRollout, fused when a model is loaded) computes what the
+artifact's own rollout and the members stepped one by one compute, within float rounding; old artifacts keep
+loading and a DNN file that cannot be fused keeps its own rollout. No timing here (benchmarks/bench_node.py)."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from test_artifact import DT, _export, _inputs, _reference
+from usv_predictor.data.features import FEATURE_SETS, features
+from usv_predictor.errors import ModelError
+from usv_predictor.models import loading
+from usv_predictor.models.artifact import export_module, load_artifact
+from usv_predictor.models.dnn import (DnnConfig, DnnModel, DnnRollout, FusedDnnRollout, _probe, fit_normalisation,
+                                      fused_rollout, sigmoid_form)
+from usv_predictor.node import live
+
+SHIPPED = Path(__file__).resolve().parents[1] / "models" / "default.pt"
+
+
+def _member(feature_set: str, seed: int, activation: str, depth: int, increment: bool = True) -> DnnModel:
+    """A random network of `depth` hidden layers with data-like normalisation and batch norm away from identity."""
+    rng = np.random.default_rng(0)
+    n = 200
+    state = np.column_stack([rng.normal(5, 1, n), rng.normal(0, .3, n), rng.normal(0, .1, n), rng.uniform(-9, 9, n)])
+    controls = np.column_stack([rng.normal(0, .3, n), rng.normal(650, 30, n)])
+    x, y = features(feature_set, state, controls), state[:, :3] + rng.normal(0, .05, (n, 3))
+    config = DnnConfig.for_features(feature_set, width=12, depth=depth, activation=activation, ceiling=1.5,
+                                    predict_increment=increment)
+    torch.manual_seed(seed)
+    model = DnnModel(config, fit_normalisation(x, y, increment))
+    with torch.no_grad():
+        for block in model.hidden:
+            block[1].running_mean.normal_(0.0, 0.3)
+            block[1].running_var.uniform_(0.5, 2.0)
+            block[1].weight.normal_(1.0, 0.2)
+            block[1].bias.normal_(0.0, 0.2)
+        model.head.weight.mul_(0.3)  # a gentle model, so a long rollout stays physical
+    return model.eval()
+
+
+def _loaded(path: Path) -> object:
+    """The model as the node and `replay evaluate` load it (models/loading.load_model: fused for a DNN)."""
+    return loading.load_model(str(path), physics=False)
+
+
+@pytest.mark.parametrize("feature_set", sorted(FEATURE_SETS))
+@pytest.mark.parametrize("activation, depth, increment", [("tanh", 2, True), ("tanh", 1, True), ("tanh", 3, False),
+                                                          ("clipped_relu", 2, True)])
+def test_fused_rollout_equals_the_members_stepped_one_by_one(tmp_path: Path, feature_set: str, activation: str,
+                                                              depth: int, increment: bool) -> None:
+    """float64: the fused ensemble (one batched product per layer for all members, tanh as sigmoid) equals each
+    member's own network stepped one at a time (features.py each step, trapezoidal kinematics) and the file's
+    rollout to rounding; three members, so a member mixed up with another would show."""
+    members = [_member(feature_set, seed, activation, depth, increment) for seed in (1, 2, 3)]
+    _export(tmp_path / "m.pt", members, dtype="float64")
+    model = _loaded(tmp_path / "m.pt")
+    assert model.inference is not None and model.inference_note.startswith("fused")
+    state, controls = _inputs(batch=4, horizon=40)
+    got = model.predict(state, controls)  # (E, B, H, 6) through the fused rollout
+    assert got.shape == (3, 4, 40, 6)
+    for e, member in enumerate(members):
+        np.testing.assert_allclose(got[e], _reference(member, feature_set, state, controls, DT), rtol=0, atol=1e-9)
+    with torch.inference_mode():
+        own = model.module(torch.from_numpy(state), torch.from_numpy(controls)).numpy()
+    np.testing.assert_allclose(got, own, rtol=0, atol=1e-10)
+    assert np.abs(got[0] - got[1]).max() > 1e-3 and np.abs(got[1] - got[2]).max() > 1e-3  # different networks
+
+
+def test_float32_fused_rollout_is_as_close_to_the_members_as_the_files(tmp_path: Path) -> None:
+    """float32 (what the node runs): over 120 steps the fused rollout stays within the float32 tolerance of the
+    members stepped one by one in float64, as the file's rollout does."""
+    members = [_member("NTF", seed, "tanh", 2) for seed in (4, 5)]
+    _export(tmp_path / "m.pt", members)
+    model = _loaded(tmp_path / "m.pt")
+    assert model.metadata["dtype"] == "float32" and model.inference is not None
+    state, controls = _inputs(horizon=120)
+    got = model.predict(state, controls)
+    with torch.inference_mode():
+        own = model.module(torch.from_numpy(state), torch.from_numpy(controls)).double().numpy()
+    for e, member in enumerate(members):
+        reference = _reference(member, "NTF", state, controls, DT)
+        np.testing.assert_allclose(got[e], reference, rtol=1e-4, atol=2e-3)
+        np.testing.assert_allclose(own[e], reference, rtol=1e-4, atol=2e-3)
+
+
+def test_sigmoid_form_is_the_same_function_one_step() -> None:
+    """One step of the rewritten buffers equals the tanh network's step (float64, exact up to rounding), and the
+    rewrite really moved the weights (a no-op rewrite would pass the rollout tests only if tanh == sigmoid)."""
+    rollout = DnnRollout([_member("NTF", seed, "tanh", 2) for seed in (1, 2)], DT, torch.float64)
+    params = {k: v for k, v in rollout.named_buffers()}
+    n_s = params["m_s"].shape[1]
+    rewritten = sigmoid_form(params, n_s)
+    s = torch.tensor([[[4.0, 0.2, -0.05, 0.3, 0.2, 0.9]]]).double().expand(2, 1, n_s)  # (E, 1, S)
+    c = torch.tensor([[[0.1, 640.0]]]).double()  # (1, 1, C)
+
+    def step(p: dict, act) -> torch.Tensor:
+        y = s @ p["m_s"] + c @ p["w_c"] + p["bias"]  # (E, 1, S + W)
+        h = act(y[..., n_s:])
+        for i in range(p["hidden_w"].shape[1]):
+            h = act(h @ p["hidden_w"][:, i] + p["hidden_b"][:, i])
+        return y[..., :n_s] + h @ p["head"]  # (E, 1, S)
+
+    torch.testing.assert_close(step(rewritten, torch.sigmoid), step(params, torch.tanh), rtol=0, atol=1e-12)
+    assert not torch.allclose(rewritten["hidden_w"], params["hidden_w"])
+
+
+def test_fewer_members_are_the_first_members_of_the_full_ensemble(tmp_path: Path) -> None:
+    members = [_member("NAF", seed, "tanh", 2) for seed in (1, 2, 3)]
+    artifact = _export(tmp_path / "m.pt", members, dtype="float64")
+    buffers = dict(artifact.module.named_buffers())
+    arch = artifact.metadata["architecture"]
+    two = torch.jit.script(FusedDnnRollout(buffers, feature_set="NAF", activation=arch["activation"],
+                                           ceiling=arch["ceiling"], dt=DT, members=2))
+    state, controls = _inputs()
+    with torch.inference_mode():
+        got = two(torch.from_numpy(state), torch.from_numpy(controls)).numpy()
+    assert got.shape[0] == 2
+    np.testing.assert_allclose(got, artifact.predict(state, controls)[:2], rtol=0, atol=1e-10)
+
+
+def _shipped_inputs(batch: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Realistic states and controls of the shipped model (jari_usv: rudder rad, rpm), varying along the horizon."""
+    rng = np.random.default_rng(seed)
+    state = np.column_stack([rng.uniform(0.5, 7.0, batch), rng.uniform(-0.4, 0.4, batch),
+                             rng.uniform(-0.15, 0.15, batch), rng.uniform(-math.pi, math.pi, batch)])
+    ramp = np.linspace(0.0, 1.0, 120)
+    delta = rng.uniform(-0.6, 0.6, (batch, 1)) * ramp + rng.uniform(-0.2, 0.2, (batch, 1))
+    rpm = rng.uniform(300.0, 900.0, (batch, 1)) + 0.0 * ramp
+    return state, np.stack([delta, rpm], axis=-1)  # (B, 4), (B, 120, 2)
+
+
+@pytest.mark.parametrize("batch", [1, 64])
+def test_shipped_model_fused_equals_its_own_rollout(batch: int) -> None:
+    """models/default.pt (exported before the fused rollout existed: the format is unchanged, it is fused when
+    loaded): the fused rollout, one state and a 64-candidate batch, against the file's float32 rollout and against
+    the file's network run in float64. The fused rollout's error from float64 is of the float32 rollout's own size."""
+    model = _loaded(SHIPPED)
+    assert model.inference is not None, model.inference_note
+    state, controls = _shipped_inputs(batch, seed=batch)
+    got = model.predict(state, controls)  # (5, B, 120, 6)
+    with torch.inference_mode():
+        own = model.module(torch.from_numpy(state), torch.from_numpy(controls)).double().numpy()
+        exact = load_artifact(SHIPPED).module.double()(torch.from_numpy(state), torch.from_numpy(controls)).numpy()
+    # u, v (m/s), r (rad/s), x_n, y_e (m, 60 s ahead), psi (rad)
+    tolerance = np.array([2e-4, 2e-4, 2e-5, 1e-2, 1e-2, 5e-4])
+    assert np.all(np.abs(got - own).max(axis=(0, 1, 2)) <= tolerance)
+    fused_error = np.abs(got - exact).max(axis=(0, 1, 2))
+    own_error = np.abs(own - exact).max(axis=(0, 1, 2))
+    assert np.all(fused_error <= 3.0 * own_error + 1e-6), (fused_error, own_error)
+    assert np.abs(got.mean(axis=0) - own.mean(axis=0))[..., 3:5].max() <= 5e-3  # the published (mean) track, m
+
+
+def test_the_node_rollout_runs_the_fused_module() -> None:
+    """live.Rollout (the node) and artifact.predict (`replay evaluate`) run the same fused module."""
+    model = _loaded(SHIPPED)
+    rollout = live.Rollout(model, 120)
+    assert rollout.artifact.runner is model.inference and rollout.module is model.inference
+    state, held = np.array([5.0, 0.1, 0.02, 0.3]), np.array([0.2, 650.0])
+    controls = np.tile(held, (1, 120, 1))
+    np.testing.assert_array_equal(rollout(state, held), model.predict(state[None], controls)[:, 0])
+    batch = np.tile(held, (8, 120, 1)) + np.linspace(-0.1, 0.1, 8)[:, None, None] * [1.0, 0.0]
+    np.testing.assert_array_equal(rollout.batch(state, batch), model.predict(np.tile(state, (8, 1)), batch))
+
+
+class _HalvedRollout(DnnRollout):
+    """A DnnRollout of other semantics (its activations halved): the buffers look like a DnnRollout's, the function
+    is another one."""
+
+    def _activation_(self, h: torch.Tensor) -> torch.Tensor:
+        return h.tanh_().mul_(0.5)
+
+
+def test_a_dnn_file_that_cannot_be_fused_keeps_its_own_rollout(tmp_path: Path) -> None:
+    members = [_member("NTF", 1, "tanh", 2)]
+    good = _export(tmp_path / "good.pt", members, dtype="float64")
+    path = tmp_path / "halved.pt"
+    export_module(path, _HalvedRollout(members, DT, torch.float64), good.metadata)
+    model = _loaded(path)
+    assert model.inference is None and "not fused" in model.inference_note and "differs" in model.inference_note
+    state, controls = _inputs()
+    got = model.predict(state, controls)
+    with torch.inference_mode():
+        own = model.module(torch.from_numpy(state), torch.from_numpy(controls)).numpy()
+    np.testing.assert_array_equal(got, own)  # the file's own rollout runs
+    assert np.abs(got - good.predict(state, controls)).max() > 1e-2  # and it is another function than a fused one
+    with pytest.raises(ModelError, match="differs from the file's"):
+        fused_rollout(load_artifact(path))
+
+
+def test_probe_inputs_are_the_training_data_statistics() -> None:
+    metadata = load_artifact(SHIPPED).metadata
+    state, controls = _probe(metadata)
+    names, mean = metadata["feature_names"], metadata["normalisation"]["feature_mean"]
+    assert controls.shape == (4, metadata["horizon_steps"], 2)
+    np.testing.assert_allclose(state[:, 0].mean(), mean[names.index("u")], rtol=1e-12)
+    np.testing.assert_allclose(controls[:, 0, 1].mean(), mean[names.index("rpm")], rtol=1e-12)
+    assert np.ptp(state[:, 3]) > 5.0  # headings round the circle
+
+
+def test_the_node_computes_only_the_members_it_uses() -> None:
+    """ensemble_size 2 of the shipped 5: the node's module is fused with the first two members only, and its
+    predictions are those two members of the full ensemble."""
+    model = _loaded(SHIPPED)
+    rollout = live.Rollout(model, 120, ensemble_size=2)
+    state, held = np.array([5.0, 0.1, 0.02, 0.3]), np.array([0.2, 650.0])
+    with torch.inference_mode():
+        raw = rollout.module(torch.tensor(state[None], dtype=torch.float32),
+                             torch.tensor(np.tile(held, (1, 120, 1)), dtype=torch.float32))
+    assert raw.shape[0] == 2  # not five computed and three dropped
+    got = rollout(state, held)
+    full = model.predict(state[None], np.tile(held, (1, 120, 1)))[:, 0]
+    assert got.shape == (2, 120, 6)
+    np.testing.assert_allclose(got, full[:2], rtol=0, atol=1e-4)
+
+
+def test_a_fused_rollout_that_cannot_be_scripted_leaves_the_file_running(tmp_path: Path, monkeypatch) -> None:
+    """TorchScript compiles the fused rollout when a model is loaded (also on a model swap in a running node):
+    if that fails, the model loads with its own rollout and says why, instead of failing to load."""
+    members = [_member("NTF", 1, "tanh", 2)]
+    _export(tmp_path / "m.pt", members, dtype="float64")
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("compilation failed\nsome TorchScript detail")
+
+    monkeypatch.setattr(torch.jit, "script", broken)
+    model = _loaded(tmp_path / "m.pt")
+    assert model.inference is None and "cannot be built or run: some TorchScript detail" in model.inference_note
+    state, controls = _inputs()
+    with torch.inference_mode():
+        own = model.module(torch.from_numpy(state), torch.from_numpy(controls)).numpy()
+    np.testing.assert_array_equal(model.predict(state, controls), own)
