@@ -400,6 +400,21 @@ def _top_speed(vessel: Vessel) -> float | None:
     return float(ManoeuvringModel(vessel).straight_speed(high))
 
 
+def _top_speed_in_a_sea(vessel: Vessel, dt: float, top: float, causes: Sequence[Cause]) -> tuple[float, Cause | None]:
+    """The highest steered straight speed over ground (m/s) at full propulsion command with any one cause at the top
+    of its range (cause_changes from the calm top speed over SETTLE_S), and that cause (None: none raises it)."""
+    layout = vessel.actuator_layout
+    full = layout.propulsion_input.limits(vessel)[1] * layout.propulsion_input.to_command
+    steps = max(int(round(SETTLE_S / dt)), 2)
+    controls = np.repeat(np.asarray(layout.to_commands(0.0, full), dtype=float)[None], steps, axis=0)  # (H, C)
+    window = SteadyWindow("top speed", "straight", 0.0, SETTLE_S, 0.0, full, top, top, 0.0, 0.0)
+    du, _ = cause_changes(vessel, dt, [_Rolled(window, np.array([top, 0.0, 0.0, 0.0]), controls,
+                                               min(max(int(round(STEADY_S / dt)), 2), steps))], causes)
+    du = np.where(np.isfinite(du[:, 0]), du[:, 0], -np.inf)  # (N,)
+    best = int(np.argmax(du))
+    return (top + float(du[best]), causes[best]) if du[best] > 0.0 else (top, None)
+
+
 def _propulsion_text(layout: ActuatorLayout, value: float) -> str:
     command = layout.propulsion_input
     if command is None or not layout.propulsion:
@@ -491,9 +506,15 @@ def check_fit(predictor: Predictor, recordings: Sequence[Recording], *, vessel: 
     data_speed = float(np.percentile(speeds, 90)) if len(speeds) else None
     top = _top_speed(vessel) if vessel is not None and layout.propulsion else None
     if top is not None and data_speed is not None and data_speed > TOP_SPEED_LIMIT * top:
-        reasons.append(f"these bags run at {data_speed:.2g} m/s, {data_speed / top:.1f} times its top speed "
-                       f"{top:.2g} m/s at full command (Fn {data_speed / math.sqrt(G * length):.2f} on its "
-                       f"{length:g} m)")
+        # a following sea or a current may carry a small boat beyond its calm-water top speed: the limit is the
+        # top speed the strongest cause allows, if higher
+        strongest = strongest_causes(layout.name) if recordings else ()
+        top_sea, cause = _top_speed_in_a_sea(vessel, recordings[0].dt, top, strongest) if strongest else (top, None)
+        if data_speed > TOP_SPEED_LIMIT * top_sea:
+            sea = "" if cause is None else f", {top_sea:.2g} m/s with {cause.label}"
+            reasons.append(f"these bags run at {data_speed:.2g} m/s, {data_speed / top:.1f} times its top speed "
+                           f"{top:.2g} m/s at full command{sea} (Fn {data_speed / math.sqrt(G * length):.2f} on its "
+                           f"{length:g} m)")
     if froude_scale is not None and reasons and not (0.5 < froude_scale < 2.0):
         reasons.append(f"Froude-similar to a hull {froude_scale:.3g} times as long (model-scale vs full-scale?)")
     checked = speed_ratio is not None or yaw_ratio is not None or top is not None
