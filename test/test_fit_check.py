@@ -169,6 +169,9 @@ def test_a_small_boat_diagnosed_with_the_default_preset_is_refused_in_one_line(t
                           "650 rpm, these bags at "), err
     measured = float(err.split("these bags at ")[1].split(" m/s")[0])
     assert 1.6 < measured < 2.3  # (m/s) the small boat's 1.8 m/s at 650 rpm, +-0.3 m/s of current over ground
+    # the limit is the 13.5 m boat's: what the strongest cause of the vocabulary does to it, below the ratio
+    limit = float(err.split("limit ")[1].split(" for the 13.5 m boat it describes: the most any one cause")[0])
+    assert SPEED_RATIO_LIMIT < limit < float(err.split("(ratio ")[1].split(",")[0]), err
     assert "identify this boat first (docs/your_boat.md)" in err and "--no-fit-check" in err
     # the expert proceeds: the answer is model_mismatch, never a confident environmental cause or `none`
     out = tmp_path / "d.json"

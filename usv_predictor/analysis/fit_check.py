@@ -377,8 +377,8 @@ def _explain(ratio: float, predicted: np.ndarray, changes: np.ndarray, limit: fl
 
 
 def _limit_text(ratio: float, limit: float, explanation: Explanation | None, size: str) -> str:
-    """`limit 1.5` (the allowance), `limit 1.5 for this 2 m boat, which no cause ... widens`, or `limit 1.62 for
-    this 13.5 m boat: the most any one cause ... explains at the top of its range, wave_drift (...)`."""
+    """`limit 1.5` (the allowance), `limit 2 for the 2 m boat it describes, which no cause ... widens`, or `limit
+    1.85 for the 13.5 m boat it describes: the most any one cause ... explains at the top of its range, ...`."""
     allowance = f"limit {limit:g}" if ratio >= 1.0 else f"limit 1/{limit:g}"
     if explanation is None:
         return allowance
@@ -457,7 +457,7 @@ def check_fit(predictor: Predictor, recordings: Sequence[Recording], *, vessel: 
             changes.append(cause_changes(vessel, recordings[0].dt, rolled, causes))
         return changes[0][which][:, index]  # (N, len(index))
 
-    size = f"for this {vessel.geometry.L_pp:g} m boat" if vessel is not None else ""
+    size = f"for the {vessel.geometry.L_pp:g} m boat it describes" if vessel is not None else ""
     usable = [w for w in windows if w.measured_speed_mps >= MIN_SPEED]
     straight = [w for w in usable if w.kind == "straight"]
     speed_set, speed_kind = (straight, "straight") if straight else (usable, "turn" if usable else "")
