@@ -353,7 +353,8 @@ def _explain(ratio: float, predicted: np.ndarray, changes: np.ndarray, limit: fl
     ratio below 1/m too; a cause that raises the value (m > 1) explains the ratios between 1/m and 1. The limits: the calm-water
     allowance [1/limit, limit] or, where wider, what the causes reach (no allowance on top: the allowance already
     covers a model's error with the smaller causes of the sea in which it was measured)."""
-    share = np.median((predicted[None, :] + changes) / predicted[None, :], axis=1)  # (N,)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a model value of 0: no share, the cause is not tried
+        share = np.median((predicted[None, :] + changes) / predicted[None, :], axis=1)  # (N,)
     tried = np.isfinite(share)  # a rollout that diverged tries nothing
     share = np.where(tried, share, 1.0)
     smallest = floor / max(float(np.median(np.abs(predicted))), floor)
