@@ -24,6 +24,7 @@ def one_draw(index: int, seed: int, vessel_name: str = "jari_usv") -> dict:
     from usv_predictor.analysis.diagnosis import diagnose
     from usv_predictor.analysis.diagnosis_steps import diagnosis_steps
     from usv_predictor.analysis.hidden_effects import draw, effect_names, within_tolerance
+    from usv_predictor.errors import DiagnosisError
     from usv_predictor.data.recording import recording_from_signals
     from usv_predictor.physics.dynamics import ManoeuvringModel
     from usv_predictor.physics.manoeuvres import programme
@@ -49,7 +50,12 @@ def one_draw(index: int, seed: int, vessel_name: str = "jari_usv") -> dict:
         signals = measure(traj, scenario.environment, scenario.sensor_spec, scenario.faults, seed=1000 * index + 100 + k)
         recordings.append(recording_from_signals(signals, steps.dt, name=manoeuvre.name, layout=layout))
     started = time.perf_counter()
-    result = diagnose(recordings, vessel, horizon_s=steps.horizon_s, stride_s=steps.stride_s)
+    try:
+        result = diagnose(recordings, vessel, horizon_s=steps.horizon_s, stride_s=steps.stride_s)
+    except DiagnosisError as err:  # a refusal is an answer of the tool: counted in its own column, the run goes on
+        return {"index": index, "truth": truth.effect, "truth_parameters": truth.parameters, "cause": "error",
+                "confounded_with": [], "parameters": {}, "errors": {}, "within_tolerance": False,
+                "seconds": time.perf_counter() - started, "message": str(err)}
     seconds = time.perf_counter() - started
     ok, errors = within_tolerance(truth, result.parameters) if result.cause == truth.effect else (False, {})
     return {"index": index, "truth": truth.effect, "truth_parameters": truth.parameters, "cause": result.cause,
@@ -63,6 +69,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=2026)
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--vessel", default="jari_usv", help="vessel preset (its layout's effects are drawn)")
+    parser.add_argument("--first", type=int, default=0,
+                        help="first draw index (resume a run: each draw is deterministic for (seed, index))")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
     from usv_predictor.analysis.hidden_effects import effect_names
@@ -72,12 +80,14 @@ def main() -> None:
     started = time.perf_counter()
     with ProcessPoolExecutor(args.jobs) as pool:
         results = []
-        for r in pool.map(one_draw, range(args.draws), [args.seed] * args.draws, [args.vessel] * args.draws):
+        indices = range(args.first, args.draws)
+        for r in pool.map(one_draw, indices, [args.seed] * len(indices), [args.vessel] * len(indices)):
             results.append(r)
-            print(f"[{len(results)}/{args.draws}] {r['truth']:15s} -> {r['cause']:15s} "
+            print(f"[{args.first + len(results)}/{args.draws}] {r['truth']:15s} -> {r['cause']:15s} "
                   f"{'ok' if r['within_tolerance'] or r['truth'] == r['cause'] == 'none' else '  '} {r['errors']} "
                   f"({r['seconds']:.0f} s)", flush=True)
-    causes = list(EFFECTS)
+    # answers beyond the vocabulary: model_mismatch (the calm-water model does not fit), error (a refusal)
+    causes = list(EFFECTS) + sorted({r["cause"] for r in results} - set(EFFECTS))
     matrix = np.zeros((len(EFFECTS), len(causes)), dtype=int)
     for r in results:
         matrix[EFFECTS.index(r["truth"]), causes.index(r["cause"])] += 1
@@ -86,6 +96,9 @@ def main() -> None:
     print(" " * width + "".join(f"{c[:9]:>10s}" for c in causes))
     for i, effect in enumerate(EFFECTS):
         print(f"{effect:{width}s}" + "".join(f"{n:10d}" for n in matrix[i]))
+    for r in results:
+        if r["cause"] == "error":
+            print(f"draw {r['index']} ({r['truth']} {r['truth_parameters']}): {r['message']}")
     correct = sum(r["truth"] == r["cause"] for r in results)
     print(f"\ncorrect cause: {correct}/{len(results)}")
     for effect in EFFECTS[1:]:
@@ -102,7 +115,8 @@ def main() -> None:
           f"with {args.jobs} job(s)")
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"vessel": args.vessel, "results": results, "matrix": matrix.tolist(), "effects": list(EFFECTS)},
+            json.dump({"vessel": args.vessel, "results": results, "matrix": matrix.tolist(), "effects": list(EFFECTS),
+                       "causes": causes},
                       f, indent=1)
 
 

@@ -169,6 +169,9 @@ def test_a_small_boat_diagnosed_with_the_default_preset_is_refused_in_one_line(t
                           "650 rpm, these bags at "), err
     measured = float(err.split("these bags at ")[1].split(" m/s")[0])
     assert 1.6 < measured < 2.3  # (m/s) the small boat's 1.8 m/s at 650 rpm, +-0.3 m/s of current over ground
+    # the limit is the 13.5 m boat's: what the strongest cause of the vocabulary does to it, below the ratio
+    limit = float(err.split("limit ")[1].split(" for the 13.5 m boat it describes: the most any one cause")[0])
+    assert SPEED_RATIO_LIMIT < limit < float(err.split("(ratio ")[1].split(",")[0]), err
     assert "identify this boat first (docs/your_boat.md)" in err and "--no-fit-check" in err
     # the expert proceeds: the answer is model_mismatch, never a confident environmental cause or `none`
     out = tmp_path / "d.json"
@@ -200,3 +203,75 @@ def test_the_kvlcc2_model_evaluated_on_full_scale_bags_is_refused(tmp_path, caps
     # its own (full-scale) description fits the same bags
     vessel = load_vessel(ship)
     assert check_fit(physics_predictor(vessel, 0.5), load_recordings([bags], 0.5), vessel=vessel).verdict == "fits"
+
+
+# ---- the limits follow the boat: what the strongest causes can do to it -----------------------------------------
+
+def test_waves_that_stop_a_two_metre_boat_do_not_fail_the_check(tmp_path):
+    """The Otter acceptance draw (issues #10/#11): 0.81 m waves from 119 deg stop its held port turn (0.21 m/s where
+    the calm-water preset makes 1.2 m/s). Beyond the calm-water allowance, but the mean drift moment of such waves
+    exceeds the 2 m boat's thrust-difference moment: a right model in some sea of the vocabulary, so no refusal."""
+    bags = tmp_path / "bags"
+    seed = 1601067103
+    assert run("simulate", "--programme", "diagnosis", "--vessel", "otter", "--effect", "wave_drift", "--wave-height",
+               "0.8101", "--wave-from", "119.3769", "--wave-period", "3", "--blind", "--seed", seed, "--heading",
+               seed % 360, "--output", bags) == 0
+    vessel = load_vessel("otter")
+    check = check_fit(physics_predictor(vessel, 0.25), load_recordings([bags], 0.25, layout=vessel.actuator_layout),
+                      vessel=vessel)
+    assert check.speed_ratio > 3.0 * SPEED_RATIO_LIMIT, check.summary()  # far beyond the allowance ...
+    assert check.verdict == "fits", check.summary()  # ... and still a right model
+    explained = check.speed_explanation
+    assert explained.explained and explained.cause.effect == "wave_drift" and explained.limits[1] == math.inf
+    assert explained.cause.parameters["wave_height"] == 1.5  # the top of the suite's range
+
+
+def test_the_limits_follow_the_size_of_the_boat():
+    """On each preset's own calm diagnosis programme: a cause at the top of the vocabulary can stop the 2 m Otter and
+    the 4.9 m WAM-V in their held turns (their upper speed limit is unbounded) and carry them faster than a 0.6 m/s
+    current does the 13.5 m jari_usv, whose straight speed no cause moves by half (so the 4.5 m boat's ratio 2.7
+    above is refused)."""
+    from usv_predictor.analysis.diagnosis_steps import diagnosis_steps
+
+    limits = {}
+    for name in ("jari_usv", "wamv", "otter"):
+        vessel = load_vessel(name)
+        dt = diagnosis_steps(vessel).dt  # (s) 0.5 for the jari_usv, 0.25 for the small boats
+        check = check_fit(physics_predictor(vessel, dt), _trial_at(vessel, dt), vessel=vessel, explain_always=True)
+        assert check.verdict == "fits", (name, check.summary())
+        assert check.speed_explanation.explained and check.yaw_rate_explanation.explained
+        limits[name] = check.speed_explanation.limits
+    assert SPEED_RATIO_LIMIT < limits["jari_usv"][1] < 2.5, limits
+    assert limits["wamv"][1] == limits["otter"][1] == math.inf, limits
+    assert limits["otter"][0] < limits["jari_usv"][0] and limits["wamv"][0] < limits["jari_usv"][0], limits
+
+
+def _trial_at(vessel, dt: float) -> list:
+    model = ManoeuvringModel(vessel)
+    recordings = []
+    for k, manoeuvre in enumerate(programme("diagnosis", vessel.actuator_layout)):
+        traj = simulate(model, manoeuvre, Environment(), heading_deg=50.0 * k, seed=k)
+        recordings.append(recording_from_signals(measure(traj, Environment(), seed=20 + k), dt, name=manoeuvre.name,
+                                                 layout=vessel.actuator_layout))
+    return recordings
+
+
+# each sea effect at the top of the suite's range on the two twin-thruster presets: the right model is never refused
+@pytest.mark.parametrize("vessel_name", ["otter", "wamv"])
+@pytest.mark.parametrize("flags", [
+    ["--effect", "current", "--current-speed", "0.6", "--current-to", "30"],
+    ["--effect", "wind", "--wind-speed", "15", "--wind-from", "100"],
+    ["--effect", "wave_drift", "--wave-height", "1.5", "--wave-from", "45"],
+], ids=["current", "wind", "waves"])
+def test_no_sea_at_the_top_of_its_range_fails_a_small_boat(tmp_path, vessel_name, flags):
+    bags = tmp_path / "bags"
+    assert run("simulate", "--programme", "diagnosis", "--vessel", vessel_name, *flags, "--seed", "5", "--heading",
+               "37", "--output", bags) == 0
+    vessel = load_vessel(vessel_name)
+    check = check_fit(physics_predictor(vessel, 0.25), load_recordings([bags], 0.25, layout=vessel.actuator_layout),
+                      vessel=vessel)
+    assert check.verdict == "fits", check.summary()
+    for ratio, limit, explained in ((check.speed_ratio, SPEED_RATIO_LIMIT, check.speed_explanation),
+                                    (check.yaw_rate_ratio, YAW_RATE_RATIO_LIMIT, check.yaw_rate_explanation)):
+        if ratio is not None and not (1.0 / limit <= ratio <= limit):  # beyond the allowance: a cause explains it
+            assert explained.explained and explained.cause is not None, check.summary()

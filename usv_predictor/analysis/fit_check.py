@@ -17,23 +17,36 @@ throttle or a mean thruster command) and the measured motion has settled:
                             hull would need (Froude similarity, e.g. ITTC 7.5-02-06-01), and the data's speed against
                             the top speed of the vessel at full propulsion command.
 
-The ratios are medians over windows (predicted / measured). The verdict is `mismatch` when one lies beyond what any
-hypothesis of the diagnosis vocabulary can explain (limits below, from the figures measured over the hidden-effect
-suite's effects at the top of their ranges, README "Fit check"), `fits` otherwise, `unchecked` without a steady
-window and without a vessel to compare the speeds with. `replay evaluate` and `replay diagnose` refuse a mismatch in
-one line (FitCheckError, exit 2) naming the numbers and the remedy, unless told --no-fit-check.
+The ratios are medians over windows (predicted / measured). Within the calm-water allowance (SPEED_RATIO_LIMIT,
+YAW_RATE_RATIO_LIMIT, measured on the 15 m jari_usv: no hypothesis moved its ratios by more than 5 %, a resistance
+off by +99 % moves its speed by ~30 %) a ratio needs no cause. Beyond it, what a sea or a fault can do depends on the
+boat's size and speed (a 0.6 m/s current is 10 % of a 6 m/s boat and half of a 1.2 m/s one; the mean wave drift
+force 0.5 rho g L zeta_a^2 C(chi), seed 000 eq. 19, of 1.5 m waves exceeds a 2 m boat's thrust). So, when the
+vessel is known, the check asks the vessel's own physics (its grey box, models/greybox.py) what each simulated
+hypothesis of the diagnosis vocabulary at the top of the hidden-effect suite's range (physics/effects.py: current
+0.6 m/s, wind 15 m/s, waves H_s 1.5 m, from STRONGEST_DIRECTIONS directions; rudder offset, gyro bias, heading
+offset, propeller side force, thrust imbalance with either sign) changes in each window's u and r, and widens the
+limits to every ratio a right model would show under one such cause at some strength (_explain): unbounded where a
+cause can stop the boat or its turn. The data's speed is held against the vessel's top speed the same way (a
+following sea or a current may carry a small boat beyond its calm-water top speed). The verdict is `mismatch` when a
+ratio or the speed lies beyond its limit, `fits` otherwise, `unchecked` without a steady window and without a
+vessel to compare the speeds with. Without a vessel (a learned model of an unknown boat) the allowances are the
+limits. `replay evaluate` and `replay diagnose` refuse a mismatch in one line (FitCheckError, exit 2) naming the
+numbers, the boat's limit and the cause behind it, and the remedy, unless told --no-fit-check.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any, Sequence
+from dataclasses import dataclass, field
+from itertools import product
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from usv_predictor.analysis.evaluation import Predictor, held_reference, rollout
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import FitCheckError
+from usv_predictor.physics import effects as fx
 from usv_predictor.physics.actuators import ActuatorLayout, actuator_layout
 from usv_predictor.physics.vessel import Vessel
 
@@ -49,8 +62,14 @@ SETTLED_SPEED = 0.05  # (-) measured u has settled when its two half-means over 
 SETTLED_SPEED_ABS = 0.05  # ... plus this (m/s)
 SETTLED_YAW = 0.15  # (-) and r when they differ by < this share ...
 SETTLED_YAW_ABS = math.radians(0.5)  # ... plus this (rad/s)
-SPEED_RATIO_LIMIT = 1.5  # (-) predicted / measured speed beyond [1/1.5, 1.5]: no environmental cause explains it
-YAW_RATE_RATIO_LIMIT = 2.0  # (-) predicted / measured steady yaw rate beyond [1/2, 2] (or of opposite sign)
+SPEED_RATIO_LIMIT = 1.5  # (-) calm-water allowance: predicted / measured speed within [1/1.5, 1.5] needs no cause
+YAW_RATE_RATIO_LIMIT = 2.0  # (-) ... and steady yaw rate within [1/2, 2] (opposite sign: beyond)
+STRONGEST_DIRECTIONS = 12  # compass directions a sea (current, wind, waves) at the top of its range is tried from
+# grey-box terms the check does not try: a delay of at most 1.5 s shifts when a held command acts, never a settled u
+# or r, and the grey box holds it as one scalar (a batch of causes needs one value per row)
+UNTRIED_TERMS = ("actuator_delay",)
+CAUSE_SUBSTEP_S = 0.125  # (s) longest integration step of the causes' rollouts: a 2 m boat spun by 1.5 m waves has
+# yaw dynamics of ~20 |r| 1/s (N_rr |r| / m_66), beyond explicit RK4's stability at 0.25 s
 TOP_SPEED_LIMIT = 1.5  # (-) the data runs faster than this times the vessel's top speed at full command
 REMEDY = "identify this boat first (docs/your_boat.md)"
 
@@ -79,6 +98,66 @@ class SteadyWindow:
 
 
 @dataclass(frozen=True)
+class Cause:
+    """One simulated hypothesis of the diagnosis vocabulary at the top of the hidden-effect suite's range."""
+
+    effect: str
+    parameters: Mapping[str, float]  # its `replay simulate` parameters (physics/effects.py units)
+    terms: Mapping[str, tuple[float, ...]]  # the grey-box terms it sets (SI)
+
+    @property
+    def label(self) -> str:
+        """How a line names it: `wave_drift (--wave-height 1.5 --wave-from 120)`."""
+        drawn = {p.name: p.flag for p in fx.EFFECTS[self.effect].parameters if not isinstance(p.draw, fx.Fixed)}
+        return f"{self.effect} ({' '.join(f'{drawn[k]} {v:g}' for k, v in self.parameters.items() if k in drawn)})"
+
+    def to_json(self) -> dict[str, Any]:
+        return {"effect": self.effect, "parameters": dict(self.parameters)}
+
+
+def strongest_causes(layout: str) -> tuple[Cause, ...]:
+    """Every simulated effect that applies to `layout` at the top of its draw range (physics/effects.py): the largest
+    magnitude (both signs when drawn with a random sign), a direction drawn over the whole compass at
+    STRONGEST_DIRECTIONS directions, a fixed parameter at its value; the grey-box terms from the effect's readout."""
+    causes = []
+    for name, effect in fx.simulated(layout).items():
+        if any(t.name in UNTRIED_TERMS for t in effect.terms):
+            continue
+        choices: list[tuple[str, tuple[float, ...]]] = []
+        for p in effect.parameters:
+            if p.draw is None:
+                continue
+            if isinstance(p.draw, fx.Uniform) and p.unit == "deg" and p.draw.high - p.draw.low >= 360.0:
+                values = tuple(360.0 * k / STRONGEST_DIRECTIONS for k in range(STRONGEST_DIRECTIONS))
+            else:
+                top = max(abs(x) for x in p.draw.extremes)
+                values = tuple(sorted({x for x in p.draw.extremes if abs(x) == top}))
+            choices.append((p.name, values))
+        for combination in product(*(values for _, values in choices)):
+            parameters = {key: float(value) for (key, _), value in zip(choices, combination)}
+            terms = effect.readout.terms_from_truth(parameters)
+            causes.append(Cause(name, parameters, {k: tuple(float(x) for x in v) for k, v in terms.items()}))
+    return tuple(causes)
+
+
+@dataclass(frozen=True)
+class Explanation:
+    """What the strongest causes can do to one ratio of a right model of this boat (_explain): the limits the ratio
+    must lie within, the cause that sets the limit on the side the ratio lies, and whether it lies within."""
+
+    limits: tuple[float, float]  # (low, high) of a positive ratio: the calm-water allowance widened to what one cause
+    # can make of a right model of this boat (inf: a cause can stop the boat or its turn)
+    reversed_below: float | None  # a negative ratio at or below this is explained (a cause reverses the turn)
+    cause: Cause | None  # the cause behind the limit on the ratio's side (None: the allowance is wider there)
+    explained: bool  # the ratio lies within the limits
+
+    def to_json(self) -> dict[str, Any]:
+        return {"limits": [x if math.isfinite(x) else None for x in self.limits],  # None: unbounded
+                "reversed_below": self.reversed_below,
+                "cause": None if self.cause is None else self.cause.to_json(), "explained": self.explained}
+
+
+@dataclass(frozen=True)
 class FitCheck:
     """What the model predicts against what the bags measure where the answer is unambiguous (module docstring)."""
 
@@ -96,6 +175,8 @@ class FitCheck:
     data_speed_mps: float | None  # the 90th percentile of the measured |u| over all recordings
     verdict: str  # "fits" | "mismatch" | "unchecked"
     reasons: tuple[str, ...]  # what lies beyond the limits (verdict mismatch), one clause each
+    speed_explanation: Explanation | None = None  # the strongest causes on the speed ratio (None: not needed/no vessel)
+    yaw_rate_explanation: Explanation | None = None  # ... on the yaw-rate ratio
 
     @property
     def mismatch(self) -> bool:
@@ -126,6 +207,8 @@ class FitCheck:
                 "data_speed_mps": self.data_speed_mps,
                 "limits": {"speed_ratio": SPEED_RATIO_LIMIT, "yaw_rate_ratio": YAW_RATE_RATIO_LIMIT,
                            "top_speed": TOP_SPEED_LIMIT},
+                "explained": {name: None if e is None else e.to_json() for name, e in
+                              (("speed_ratio", self.speed_explanation), ("yaw_rate_ratio", self.yaw_rate_explanation))},
                 "windows": [w.to_json() for w in self.windows]}
 
 
@@ -157,6 +240,22 @@ def _settled(values: np.ndarray, share: float, floor: float) -> bool:
 
 
 def steady_windows(predictor: Predictor, recordings: Sequence[Recording], layout: ActuatorLayout) -> list[SteadyWindow]:
+    """Every window of held commands whose measured u and r have settled, with the model's u and r for it
+    (_rolled_windows)."""
+    return [w.window for w in _rolled_windows(predictor, recordings, layout)]
+
+
+@dataclass(frozen=True)
+class _Rolled:
+    """A steady window and what its prediction was rolled out from (the causes are rolled out from the same)."""
+
+    window: SteadyWindow
+    state: np.ndarray = field(repr=False)  # (4,) [u, v, r, psi] measured at the rollout's start
+    controls: np.ndarray = field(repr=False)  # (H, C) the controls of the rollout
+    averaged: int  # the last `averaged` steps of the rollout are averaged
+
+
+def _rolled_windows(predictor: Predictor, recordings: Sequence[Recording], layout: ActuatorLayout) -> list[_Rolled]:
     """Every window of held commands whose measured u and r have settled, with the model's u and r for it.
 
     Straight windows: the model starts from the settled measured state and runs SETTLE_S at the held commands (its
@@ -187,14 +286,109 @@ def steady_windows(predictor: Predictor, recordings: Sequence[Recording], layout
                 controls = np.repeat(held[None, None, :], max(settle_n, end - k), axis=1)  # (1, H, C)
             else:
                 controls = rec.controls[None, k:end]  # (1, H, C) the recorded commands
-            predicted = rollout(predictor, state, controls, held_state).mean(axis=0)  # (B, H, 6)
-            predicted = predicted[0, -min(steady_n, controls.shape[1]):]
+            averaged = min(steady_n, controls.shape[1])
+            predicted = rollout(predictor, state, controls, held_state).mean(axis=0)[0, -averaged:]  # (steady, 6)
             measured = last.mean(axis=0)  # (3,)
-            windows.append(SteadyWindow(
+            windows.append(_Rolled(SteadyWindow(
                 rec.name, "straight" if straight else "turn", float(rec.t_s[first]), float(rec.t_s[end - 1]),
                 steering, float(layout.propulsion_signal(held)), float(measured[0]), float(predicted[:, 0].mean()),
-                float(measured[2]), float(predicted[:, 2].mean())))
+                float(measured[2]), float(predicted[:, 2].mean())), state[0], controls[0], averaged))
     return windows
+
+
+def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[_Rolled], causes: Sequence[Cause]
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(du, dr), each (N causes, W windows): what each cause changes in the vessel's u (m/s, over ground) and r
+    (rad/s, as the gyro reports it) averaged where the window's prediction is, rolled out by the vessel's grey box
+    from the same state with the same controls (straight windows steered: SteeredRollout). One batch: rows =
+    windows x (calm + causes), every cause's terms set per row (the grey box's terms broadcast over the batch), the
+    windows padded to the longest with their last controls."""
+    import torch
+
+    from usv_predictor.models.greybox import GreyBoxRollout
+
+    class SteeredRollout(GreyBoxRollout):
+        """The grey box with the straight windows' rows steered: their sway and yaw held at the measured values (a
+        straight run in a sea is a steered run; at held commands the model would veer to its own weathervane
+        heading, where the sea acts otherwise than at the course the data held)."""
+
+        def _model_accelerations(self, psi, u_r, v_r, r, a, b):
+            acc = self._accelerations(psi, u_r, v_r, r, a, b)
+            return [acc[0], acc[1] * self.free, acc[2] * self.free]
+
+    rows = 1 + len(causes)
+    horizon = max(r.controls.shape[0] for r in rolled)
+    states = np.concatenate([np.repeat(r.state[None], rows, axis=0) for r in rolled])  # (W rows, 4)
+    controls = np.concatenate([np.repeat(np.concatenate(
+        [r.controls, np.repeat(r.controls[-1:], horizon - r.controls.shape[0], axis=0)])[None], rows, axis=0)
+        for r in rolled])  # (W rows, H, C)
+    model = SteeredRollout(vessel, dt, substeps=max(2, math.ceil(dt / CAUSE_SUBSTEP_S - 1e-9)))
+    model.free = torch.as_tensor(np.repeat([0.0 if r.window.kind == "straight" else 1.0 for r in rolled], rows))
+    for name in sorted({t for c in causes for t in c.terms}):
+        size = getattr(model, name).shape[0]
+        values = np.zeros((size, len(rolled), rows))  # (size, W, rows)
+        for j, cause in enumerate(causes, start=1):
+            if name in cause.terms:
+                values[:, :, j] = np.asarray(cause.terms[name])[:, None]
+        setattr(model, name, torch.nn.Parameter(torch.as_tensor(values.reshape(size, -1)), requires_grad=False))
+    with torch.no_grad():
+        out = model(torch.as_tensor(states), torch.as_tensor(controls))[0].numpy()  # (W rows, H, 6)
+    out = out.reshape(len(rolled), rows, horizon, 6)
+    du, dr = np.zeros((len(causes), len(rolled))), np.zeros((len(causes), len(rolled)))
+    for w, r in enumerate(rolled):
+        end = r.controls.shape[0]
+        mean = out[w, :, end - r.averaged:end].mean(axis=1)  # (rows, 6)
+        du[:, w], dr[:, w] = mean[1:, 0] - mean[0, 0], mean[1:, 2] - mean[0, 2]
+    return du, dr
+
+
+def _explain(ratio: float, predicted: np.ndarray, changes: np.ndarray, limit: float, floor: float,
+             causes: Sequence[Cause]) -> Explanation:
+    """The limits of a median ratio (predicted / measured) on this boat: predicted (W,) the model's values in the
+    ratio's windows, changes (N, W) what each cause at the top of its range changes in them.
+
+    Were the model right and the sea one cause, the data would show predicted + change, and the check the ratio
+    1/m with m = median((predicted + change) / predicted), the share of the model's value the cause leaves. m moves
+    continuously from 1 (no cause) to its value at the top of the range, so every ratio between 1 and 1/m is a
+    right model in some strength of that cause; when m falls below floor / |predicted| (the cause stops the boat
+    or its turn) every ratio beyond 1 is, and when it falls below -floor / |predicted| (reverses the turn) every
+    ratio below 1/m too; a cause that raises the value (m > 1) explains the ratios between 1/m and 1. The limits: the calm-water
+    allowance [1/limit, limit] or, where wider, what the causes reach (no allowance on top: the allowance already
+    covers a model's error with the smaller causes of the sea in which it was measured)."""
+    with np.errstate(divide="ignore", invalid="ignore"):  # a model value of 0: no share, the cause is not tried
+        share = np.median((predicted[None, :] + changes) / predicted[None, :], axis=1)  # (N,)
+    tried = np.isfinite(share)  # a rollout that diverged tries nothing
+    share = np.where(tried, share, 1.0)
+    smallest = floor / max(float(np.median(np.abs(predicted))), floor)
+    grows = share > 1.0  # the data would run faster / turn harder: ratios 1/m in (0, 1)
+    shrinks = (share < 1.0) & (share > smallest)  # slower: ratios 1/m in (1, ...)
+    stops = share <= smallest  # the cause stops the boat or its turn: every ratio above 1
+    reverses = share < -smallest  # ... and reverses it: negative ratios from -inf up to 1/m
+    low = min(1.0 / limit, float((1.0 / share[grows]).min())) if grows.any() else 1.0 / limit
+    high = math.inf if stops.any() else max(limit, float((1.0 / share[shrinks]).max()) if shrinks.any() else limit)
+    reversed_below = float((1.0 / share[reverses]).max()) if reverses.any() else None
+    cause = None
+    if ratio >= 1.0 and high > limit:
+        cause = causes[int(np.argmin(share))]
+    elif 0.0 < ratio < 1.0 and low < 1.0 / limit:
+        cause = causes[int(np.argmax(share))]
+    elif ratio <= 0.0 and reversed_below is not None:
+        cause = causes[int(np.argmin(np.where(reverses, share, np.inf)))]
+    explained = low <= ratio <= high or (reversed_below is not None and ratio <= reversed_below)
+    return Explanation((low, high), reversed_below, cause, bool(explained))
+
+
+def _limit_text(ratio: float, limit: float, explanation: Explanation | None, size: str) -> str:
+    """`limit 1.5` (the allowance), `limit 2 for the 2 m boat it describes, which no cause ... widens`, or `limit
+    1.85 for the 13.5 m boat it describes: the most any one cause ... explains at the top of its range, ...`."""
+    allowance = f"limit {limit:g}" if ratio >= 1.0 else f"limit 1/{limit:g}"
+    if explanation is None:
+        return allowance
+    if explanation.cause is None:
+        return f"{allowance} {size}, which no cause the diagnosis knows widens"
+    value = explanation.limits[1] if ratio >= 1.0 else explanation.limits[0]
+    return (f"limit {value:.3g} {size}: the most any one cause the diagnosis knows explains at the top of its range, "
+            f"{explanation.cause.label}")
 
 
 def _top_speed(vessel: Vessel) -> float | None:
@@ -206,6 +400,21 @@ def _top_speed(vessel: Vessel) -> float | None:
         return None
     high = layout.propulsion_input.limits(vessel)[1] * layout.propulsion_input.to_command
     return float(ManoeuvringModel(vessel).straight_speed(high))
+
+
+def _top_speed_in_a_sea(vessel: Vessel, dt: float, top: float, causes: Sequence[Cause]) -> tuple[float, Cause | None]:
+    """The highest steered straight speed over ground (m/s) at full propulsion command with any one cause at the top
+    of its range (cause_changes from the calm top speed over SETTLE_S), and that cause (None: none raises it)."""
+    layout = vessel.actuator_layout
+    full = layout.propulsion_input.limits(vessel)[1] * layout.propulsion_input.to_command
+    steps = max(int(round(SETTLE_S / dt)), 2)
+    controls = np.repeat(np.asarray(layout.to_commands(0.0, full), dtype=float)[None], steps, axis=0)  # (H, C)
+    window = SteadyWindow("top speed", "straight", 0.0, SETTLE_S, 0.0, full, top, top, 0.0, 0.0)
+    du, _ = cause_changes(vessel, dt, [_Rolled(window, np.array([top, 0.0, 0.0, 0.0]), controls,
+                                               min(max(int(round(STEADY_S / dt)), 2), steps))], causes)
+    du = np.where(np.isfinite(du[:, 0]), du[:, 0], -np.inf)  # (N,)
+    best = int(np.argmax(du))
+    return (top + float(du[best]), causes[best]) if du[best] > 0.0 else (top, None)
 
 
 def _propulsion_text(layout: ActuatorLayout, value: float) -> str:
@@ -224,46 +433,68 @@ def _median_window(windows: Sequence[SteadyWindow], ratio) -> SteadyWindow:
 
 
 def check_fit(predictor: Predictor, recordings: Sequence[Recording], *, vessel: Vessel | None = None,
-              label: str | None = None) -> FitCheck:
-    """The fit check of `predictor` on `recordings` (module docstring); `vessel` (when known) gives the length and
-    top speed, `label` how the refusal names the model (default from the predictor's metadata)."""
+              label: str | None = None, explain_always: bool = False) -> FitCheck:
+    """The fit check of `predictor` on `recordings` (module docstring); `vessel` (when known) gives the length, the
+    top speed and the physics the strongest causes are rolled out with, `label` how the refusal names the model
+    (default from the predictor's metadata). The causes are rolled out when a ratio lies beyond the allowance, or
+    always with explain_always (benchmarks/fit_check_sizes.py reports what they do to a right model)."""
     meta = dict(predictor.metadata)
     layout = actuator_layout(str(meta.get("actuator_layout") or (recordings[0].layout if recordings else "")))
     label = label or f"model {meta.get('model_id', '?')} ({meta.get('model_type', '?')})"
-    windows = steady_windows(predictor, recordings, layout) if recordings else []
+    rolled = _rolled_windows(predictor, recordings, layout) if recordings else []
+    windows = [r.window for r in rolled]
     reasons: list[str] = []
     diverged = [w for w in windows if not (math.isfinite(w.predicted_speed_mps)
                                            and math.isfinite(w.predicted_yaw_rate_rad_s))]
     if diverged:
         reasons.append(f"its prediction is not finite at the held commands of {len(diverged)} of {len(windows)} "
                        f"steady window(s) (first: {diverged[0].recording} at {diverged[0].start_s:.0f} s)")
-        windows = [w for w in windows if w not in diverged]
+        rolled = [r for r in rolled if r.window not in diverged]
+        windows = [r.window for r in rolled]
+    causes = strongest_causes(layout.name) if vessel is not None and rolled else ()
+    changes: list[tuple[np.ndarray, np.ndarray]] = []  # [(du, dr)] of every window, rolled out when first needed
 
+    def change(index: list[int], which: int) -> np.ndarray:
+        if not changes:
+            changes.append(cause_changes(vessel, recordings[0].dt, rolled, causes))
+        return changes[0][which][:, index]  # (N, len(index))
+
+    size = f"for the {vessel.geometry.L_pp:g} m boat it describes" if vessel is not None else ""
     usable = [w for w in windows if w.measured_speed_mps >= MIN_SPEED]
     straight = [w for w in usable if w.kind == "straight"]
     speed_set, speed_kind = (straight, "straight") if straight else (usable, "turn" if usable else "")
     if not layout.propulsion:  # rudder_only: the engine speed is the model's own; straight running from the
         # approach speed holds that speed in a right model (a grey box by construction), turns say nothing of it
         speed_set, speed_kind = (straight, "straight") if straight else ([], "")
-    speed_ratio = None
+    speed_ratio = speed_explanation = None
     if speed_set:
         speed_ratio = float(np.median([w.predicted_speed_mps / w.measured_speed_mps for w in speed_set]))
-        if not (1.0 / SPEED_RATIO_LIMIT <= speed_ratio <= SPEED_RATIO_LIMIT):
+        beyond = not (1.0 / SPEED_RATIO_LIMIT <= speed_ratio <= SPEED_RATIO_LIMIT)
+        if causes and (beyond or explain_always):
+            index = [windows.index(w) for w in speed_set]
+            speed_explanation = _explain(speed_ratio, np.array([w.predicted_speed_mps for w in speed_set]),
+                                         change(index, 0), SPEED_RATIO_LIMIT, MIN_SPEED, causes)
+        if beyond and not (speed_explanation is not None and speed_explanation.explained):
             w = _median_window(speed_set, lambda w: w.predicted_speed_mps / w.measured_speed_mps)
             turning = "" if w.kind == "straight" else " in a held turn"
             reasons.append(f"it runs at {w.predicted_speed_mps:.2g} m/s at {_propulsion_text(layout, w.propulsion)}"
                            f"{turning}, these bags at {w.measured_speed_mps:.2g} m/s (ratio {speed_ratio:.2f}, "
-                           f"limit {SPEED_RATIO_LIMIT:g})")
+                           f"{_limit_text(speed_ratio, SPEED_RATIO_LIMIT, speed_explanation, size)})")
     turns = [w for w in windows if w.kind == "turn" and abs(w.measured_yaw_rate_rad_s) >= MIN_YAW_RATE]
-    yaw_ratio = None
+    yaw_ratio = yaw_explanation = None
     if turns:
         yaw_ratio = float(np.median([w.predicted_yaw_rate_rad_s / w.measured_yaw_rate_rad_s for w in turns]))
-        if not (1.0 / YAW_RATE_RATIO_LIMIT <= yaw_ratio <= YAW_RATE_RATIO_LIMIT):
+        beyond = not (1.0 / YAW_RATE_RATIO_LIMIT <= yaw_ratio <= YAW_RATE_RATIO_LIMIT)
+        if causes and (beyond or explain_always):
+            index = [windows.index(w) for w in turns]
+            yaw_explanation = _explain(yaw_ratio, np.array([w.predicted_yaw_rate_rad_s for w in turns]),
+                                       change(index, 1), YAW_RATE_RATIO_LIMIT, MIN_YAW_RATE, causes)
+        if beyond and not (yaw_explanation is not None and yaw_explanation.explained):
             w = _median_window(turns, lambda w: w.predicted_yaw_rate_rad_s / w.measured_yaw_rate_rad_s)
             reasons.append(f"it turns at {math.degrees(w.predicted_yaw_rate_rad_s):.2g} deg/s for a held turn command "
                            f"{w.steering:.3g} at {_propulsion_text(layout, w.propulsion)}, these bags at "
                            f"{math.degrees(w.measured_yaw_rate_rad_s):.2g} deg/s (ratio {yaw_ratio:.2f}, "
-                           f"limit {YAW_RATE_RATIO_LIMIT:g})")
+                           f"{_limit_text(yaw_ratio, YAW_RATE_RATIO_LIMIT, yaw_explanation, size)})")
 
     length = vessel.geometry.L_pp if vessel is not None else None
     froude_measured = froude_model = froude_scale = None
@@ -277,15 +508,22 @@ def check_fit(predictor: Predictor, recordings: Sequence[Recording], *, vessel: 
     data_speed = float(np.percentile(speeds, 90)) if len(speeds) else None
     top = _top_speed(vessel) if vessel is not None and layout.propulsion else None
     if top is not None and data_speed is not None and data_speed > TOP_SPEED_LIMIT * top:
-        reasons.append(f"these bags run at {data_speed:.2g} m/s, {data_speed / top:.1f} times its top speed "
-                       f"{top:.2g} m/s at full command (Fn {data_speed / math.sqrt(G * length):.2f} on its "
-                       f"{length:g} m)")
+        # a following sea or a current may carry a small boat beyond its calm-water top speed: the limit is the
+        # top speed the strongest cause allows, if higher
+        strongest = strongest_causes(layout.name) if recordings else ()
+        top_sea, cause = _top_speed_in_a_sea(vessel, recordings[0].dt, top, strongest) if strongest else (top, None)
+        if data_speed > TOP_SPEED_LIMIT * top_sea:
+            sea = "" if cause is None else f", {top_sea:.2g} m/s with {cause.label}"
+            reasons.append(f"these bags run at {data_speed:.2g} m/s, {data_speed / top:.1f} times its top speed "
+                           f"{top:.2g} m/s at full command{sea} (Fn {data_speed / math.sqrt(G * length):.2f} on its "
+                           f"{length:g} m)")
     if froude_scale is not None and reasons and not (0.5 < froude_scale < 2.0):
         reasons.append(f"Froude-similar to a hull {froude_scale:.3g} times as long (model-scale vs full-scale?)")
     checked = speed_ratio is not None or yaw_ratio is not None or top is not None
     verdict = "mismatch" if reasons else ("fits" if checked else "unchecked")
     return FitCheck(label, layout.name, tuple(windows), speed_ratio, speed_kind, yaw_ratio, length, froude_measured,
-                    froude_model, froude_scale, top, data_speed, verdict, tuple(reasons))
+                    froude_model, froude_scale, top, data_speed, verdict, tuple(reasons), speed_explanation,
+                    yaw_explanation)
 
 
 def require_fit(check: FitCheck, option: str = "--no-fit-check") -> None:
