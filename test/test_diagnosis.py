@@ -184,3 +184,19 @@ def test_a_diverged_hypothesis_is_written_as_null_and_reported() -> None:
     assert written["heldout_loss"] is None and written["gain_vs_none"] is None and written["evidence_of_best"] is None
     assert written["evidence_vs_none"] == 1.5 and written["hypothesis"] == "wave_drift"
     assert written["fold_parameters"] == [{"wave_height_m": None}, {"wave_height_m": 0.4}]
+
+
+def test_a_calm_water_model_that_diverges_on_the_data_is_a_model_mismatch_not_an_error():
+    """An identified grey box that blows up in states the data visit (unknown boats: cubic terms fitted on one
+    day) cannot say `none` or name a cause: the answer is model_mismatch, with how many segments diverged."""
+    from usv_predictor.analysis.diagnosis import MODEL_MISMATCH, diverged_segments
+
+    recordings = trial(runs=diagnosis_runs()[:2])
+    seg = make_segments(recordings)
+    assert diverged_segments(_FakeRollout(seg.target), seg) == 0
+    assert diverged_segments(_FakeRollout(seg.target, broken=True), seg) == len(seg)
+    result = diagnose(recordings, VESSEL, segments=seg, rollout=_FakeRollout(seg.target, broken=True),
+                      hypotheses=["current"])
+    assert result.cause == MODEL_MISMATCH and result.parameters == {} and result.hypotheses == ()
+    assert f"diverges (NaN/inf) on {len(seg)} of {len(seg)} segments" in result.mismatch_reasons[0]
+    assert result.calm_water_fit.heldout_loss == math.inf

@@ -137,6 +137,15 @@ def segment_scores(model: GreyBoxRollout, seg: Segments) -> tuple[np.ndarray, np
     return losses, track
 
 
+def diverged_segments(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments) -> int:
+    """How many segments the calm-water model (no hypothesis terms) cannot roll out (non-finite residuals) although
+    their measured start and controls are finite: a model that diverges on the data (0: it rolls out everywhere)."""
+    set_terms(model, {})
+    finite_inputs = torch.isfinite(seg.state).all(dim=1) & torch.isfinite(seg.controls).all(dim=(1, 2))  # (B,)
+    finite_out = torch.isfinite(residuals(model, seg)).all(dim=(1, 2))  # (B,)
+    return int((finite_inputs & ~finite_out).sum())
+
+
 def _mean_track(track: np.ndarray) -> float:
     """Mean of the finite segment track errors (m); NaN when no segment ends with a fix."""
     finite = track[np.isfinite(track)]
@@ -379,6 +388,17 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     seg = segments if segments is not None else make_segments(recordings, horizon_s, stride_s)
     folds = _folds(recordings)
     model = rollout if rollout is not None else scripted_rollout(vessel, dt, substeps)
+    diverged = diverged_segments(model, seg)
+    if diverged:
+        # the calm-water model itself cannot be rolled out over the data: it does not fit them (not an error of the
+        # data, and no environmental answer, nor `none`, can be trusted)
+        reason = (f"the calm-water model's rollout diverges (NaN/inf) on {diverged} of {len(seg)} segments of "
+                  f"{horizon_s:g} s at dt {dt:g} s from measured, finite starts and controls")
+        names_of = lambda fold: tuple(recordings[i].name for i in fold)  # noqa: E731
+        return Diagnosis(MODEL_MISMATCH, {}, {}, (), (), Fit("none", {}, math.inf, {}, 0, 0.0),
+                         (names_of(folds[0]), names_of(folds[1])), f"{MODEL_MISMATCH}: {reason}: {REMEDY}",
+                         time.perf_counter() - started, tuple(notes), (), CalmWaterFit(math.inf, math.inf, horizon_s),
+                         (reason,), "")
     per_segment: dict[str, np.ndarray] = {}
     per_track: dict[str, np.ndarray] = {}
     fold_params: dict[str, tuple[dict[str, float], ...]] = {}

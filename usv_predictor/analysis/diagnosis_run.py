@@ -11,6 +11,7 @@ The result is the JSON of `replay diagnose` (keys in its module docstring).
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -91,7 +92,10 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     result = dg.diagnose(recordings, vessel, hypotheses=hypotheses, horizon_s=horizon_s, stride_s=stride_s,
                          max_causes=max_causes, progress=progress, segments=segments, rollout=rollout,
                          fit_mismatch="; ".join(fitted.reasons))
-    discrepancy = dg.discrepancy(rollout, segments, recordings)
+    calm_fit = result.calm_water_fit
+    # a calm-water model that diverges on the data (diagnose: model_mismatch) has no discrepancy to describe
+    diverged = calm_fit is not None and not math.isfinite(calm_fit.heldout_loss)
+    discrepancy = None if diverged else dg.discrepancy(rollout, segments, recordings)
     rejected = None
     if result.hypotheses and gain:
         progress("measuring the gain on held-out manoeuvres")
@@ -117,7 +121,7 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         # a hypothesis whose fit diverged has a non-finite held-out loss and evidence: written as null (undefined)
         "evidence": [_undefined_as_null(dataclasses.asdict(e)) for e in result.evidence],
         "folds": [list(f) for f in result.folds], "discrepancy": discrepancy,
-        "calm_water_fit": dataclasses.asdict(calm) if calm is not None else None,
+        "calm_water_fit": _undefined_as_null(dataclasses.asdict(calm)) if calm is not None else None,
         "fit_check": fitted.to_json(), "mismatch_reasons": list(result.mismatch_reasons),
         "best_environmental_cause": result.best_environmental_cause, "rejected_extension": rejected,
         "calm_water_model": {"vessel": vessel.name, "source": source},

@@ -5,9 +5,10 @@ test/test_unknown_boats.py and benchmarks/bench_unknown_boats.py share.
     (`diagnosis` programme, one hidden effect, --blind); the truth file is then DELETED, so nothing downstream can
     read it (the bags name it in their custom_data: the layout check finds no file and skips)
     owner's data --`replay vessel init`--> a description (the prior)
-    calm day + description --`replay identify --prior fix`--> the calm-water grey box; when identify warns that
-    another structure x prior cross-validates far better (`cv_warning`), identify again with the one it names
-    (what docs/your_boat.md tells a user to do)
+    calm day + description --`replay identify --structure mmg --prior fix`--> the calm-water grey box (mmg: the
+    structure `diagnose --model` takes for a rudder boat; it refuses an abkowitz model, naming --structure mmg);
+    when identify warns that another prior cross-validates far better (`cv_warning`), identify again with the best
+    mmg candidate (what docs/your_boat.md tells a user to do)
     effect day + model + description --`replay diagnose --model`--> the named cause, compared with the truth
 
 A fit-check refusal of `diagnose` (exit 2: the identified model does not fit the effect day) is recorded as the
@@ -28,6 +29,7 @@ from usv_predictor.analysis.unknown_boats import UnknownBoat
 CALM_PROGRAMME = "training"  # the identification day: zig-zags both ways, a port turn, a random run
 EFFECT_PROGRAMME = "diagnosis"  # the effect day: turns and zig-zags both ways
 PRIOR = "fix"  # docs/your_boat.md step 2: keep the description's value where the data cannot determine a term
+STRUCTURE = "mmg"  # the hull structure `diagnose --model` accepts for a rudder-and-propeller boat
 
 
 def _replay(argv: list[str], log: list[str]) -> int:
@@ -41,13 +43,14 @@ def _replay(argv: list[str], log: list[str]) -> int:
     return code
 
 
-def _recommended(identify_json: dict[str, Any]) -> tuple[str, str] | None:
-    """(structure, prior) that identify's cv_warning names (the best-scoring candidate), None without a warning."""
+def _recommended(identify_json: dict[str, Any], structure: str = STRUCTURE) -> str | None:
+    """The prior to identify with again when identify's cv_warning says the chosen one cross-validates far worse:
+    the best-scoring other candidate of `structure` (the one diagnose takes); None without a warning or such one."""
     if not identify_json.get("cv_warning"):
         return None
-    scored = [c for c in identify_json["cv_candidates"] if c["cv_score"] is not None and not c["chosen"]]
-    best = min(scored, key=lambda c: c["cv_score"])
-    return best["structure"], best["prior"]
+    scored = [c for c in identify_json["cv_candidates"]
+              if c["cv_score"] is not None and not c["chosen"] and c["structure"] == structure]
+    return min(scored, key=lambda c: c["cv_score"])["prior"] if scored else None
 
 
 def run_unknown_boat(boat: UnknownBoat, truth: Draw, workdir: Path, seed: int, *, gain: bool = True) -> dict[str, Any]:
@@ -76,12 +79,12 @@ def run_unknown_boat(boat: UnknownBoat, truth: Draw, workdir: Path, seed: int, *
     if _replay(boat.vessel_init_argv(description), log) != 0:
         raise RuntimeError(f"vessel init failed:\n{log[-1]}")
     model, identify_json = workdir / "calm_water.pt", workdir / "identify.json"
-    structure, prior = "auto", PRIOR
+    prior = PRIOR
     out: dict[str, Any] = {"boat": boat.name, "size_class": boat.size_class, "L_pp_m": boat.owner.L_pp,
                            "truth": truth.effect, "truth_parameters": dict(truth.parameters), "refused": False,
                            "identify_failed": False}
     for attempt in range(2):
-        argv = ["identify", str(workdir / "calm"), "--vessel", str(description), "--structure", structure,
+        argv = ["identify", str(workdir / "calm"), "--vessel", str(description), "--structure", STRUCTURE,
                 "--prior", prior, "--output", str(model), "--json", str(identify_json)]
         if _replay(argv, log) != 0:
             out.update(identify_failed=True, cause="identify_failed", parameters={}, within_tolerance=False,
@@ -91,9 +94,9 @@ def run_unknown_boat(boat: UnknownBoat, truth: Draw, workdir: Path, seed: int, *
         better = _recommended(identified)
         if better is None or attempt == 1:
             break
-        structure, prior = better
+        prior = better
     out["identification"] = {"structure": identified["identification"].get("structure"), "prior": prior,
-                             "structure_asked": structure, "cv_warning": identified.get("cv_warning")}
+                             "cv_warning": identified.get("cv_warning")}
     identified_at = time.perf_counter()
     diagnosis_json = workdir / "diagnosis.json"
     argv = ["diagnose", str(workdir / "effect"), "--model", str(model), "--vessel", str(description),
