@@ -106,8 +106,8 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         if before is not None and after is not None and not after < before:
             rejected = {"causes": list(result.hypotheses), "baseline": measured["baseline"],
                         "extended": measured["extended"], "gain": measured["relative_improvement"]}
-            result = dg.withdraw_causes(result, f"the extension with {'+'.join(result.hypotheses)} raises the held-out "
-                                                f"open-loop position error after 30 s from {before:.3g} to {after:.3g} m",
+            result = dg.withdraw_causes(result, f"the extension with {'+'.join(result.hypotheses)} does not lower the held-out "
+                                                f"open-loop position error after 30 s ({before:.3g} -> {after:.3g} m)",
                                         rollout, segments)
             measured = None
     else:
@@ -124,6 +124,8 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         "calm_water_fit": _undefined_as_null(dataclasses.asdict(calm)) if calm is not None else None,
         "fit_check": fitted.to_json(), "mismatch_reasons": list(result.mismatch_reasons),
         "best_environmental_cause": result.best_environmental_cause, "rejected_extension": rejected,
+        "inconclusive": ({"candidate": result.candidate, "parameters": result.candidate_parameters,
+                          "reasons": list(result.inconclusive_reasons)} if result.cause == dg.INCONCLUSIVE else None),
         "calm_water_model": {"vessel": vessel.name, "source": source},
         "recordings": [{"name": r.name, "source": r.source, "duration_s": r.duration_s} for r in recordings],
         "seconds": result.seconds,
@@ -139,6 +141,9 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     if export is not None and result.cause == dg.MODEL_MISMATCH:
         out["exported_model"] = None
         progress(f"no model written to {export}: the calm-water model does not fit ({dg.MODEL_MISMATCH}); {dg.REMEDY}")
+    elif export is not None and result.cause == dg.INCONCLUSIVE:
+        out["exported_model"] = None
+        progress(f"no model written to {export}: no cause named ({dg.INCONCLUSIVE}); {dg.INCONCLUSIVE_REMEDY}")
     elif export is not None:
         artifact = dg.export_extended(export, vessel, result, dt)
         out["exported_model"] = {"path": str(export), "model_id": artifact.model_id}
