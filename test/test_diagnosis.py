@@ -250,3 +250,34 @@ def test_a_cause_that_lowers_the_loss_but_not_the_track_is_inconclusive_not_a_mi
     assert withdrawn.cause == INCONCLUSIVE and withdrawn.cause != MODEL_MISMATCH and withdrawn.candidate == "current"
     assert withdrawn.candidate_parameters == named.parameters and withdrawn.parameters == {}
     assert withdrawn.inconclusive_reasons == ("the extension does not lower the 30 s error (1 -> 2 m)",)
+
+
+class _BiasedRollout(torch.nn.Module):
+    """A calm-water model whose u, v, r are off by `sigmas` noise scales whatever the hypothesis terms are."""
+
+    def __init__(self, seg, sigmas: float) -> None:
+        super().__init__()
+        for name, term in fx.grey_box_terms().items():
+            self.register_buffer(name, torch.zeros(term.size, dtype=torch.float64))
+        self.states, self.target = seg.state, seg.target
+        self.bias = torch.tensor([0.05, 0.05, 0.005, 0.0, 0.0, 0.0], dtype=torch.float64) * sigmas
+
+    def forward(self, state: torch.Tensor, controls: torch.Tensor) -> tuple[torch.Tensor]:
+        index = (state[:, None, :] == self.states[None]).all(-1).to(torch.float64).argmax(1)  # (B,)
+        return (self.target[index] + self.bias,)
+
+
+@pytest.mark.parametrize("sigmas, expected", [(0.5, "none"), (4.0, "model_mismatch")])
+def test_none_needs_a_model_within_the_noise(sigmas, expected):
+    """Never a confident `none` from a model that does not fit: errors of 4 sigma in u, v, r (held-out loss 8) that
+    no hypothesis explains are model_mismatch (an unknown boat's identified model hid a gyro bias that way)."""
+    from usv_predictor.analysis.diagnosis import NONE_LOSS
+
+    recordings = trial(runs=diagnosis_runs()[:2])
+    seg = make_segments(recordings)
+    result = diagnose(recordings, VESSEL, segments=seg, rollout=_BiasedRollout(seg, sigmas), hypotheses=["current"])
+    assert result.calm_water_fit.heldout_loss == pytest.approx(sigmas**2 / 2, rel=0.01)
+    assert result.cause == expected and result.parameters == {}
+    if expected == "model_mismatch":
+        assert result.calm_water_fit.heldout_loss > NONE_LOSS
+        assert "no hypothesis explains the calm-water model's held-out loss of 8" in result.mismatch_reasons[0]
