@@ -76,13 +76,18 @@ def summarise(results: list[dict]) -> str:
     confident_wrong = [r for r in results if r["cause"] != r["truth"] and r["cause"] not in CONFIDENT_CAUSES_EXCLUDED]
     refused = [r for r in results if r.get("refused")]
     mismatch = [r for r in results if r["cause"] == "model_mismatch"]
+    wrong_parameters = [r for r in right if r["truth"] != "none" and not r["within_tolerance"]]
     lines += ["", f"right cause: {len(right)}/{len(results)}; right cause and parameters within tolerance: "
                   f"{len(hits)}/{len(results)} (effects only: "
                   f"{sum(r['truth'] != 'none' for r in hits)}/{sum(r['truth'] != 'none' for r in results)})",
               f"confident wrong answers (a cause or `none` that is not the truth): {len(confident_wrong)}/{len(results)}"
               + "".join(f"\n  {r['boat']} ({r['size_class']}, {r['L_pp_m']:.1f} m): {r['truth']} "
                         f"{r['truth_parameters']} -> {r['cause']} {r['parameters']}" for r in confident_wrong),
-              f"model_mismatch: {len(mismatch)} (of which refused by the fit check: {len(refused)})"]
+              f"right cause, parameters beyond the tolerances: {len(wrong_parameters)}"
+              + "".join(f"\n  {r['boat']} ({r['size_class']}, {r['L_pp_m']:.1f} m): {r['truth']} {r['truth_parameters']} "
+                        f"-> {r['parameters']}" for r in wrong_parameters),
+              f"model_mismatch: {len(mismatch)} (of which refused by the fit check: {len(refused)}; the rollout of the "
+              f"identified model diverges: {sum(any('diverges' in m for m in r['mismatch_reasons']) for r in mismatch)})"]
     for size in ("small", "large"):
         rows = [r for r in results if r["size_class"] == size]
         if rows:
@@ -108,9 +113,19 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=2026)
     parser.add_argument("--jsonl", type=Path, default=None, help="append one JSON line per boat here")
     parser.add_argument("--summarise", type=Path, default=None, metavar="JSONL", help="only print the tables of a run")
+    parser.add_argument("--rerun", type=Path, default=None, metavar="JSONL",
+                        help="with --summarise: boats re-run later (e.g. with a newer diagnose) replace the same index")
     args = parser.parse_args()
     if args.summarise:
-        print(summarise([json.loads(line) for line in args.summarise.read_text().splitlines() if line.strip()]))
+        def read(path: Path) -> list[dict]:
+            return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+        results = {r["index"]: r for r in read(args.summarise)}
+        rerun = read(args.rerun) if args.rerun else []
+        results.update({r["index"]: r for r in rerun})
+        print(summarise([results[i] for i in sorted(results)]))
+        if rerun:
+            print(f"re-run: {', '.join(r['boat'] for r in rerun)}")
         return
     started = time.perf_counter()
     results = []
