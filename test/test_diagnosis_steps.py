@@ -32,7 +32,21 @@ def test_the_otter_is_stiffer_than_rk4_allows_at_half_a_second():
 
 def test_a_layout_without_a_simulated_programme_keeps_the_default_step(monkeypatch):
     monkeypatch.setattr(ds, "fastest_mode", lambda vessel: float("nan"))
+
+    def no_programme(name, layout):
+        raise ValueError(f"no programme for {layout.name}")
+
+    monkeypatch.setattr(ds, "programme", no_programme)
     steps = ds.diagnosis_steps(load_vessel("jari_usv"))
     assert (steps.dt, steps.horizon_s, steps.stride_s) == (0.5, 20.0, 5.0)
     assert math.isnan(steps.fastest_mode_per_s) and "no simulated programme" in steps.reason
     assert steps.to_json()["fastest_mode_per_s"] is None
+
+
+def test_a_model_that_cannot_run_its_own_programme_is_not_called_a_layout_without_one(monkeypatch):
+    """An identified unknown boat whose programme diverges was reported as 'its layout rudder_propeller has no
+    simulated programme'; the step stays the default, the reason says what happened."""
+    monkeypatch.setattr(ds, "fastest_mode", lambda vessel: float("nan"))
+    steps = ds.diagnosis_steps(load_vessel("jari_usv"))
+    assert steps.dt == 0.5 and "cannot be simulated with this model" in steps.reason
+    assert "no simulated programme" not in steps.reason

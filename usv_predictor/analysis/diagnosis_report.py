@@ -142,7 +142,7 @@ def write_report(directory: Path, out: dict, recordings: Sequence[Recording], ve
                      f"{_fmt(e['evidence_vs_none'])} | {_fmt(e['evidence_of_best'])} | {params} |")
     lines += ["", "![evidence](evidence.png)", "", "## What the calm-water model gets wrong", "",
               "| quantity | value |", "|---|---|"]
-    for key, value in out["discrepancy"].items():
+    for key, value in (out["discrepancy"] or {}).items():
         if isinstance(value, dict):
             value = ", ".join(f"{k} {_fmt(v)}" for k, v in value.items())
         lines.append(f"| {key} | {_fmt(value)} |")

@@ -11,6 +11,7 @@ The result is the JSON of `replay diagnose` (keys in its module docstring).
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -108,7 +109,10 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     result = dg.diagnose(recordings, vessel, hypotheses=hypotheses, horizon_s=horizon_s, stride_s=stride_s,
                          max_causes=max_causes, progress=progress, segments=segments, rollout=rollout,
                          fit_mismatch="; ".join(fitted.reasons))
-    discrepancy = dg.discrepancy(rollout, segments, recordings)
+    calm_fit = result.calm_water_fit
+    # a calm-water model that diverges on the data (diagnose: model_mismatch) has no discrepancy to describe
+    diverged = calm_fit is not None and not math.isfinite(calm_fit.heldout_loss)
+    discrepancy = None if diverged else dg.discrepancy(rollout, segments, recordings)
     rejected = None
     if result.hypotheses and gain:
         progress("measuring the gain on held-out manoeuvres")
@@ -119,8 +123,8 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         if before is not None and after is not None and not after < before:
             rejected = {"causes": list(result.hypotheses), "baseline": measured["baseline"],
                         "extended": measured["extended"], "gain": measured["relative_improvement"]}
-            result = dg.withdraw_causes(result, f"the extension with {'+'.join(result.hypotheses)} raises the held-out "
-                                                f"open-loop position error after 30 s from {before:.3g} to {after:.3g} m",
+            result = dg.withdraw_causes(result, f"the extension with {'+'.join(result.hypotheses)} does not lower the held-out "
+                                                f"open-loop position error after 30 s ({before:.3g} -> {after:.3g} m)",
                                         rollout, segments)
             measured = None
     else:
@@ -136,9 +140,11 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         # a hypothesis whose fit diverged has a non-finite held-out loss and evidence: written as null (undefined)
         "evidence": [_undefined_as_null(dataclasses.asdict(e)) for e in result.evidence],
         "folds": [list(f) for f in result.folds], "discrepancy": discrepancy,
-        "calm_water_fit": dataclasses.asdict(calm) if calm is not None else None,
+        "calm_water_fit": _undefined_as_null(dataclasses.asdict(calm)) if calm is not None else None,
         "fit_check": fitted.to_json(), "mismatch_reasons": list(result.mismatch_reasons),
         "best_environmental_cause": result.best_environmental_cause, "rejected_extension": rejected,
+        "inconclusive": ({"candidate": result.candidate, "parameters": result.candidate_parameters,
+                          "reasons": list(result.inconclusive_reasons)} if result.cause == dg.INCONCLUSIVE else None),
         "calm_water_model": {"vessel": vessel.name, "source": source},
         "recordings": [{"name": r.name, "source": r.source, "duration_s": r.duration_s} for r in recordings],
         "seconds": result.seconds,
@@ -154,6 +160,9 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     if export is not None and result.cause == dg.MODEL_MISMATCH:
         out["exported_model"] = None
         progress(f"no model written to {export}: the calm-water model does not fit ({dg.MODEL_MISMATCH}); {dg.REMEDY}")
+    elif export is not None and result.cause == dg.INCONCLUSIVE:
+        out["exported_model"] = None
+        progress(f"no model written to {export}: no cause named ({dg.INCONCLUSIVE}); {dg.INCONCLUSIVE_REMEDY}")
     elif export is not None:
         artifact = dg.export_extended(export, vessel, result, dt, description=description)
         out["exported_model"] = {"path": str(export), "model_id": artifact.model_id}

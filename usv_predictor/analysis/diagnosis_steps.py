@@ -85,14 +85,27 @@ def fastest_mode(vessel: Vessel) -> float:
     return worst
 
 
+def _has_programme(vessel: Vessel) -> bool:
+    try:
+        programme("diagnosis", vessel.actuator_layout)
+    except (ValueError, ConfigError):
+        return False
+    return True
+
+
 def diagnosis_steps(vessel: Vessel) -> DiagnosisSteps:
     """The model step, segment horizon and stride that suit this vessel (module docstring)."""
     lam = fastest_mode(vessel)
     simulated = not math.isnan(lam)
     bound = lam if simulated else FALLBACK_LAMBDA
     dt = next((s for s in STEP_LADDER_S if s * bound <= STEP_LAMBDA), STEP_LADDER_S[-1])
-    where = (f"fastest hull mode {bound:.2f} 1/s ({1.0 / bound:.2f} s) along its calm-water diagnosis programme"
-             if simulated else f"its layout {vessel.layout} has no simulated programme: the default step")
+    if simulated:
+        where = f"fastest hull mode {bound:.2f} 1/s ({1.0 / bound:.2f} s) along its calm-water diagnosis programme"
+    elif _has_programme(vessel):  # an identified model that cannot run its own programme is not a layout limit
+        where = ("its calm-water diagnosis programme cannot be simulated with this model (it diverges: see the fit "
+                 "check and the answer): the default step")
+    else:
+        where = f"its layout {vessel.layout} has no simulated programme: the default step"
     reason = (f"{vessel.name}: {where}; dt {dt:g} s keeps dt |lambda| <= {STEP_LAMBDA:g} (RK4), "
               f"segments of {HORIZON_STEPS} steps every {STRIDE_STEPS}")
     return DiagnosisSteps(dt, HORIZON_STEPS * dt, STRIDE_STEPS * dt, bound if simulated else float("nan"), reason)

@@ -8,7 +8,9 @@ model gets wrong), baseline / extended / gain (evaluation metrics on held-out ma
 calm-water model's held-out loss and track error before any hypothesis), fit_check (analysis/fit_check.py: a model
 that does not fit the bags at all is refused, exit 2, unless --no-fit-check), mismatch_reasons and
 best_environmental_cause (cause model_mismatch: the calm-water model itself is wrong, identify it first),
-rejected_extension (causes withdrawn because their extension raised the held-out 30 s position error).
+rejected_extension (causes withdrawn because their extension did not lower the held-out 30 s position error),
+inconclusive (cause inconclusive: a candidate that explains the held-out loss of a model that fits, but whose
+extension does not predict tracks better: its name, parameters and the reasons it is not named; null otherwise).
 The work: usv_predictor.replay.diagnose and usv_predictor.analysis.diagnosis_run.
 """
 from __future__ import annotations

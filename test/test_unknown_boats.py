@@ -1,0 +1,128 @@
+"""Boats the tool has never seen (issue 11 section 5): the random hulls, the owner's description, and the lean
+acceptance part of the unknown-boat suite.
+
+The acceptance cases draw a boat (its size class fixed, everything else random) and a hidden effect from a seed this
+module keeps to itself, simulate a calm day and a blind effect day with the boat as the truth, delete the truth,
+and give the tool only the bags and a `vessel init` description made from the owner's data
+(usv_predictor.replay.unknown_boats.run_unknown_boat). The tool must identify the boat, then name the cause (`none`
+on the clean day) with the tolerances of the hidden-effect suite. The confusion matrix over >= 50 boats is
+benchmarks/bench_unknown_boats.py (README).
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from usv_predictor.analysis.hidden_effects import draw
+from usv_predictor.analysis.unknown_boats import (
+    PERTURBED,
+    PRESET,
+    SIZE_CLASSES,
+    SPREAD,
+    TRIAL_RPM,
+    draw_boat,
+)
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.empirical import OwnerData
+from usv_predictor.physics.vessel import GRAVITY, load_vessel
+from usv_predictor.replay.cli import main
+from usv_predictor.replay.unknown_boats import _recommended, run_unknown_boat
+
+_SECRET = int.from_bytes(hashlib.sha256(b"usv_predictor unknown-boat suite, 2026").digest()[:8], "little")
+
+
+@pytest.mark.parametrize("size_class", sorted(SIZE_CLASSES))
+def test_a_drawn_boat_is_a_froude_scaled_perturbed_preset(size_class):
+    preset = load_vessel(PRESET)
+    boat = draw_boat(np.random.default_rng([7, len(size_class)]), size_class)
+    truth = boat.truth_vessel()
+    low, high = SIZE_CLASSES[size_class]
+    assert low <= truth.geometry.L_pp <= high
+    s = truth.geometry.L_pp / preset.geometry.L_pp
+    assert boat.scale == pytest.approx(s)
+    # every perturbed value is the preset's times its recorded factor, the factors within the stated spread
+    assert set(boat.factors) == {f"{sec}.{key}" for sec, keys in PERTURBED.items() for key in keys}
+    for name, factor in boat.factors.items():
+        assert 1 - SPREAD <= factor <= 1 + SPREAD
+        section, key = name.split(".")
+        targets = ("gamma_R_minus", "gamma_R_plus") if key == "gamma_R" else (key,)
+        for target in targets:
+            assert getattr(getattr(truth, section), target) == pytest.approx(
+                getattr(getattr(preset, section), target) * factor)
+    assert truth.rudder.gamma_R_minus == truth.rudder.gamma_R_plus  # a symmetric boat: a clean day is `none`
+    # Froude similarity: the trial engine speed gives the preset's Froude number within what the spread moves it
+    fn = boat.owner.speed_m_s / math.sqrt(GRAVITY * truth.geometry.L_pp)
+    fn_preset = ManoeuvringModel(preset).straight_speed(TRIAL_RPM) / math.sqrt(GRAVITY * preset.geometry.L_pp)
+    assert 0.7 * fn_preset < fn < 1.4 * fn_preset
+    assert truth.propeller.D_P == pytest.approx(preset.propeller.D_P * s)
+    assert truth.propeller.gear_ratio == pytest.approx(math.sqrt(s))
+
+
+def test_the_draw_is_deterministic_and_the_classes_differ():
+    a, b = (draw_boat(np.random.default_rng([3, 1])) for _ in range(2))
+    assert a.truth == b.truth and a.owner == b.owner
+    sizes = {draw_boat(np.random.default_rng([3, k])).size_class for k in range(12)}
+    assert sizes == set(SIZE_CLASSES)
+    with pytest.raises(ValueError, match="unknown size class"):
+        draw_boat(np.random.default_rng(0), "medium")
+
+
+def test_the_owner_knows_dimensions_and_datasheet_not_the_hull(tmp_path):
+    """The vessel-init description has the truth's dimensions, geometry and thrust, but its hull is the empirical
+    formulas', not the truth's (the tool must identify it)."""
+    boat = draw_boat(np.random.default_rng([11, 2]), "small")
+    hydrodynamic = {"hull", "added_mass", "R0", "X_vv", "Y_v", "N_r", "t_P", "w_P0", "a_H", "gamma_R_minus"}
+    assert not hydrodynamic & {f.name for f in dataclasses.fields(OwnerData)}
+    description = tmp_path / "mine.yaml"
+    assert main(boat.vessel_init_argv(description)) == 0
+    mine, truth = load_vessel(description), boat.truth_vessel()
+    for key in ("L_pp", "B", "d", "displacement_kg", "x_G"):
+        assert getattr(mine.geometry, key) == pytest.approx(getattr(truth.geometry, key), rel=1e-4)
+    assert mine.propeller.D_P == pytest.approx(truth.propeller.D_P, rel=1e-4)
+    assert mine.propeller.k0 == pytest.approx(truth.propeller.k0, rel=1e-3)  # from the static-thrust datasheet
+    assert mine.rudder.A_R == pytest.approx(truth.rudder.A_R, rel=1e-4)
+    # resistance calibrated on the owner's known speed: the description runs at it
+    assert ManoeuvringModel(mine).straight_speed(TRIAL_RPM) == pytest.approx(boat.owner.speed_m_s, rel=0.02)
+    differ = [k for k in ("Y_v", "Y_r", "N_v", "N_r") if not math.isclose(getattr(mine.hull, k), getattr(truth.hull, k),
+                                                                           rel_tol=0.05)]
+    assert len(differ) >= 3, differ  # the empirical hull is not the truth's
+
+
+def test_the_recommended_identification_is_the_best_scored_candidate():
+    candidates = [{"structure": "mmg", "prior": "fix", "cv_score": 3.0, "chosen": True},
+                  {"structure": "abkowitz", "prior": "fix", "cv_score": 0.5, "chosen": False},
+                  {"structure": "mmg", "prior": "ridge", "cv_score": 0.7, "chosen": False},
+                  {"structure": "mmg", "prior": "none", "cv_score": None, "chosen": False}]
+    # the best candidate diagnose can take (mmg), not the best overall (abkowitz: diagnose refuses it)
+    assert _recommended({"cv_warning": "far worse", "cv_candidates": candidates}) == "ridge"
+    assert _recommended({"cv_warning": None, "cv_candidates": candidates}) is None
+    assert _recommended({"cv_warning": "far worse", "cv_candidates": candidates[:2]}) is None
+
+
+# The lean CI part: a small boat on a clean day, a large boat with a current (the effect every trial meets). Each
+# case is about 40 s of CPU (two simulated days, vessel init, identify, diagnose with the gain).
+ACCEPTANCE = [("small", "none"), ("large", "current")]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("size_class, effect", ACCEPTANCE)
+def test_an_unknown_boat_is_identified_and_diagnosed(tmp_path, size_class, effect):
+    rng = np.random.default_rng([_SECRET, ACCEPTANCE.index((size_class, effect))])
+    boat = draw_boat(rng, size_class)
+    truth = draw(rng, effect)
+    result = run_unknown_boat(boat, truth, tmp_path, int(rng.integers(0, 2**31 - 2)))
+    assert not (tmp_path / "truth").exists()  # the tool never had the truth file
+    description = yaml.safe_load((tmp_path / f"{boat.owner.name}.yaml").read_text())
+    assert description["hull"] != boat.truth["hull"]
+    commands = [line.split()[2] for line in result["log"]]  # "$ replay COMMAND ..."
+    assert commands[:4] == ["simulate", "simulate", "vessel", "identify"] and commands[-1] == "diagnose"
+    assert set(commands[4:-1]) <= {"identify"}  # identified again at most once, as identify recommended
+    assert result["cause"] == effect, (truth, result["message"])
+    assert result["within_tolerance"], (truth, result["errors"])
+    if effect != "none":
+        assert result["gain"]["mean_position_error_after_30s_m"] > 0.05, result["gain"]
