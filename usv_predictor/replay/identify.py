@@ -48,7 +48,7 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
                   progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """Identify the hull (and what the layout lets the data set: thrust gains, engine speeds) of the vessel file
     `vessel` (a preset name or a YAML path) from `bags`, read with its actuator layout (structure mmg / abkowitz /
-    diagonal / coupled / auto, prior none / fix / ridge), export the grey box (with hybrid: plus an MLP residual)
+    diagonal / coupled / auto, prior none / fix / ridge), export the grey box (with hybrid: plus a learned residual)
     to `output`; validation: a glob of bags only evaluated; report: a directory for summary.md and the force plots;
     blocks: pieces per recording for cross-validation; config: the predictor.yaml whose topics are read (default
     the shipped one). The result of `replay identify`."""
@@ -71,8 +71,8 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
     digest = identification.data_digest(recordings)
     hybrid_info = None
     if hybrid:
-        progress("training the MLP residual")
-        module, hybrid_info = hybrid_fit.train_hybrid(result, dt)
+        progress("training the learned residual (an ensemble, multi-step loss, held-out manoeuvres)")
+        module, hybrid_info = hybrid_fit.train_hybrid(result, recordings, dt, progress=progress)
     else:
         module = hybrid_fit.greybox_module(result, dt)
     artifact = hybrid_fit.export_identified(str(output), module, result, dt=dt, training_data_sha256=digest,
