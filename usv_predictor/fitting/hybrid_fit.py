@@ -10,10 +10,11 @@ The hybrid's training (train_hybrid):
      bound of its non-dimensional output come from the identification data: the one-step residual accelerations
      nu_dot(smoothed) - f_grey box (residual_targets) made non-dimensional by U^2 / L (U^2 / L^2 for yaw); the bound
      is BOUND_MARGIN x their 99.5th percentile, so the learned term can never exceed what the data showed;
-  2. loss of member e = mean over its k-step windows (seed 000's multi-step loss, Fig. 3, here through the grey box)
-     of sum_c ((u, v, r)_predicted - measured)_c^2 / var_c  +  zero_weight x mean (a' / bound)^2 over the one-step
-     samples (regularisation toward the pure grey box); each member trains on its own bootstrap of the training
-     windows and starts from its own random hidden weights (the ensemble's spread);
+  2. loss of member e = mean over its segments (data/segments.py: horizon_s rollouts from measured states with the
+     recorded controls, seed 000's multi-step loss, Fig. 3, here through the grey box) of the squared residuals of
+     u, v, r, the track and the heading in noise units (SIGMA)  +  zero_weight x mean (a' / bound)^2 over the
+     one-step samples (regularisation toward the pure grey box); each member trains on its own bootstrap of the
+     training segments and starts from its own random hidden weights (the ensemble's spread);
   3. early stopping per member on the same loss over whole held-out manoeuvres (data.dataset.split_by_manoeuvre):
      the weights of the epoch with the lowest validation loss are kept.
 """
@@ -29,9 +30,10 @@ from torch import nn
 from usv_predictor.data.dataset import split_by_manoeuvre
 from usv_predictor.data.features import STATE_NAMES
 from usv_predictor.data.recording import Recording
-from usv_predictor.errors import ModelError
+from usv_predictor.data.segments import Segments, make_segments
+from usv_predictor.errors import DiagnosisError, ModelError
 from usv_predictor.fitting.identification import ForceData, IdentificationResult
-from usv_predictor.fitting.training import Windows, reproducible, windows_from_recordings
+from usv_predictor.fitting.training import reproducible
 from usv_predictor.models.artifact import OUTPUT_LAYOUT, UNITS, ModelArtifact, export_module
 from usv_predictor.models.greybox import actuator_sections_metadata, hull_coefficients
 from usv_predictor.models.hybrid import (GENERALISING_FEATURES, GeneralisingResidual, PolynomialResidual,
@@ -57,10 +59,11 @@ class HybridTraining:
     patience: int = 30  # epochs without a better validation loss before a member stops improving
     learning_rate: float = 3e-3
     weight_decay: float = 1e-4
-    horizon_s: float = 4.0  # (s) the multi-step loss' window
-    stride_s: float = 1.0  # (s) between window starts
+    horizon_s: float = 20.0  # (s) the multi-step loss' segments (the diagnosis' horizon)
+    stride_s: float = 5.0  # (s) between segment starts
     zero_weight: float = 0.1  # (-) weight of the pull toward zero (step 2 of the module docstring)
     val_fraction: float = 0.25  # of the manoeuvres, held out whole for early stopping (none with one manoeuvre)
+    validation: tuple[str, ...] = ()  # glob patterns of manoeuvres held out for early stopping (instead of the fraction)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -109,32 +112,33 @@ def _residual_statistics(residual: GeneralisingResidual, base: ResidualGreyBox, 
     return x
 
 
-def _split_windows(recordings: Sequence[Recording], config: HybridTraining, dt: float) -> tuple[Windows, Windows | None,
-                                                                                                  dict[str, str]]:
-    """Training and validation windows, whole manoeuvres apart (no validation with a single manoeuvre)."""
+def _split_segments(recordings: Sequence[Recording], config: HybridTraining) -> tuple[Segments, Segments | None,
+                                                                                    dict[str, str]]:
+    """Training and validation segments (data/segments.py), whole manoeuvres apart (none held out with one)."""
     names = [rec.name for rec in recordings]
-    split = split_by_manoeuvre(names, val_fraction=config.val_fraction if len(set(names)) > 1 else 0.0,
-                               seed=config.seed)
-    k = max(1, int(round(config.horizon_s / dt)))
-    stride = max(1, int(round(config.stride_s / dt)))
-    train = windows_from_recordings([r for r in recordings if split[r.name] == "train"], k, stride)
-    val_recs = [r for r in recordings if split[r.name] == "val"]
-    val = windows_from_recordings(val_recs, k, stride) if val_recs else None
-    if len(train) == 0:
-        raise ModelError(f"hybrid: no {config.horizon_s:g} s window of finite data in the training manoeuvres")
-    return train, (val if val is not None and len(val) else None), split
+    fraction = config.val_fraction if len(set(names)) > 1 and not config.validation else 0.0
+    split = split_by_manoeuvre(names, val_fraction=fraction, seed=config.seed, val=config.validation)
+    parts: dict[str, Segments | None] = {}
+    for part in ("train", "val"):
+        chosen = [rec for rec in recordings if split[rec.name] == part]
+        try:
+            parts[part] = make_segments(chosen, config.horizon_s, config.stride_s) if chosen else None
+        except DiagnosisError as err:
+            raise ModelError(f"hybrid: {part} manoeuvres {[r.name for r in chosen]}: {err}") from err
+    if parts["train"] is None:
+        raise ModelError("hybrid: no manoeuvre left to train on")
+    return parts["train"], parts["val"], split
 
 
-def _window_losses(module: ResidualGreyBox, windows: Windows, scale: torch.Tensor,
-                   weights: torch.Tensor | None = None) -> torch.Tensor:
-    """(E,) mean weighted squared error of each member's rollout over the windows (weights (E, N) or uniform)."""
-    state = torch.from_numpy(windows.state0)  # (N, 4)
-    predicted = module(state, torch.from_numpy(windows.controls))[..., :3]  # (E, N, k, 3)
-    err = ((predicted - torch.from_numpy(windows.targets)) / scale) ** 2  # (E, N, k, 3)
-    per_window = err.sum(dim=-1).mean(dim=-1)  # (E, N)
+def _segment_losses(module: ResidualGreyBox, seg: Segments, weights: torch.Tensor | None = None) -> torch.Tensor:
+    """(E,) each member's mean squared weighted residual (noise units, data/segments.SIGMA) of its rollouts over the
+    segments: velocities, track and heading; `weights` (E, N) resample the segments per member."""
+    predicted = module(seg.state, seg.controls)  # (E, N, H, 6)
+    r = (predicted - seg.target) * seg.weight  # (E, N, H, 6)
+    per_segment = (r * r).sum(dim=(2, 3)) / torch.count_nonzero(seg.weight, dim=(1, 2)).clamp(min=1)  # (E, N)
     if weights is None:
-        return per_window.mean(dim=1)
-    return (per_window * weights).sum(dim=1) / weights.sum(dim=1)
+        return per_segment.mean(dim=1)
+    return (per_segment * weights).sum(dim=1) / weights.sum(dim=1)
 
 
 def train_hybrid(result: IdentificationResult, recordings: Sequence[Recording], dt: float,
@@ -143,7 +147,7 @@ def train_hybrid(result: IdentificationResult, recordings: Sequence[Recording], 
     """The identified grey box + a GeneralisingResidual ensemble trained as the module docstring says; `recordings`
     are the identification's, at the model step dt (their names split training and validation manoeuvres)."""
     base = greybox_module(result, dt, substeps)
-    train, val, split = _split_windows(recordings, config, dt)
+    train, val, split = _split_segments(recordings, config)
     speeds = np.hypot(*np.vstack([d.nu[d.keep] for d in result.data])[:, :2].T)
     u_ref = float(np.median(speeds)) if len(speeds) else 1.0
     with reproducible(config.seed, torch.get_num_threads()):
@@ -152,9 +156,8 @@ def train_hybrid(result: IdentificationResult, recordings: Sequence[Recording], 
         x_samples = _residual_statistics(learned, base, result.data, recordings)
         residual = SumResidual(base.residual, learned)
         module = ResidualGreyBox(result.vessel, dt, residual, substeps, members=config.members)
-        scale = torch.from_numpy(np.maximum(np.nanstd(train.targets.reshape(-1, 3), axis=0), 1e-6))  # (3,)
         bootstrap = torch.from_numpy(np.random.default_rng(config.seed).poisson(1.0, (config.members, len(train)))
-                                     .astype(np.float64)) + 1e-3  # (E, N) each member's resampling of the windows
+                                     .astype(np.float64)) + 1e-3  # (E, N) each member's resampling of the segments
         trainable = [p for p in learned.parameters() if p.requires_grad]
         optimiser = torch.optim.Adam(trainable, lr=config.learning_rate, weight_decay=config.weight_decay)
         samples = x_samples.unsqueeze(0).expand(config.members, -1, -1)  # (E, N, F)
@@ -165,14 +168,14 @@ def train_hybrid(result: IdentificationResult, recordings: Sequence[Recording], 
         stale = 0
         for epoch in range(1, config.epochs + 1):
             optimiser.zero_grad()
-            fit = _window_losses(module, train, scale, bootstrap)  # (E,)
+            fit = _segment_losses(module, train, bootstrap)  # (E,)
             zero = ((learned.nondimensional(samples) / learned.bound) ** 2).sum(dim=-1).mean(dim=-1)  # (E,)
             (fit + config.zero_weight * zero).sum().backward()
             optimiser.step()
             fit = fit.detach()
             with torch.no_grad():
-                monitor = (_window_losses(module, val, scale) if val is not None
-                           else _window_losses(module, train, scale) + config.zero_weight * zero)  # (E,)
+                monitor = (_segment_losses(module, val) if val is not None
+                           else _segment_losses(module, train) + config.zero_weight * zero)  # (E,)
             history.append((fit.tolist(), monitor.tolist()))
             improved = False
             for e in range(config.members):
@@ -189,16 +192,16 @@ def train_hybrid(result: IdentificationResult, recordings: Sequence[Recording], 
         with torch.no_grad():
             for keep, p in zip(best_state, trainable):
                 p.copy_(keep)
-            grey = _window_losses(ResidualGreyBox(result.vessel, dt, base.residual, substeps),
-                                  val if val is not None else train, scale)
+            grey = _segment_losses(ResidualGreyBox(result.vessel, dt, base.residual, substeps),
+                                   val if val is not None else train)
     info = {"residual": "GeneralisingResidual", "features": list(GENERALISING_FEATURES), "members": config.members,
             "hidden": config.hidden, "layers": config.layers, "u_ref_mps": learned.u_ref,
             "bound": learned.bound.tolist(), "horizon_s": config.horizon_s, "zero_weight": config.zero_weight,
             "epochs_run": len(history), "best_epoch": best_epoch,
             "monitor": "val" if val is not None else "train",
             "val_manoeuvres": sorted({n for n, s in split.items() if s == "val"}),
-            "loss_best": best, "loss_grey_box": float(grey[0]), "windows_train": len(train),
-            "windows_val": len(val) if val is not None else 0}
+            "loss_best": best, "loss_grey_box": float(grey[0]), "segments_train": len(train),
+            "segments_val": len(val) if val is not None else 0}
     return module, info
 
 
