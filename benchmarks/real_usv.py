@@ -46,6 +46,18 @@ FUZHOU_RUDDER_DEG = 22.0  # (deg) the turning circle asked for
 DRAWS = 400  # coefficient draws for the turning radius uncertainty
 
 
+class StartStateOnly:
+    """A grey box given no reference state: each prediction holds the engine speed of its own start's water speed (the
+    rule before 2026-11-25; now replay evaluate holds the one of the recording's approach, models/greybox.py)."""
+
+    def __init__(self, predictor) -> None:
+        self.predictor = predictor
+        self.metadata = predictor.metadata
+
+    def predict(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        return self.predictor.predict(state, controls)
+
+
 class ConstantVelocity:
     """Naive baseline: the start state's u, v held, no turn (heading constant)."""
 
@@ -308,7 +320,8 @@ def fuzhou(bags: Path, work: Path) -> dict:
     nomoto = fit_nomoto(pieces)
     out["nomoto"] = nomoto
     log(f"Fuzhou: Nomoto K {nomoto['K_per_s']:.3f} 1/s, T {nomoto['T_s']:.2f} s, b {nomoto['b_rad_s']:+.4f} rad/s")
-    models = {"grey box identified (engine speed from each start's speed)": load_artifact(path),
+    models = {"grey box identified (engine speed from each start's speed)": StartStateOnly(load_artifact(path)),
+              "grey box identified (engine speed of the half's approach)": load_artifact(path),
               f"grey box identified (the identified engine setting, {rpm:.0f} rpm)": held_rpm,
               "grey box of the vessel file (assumed, not identified)": greybox_predictor(vessel, FUZHOU_DT),
               "first-order Nomoto (identified)": NomotoPredictor(nomoto["K_per_s"], nomoto["T_s"], nomoto["b_rad_s"],

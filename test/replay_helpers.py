@@ -4,7 +4,7 @@
 other helpers say what a run must leave behind: the inputs byte-identical (`digest`), no temporary file of an
 atomic writer (`leftovers`), and on failure one line `replay <command>: error: ...` (`assert_one_line`).
 `bag_streams` / `write_variant` turn a bag into the Signals of its configured topics and back, to make
-mutated copies.
+mutated copies; `write_layout_variant` writes the jari_usv preset as a vessel file of another actuator layout.
 """
 from __future__ import annotations
 
@@ -14,8 +14,10 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import pytest
+import yaml
 
 from usv_predictor.atomic import PROBE_PREFIX
+from usv_predictor.physics.vessel import vessel_dir
 from usv_predictor.records import Signal
 from usv_predictor.replay import cli
 from usv_predictor.replay.bagio import TopicSpec, read_bag, write_bag
@@ -72,3 +74,12 @@ def bag_streams(path: Path) -> tuple[list[tuple[TopicSpec, Signal]], dict[str, s
 def write_variant(path: Path, streams: list[tuple[TopicSpec, Signal]], custom: Mapping[str, str]) -> Path:
     """Write a (mutated) copy of a bag: uncompressed sqlite3, the same custom_data."""
     return write_bag(path, streams, metadata=custom, compress=False)
+
+
+def write_layout_variant(directory: Path, layout: str, **sections: object) -> Path:
+    """jari_usv with `layout` (and the sections it needs, e.g. throttle=...) as a vessel file named jari_<layout>
+    (every replay command takes a YAML path for --vessel)."""
+    raw = yaml.safe_load((vessel_dir() / "jari_usv.yaml").read_text())
+    path = Path(directory) / f"jari_{layout}.yaml"
+    path.write_text(yaml.safe_dump({**raw, "name": f"jari_{layout}", "actuator_layout": layout, **sections}))
+    return path

@@ -152,7 +152,8 @@ class _FakeRollout(torch.nn.Module):
             self.register_buffer(name, torch.zeros(term.size, dtype=torch.float64))
         self.target, self.broken = target, broken
 
-    def forward(self, state: torch.Tensor, controls: torch.Tensor) -> tuple[torch.Tensor]:
+    def forward(self, state: torch.Tensor, controls: torch.Tensor, reference: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor]:
         bad = self.broken or bool(self.wave_ne.abs().sum() > 0)
         return (self.target * (math.nan if bad else 1.0),)
 
@@ -164,6 +165,26 @@ def test_a_hypothesis_whose_start_diverges_is_a_diverged_fit_but_a_diverging_cal
     assert fit_hypothesis(_FakeRollout(seg.target), seg, "current").loss == pytest.approx(0.0, abs=1e-12)
     with pytest.raises(DiagnosisError, match="not finite.*smaller --dt"):
         fit_hypothesis(_FakeRollout(seg.target, broken=True), seg, "current")
+
+
+def test_an_undefined_uncertainty_of_a_named_cause_is_written_as_null(monkeypatch) -> None:
+    """A parameter fitted at its bound has an infinite standard error (J^T J singular there): the diagnosis writes it as
+    null instead of refusing its own JSON (found on rudder_only bags before their engine speed was held per
+    manoeuvre: `resistance` +300 %, uncertainty inf, and `replay diagnose --json` stopped)."""
+    import json
+
+    from usv_predictor.analysis import diagnosis as dg
+    from usv_predictor.analysis.diagnosis_run import run_diagnosis
+    from usv_predictor.atomic import json_text
+
+    recordings = trial(runs=diagnosis_runs()[:2])
+    at_bound = dg.Fit("resistance", {"resistance_change": (3.0,)}, 1.0, {"resistance_change": (math.inf,)}, 1, 0.0)
+    named = dg.Diagnosis("resistance", {"resistance_change_pct": 300.0}, {"resistance_change_pct": math.inf}, (), (),
+                         at_bound, ((recordings[0].name,), (recordings[1].name,)), "resistance named")
+    monkeypatch.setattr(dg, "diagnose", lambda *args, **kwargs: named)
+    written = json.loads(json_text(run_diagnosis(recordings, VESSEL, "preset", dt=0.5, gain=False)))
+    assert written["cause"] == "resistance" and written["parameters"] == {"resistance_change_pct": 300.0}
+    assert written["uncertainty"] == {"resistance_change_pct": None}
 
 
 def test_a_diverged_hypothesis_is_written_as_null_and_reported() -> None:

@@ -368,3 +368,31 @@ def test_rudder_only_holds_the_engine_speed_of_its_initial_speed():
         g.engine_speed_rpm[:] = 700.0  # a known engine speed replaces the inferred one
     faster = g(torch.tensor([[u0, 0.0, 0.0, 0.0]], **T64), torch.zeros(1, 40, 1, **T64))[0, 0].numpy()
     assert faster[-1, 0] > u0 + 0.1
+
+
+def test_rudder_only_holds_the_engine_speed_of_its_reference_state():
+    """A prediction started inside a turn (slowed down at the same engine setting) holds the engine speed of the
+    manoeuvre's straight running when given it as the reference state; the reference's water speed is its surge less
+    the current term along its heading; without a reference the start state is the reference."""
+    vessel = VESSELS["jari_usv (mmg, rudder_only)"]
+    model, g = ManoeuvringModel(vessel), GreyBoxRollout(vessel, dt=0.5)
+    approach = model.straight_speed(650.0)  # (m/s)
+    in_turn = torch.tensor([[0.6 * approach, 0.4, 0.05, 1.0]], **T64)  # (1, 4) slower, drifting, turning
+    held = torch.full((1, 60, 1), math.radians(20.0), **T64)  # (1, H, 1) the turn's rudder
+    reference = torch.tensor([[approach, 0.0, 0.0, 0.2]], **T64)  # (1, 4) the approach
+    start_only = g(in_turn, held)[0, 0].numpy()
+    assert np.array_equal(start_only, g(in_turn, held, in_turn)[0, 0].numpy())  # None = the start state
+    with torch.no_grad():
+        g.engine_speed_rpm[:] = 650.0
+    known = g(in_turn, held)[0, 0].numpy()  # the engine speed the boat really runs at
+    with torch.no_grad():
+        g.engine_speed_rpm[:] = 0.0
+    approached = g(in_turn, held, reference)[0, 0].numpy()
+    assert np.allclose(approached, known, atol=1e-6)  # the approach's engine speed is the boat's (650 rpm)
+    assert start_only[-1, 0] < known[-1, 0] - 0.1  # the start state's engine speed runs slow in the turn
+    # a current along the approach heading: the engine holds the water speed, approach minus the current's share
+    with torch.no_grad():
+        g.current_ne[:] = torch.tensor([0.5 * math.cos(0.2), 0.5 * math.sin(0.2)], **T64)  # 0.5 m/s toward 0.2 rad
+    over_ground = torch.tensor([[approach + 0.5, 0.0, 0.0, 0.2]], **T64)
+    straight = g(over_ground, torch.zeros(1, 40, 1, **T64), over_ground)[0, 0].numpy()
+    assert np.allclose(straight[:, 0], approach + 0.5, atol=1e-6)  # it holds its ground speed: 650 rpm + the current

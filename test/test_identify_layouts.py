@@ -18,9 +18,10 @@ import math
 
 import numpy as np
 import pytest
+import torch
 import yaml
 
-from usv_predictor.data.recording import recording_from_signals
+from usv_predictor.data.recording import APPROACH_S, approach_state, recording_from_signals, straight_samples
 from usv_predictor.errors import ConfigError, NotIdentifiableError
 from usv_predictor.fitting import hybrid_fit
 from usv_predictor.fitting import identification as idf
@@ -253,6 +254,20 @@ def test_rudder_only_estimates_the_engine_speed_of_each_manoeuvre(tmp_path):
     assert np.sqrt(np.mean((pred[0, 0, :, 2] - rec.truth[1:, 5]) ** 2)) < 0.2 * np.abs(rec.truth[:, 5]).max()
     with pytest.raises(Exception, match=r"controls \(B, H, 1\)"):
         art.predict(rec.state()[:1], np.zeros((1, 5, 2)))
+    # it says how it holds its engine speed, and holds the one identify estimated for the manoeuvre when given the
+    # manoeuvre's approach as the reference state (what evaluate and diagnose pass): from a start deep in the turn
+    assert art.accepts_reference and art.metadata["engine_speed"]["held_rpm"] is None
+    assert art.metadata["engine_speed"]["approach_s"] == APPROACH_S
+    late = len(rec) // 2  # (sample) well inside the turn, the boat slowed down
+    approach = approach_state(rec.nu, rec.psi, rec.dt, straight_samples(rec.controls, rec.actuator_layout))[None, :]
+    with torch.no_grad():
+        art.module.engine_speed_rpm[:] = engines[runs[2].name]["engine_speed_rpm"]
+        known = art.predict(rec.state()[late:late + 1], rec.controls[None, late:])
+        art.module.engine_speed_rpm[:] = 0.0
+    held = art.predict(rec.state()[late:late + 1], rec.controls[None, late:], reference=approach)
+    assert np.allclose(held, known, atol=1e-3)  # (m/s, rad/s, m): the same engine speed (within 0.1 %)
+    start_only = art.predict(rec.state()[late:late + 1], rec.controls[None, late:])
+    assert start_only[0, 0, -1, 0] < held[0, 0, -1, 0] - 0.1  # the start's engine speed runs slow in the turn
 
 
 def test_the_cv_candidates_of_a_small_craft_are_its_own_structures(otter):

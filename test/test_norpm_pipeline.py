@@ -14,12 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
-from replay_helpers import assert_one_line, replay
+from replay_helpers import assert_one_line, replay, write_layout_variant
 
 from usv_predictor.data.dataset import load_dataset
 from usv_predictor.models.artifact import load_artifact
-from usv_predictor.physics.vessel import vessel_dir
 from usv_predictor.replay.simulate import SimulationRequest, simulate
 
 # forward_N (N) static thrust at full command, reverse_N (N) astern, exponent (-), dead_band (-), time constant (s)
@@ -35,11 +33,7 @@ LAYOUTS = {  # layout -> (extra vessel sections, replay simulate's propulsion op
 
 def write_vessel(directory: Path, layout: str) -> Path:
     """jari_usv with `layout` (and the sections it needs) as a vessel file named jari_<layout>."""
-    raw = yaml.safe_load((vessel_dir() / "jari_usv.yaml").read_text())
-    sections, _, _ = LAYOUTS[layout]
-    path = directory / f"jari_{layout}.yaml"
-    path.write_text(yaml.safe_dump({**raw, "name": f"jari_{layout}", "actuator_layout": layout, **sections}))
-    return path
+    return write_layout_variant(directory, layout, **LAYOUTS[layout][0])
 
 
 @pytest.fixture(scope="module", params=list(LAYOUTS))

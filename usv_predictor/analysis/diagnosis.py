@@ -69,7 +69,7 @@ HYPOTHESES: Mapping[str, tuple[Term, ...]] = fx.RegistryView(
 def residuals(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments) -> torch.Tensor:
     """Weighted residuals (B, H, 6) of the rollout against the measurements."""
     with torch.no_grad():
-        predicted = model(seg.state, seg.controls)[0]  # (B, H, 6)
+        predicted = model(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
     return (predicted - seg.target) * seg.weight
 
 
@@ -505,7 +505,7 @@ def discrepancy(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments,
     """
     set_terms(model, {})
     with torch.no_grad():
-        predicted = model(seg.state, seg.controls)[0].numpy()  # (B, H, 6)
+        predicted = model(seg.state, seg.controls, seg.reference)[0].numpy()  # (B, H, 6)
     target = seg.target.numpy()
     valid = seg.weight.numpy()[:, -1, 3] > 0
     horizon = target.shape[1] * recordings[0].dt

@@ -111,7 +111,9 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     progress(f"cause: {result.cause} {result.parameters} — {result.message}")
     calm = result.calm_water_fit
     out: dict[str, Any] = {
-        "cause": result.cause, "parameters": result.parameters, "uncertainty": result.uncertainty,
+        # a parameter at its bound has an undefined (infinite) standard error: null, like a diverged fit's figures
+        "cause": result.cause, "parameters": _undefined_as_null(result.parameters),
+        "uncertainty": _undefined_as_null(result.uncertainty),
         "confounded_with": list(result.confounded_with), "message": result.message, "notes": list(result.notes),
         "additional_causes": [_undefined_as_null(dataclasses.asdict(a)) for a in result.additional_causes],
         # a hypothesis whose fit diverged has a non-finite held-out loss and evidence: written as null (undefined)

@@ -5,6 +5,9 @@ A model is any object with
     predict(state (B, 4) [u, v, r, psi], controls (B, H, 2) [delta, rpm]) -> (E, B, H, 6)
         = [u, v, r, x_n, y_e, psi] at dt .. H dt after the start, positions relative to the start (NED),
         psi continuous; controls[:, k] act from step k to k + 1; E ensemble members.
+A model with `accepts_reference` (the grey boxes) also takes predict(..., reference=(B, 4)): for a layout that
+reports no propulsion (rudder_only) every rollout of a recording gets the recording's approach state
+(data.recording.approach_state), whose engine speed the boat holds all manoeuvre long.
 
 Closed loop (seed 000 Fig. 3): the model starts from the recording's first state and is rolled out over the
 whole recording with the recorded controls and no measurement feedback; its integrated positions (seed 000
@@ -34,7 +37,7 @@ import numpy as np
 
 from usv_predictor.analysis import metrics
 from usv_predictor.atomic import finite_or_none
-from usv_predictor.data.recording import Recording
+from usv_predictor.data.recording import Recording, approach_state, straight_samples
 from usv_predictor.errors import EvaluationError, ModelError
 from usv_predictor.frames import angle_difference_deg
 from usv_predictor.models import loading
@@ -227,15 +230,33 @@ class EvaluationResult:
 # --------------------------------------------------------------------------------------------
 # Model plumbing
 # --------------------------------------------------------------------------------------------
-def rollout(model: Predictor, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-    """model.predict with its shapes checked: (B, 4), (B, H, 2) -> (E, B, H, 6)."""
+def rollout(model: Predictor, state: np.ndarray, controls: np.ndarray, reference: np.ndarray | None = None
+            ) -> np.ndarray:
+    """model.predict with its shapes checked: (B, 4), (B, H, 2) -> (E, B, H, 6). reference (4,): the approach
+    state of the recording (held_reference), given to a model that accepts one."""
     state = np.asarray(state, dtype=float)
     controls = np.asarray(controls, dtype=float)
-    out = np.asarray(model.predict(state, controls), dtype=float)
+    if reference is not None and getattr(model, "accepts_reference", False):
+        references = np.repeat(np.asarray(reference, dtype=float)[None, :], state.shape[0], axis=0)  # (B, 4)
+        out = np.asarray(model.predict(state, controls, reference=references), dtype=float)
+    else:
+        out = np.asarray(model.predict(state, controls), dtype=float)
     expected = (state.shape[0], controls.shape[1], 6)
     if out.ndim != 4 or out.shape[1:] != expected:
         raise ModelError(f"model.predict returned shape {out.shape}, expected (E, {expected[0]}, {expected[1]}, 6)")
     return out
+
+
+def held_reference(recording: Recording, series: np.ndarray) -> np.ndarray | None:
+    """(4,) the approach state [u, v, r, psi] of the recording's reference `series` (T, 6) for a layout that reports
+    no propulsion (rudder_only: the straight running whose engine speed its grey box holds); None for the others
+    (and when the approach has no finite sample)."""
+    layout = actuator_layout(recording.layout)
+    if layout.propulsion:
+        return None
+    approach = approach_state(series[:, [U, V, R]], series[:, PSI], recording.dt,
+                              straight_samples(recording.controls, layout))
+    return approach if np.all(np.isfinite(approach)) else None
 
 
 def reference_series(recording: Recording, reference: str) -> np.ndarray:
@@ -262,6 +283,7 @@ def closed_loop(model: Predictor, recording: Recording, reference: str = "gnss")
     """
     check_dt(model, recording.dt, f"recording {recording.name}")
     measured = reference_series(recording, reference)
+    held = held_reference(recording, measured)
     finite = np.flatnonzero(np.isfinite(measured[:, X_N]) & np.isfinite(measured[:, Y_E]))
     if len(finite) == 0:
         raise EvaluationError(f"{recording.source or recording.name}: no position fix ({reference}); "
@@ -272,7 +294,7 @@ def closed_loop(model: Predictor, recording: Recording, reference: str = "gnss")
         raise EvaluationError(f"{recording.name}: fewer than 2 samples after the first position fix")
     controls = recording.controls[first:]
     start = measured[0, [U, V, R, PSI]]
-    out = rollout(model, start[None, :], controls[None, :-1])[:, 0]  # (E, T - 1, 6)
+    out = rollout(model, start[None, :], controls[None, :-1], held)[:, 0]  # (E, T - 1, 6)
     out[..., X_N] += measured[0, X_N]
     out[..., Y_E] += measured[0, Y_E]
     mean = np.vstack([measured[:1], out.mean(axis=0)])
@@ -302,7 +324,8 @@ def open_loop(model: Predictor, recording: Recording, reference: str = "gnss",
     if len(starts) == 0:
         return None
     window = starts[:, None] + np.arange(steps)[None, :]  # (B, H) control indices
-    out = rollout(model, measured[starts][:, [U, V, R, PSI]], recording.controls[window])
+    out = rollout(model, measured[starts][:, [U, V, R, PSI]], recording.controls[window],
+                  held_reference(recording, measured))
     predicted_xy = out.mean(axis=0)[..., [X_N, Y_E]] + measured[starts][:, None, [X_N, Y_E]]  # (B, H, 2)
     measured_xy = measured[window + 1][..., [X_N, Y_E]]
     errors = np.hypot(*(predicted_xy - measured_xy).transpose(2, 0, 1))  # (B, H)

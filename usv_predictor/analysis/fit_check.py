@@ -31,7 +31,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from usv_predictor.analysis.evaluation import Predictor, rollout
+from usv_predictor.analysis.evaluation import Predictor, held_reference, rollout
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import FitCheckError
 from usv_predictor.physics.actuators import ActuatorLayout, actuator_layout
@@ -169,6 +169,8 @@ def steady_windows(predictor: Predictor, recordings: Sequence[Recording], layout
     steady_n = max(int(round(STEADY_S / dt)), 2)
     windows = []
     for rec in recordings:
+        # rudder_only: the engine speed of the manoeuvre's approach, held in every rollout (evaluation.held_reference)
+        held_state = held_reference(rec, np.column_stack([rec.nu, rec.position, rec.psi]))
         for first, end in held_windows(rec, layout):
             last = rec.nu[max(first, end - steady_n):end]  # (n, 3)
             if not (_settled(last[:, 0], SETTLED_SPEED, SETTLED_SPEED_ABS)
@@ -177,15 +179,16 @@ def steady_windows(predictor: Predictor, recordings: Sequence[Recording], layout
             held = rec.controls[first:end].mean(axis=0)  # (C,)
             steering = float(layout.steering_signal(held))
             straight = abs(steering) < layout.straight_below
-            # a rudder_only model holds the engine speed of the speed it starts from: it starts where the commands
-            # were first held (the approach speed), as in a turn
+            # a rudder_only model that takes no reference state holds the engine speed of the speed it starts from:
+            # it starts where the commands were first held, as in a turn
             k = max(first, end - steady_n) if straight and layout.propulsion else first
             state = np.array([[*rec.nu[k], rec.psi[k]]])  # (1, 4)
             if straight:
                 controls = np.repeat(held[None, None, :], max(settle_n, end - k), axis=1)  # (1, H, C)
             else:
                 controls = rec.controls[None, k:end]  # (1, H, C) the recorded commands
-            predicted = rollout(predictor, state, controls).mean(axis=0)[0, -min(steady_n, controls.shape[1]):]
+            predicted = rollout(predictor, state, controls, held_state).mean(axis=0)  # (B, H, 6)
+            predicted = predicted[0, -min(steady_n, controls.shape[1]):]
             measured = last.mean(axis=0)  # (3,)
             windows.append(SteadyWindow(
                 rec.name, "straight" if straight else "turn", float(rec.t_s[first]), float(rec.t_s[end - 1]),

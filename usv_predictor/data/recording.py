@@ -29,6 +29,33 @@ NS = NS_PER_S  # the name tests import from here
 MOTION_ROLES = ("imu", "velocity", "heading")  # the state [u, v, r, psi]; the controls' roles come from the layout
 
 
+APPROACH_S = 5.0  # (s) the shortest approach of a manoeuvre: the straight running its engine setting holds
+
+
+def approach_state(nu: np.ndarray, psi: np.ndarray, dt: float, straight: np.ndarray | None = None) -> np.ndarray:
+    """(4,) [u, v, r, psi] of a manoeuvre's approach from its (T, 3) nu and (T,) psi at step dt (s): the medians (the
+    heading as a circular mean, NaN samples left out) over its straight running before the first turn command (the
+    leading run of `straight`, (T,) bool; straight_samples), at least the first APPROACH_S (a recording that starts in
+    a turn: its first APPROACH_S). A rudder_only boat's engine speed is the one that holds this state's speed in
+    straight running (models/greybox.py `reference`; identification's equivalent engine speed of the manoeuvre); the
+    whole approach, not only its first seconds, averages out the first-order wave motion of the measured speed."""
+    n = max(2, int(round(APPROACH_S / dt)))
+    if straight is not None and len(straight):
+        leading = int(np.argmin(straight)) if not np.all(straight) else len(straight)
+        n = max(n, leading)
+    rows = np.column_stack([nu[:n], psi[:n]])  # (n, 4)
+    rows = rows[np.all(np.isfinite(rows), axis=1)]
+    if not len(rows):
+        return np.full(4, np.nan)
+    heading = float(np.arctan2(np.sin(rows[:, 3]).mean(), np.cos(rows[:, 3]).mean()))
+    return np.array([*np.median(rows[:, :3], axis=0), heading])
+
+
+def straight_samples(controls: np.ndarray, layout: ActuatorLayout) -> np.ndarray:
+    """(T,) bool: the samples whose turn command is below the layout's straight_below (straight running)."""
+    return np.abs(layout.steering_signal(controls)) < layout.straight_below
+
+
 def required_roles(layout: ActuatorLayout = DEFAULT_LAYOUT) -> tuple[str, ...]:
     """The input roles a Recording (and the node's state) needs: the motion, then the layout's controls."""
     return MOTION_ROLES + layout.roles

@@ -35,7 +35,7 @@ from usv_predictor.errors import DiagnosisError, ModelError
 from usv_predictor.fitting.identification import ForceData, IdentificationResult
 from usv_predictor.fitting.training import reproducible
 from usv_predictor.models.artifact import OUTPUT_LAYOUT, UNITS, ModelArtifact, export_module
-from usv_predictor.models.greybox import actuator_sections_metadata, hull_coefficients
+from usv_predictor.models.greybox import actuator_sections_metadata, engine_speed_metadata, hull_coefficients
 from usv_predictor.models.hybrid import (GENERALISING_FEATURES, GeneralisingResidual, PolynomialResidual,
                                          ResidualGreyBox, SumResidual, ZeroResidual)
 
@@ -133,7 +133,7 @@ def _split_segments(recordings: Sequence[Recording], config: HybridTraining) -> 
 def _segment_losses(module: ResidualGreyBox, seg: Segments, weights: torch.Tensor | None = None) -> torch.Tensor:
     """(E,) each member's mean squared weighted residual (noise units, data/segments.SIGMA) of its rollouts over the
     segments: velocities, track and heading; `weights` (E, N) resample the segments per member."""
-    predicted = module(seg.state, seg.controls)  # (E, N, H, 6)
+    predicted = module(seg.state, seg.controls, seg.reference)  # (E, N, H, 6)
     r = (predicted - seg.target) * seg.weight  # (E, N, H, 6)
     per_segment = (r * r).sum(dim=(2, 3)) / torch.count_nonzero(seg.weight, dim=(1, 2)).clamp(min=1)  # (E, N)
     if weights is None:
@@ -238,6 +238,8 @@ def export_identified(path: str, module: ResidualGreyBox, result: Identification
         "identification": identification,
         "units": UNITS,
         "dtype": "float64",
+        **engine_speed_metadata(vessel, module),  # rudder_only: how the engine speed is held (identification's
+        #                                           per-manoeuvre estimates: identification.actuators)
         **dict(extra or {}),
     }
     return export_module(path, module, metadata)

@@ -40,7 +40,7 @@ Actuator layouts (physics/actuators.py), each through the actuator levels the fo
                       by a profile over the gain (the propeller thrust is not linear in it: n = sqrt(T0 / rho D^4 k0)),
                       the hull by the regression at each gain; its 95 % CI from the profile (likelihood ratio).
     rudder_only       no propulsion data: the equivalent engine speed of each manoeuvre is the one that holds its
-                      approach speed (the first APPROACH_S) in straight running with the vessel file's resistance
+                      approach speed (data.recording.approach_state) in straight running with the vessel file's resistance
                       (dynamics.RudderPropellerForces.engine_speed_for), held over the manoeuvre. R0 is then fixed to
                       the vessel file's: it defines that engine speed, the data cannot tell it apart from the thrust.
                       Supports heading and track at a constant engine setting, not speed changes.
@@ -57,7 +57,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from usv_predictor.atomic import finite_or_none
-from usv_predictor.data.recording import Recording
+from usv_predictor.data.recording import APPROACH_S, Recording, approach_state, straight_samples
 from usv_predictor.data.smoother import Smoothed, SmootherConfig, smooth_recording
 from usv_predictor.errors import ConfigError, DatasetError, NotIdentifiableError
 from usv_predictor.models.greybox import HULL_NAMES
@@ -78,7 +78,6 @@ SPEED_RATIO_RANGE = (0.6, 1.6)  # measured / preset straight-running speed accep
 RIDGE_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # penalty weights (relative to the data term) tried by CV
 Z95 = 1.959964
 CHI2_95 = 3.841459  # 95 % quantile of chi-square with 1 degree of freedom (profile-likelihood intervals)
-APPROACH_S = 5.0  # (s) the start of a manoeuvre whose median speed is its approach speed (rudder_only)
 PROFILE_SPAN = 4.0  # a profiled gain is searched within [prior / span, prior * span]
 PROFILE_POINTS = 17  # coarse grid of the profile (log-spaced), refined by golden section
 
@@ -172,9 +171,12 @@ def lagged_command(command: np.ndarray, time_constant_s: float, dt: float) -> np
 
 
 def approach_speed(recording: Recording) -> float:
-    """Median speed (m/s) over the first APPROACH_S of a recording: the speed its engine setting holds."""
-    start = slice(0, max(2, int(round(APPROACH_S / recording.dt))))
-    return float(np.median(np.hypot(recording.nu[start, 0], recording.nu[start, 1])))
+    """Speed (m/s) of a recording's approach (data.recording.approach_state: its straight running before the first
+    turn command, at least the first APPROACH_S): the speed its engine setting holds, the one evaluate and diagnose
+    hold in every prediction of the manoeuvre (models/greybox.py `reference`)."""
+    u, v, _, _ = approach_state(recording.nu, recording.psi, recording.dt,
+                                straight_samples(recording.controls, recording.actuator_layout))
+    return float(math.hypot(u, v))
 
 
 def actuator_levels(vessel: Vessel, recording: Recording) -> tuple[np.ndarray, dict[str, float]]:

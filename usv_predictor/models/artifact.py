@@ -73,11 +73,28 @@ class ModelArtifact:
     def ensemble_size(self) -> int:
         return int(self.metadata["ensemble_size"])
 
-    def predict(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+    @property
+    def accepts_reference(self) -> bool:
+        """Whether the module's forward takes a third argument, the reference state of a rudder_only grey box
+        (models/greybox.py); learned models and grey boxes exported before it do not."""
+        try:
+            names = [argument.name for argument in self.module.forward.schema.arguments]  # self, state, controls, ...
+        except AttributeError:
+            return False
+        return names[3:4] == ["reference"]
+
+    def predict(self, state: np.ndarray, controls: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
         """(E, B, H, 6) [u, v, r, x_n, y_e, psi] from state (B, 4) and controls (B, H, C), C the columns of the
-        model's control_layout (2 for rudder and engine speed, 1 for rudder_only), float64 numpy."""
+        model's control_layout (2 for rudder and engine speed, 1 for rudder_only), float64 numpy; reference (B, 4):
+        the state whose straight running sets a rudder_only grey box's engine speed (given only where
+        accepts_reference; None: the start state)."""
         state = np.asarray(state, dtype=np.float64)
         controls = np.asarray(controls, dtype=np.float64)
+        if reference is not None:
+            reference = np.asarray(reference, dtype=np.float64)
+            if reference.shape != state.shape or not self.accepts_reference:
+                raise ModelError(f"model {self.path}: a reference state must be (B, 4) like the state and the model "
+                                 f"must accept one (a grey box), got {reference.shape}")
         width = len(self.metadata.get("control_layout") or (0, 0))
         if state.ndim != 2 or state.shape[1] != 4 or controls.ndim != 3 or controls.shape[2] != width \
                 or controls.shape[0] != state.shape[0]:
@@ -85,7 +102,10 @@ class ModelArtifact:
                              f"got {state.shape} and {controls.shape}")
         try:
             with torch.inference_mode():
-                out = self.module(torch.from_numpy(state), torch.from_numpy(controls))
+                if reference is None:
+                    out = self.module(torch.from_numpy(state), torch.from_numpy(controls))
+                else:
+                    out = self.module(torch.from_numpy(state), torch.from_numpy(controls), torch.from_numpy(reference))
             return out.double().numpy()
         except MODEL_RUN_ERRORS as err:
             raise ModelError(f"model {self.path} fails when run: {failure_reason(err)}") from err

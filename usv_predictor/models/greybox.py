@@ -10,7 +10,9 @@ layout's force model (ACTUATOR_MODULES), one registry line each.
 
 Interface (the model artifact's, see usv_predictor/models/artifact.py):
     forward(state (B, 4) [u, v, r, psi] as MEASURED, controls (B, H, C) as REPORTED, the columns of the vessel's
-            actuator layout: [delta rad, rpm], [delta, throttle], [delta], [port, starboard] ...)
+            actuator layout: [delta rad, rpm], [delta, throttle], [delta], [port, starboard] ...,
+            reference (B, 4) | None [u, v, r, psi] as MEASURED in the straight running whose engine setting the
+            prediction holds: rudder_only only, the others ignore it; None = the start state)
       -> (1, B, H, 6) [u, v, r, x_n, y_e, psi] as they will be MEASURED at dt, 2 dt, ... H dt,
          positions relative to the start (NED, m), psi continuous.
 controls[:, k] is the reported control at step k; between samples the controls move linearly (first-order
@@ -20,8 +22,14 @@ an engine speed) is the actuator's level; one that reports a command (a throttle
 first-order motor lag of the thrust map's time constant, solved exactly for the linear command of each substep
 (y(t) = c(t) - T c' + (y0 - c0 + T c') exp(-t/T); no stiffness, any T >= 0), starting at the first reported
 command (steady running). rudder_only has no propulsion control: its engine speed is `engine_speed_rpm`, or, when
-that is 0, the speed that holds the initial water speed in straight running (the closed-form inverse of
-straight_speed, dynamics.RudderPropellerForces.engine_speed_for), held over the horizon.
+that is 0, the speed that holds the water speed of the `reference` state in straight running (the closed-form
+inverse of straight_speed, dynamics.RudderPropellerForces.engine_speed_for), held over the horizon. The reference is
+the straight running of the manoeuvre (replay: its approach, data.recording.approach_state: a boat slows down in a
+turn at the same engine setting, so the engine speed of a start inside a turn would run slow); without one, the start
+state. Its water speed is its surge less the current term along its heading (the engine holds a speed through the
+water; the current's share of the measured speed over ground is the current's), and the thrust balances the hull's
+resistance less the surge force of the wind and wave terms at the reference's heading (a head sea slows the approach
+at the same engine setting: the engine speed is not the calm-water one of that slower speed).
 
 Extension terms (all zero for the calm-water model; one attribute per Term of the effect records in
 usv_predictor.physics.effects, which say which diagnosis hypothesis fits them; their equations are here):
@@ -39,11 +47,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, fields, replace
-from typing import Any, Dict, List, Mapping, Tuple
+from typing import Any, Dict, List, Mapping, Optional, Tuple
 
 import torch
 from torch import Tensor, nn
 
+from usv_predictor.data.recording import APPROACH_S
 from usv_predictor.physics import dynamics, effects
 from usv_predictor.physics.dynamics import SPEED_FLOOR, SeaConstants, constants_of
 from usv_predictor.physics.vessel import RHO_WATER, Hull, Thrusters, ThrustMap, Vessel
@@ -213,7 +222,8 @@ class RudderPropellerModule(nn.Module):
         self.L = vessel.geometry.L_pp
 
     def begin(self, u_r0: Tensor, controls: Tensor, resistance: List[Tensor], engine_speed_rpm: Tensor) -> Tensor:
-        """(B, K) what the layout carries over the rollout (nothing here)."""
+        """(B, K) what the layout carries over the rollout (nothing here). resistance: [r1, r2, X_sea] of the straight
+        running at u_r0 (rudder_only's engine speed; hull resistance r1 u + r2 u^2, the sea's surge force N)."""
         return torch.zeros_like(controls[:, 0, :1])
 
     def stage(self, u0: Tensor, u1: Tensor, u2: Tensor, carry: Tensor, rudder_offset: Tensor) -> List[Tensor]:
@@ -276,8 +286,10 @@ class RudderThrottleModule(RudderPropellerModule):
 
 
 class RudderOnlyModule(RudderPropellerModule):
-    """rudder_only: controls [delta]; the engine speed is engine_speed_rpm, or (0) the one that holds the initial
-    water speed in straight running (dynamics.RudderPropellerForces.engine_speed_for), held over the horizon."""
+    """rudder_only: controls [delta]; the engine speed is engine_speed_rpm, or (0) the one that holds the water speed
+    u_r0 of the reference state (the start state without one) in straight running against the hull's resistance and
+    the sea terms' surge force there (dynamics.RudderPropellerForces.engine_speed_for in calm water), held over the
+    horizon."""
 
     def begin(self, u_r0: Tensor, controls: Tensor, resistance: List[Tensor], engine_speed_rpm: Tensor) -> Tensor:
         speed = torch.clamp(u_r0, min=0.0)
@@ -285,7 +297,9 @@ class RudderOnlyModule(RudderPropellerModule):
         scale = (1.0 - self.t_P) * self.rho
         qa = scale * self.k0 * self.D_P ** 4
         qb = scale * self.k1 * self.D_P ** 3 * u_p
-        qc = scale * self.k2 * self.D_P ** 2 * u_p * u_p - (resistance[0] * speed + resistance[1] * speed * speed)
+        # thrust = resistance - the sea's surge force (resistance[2], N; wind and waves of the rollout's terms)
+        qc = scale * self.k2 * self.D_P ** 2 * u_p * u_p - (resistance[0] * speed + resistance[1] * speed * speed
+                                                            - resistance[2])
         n = (-qb + torch.sqrt(torch.clamp(qb * qb - 4.0 * qa * qc, min=0.0))) / (2.0 * qa)
         rpm = torch.clamp(n, min=0.0) * 60.0 * self.gear_ratio
         rpm = torch.where(engine_speed_rpm[0] > 0.0, torch.ones_like(rpm) * engine_speed_rpm[0], rpm)
@@ -351,7 +365,7 @@ class GreyBoxRollout(nn.Module):
         names, values = hull_coefficients(vessel)
         self.hull_names = names  # the identifiable hull coefficients (a tensor: identification and diagnosis set it)
         self.hull = nn.Parameter(torch.tensor(values, dtype=torch.float64), requires_grad=False)
-        # rudder_only: the engine speed held over a prediction (rpm); 0 = from the initial water speed
+        # rudder_only: the engine speed held over a prediction (rpm); 0 = from the water speed of the reference state
         self.engine_speed_rpm = nn.Parameter(torch.zeros(1, dtype=torch.float64), requires_grad=False)
         # the extension terms of the effect records, all zero: current_ne, wind_ne, wave_ne, rudder_offset, ...
         terms = effects.grey_box_terms()
@@ -375,9 +389,18 @@ class GreyBoxRollout(nn.Module):
     def _accelerations(self, psi: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor, a: Tensor, b: Tensor) -> List[Tensor]:
         """[u_r_dot, v_r_dot, r_dot] for (B,) tensors at the actuator levels a, b (delta rad and rpm for
         rudder_propeller; dynamics.ManoeuvringModel.accelerations)."""
-        L = self.L
         hull = self.hull_forces.forces(self.hull, u_r, v_r, r, self.resistance_change)
         act = self.actuator_forces.forces(u_r, v_r, r, a, b, self.propeller_side_force, self.thrust_imbalance)
+        sea = self._sea_loads(psi, u_r, v_r)
+        x = hull[0] + act[0] + act[3] + sea[0]
+        y = hull[1] + act[1] + act[4] + sea[1]
+        n = hull[2] + act[2] + act[5] + sea[2]
+        return self.hull_forces.solve(self.hull, x, y, n, u_r, v_r, r)
+
+    def _sea_loads(self, psi: Tensor, u_r: Tensor, v_r: Tensor) -> List[Tensor]:
+        """[X, Y, N] of the sea terms on (B,) heading psi and water velocity u_r, v_r: the wind over the still-air
+        drag (seed 000 eq. 12-18) and the mean wave drift (eq. 19)."""
+        L = self.L
         # sea: apparent wind over ground, mean wave drift
         c, s = torch.cos(psi), torch.sin(psi)
         u_g = u_r + self.current_ne[0] * c + self.current_ne[1] * s
@@ -392,10 +415,7 @@ class GreyBoxRollout(nn.Module):
         x_wv = qw * self._fourier(self.drift_x, chi)
         y_wv = qw * self._fourier(self.drift_y, chi)
         n_wv = qw * L * self._fourier(self.drift_n, chi)
-        x = hull[0] + act[0] + act[3] + x_w + x_wv
-        y = hull[1] + act[1] + act[4] + y_w + y_wv
-        n = hull[2] + act[2] + act[5] + n_w + n_wv
-        return self.hull_forces.solve(self.hull, x, y, n, u_r, v_r, r)
+        return [x_w + x_wv, y_w + y_wv, n_w + n_wv]
 
     def _derivative(self, s: List[Tensor], a: Tensor, b: Tensor) -> List[Tensor]:
         """d/dt of [x_n, y_e, psi, u_r, v_r, r]; positions move with the current (over ground)."""
@@ -423,10 +443,10 @@ class GreyBoxRollout(nn.Module):
         hi = torch.clamp(lo + 1, max=steps - 1)
         return controls[:, lo] * (1.0 - frac)[None, :, None] + controls[:, hi] * frac[None, :, None]
 
-    def forward(self, state: Tensor, controls: Tensor) -> Tensor:
-        return self._rollout(state, controls).unsqueeze(0)  # (1, B, H, 6)
+    def forward(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
+        return self._rollout(state, controls, reference).unsqueeze(0)  # (1, B, H, 6)
 
-    def _rollout(self, state: Tensor, controls: Tensor) -> Tensor:
+    def _rollout(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
         """(B, H, 6) [u, v, r, x_n, y_e, psi] as measured (the module docstring's interface without the ensemble axis)."""
         state = state.to(torch.float64)  # (B, 4) measured u, v, r, psi
         controls = controls.to(torch.float64)  # (B, H, C) reported controls of the actuator layout
@@ -441,7 +461,16 @@ class GreyBoxRollout(nn.Module):
                            state[:, 0] - (self.current_ne[0] * c + self.current_ne[1] * s),
                            state[:, 1] - (-self.current_ne[0] * s + self.current_ne[1] * c),
                            state[:, 2] - self.yaw_rate_bias[0]]
-        carry = self.actuator_forces.begin(x[3], controls, self.hull_forces.resistance(self.hull, self.resistance_change),
+        held = x[3]  # (B,) the water speed whose straight running sets rudder_only's engine speed: the start's ...
+        psi_held = psi0
+        if reference is not None:  # ... or the reference state's (module docstring)
+            ref = reference.to(torch.float64)  # (B, 4) measured u, v, r, psi
+            psi_held = ref[:, 3] - self.heading_offset[0]
+            held = ref[:, 0] - (self.current_ne[0] * torch.cos(psi_held) + self.current_ne[1] * torch.sin(psi_held))
+        resistance = self.hull_forces.resistance(self.hull, self.resistance_change)
+        # the sea's surge force in that straight running (wind, waves): the engine holds the speed against it too
+        sea_x = self._sea_loads(psi_held, held, torch.zeros_like(held))[0]  # (B,) N
+        carry = self.actuator_forces.begin(held, controls, [resistance[0], resistance[1], sea_x],
                                            self.engine_speed_rpm)  # (B, K)
         h = self.dt / self.substeps
         outputs: List[Tensor] = []
@@ -480,10 +509,32 @@ class GreyBoxPredictor:
         self.rollout = rollout
         self.metadata = dict(metadata)
 
-    def predict(self, state, controls):  # (B, 4), (B, H, C) -> (1, B, H, 6)
+    accepts_reference = True  # predict takes the reference state of rudder_only's engine speed (module docstring)
+
+    def predict(self, state, controls, reference=None):  # (B, 4), (B, H, C), (B, 4) | None -> (1, B, H, 6)
         with torch.no_grad():
             return self.rollout(torch.as_tensor(state, dtype=torch.float64),
-                                torch.as_tensor(controls, dtype=torch.float64)).numpy()
+                                torch.as_tensor(controls, dtype=torch.float64),
+                                None if reference is None else torch.as_tensor(reference, dtype=torch.float64)).numpy()
+
+
+def engine_speed_metadata(vessel: Vessel, rollout: GreyBoxRollout) -> Dict[str, object]:
+    """{"engine_speed": how the artifact holds its engine speed} for a layout that reports no propulsion
+    (rudder_only), {} for the others: what a user of the file (the node, another tool) must pass to get replay's
+    predictions (module docstring)."""
+    if vessel.actuator_layout.propulsion:
+        return {}
+    fixed = float(rollout.engine_speed_rpm.detach()[0])
+    return {"engine_speed": {
+        "held_rpm": fixed if fixed > 0.0 else None,
+        "rule": "held over a prediction: held_rpm when set, else the engine speed that holds the water speed of the "
+                "reference state in straight running against the calm-water resistance less the surge force of the "
+                "model's wind and wave terms at the reference heading",
+        "reference": "forward's third argument (B, 4) [u, v, r, psi] as measured; replay evaluate, diagnose and the "
+                     "fit check pass the manoeuvre's approach (medians over its straight running before the first "
+                     "turn command, at least approach_s); without it (the predictor node, which knows no manoeuvre "
+                     "boundaries) the start state",
+        "approach_s": APPROACH_S}}
 
 
 def greybox_metadata(vessel: Vessel, rollout: GreyBoxRollout, *, model_type: str = "greybox",
@@ -502,7 +553,7 @@ def greybox_metadata(vessel: Vessel, rollout: GreyBoxRollout, *, model_type: str
         "ensemble_size": 1,
         "architecture": {"structure": vessel.hull_model.structure, "substeps": rollout.substeps,
                          "hull": dict(zip(rollout.hull_names, rollout.hull.detach().tolist())), "terms": rollout.terms()},
-        "training": dict(training or {}), "units": dict(UNITS),
+        "training": dict(training or {}), "units": dict(UNITS), **engine_speed_metadata(vessel, rollout),
     }
 
 

@@ -17,7 +17,7 @@ of twins). g is one of
                           its training range), so where data is thin the physics alone predicts;
     SumResidual           two of them added (the Abkowitz terms of an identification + the learned residual).
 ResidualGreyBox keeps GreyBoxRollout's forward interface (the model artifact's):
-    forward(state (B, 4) [u, v, r, psi], controls (B, H, C)) -> (E, B, H, 6)
+    forward(state (B, 4) [u, v, r, psi], controls (B, H, C), reference (B, 4) | None) -> (E, B, H, 6)
 E = `members`: an ensemble residual runs as ONE rollout of E x B rows (member e owns rows e B .. e B + B - 1), so the
 ensemble costs one grey-box rollout with a wider batch. It is exported through
 usv_predictor.models.artifact.export_module with model_type "greybox" (polynomial residual) or "hybrid" (learned
@@ -26,7 +26,7 @@ residual); building and training them: usv_predictor.fitting.hybrid_fit.
 from __future__ import annotations
 
 import math
-from typing import List, Mapping
+from typing import List, Mapping, Optional
 
 import torch
 from torch import Tensor, nn
@@ -161,11 +161,13 @@ class ResidualGreyBox(GreyBoxRollout):
         extra = self.residual(psi, u_r, v_r, r, delta, rpm)  # (B, 3)
         return [acc[0] + extra[:, 0], acc[1] + extra[:, 1], acc[2] + extra[:, 2]]
 
-    def forward(self, state: Tensor, controls: Tensor) -> Tensor:
+    def forward(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
         rows = state.shape[0]
         if self.members == 1:
-            return self._rollout(state, controls).unsqueeze(0)  # (1, B, H, 6)
-        out = self._rollout(state.repeat(self.members, 1), controls.repeat(self.members, 1, 1))  # (E B, H, 6)
+            return self._rollout(state, controls, reference).unsqueeze(0)  # (1, B, H, 6)
+        if reference is not None:
+            reference = reference.repeat(self.members, 1)  # (E B, 4)
+        out = self._rollout(state.repeat(self.members, 1), controls.repeat(self.members, 1, 1), reference)  # (E B, H, 6)
         return out.reshape(self.members, rows, out.shape[1], out.shape[2])  # (E, B, H, 6)
 
     def accelerations(self, nu: Tensor, controls: Tensor) -> Tensor:
