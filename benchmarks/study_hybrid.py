@@ -83,20 +83,27 @@ def rows_of(grey: Any, hybrid: Any, members: int, recordings: list) -> dict[str,
     return out
 
 
-def table(title: str, summaries: dict[str, dict]) -> str:
+def table(title: str, protocol: dict[str, Any]) -> str:
+    """Per model: each criterion's max |error| over the turns, per seed (mean +- sd and the worst seed), and the mean
+    open-loop 30 s track error over the turns and seeds."""
     lines = [f"### {title}", "", "| model | radius (%) | drift angle (deg) | drift distance (%) | steady radius (%) | "
-             "meets 2 % / 2 deg / 5 % (seeds) |", "|---|---|---|---|---|---|"]
-    for name, s in summaries.items():
+             "open loop 30 s (m) | meets 2 % / 2 deg / 5 % (seeds) |", "|---|---|---|---|---|---|---|"]
+    for name, s in protocol["summary"].items():
         cells = []
         for key in ("radius_pct", "angle_deg", "distance_pct", "steady_radius_pct"):
-            per_seed = [p[key] for p in s["per_seed_max_abs"]]
-            finite = [v for v in per_seed if v is not None]
+            finite = [p[key] for p in s["per_seed_max_abs"] if p[key] is not None]
             if len(finite) > 1:
                 cells.append(f"{np.mean(finite):.2f} +- {np.std(finite):.2f} (worst {max(finite):.2f})")
             else:
                 cells.append(f"{finite[0]:.2f}" if finite else "-")
+        loop = [row["open_loop_30s_m"] for seeds in protocol["rows"][name].values() for row in seeds
+                if row["open_loop_30s_m"] is not None]
+        cells.append(f"{np.mean(loop):.2f}" if loop else "-")
         lines.append(f"| {name} | " + " | ".join(cells) + f" | {sum(s['meets_target'])} of {len(s['meets_target'])} |")
     return "\n".join(lines)
+
+
+TITLES = {"paper": "paper protocol (every turn in the training data)", "held_out": "held-out protocol (leave one turn out)"}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -105,7 +112,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--members", type=int, default=5, help="hybrid members = seeds (default 5)")
     parser.add_argument("--epochs", type=int, default=150, help="hybrid epochs at most (early stopping)")
     parser.add_argument("--protocols", nargs="+", default=["paper", "held_out"], choices=["paper", "held_out"])
+    parser.add_argument("--turns", nargs="+", default=list(TESTS), choices=list(TESTS),
+                        help="held-out protocol: the turns left out in turn (default all six)")
+    parser.add_argument("--tables", type=Path, help="only print the tables of an earlier run's study.json")
     args = parser.parse_args(argv)
+    if args.tables is not None:
+        done = json.loads(args.tables.read_text())
+        print("\n\n".join(table(TITLES[k], v) for k, v in done["protocols"].items()))
+        return 0
     torch.set_num_threads(1)
     started = time.perf_counter()
     from usv_predictor.replay.identify import identification_recordings
@@ -123,11 +137,12 @@ def main(argv: list[str] | None = None) -> int:
         per_model = {m: {t: rows[m][i] for i, t in enumerate(tests)} for m in rows}
         study["protocols"]["paper"] = {"info": info, "rows": per_model,
                                        "summary": {m: summarise(r) for m, r in per_model.items()}}
-        text.append(table("paper protocol (every turn in the training data)", study["protocols"]["paper"]["summary"]))
+        text.append(table(TITLES["paper"], study["protocols"]["paper"]))
     if "held_out" in args.protocols:
         per_model = {}
         infos = {}
-        for t, rec in tests.items():
+        for t in args.turns:
+            rec = tests[t]
             log(f"held-out protocol: turn ({t}) {rec.name} left out")
             others = [r for k, r in tests.items() if k != t]
             grey, hybrid, info = fit(training + others, args.members, args.epochs)
@@ -139,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
                 + ", ".join(f"{r['errors']['radius_pct']:+.2f}" for r in rows["hybrid (each member)"][0]))
         study["protocols"]["held_out"] = {"info": infos, "rows": per_model,
                                           "summary": {m: summarise(r) for m, r in per_model.items()}}
-        text.append(table("held-out protocol (leave one turn out)", study["protocols"]["held_out"]["summary"]))
+        text.append(table(TITLES["held_out"], study["protocols"]["held_out"]))
     study["time_s"] = time.perf_counter() - started
     args.out.mkdir(parents=True, exist_ok=True)
     from usv_predictor.replay.cli import write_json_atomic
