@@ -175,3 +175,27 @@ def test_bad_training_settings_are_refused():
 def test_zero_residual_keeps_the_residual_interface():
     z = ZeroResidual()(*(torch.ones(3, dtype=torch.float64) for _ in range(6)))
     assert z.shape == (3, 3) and float(z.abs().sum()) == 0.0
+
+
+def test_replay_identify_hybrid_writes_an_ensemble(tmp_path, capsys):
+    """`replay identify --hybrid` on the shipped training bags: an artifact of the asked members, the training's record
+    in the JSON (early stopping on a quarter of the manoeuvres, held out whole); a bad member count is one line."""
+    import json
+    from pathlib import Path
+
+    from replay_helpers import replay
+
+    training = Path(__file__).resolve().parents[1] / "bags" / "training"
+    out, js = tmp_path / "hybrid.pt", tmp_path / "hybrid.json"
+    code, err = replay(capsys, "identify", training, "--vessel", "jari_usv", "--structure", "mmg",
+                       "--prior", "fix", "--hybrid", "--hybrid-members", "2", "--hybrid-epochs", "2",
+                       "--output", out, "--json", js)
+    assert code == 0, err
+    info = json.loads(js.read_text())["hybrid"]
+    assert info["members"] == 2 and info["epochs_run"] == 2 and info["segments_train"] > 0
+    assert info["monitor"] == "val" and len(info["val_manoeuvres"]) == 1
+    art = load_artifact(out, expect={"model_type": "hybrid"})
+    assert art.ensemble_size == 2 and art.metadata["architecture"]["residual"] == "GeneralisingResidual"
+    code, err = replay(capsys, "identify", training, "--vessel", "jari_usv", "--hybrid",
+                       "--hybrid-members", "0", "--output", tmp_path / "x.pt")
+    assert code == 2 and "--hybrid-members" in err and not (tmp_path / "x.pt").exists()

@@ -42,6 +42,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="add a learned residual on the accelerations: an ensemble of 5 bounded MLPs on "
                              "non-dimensional features, trained by a multi-step loss with early stopping on held-out "
                              "manoeuvres (model_type hybrid; docs/identification.md)")
+    parser.add_argument("--hybrid-members", type=positive_int, default=5, metavar="N",
+                        help="--hybrid: ensemble members, each its own seed (default 5)")
+    parser.add_argument("--hybrid-epochs", type=positive_int, default=150, metavar="N",
+                        help="--hybrid: training epochs at most, early stopping on held-out manoeuvres (default 150)")
     parser.add_argument("--dt", type=positive_float, default=0.2, help="step (s) of the resampled data and the model (default 0.2)")
     parser.add_argument("--val", default=None, metavar="GLOB", help="bags to validate on only (glob)")
     parser.add_argument("--output", type=Path, required=True, help="model file to write (.pt)")
@@ -53,8 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    from usv_predictor.fitting.hybrid_fit import HybridTraining
     from usv_predictor.replay.identify import identify_bags
 
+    training = HybridTraining(members=args.hybrid_members, epochs=args.hybrid_epochs) if args.hybrid else None
     return identify_bags(args.bags, args.output, vessel=args.vessel, structure=args.structure, prior=args.prior,
-                         hybrid=args.hybrid, dt=args.dt, validation=args.val, report=args.report, blocks=args.blocks,
+                         hybrid=training, dt=args.dt, validation=args.val, report=args.report, blocks=args.blocks,
                          config=args.config, progress=log)
