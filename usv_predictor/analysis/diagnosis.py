@@ -46,16 +46,15 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from usv_predictor.data.recording import Recording, approach_state, straight_samples
+from usv_predictor.data.recording import Recording
+from usv_predictor.data.segments import SIGMA, Segments, make_segments  # noqa: F401 (diagnosis API)
 from usv_predictor.errors import ConfigError, DiagnosisError
 from usv_predictor.frames import compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
 from usv_predictor.physics import effects as fx
 from usv_predictor.physics.effects import Term
 from usv_predictor.physics.vessel import Vessel
-from usv_predictor.records import whole_steps
 
-SIGMA = (0.05, 0.05, 0.005, 1.0, 1.0, 0.01)  # u, v (m/s), r (rad/s), x_n, y_e (m), psi (rad): noise scales
 EVIDENCE_CAUSE = 5.0  # held-out log-likelihood ratio over the calm-water model needed to name a cause
 MIN_GAIN = 0.05  # ... and the share of the calm-water model's held-out loss it must remove
 EVIDENCE_CONFOUND = 2.0  # a winner beating a runner-up cause by less than this is confounded with it
@@ -78,53 +77,6 @@ INCONCLUSIVE_REMEDY = ("record more of the day (longer runs, turns both ways, mo
 # Every hypothesis and the grey-box terms (physics.effects.Term) it fits: `none` (none) and each effect record.
 HYPOTHESES: Mapping[str, tuple[Term, ...]] = fx.RegistryView(
     lambda: {name: () if name == fx.NONE else fx.EFFECTS[name].terms for name in fx.hypothesis_names()})
-
-
-@dataclass(frozen=True)
-class Segments:
-    """A batch of multiple-shooting segments (torch float64)."""
-
-    state: torch.Tensor  # (B, 4) measured u, v, r, psi at the segment start
-    controls: torch.Tensor  # (B, H, 2) measured delta, rpm
-    target: torch.Tensor  # (B, H, 6) measured u, v, r, x_n, y_e (from the start), psi
-    weight: torch.Tensor  # (B, H, 6) 1/sigma where measured, 0 where missing (no GNSS)
-    recording: np.ndarray  # (B,) index of the recording each segment comes from
-    reference: torch.Tensor  # (B, 4) measured u, v, r, psi of the approach of the segment's manoeuvre: the straight
-    #                          running whose engine speed a rudder_only grey box holds (models/greybox.py)
-
-    def select(self, mask: np.ndarray) -> "Segments":
-        m = torch.as_tensor(mask)
-        return Segments(self.state[m], self.controls[m], self.target[m], self.weight[m], self.recording[mask],
-                        self.reference[m])
-
-    def __len__(self) -> int:
-        return int(self.state.shape[0])
-
-
-def make_segments(recordings: Sequence[Recording], horizon_s: float = 20.0, stride_s: float = 5.0,
-                  sigma: Sequence[float] = SIGMA) -> Segments:
-    """Cut every recording into segments of horizon_s starting every stride_s; each carries its manoeuvre's approach
-    state (data.recording.approach_state: a rudder_only boat holds the engine speed of its approach all manoeuvre
-    long, not the one of the slower speed a segment inside a turn starts from)."""
-    states, controls, targets, weights, index, references = [], [], [], [], [], []
-    for i, rec in enumerate(recordings):
-        approach = approach_state(rec.nu, rec.psi, rec.dt, straight_samples(rec.controls, rec.actuator_layout))  # (4,)
-        h = whole_steps(horizon_s, rec.dt, "segment horizon")
-        stride = whole_steps(min(stride_s, len(rec) * rec.dt), rec.dt, "segment stride")
-        for k in range(0, len(rec) - h, stride):
-            pos = rec.position[k + 1:k + h + 1] - rec.position[k]
-            target = np.column_stack([rec.nu[k + 1:k + h + 1], pos, rec.psi[k + 1:k + h + 1]])
-            finite = np.isfinite(target)
-            states.append([*rec.nu[k], rec.psi[k]])
-            controls.append(rec.controls[k:k + h])
-            targets.append(np.where(finite, target, 0.0))
-            weights.append(finite / np.asarray(sigma))
-            index.append(i)
-            references.append(np.where(np.isfinite(approach), approach, [*rec.nu[k], rec.psi[k]]))
-    if not states:
-        raise DiagnosisError(f"no recording is longer than the {horizon_s:.0f} s segment horizon; record longer manoeuvres")
-    as_t = lambda a: torch.tensor(np.array(a), dtype=torch.float64)  # noqa: E731
-    return Segments(as_t(states), as_t(controls), as_t(targets), as_t(weights), np.array(index), as_t(references))
 
 
 def residuals(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments) -> torch.Tensor:

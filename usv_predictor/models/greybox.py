@@ -444,6 +444,10 @@ class GreyBoxRollout(nn.Module):
         return controls[:, lo] * (1.0 - frac)[None, :, None] + controls[:, hi] * frac[None, :, None]
 
     def forward(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
+        return self._rollout(state, controls, reference).unsqueeze(0)  # (1, B, H, 6)
+
+    def _rollout(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
+        """(B, H, 6) [u, v, r, x_n, y_e, psi] as measured (the module docstring's interface without the ensemble axis)."""
         state = state.to(torch.float64)  # (B, 4) measured u, v, r, psi
         controls = controls.to(torch.float64)  # (B, H, C) reported controls of the actuator layout
         if controls.dim() != 3 or controls.shape[2] != self.n_controls:
@@ -491,7 +495,7 @@ class GreyBoxRollout(nn.Module):
             v_g = x[4] - self.current_ne[0] * s + self.current_ne[1] * c
             outputs.append(torch.stack([u_g, v_g, x[5] + self.yaw_rate_bias[0], x[0], x[1],
                                         x[2] + self.heading_offset[0]], dim=-1))
-        return torch.stack(outputs, dim=1).unsqueeze(0)  # (1, B, H, 6)
+        return torch.stack(outputs, dim=1)  # (B, H, 6)
 
     @torch.jit.ignore
     def terms(self) -> Dict[str, List[float]]:

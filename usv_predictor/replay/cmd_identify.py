@@ -2,7 +2,7 @@
 
 EKF/RTS smoother -> inverse dynamics minus the preset's propeller and semi-empirical rudder (prior) -> linear
 regression of each candidate structure -> leave-one-manoeuvre-out CV -> export of the grey box (model_type
-"greybox", or "hybrid" with --hybrid: grey box + MLP residual) through usv_predictor.models.artifact, with the
+"greybox", or "hybrid" with --hybrid: grey box + a learned residual ensemble) through usv_predictor.models.artifact, with the
 coefficients, their 95 % CIs, the structure and the data digest in the metadata. See usv_predictor.fitting.identification
 and docs/identification.md. Coefficients the data cannot determine are an error naming them unless --prior says
 what to do (fix: hold at the preset's value; ridge: pull towards it). --val GLOB: bags (or directories) whose
@@ -39,7 +39,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "small-craft hull (auto: compare the hull model's by cross-validation, default)")
     parser.add_argument("--prior", choices=("none", "fix", "ridge"), default="none",
                         help="what to do with coefficients the data cannot determine (default none: refuse, naming them)")
-    parser.add_argument("--hybrid", action="store_true", help="add an MLP residual on the accelerations (model_type hybrid)")
+    parser.add_argument("--hybrid", action="store_true",
+                        help="add a learned residual on the accelerations: an ensemble of 5 bounded MLPs on "
+                             "non-dimensional features, trained by a multi-step loss with early stopping on held-out "
+                             "manoeuvres (model_type hybrid; docs/identification.md)")
+    parser.add_argument("--hybrid-members", type=positive_int, default=5, metavar="N",
+                        help="--hybrid: ensemble members, each its own seed (default 5)")
+    parser.add_argument("--hybrid-epochs", type=positive_int, default=150, metavar="N",
+                        help="--hybrid: training epochs at most, early stopping on held-out manoeuvres (default 150)")
     parser.add_argument("--dt", type=positive_float, default=0.2, help="step (s) of the resampled data and the model (default 0.2)")
     parser.add_argument("--val", default=None, metavar="GLOB", help="bags to validate on only (glob)")
     parser.add_argument("--output", type=Path, required=True, help="model file to write (.pt)")
@@ -52,8 +59,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    from usv_predictor.fitting.hybrid_fit import HybridTraining
     from usv_predictor.replay.identify import identify_bags
 
+    training = HybridTraining(members=args.hybrid_members, epochs=args.hybrid_epochs) if args.hybrid else None
     return identify_bags(args.bags, args.output, vessel=args.vessel, structure=args.structure, prior=args.prior,
-                         hybrid=args.hybrid, dt=args.dt, validation=args.val, report=args.report, blocks=args.blocks,
+                         hybrid=training, dt=args.dt, validation=args.val, report=args.report, blocks=args.blocks,
                          config=args.config, scale=args.scale, progress=log)

@@ -5,11 +5,14 @@ from __future__ import annotations
 import glob
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from usv_predictor.errors import BagError, DatasetError
+
+if TYPE_CHECKING:
+    from usv_predictor.fitting.hybrid_fit import HybridTraining
 
 
 def identification_recordings(paths: Sequence[Path], dt: float, progress: Callable[[str], None] = lambda _: None,
@@ -46,12 +49,13 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
 
 
 def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure: str = "auto", prior: str = "none",
-                  hybrid: bool = False, dt: float = 0.2, validation: str | None = None, report: Path | None = None,
-                  blocks: int = 1, config: Path | None = None, scale: float = 1.0,
+                  hybrid: HybridTraining | None = None, dt: float = 0.2, validation: str | None = None,
+                  report: Path | None = None, blocks: int = 1, config: Path | None = None, scale: float = 1.0,
                   progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """Identify the hull (and what the layout lets the data set: thrust gains, engine speeds) of the vessel file
     `vessel` (a preset name or a YAML path) from `bags`, read with its actuator layout (structure mmg / abkowitz /
-    diagonal / coupled / auto, prior none / fix / ridge), export the grey box (with hybrid: plus an MLP residual)
+    diagonal / coupled / auto, prior none / fix / ridge), export the grey box (with hybrid, a
+    fitting.hybrid_fit.HybridTraining: plus a learned residual trained so)
     to `output`; validation: a glob of bags only evaluated; report: a directory for summary.md and the force plots;
     blocks: pieces per recording for cross-validation; config: the predictor.yaml whose topics are read (default
     the shipped one); scale: Froude scale L_bags / L_vessel, the bags scaled to the vessel's size (1: none). The
@@ -75,13 +79,14 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
         progress(f"warning: {warning}")
     digest = identification.data_digest(recordings)
     hybrid_info = None
-    if hybrid:
-        progress("training the MLP residual")
-        module, hybrid_info = hybrid_fit.train_hybrid(result, dt)
+    if hybrid is not None:
+        progress(f"training the learned residual ({hybrid.members} members, multi-step loss, held-out manoeuvres)")
+        module, hybrid_info = hybrid_fit.train_hybrid(result, recordings, dt, hybrid, progress=progress)
     else:
         module = hybrid_fit.greybox_module(result, dt)
     artifact = hybrid_fit.export_identified(str(output), module, result, dt=dt, training_data_sha256=digest,
-                                            model_type="hybrid" if hybrid else "greybox", hybrid=hybrid_info)
+                                            model_type="hybrid" if hybrid is not None else "greybox",
+                                            hybrid=hybrid_info)
     progress(f"wrote {output} (model {artifact.model_id}, {artifact.metadata['model_type']}, structure "
              f"{result.structure})")
     out: dict[str, Any] = {"model": str(output), "model_id": artifact.model_id,
