@@ -236,7 +236,8 @@ class _TrackVsLossRollout(torch.nn.Module):
             self.register_buffer(name, torch.zeros(term.size, dtype=torch.float64))
         self.states, self.target, self.track_cost = seg.state, seg.target, track_cost
 
-    def forward(self, state: torch.Tensor, controls: torch.Tensor) -> tuple[torch.Tensor]:
+    def forward(self, state: torch.Tensor, controls: torch.Tensor,
+                reference: torch.Tensor | None = None) -> tuple[torch.Tensor]:  # reference: rudder_only's (unused)
         index = (state[:, None, :] == self.states[None]).all(-1).to(torch.float64).argmax(1)  # (B,)
         k = torch.clamp(self.current_ne.norm() / 0.3, max=1.0)
         bias = torch.zeros(6, dtype=torch.float64)
@@ -283,7 +284,8 @@ class _BiasedRollout(torch.nn.Module):
         self.states, self.target = seg.state, seg.target
         self.bias = torch.tensor([0.05, 0.05, 0.005, 0.0, 0.0, 0.0], dtype=torch.float64) * sigmas
 
-    def forward(self, state: torch.Tensor, controls: torch.Tensor) -> tuple[torch.Tensor]:
+    def forward(self, state: torch.Tensor, controls: torch.Tensor,
+                reference: torch.Tensor | None = None) -> tuple[torch.Tensor]:  # reference: rudder_only's (unused)
         index = (state[:, None, :] == self.states[None]).all(-1).to(torch.float64).argmax(1)  # (B,)
         return (self.target[index] + self.bias,)
 

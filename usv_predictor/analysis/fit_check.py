@@ -65,9 +65,6 @@ SETTLED_YAW_ABS = math.radians(0.5)  # ... plus this (rad/s)
 SPEED_RATIO_LIMIT = 1.5  # (-) calm-water allowance: predicted / measured speed within [1/1.5, 1.5] needs no cause
 YAW_RATE_RATIO_LIMIT = 2.0  # (-) ... and steady yaw rate within [1/2, 2] (opposite sign: beyond)
 STRONGEST_DIRECTIONS = 12  # compass directions a sea (current, wind, waves) at the top of its range is tried from
-# grey-box terms the check does not try: a delay of at most 1.5 s shifts when a held command acts, never a settled u
-# or r, and the grey box holds it as one scalar (a batch of causes needs one value per row)
-UNTRIED_TERMS = ("actuator_delay",)
 CAUSE_SUBSTEP_S = 0.125  # (s) longest integration step of the causes' rollouts: a 2 m boat spun by 1.5 m waves has
 # yaw dynamics of ~20 |r| 1/s (N_rr |r| / m_66), beyond explicit RK4's stability at 0.25 s
 TOP_SPEED_LIMIT = 1.5  # (-) the data runs faster than this times the vessel's top speed at full command
@@ -121,8 +118,8 @@ def strongest_causes(layout: str) -> tuple[Cause, ...]:
     STRONGEST_DIRECTIONS directions, a fixed parameter at its value; the grey-box terms from the effect's readout."""
     causes = []
     for name, effect in fx.simulated(layout).items():
-        if any(t.name in UNTRIED_TERMS for t in effect.terms):
-            continue
+        if not all(t.settled for t in effect.terms):  # a delay shifts when a held command acts, never a settled u or
+            continue                                   # r (and the grey box holds it as one scalar, not one per row)
         choices: list[tuple[str, tuple[float, ...]]] = []
         for p in effect.parameters:
             if p.draw is None:

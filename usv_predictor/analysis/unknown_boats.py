@@ -24,7 +24,7 @@ import numpy as np
 import yaml
 
 from usv_predictor.physics.empirical import OwnerData
-from usv_predictor.physics.vessel import RHO_WATER, Vessel, vessel_dir, vessel_from_dict
+from usv_predictor.physics.vessel import RHO_WATER, WAVE_DRIFT_SECTION, Vessel, vessel_dir, vessel_from_dict
 
 PRESET = "jari_usv"  # the rudder_propeller class the random hulls are drawn around
 SIZE_CLASSES: Mapping[str, tuple[float, float]] = {  # L_pp range (m) of each size class
@@ -134,7 +134,7 @@ def draw_boat(rng: np.random.Generator, size_class: str | None = None, name: str
         rudder_time_constant_s=raw["actuators"]["rudder_time_constant_s"] * root,
         engine_time_constant_s=raw["actuators"]["engine_time_constant_s"] * root)
     truth["windage"].update(A_F=raw["windage"]["A_F"] * s**2, A_L=raw["windage"]["A_L"] * s**2)
-    truth["wave_drift"] = {k: list(v) for k, v in raw["wave_drift"].items()}
+    truth[WAVE_DRIFT_SECTION] = {k: list(v) for k, v in raw[WAVE_DRIFT_SECTION].items()}
     truth = {k: v for k, v in truth.items() if v is not None}
     vessel = vessel_from_dict(truth, source=f"unknown boat {name}")  # checks it is a physical vessel
     return UnknownBoat(name=name, size_class=size_class, scale=s, truth=truth, factors=factors,

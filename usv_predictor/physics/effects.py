@@ -137,6 +137,8 @@ class Term:
     high: float
     start: tuple[float, ...]  # initial value of the fit (SI)
     unit: str = ""
+    settled: bool = True  # it changes a settled state (u, r at held commands); False: only when a command acts (a
+    #                       delay), which the fit check's steady windows cannot see
 
     def __post_init__(self) -> None:
         if len(self.start) != self.size:
@@ -420,7 +422,7 @@ EFFECTS: Mapping[str, Effect] = _registry(
                                   SimulatorField(SensorSpec, "heading_offset", "rad", multiply=DEG_TO_RAD),
                                   Uniform(2.0, 8.0, random_sign=True))),
     scalar_effect("actuator_delay", "a delay: the hull responds this long after the reported rudder and engine speed",
-                  Term("actuator_delay", 1, 0.1, 0.0, 5.0, (0.2,), "s"), ("delay_s", 1.0), 0.2,  # tolerance (s)
+                  Term("actuator_delay", 1, 0.1, 0.0, 5.0, (0.2,), "s", settled=False), ("delay_s", 1.0), 0.2,  # tolerance (s)
                   EffectParameter("actuator_delay_s", 0.5, 0.0, 5.0, "s", "response delay of the hull",
                                   SimulatorField(SensorSpec, "actuator_delay_s", "s"), Uniform(0.3, 1.5))),
     scalar_effect("resistance", "a resistance change: fouling, loading or a preset off (relative change of R0)",

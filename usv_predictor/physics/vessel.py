@@ -326,6 +326,7 @@ class Vessel:
         ]
 
 
+WAVE_DRIFT_SECTION = "wave_drift"  # the vessel file's section of the mean wave-drift coefficients (WaveDrift)
 # every section a vessel can have: YAML key -> record (those of the hull model and layout are required)
 SECTIONS = {
     "geometry": Geometry,
@@ -335,12 +336,12 @@ SECTIONS = {
     "rudder": Rudder,
     "actuators": Actuators,
     "windage": Windage,
-    "wave_drift": WaveDrift,
+    WAVE_DRIFT_SECTION: WaveDrift,
     "small_craft": SmallCraftHull,
     "throttle": ThrustMap,
     "thrusters": Thrusters,
 }
-COMMON_SECTIONS = ("geometry", "windage", "wave_drift")  # every hull model keeps wind and wave drift
+COMMON_SECTIONS = ("geometry", "windage", WAVE_DRIFT_SECTION)  # every hull model keeps wind and wave drift
 TOP_LEVEL_KEYS = ("name", "description", "provenance", "actuator_layout", "hull_model")
 
 
