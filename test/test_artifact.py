@@ -29,8 +29,10 @@ from usv_predictor.models.dnn import DnnConfig, DnnModel, export, fit_normalisat
 DT = 0.5
 
 
-def _member(feature_set: str, seed: int, activation: str = "tanh", increment: bool = True) -> DnnModel:
-    """A random network (seed) with data-like normalisation (shared) and non-trivial batch-norm statistics."""
+def _member(feature_set: str, seed: int, activation: str = "tanh", increment: bool = True,
+            depth: int | None = None) -> DnnModel:
+    """A random network (seed; `depth` hidden layers, DnnConfig's default when None) with data-like normalisation
+    (shared) and non-trivial batch-norm statistics."""
     rng = np.random.default_rng(0)
     n = 200
     state = np.column_stack([rng.normal(5, 1, n), rng.normal(0, .3, n), rng.normal(0, .1, n), rng.uniform(-9, 9, n)])
@@ -38,7 +40,7 @@ def _member(feature_set: str, seed: int, activation: str = "tanh", increment: bo
     x = features(feature_set, state, controls)
     y = state[:, :3] + rng.normal(0, .05, (n, 3))
     config = DnnConfig.for_features(feature_set, width=12, activation=activation, ceiling=1.5,
-                                    predict_increment=increment)
+                                    predict_increment=increment, **({} if depth is None else {"depth": depth}))
     torch.manual_seed(seed)
     model = DnnModel(config, fit_normalisation(x, y, increment))
     with torch.no_grad():

@@ -11,12 +11,12 @@ import pytest
 import torch
 
 from test_artifact import DT, _export, _inputs, _reference
-from usv_predictor.data.features import FEATURE_SETS, features
+from test_artifact import _member as artifact_member
+from usv_predictor.data.features import FEATURE_SETS
 from usv_predictor.errors import ModelError
 from usv_predictor.models import loading
 from usv_predictor.models.artifact import export_module, load_artifact
-from usv_predictor.models.dnn import (DnnConfig, DnnModel, DnnRollout, FusedDnnRollout, _probe, fit_normalisation,
-                                      fused_rollout, sigmoid_form)
+from usv_predictor.models.dnn import DnnModel, DnnRollout, FusedDnnRollout, _probe, fused_rollout, sigmoid_form
 from usv_predictor.node import live
 
 SHIPPED = Path(__file__).resolve().parents[1] / "models" / "default.pt"
@@ -24,23 +24,7 @@ SHIPPED = Path(__file__).resolve().parents[1] / "models" / "default.pt"
 
 def _member(feature_set: str, seed: int, activation: str, depth: int, increment: bool = True) -> DnnModel:
     """A random network of `depth` hidden layers with data-like normalisation and batch norm away from identity."""
-    rng = np.random.default_rng(0)
-    n = 200
-    state = np.column_stack([rng.normal(5, 1, n), rng.normal(0, .3, n), rng.normal(0, .1, n), rng.uniform(-9, 9, n)])
-    controls = np.column_stack([rng.normal(0, .3, n), rng.normal(650, 30, n)])
-    x, y = features(feature_set, state, controls), state[:, :3] + rng.normal(0, .05, (n, 3))
-    config = DnnConfig.for_features(feature_set, width=12, depth=depth, activation=activation, ceiling=1.5,
-                                    predict_increment=increment)
-    torch.manual_seed(seed)
-    model = DnnModel(config, fit_normalisation(x, y, increment))
-    with torch.no_grad():
-        for block in model.hidden:
-            block[1].running_mean.normal_(0.0, 0.3)
-            block[1].running_var.uniform_(0.5, 2.0)
-            block[1].weight.normal_(1.0, 0.2)
-            block[1].bias.normal_(0.0, 0.2)
-        model.head.weight.mul_(0.3)  # a gentle model, so a long rollout stays physical
-    return model.eval()
+    return artifact_member(feature_set, seed, activation, increment, depth)
 
 
 def _loaded(path: Path) -> object:
