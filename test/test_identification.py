@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from usv_predictor.data.recording import recording_from_signals
-from usv_predictor.errors import ConfigError, DatasetError
+from usv_predictor.errors import ConfigError, DatasetError, ModelError
 from usv_predictor.fitting import hybrid_fit as hybrid
 from usv_predictor.fitting import identification as idf
 from usv_predictor.models.artifact import load_artifact
@@ -148,6 +148,9 @@ def test_missing_rpm_is_refused(clean, vessel):
 def test_hybrid_exports_and_predicts(noisy, vessel, tmp_path):
     recs, data = noisy
     result = idf.identify(vessel, recs, structure="mmg", prior="fix", data=data)
+    renamed = [dataclasses.replace(r, name=f"{r.name}_other") for r in recs]
+    with pytest.raises(ModelError, match="not among the recordings given"):  # never a heading made up as 0
+        hybrid.train_hybrid(result, renamed, DT, hybrid.HybridTraining(members=2, epochs=1, hidden=8))
     module, info = hybrid.train_hybrid(result, recs, DT, hybrid.HybridTraining(members=2, epochs=15, hidden=8))
     assert info["monitor"] == "val" and info["val_manoeuvres"] and info["members"] == 2
     hybrid.export_identified(str(tmp_path / "hy.pt"), module, result, dt=DT, training_data_sha256="0" * 64,

@@ -91,8 +91,11 @@ def _residual_statistics(residual: GeneralisingResidual, base: ResidualGreyBox, 
     """Set the residual's normalisation, training range and bound from the identification data (step 1); returns
     the (N, F) features of the one-step samples (for the pull toward zero)."""
     psi_of = {rec.name: rec.psi for rec in recordings}
-    psi = np.concatenate([psi_of[d.name][d.keep] if d.name in psi_of and len(psi_of[d.name]) == len(d.keep)
-                          else np.zeros(int(d.keep.sum())) for d in data])
+    for d in data:
+        if d.name not in psi_of or len(psi_of[d.name]) != len(d.keep):
+            raise ModelError(f"hybrid: the identification's manoeuvre {d.name!r} is not among the recordings given "
+                             f"(or has another length): train the residual on the recordings that were identified")
+    psi = np.concatenate([psi_of[d.name][d.keep] for d in data])  # (N,) heading of the one-step samples
     inputs, targets = residual_targets(base, data)  # (N, 5) [u, v, r, a, b], (N, 3)
     if len(inputs) < MIN_SAMPLES:
         raise ModelError(f"hybrid: only {len(inputs)} samples to learn the residual from (need >= {MIN_SAMPLES})")
