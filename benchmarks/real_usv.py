@@ -46,16 +46,6 @@ FUZHOU_RUDDER_DEG = 22.0  # (deg) the turning circle asked for
 DRAWS = 400  # coefficient draws for the turning radius uncertainty
 
 
-class StartStateOnly:
-    """A grey box given no reference state: each prediction holds the engine speed of its own start's water speed (the
-    rule before 2026-11-25; now replay evaluate holds the one of the recording's approach, models/greybox.py)."""
-
-    def __init__(self, predictor) -> None:
-        self.predictor = predictor
-        self.metadata = predictor.metadata
-
-    def predict(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        return self.predictor.predict(state, controls)
 
 
 class ConstantVelocity:
@@ -281,7 +271,7 @@ def fuzhou(bags: Path, work: Path) -> dict:
     import torch
 
     from usv_predictor.analysis import metrics
-    from usv_predictor.analysis.evaluation import evaluate
+    from usv_predictor.analysis.evaluation import WithoutReference, evaluate
     from usv_predictor.errors import ConfigError, NotIdentifiableError
     from usv_predictor.fitting import hybrid_fit, identification
     from usv_predictor.models.artifact import load_artifact
@@ -320,7 +310,7 @@ def fuzhou(bags: Path, work: Path) -> dict:
     nomoto = fit_nomoto(pieces)
     out["nomoto"] = nomoto
     log(f"Fuzhou: Nomoto K {nomoto['K_per_s']:.3f} 1/s, T {nomoto['T_s']:.2f} s, b {nomoto['b_rad_s']:+.4f} rad/s")
-    models = {"grey box identified (engine speed from each start's speed)": StartStateOnly(load_artifact(path)),
+    models = {"grey box identified (engine speed from each start's speed)": WithoutReference(load_artifact(path)),
               "grey box identified (engine speed of the half's approach)": load_artifact(path),
               f"grey box identified (the identified engine setting, {rpm:.0f} rpm)": held_rpm,
               "grey box of the vessel file (assumed, not identified)": greybox_predictor(vessel, FUZHOU_DT),

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import yaml
 
-from usv_predictor.analysis.evaluation import evaluate
+from usv_predictor.analysis.evaluation import WithoutReference, evaluate
 from usv_predictor.analysis.fit_check import check_fit
 from usv_predictor.models.loading import physics_predictor
 from usv_predictor.physics.actuators import actuator_layout
@@ -34,15 +34,6 @@ CASES = {"calm water": [], "current 0.5 m/s toward 250 deg": ["--effect", "curre
                                                               "--current-to", "250"]}
 
 
-class StartStateOnly:
-    """A predictor without a reference state: every prediction holds the engine speed of its start (the old rule)."""
-
-    def __init__(self, predictor) -> None:
-        self.predictor = predictor
-        self.metadata = predictor.metadata
-
-    def predict(self, state, controls):
-        return self.predictor.predict(state, controls)
 
 
 def main() -> None:
@@ -68,7 +59,7 @@ def main() -> None:
                            "--heading", "30", "--blind", *flags, "--output", str(bags)]) == 0
         recordings = load_recordings([bags], args.dt, layout=actuator_layout("rudder_only"), warn=lambda _: None)
         new = physics_predictor(vessel, args.dt)
-        for label, predictor in (("start (old)", StartStateOnly(new)), ("approach (new)", new)):
+        for label, predictor in (("start (old)", WithoutReference(new)), ("approach (new)", new)):
             result = evaluate(predictor, recordings, reference="truth", horizons_s=HORIZONS_S)
             fit = check_fit(predictor, recordings, vessel=vessel)
             errors = "".join(f" {result.summary[f'mean_position_error_after_{h:g}s_m']:9.2f}" for h in HORIZONS_S)

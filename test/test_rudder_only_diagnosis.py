@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from replay_helpers import replay, write_layout_variant
 
-from usv_predictor.analysis.evaluation import evaluate
+from usv_predictor.analysis.evaluation import WithoutReference, evaluate
 from usv_predictor.analysis.fit_check import check_fit
 from usv_predictor.analysis.hidden_effects import draw, within_tolerance
 from usv_predictor.models.loading import physics_predictor
@@ -52,15 +52,6 @@ def diagnose(capsys: pytest.CaptureFixture[str], bags: Path, boat: Path, out: Pa
     return json.loads((out / "diagnosis.json").read_text())
 
 
-class StartStateOnly:
-    """A predictor given no reference state: each prediction holds the engine speed of its own start (the old rule)."""
-
-    def __init__(self, predictor) -> None:
-        self.predictor = predictor
-        self.metadata = predictor.metadata
-
-    def predict(self, state, controls):
-        return self.predictor.predict(state, controls)
 
 
 @pytest.mark.slow
@@ -78,7 +69,7 @@ def test_own_bags_are_diagnosed_none_and_predicted_to_the_noise(boat, tmp_path, 
     recordings = load_recordings([bags], DT, layout=actuator_layout("rudder_only"), warn=lambda _: None)
     approach = physics_predictor(vessel, DT)
     errors = {}
-    for label, predictor in (("start", StartStateOnly(approach)), ("approach", approach)):
+    for label, predictor in (("start", WithoutReference(approach)), ("approach", approach)):
         summary = evaluate(predictor, recordings, reference="truth", horizons_s=HORIZONS_S).summary
         errors[label] = [summary[f"mean_position_error_after_{h:g}s_m"] for h in HORIZONS_S]
     assert all(new < 1.0 for new in errors["approach"]), errors  # (m) its own boat, calm water

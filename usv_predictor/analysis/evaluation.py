@@ -59,6 +59,19 @@ class Predictor(Protocol):
         """(B, 4), (B, H, 2) -> (E, B, H, 6)."""
 
 
+class WithoutReference:
+    """`predictor` asked without the approach reference: every prediction holds the engine speed of its own start's
+    water speed (the rule for rudder_only before 2026-11-25; models/greybox.py). The comparison benchmarks and tests
+    set it beside the reference rule on the same bags."""
+
+    def __init__(self, predictor: Predictor) -> None:
+        self.predictor = predictor
+        self.metadata = predictor.metadata
+
+    def predict(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:  # (B, 4), (B, H, C) -> (E, B, H, 6)
+        return self.predictor.predict(state, controls)
+
+
 # --------------------------------------------------------------------------------------------
 # Results
 # --------------------------------------------------------------------------------------------
