@@ -55,7 +55,7 @@ from usv_predictor.data.recording import plausible_ranges, required_roles, windo
 from usv_predictor.errors import CycleSkipped, InputRejected, ModelError
 from usv_predictor.frames import LocalTangentPlane, angle_difference_deg, body_to_ned, compass_deg, wrap_angle
 from usv_predictor.models.artifact import MODEL_RUN_ERRORS, ModelArtifact, failure_reason
-from usv_predictor.models.dnn import fused_rollout
+from usv_predictor.models.dnn import NumpyDnnRollout, fused_rollout, numpy_rollout
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
 from usv_predictor.records import NS_PER_S
 
@@ -487,12 +487,13 @@ class Prediction(NamedTuple):
 
 
 class Rollout:
-    """The TorchScript model with preallocated inputs: one (1, 4) state and (1, H, C) controls.
+    """The model with preallocated inputs: one (1, 4) state and (1, H, C) controls.
 
-    It runs `artifact.runner`: for a DNN the rollout fused at load time (models/loading.with_fused_rollout), the
-    module `replay evaluate` runs too; for other families the file's module (whose terms the sea estimate sets).
-    A fused DNN asked for fewer members than it has is fused again with those members only (what is not published
-    is not computed); other modules compute every member and the output is sliced."""
+    It runs `artifact.runner`: for a DNN the rollout fused at load time (models/loading.with_fused_rollout: numpy's
+    NumpyDnnRollout, called with numpy arrays directly, or TorchScript's FusedDnnRollout), the code `replay evaluate`
+    runs too; for other families the file's module (whose terms the sea estimate sets). A fused DNN asked for fewer
+    members than it has is fused again with those members only (what is not published is not computed); other
+    modules compute every member and the output is sliced."""
 
     def __init__(self, artifact: ModelArtifact, horizon_steps: int, ensemble_size: int | None = None) -> None:
         available = artifact.ensemble_size
@@ -503,10 +504,13 @@ class Rollout:
         self.artifact = artifact
         self.module = artifact.runner
         if artifact.inference is not None and self.members < available:
+            fuse_again = numpy_rollout if isinstance(artifact.inference, NumpyDnnRollout) else fused_rollout
             try:
-                self.module = fused_rollout(artifact, members=self.members)
+                self.module = fuse_again(artifact, members=self.members)
             except ModelError:  # then every member is computed and the output sliced, as for other modules
                 self.module = artifact.runner
+        # NumpyDnnRollout: numpy in and out, no tensors on the way
+        self._numpy = self.module.rollout if isinstance(self.module, NumpyDnnRollout) else None
         self.horizon_steps = int(horizon_steps)
         self.dtype = artifact.module.m_s.dtype if hasattr(artifact.module, "m_s") else torch.float64
         self._state = torch.zeros(1, 4, dtype=self.dtype)
@@ -519,9 +523,12 @@ class Rollout:
         """(E, H, 6) [u, v, r, x_n, y_e, psi] relative to the start; controls (C,) held for every step, or (H, C).
 
         ModelError "model X fails when run: ..." when the model's code raises (at warm-up: a start-up error)."""
-        self._state[0].copy_(torch.from_numpy(np.asarray(state, dtype=np.float64)))
-        self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)))  # broadcasts (C,) to (H, C)
         try:
+            if self._numpy is not None:
+                held = np.broadcast_to(np.asarray(controls, dtype=np.float64), (1, self.horizon_steps, self.n_controls))
+                return self._numpy(np.asarray(state, dtype=np.float64).reshape(1, 4), held)[: self.members, 0]
+            self._state[0].copy_(torch.from_numpy(np.asarray(state, dtype=np.float64)))
+            self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)))  # (C,) to (H, C)
             with torch.inference_mode():
                 out = self.module(self._state, self._controls)  # (E, 1, H, 6)
             return out[: self.members, 0].double().numpy()
@@ -534,8 +541,11 @@ class Rollout:
         if controls.ndim != 3 or controls.shape[1:] != (self.horizon_steps, self.n_controls):
             raise ModelError(f"controls of shape {controls.shape}, expected (B, {self.horizon_steps}, {self.n_controls})")
         count = controls.shape[0]
-        states = torch.from_numpy(np.asarray(state, dtype=np.float64)).to(self.dtype).expand(count, 4)  # (B, 4)
         try:
+            if self._numpy is not None:
+                states = np.broadcast_to(np.asarray(state, dtype=np.float64), (count, 4))  # (B, 4)
+                return self._numpy(states, controls)[: self.members]
+            states = torch.from_numpy(np.asarray(state, dtype=np.float64)).to(self.dtype).expand(count, 4)  # (B, 4)
             with torch.inference_mode():
                 out = self.module(states, torch.from_numpy(controls).to(self.dtype))  # (E, B, H, 6)
             return out[: self.members].double().numpy()
