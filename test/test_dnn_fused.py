@@ -49,9 +49,12 @@ def test_fused_rollout_equals_the_members_stepped_one_by_one(tmp_path: Path, fea
     assert model.inference is not None and model.inference_note.startswith("fused")
     state, controls = _inputs(batch=4, horizon=40)
     got = model.predict(state, controls)  # (E, B, H, 6) through the fused rollout
-    assert got.shape == (3, 4, 40, 6)
+    one = model.predict(state[:1], controls[:1])  # one state: NumpyDnnRollout's one-state form
+    assert got.shape == (3, 4, 40, 6) and one.shape == (3, 1, 40, 6)
     for e, member in enumerate(members):
-        np.testing.assert_allclose(got[e], _reference(member, feature_set, state, controls, DT), rtol=0, atol=1e-9)
+        reference = _reference(member, feature_set, state, controls, DT)
+        np.testing.assert_allclose(got[e], reference, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(one[e], reference[:1], rtol=0, atol=1e-9)
     with torch.inference_mode():
         own = model.module(torch.from_numpy(state), torch.from_numpy(controls)).numpy()
     np.testing.assert_allclose(got, own, rtol=0, atol=1e-10)
@@ -253,6 +256,21 @@ def test_numpy_rollout_equals_the_torchscript_fused_rollout(batch: int) -> None:
     numpy_error, fused_error, own_error = (np.abs(out - exact).max(axis=(0, 1, 2)) for out in (got, fused, own))
     assert np.all(numpy_error <= 3.0 * np.maximum(fused_error, own_error) + 1e-6), (numpy_error, fused_error, own_error)
     assert np.abs(got[0] - got[1]).max() > 1e-2  # the members differ: not one member copied five times
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_numpy_one_state_form_equals_its_batched_form(tmp_path: Path, dtype: str) -> None:
+    """The node's one state runs the block-diagonal one-state form, candidates the stacked form: the same function
+    (float64: to rounding; float32: within float32 rounding over 120 steps), for each member."""
+    members = [_member("NTF", seed, "tanh", 2) for seed in (1, 2, 3)]
+    _export(tmp_path / "m.pt", members, dtype=dtype)
+    rollout = _loaded(tmp_path / "m.pt").inference
+    state, controls = _inputs(batch=2, horizon=120)
+    one = rollout.rollout(state[:1], controls[:1])
+    batched = rollout._rollout_batch(state[:1], controls[:1])
+    tolerance = 1e-10 if dtype == "float64" else 1e-3
+    np.testing.assert_allclose(one, batched, rtol=0, atol=tolerance)
+    assert np.abs(one[0] - one[1]).max() > 1e-2  # members differ (a block of one member used for another would show)
 
 
 def test_numpy_bias_unit_is_exactly_one() -> None:

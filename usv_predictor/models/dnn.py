@@ -718,6 +718,36 @@ class NumpyDnnRollout:
         self.head = np.ascontiguousarray(p["head"], dtype=self.dtype)  # (E, W, S)
         self.phase = p["phase"][:, 0].astype(self.dtype)  # (E, T)
         self.width = width
+        self._vector_weights(p, unit)
+
+    def _column(self, member: int, j: int) -> int:
+        """Column of member e's state column j in the one-state form's state vector [q (E x 4) | t (E x T)]."""
+        return member * 4 + j if j < 4 else self.ensemble_size * 4 + member * self.n_trig + (j - 4)
+
+    def _vector_weights(self, p: Mapping[str, np.ndarray], unit: float) -> None:
+        """The first and output layers of the one-state form (_rollout_one) as block-diagonal matrices over the
+        members: a step of one state is then two 2-D products and one stacked (the hidden layer), every activation on
+        one contiguous vector. Per step a row r_k = [h (E W) | s_k (E S) | c_k (C) | 1]."""
+        e, n_s, c, width = self.ensemble_size, self.n_state, self.n_controls, self.width
+        unit_column = 1 if self.hidden else 0
+        block = width + unit_column
+        first = np.zeros((e * n_s + c + 1, e * block))  # [s | c | 1] -> E x [pre | unit]
+        out = np.zeros((e * width + e * n_s + c + 1, e * n_s))  # r_k -> s_{k+1}
+        for m in range(e):
+            pre = slice(m * block, m * block + width)
+            for j in range(n_s):
+                first[self._column(m, j), pre] = p["m_s"][m, j, n_s:]
+                out[m * width:(m + 1) * width, self._column(m, j)] = p["head"][m, :, j]
+                for i in range(n_s):
+                    out[e * width + self._column(m, i), self._column(m, j)] = p["m_s"][m, i, j]
+                out[e * width + e * n_s: e * width + e * n_s + c, self._column(m, j)] = p["w_c"][m, :, j]
+                out[-1, self._column(m, j)] = p["bias"][m, 0, j]
+            first[e * n_s: e * n_s + c, pre] = p["w_c"][m, :, n_s:]
+            first[-1, pre] = p["bias"][m, 0, n_s:]
+            if unit_column:
+                first[-1, m * block + width] = unit
+        self.first_one = np.ascontiguousarray(first, dtype=self.dtype)
+        self.out_one = np.ascontiguousarray(out, dtype=self.dtype)
 
     def _act(self, h: np.ndarray) -> np.ndarray:
         """In place."""
@@ -741,6 +771,10 @@ class NumpyDnnRollout:
             raise ValueError("state must be (B, 4) [u, v, r, psi]")
         if controls.ndim != 3 or controls.shape[2] != self.n_controls or controls.shape[0] != state.shape[0]:
             raise ValueError("controls must be (B, H, C) in the model's control_layout, with the B of state")
+        return self._rollout_one(state, controls) if state.shape[0] == 1 else self._rollout_batch(state, controls)
+
+    def _rollout_batch(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """rollout() of B states: the members stacked (E the stacked dimension of matmul, B its rows)."""
         e, b, horizon = self.ensemble_size, state.shape[0], controls.shape[1]
         n_s, c = self.n_state, self.n_controls
         # x (H + 1, E, B, S + C + 1): [s_k | c_k | 1] of every step; s_k written by step k - 1's add
@@ -780,15 +814,59 @@ class NumpyDnnRollout:
                     add(t, s_lin, out=s_next)
                     if heading is not None:
                         self._heading(columns)
-            path = x[1:, :, :, :4].transpose(1, 2, 0, 3).astype(np.float64)  # (E, B, H, 4)
-            full = np.concatenate([np.broadcast_to(state[None, :, None, :], (e, b, 1, 4)), path], axis=2)
-            cos_psi, sin_psi = np.cos(full[..., 3]), np.sin(full[..., 3])  # (E, B, H + 1)
-            velocity = np.stack([full[..., 0] * cos_psi - full[..., 1] * sin_psi,  # north, east (E, B, H + 1, 2)
-                                 full[..., 0] * sin_psi + full[..., 1] * cos_psi], axis=-1)
-            out = np.empty((e, b, horizon, 6))
-            out[..., 0:3] = path[..., 0:3]
-            np.cumsum(0.5 * self.dt * (velocity[:, :, 1:] + velocity[:, :, :-1]), axis=2, out=out[..., 3:5])
-            out[..., 5] = path[..., 3]
+        return self._kinematics(state, x[1:, :, :, :4].transpose(1, 2, 0, 3))  # (E, B, H, 4)
+
+    def _rollout_one(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """rollout() of one state (the node's cycle): the members side by side in one vector per step (the
+        block-diagonal first_one / out_one, _vector_weights), so that a step is six numpy calls on contiguous
+        memory: [pre | unit] = [s | c | 1] F, act, hidden products (stacked over the members), act, s' = r O, sin."""
+        e, horizon, n_s, c, width = self.ensemble_size, controls.shape[1], self.n_state, self.n_controls, self.width
+        hw, hs = e * width, e * n_s  # where s_k starts in a row, and its length
+        rows = np.empty((horizon + 1, hw + hs + c + 1), dtype=self.dtype)  # r_k = [h (E W) | s_k (E S) | c_k | 1]
+        rows[0, hw: hw + 4 * e] = np.tile(state[0], e)  # q = E x [u, v, r, psi]
+        heading = rows[0, hw + 4 * e: hw + hs]
+        heading[...] = (state[0, 3] + self.phase).reshape(-1)  # E x [psi + phase]
+        self._heading(heading)
+        rows[:horizon, hw + hs: hw + hs + c] = controls[0]
+        rows[horizon, hw + hs: hw + hs + c] = 0.0
+        rows[:, -1] = 1.0
+        first, out_one = self.first_one, self.out_one
+        y = np.empty(first.shape[1], dtype=self.dtype)  # E x [pre | unit] (or the last h, without hidden layers)
+        stacked = y.reshape(e, 1, -1)
+        layers = [(w, np.empty((e, 1, w.shape[2]), dtype=self.dtype)) for w in self.hidden[:-1]]
+        dot, matmul = np.dot, np.matmul
+        with np.errstate(over="ignore", invalid="ignore"):
+            for row, inputs, h, s_next, columns in zip(rows[:-1], rows[:-1, hw:], rows[:-1, :hw], rows[1:, hw: hw + hs],
+                                                       rows[1:, hw + 4 * e: hw + hs]):
+                if not self.hidden:  # the first layer's units are the last hidden ones
+                    dot(inputs, first, out=h)
+                    self._act(h)
+                else:
+                    dot(inputs, first, out=y)
+                    g = self._act(stacked)
+                    for w, z in layers:
+                        matmul(g, w, out=z)
+                        g = self._act(z)
+                    matmul(g, self.hidden[-1], out=h.reshape(e, 1, width))
+                    self._act(h)
+                dot(row, out_one, out=s_next)
+                self._heading(columns)
+        path = rows[1:, hw: hw + 4 * e].reshape(horizon, e, 4).transpose(1, 0, 2)[:, None]  # (E, 1, H, 4)
+        return self._kinematics(state, path)
+
+    def _kinematics(self, state: np.ndarray, path: np.ndarray) -> np.ndarray:
+        """(E, B, H, 6) [u, v, r, x_n, y_e, psi] float64 from the start state (B, 4) and the steps' [u, v, r, psi]
+        (E, B, H, 4): positions by the trapezoidal rule over R(psi) [u, v] (DnnRollout's kinematics)."""
+        e, b, horizon = path.shape[:3]
+        path = path.astype(np.float64)
+        full = np.concatenate([np.broadcast_to(state[None, :, None, :], (e, b, 1, 4)), path], axis=2)
+        cos_psi, sin_psi = np.cos(full[..., 3]), np.sin(full[..., 3])  # (E, B, H + 1)
+        velocity = np.stack([full[..., 0] * cos_psi - full[..., 1] * sin_psi,  # north, east (E, B, H + 1, 2)
+                             full[..., 0] * sin_psi + full[..., 1] * cos_psi], axis=-1)
+        out = np.empty((e, b, horizon, 6))
+        out[..., 0:3] = path[..., 0:3]
+        np.cumsum(0.5 * self.dt * (velocity[:, :, 1:] + velocity[:, :, :-1]), axis=2, out=out[..., 3:5])
+        out[..., 5] = path[..., 3]
         return out
 
     def __call__(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:

@@ -617,8 +617,9 @@ def predict_batch(inputs: InputSet, rollout: Rollout, now_ns: int, schedule: Sch
     out = rollout.batch(live.state, controls)  # (E, N, H, 6)
     compute_s = time.perf_counter() - started
     _check_output(out)
-    return BatchPrediction(now_ns, step_times(live, inputs.settings, first=1), _anchored(out, live.position).mean(axis=0),
-                           out[..., 0:3].mean(axis=0), live.position is not None, live, compute_s)
+    mean = out.mean(axis=0)  # (N, H, 6): anchoring moves every member alike, so the mean is anchored once
+    return BatchPrediction(now_ns, step_times(live, inputs.settings, first=1), _anchored(mean, live.position),
+                           mean[..., 0:3], live.position is not None, live, compute_s)
 
 
 def enu_covariance(eta_members: np.ndarray) -> np.ndarray:
