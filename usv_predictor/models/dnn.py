@@ -834,23 +834,34 @@ class NumpyDnnRollout:
         y = np.empty(first.shape[1], dtype=self.dtype)  # E x [pre | unit] (or the last h, without hidden layers)
         stacked = y.reshape(e, 1, -1)
         layers = [(w, np.empty((e, 1, w.shape[2]), dtype=self.dtype)) for w in self.hidden[:-1]]
-        dot, matmul = np.dot, np.matmul
+        dot, matmul, last = np.dot, np.matmul, self.hidden[-1] if self.hidden else None
+        steps = zip(rows[:-1], rows[:-1, hw:], rows[:-1, :hw], rows[:-1, :hw].reshape(horizon, e, 1, width),
+                    rows[1:, hw: hw + hs], rows[1:, hw + 4 * e: hw + hs])
         with np.errstate(over="ignore", invalid="ignore"):
-            for row, inputs, h, s_next, columns in zip(rows[:-1], rows[:-1, hw:], rows[:-1, :hw], rows[1:, hw: hw + hs],
-                                                       rows[1:, hw + 4 * e: hw + hs]):
-                if not self.hidden:  # the first layer's units are the last hidden ones
-                    dot(inputs, first, out=h)
-                    self._act(h)
-                else:
+            if not self.clipped and len(self.hidden) == 1 and self.trig_mode == 2:  # the usual network: NTF, tanh, depth 2
+                tanh, sin = np.tanh, np.sin
+                for row, inputs, h, h_stacked, s_next, columns in steps:
                     dot(inputs, first, out=y)
-                    g = self._act(stacked)
-                    for w, z in layers:
-                        matmul(g, w, out=z)
-                        g = self._act(z)
-                    matmul(g, self.hidden[-1], out=h.reshape(e, 1, width))
-                    self._act(h)
-                dot(row, out_one, out=s_next)
-                self._heading(columns)
+                    tanh(y, out=y)
+                    matmul(stacked, last, out=h_stacked)
+                    tanh(h, out=h)
+                    dot(row, out_one, out=s_next)
+                    sin(columns, out=columns)
+            else:  # the same step for any depth, activation and heading columns
+                for row, inputs, h, h_stacked, s_next, columns in steps:
+                    if last is None:  # no hidden layers: the first layer's units are the last ones
+                        dot(inputs, first, out=h)
+                        self._act(h)
+                    else:
+                        dot(inputs, first, out=y)
+                        g = self._act(stacked)
+                        for w, z in layers:
+                            matmul(g, w, out=z)
+                            g = self._act(z)
+                        matmul(g, last, out=h_stacked)
+                        self._act(h)
+                    dot(row, out_one, out=s_next)
+                    self._heading(columns)
         path = rows[1:, hw: hw + 4 * e].reshape(horizon, e, 4).transpose(1, 0, 2)[:, None]  # (E, 1, H, 4)
         return self._kinematics(state, path)
 
