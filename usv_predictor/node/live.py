@@ -106,8 +106,12 @@ def check_raw_heading(raw: float, units: str) -> None:
 def check_values(role: str, fields: Sequence[str], values: Sequence[float],
                  layout: ActuatorLayout = DEFAULT_LAYOUT) -> None:
     """Used fields must be finite and plausible (InputRejected 'non_finite' or 'range' naming the field)."""
-    used = state_fields(layout).get(role, ())
-    plausible = plausible_ranges(layout)
+    _check_values(role, fields, values, state_fields(layout).get(role, ()), plausible_ranges(layout))
+
+
+def _check_values(role: str, fields: Sequence[str], values: Sequence[float], used: Sequence[str],
+                  plausible: Mapping[str, tuple[float, float]]) -> None:
+    """check_values with the layout's used fields of the role and plausible ranges given (InputSet keeps them)."""
     for name, value in zip(fields, values):
         if name not in used:
             continue
@@ -324,6 +328,8 @@ class InputSet:
     def __init__(self, fields_by_role: Mapping[str, Sequence[str]], max_age_s: Mapping[str, float],
                  settings: LiveSettings, layout: ActuatorLayout = DEFAULT_LAYOUT) -> None:
         self.layout = layout
+        self._used = state_fields(layout)  # role -> the fields the state uses (check_values, once per sample)
+        self._plausible = plausible_ranges(layout)
         self.required = required_roles(layout)
         self.fields = state_fields(layout)
         # a configuration without them still runs (and reports); it just never predicts
@@ -343,7 +349,7 @@ class InputSet:
         track = self.tracks[role]
         track.received += 1
         try:
-            check_values(role, track.buffer.fields, values, self.layout)
+            _check_values(role, track.buffer.fields, values, self._used.get(role, ()), self._plausible)
             latest = track.buffer.latest_ns
             if latest is not None and stamp_ns <= latest:
                 if stamp_ns == latest:
