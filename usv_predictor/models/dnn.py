@@ -39,9 +39,10 @@ For speed (node budget: p99 <= 1.5 ms for B=1, H=120) the network is folded into
 batched matrix products over the ensemble: the controls' share of the first layer is computed for all
 steps before the loop, the state update z_{k+1} = z_k A + c + h W (z = [u, v, r, psi]) folds the
 increment and the heading integration into the output layer, positions are integrated after the loop
-(they do not feed back). The node and `replay evaluate` run this network fused once more at load time
-(FusedDnnRollout, from the artifact's buffers: tanh as sigmoid with its shift and scale folded into the
-weights, no allocation or slicing op in the step loop); the artifact keeps DnnRollout.
+(they do not feed back). The node and `replay evaluate` run this network fused once more at load time, from
+the artifact's buffers: stepped with numpy (NumpyDnnRollout: bias units, block-diagonal layers for one state,
+numpy's fast tanh and AVX-512 BLAS), else with TorchScript (FusedDnnRollout: tanh as sigmoid with its shift and
+scale folded into the weights, no allocation or slicing op in the step loop); the artifact keeps DnnRollout.
 """
 from __future__ import annotations
 
@@ -464,8 +465,9 @@ def sigmoid_form(params: Mapping[str, torch.Tensor], n_state: int) -> dict[str, 
 
 
 class FusedDnnRollout(DnnRollout):
-    """The rollout the node runs for a DNN artifact: the artifact's folded network (its DnnRollout buffers), fused
-    once more at load time. Same interface and function as DnnRollout (forward: (B, 4), (B, H, C) -> (E, B, H, 6));
+    """TorchScript's fused rollout of a DNN artifact, what the node runs when NumpyDnnRollout cannot be built (a
+    clippedReLU ceiling below 1): the artifact's folded network (its DnnRollout buffers), fused once more at load
+    time. Same interface and function as DnnRollout (forward: (B, 4), (B, H, C) -> (E, B, H, 6));
     equal to the artifact's own rollout within float rounding (test_dnn_fused.py). What differs, per step:
 
     * tanh activations run as sigmoids of the same products (sigmoid_form: the affine shift and scale folded into
