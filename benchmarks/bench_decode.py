@@ -1,10 +1,12 @@
 """Messages per second: rosbags' per-message deserialize_cdr vs the bulk decoder, side by side.
 
-Run: .venv/bin/python benchmarks/bench_decode.py [--count 200000]
+Run: .venv/bin/python benchmarks/bench_decode.py [--count 200000] [--small]
 
 Part 1 decodes in-memory CDR for every supported type. Part 2 writes a rosbag2 recording of Imu
 messages with rosbags' Writer in a temporary directory and measures end to end, reader included.
 Both decoders run in the same process on the same bytes, and the outputs are checked to agree.
+--small: only the node's case instead, batches of 1-32 messages: decode_many's small-batch walk
+(msg_adapters.cdr.SMALL_BATCH) against the vectorised walk (SMALL_BATCH 0), alternating, median us per call.
 """
 from __future__ import annotations
 
@@ -129,12 +131,42 @@ def bench_end_to_end(typestore: Typestore, count: int, repeats: int) -> None:
         )
 
 
+def bench_small(typestore: Typestore, repeats: int) -> None:
+    import os
+    import time
+
+    from msg_adapters import cdr
+
+    print(f"small batches (the node's per-cycle input), median of {repeats} alternating calls, us per call; "
+          f"load average {os.getloadavg()[0]:.2f}")
+    print(f'{"type":36s} {"n":>3s} {"small walk":>11s} {"vectorised":>11s}')
+    for ros_type in ("sensor_msgs/msg/Imu", "geometry_msgs/msg/TwistStamped", "std_msgs/msg/Float64",
+                     "sensor_msgs/msg/NavSatFix"):
+        raws = sample_raws(ros_type, typestore, 32, "base_link")
+        for n in (1, 2, 4, 8, 16, 32):
+            batch = raws[:n]
+            times: dict[int, list[float]] = {cdr.SMALL_BATCH: [], 0: []}
+            for _ in range(repeats):
+                for limit in times:
+                    cdr.SMALL_BATCH, start = limit, time.perf_counter()
+                    decode_many(ros_type, batch, typestore)
+                    times[limit].append(time.perf_counter() - start)
+            small, vectorised = (1e6 * float(np.median(t)) for t in times.values())
+            cdr.SMALL_BATCH = max(times)
+            print(f"{ros_type:36s} {n:3d} {small:11.1f} {vectorised:11.1f}" + ("" if n <= max(times) else
+                                                                              "   (above SMALL_BATCH: both vectorised)"))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--count", type=int, default=200_000, help="messages per measurement")
     parser.add_argument("--repeats", type=int, default=3, help="runs of decode_many, best kept")
+    parser.add_argument("--small", action="store_true", help="the node's small batches only (1-32 messages)")
     args = parser.parse_args()
     typestore = get_typestore(Stores.ROS2_JAZZY)
+    if args.small:
+        bench_small(typestore, max(args.repeats, 2000))
+        return
     bench_in_memory(typestore, args.count, args.repeats)
     bench_end_to_end(typestore, args.count, args.repeats)
 

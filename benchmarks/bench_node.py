@@ -4,14 +4,14 @@
     python benchmarks/bench_node.py [--repeats 2000] [--seconds 10] [--baseline 67fb230] [--json out/bench_node.json]
 
 1. Rollout compute, one 60 s / dt 0.5 s rollout (120 steps) of the shipped 5-member model, torch.set_num_threads(1),
-   warm-up first, p50 / p99 over --repeats calls: the node's call now (live.Rollout on the model as
-   models/loading.load_model returns it: the DNN rollout fused at load time, models/dnn.FusedDnnRollout) and the
-   file's own rollout as the node called it before (live.Rollout on load_artifact's module), measured in
-   alternating rounds so that a change of load hits both; the file's module after torch.jit.freeze, and after
-   freeze + optimize_for_inference; the same folded
-   network as a plain eager loop (members one by one, no fused batched matmuls) and as a numpy loop; the
-   network re-scripted with tanh(x) = 2 sigmoid(2x) - 1 (torch's tanh is the slow kernel of a batch); and the
-   64-candidate batch (B = 64, one call) for the fused rollout, the artifact, freeze and the sigmoid form.
+   warm-up first, p50 / p99 over --repeats calls, in alternating rounds so that a change of load hits all alike:
+   the node's call now (live.Rollout on the model as models/loading.load_model returns it: the DNN stepped with
+   numpy, models/dnn.NumpyDnnRollout), TorchScript's fused rollout (models/dnn.FusedDnnRollout: the node's call
+   before) and the file's own rollout; the file's module after torch.jit.freeze, and after freeze +
+   optimize_for_inference; the same folded network as a plain eager loop (members one by one, no fused batched
+   matmuls) and as a numpy loop (members one by one); the network re-scripted with tanh(x) = 2 sigmoid(2x) - 1; and
+   the 64-candidate batch (B = 64, 64 different rudders, one call) for numpy's, the fused, the file's rollout, freeze
+   and the sigmoid form.
 2. The node in its own process at 10 Hz, fed from this process over DDS (loopback, localhost discovery) with the
    inputs as CDR bytes (stamps patched in place: the feeder costs next to nothing), IMU at 200 Hz then at 1 kHz,
    the other inputs at 20/20/10/10/5 Hz; the Path arrives on a raw subscription (its header stamp read from the
@@ -30,6 +30,7 @@ Figures depend on the machine and its load (2 shared cores here): the load avera
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -48,7 +49,7 @@ import torch
 from usv_predictor.config import package_share_path
 from usv_predictor.models import loading
 from usv_predictor.models.artifact import export_module, load_artifact
-from usv_predictor.models.dnn import DnnConfig, DnnModel, DnnRollout, _heading_fold
+from usv_predictor.models.dnn import DnnConfig, DnnModel, DnnRollout, NumpyDnnRollout, _heading_fold, fused_rollout
 from usv_predictor.node import live
 
 H = 120
@@ -172,9 +173,11 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
     path = package_share_path("models", "default.pt")
     artifact = load_artifact(path)  # the file's module only (no fusing)
     rollout = live.Rollout(artifact, H)
-    fused_model = loading.load_model(str(path), physics=False)  # what the node and `replay evaluate` load
-    assert fused_model.inference is not None, fused_model.inference_note
-    fused = live.Rollout(fused_model, H)
+    numpy_model = loading.load_model(str(path), physics=False)  # what the node and `replay evaluate` load now
+    assert isinstance(numpy_model.inference, NumpyDnnRollout), numpy_model.inference_note
+    numpy_form = live.Rollout(numpy_model, H)
+    # TorchScript's fused rollout: what load_model gave before NumpyDnnRollout (and still gives when numpy's fails)
+    fused = live.Rollout(dataclasses.replace(artifact, inference=fused_rollout(artifact)), H)
     state, controls = np.array([5.0, 0.1, 0.02, 0.3]), np.array([0.2, 650.0])
     params = folded(artifact.module)
     t_state = torch.tensor(state[None], dtype=params["m_s"].dtype)
@@ -186,19 +189,26 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
     sigmoid = rescripted(artifact, SigmoidTanhRollout)
     batch_state = t_state.expand(64, 4).contiguous()
     batch_controls = t_controls.expand(64, H, 2).contiguous()
+    candidates = np.tile(controls, (64, H, 1))
+    candidates[:, :, 0] = np.linspace(-0.5, 0.5, 64)[:, None]  # 64 different rudders
     with torch.inference_mode():
         reference = rollout(state, controls)  # (E, H, 6)
+        numpy_out = numpy_form(state, controls)
         fused_out = fused(state, controls)
-        fused_batch = fused.batch(state, np.tile(controls, (64, H, 1)))
-        file_batch = rollout.batch(state, np.tile(controls, (64, H, 1)))
+        numpy_batch = numpy_form.batch(state, candidates)
+        fused_batch = fused.batch(state, candidates)
+        file_batch = rollout.batch(state, candidates)
         eager = eager_rollout(params, t_state, t_controls)[:, 0, 1:].double().numpy()
         variants = {name: module(t_state, t_controls)[:, 0].double().numpy()
                     for name, module in (("freeze", frozen), ("optimize_for_inference", optimised), ("sigmoid", sigmoid))}
-    numpy_out = numpy_rollout(np_params, state, np_controls)[:, 1:]
-    agreement = {"fused_vs_torchscript_max_abs": float(np.abs(fused_out - reference).max()),
+    numpy_loop = numpy_rollout(np_params, state, np_controls)[:, 1:]
+    agreement = {"numpy_vs_torchscript_max_abs": float(np.abs(numpy_out - reference).max()),
+                 "numpy_vs_torchscript_64_candidates_max_abs": float(np.abs(numpy_batch - file_batch).max()),
+                 "fused_vs_torchscript_max_abs": float(np.abs(fused_out - reference).max()),
                  "fused_vs_torchscript_64_candidates_max_abs": float(np.abs(fused_batch - file_batch).max()),
+                 "numpy_vs_fused_64_candidates_max_abs": float(np.abs(numpy_batch - fused_batch).max()),
                  "eager_vs_torchscript_max_abs": float(np.abs(eager - reference[..., [0, 1, 2, 5]]).max()),
-                 "numpy_vs_torchscript_max_abs": float(np.abs(numpy_out - reference[..., [0, 1, 2, 5]]).max()),
+                 "numpy_loop_vs_torchscript_max_abs": float(np.abs(numpy_loop - reference[..., [0, 1, 2, 5]]).max()),
                  **{f"{name}_vs_torchscript_max_abs": float(np.abs(out - reference).max()) for name, out in variants.items()}}
 
     def call(module, s, c):
@@ -212,20 +222,22 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
             eager_rollout(params, t_state, t_controls)
 
     few = max(50, repeats // 10)
-    pair = timed_alternating({"fused_5 (the node's call now)": lambda: fused(state, controls),
-                              "torchscript_5 (the file's rollout, the node's call before)": lambda: rollout(state, controls)},
+    pair = timed_alternating({"numpy (NumpyDnnRollout: the node's call now)": lambda: numpy_form(state, controls),
+                              "fused TorchScript (FusedDnnRollout: before)": lambda: fused(state, controls),
+                              "torchscript_5 (the file's rollout)": lambda: rollout(state, controls)},
                              repeats)
-    pair_64 = timed_alternating({"batch 64 candidates fused (the node's call now)":
-                                 lambda: fused.batch(state, np.tile(controls, (64, H, 1))),
-                                 "batch 64 candidates torchscript_5 (before)":
-                                 lambda: rollout.batch(state, np.tile(controls, (64, H, 1)))}, few)
+    pair_64 = timed_alternating({"batch 64 candidates numpy (the node's call now)":
+                                 lambda: numpy_form.batch(state, candidates),
+                                 "batch 64 candidates fused TorchScript (before)": lambda: fused.batch(state, candidates),
+                                 "batch 64 candidates torchscript_5 (the file's)":
+                                 lambda: rollout.batch(state, candidates)}, few)
     results = {
         **pair,
         "torchscript_5 jit.freeze": timed(call(frozen, t_state, t_controls), repeats),
         "torchscript_5 freeze+optimize_for_inference": timed(call(optimised, t_state, t_controls), repeats),
         "torchscript_5 tanh as 2 sigmoid(2x) - 1": timed(call(sigmoid, t_state, t_controls), repeats),
         "eager_5 (members looped, no fused bmm)": timed(run_eager, few),
-        "numpy_5": timed(lambda: numpy_rollout(np_params, state, np_controls), few),
+        "numpy_5 (members looped, one at a time)": timed(lambda: numpy_rollout(np_params, state, np_controls), few),
         **pair_64,
         "batch 64 candidates jit.freeze": timed(call(frozen, batch_state, batch_controls), few),
         "batch 64 candidates sigmoid tanh": timed(call(sigmoid, batch_state, batch_controls), few),

@@ -75,6 +75,10 @@ _OBJECT = "object"  # anything without a fixed layout: only rosbags decodes it
 _LITTLE_ENDIAN_HEADER = (0, 1)
 _HEADER_SIZE = 4
 _MAX_TRAILING_PADDING = 3  # rosbags accepts up to 3 unread bytes at the end
+# batches of at most this many messages walk their strings and group their layouts in plain Python (_decode_small):
+# the same checks, messages and layouts as the vectorised walk, without its fixed cost of ~40 numpy calls, which
+# dominates for the node's 1-2 messages per input and cycle (benchmarks/bench_decode.py --small)
+SMALL_BATCH = 16
 
 
 class _Leaf(NamedTuple):
@@ -125,6 +129,10 @@ def decode_many(
     if count == 0:
         return _to_namespace(leaves, [_empty(leaf) for leaf in leaves])
 
+    if count <= SMALL_BATCH and _all_fixed(leaves):
+        small = _decode_small(ros_type, leaves, raws)
+        if small is not None:
+            return small
     lengths = np.fromiter(map(len, raws), dtype=np.int64, count=count)
     if (lengths < _HEADER_SIZE).any():
         index = int(np.argmax(lengths < _HEADER_SIZE))
@@ -311,6 +319,64 @@ def _string_lengths(
         found.append(length)
         position = end
     return found
+
+
+def _decode_small(ros_type: str, leaves: tuple[_Leaf, ...], raws: Sequence[bytes | memoryview]) -> SimpleNamespace | None:
+    """decode_many of a few messages of a fixed-layout type: each message's strings walked in Python with the checks
+    and messages of _string_lengths, its layout group found in a dict; then the same _layout, _check_size and
+    _read_records as the vectorised path. None when a message is not little-endian CDR (decode_many's general path
+    then decodes or rejects the batch as always)."""
+    groups: dict[tuple[int, ...], list[int]] = {}
+    for index, raw in enumerate(raws):
+        if len(raw) < _HEADER_SIZE:
+            raise BagError(_where(ros_type, index, f"{len(raw)} bytes, expected at least the 4-byte CDR header"))
+        if (raw[0], raw[1]) != _LITTLE_ENDIAN_HEADER:
+            return None
+        key = (len(raw), *_message_string_lengths(ros_type, leaves, raw, index))
+        groups.setdefault(key, []).append(index)
+    parts: list[tuple[np.ndarray, list[np.ndarray]]] = []
+    for key, members in groups.items():
+        layout = _layout(leaves, key[1:], key[0])
+        _check_size(ros_type, key[0], layout.size, members[0])
+        joined = raws[members[0]] if len(members) == 1 else b"".join([raws[i] for i in members])
+        records = np.frombuffer(joined, dtype=layout.dtype, count=len(members))
+        group_index = np.array(members, dtype=np.int64)
+        parts.append((group_index, _read_records(ros_type, leaves, layout, records, group_index)))
+    return _to_namespace(leaves, _assemble(leaves, len(raws), parts))
+
+
+def _message_string_lengths(ros_type: str, leaves: Sequence[_Leaf], raw: bytes | memoryview, index: int) -> list[int]:
+    """_string_lengths for one message (its position `index` in the batch), in Python integers."""
+    payload = len(raw) - _HEADER_SIZE
+    position = 0
+    found: list[int] = []
+    for leaf in leaves[: _last_string(leaves) + 1]:
+        if leaf.kind != _STRING:
+            wire = _WIRE_DTYPES[leaf.kind]
+            position = _align(position, wire.itemsize) + wire.itemsize * max(leaf.count, 1)
+            continue
+        name = ".".join(leaf.path)
+        position = _align(position, 4)
+        if payload < position + 4:
+            raise BagError(_where(ros_type, index, f"truncated before the length of {name!r}"))
+        at = _HEADER_SIZE + position
+        length = int.from_bytes(raw[at: at + 4], "little")
+        if length < 1:
+            raise BagError(_where(ros_type, index, f"string {name!r} has length 0, expected >= 1 (its NUL included)"))
+        end = position + 4 + length
+        if payload < end:
+            raise BagError(_where(ros_type, index, f"truncated inside string {name!r}"))
+        if raw[_HEADER_SIZE + end - 1] != 0:
+            raise BagError(_where(ros_type, index, f"string {name!r} lacks its NUL terminator"))
+        found.append(length)
+        position = end
+    return found
+
+
+@functools.lru_cache(maxsize=256)
+def _last_string(leaves: tuple[_Leaf, ...]) -> int:
+    """Index of the last string leaf (-1: none)."""
+    return max((i for i, leaf in enumerate(leaves) if leaf.kind == _STRING), default=-1)
 
 
 def _require(ros_type: str, index: np.ndarray, valid: np.ndarray, what: str) -> None:

@@ -1,6 +1,7 @@
-"""The node's fused DNN rollout (models/dnn.FusedDnnRollout, fused when a model is loaded) computes what the
-artifact's own rollout and the members stepped one by one compute, within float rounding; old artifacts keep
-loading and a DNN file that cannot be fused keeps its own rollout. No timing here (benchmarks/bench_node.py)."""
+"""The node's fused DNN rollout (models/dnn.NumpyDnnRollout, else FusedDnnRollout, fused when a model is loaded)
+computes what the artifact's own rollout and the members stepped one by one compute, within float rounding; old
+artifacts keep loading and a DNN file that cannot be fused keeps its own rollout. No timing here
+(benchmarks/bench_node.py)."""
 from __future__ import annotations
 
 import math
@@ -16,7 +17,9 @@ from usv_predictor.data.features import FEATURE_SETS
 from usv_predictor.errors import ModelError
 from usv_predictor.models import loading
 from usv_predictor.models.artifact import export_module, load_artifact
-from usv_predictor.models.dnn import DnnModel, DnnRollout, FusedDnnRollout, _probe, fused_rollout, sigmoid_form
+from usv_predictor.models import dnn
+from usv_predictor.models.dnn import (BIAS_UNIT_PRE, NUMPY_FORM, DnnModel, DnnRollout, FusedDnnRollout,
+                                      NumpyDnnRollout, _probe, fused_rollout, sigmoid_form)
 from usv_predictor.node import live
 
 SHIPPED = Path(__file__).resolve().parents[1] / "models" / "default.pt"
@@ -46,9 +49,12 @@ def test_fused_rollout_equals_the_members_stepped_one_by_one(tmp_path: Path, fea
     assert model.inference is not None and model.inference_note.startswith("fused")
     state, controls = _inputs(batch=4, horizon=40)
     got = model.predict(state, controls)  # (E, B, H, 6) through the fused rollout
-    assert got.shape == (3, 4, 40, 6)
+    one = model.predict(state[:1], controls[:1])  # one state: NumpyDnnRollout's one-state form
+    assert got.shape == (3, 4, 40, 6) and one.shape == (3, 1, 40, 6)
     for e, member in enumerate(members):
-        np.testing.assert_allclose(got[e], _reference(member, feature_set, state, controls, DT), rtol=0, atol=1e-9)
+        reference = _reference(member, feature_set, state, controls, DT)
+        np.testing.assert_allclose(got[e], reference, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(one[e], reference[:1], rtol=0, atol=1e-9)
     with torch.inference_mode():
         own = model.module(torch.from_numpy(state), torch.from_numpy(controls)).numpy()
     np.testing.assert_allclose(got, own, rtol=0, atol=1e-10)
@@ -202,19 +208,90 @@ def test_the_node_computes_only_the_members_it_uses() -> None:
     np.testing.assert_allclose(got, full[:2], rtol=0, atol=1e-4)
 
 
-def test_a_fused_rollout_that_cannot_be_scripted_leaves_the_file_running(tmp_path: Path, monkeypatch) -> None:
-    """TorchScript compiles the fused rollout when a model is loaded (also on a model swap in a running node):
-    if that fails, the model loads with its own rollout and says why, instead of failing to load."""
+def test_a_fused_rollout_that_cannot_be_built_leaves_the_next_form_running(tmp_path: Path, monkeypatch) -> None:
+    """The forms are tried in turn when a model is loaded (also on a model swap in a running node): numpy's, then
+    TorchScript's (compiled from its source file then: that can fail), then the file's own; each model says which
+    runs and why the faster ones do not."""
     members = [_member("NTF", 1, "tanh", 2)]
     _export(tmp_path / "m.pt", members, dtype="float64")
+
+    def numpy_broken(*args, **kwargs):
+        raise ModelError("model m.pt: the numpy rollout differs from the file's by 1 (a test)")
 
     def broken(*args, **kwargs):
         raise RuntimeError("compilation failed\nsome TorchScript detail")
 
+    state, controls = _inputs()
+    with torch.inference_mode():
+        own = load_artifact(tmp_path / "m.pt").module(torch.from_numpy(state), torch.from_numpy(controls)).numpy()
+    monkeypatch.setattr(dnn, "numpy_rollout", numpy_broken)
+    model = _loaded(tmp_path / "m.pt")
+    assert isinstance(model.inference, torch.jit.ScriptModule)
+    assert model.inference_note.startswith("fused (models/dnn.FusedDnnRollout") and "(a test)" in model.inference_note
+    np.testing.assert_allclose(model.predict(state, controls), own, rtol=0, atol=1e-10)
     monkeypatch.setattr(torch.jit, "script", broken)
     model = _loaded(tmp_path / "m.pt")
     assert model.inference is None and "cannot be built or run: some TorchScript detail" in model.inference_note
-    state, controls = _inputs()
-    with torch.inference_mode():
-        own = model.module(torch.from_numpy(state), torch.from_numpy(controls)).numpy()
+    assert "(a test)" in model.inference_note
     np.testing.assert_array_equal(model.predict(state, controls), own)
+
+
+@pytest.mark.parametrize("batch", [1, 64])
+def test_numpy_rollout_equals_the_torchscript_fused_rollout(batch: int) -> None:
+    """The shipped float32 model: numpy's rollout (what loads) against TorchScript's FusedDnnRollout (what loaded
+    before) and the file's rollout, one state and 64 candidates: each float32 form's error from the float64 network
+    is of the same size (numpy's within 3x the larger of the other two's), and numpy's and TorchScript's forms agree
+    within float32 rounding amplified by 120 closed-loop steps (the tolerance below, ~1e-4 of each column's scale)."""
+    model = _loaded(SHIPPED)
+    assert isinstance(model.inference, NumpyDnnRollout) and model.inference_note == NUMPY_FORM
+    state, controls = _shipped_inputs(batch, seed=10 + batch)
+    got = model.predict(state, controls)  # (5, B, 120, 6)
+    scripted = fused_rollout(load_artifact(SHIPPED))
+    with torch.inference_mode():
+        fused = scripted(torch.from_numpy(state).float(), torch.from_numpy(controls).float()).double().numpy()
+        own = model.module(torch.from_numpy(state), torch.from_numpy(controls)).double().numpy()
+        exact = load_artifact(SHIPPED).module.double()(torch.from_numpy(state), torch.from_numpy(controls)).numpy()
+    tolerance = np.array([1e-3, 2e-4, 5e-5, 1e-2, 1e-2, 5e-4])  # u, v (m/s), r (rad/s), x_n, y_e (m), psi (rad)
+    assert np.all(np.abs(got - fused).max(axis=(0, 1, 2)) <= tolerance)
+    numpy_error, fused_error, own_error = (np.abs(out - exact).max(axis=(0, 1, 2)) for out in (got, fused, own))
+    assert np.all(numpy_error <= 3.0 * np.maximum(fused_error, own_error) + 1e-6), (numpy_error, fused_error, own_error)
+    assert np.abs(got[0] - got[1]).max() > 1e-2  # the members differ: not one member copied five times
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_numpy_one_state_form_equals_its_batched_form(tmp_path: Path, dtype: str) -> None:
+    """The node's one state runs the block-diagonal one-state form, candidates the stacked form: the same function
+    (float64: to rounding; float32: within float32 rounding over 120 steps), for each member."""
+    members = [_member("NTF", seed, "tanh", 2) for seed in (1, 2, 3)]
+    _export(tmp_path / "m.pt", members, dtype=dtype)
+    rollout = _loaded(tmp_path / "m.pt").inference
+    state, controls = _inputs(batch=2, horizon=120)
+    one = rollout.rollout(state[:1], controls[:1])
+    batched = rollout._rollout_batch(state[:1], controls[:1])
+    tolerance = 1e-10 if dtype == "float64" else 1e-3
+    np.testing.assert_allclose(one, batched, rtol=0, atol=tolerance)
+    assert np.abs(one[0] - one[1]).max() > 1e-2  # members differ (a block of one member used for another would show)
+
+
+def test_numpy_bias_unit_is_exactly_one() -> None:
+    """The bias unit's activation is 1 exactly (float32 and float64), so each layer's bias enters its product
+    unscaled; a clippedReLU whose ceiling is below 1 has none and is refused (TorchScript's form then runs)."""
+    rollout = NumpyDnnRollout.__new__(NumpyDnnRollout)
+    rollout.clipped = False
+    for dtype in (np.float32, np.float64):
+        assert rollout._act(np.array([BIAS_UNIT_PRE], dtype=dtype))[0] == 1.0
+    params = dict(DnnRollout([_member("NTF", 1, "clipped_relu", 2)], DT, torch.float32).named_buffers())
+    with pytest.raises(ModelError, match="no exact bias unit"):
+        NumpyDnnRollout(params, feature_set="NTF", activation="clipped_relu", ceiling=0.5, dt=DT)
+    built = NumpyDnnRollout(params, feature_set="NTF", activation="clipped_relu", ceiling=1.5, dt=DT)
+    assert built.first[0, -1, -1] == 1.0 and built.first.dtype == np.float32
+
+
+def test_numpy_rollout_refuses_inputs_of_other_shapes() -> None:
+    rollout = _loaded(SHIPPED).inference
+    with pytest.raises(ValueError, match="controls must be"):
+        rollout.rollout(np.zeros((2, 4)), np.zeros((3, 120, 2)))  # another batch
+    with pytest.raises(ValueError, match="controls must be"):
+        rollout.rollout(np.zeros((2, 4)), np.zeros((2, 120, 3)))  # another layout
+    with pytest.raises(ValueError, match="state must be"):
+        rollout.rollout(np.zeros((2, 5)), np.zeros((2, 120, 2)))

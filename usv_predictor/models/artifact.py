@@ -28,7 +28,7 @@ import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 import torch
@@ -70,8 +70,9 @@ class ModelArtifact:
     module: torch.jit.ScriptModule  # the file's rollout, as exported
     vessel_description: dict[str, Any] | None = None  # the embedded vessel file (None: an artifact of before)
     # what predict() runs: the file's module, or a faster form of it that models/loading.py checked equal
-    # (a DNN's fused rollout, models/dnn.fused_rollout); `inference_note` says which and why
-    inference: torch.jit.ScriptModule | None = None
+    # (a DNN's numpy or TorchScript fused rollout, models/dnn): called as the module is, (B, 4), (B, H, C) tensors ->
+    # (E, B, H, 6); `inference_note` says which and why
+    inference: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None
     inference_note: str = "the file's rollout"
 
     @property
@@ -82,7 +83,7 @@ class ModelArtifact:
         return vessel_from_dict(self.vessel_description, source=f"model {self.path} ({VESSEL_FILE})")
 
     @property
-    def runner(self) -> torch.jit.ScriptModule:
+    def runner(self) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
         """The module predictions run: `inference` when set, else the file's module."""
         return self.module if self.inference is None else self.inference
 

@@ -39,9 +39,10 @@ For speed (node budget: p99 <= 1.5 ms for B=1, H=120) the network is folded into
 batched matrix products over the ensemble: the controls' share of the first layer is computed for all
 steps before the loop, the state update z_{k+1} = z_k A + c + h W (z = [u, v, r, psi]) folds the
 increment and the heading integration into the output layer, positions are integrated after the loop
-(they do not feed back). The node and `replay evaluate` run this network fused once more at load time
-(FusedDnnRollout, from the artifact's buffers: tanh as sigmoid with its shift and scale folded into the
-weights, no allocation or slicing op in the step loop); the artifact keeps DnnRollout.
+(they do not feed back). The node and `replay evaluate` run this network fused once more at load time, from
+the artifact's buffers: stepped with numpy (NumpyDnnRollout: bias units, block-diagonal layers for one state,
+numpy's fast tanh and AVX-512 BLAS), else with TorchScript (FusedDnnRollout: tanh as sigmoid with its shift and
+scale folded into the weights, no allocation or slicing op in the step loop); the artifact keeps DnnRollout.
 """
 from __future__ import annotations
 
@@ -464,8 +465,9 @@ def sigmoid_form(params: Mapping[str, torch.Tensor], n_state: int) -> dict[str, 
 
 
 class FusedDnnRollout(DnnRollout):
-    """The rollout the node runs for a DNN artifact: the artifact's folded network (its DnnRollout buffers), fused
-    once more at load time. Same interface and function as DnnRollout (forward: (B, 4), (B, H, C) -> (E, B, H, 6));
+    """TorchScript's fused rollout of a DNN artifact, what the node runs when NumpyDnnRollout cannot be built (a
+    clippedReLU ceiling below 1): the artifact's folded network (its DnnRollout buffers), fused once more at load
+    time. Same interface and function as DnnRollout (forward: (B, 4), (B, H, C) -> (E, B, H, 6));
     equal to the artifact's own rollout within float rounding (test_dnn_fused.py). What differs, per step:
 
     * tanh activations run as sigmoids of the same products (sigmoid_form: the affine shift and scale folded into
@@ -633,3 +635,295 @@ def fused_rollout(artifact: ModelArtifact, members: int | None = None, freeze: b
         raise ModelError(f"model {artifact.path}: the fused rollout differs from the file's by {error:.3g} of the "
                          f"output's scale (limit {FUSED_CHECK_RTOL:g}): not a DnnRollout of this version?")
     return scripted
+
+
+# ----------------------------------------------------------------------------- the node's numpy rollout
+
+BIAS_UNIT_PRE = 30.0  # pre-activation of the bias unit: tanh(30) == 1 exactly in float32 and float64
+NUMPY_FORM = "fused (models/dnn.NumpyDnnRollout, numpy)"  # inference_note of a model running NumpyDnnRollout
+
+
+class NumpyDnnRollout:
+    """The rollout the node and `replay evaluate` run for a DNN artifact: the artifact's folded network (its DnnRollout
+    buffers, the TorchScript file stays the source of the weights) stepped with numpy, in the artifact's dtype. Same
+    function as DnnRollout within float rounding (test_dnn_fused.py); callable like the TorchScript module
+    (forward: (B, 4), (B, H, C) tensors -> (E, B, H, 6) tensor), and `rollout` takes and returns numpy arrays.
+
+    One step, for all members at once (E the stacked dimension of numpy's matmul, the candidates' batch B its rows):
+
+        [s_lin | pre | 1] = [s | c_k | 1] F          F = [[M_s], [W_c], [b]] and the bias unit (E, S + C + 1, S + W + 1)
+        g = act([pre | 1])                           tanh (or clippedReLU); the bias unit stays 1 exactly
+        h = act(g [[W_i], [b_i]]) ...                hidden layers, their bias a row of the stacked weights
+        s' = s_lin + h head;  heading columns of s' -> sin (NTF) / remainder 2 pi (NAF)
+
+    i.e. three matrix products, two activations, one add and one sin per step, written in place into buffers made
+    before the loop (the states of all steps are one (H + 1, E, B, S + C + 1) array, the controls already in place).
+    The bias unit is a unit of the first and hidden layers whose pre-activation is BIAS_UNIT_PRE (1 for clippedReLU),
+    so that act() gives exactly 1 and the next layer's bias rides in its product (numpy's matmul has no bias term).
+    Why numpy: at these sizes a step is dispatch-bound (one state: ~1 us per numpy op against 1.4-2.9 us per
+    TorchScript op) or bound by the hidden product (64 candidates: numpy's OpenBLAS runs it on AVX-512 here, torch's
+    MKL ~1.3x slower), and numpy's tanh is a fast kernel (torch's float tanh was the reason for FusedDnnRollout's
+    sigmoids). benchmarks/bench_node.py measures it against FusedDnnRollout and the file's rollout.
+    Positions are integrated after the loop in float64 (trapezoidal, as DnnRollout). Buffers are allocated per call:
+    one instance serves any caller and batch size.
+    """
+
+    def __init__(self, buffers: Mapping[str, torch.Tensor], *, feature_set: str, activation: str, ceiling: float,
+                 dt: float, members: int | None = None) -> None:
+        missing = [name for name in ROLLOUT_BUFFERS if name not in buffers]
+        if missing:
+            raise ModelError(f"not a DnnRollout's network: buffers {missing} missing")
+        if activation not in ACTIVATIONS:
+            raise ModelError(f"activation {activation!r}; expected one of {list(ACTIVATIONS)}")
+        self.trig_mode, phases = _heading_fold(feature_set)
+        self.n_trig = len(phases)
+        self.dtype = {torch.float32: np.float32, torch.float64: np.float64}.get(buffers["m_s"].dtype)
+        if self.dtype is None:
+            raise ModelError(f"network dtype {buffers['m_s'].dtype}; expected float32 or float64")
+        available = int(buffers["m_s"].shape[0])
+        self.ensemble_size = available if members is None else int(members)
+        if not 1 <= self.ensemble_size <= available:
+            raise ModelError(f"{self.ensemble_size} member(s) asked for, the network has {available}")
+        p = {k: buffers[k].detach()[: self.ensemble_size].to(torch.float64).numpy() for k in ROLLOUT_BUFFERS}
+        n_s = 4 + self.n_trig
+        if p["m_s"].shape[1] != n_s or p["phase"].shape[-1] != self.n_trig:
+            raise ModelError(f"feature set {feature_set} has {self.n_trig} heading column(s), the network's step "
+                             f"matrix is {p['m_s'].shape}")
+        self.clipped = activation == "clipped_relu"
+        self.ceiling = float(ceiling)
+        self.dt = float(dt)
+        self.n_state = n_s
+        self.n_controls = int(p["w_c"].shape[1])
+        width = int(p["m_s"].shape[2]) - n_s
+        n_hidden = int(p["hidden_w"].shape[1])
+        unit = 1.0 if self.clipped else BIAS_UNIT_PRE
+        if self._act(np.array([unit], dtype=self.dtype))[0] != 1.0:
+            raise ModelError(f"{activation} with ceiling {ceiling:g} has no exact bias unit (act({unit:g}) != 1)")
+        e, c = self.ensemble_size, self.n_controls
+        first = np.zeros((e, n_s + c + 1, n_s + width + (n_hidden > 0)))  # (E, S + C + 1, S + W [+ 1])
+        first[:, :n_s, : n_s + width] = p["m_s"]
+        first[:, n_s: n_s + c, : n_s + width] = p["w_c"]
+        first[:, n_s + c, : n_s + width] = p["bias"][:, 0]
+        hidden = []
+        for i in range(n_hidden):  # (E, W + 1, W [+ 1]): the last hidden layer feeds the head, no bias unit
+            more = i < n_hidden - 1
+            w = np.zeros((e, width + 1, width + more))
+            w[:, :width, :width] = p["hidden_w"][:, i]
+            w[:, width, :width] = p["hidden_b"][:, i, 0]
+            if more:
+                w[:, width, width] = unit
+            hidden.append(np.ascontiguousarray(w, dtype=self.dtype))
+        if n_hidden:
+            first[:, n_s + c, n_s + width] = unit
+        self.first = np.ascontiguousarray(first, dtype=self.dtype)
+        self.hidden = tuple(hidden)
+        self.head = np.ascontiguousarray(p["head"], dtype=self.dtype)  # (E, W, S)
+        self.phase = p["phase"][:, 0].astype(self.dtype)  # (E, T)
+        self.width = width
+        self._vector_weights(p, unit)
+
+    def _column(self, member: int, j: int) -> int:
+        """Column of member e's state column j in the one-state form's state vector [q (E x 4) | t (E x T)]."""
+        return member * 4 + j if j < 4 else self.ensemble_size * 4 + member * self.n_trig + (j - 4)
+
+    def _vector_weights(self, p: Mapping[str, np.ndarray], unit: float) -> None:
+        """The first and output layers of the one-state form (_rollout_one) as block-diagonal matrices over the
+        members: a step of one state is then two 2-D products and one stacked (the hidden layer), every activation on
+        one contiguous vector. Per step a row r_k = [h (E W) | s_k (E S) | c_k (C) | 1]."""
+        e, n_s, c, width = self.ensemble_size, self.n_state, self.n_controls, self.width
+        unit_column = 1 if self.hidden else 0
+        block = width + unit_column
+        first = np.zeros((e * n_s + c + 1, e * block))  # [s | c | 1] -> E x [pre | unit]
+        out = np.zeros((e * width + e * n_s + c + 1, e * n_s))  # r_k -> s_{k+1}
+        for m in range(e):
+            pre = slice(m * block, m * block + width)
+            for j in range(n_s):
+                first[self._column(m, j), pre] = p["m_s"][m, j, n_s:]
+                out[m * width:(m + 1) * width, self._column(m, j)] = p["head"][m, :, j]
+                for i in range(n_s):
+                    out[e * width + self._column(m, i), self._column(m, j)] = p["m_s"][m, i, j]
+                out[e * width + e * n_s: e * width + e * n_s + c, self._column(m, j)] = p["w_c"][m, :, j]
+                out[-1, self._column(m, j)] = p["bias"][m, 0, j]
+            first[e * n_s: e * n_s + c, pre] = p["w_c"][m, :, n_s:]
+            first[-1, pre] = p["bias"][m, 0, n_s:]
+            if unit_column:
+                first[-1, m * block + width] = unit
+        self.first_one = np.ascontiguousarray(first, dtype=self.dtype)
+        self.out_one = np.ascontiguousarray(out, dtype=self.dtype)
+
+    def _act(self, h: np.ndarray) -> np.ndarray:
+        """In place."""
+        if self.clipped:
+            np.maximum(h, 0.0, out=h)
+            return np.minimum(h, self.ceiling, out=h)
+        return np.tanh(h, out=h)
+
+    def _heading(self, columns: np.ndarray) -> None:
+        """In place, the heading columns [psi + phase] (..., T) become the psi features (DnnRollout._psi_features_)."""
+        if self.trig_mode == 2:
+            np.sin(columns, out=columns)
+        elif self.trig_mode == 1:
+            np.remainder(columns, 2.0 * math.pi, out=columns)
+
+    def rollout(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """(E, B, H, 6) [u, v, r, x_n, y_e, psi] float64 from state (B, 4) [u, v, r, psi] and controls (B, H, C)."""
+        state = np.asarray(state, dtype=np.float64)
+        controls = np.asarray(controls, dtype=np.float64)
+        if state.ndim != 2 or state.shape[1] != 4:
+            raise ValueError("state must be (B, 4) [u, v, r, psi]")
+        if controls.ndim != 3 or controls.shape[2] != self.n_controls or controls.shape[0] != state.shape[0]:
+            raise ValueError("controls must be (B, H, C) in the model's control_layout, with the B of state")
+        return self._rollout_one(state, controls) if state.shape[0] == 1 else self._rollout_batch(state, controls)
+
+    def _rollout_batch(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """rollout() of B states: the members stacked (E the stacked dimension of matmul, B its rows)."""
+        e, b, horizon = self.ensemble_size, state.shape[0], controls.shape[1]
+        n_s, c = self.n_state, self.n_controls
+        # x (H + 1, E, B, S + C + 1): [s_k | c_k | 1] of every step; s_k written by step k - 1's add
+        x = np.empty((horizon + 1, e, b, n_s + c + 1), dtype=self.dtype)
+        x[0, :, :, :4] = state
+        x[0, :, :, 4:n_s] = state[None, :, 3:4] + self.phase[:, None, :]  # (E, B, T)
+        self._heading(x[0, :, :, 4:n_s])
+        x[:horizon, :, :, n_s: n_s + c] = controls.transpose(1, 0, 2)[:, None]  # (H, 1, B, C)
+        x[horizon, :, :, n_s: n_s + c] = 0.0
+        x[:, :, :, n_s + c] = 1.0
+        y = np.empty((e, b, self.first.shape[2]), dtype=self.dtype)  # (E, B, S + W [+ 1]): [s_lin | pre | unit]
+        s_lin, g = y[..., :n_s], y[..., n_s:]
+        layers = [(w, np.empty((e, b, w.shape[2]), dtype=self.dtype)) for w in self.hidden]
+        last = layers[-1][1] if layers else g  # (E, B, W)
+        t = np.empty((e, b, n_s), dtype=self.dtype)  # (E, B, S): h head
+        matmul, add, first, head = np.matmul, np.add, self.first, self.head
+        heading = None if self.trig_mode == 0 else (np.sin if self.trig_mode == 2 else self._heading)
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging model gives inf / NaN: the caller refuses it
+            if not self.clipped and len(layers) == 1 and heading is np.sin:  # the usual network (NTF, tanh, depth 2)
+                tanh, sin, (w, z) = np.tanh, np.sin, layers[0]
+                for x_k, s_next, columns in zip(x[:-1], x[1:, :, :, :n_s], x[1:, :, :, 4:n_s]):
+                    matmul(x_k, first, out=y)
+                    tanh(g, out=g)
+                    matmul(g, w, out=z)
+                    tanh(z, out=z)
+                    matmul(z, head, out=t)
+                    add(t, s_lin, out=s_next)
+                    sin(columns, out=columns)
+            else:  # the same step for any depth, activation and heading columns
+                for x_k, s_next, columns in zip(x[:-1], x[1:, :, :, :n_s], x[1:, :, :, 4:n_s]):
+                    matmul(x_k, first, out=y)
+                    h = self._act(g)
+                    for w, z in layers:
+                        matmul(h, w, out=z)
+                        h = self._act(z)
+                    matmul(last, head, out=t)
+                    add(t, s_lin, out=s_next)
+                    if heading is not None:
+                        self._heading(columns)
+        return self._kinematics(state, x[1:, :, :, :4].transpose(1, 2, 0, 3))  # (E, B, H, 4)
+
+    def _rollout_one(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """rollout() of one state (the node's cycle): the members side by side in one vector per step (the
+        block-diagonal first_one / out_one, _vector_weights), so that a step is six numpy calls on contiguous
+        memory: [pre | unit] = [s | c | 1] F, act, hidden products (stacked over the members), act, s' = r O, sin."""
+        e, horizon, n_s, c, width = self.ensemble_size, controls.shape[1], self.n_state, self.n_controls, self.width
+        hw, hs = e * width, e * n_s  # where s_k starts in a row, and its length
+        rows = np.empty((horizon + 1, hw + hs + c + 1), dtype=self.dtype)  # r_k = [h (E W) | s_k (E S) | c_k | 1]
+        rows[0, hw: hw + 4 * e] = np.tile(state[0], e)  # q = E x [u, v, r, psi]
+        heading = rows[0, hw + 4 * e: hw + hs]
+        heading[...] = (state[0, 3] + self.phase).reshape(-1)  # E x [psi + phase]
+        self._heading(heading)
+        rows[:horizon, hw + hs: hw + hs + c] = controls[0]
+        rows[horizon, hw + hs: hw + hs + c] = 0.0
+        rows[:, -1] = 1.0
+        first, out_one = self.first_one, self.out_one
+        y = np.empty(first.shape[1], dtype=self.dtype)  # E x [pre | unit] (or the last h, without hidden layers)
+        stacked = y.reshape(e, 1, -1)
+        layers = [(w, np.empty((e, 1, w.shape[2]), dtype=self.dtype)) for w in self.hidden[:-1]]
+        dot, matmul, last = np.dot, np.matmul, self.hidden[-1] if self.hidden else None
+        steps = zip(rows[:-1], rows[:-1, hw:], rows[:-1, :hw], rows[:-1, :hw].reshape(horizon, e, 1, width),
+                    rows[1:, hw: hw + hs], rows[1:, hw + 4 * e: hw + hs])
+        with np.errstate(over="ignore", invalid="ignore"):
+            if not self.clipped and len(self.hidden) == 1 and self.trig_mode == 2:  # the usual network: NTF, tanh, depth 2
+                tanh, sin = np.tanh, np.sin
+                for row, inputs, h, h_stacked, s_next, columns in steps:
+                    dot(inputs, first, out=y)
+                    tanh(y, out=y)
+                    matmul(stacked, last, out=h_stacked)
+                    tanh(h, out=h)
+                    dot(row, out_one, out=s_next)
+                    sin(columns, out=columns)
+            else:  # the same step for any depth, activation and heading columns
+                for row, inputs, h, h_stacked, s_next, columns in steps:
+                    if last is None:  # no hidden layers: the first layer's units are the last ones
+                        dot(inputs, first, out=h)
+                        self._act(h)
+                    else:
+                        dot(inputs, first, out=y)
+                        g = self._act(stacked)
+                        for w, z in layers:
+                            matmul(g, w, out=z)
+                            g = self._act(z)
+                        matmul(g, last, out=h_stacked)
+                        self._act(h)
+                    dot(row, out_one, out=s_next)
+                    self._heading(columns)
+        path = rows[1:, hw: hw + 4 * e].reshape(horizon, e, 4).transpose(1, 0, 2)[:, None]  # (E, 1, H, 4)
+        return self._kinematics(state, path)
+
+    def _kinematics(self, state: np.ndarray, path: np.ndarray) -> np.ndarray:
+        """(E, B, H, 6) [u, v, r, x_n, y_e, psi] float64 from the start state (B, 4) and the steps' [u, v, r, psi]
+        (E, B, H, 4): positions by the trapezoidal rule over R(psi) [u, v] (DnnRollout's kinematics)."""
+        e, b, horizon = path.shape[:3]
+        path = path.astype(np.float64)
+        full = np.concatenate([np.broadcast_to(state[None, :, None, :], (e, b, 1, 4)), path], axis=2)
+        cos_psi, sin_psi = np.cos(full[..., 3]), np.sin(full[..., 3])  # (E, B, H + 1)
+        velocity = np.stack([full[..., 0] * cos_psi - full[..., 1] * sin_psi,  # north, east (E, B, H + 1, 2)
+                             full[..., 0] * sin_psi + full[..., 1] * cos_psi], axis=-1)
+        out = np.empty((e, b, horizon, 6))
+        out[..., 0:3] = path[..., 0:3]
+        np.cumsum(0.5 * self.dt * (velocity[:, :, 1:] + velocity[:, :, :-1]), axis=2, out=out[..., 3:5])
+        out[..., 5] = path[..., 3]
+        return out
+
+    def __call__(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
+        """As the TorchScript module: (B, 4), (B, H, C) tensors -> (E, B, H, 6) float64 tensor."""
+        return torch.from_numpy(self.rollout(state.detach().cpu().double().numpy(),
+                                             controls.detach().cpu().double().numpy()))
+
+
+def _differs_from_file(artifact: ModelArtifact, runner: Any, members: int) -> float:
+    """The largest difference of `runner` from the file's own module on _probe's inputs, relative to each output
+    column's scale (inf when the shapes differ)."""
+    state, controls = _probe(artifact.metadata)
+    dtype = artifact.module.m_s.dtype
+    with torch.inference_mode():
+        expected = artifact.module(state.to(dtype), controls.to(dtype))[:members].double()  # (E, B, H, 6)
+        got = runner(state.to(dtype), controls.to(dtype)).double()
+    if got.shape != expected.shape:
+        return math.inf
+    scale = 1.0 + expected.abs().amax(dim=(0, 1, 2))  # (6,)
+    return float(((got - expected).abs().amax(dim=(0, 1, 2)) / scale).max().item())
+
+
+def numpy_rollout(artifact: ModelArtifact, members: int | None = None) -> NumpyDnnRollout:
+    """The artifact's DNN rollout as NumpyDnnRollout, checked against the file's own module on _probe's inputs.
+
+    ModelError when the file's module is not a DnnRollout's network or the numpy rollout differs from it by more than
+    FUSED_CHECK_RTOL of each output column's scale (the caller then tries FusedDnnRollout, then the file's module:
+    models/loading.py)."""
+    metadata = artifact.metadata
+    if str(metadata.get("model_type")) != "dnn":
+        raise ModelError(f"model {artifact.path}: model_type {metadata.get('model_type')!r}, not a plain dnn")
+    try:
+        arch = metadata["architecture"]
+        runner = NumpyDnnRollout(dict(artifact.module.named_buffers()), feature_set=str(metadata["feature_set"]),
+                                 activation=str(arch["activation"]), ceiling=float(arch["ceiling"]),
+                                 dt=float(metadata["dt"]), members=members)
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, ConfigError) as err:
+        raise ModelError(f"model {artifact.path}: its network cannot be stepped with numpy "
+                         f"({type(err).__name__}: {err})") from err
+    try:
+        error = _differs_from_file(artifact, runner, runner.ensemble_size)
+    except MODEL_RUN_ERRORS as err:
+        raise ModelError(f"model {artifact.path}: the numpy rollout cannot be run: {failure_reason(err)}") from err
+    if not error <= FUSED_CHECK_RTOL:
+        raise ModelError(f"model {artifact.path}: the numpy rollout differs from the file's by {error:.3g} of the "
+                         f"output's scale (limit {FUSED_CHECK_RTOL:g}): not a DnnRollout of this version?")
+    return runner

@@ -159,19 +159,25 @@ def load_model(spec: str | None, *, dt: float | None = None, vessel: str | None 
 
 
 def with_fused_rollout(model: ModelArtifact) -> ModelArtifact:
-    """A DNN artifact with its rollout fused for inference (models/dnn.fused_rollout: checked equal to the file's
-    own within float rounding), so that the node and `replay evaluate` run the same, faster code. The file is not
-    changed (its format neither): an artifact of any version is fused when loaded. A DNN file whose network cannot
-    be fused, or whose fused rollout differs from its own, keeps its own module (inference_note says why); other
-    families run their own module."""
+    """A DNN artifact with its rollout fused for inference, checked equal to the file's own within float rounding, so
+    that the node and `replay evaluate` run the same, faster code: the numpy rollout (models/dnn.numpy_rollout,
+    NumpyDnnRollout), else the TorchScript one (models/dnn.fused_rollout, FusedDnnRollout). The file is not changed
+    (its format neither): an artifact of any version is fused when loaded. A DNN file whose network cannot be fused,
+    or whose fused rollout differs from its own, keeps its own module (inference_note says why); other families run
+    their own module."""
     import dataclasses
 
-    from usv_predictor.models.dnn import fused_rollout
+    from usv_predictor.models.dnn import NUMPY_FORM, fused_rollout, numpy_rollout
 
     if str(model.metadata.get("model_type")) != "dnn":
         return model
     try:
+        return dataclasses.replace(model, inference=numpy_rollout(model), inference_note=NUMPY_FORM)
+    except ModelError as err:
+        numpy_failure = str(err)
+    try:
         fused = fused_rollout(model)
     except ModelError as err:
-        return dataclasses.replace(model, inference_note=f"the file's rollout (not fused: {err})")
-    return dataclasses.replace(model, inference=fused, inference_note="fused (models/dnn.FusedDnnRollout, frozen)")
+        return dataclasses.replace(model, inference_note=f"the file's rollout (not fused: {err}; {numpy_failure})")
+    return dataclasses.replace(model, inference=fused,
+                               inference_note=f"fused (models/dnn.FusedDnnRollout, frozen; {numpy_failure})")

@@ -55,7 +55,7 @@ from usv_predictor.data.recording import plausible_ranges, required_roles, windo
 from usv_predictor.errors import CycleSkipped, InputRejected, ModelError
 from usv_predictor.frames import LocalTangentPlane, angle_difference_deg, body_to_ned, compass_deg, wrap_angle
 from usv_predictor.models.artifact import MODEL_RUN_ERRORS, ModelArtifact, failure_reason
-from usv_predictor.models.dnn import fused_rollout
+from usv_predictor.models.dnn import NumpyDnnRollout, fused_rollout, numpy_rollout
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
 from usv_predictor.records import NS_PER_S
 
@@ -106,8 +106,12 @@ def check_raw_heading(raw: float, units: str) -> None:
 def check_values(role: str, fields: Sequence[str], values: Sequence[float],
                  layout: ActuatorLayout = DEFAULT_LAYOUT) -> None:
     """Used fields must be finite and plausible (InputRejected 'non_finite' or 'range' naming the field)."""
-    used = state_fields(layout).get(role, ())
-    plausible = plausible_ranges(layout)
+    _check_values(role, fields, values, state_fields(layout).get(role, ()), plausible_ranges(layout))
+
+
+def _check_values(role: str, fields: Sequence[str], values: Sequence[float], used: Sequence[str],
+                  plausible: Mapping[str, tuple[float, float]]) -> None:
+    """check_values with the layout's used fields of the role and plausible ranges given (InputSet keeps them)."""
     for name, value in zip(fields, values):
         if name not in used:
             continue
@@ -324,6 +328,8 @@ class InputSet:
     def __init__(self, fields_by_role: Mapping[str, Sequence[str]], max_age_s: Mapping[str, float],
                  settings: LiveSettings, layout: ActuatorLayout = DEFAULT_LAYOUT) -> None:
         self.layout = layout
+        self._used = state_fields(layout)  # role -> the fields the state uses (check_values, once per sample)
+        self._plausible = plausible_ranges(layout)
         self.required = required_roles(layout)
         self.fields = state_fields(layout)
         # a configuration without them still runs (and reports); it just never predicts
@@ -343,7 +349,7 @@ class InputSet:
         track = self.tracks[role]
         track.received += 1
         try:
-            check_values(role, track.buffer.fields, values, self.layout)
+            _check_values(role, track.buffer.fields, values, self._used.get(role, ()), self._plausible)
             latest = track.buffer.latest_ns
             if latest is not None and stamp_ns <= latest:
                 if stamp_ns == latest:
@@ -487,12 +493,13 @@ class Prediction(NamedTuple):
 
 
 class Rollout:
-    """The TorchScript model with preallocated inputs: one (1, 4) state and (1, H, C) controls.
+    """The model with preallocated inputs: one (1, 4) state and (1, H, C) controls.
 
-    It runs `artifact.runner`: for a DNN the rollout fused at load time (models/loading.with_fused_rollout), the
-    module `replay evaluate` runs too; for other families the file's module (whose terms the sea estimate sets).
-    A fused DNN asked for fewer members than it has is fused again with those members only (what is not published
-    is not computed); other modules compute every member and the output is sliced."""
+    It runs `artifact.runner`: for a DNN the rollout fused at load time (models/loading.with_fused_rollout: numpy's
+    NumpyDnnRollout, called with numpy arrays directly, or TorchScript's FusedDnnRollout), the code `replay evaluate`
+    runs too; for other families the file's module (whose terms the sea estimate sets). A fused DNN asked for fewer
+    members than it has is fused again with those members only (what is not published is not computed); other
+    modules compute every member and the output is sliced."""
 
     def __init__(self, artifact: ModelArtifact, horizon_steps: int, ensemble_size: int | None = None) -> None:
         available = artifact.ensemble_size
@@ -503,10 +510,13 @@ class Rollout:
         self.artifact = artifact
         self.module = artifact.runner
         if artifact.inference is not None and self.members < available:
+            fuse_again = numpy_rollout if isinstance(artifact.inference, NumpyDnnRollout) else fused_rollout
             try:
-                self.module = fused_rollout(artifact, members=self.members)
+                self.module = fuse_again(artifact, members=self.members)
             except ModelError:  # then every member is computed and the output sliced, as for other modules
                 self.module = artifact.runner
+        # NumpyDnnRollout: numpy in and out, no tensors on the way
+        self._numpy = self.module.rollout if isinstance(self.module, NumpyDnnRollout) else None
         self.horizon_steps = int(horizon_steps)
         self.dtype = artifact.module.m_s.dtype if hasattr(artifact.module, "m_s") else torch.float64
         self._state = torch.zeros(1, 4, dtype=self.dtype)
@@ -519,9 +529,12 @@ class Rollout:
         """(E, H, 6) [u, v, r, x_n, y_e, psi] relative to the start; controls (C,) held for every step, or (H, C).
 
         ModelError "model X fails when run: ..." when the model's code raises (at warm-up: a start-up error)."""
-        self._state[0].copy_(torch.from_numpy(np.asarray(state, dtype=np.float64)))
-        self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)))  # broadcasts (C,) to (H, C)
         try:
+            if self._numpy is not None:
+                held = np.broadcast_to(np.asarray(controls, dtype=np.float64), (1, self.horizon_steps, self.n_controls))
+                return self._numpy(np.asarray(state, dtype=np.float64).reshape(1, 4), held)[: self.members, 0]
+            self._state[0].copy_(torch.from_numpy(np.asarray(state, dtype=np.float64)))
+            self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)))  # (C,) to (H, C)
             with torch.inference_mode():
                 out = self.module(self._state, self._controls)  # (E, 1, H, 6)
             return out[: self.members, 0].double().numpy()
@@ -534,8 +547,11 @@ class Rollout:
         if controls.ndim != 3 or controls.shape[1:] != (self.horizon_steps, self.n_controls):
             raise ModelError(f"controls of shape {controls.shape}, expected (B, {self.horizon_steps}, {self.n_controls})")
         count = controls.shape[0]
-        states = torch.from_numpy(np.asarray(state, dtype=np.float64)).to(self.dtype).expand(count, 4)  # (B, 4)
         try:
+            if self._numpy is not None:
+                states = np.broadcast_to(np.asarray(state, dtype=np.float64), (count, 4))  # (B, 4)
+                return self._numpy(states, controls)[: self.members]
+            states = torch.from_numpy(np.asarray(state, dtype=np.float64)).to(self.dtype).expand(count, 4)  # (B, 4)
             with torch.inference_mode():
                 out = self.module(states, torch.from_numpy(controls).to(self.dtype))  # (E, B, H, 6)
             return out[: self.members].double().numpy()
@@ -607,8 +623,9 @@ def predict_batch(inputs: InputSet, rollout: Rollout, now_ns: int, schedule: Sch
     out = rollout.batch(live.state, controls)  # (E, N, H, 6)
     compute_s = time.perf_counter() - started
     _check_output(out)
-    return BatchPrediction(now_ns, step_times(live, inputs.settings, first=1), _anchored(out, live.position).mean(axis=0),
-                           out[..., 0:3].mean(axis=0), live.position is not None, live, compute_s)
+    mean = out.mean(axis=0)  # (N, H, 6): anchoring moves every member alike, so the mean is anchored once
+    return BatchPrediction(now_ns, step_times(live, inputs.settings, first=1), _anchored(mean, live.position),
+                           mean[..., 0:3], live.position is not None, live, compute_s)
 
 
 def enu_covariance(eta_members: np.ndarray) -> np.ndarray:

@@ -471,7 +471,7 @@ class PredictorNode(Node):
                 self._warn_input(role, errors[i])
                 continue
             stamp_ns = arrival_ns if batch.stamps is None else int(batch.stamps[row])
-            values = tuple(float(v) for v in batch.values[row])
+            values = tuple(batch.values[row].tolist())
             try:
                 if raw_heading is not None:
                     live.check_raw_heading(float(raw_heading[row]), units)
