@@ -51,13 +51,19 @@ import numpy as np
 import torch
 
 from msg_adapters.standard import ScalarHeadingAdapter
-from usv_predictor.data.recording import plausible_ranges, required_roles, window_resample
-from usv_predictor.errors import CycleSkipped, InputRejected, ModelError
+from usv_predictor.data.recording import (
+    Recording,
+    plausible_ranges,
+    recording_from_signals,
+    required_roles,
+    window_resample,
+)
+from usv_predictor.errors import CycleSkipped, InputRejected, ModelError, RecordingError
 from usv_predictor.frames import LocalTangentPlane, angle_difference_deg, body_to_ned, compass_deg, wrap_angle
 from usv_predictor.models.artifact import MODEL_RUN_ERRORS, ModelArtifact, failure_reason
 from usv_predictor.models.dnn import fused_rollout
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
-from usv_predictor.records import NS_PER_S
+from usv_predictor.records import NS_PER_S, Signal
 
 POSITION_ROLE = "gnss"
 # role -> the fields the state uses, in the order of recording_from_signals (the controls' roles: the layout's)
@@ -413,6 +419,35 @@ class InputSet:
                 if verdict.problem:
                     refusals["track_vs_gnss"] = (role, verdict.problem)
         self._set_refusals(refusals)
+
+    # --------------------------------------------------------------- the buffered span as a Recording
+    def buffered_recording(self, name: str = "inputs") -> Recording:
+        """The buffered samples of the required inputs (and GNSS) as the replay tool's Recording on the model's step
+        (recording_from_signals: the same box averages as a bag's), from the latest gap longer than dt in any
+        required input on (the replay tool cuts a bag there: replay.recordings.gap_cuts); RecordingError when the
+        span holds less than one step or an input is missing. What the live fit check (fit.py) reads."""
+        dt_ns = self.settings.dt_ns
+        signals: dict[str, Signal] = {}
+        start = None
+        for role in (*self.required, POSITION_ROLE):
+            track = self.tracks.get(role)
+            if track is None or len(track.buffer) == 0:
+                if role == POSITION_ROLE:
+                    continue
+                raise RecordingError(f"input {role}: no sample buffered")
+            t, values = track.buffer.samples()
+            signals[role] = Signal(t, values, track.buffer.fields)
+            if role != POSITION_ROLE:
+                gaps = np.flatnonzero(np.diff(t) > dt_ns + 1)
+                first = int(t[gaps[-1] + 1]) if len(gaps) else int(t[0])
+                start = first if start is None else max(start, first)
+        kept = {}
+        for role, signal in signals.items():
+            keep = signal.t_ns >= start
+            kept[role] = Signal(signal.t_ns[keep], signal.values[keep], signal.fields)
+        if POSITION_ROLE in kept and len(kept[POSITION_ROLE]) < 2:
+            del kept[POSITION_ROLE]
+        return recording_from_signals(kept, self.settings.dt, name=name, datum=self.datum, layout=self.layout)
 
     # --------------------------------------------------------------- state out
     def _window_mean(self, role: str, columns: Sequence[str], t_c_ns: int) -> tuple[np.ndarray, int]:
