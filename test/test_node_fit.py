@@ -20,7 +20,7 @@ from usv_predictor.data.recording import recording_from_signals, required_roles
 from usv_predictor.errors import ConfigError
 from usv_predictor.models.loading import physics_predictor
 from usv_predictor.node import live
-from usv_predictor.node.fit import FitCheckSettings, LiveFitCheck
+from usv_predictor.node.fit import MAX_GAP_S, FitCheckSettings, LiveFitCheck
 from usv_predictor.physics.dynamics import ManoeuvringModel
 from usv_predictor.physics.environment import Environment
 from usv_predictor.physics.manoeuvres import TurningCircle
@@ -58,7 +58,7 @@ def stream(vessel: Vessel, fit: LiveFitCheck, capacity: int = 2048) -> tuple[liv
         signal = signals[role]
         inputs.add(role, t_ns, [float(signal.column(name)[k]) for name in fields[role]], t_ns)
         if fit.due(t_ns) and t_ns - events[0][0] > PERIOD_S * NS_PER_S:
-            fit.run(inputs.buffered_recording(), t_ns)
+            fit.run(inputs.buffered_recording(MAX_GAP_S), t_ns)
             runs += 1
     return inputs, runs
 
@@ -94,7 +94,7 @@ def test_the_buffers_make_the_recording_the_replay_tool_makes() -> None:
     assert runs == 0  # disabled: never due
     signals = trial_signals(vessel)
     offline = recording_from_signals(signals, DT, name="trial", layout=vessel.actuator_layout)
-    online = inputs.buffered_recording()
+    online = inputs.buffered_recording(DT)  # the replay tool's cut: every gap longer than dt
     assert online.t0_ns == offline.t0_ns and len(online) == len(offline)
     np.testing.assert_allclose(online.nu, offline.nu, atol=1e-12)
     np.testing.assert_allclose(online.controls, offline.controls, atol=1e-12)

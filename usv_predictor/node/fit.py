@@ -4,7 +4,7 @@ The same check `replay evaluate` and `replay diagnose` run before they answer (a
 
     windows   every fit_check.period_s the node's input buffers become a Recording on the model's step
               (live.InputSet.buffered_recording: the replay tool's box averages, cut at the latest gap longer than
-              dt), and fit_check.rolled_windows finds its steady windows (held commands, settled u and r) and rolls
+              MAX_GAP_S), and fit_check.rolled_windows finds its steady windows (held commands, settled u and r) and rolls
               the model out for each, as for a bag. The buffers hold the latest buffer_capacity samples (20 s of a
               100 Hz gyro), so a window is seen while it lasts: a window of a later check that overlaps an earlier
               one in time replaces it (the same held commands, seen longer), the others are kept, the latest
@@ -48,6 +48,10 @@ from usv_predictor.physics.actuators import ActuatorLayout
 from usv_predictor.physics.vessel import Vessel
 from usv_predictor.records import NS_PER_S
 
+MAX_GAP_S = 2.0  # (s) a longer gap in a required input cuts the span a check reads (live.InputSet.buffered_recording):
+# shorter ones are messages a busy node drops from its sensor-data queues (depth 5; a 0.44 s grey-box cycle loses
+# 40 samples of a 100 Hz gyro and stamps the queued header-less headings alike), which a window of held commands
+# (>= fit_check.MIN_HOLD_S) bridges by interpolation
 MAX_WINDOWS = 40  # steady windows kept (the latest): bounds the cost of a check that rolls the causes out
 SPEED_SAMPLES = 3000  # measured |u| samples kept, one per model step (10 min at dt 0.2 s)
 PERIOD_RANGE_S = (0.5, 600.0)  # (s) allowed fit_check.period_s
@@ -209,21 +213,32 @@ class LiveFitCheck:
             values.update(self._check_values(check))
         if self.error:
             values["not_run"] = self.error
-        if check is None or check.verdict == "unchecked":
+        if check is None or not check.windows:
             if self.error:
                 return "warn", f"not run: {self.error}", values
+            top = ""
+            if check is not None and check.verdict == "fits" and check.data_speed_mps is not None:
+                top = (f"; speed {check.data_speed_mps:.2g} m/s within its top speed {check.top_speed_mps:.2g} m/s "
+                       "at full command")
+            if check is not None and check.mismatch:
+                return "error", (f"{check.model} does not fit {DATA}: {'; '.join(check.reasons)}: {fc.REMEDY}; "
+                                 f"{self._published()}"), values
             return "ok", (f"no steady window yet (commands held for {fc.MIN_HOLD_S:g} s or more with u and r "
-                          f"settled over {fc.STEADY_S:g} s)"), values
+                          f"settled over {fc.STEADY_S:g} s){top}"), values
+        stale = f" (the latest check did not run: {self.error})" if self.error else ""
         if check.mismatch:
-            published = ("predictions suppressed (fit_check.refuse)" if self.settings.refuse
-                         else "predictions still published, flagged here (fit_check.refuse is false)")
             return "error", (f"{check.model} does not fit {DATA}: {'; '.join(check.reasons)}: {fc.REMEDY}; "
-                             f"{published}"), values
-        ratios = self._ratios(check)
+                             f"{self._published()}{stale}"), values
         strong = self._explained_only_by_a_cause(check)
         if strong:
-            return "warn", f"fits only with a strong sea or fault: {'; '.join(strong)}", values
-        return "ok", f"fits: {ratios}", values
+            return "warn", f"fits only with a strong sea or fault: {'; '.join(strong)}{stale}", values
+        if stale:
+            return "warn", f"fits: {self._ratios(check)}{stale}", values
+        return "ok", f"fits: {self._ratios(check)}", values
+
+    def _published(self) -> str:
+        return ("predictions suppressed (fit_check.refuse)" if self.settings.refuse
+                else "predictions still published, flagged here (fit_check.refuse is false)")
 
     @staticmethod
     def _ratios(check: fc.FitCheck) -> str:
@@ -232,8 +247,6 @@ class LiveFitCheck:
             parts.append(f"speed ratio {check.speed_ratio:.2f} ({check.speed_windows} runs)")
         if check.yaw_rate_ratio is not None:
             parts.append(f"yaw-rate ratio {check.yaw_rate_ratio:.2f}")
-        if not parts and check.top_speed_mps is not None and check.data_speed_mps is not None:
-            parts.append(f"speed {check.data_speed_mps:.2g} m/s within its top speed {check.top_speed_mps:.2g} m/s")
         return ", ".join(parts) + f" over {len(check.windows)} steady window(s)"
 
     @staticmethod

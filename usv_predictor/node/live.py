@@ -421,12 +421,16 @@ class InputSet:
         self._set_refusals(refusals)
 
     # --------------------------------------------------------------- the buffered span as a Recording
-    def buffered_recording(self, name: str = "inputs") -> Recording:
+    def buffered_recording(self, max_gap_s: float, name: str = "inputs") -> Recording:
         """The buffered samples of the required inputs (and GNSS) as the replay tool's Recording on the model's step
-        (recording_from_signals: the same box averages as a bag's), from the latest gap longer than dt in any
-        required input on (the replay tool cuts a bag there: replay.recordings.gap_cuts); RecordingError when the
-        span holds less than one step or an input is missing. What the live fit check (fit.py) reads."""
+        (recording_from_signals: the same box averages as a bag's), from the latest gap longer than max_gap_s (and
+        dt) in any required input on, where the replay tool cuts a bag at every gap longer than dt
+        (replay.recordings.gap_cuts): the caller says which gaps its use bridges (the live fit check: the messages
+        a busy node drops from its sensor-data queues, fit.MAX_GAP_S); a step without a sample is interpolated, as
+        recording_from_signals does. RecordingError when the span holds less than one step or an input is
+        missing."""
         dt_ns = self.settings.dt_ns
+        limit_ns = max(dt_ns, int(max_gap_s * NS_PER_S))
         signals: dict[str, Signal] = {}
         start = None
         for role in (*self.required, POSITION_ROLE):
@@ -438,7 +442,7 @@ class InputSet:
             t, values = track.buffer.samples()
             signals[role] = Signal(t, values, track.buffer.fields)
             if role != POSITION_ROLE:
-                gaps = np.flatnonzero(np.diff(t) > dt_ns + 1)
+                gaps = np.flatnonzero(np.diff(t) > limit_ns + 1)
                 first = int(t[gaps[-1] + 1]) if len(gaps) else int(t[0])
                 start = first if start is None else max(start, first)
         kept = {}
@@ -447,7 +451,8 @@ class InputSet:
             kept[role] = Signal(signal.t_ns[keep], signal.values[keep], signal.fields)
         if POSITION_ROLE in kept and len(kept[POSITION_ROLE]) < 2:
             del kept[POSITION_ROLE]
-        return recording_from_signals(kept, self.settings.dt, name=name, datum=self.datum, layout=self.layout)
+        return recording_from_signals(kept, self.settings.dt, name=name, datum=self.datum, layout=self.layout,
+                                      max_gap_s=limit_ns / NS_PER_S)
 
     # --------------------------------------------------------------- state out
     def _window_mean(self, role: str, columns: Sequence[str], t_c_ns: int) -> tuple[np.ndarray, int]:

@@ -95,6 +95,7 @@ from usv_predictor.models import loading
 from usv_predictor.models.artifact import metadata_differences
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.node import live, plans, sea
+from usv_predictor.node.fit import MAX_GAP_S as FIT_MAX_GAP_S
 from usv_predictor.node.fit import PERIOD_RANGE_S, FitCheckSettings, LiveFitCheck
 from usv_predictor.physics.actuators import ActuatorLayout, check_layout_inputs, unused_roles
 from usv_predictor.physics.vessel import Vessel, load_vessel, vessel_preset_exists
@@ -677,7 +678,7 @@ class PredictorNode(Node):
             self.fit.skip(refused, now_ns)
             return
         try:
-            recording = self.inputs.buffered_recording()  # a snapshot of the buffers, in this thread
+            recording = self.inputs.buffered_recording(FIT_MAX_GAP_S)  # a snapshot of the buffers, in this thread
         except RecordingError as err:
             self.fit.skip(str(err), now_ns)
             return
