@@ -4,22 +4,27 @@ stream time on InputSet.buffered_recording(), and the verdict is read as /diagno
 
 The jari_usv preset (15 m, 5.9 m/s at 700 rpm) on its own data fits; on the data of a 4.5 m single-screw USV with
 the same engine (test_fit_check.small_single_screw: about 2 m/s at 700 rpm) it does not, and the ERROR names both
-speeds and the remedy. The DDS form (the node's parameters, diagnostics and fit_check.refuse) is test_node_dds.py's.
+speeds and the remedy. Over DDS (the harness of test_node.py): the node flags the shipped model on a slow boat's
+inputs on /diagnostics, keeps publishing, and stops on fit_check.refuse.
 """
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 import msg_adapters
+from rclpy.parameter import Parameter
 from usv_predictor.analysis.fit_check import REMEDY, SPEED_RATIO_LIMIT, check_fit
 from usv_predictor.data.recording import recording_from_signals, required_roles
 from usv_predictor.errors import ConfigError
 from usv_predictor.models.loading import physics_predictor
 from usv_predictor.node import live
+from usv_predictor.node import node as predictor_node
 from usv_predictor.node.fit import MAX_GAP_S, FitCheckSettings, LiveFitCheck
 from usv_predictor.physics.dynamics import ManoeuvringModel
 from usv_predictor.physics.environment import Environment
@@ -29,6 +34,7 @@ from usv_predictor.physics.simulator import simulate
 from usv_predictor.physics.vessel import Vessel, load_vessel
 from usv_predictor.records import NS_PER_S
 
+from ros_helpers import Harness, level, values_of
 from test_fit_check import small_single_screw
 
 DT = 0.5  # (s) the model's step
@@ -163,3 +169,53 @@ def test_no_steady_window_yet_is_ok_a_reset_forgets_the_verdict(small_boat: tupl
 def test_a_period_out_of_range_is_refused_naming_the_parameter(period: float) -> None:
     with pytest.raises(ConfigError, match=r"fit_check\.period_s .* in \[0\.5, 600\]"):
         FitCheckSettings(period_s=period)
+
+
+# ----------------------------------------------------------------------------------------------- over DDS
+@pytest.fixture()
+def harness(ros_context: Any) -> Iterator[Harness]:
+    """The node (shipped model: jari_usv, 5.9 m/s at 700 rpm) checking every second, on the wall clock."""
+    fixture = Harness(ros_context, [Parameter("rate_hz", value=5.0), Parameter("dt", value=0.5),
+                                    Parameter("horizon_s", value=10.0), Parameter("fit_check.period_s", value=1.0)])
+    try:
+        yield fixture
+    finally:
+        fixture.close()
+
+
+def test_the_node_flags_a_model_that_does_not_fit_and_refuses_on_request(harness: Harness) -> None:
+    """Held commands (0.1 rad of rudder, 650 rpm) on a boat that runs 1.5 m/s: the shipped jari_usv model does not
+    fit. /diagnostics says so with the numbers and the remedy while the paths keep coming; fit_check.refuse stops
+    them, naming the refusal; false again, they come back."""
+    slow = {"velocity": (1.5, 0.0, 0.0)}
+    found = harness.spin_until(lambda s: "fit check" in s and level(s["fit check"]) == predictor_node.ERROR,
+                               lambda: harness.feed(**slow))
+    message = found["fit check"].message
+    assert message.startswith(f"model {harness.node.rollout.artifact.model_id} (dnn, vessel jari_usv) does not fit "
+                              "the node's inputs: it runs at")
+    assert ", the node's inputs at 1.5 m/s (ratio" in message and REMEDY in message
+    assert "predictions still published" in message
+    values = values_of(found["fit check"])
+    assert float(values["speed_ratio"]) > SPEED_RATIO_LIMIT and values["verdict"] == "mismatch"
+    assert level(found["prediction"]) == predictor_node.OK and harness.paths
+    # refuse: no more paths, the prediction status names the refusal
+    assert harness.node.set_parameters([Parameter("fit_check.refuse", value=True)])[0].successful
+    found = harness.spin_until(lambda s: "does not fit" in s["prediction"].message, lambda: harness.feed(**slow))
+    assert level(found["prediction"]) == predictor_node.WARN and "predictions suppressed" in found["fit check"].message
+    count = len(harness.paths)
+    harness.spin(0.5, lambda: harness.feed(**slow))
+    assert len(harness.paths) == count
+    assert harness.node.set_parameters([Parameter("fit_check.refuse", value=False)])[0].successful
+    harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, lambda: harness.feed(**slow))
+    harness.spin(0.5, lambda: harness.feed(**slow))
+    assert len(harness.paths) > count
+
+
+def test_the_fit_check_parameters_are_validated(harness: Harness) -> None:
+    result = harness.node.set_parameters([Parameter("fit_check.period_s", value=0.1)])[0]
+    assert not result.successful and harness.node.fit.settings.period_s == 1.0
+    descriptor = harness.node.describe_parameter("fit_check.period_s")
+    assert not descriptor.read_only and descriptor.floating_point_range[0].to_value == 600.0
+    assert harness.node.set_parameters([Parameter("fit_check.enabled", value=False)])[0].successful
+    found = harness.spin_until(lambda s: "fit check" in s and "disabled" in s["fit check"].message)
+    assert level(found["fit check"]) == predictor_node.OK
