@@ -23,7 +23,7 @@ import msg_adapters
 from rclpy.parameter import Parameter
 from usv_predictor.analysis.fit_check import REMEDY, SPEED_RATIO_LIMIT, check_fit
 from usv_predictor.data.recording import recording_from_signals, required_roles
-from usv_predictor.errors import ConfigError
+from usv_predictor.errors import ConfigError, RecordingError
 from usv_predictor.models.loading import physics_predictor
 from usv_predictor.node import live
 from usv_predictor.node import node as predictor_node
@@ -107,6 +107,41 @@ def test_the_buffers_make_the_recording_the_replay_tool_makes() -> None:
     np.testing.assert_allclose(online.nu, offline.nu, atol=1e-12)
     np.testing.assert_allclose(online.controls, offline.controls, atol=1e-12)
     np.testing.assert_allclose(online.position, offline.position, atol=1e-9)
+
+
+def test_the_span_bridges_the_gaps_a_busy_node_drops_and_not_a_stale_input() -> None:
+    """A busy node's sensor queues (depth 5) drop the gyro's samples while a 0.8 s grey-box cycle runs, every 2 s:
+    the check's span bridges the gaps (MAX_GAP_S), where the replay tool's cut (every gap longer than dt) keeps
+    less than a gap's spacing; a gap longer than MAX_GAP_S cuts it."""
+    vessel = load_vessel("jari_usv")
+    signals = trial_signals(vessel)
+    layout = vessel.actuator_layout
+    roles = required_roles(layout)
+    fields = {role: msg_adapters.ROLE_FIELDS[role] for role in roles}
+
+    def buffered(dropped) -> live.InputSet:
+        inputs = live.InputSet(fields, {role: 1.0 for role in roles}, live.LiveSettings(dt=DT, horizon_steps=2), layout)
+        events = sorted((int(t), role, k) for role in roles for k, t in enumerate(signals[role].t_ns))
+        t0 = events[0][0]
+        for t_ns, role, k in events:
+            if role == "imu" and dropped((t_ns - t0) / NS_PER_S):
+                continue
+            inputs.add(role, t_ns, [float(signals[role].column(name)[k]) for name in fields[role]], t_ns)
+        return inputs
+
+    busy = buffered(lambda t: t % 2.0 > 1.2)  # 0.8 s of every 2 s lost
+    assert buffered_span(busy, MAX_GAP_S) > 30.0  # the gyro's 2048 samples: 34 s at 60 % of 100 Hz
+    assert buffered_span(busy, DT) < 2.0
+    stale = buffered(lambda t: 50.0 < t < 52.5)  # 2.5 s without the gyro, 8 s before the end
+    assert 6.0 < buffered_span(stale, MAX_GAP_S) < 8.0
+
+
+def buffered_span(inputs: live.InputSet, max_gap_s: float) -> float:
+    """(s) the span buffered_recording reads, 0 when it holds less than one step (RecordingError)."""
+    try:
+        return inputs.buffered_recording(max_gap_s).duration_s
+    except RecordingError:
+        return 0.0
 
 
 def test_the_preset_on_its_own_boat_fits_with_its_ratios(own_boat: LiveFitCheck) -> None:

@@ -66,3 +66,11 @@ def test_the_walkthrough_runs_as_written_to_a_node_that_publishes_the_boats_mode
     fit = re.search(r"predictor: fit check: OK fits: speed ratio ([\d.]+) .*yaw-rate ratio ([\d.]+)", output)
     assert fit, output[-2000:]
     assert 1 / 1.5 < float(fit.group(1)) < 1.5 and 0.5 < float(fit.group(2)) < 2.0
+
+
+def test_a_doc_command_the_runner_does_not_know_is_one_line_and_exit_2(tmp_path: Path, capsys) -> None:
+    doc = tmp_path / "doc.md"
+    doc.write_text("# x\n\n```bash\nrm -rf /tmp/nothing\n```\n")
+    assert your_boat.main([str(tmp_path / "work"), "--doc", str(doc)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "`rm -rf /tmp/nothing`: a command this runner does not know" in err

@@ -37,6 +37,10 @@ NODE = ("ros2", "run", "usv_predictor", "predictor")
 PLACEHOLDER = re.compile(r"^/path/to/(?P<name>[^/]+\.pt)$")
 
 
+class DocError(Exception):
+    """The doc has no command this runner can run as written (one line, exit 2)."""
+
+
 class Step(NamedTuple):
     argv: tuple[str, ...]  # as the doc writes it
     line: str  # the doc's text, continuation lines joined
@@ -64,7 +68,7 @@ def node_config(doc: Path = DOC) -> dict[str, Any]:
         parsed = yaml.safe_load(block)
         if isinstance(parsed, dict) and "predictor" in parsed:
             return parsed
-    raise SystemExit(f"{doc}: no ```yaml block with `predictor:` (step 4's node parameters)")
+    raise DocError(f"{doc}: no ```yaml block with `predictor:` (step 4's node parameters)")
 
 
 def merged(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
@@ -97,12 +101,12 @@ def command_of(step: Step, workdir: Path, doc: Path = DOC) -> list[str]:
     if tuple(argv[:4]) == NODE:
         args = argv[4:]
         if args[:1] != ["--config"] or len(args) != 2:
-            raise SystemExit(f"{doc}: `{step.line}`: expected `{' '.join(NODE)} --config FILE`")
+            raise DocError(f"{doc}: `{step.line}`: expected `{' '.join(NODE)} --config FILE`")
         config = write_node_config(workdir, args[1], doc)
         print(f"wrote {config} (config/predictor.yaml with step 4's block)", flush=True)
         return [sys.executable, str(PLAY_BAG), PLAY_BAG_PATH, "--run-node", "--config", config.name,
                 "--seconds", f"{PLAY_SECONDS:g}", "--rate", f"{PLAY_RATE:g}", "--settle", "1.0"]
-    raise SystemExit(f"{doc}: `{step.line}`: a command this runner does not know (replay ..., {' '.join(NODE)} ...)")
+    raise DocError(f"{doc}: `{step.line}`: a command this runner does not know (replay ..., {' '.join(NODE)} ...)")
 
 
 def run(workdir: Path, doc: Path = DOC) -> int:
@@ -132,7 +136,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.doc.is_file():
         parser.error(f"--doc {args.doc}: no such file")
-    return run(args.workdir, args.doc)
+    try:
+        return run(args.workdir, args.doc)
+    except DocError as err:
+        print(f"your_boat: error: {err}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
