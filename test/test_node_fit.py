@@ -157,6 +157,7 @@ def test_the_preset_on_its_own_boat_fits_with_its_ratios(own_boat: LiveFitCheck)
     assert fit.refusing == ""
 
 
+@pytest.mark.slow  # the module fixture: ~25 s of checks that roll the strongest causes out
 @pytest.mark.parametrize("refuse", [False, True])
 def test_the_preset_on_a_small_boat_is_an_error_naming_the_speeds_and_the_remedy(
         small_boat: tuple[LiveFitCheck, Vessel], refuse: bool) -> None:
@@ -179,6 +180,7 @@ def test_the_preset_on_a_small_boat_is_an_error_naming_the_speeds_and_the_remedy
         assert fit.refusing.startswith("the preset jari_usv does not fit the node's inputs: it runs at")
 
 
+@pytest.mark.slow
 def test_the_live_check_and_the_replay_tools_agree(small_boat: tuple[LiveFitCheck, Vessel]) -> None:
     """One check, two forms: check_fit on the whole trial gives the live verdict and speed ratio."""
     fit, small = small_boat
@@ -233,6 +235,7 @@ def spin_long(harness: Harness, condition: Any, feed: Any, seconds: float = 120.
                 f"{None if harness.latest is None else statuses(harness.latest).get('fit check')}")
 
 
+@pytest.mark.slow
 def test_the_node_flags_a_model_that_does_not_fit_and_refuses_on_request(harness: Harness) -> None:
     """Rudder amidships and 650 rpm held on a boat that runs straight at 1 m/s: the shipped jari_usv model (5.1 m/s
     there) does not fit, beyond what waves of 1.5 m explain for its 13.5 m boat (ratio 2.8). /diagnostics says so
