@@ -142,9 +142,13 @@ run_demo() {
     done
     "$replay" diagnose --vessel otter "$out/otter_bags" --hypotheses thruster_imbalance current --max-causes 1 \
         --no-gain --json "$out/otter_diagnosis.json"
+    say "6. your boat (docs/your_boat.md, its commands as written): the Otter-class bags as an unknown boat," \
+        "vessel init -> identify -> evaluate, diagnose -> the node with the boat's own model, fed over DDS"
+    ROS_DOMAIN_ID=$((100 + ($$ + 1) % 100)) ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST "$VENV/bin/python" \
+        "$REPO/tools/your_boat.py" "$out/your_boat" | tee "$out/your_boat.txt"
     # ============================ end of DEMO section ==============================
     say "demo done: evaluation report $out/report/report.md, diagnosis $out/diagnosis/report.md," \
-        "twin-thruster diagnosis $out/otter_diagnosis.json, all in $out"
+        "twin-thruster diagnosis $out/otter_diagnosis.json, your boat $out/your_boat.txt, all in $out"
 }
 
 main() {

@@ -68,7 +68,7 @@ def test_inputs_are_decoded_and_reported(harness: Harness) -> None:
     # subscribed, and one status says so (check_layout_inputs)
     used = [i.role for i in harness.node.config.inputs if i.role not in unused_roles(harness.node.layout)]
     assert "throttle" not in used and "thruster_port" not in used and "rudder_angle" in used
-    assert sorted(statuses) == sorted([*used, "model", "prediction", "plan", "candidate plans", "sea estimate",
+    assert sorted(statuses) == sorted([*used, "model", "prediction", "plan", "candidate plans", "sea estimate", "fit check",
                                        "ignored inputs"])
     ignored = statuses["ignored inputs"]
     assert ignored.level[0] == predictor_node.OK

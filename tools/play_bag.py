@@ -2,12 +2,16 @@
 """Play a shipped bag to the `predictor` node over DDS with /clock, and report what the node published.
 
     python tools/play_bag.py bags/sea_trial/turning_circle_stbd_20deg_700rpm --seconds 8 --rate 2 --run-node
+    python tools/play_bag.py bags/otter/sea_trial/calm/turning_circle_port_d0.4_p0.6 --run-node \
+        --config my_predictor.yaml -p fit_check.period_s:=2.0
 
-Publishes the bag's input topics as their serialized CDR bytes (no decode/encode: the node sees exactly
-the recorded messages) and /clock (rosgraph_msgs/Clock) at every message time, paced at `rate` x real time.
-With --run-node it starts `python -m usv_predictor.node -p use_sim_time:=true` beside it; either way it
-listens to predicted_path and prints the count, the rate in sim time, and the first and last pose.
-A small tool for the demo and the tests (test_node_dds.py imports BagPlayer and PathListener).
+Publishes the bag's input topics (those of --config, default config/predictor.yaml) as their serialized CDR
+bytes (no decode/encode: the node sees exactly the recorded messages) and /clock (rosgraph_msgs/Clock) at every
+message time, paced at `rate` x real time. With --run-node it starts `python -m usv_predictor.node [--config FILE]
+--ros-args -p use_sim_time:=true [-p NAME:=VALUE ...]` beside it; either way it listens to predicted_path and
+/diagnostics and prints the paths' count, rate in sim time, first and last pose, and the node's latest
+`model`, `prediction` and `fit check` statuses. A small tool for the demo and the tests (test_node_dds.py imports
+BagPlayer and PathListener).
 """
 from __future__ import annotations
 
@@ -23,6 +27,7 @@ import rclpy
 from rclpy.node import Node
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
+from diagnostic_msgs.msg import DiagnosticArray
 from rosgraph_msgs.msg import Clock
 
 import msg_adapters
@@ -120,6 +125,33 @@ class PathListener:
                 f"  last path:  first pose {pose(last, 0)}, last pose {pose(last, -1)}")
 
 
+class DiagnosticsListener:
+    """Keeps the latest status of each name on /diagnostics (`predictor: fit check` -> level, message)."""
+
+    LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+
+    def __init__(self, node: Node) -> None:
+        self.latest: dict[str, tuple[str, str]] = {}
+        self.values: dict[str, dict[str, str]] = {}
+        node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            self.latest[status.name] = (self.LEVELS.get(status.level[0], str(status.level[0])), status.message)
+            self.values[status.name] = {kv.key: kv.value for kv in status.values}
+
+    def summary(self, names: tuple[str, ...] = ("model", "prediction", "fit check")) -> str:
+        lines = []
+        for name in names:
+            found = [(key, value) for key, value in self.latest.items() if key.endswith(f": {name}")]
+            for key, (level, message) in found:
+                lines.append(f"{key}: {level} {message}")
+                if name == "fit check":  # how many checks ran, on what, at what cost
+                    shown = ("checks", "windows", "speed_ratio", "yaw_rate_ratio", "compute_ms_p50", "not_run")
+                    lines.append("  " + ", ".join(f"{k} {v}" for k, v in self.values[key].items() if k in shown))
+        return "\n".join(lines) or "no /diagnostics received"
+
+
 def play(player: BagPlayer, executor: Any, rate: float, clock_step_ns: int = 10_000_000) -> None:
     """Free-running playback at `rate` x real time: /clock every clock_step_ns of sim time, messages in order."""
     t_start = player.next_time_ns
@@ -142,31 +174,52 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=8.0, help="sim seconds to play (default 8)")
     parser.add_argument("--rate", type=float, default=1.0, help="playback speed (x real time)")
     parser.add_argument("--run-node", action="store_true", help="start the predictor node with use_sim_time")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="parameter file of the node (predictor --config FILE) and of the topics played "
+                             "(default: config/predictor.yaml)")
+    parser.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
+                        help="a parameter of the node (-p NAME:=VALUE after --ros-args), repeatable")
+    parser.add_argument("--settle", type=float, default=0.5,
+                        help="wall seconds to keep listening after the last message (default 0.5)")
     args = parser.parse_args(argv)
+    if args.config is not None and not args.config.is_file():
+        parser.error(f"--config {args.config}: no such file")
+    for param in args.param:
+        if ":=" not in param:
+            parser.error(f"--param {param!r}: expected NAME:=VALUE")
     env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")}
     os.environ.update(env)
-    messages = read_messages(args.bag, args.start, args.seconds)
+    messages = read_messages(args.bag, args.start, args.seconds, args.config)
     node_process = None
     if args.run_node:
-        node_process = subprocess.Popen([sys.executable, "-m", "usv_predictor.node", "--ros-args",
-                                         "-p", "use_sim_time:=true", "--log-level", "warn"], env=env)
+        config = [] if args.config is None else ["--config", str(args.config)]
+        params = [item for param in args.param for item in ("-p", param)]
+        node_process = subprocess.Popen([sys.executable, "-m", "usv_predictor.node", *config, "--ros-args",
+                                         "-p", "use_sim_time:=true", *params, "--log-level", "warn"], env=env)
     rclpy.init()
     node = rclpy.create_node("bag_player")
     try:
         player, listener = BagPlayer(node, messages), PathListener(node)
+        diagnostics = DiagnosticsListener(node)
         executor = rclpy.executors.SingleThreadedExecutor()
         executor.add_node(node)
-        deadline = time.monotonic() + 10.0  # the node's start-up (torch import, model load) and discovery
-        while time.monotonic() < deadline and (node.count_subscribers("imu/data") == 0
+        deadline = time.monotonic() + 30.0  # the node's start-up (torch import, model load) and discovery
+        first_topic = messages[0].topic if messages else "imu/data"
+        while time.monotonic() < deadline and (node.count_subscribers(first_topic) == 0
                                                or node.count_publishers("predicted_path") == 0):
             executor.spin_once(timeout_sec=0.05)
+            if node_process is not None and node_process.poll() is not None:
+                print(f"the predictor node exited with code {node_process.returncode} before playback",
+                      file=sys.stderr)
+                return 2
         print(f"playing {len(messages)} messages ({args.seconds:g} s of {args.bag.name}) at {args.rate:g}x",
               file=sys.stderr)
         play(player, executor, args.rate)
-        end = time.monotonic() + 0.5
+        end = time.monotonic() + args.settle
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)
         print(listener.summary())
+        print(diagnostics.summary())
         return 0 if listener.paths else 1
     finally:
         node.destroy_node()

@@ -39,7 +39,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from itertools import product
-from typing import Any, Mapping, Sequence
+from functools import partial
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -179,9 +180,9 @@ class FitCheck:
     def mismatch(self) -> bool:
         return self.verdict == "mismatch"
 
-    def refusal(self, option: str = "--no-fit-check") -> str:
-        """The one line a command refuses with."""
-        return (f"{self.model} does not fit these bags: {'; '.join(self.reasons)} — beyond what any current, wind, "
+    def refusal(self, option: str = "--no-fit-check", data: str = "these bags") -> str:
+        """The one line a command refuses with (data: what was measured, "the node's inputs" in the node)."""
+        return (f"{self.model} does not fit {data}: {'; '.join(self.reasons)} — beyond what any current, wind, "
                 f"waves or sensor/actuator fault explains: {REMEDY}, or pass {option} to proceed anyway")
 
     def summary(self) -> str:
@@ -238,12 +239,12 @@ def _settled(values: np.ndarray, share: float, floor: float) -> bool:
 
 def steady_windows(predictor: Predictor, recordings: Sequence[Recording], layout: ActuatorLayout) -> list[SteadyWindow]:
     """Every window of held commands whose measured u and r have settled, with the model's u and r for it
-    (_rolled_windows)."""
-    return [w.window for w in _rolled_windows(predictor, recordings, layout)]
+    (rolled_windows)."""
+    return [w.window for w in rolled_windows(predictor, recordings, layout)]
 
 
 @dataclass(frozen=True)
-class _Rolled:
+class Rolled:
     """A steady window and what its prediction was rolled out from (the causes are rolled out from the same)."""
 
     window: SteadyWindow
@@ -252,7 +253,7 @@ class _Rolled:
     averaged: int  # the last `averaged` steps of the rollout are averaged
 
 
-def _rolled_windows(predictor: Predictor, recordings: Sequence[Recording], layout: ActuatorLayout) -> list[_Rolled]:
+def rolled_windows(predictor: Predictor, recordings: Sequence[Recording], layout: ActuatorLayout) -> list[Rolled]:
     """Every window of held commands whose measured u and r have settled, with the model's u and r for it.
 
     Straight windows: the model starts from the settled measured state and runs SETTLE_S at the held commands (its
@@ -286,14 +287,18 @@ def _rolled_windows(predictor: Predictor, recordings: Sequence[Recording], layou
             averaged = min(steady_n, controls.shape[1])
             predicted = rollout(predictor, state, controls, held_state).mean(axis=0)[0, -averaged:]  # (steady, 6)
             measured = last.mean(axis=0)  # (3,)
-            windows.append(_Rolled(SteadyWindow(
+            windows.append(Rolled(SteadyWindow(
                 rec.name, "straight" if straight else "turn", float(rec.t_s[first]), float(rec.t_s[end - 1]),
                 steering, float(layout.propulsion_signal(held)), float(measured[0]), float(predicted[:, 0].mean()),
                 float(measured[2]), float(predicted[:, 2].mean())), state[0], controls[0], averaged))
     return windows
 
 
-def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[_Rolled], causes: Sequence[Cause]
+ChangesOf = Callable[[Sequence[Rolled], Sequence[Cause]], tuple[np.ndarray, np.ndarray]]
+"""changes_of(rolled, causes) -> (du, dr), each (N causes, W windows): cause_changes of the windows."""
+
+
+def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: Sequence[Cause]
                   ) -> tuple[np.ndarray, np.ndarray]:
     """(du, dr), each (N causes, W windows): what each cause changes in the vessel's u (m/s, over ground) and r
     (rad/s, as the gyro reports it) averaged where the window's prediction is, rolled out by the vessel's grey box
@@ -407,7 +412,7 @@ def _top_speed_in_a_sea(vessel: Vessel, dt: float, top: float, causes: Sequence[
     steps = max(int(round(SETTLE_S / dt)), 2)
     controls = np.repeat(np.asarray(layout.to_commands(0.0, full), dtype=float)[None], steps, axis=0)  # (H, C)
     window = SteadyWindow("top speed", "straight", 0.0, SETTLE_S, 0.0, full, top, top, 0.0, 0.0)
-    du, _ = cause_changes(vessel, dt, [_Rolled(window, np.array([top, 0.0, 0.0, 0.0]), controls,
+    du, _ = cause_changes(vessel, dt, [Rolled(window, np.array([top, 0.0, 0.0, 0.0]), controls,
                                                min(max(int(round(STEADY_S / dt)), 2), steps))], causes)
     du = np.where(np.isfinite(du[:, 0]), du[:, 0], -np.inf)  # (N,)
     best = int(np.argmax(du))
@@ -438,7 +443,22 @@ def check_fit(predictor: Predictor, recordings: Sequence[Recording], *, vessel: 
     meta = dict(predictor.metadata)
     layout = actuator_layout(str(meta.get("actuator_layout") or (recordings[0].layout if recordings else "")))
     label = label or f"model {meta.get('model_id', '?')} ({meta.get('model_type', '?')})"
-    rolled = _rolled_windows(predictor, recordings, layout) if recordings else []
+    rolled = rolled_windows(predictor, recordings, layout) if recordings else []
+    speeds = np.concatenate([np.abs(r.nu[:, 0]) for r in recordings]) if recordings else np.zeros(0)
+    return judge_windows(label, layout, rolled, speeds, recordings[0].dt if recordings else None, vessel=vessel,
+                         explain_always=explain_always)
+
+
+def judge_windows(label: str, layout: ActuatorLayout, rolled: Sequence[Rolled], speeds: np.ndarray,
+                  dt: float | None, *, vessel: Vessel | None = None, explain_always: bool = False,
+                  data: str = "these bags", changes_of: ChangesOf | None = None) -> FitCheck:
+    """The verdict of check_fit on steady windows already rolled out (rolled_windows), `speeds` (N,) the measured
+    |u| (m/s) the data's speed is the 90th percentile of, dt (s) the step of the windows' rollouts (None: no
+    window), `data` how the reasons name what was measured, `changes_of(rolled, causes)` what the causes change in
+    the windows (default cause_changes of the vessel at dt; the node's check keeps them per window). check_fit's
+    second half, shared with the node's live fit check (node/fit.py), which collects its
+    windows from its input buffers over time."""
+    rolled = list(rolled)
     windows = [r.window for r in rolled]
     reasons: list[str] = []
     diverged = [w for w in windows if not (math.isfinite(w.predicted_speed_mps)
@@ -453,7 +473,7 @@ def check_fit(predictor: Predictor, recordings: Sequence[Recording], *, vessel: 
 
     def change(index: list[int], which: int) -> np.ndarray:
         if not changes:
-            changes.append(cause_changes(vessel, recordings[0].dt, rolled, causes))
+            changes.append((changes_of or partial(cause_changes, vessel, dt))(rolled, causes))
         return changes[0][which][:, index]  # (N, len(index))
 
     size = f"for the {vessel.geometry.L_pp:g} m boat it describes" if vessel is not None else ""
@@ -475,7 +495,7 @@ def check_fit(predictor: Predictor, recordings: Sequence[Recording], *, vessel: 
             w = _median_window(speed_set, lambda w: w.predicted_speed_mps / w.measured_speed_mps)
             turning = "" if w.kind == "straight" else " in a held turn"
             reasons.append(f"it runs at {w.predicted_speed_mps:.2g} m/s at {_propulsion_text(layout, w.propulsion)}"
-                           f"{turning}, these bags at {w.measured_speed_mps:.2g} m/s (ratio {speed_ratio:.2f}, "
+                           f"{turning}, {data} at {w.measured_speed_mps:.2g} m/s (ratio {speed_ratio:.2f}, "
                            f"{_limit_text(speed_ratio, SPEED_RATIO_LIMIT, speed_explanation, size)})")
     turns = [w for w in windows if w.kind == "turn" and abs(w.measured_yaw_rate_rad_s) >= MIN_YAW_RATE]
     yaw_ratio = yaw_explanation = None
@@ -489,7 +509,7 @@ def check_fit(predictor: Predictor, recordings: Sequence[Recording], *, vessel: 
         if beyond and not (yaw_explanation is not None and yaw_explanation.explained):
             w = _median_window(turns, lambda w: w.predicted_yaw_rate_rad_s / w.measured_yaw_rate_rad_s)
             reasons.append(f"it turns at {math.degrees(w.predicted_yaw_rate_rad_s):.2g} deg/s for a held turn command "
-                           f"{w.steering:.3g} at {_propulsion_text(layout, w.propulsion)}, these bags at "
+                           f"{w.steering:.3g} at {_propulsion_text(layout, w.propulsion)}, {data} at "
                            f"{math.degrees(w.measured_yaw_rate_rad_s):.2g} deg/s (ratio {yaw_ratio:.2f}, "
                            f"{_limit_text(yaw_ratio, YAW_RATE_RATIO_LIMIT, yaw_explanation, size)})")
 
@@ -500,18 +520,18 @@ def check_fit(predictor: Predictor, recordings: Sequence[Recording], *, vessel: 
         u_model = float(np.median([w.predicted_speed_mps for w in speed_set]))
         froude_measured, froude_model = u_meas / math.sqrt(G * length), u_model / math.sqrt(G * length)
         froude_scale = (u_meas / u_model) ** 2 if u_model > 0 else None
-    speeds = np.concatenate([np.abs(r.nu[:, 0]) for r in recordings]) if recordings else np.zeros(0)
+    speeds = np.asarray(speeds, dtype=float)
     speeds = speeds[np.isfinite(speeds)]
     data_speed = float(np.percentile(speeds, 90)) if len(speeds) else None
     top = _top_speed(vessel) if vessel is not None and layout.propulsion else None
     if top is not None and data_speed is not None and data_speed > TOP_SPEED_LIMIT * top:
         # a following sea or a current may carry a small boat beyond its calm-water top speed: the limit is the
         # top speed the strongest cause allows, if higher
-        strongest = strongest_causes(layout.name) if recordings else ()
-        top_sea, cause = _top_speed_in_a_sea(vessel, recordings[0].dt, top, strongest) if strongest else (top, None)
+        strongest = strongest_causes(layout.name) if dt is not None else ()
+        top_sea, cause = _top_speed_in_a_sea(vessel, dt, top, strongest) if strongest else (top, None)
         if data_speed > TOP_SPEED_LIMIT * top_sea:
             sea = "" if cause is None else f", {top_sea:.2g} m/s with {cause.label}"
-            reasons.append(f"these bags run at {data_speed:.2g} m/s, {data_speed / top:.1f} times its top speed "
+            reasons.append(f"{data} run at {data_speed:.2g} m/s, {data_speed / top:.1f} times its top speed "
                            f"{top:.2g} m/s at full command{sea} (Fn {data_speed / math.sqrt(G * length):.2f} on its "
                            f"{length:g} m)")
     if froude_scale is not None and reasons and not (0.5 < froude_scale < 2.0):

@@ -51,13 +51,19 @@ import numpy as np
 import torch
 
 from msg_adapters.standard import ScalarHeadingAdapter
-from usv_predictor.data.recording import plausible_ranges, required_roles, window_resample
-from usv_predictor.errors import CycleSkipped, InputRejected, ModelError
+from usv_predictor.data.recording import (
+    Recording,
+    plausible_ranges,
+    recording_from_signals,
+    required_roles,
+    window_resample,
+)
+from usv_predictor.errors import CycleSkipped, InputRejected, ModelError, RecordingError
 from usv_predictor.frames import LocalTangentPlane, angle_difference_deg, body_to_ned, compass_deg, wrap_angle
 from usv_predictor.models.artifact import MODEL_RUN_ERRORS, ModelArtifact, failure_reason
 from usv_predictor.models.dnn import NumpyDnnRollout, fused_rollout, numpy_rollout
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
-from usv_predictor.records import NS_PER_S
+from usv_predictor.records import NS_PER_S, Signal
 
 POSITION_ROLE = "gnss"
 # role -> the fields the state uses, in the order of recording_from_signals (the controls' roles: the layout's)
@@ -419,6 +425,40 @@ class InputSet:
                 if verdict.problem:
                     refusals["track_vs_gnss"] = (role, verdict.problem)
         self._set_refusals(refusals)
+
+    # --------------------------------------------------------------- the buffered span as a Recording
+    def buffered_recording(self, max_gap_s: float, name: str = "inputs") -> Recording:
+        """The buffered samples of the required inputs (and GNSS) as the replay tool's Recording on the model's step
+        (recording_from_signals: the same box averages as a bag's), from the latest gap longer than max_gap_s (and
+        dt) in any required input on, where the replay tool cuts a bag at every gap longer than dt
+        (replay.recordings.gap_cuts): the caller says which gaps its use bridges (the live fit check: the messages
+        a busy node drops from its sensor-data queues, fit.MAX_GAP_S); a step without a sample is interpolated, as
+        recording_from_signals does. RecordingError when the span holds less than one step or an input is
+        missing."""
+        dt_ns = self.settings.dt_ns
+        limit_ns = max(dt_ns, int(max_gap_s * NS_PER_S))
+        signals: dict[str, Signal] = {}
+        start = None
+        for role in (*self.required, POSITION_ROLE):
+            track = self.tracks.get(role)
+            if track is None or len(track.buffer) == 0:
+                if role == POSITION_ROLE:
+                    continue
+                raise RecordingError(f"input {role}: no sample buffered")
+            t, values = track.buffer.samples()
+            signals[role] = Signal(t, values, track.buffer.fields)
+            if role != POSITION_ROLE:
+                gaps = np.flatnonzero(np.diff(t) > limit_ns + 1)
+                first = int(t[gaps[-1] + 1]) if len(gaps) else int(t[0])
+                start = first if start is None else max(start, first)
+        kept = {}
+        for role, signal in signals.items():
+            keep = signal.t_ns >= start
+            kept[role] = Signal(signal.t_ns[keep], signal.values[keep], signal.fields)
+        if POSITION_ROLE in kept and len(kept[POSITION_ROLE]) < 2:
+            del kept[POSITION_ROLE]
+        return recording_from_signals(kept, self.settings.dt, name=name, datum=self.datum, layout=self.layout,
+                                      max_gap_s=limit_ns / NS_PER_S)
 
     # --------------------------------------------------------------- state out
     def _window_mean(self, role: str, columns: Sequence[str], t_c_ns: int) -> tuple[np.ndarray, int]:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+from concurrent.futures import Future, ThreadPoolExecutor
 import math
 import signal
 import sys
@@ -88,12 +89,14 @@ from usv_predictor.config import (
     unflatten_ros_parameters,
 )
 from usv_predictor.data.recording import PLAUSIBLE
-from usv_predictor.errors import AdapterError, ConfigError, ModelError, UsvPredictorError
+from usv_predictor.errors import AdapterError, ConfigError, ModelError, RecordingError, UsvPredictorError
 from usv_predictor.fitting.online import OnlineConfig
 from usv_predictor.models import loading
 from usv_predictor.models.artifact import metadata_differences
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.node import live, plans, sea
+from usv_predictor.node.fit import MAX_GAP_S as FIT_MAX_GAP_S
+from usv_predictor.node.fit import PERIOD_RANGE_S, FitCheckSettings, LiveFitCheck
 from usv_predictor.physics.actuators import ActuatorLayout, check_layout_inputs, unused_roles
 from usv_predictor.physics.vessel import Vessel, load_vessel, vessel_preset_exists
 from usv_predictor.records import NS_PER_S
@@ -106,11 +109,15 @@ CANDIDATE_PREDICTIONS_TOPIC = "candidate_predictions"  # trajectory_msgs/MultiDO
 ERROR_LOG_PERIOD_S = 5.0  # throttle of repeated warnings (s)
 RECENT_REJECT_S = 5.0  # an input with a rejected sample this recently is WARN (s)
 LATENCY_WINDOW = 200  # cycles kept for the latency percentiles
+FIT_LOG_PERIOD_S = 60.0  # throttle of the fit check's mismatch log line (s): the verdict stays on /diagnostics
+FIT_TIMER_S = 0.5  # (s) how often the fit check's timer looks whether a check is due (fit_check.period_s >= this)
 
 # DiagnosticStatus levels are `byte` fields (bytes of length 1 in rclpy); compare them as ints.
 OK, WARN, ERROR = (level[0] for level in (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR))
 RCLError = _rclpy.RCLError  # what rcl raises (e.g. a publish on a context that is shut down)
 RCLInvalidROSArgsError = _rclpy.RCLInvalidROSArgsError  # unparsable --ros-args (a broken --params-file)
+
+FIT_PREFIX = "fit_check."
 
 _DESCRIPTIONS = {
     "model_path": "TorchScript model file; empty = the package's shipped default model (may change at run time)",
@@ -132,6 +139,7 @@ class NodeParameter:
     description: str
     low: float | None = None
     high: float | None = None
+    read_only: bool = True  # False: may change at run time (validated in _on_set_parameters)
 
 
 NODE_PARAMETERS: dict[str, NodeParameter] = {
@@ -145,6 +153,14 @@ NODE_PARAMETERS: dict[str, NodeParameter] = {
     "diagnostics_rate_hz": NodeParameter(1.0, "rate of /diagnostics (Hz)", 0.01, 100.0),
     "plan_max_age_s": NodeParameter(1.0, "a plan (or candidate plans) stamped longer ago than this is refused, and a "
                                          "followed plan is dropped for the held commands (s)", 0.01, 60.0),
+    f"{FIT_PREFIX}enabled": NodeParameter(FitCheckSettings.enabled, "run the fit check on the inputs (fit.py): the "
+                                          "model's steady speed and yaw rate at held commands against the measured "
+                                          "ones, on /diagnostics as 'fit check'", read_only=False),
+    f"{FIT_PREFIX}period_s": NodeParameter(FitCheckSettings.period_s, "time between two fit checks (s)",
+                                           *PERIOD_RANGE_S, read_only=False),
+    f"{FIT_PREFIX}refuse": NodeParameter(FitCheckSettings.refuse, "publish no prediction while the fit check finds "
+                                         "that the model does not fit the inputs (false: published, /diagnostics "
+                                         "ERROR)", read_only=False),
 }
 
 
@@ -226,7 +242,7 @@ def _descriptor(name: str, value: Any) -> ParameterDescriptor:
 
 
 def _node_descriptor(name: str, spec: NodeParameter) -> ParameterDescriptor:
-    descriptor = ParameterDescriptor(name=name, description=spec.description, read_only=True)
+    descriptor = ParameterDescriptor(name=name, description=spec.description, read_only=spec.read_only)
     unit = "s" if name.endswith("_s") else "Hz" if name.endswith("_hz") else "samples"
     allowed = None if spec.low is None else Range(spec.low, spec.high, unit)
     return _ranged(descriptor, name, spec.default, allowed)
@@ -342,6 +358,9 @@ class PredictorNode(Node):
         self._candidates_pub = self.create_publisher(make(TRAJECTORY_TYPE), CANDIDATE_PREDICTIONS_TOPIC, 10)
         self._current_pub = self.create_publisher(make(CURRENT_TYPE), outputs["estimated_current"].topic, 10)
         self.sea = self._make_sea(self.rollout, {})
+        self.fit = self._make_fit(self.rollout)
+        self._fit_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fit_check")
+        self._fit_running: Future | None = None
         self.plan = PlanInput(PLAN_TOPIC)
         self.candidates = PlanInput(CANDIDATE_PLANS_TOPIC)
         self.following: plans.Plan | None = None  # the plan the predictions are made under
@@ -358,6 +377,7 @@ class PredictorNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.create_timer(1.0 / self.config.rate_hz, self._on_timer)
         self.create_timer(1.0 / float(self.get_parameter("diagnostics_rate_hz").value), self._on_diagnostics_timer)
+        self.create_timer(FIT_TIMER_S, self._on_fit_timer)  # runs a check when fit_check.period_s has passed
         for note in ignored_notes:
             self.get_logger().info(note)
         self.get_logger().info(
@@ -365,6 +385,13 @@ class PredictorNode(Node):
             f"{self.rollout.members} member(s)), {len(self._entries)} inputs ({', '.join(self._entries)}), "
             f"{self.config.rate_hz:g} Hz, horizon {self.config.horizon_s:g} s, parameters from {defaults_path}"
         )
+
+    def destroy_node(self) -> None:
+        """The fit check's worker ends first (a check running finishes: at most a few seconds of rollouts)."""
+        worker = getattr(self, "_fit_worker", None)
+        if worker is not None:
+            worker.shutdown(wait=True, cancel_futures=True)
+        super().destroy_node()
 
     # --------------------------------------------------------------- parameters
     def _declare_parameters(self, defaults_path: Path) -> PredictorConfig:
@@ -405,8 +432,10 @@ class PredictorNode(Node):
         """Swap the model (validated first; the old one stays on failure) and apply new staleness limits."""
         swap: live.Rollout | None = None
         online = {p.name: p.value for p in parameters if p.name.startswith(ONLINE_PREFIX)}
+        fit_changes = {p.name: p.value for p in parameters if p.name.startswith(FIT_PREFIX)}
         try:
             self._online_config(online)
+            fit_settings = self._fit_settings(fit_changes)
         except ConfigError as err:
             return SetParametersResult(successful=False, reason=str(err))
         for parameter in parameters:
@@ -423,6 +452,10 @@ class PredictorNode(Node):
             self.sea.restore()
             self.sea = self._make_sea(self.rollout, online)
             self.sea.last_reset = "the model was swapped" if swap is not None else "online parameters changed"
+        if swap is not None:
+            self.fit = self._make_fit(swap, fit_settings)
+            self.fit.last_reset = "the model was swapped"
+        self.fit.settings = fit_settings
         for parameter in parameters:
             role = parameter.name.removeprefix("inputs.").removesuffix(".max_age_s")
             if parameter.name.endswith(".max_age_s") and role in self.inputs.tracks:
@@ -446,6 +479,7 @@ class PredictorNode(Node):
         if self.inputs.observe_clock(now_ns):
             self.get_logger().warning("the clock jumped back: input buffers cleared, sea estimate reset")
             self.sea.reset("the clock jumped back")
+            self.fit.reset("the clock jumped back")
             for pending in self._pending.values():  # what arrived before the jump belongs to the old time line
                 kept = [(raw, at_ns) for raw, at_ns in pending if at_ns <= now_ns]
                 pending.clear()
@@ -531,6 +565,8 @@ class PredictorNode(Node):
                                       f"{err}", throttle_duration_sec=ERROR_LOG_PERIOD_S)
             return
         try:
+            if self.fit.refusing:
+                raise live.CycleSkipped(self.fit.refusing)
             result = live.predict_batch(self.inputs, self.rollout, now_ns, batch.schedule)
         except (live.CycleSkipped, ModelError, AdapterError, RuntimeError) as err:
             self.candidates.skipped = str(err)
@@ -554,6 +590,8 @@ class PredictorNode(Node):
         self._catch_up(now_ns)
         plan = self._current_plan(now_ns)
         try:
+            if self.fit.refusing:  # fit_check.refuse: a model that does not fit the inputs predicts nothing
+                raise live.CycleSkipped(self.fit.refusing)
             prediction = live.predict(self.inputs, self.rollout, now_ns, None if plan is None else plan.schedule,
                                       observe=self._observe_sea)
             self._publish(prediction, prediction.stamp_ns if plan is None else plan.stamp_ns)
@@ -606,6 +644,61 @@ class PredictorNode(Node):
         warn, message, values = self.sea.report(now_ns)
         return self._status(WARN if warn else OK, "sea estimate", message, values)
 
+    # --------------------------------------------------------------- the fit check (fit.py), own timer
+    def _fit_settings(self, changes: dict[str, Any] | None = None) -> FitCheckSettings:
+        """FitCheckSettings of the `fit_check.*` parameters with `changes` applied (ConfigError naming the one
+        refused)."""
+        value = {name: self.get_parameter(name).value for name in NODE_PARAMETERS if name.startswith(FIT_PREFIX)}
+        value.update(changes or {})
+        return FitCheckSettings(enabled=bool(value[f"{FIT_PREFIX}enabled"]),
+                                period_s=float(value[f"{FIT_PREFIX}period_s"]),
+                                refuse=bool(value[f"{FIT_PREFIX}refuse"]))
+
+    def _make_fit(self, rollout: live.Rollout, settings: FitCheckSettings | None = None) -> LiveFitCheck:
+        """The fit check of `rollout`'s model on its own copy of the model file (fit.py: its rollouts run in the
+        worker thread, and the sea estimate set in the node's grey box never reaches the copy)."""
+        artifact = rollout.artifact
+        meta = artifact.metadata
+        label = (f"the preset {meta.get('vessel')}" if str(meta.get("model_type", "")).startswith("physics")
+                 else f"model {artifact.model_id} ({meta.get('model_type', '?')}, vessel {meta.get('vessel')})")
+        copy = loading.load_model(str(artifact.path), physics=False)
+        return LiveFitCheck(copy, self.vessel, self.layout, label, settings or self._fit_settings())
+
+    def _on_fit_timer(self) -> None:
+        """A fit check on the buffered inputs when one is due (fit.py); the verdict is read by the cycle (refuse)
+        and /diagnostics."""
+        if not self.context.ok():
+            return
+        now_ns = self._clock.now().nanoseconds
+        if not self.fit.due(now_ns) or (self._fit_running is not None and not self._fit_running.done()):
+            return
+        self._catch_up(now_ns)
+        refused = "; ".join(f"input {role} refused: {why}" for role, why in self.inputs.refusals.values())
+        if refused:
+            self.fit.skip(refused, now_ns)
+            return
+        try:
+            recording = self.inputs.buffered_recording(FIT_MAX_GAP_S)  # a snapshot of the buffers, in this thread
+        except RecordingError as err:
+            self.fit.skip(str(err), now_ns)
+            return
+        self._fit_running = self._fit_worker.submit(self._run_fit, self.fit, recording, now_ns)
+
+    def _run_fit(self, fit: LiveFitCheck, recording: Any, now_ns: int) -> None:
+        """The check's rollouts, in the worker thread; the verdict is read by the cycle and /diagnostics."""
+        try:
+            check = fit.run(recording, now_ns)
+        except (ModelError, RecordingError, RuntimeError, ValueError) as err:
+            fit.skip(f"the check failed: {_first_line(err)}", now_ns)
+            self.get_logger().warning(f"fit check not run: {err}", throttle_duration_sec=ERROR_LOG_PERIOD_S)
+            return
+        if check is not None and check.mismatch:
+            self.get_logger().error(f"fit check: {fit.report(now_ns)[1]}", throttle_duration_sec=FIT_LOG_PERIOD_S)
+
+    def _fit_status(self, now_ns: int) -> Status:
+        level, message, values = self.fit.report(now_ns)
+        return self._status({"ok": OK, "warn": WARN, "error": ERROR}[level], "fit check", message, values)
+
     # --------------------------------------------------------------- /diagnostics (own rate)
     def _on_diagnostics_timer(self) -> None:
         if not self.context.ok():
@@ -618,7 +711,7 @@ class PredictorNode(Node):
         self._current_plan(now_ns)  # a plan that went stale is dropped before any status reads it: one story per report
         statuses = [self._input_status(role, now_ns) for role in self._entries]
         statuses += [self._model_status(), self._prediction_status(), self._plan_status(now_ns),
-                     self._candidates_status(now_ns), self._sea_status(now_ns)]
+                     self._candidates_status(now_ns), self._sea_status(now_ns), self._fit_status(now_ns)]
         if self.ignored:
             statuses.append(self._ignored_status())
         self._diagnostics.publish(diagnostics_cdr(now_ns, statuses))

@@ -1,0 +1,276 @@
+"""The node's live fit check (usv_predictor.node.fit) on its input buffers, at the library level: the messages of a
+simulated trial go into live.InputSet in stamp order as the node buffers them, a check runs every period_s of
+stream time on InputSet.buffered_recording(), and the verdict is read as /diagnostics reports it.
+
+The jari_usv preset (15 m, 5.9 m/s at 700 rpm) on its own data fits; on the data of a 4.5 m single-screw USV with
+the same engine (test_fit_check.small_single_screw: about 2 m/s at 700 rpm) it does not, and the ERROR names both
+speeds and the remedy. Over DDS (the harness of test_node.py): the node flags the shipped model on a slow boat's
+inputs on /diagnostics, keeps publishing, and stops on fit_check.refuse.
+"""
+from __future__ import annotations
+
+import math
+import re
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import msg_adapters
+from rclpy.parameter import Parameter
+from usv_predictor.analysis.fit_check import REMEDY, SPEED_RATIO_LIMIT, check_fit
+from usv_predictor.data.recording import recording_from_signals, required_roles
+from usv_predictor.errors import ConfigError, RecordingError
+from usv_predictor.models.loading import physics_predictor
+from usv_predictor.node import live
+from usv_predictor.node import node as predictor_node
+from usv_predictor.node.fit import MAX_GAP_S, FitCheckSettings, LiveFitCheck
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.manoeuvres import TurningCircle
+from usv_predictor.physics.sensors import measure
+from usv_predictor.physics.simulator import simulate
+from usv_predictor.physics.vessel import Vessel, load_vessel
+from usv_predictor.records import NS_PER_S
+
+from ros_helpers import Harness, level, statuses, values_of
+from test_fit_check import small_single_screw
+
+DT = 0.5  # (s) the model's step
+PERIOD_S = 10.0  # (s) between two checks
+# a 25 s straight approach at 700 rpm, then 20 deg of rudder held for 35 s
+MANOEUVRE = TurningCircle(20.0, 700.0, duration_s=60.0, approach_s=25.0)
+
+
+def trial_signals(vessel: Vessel) -> dict:
+    """The sensors of MANOEUVRE on `vessel` in calm water (role -> Signal)."""
+    traj = simulate(ManoeuvringModel(vessel), MANOEUVRE, Environment(), heading_deg=40.0, seed=1)
+    return measure(traj, Environment(), seed=2)
+
+
+def stream(vessel: Vessel, fit: LiveFitCheck, capacity: int = 2048) -> tuple[live.InputSet, int]:
+    """Feed the trial of `vessel` to an InputSet in stamp order (the clock = each stamp), a check whenever due;
+    (the inputs, checks run)."""
+    signals = trial_signals(vessel)
+    layout = vessel.actuator_layout
+    roles = (*required_roles(layout), live.POSITION_ROLE)
+    fields = {role: msg_adapters.ROLE_FIELDS[role] for role in roles}
+    inputs = live.InputSet(fields, {role: 1.0 for role in roles},
+                           live.LiveSettings(dt=DT, horizon_steps=2, capacity=capacity), layout)
+    events = sorted((int(t), role, k) for role in roles for k, t in enumerate(signals[role].t_ns))
+    runs = 0
+    for t_ns, role, k in events:
+        signal = signals[role]
+        inputs.add(role, t_ns, [float(signal.column(name)[k]) for name in fields[role]], t_ns)
+        if fit.due(t_ns) and t_ns - events[0][0] > PERIOD_S * NS_PER_S:
+            fit.run(inputs.buffered_recording(MAX_GAP_S), t_ns)
+            runs += 1
+    return inputs, runs
+
+
+def preset_check(refuse: bool = False) -> LiveFitCheck:
+    jari = load_vessel("jari_usv")
+    return LiveFitCheck(physics_predictor(jari, DT), jari, jari.actuator_layout, "the preset jari_usv",
+                        FitCheckSettings(period_s=PERIOD_S, refuse=refuse))
+
+
+@pytest.fixture(scope="module")
+def own_boat() -> LiveFitCheck:
+    """The jari_usv preset checked on its own boat's trial."""
+    fit = preset_check()
+    _, fit.test_runs = stream(load_vessel("jari_usv"), fit)
+    return fit
+
+
+@pytest.fixture(scope="module")
+def small_boat(tmp_path_factory: pytest.TempPathFactory) -> tuple[LiveFitCheck, Vessel]:
+    """The jari_usv preset checked on the 4.5 m boat's trial (the issue's case)."""
+    small = load_vessel(small_single_screw(tmp_path_factory.mktemp("vessel")))
+    fit = preset_check()
+    stream(small, fit)
+    return fit, small
+
+
+def test_the_buffers_make_the_recording_the_replay_tool_makes() -> None:
+    """buffered_recording is recording_from_signals of the buffered samples: the same grid, the same box means."""
+    vessel = load_vessel("jari_usv")
+    fit = LiveFitCheck(physics_predictor(vessel, DT), vessel, vessel.actuator_layout, "x", FitCheckSettings(enabled=False))
+    inputs, runs = stream(vessel, fit, capacity=100000)  # everything buffered
+    assert runs == 0  # disabled: never due
+    signals = trial_signals(vessel)
+    offline = recording_from_signals(signals, DT, name="trial", layout=vessel.actuator_layout)
+    online = inputs.buffered_recording(DT)  # the replay tool's cut: every gap longer than dt
+    assert online.t0_ns == offline.t0_ns and len(online) == len(offline)
+    np.testing.assert_allclose(online.nu, offline.nu, atol=1e-12)
+    np.testing.assert_allclose(online.controls, offline.controls, atol=1e-12)
+    np.testing.assert_allclose(online.position, offline.position, atol=1e-9)
+
+
+def test_the_span_bridges_the_gaps_a_busy_node_drops_and_not_a_stale_input() -> None:
+    """A busy node's sensor queues (depth 5) drop the gyro's samples while a 0.8 s grey-box cycle runs, every 2 s:
+    the check's span bridges the gaps (MAX_GAP_S), where the replay tool's cut (every gap longer than dt) keeps
+    less than a gap's spacing; a gap longer than MAX_GAP_S cuts it."""
+    vessel = load_vessel("jari_usv")
+    signals = trial_signals(vessel)
+    layout = vessel.actuator_layout
+    roles = required_roles(layout)
+    fields = {role: msg_adapters.ROLE_FIELDS[role] for role in roles}
+
+    def buffered(dropped) -> live.InputSet:
+        inputs = live.InputSet(fields, {role: 1.0 for role in roles}, live.LiveSettings(dt=DT, horizon_steps=2), layout)
+        events = sorted((int(t), role, k) for role in roles for k, t in enumerate(signals[role].t_ns))
+        t0 = events[0][0]
+        for t_ns, role, k in events:
+            if role == "imu" and dropped((t_ns - t0) / NS_PER_S):
+                continue
+            inputs.add(role, t_ns, [float(signals[role].column(name)[k]) for name in fields[role]], t_ns)
+        return inputs
+
+    busy = buffered(lambda t: t % 2.0 > 1.2)  # 0.8 s of every 2 s lost
+    assert buffered_span(busy, MAX_GAP_S) > 30.0  # the gyro's 2048 samples: 34 s at 60 % of 100 Hz
+    assert buffered_span(busy, DT) < 2.0
+    stale = buffered(lambda t: 50.0 < t < 52.5)  # 2.5 s without the gyro, 8 s before the end
+    assert 6.0 < buffered_span(stale, MAX_GAP_S) < 8.0
+
+
+def buffered_span(inputs: live.InputSet, max_gap_s: float) -> float:
+    """(s) the span buffered_recording reads, 0 when it holds less than one step (RecordingError)."""
+    try:
+        return inputs.buffered_recording(max_gap_s).duration_s
+    except RecordingError:
+        return 0.0
+
+
+def test_the_preset_on_its_own_boat_fits_with_its_ratios(own_boat: LiveFitCheck) -> None:
+    fit = own_boat
+    check = fit.check
+    assert fit.test_runs >= 5 and check is not None and check.verdict == "fits"
+    assert abs(check.speed_ratio - 1.0) < 0.05 and check.speed_windows == "straight"
+    kinds = [w.kind for w in check.windows]
+    assert kinds.count("straight") == 1  # the 25 s approach, seen by several checks, is one window
+    level, message, values = fit.report(int(60 * NS_PER_S))
+    assert level == "ok" and message.startswith("fits: speed ratio")
+    assert values["verdict"] == "fits" and abs(float(values["speed_ratio"]) - 1.0) < 0.05
+    assert fit.refusing == ""
+
+
+@pytest.mark.slow  # the module fixture: ~25 s of checks that roll the strongest causes out
+@pytest.mark.parametrize("refuse", [False, True])
+def test_the_preset_on_a_small_boat_is_an_error_naming_the_speeds_and_the_remedy(
+        small_boat: tuple[LiveFitCheck, Vessel], refuse: bool) -> None:
+    """The issue's case: jari_usv (5.9 m/s at 700 rpm) on a 4.5 m boat with the same engine."""
+    fit, _ = small_boat
+    fit.settings = FitCheckSettings(period_s=PERIOD_S, refuse=refuse)
+    check = fit.check
+    assert check is not None and check.verdict == "mismatch" and check.speed_ratio > SPEED_RATIO_LIMIT
+    level, message, values = fit.report(int(60 * NS_PER_S))
+    assert level == "error"
+    runs = re.search(r"it runs at ([\d.]+) m/s at 700 rpm, the node's inputs at ([\d.]+) m/s \(ratio ([\d.]+)", message)
+    assert runs, message
+    model_speed, data_speed, ratio = (float(x) for x in runs.groups())
+    assert 5.5 < model_speed < 6.3 and 1.0 < data_speed < 3.0 and ratio == pytest.approx(check.speed_ratio, abs=0.01)
+    assert REMEDY in message and values["remedy"] == REMEDY
+    assert ("predictions suppressed" in message) == refuse
+    # what the node does with its predictions (node.py skips the cycle with this line)
+    assert bool(fit.refusing) == refuse
+    if refuse:
+        assert fit.refusing.startswith("the preset jari_usv does not fit the node's inputs: it runs at")
+
+
+@pytest.mark.slow
+def test_the_live_check_and_the_replay_tools_agree(small_boat: tuple[LiveFitCheck, Vessel]) -> None:
+    """One check, two forms: check_fit on the whole trial gives the live verdict and speed ratio."""
+    fit, small = small_boat
+    jari = load_vessel("jari_usv")
+    recording = recording_from_signals(trial_signals(small), DT, name="trial", layout=small.actuator_layout)
+    offline = check_fit(physics_predictor(jari, DT), [recording], vessel=jari)
+    assert offline.verdict == "mismatch" and offline.speed_ratio == pytest.approx(fit.check.speed_ratio, rel=0.05)
+
+
+def test_no_steady_window_yet_is_ok_a_reset_forgets_the_verdict(small_boat: tuple[LiveFitCheck, Vessel]) -> None:
+    fit = preset_check()
+    level, message, _ = fit.report(0)
+    assert level == "ok" and message.startswith("no steady window yet")
+    fit.check = small_boat[0].check  # a mismatch, then the clock jumps back
+    assert fit.report(0)[0] == "error"
+    fit.reset("the clock jumped back")
+    level, _, values = fit.report(0)
+    assert level == "ok" and fit.check is None and values["last_reset"] == "the clock jumped back"
+    fit.skip("input imu: no sample buffered", 0)
+    level, message, _ = fit.report(0)
+    assert level == "warn" and message == "not run: input imu: no sample buffered"
+
+
+@pytest.mark.parametrize("period", [0.1, 1e4, float("nan")])
+def test_a_period_out_of_range_is_refused_naming_the_parameter(period: float) -> None:
+    with pytest.raises(ConfigError, match=r"fit_check\.period_s .* in \[0\.5, 600\]"):
+        FitCheckSettings(period_s=period)
+
+
+# ----------------------------------------------------------------------------------------------- over DDS
+@pytest.fixture()
+def harness(ros_context: Any) -> Iterator[Harness]:
+    """The node (shipped model: jari_usv, 5.9 m/s at 700 rpm) checking every second, on the wall clock."""
+    fixture = Harness(ros_context, [Parameter("rate_hz", value=5.0), Parameter("dt", value=0.5),
+                                    Parameter("horizon_s", value=10.0), Parameter("fit_check.period_s", value=1.0)])
+    try:
+        yield fixture
+    finally:
+        fixture.close()
+
+
+def spin_long(harness: Harness, condition: Any, feed: Any, seconds: float = 120.0) -> dict[str, Any]:
+    """harness.spin_until with a longer bound: a check of a window beyond the allowance rolls the 40-odd strongest
+    causes out (several seconds of CPU on a loaded machine), and a window still growing is rolled out again."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        feed()
+        harness.executor.spin_once(timeout_sec=0.02)
+        if harness.latest is not None and condition(statuses(harness.latest)):
+            return statuses(harness.latest)
+    pytest.fail(f"no /diagnostics satisfied the condition within {seconds} s; last: "
+                f"{None if harness.latest is None else statuses(harness.latest).get('fit check')}")
+
+
+@pytest.mark.slow
+def test_the_node_flags_a_model_that_does_not_fit_and_refuses_on_request(harness: Harness) -> None:
+    """Rudder amidships and 650 rpm held on a boat that runs straight at 1 m/s: the shipped jari_usv model (5.1 m/s
+    there) does not fit, beyond what waves of 1.5 m explain for its 13.5 m boat (ratio 2.8). /diagnostics says so
+    with the numbers and the remedy while the paths keep coming; fit_check.refuse stops them, naming the refusal;
+    false again, they come back."""
+    slow = {"velocity": (1.0, 0.0, 0.0), "rudder_angle": (0.0,), "imu": (0.0, 0.0, 0.0, -9.81, math.nan)}
+    found = spin_long(harness, lambda s: "fit check" in s and level(s["fit check"]) == predictor_node.ERROR,
+                      lambda: harness.feed(**slow))
+    message = found["fit check"].message
+    assert message.startswith(f"model {harness.node.rollout.artifact.model_id} (dnn, vessel jari_usv) does not fit "
+                              "the node's inputs: it runs at")
+    runs = re.search(r"it runs at ([\d.]+) m/s at 650 rpm, the node's inputs at 1 m/s \(ratio ([\d.]+)", message)
+    assert runs and 4.0 < float(runs.group(1)) < 6.3 and REMEDY in message, message
+    assert "predictions still published" in message
+    values = values_of(found["fit check"])
+    assert float(values["speed_ratio"]) > SPEED_RATIO_LIMIT and values["verdict"] == "mismatch"
+    assert level(found["prediction"]) == predictor_node.OK and harness.paths
+    # refuse: no more paths, the prediction status names the refusal
+    assert harness.node.set_parameters([Parameter("fit_check.refuse", value=True)])[0].successful
+    found = harness.spin_until(lambda s: "does not fit" in s["prediction"].message, lambda: harness.feed(**slow))
+    assert level(found["prediction"]) == predictor_node.WARN and "predictions suppressed" in found["fit check"].message
+    count = len(harness.paths)
+    harness.spin(0.5, lambda: harness.feed(**slow))
+    assert len(harness.paths) == count
+    assert harness.node.set_parameters([Parameter("fit_check.refuse", value=False)])[0].successful
+    harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, lambda: harness.feed(**slow))
+    harness.spin(0.5, lambda: harness.feed(**slow))
+    assert len(harness.paths) > count
+
+
+def test_the_fit_check_parameters_are_validated(harness: Harness) -> None:
+    result = harness.node.set_parameters([Parameter("fit_check.period_s", value=0.1)])[0]
+    assert not result.successful and harness.node.fit.settings.period_s == 1.0
+    descriptor = harness.node.describe_parameter("fit_check.period_s")
+    assert not descriptor.read_only and descriptor.floating_point_range[0].to_value == 600.0
+    assert harness.node.set_parameters([Parameter("fit_check.enabled", value=False)])[0].successful
+    found = harness.spin_until(lambda s: "fit check" in s and "disabled" in s["fit check"].message)
+    assert level(found["fit check"]) == predictor_node.OK
