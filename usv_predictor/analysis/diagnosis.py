@@ -70,6 +70,8 @@ NONE_LOSS = 5.0  # held-out loss (noise units) above which the calm-water model 
 MODEL_MISMATCH = "model_mismatch"  # the answer when the calm-water model itself is wrong (identify it first)
 REMEDY = "identify this boat first (docs/your_boat.md)"
 INCONCLUSIVE = "inconclusive"  # a candidate explains the held-out loss but its extension does not predict tracks better
+UNEXPLAINED = "unexplained"  # no physical cause, but the learned residual of last resort lowers the held-out error
+#                             (analysis/diagnosis_unexplained.py, run by diagnosis_run in place of the two above)
 INCONCLUSIVE_REMEDY = ("record more of the day (longer runs, turns both ways, more headings) or test the candidate "
                        "against its rivals with --hypotheses")
 
@@ -309,7 +311,7 @@ class Diagnosis:
     @property
     def hypotheses(self) -> tuple[str, ...]:
         """Every named cause, primary first (what the extended model contains)."""
-        if self.cause in ("none", MODEL_MISMATCH, INCONCLUSIVE):
+        if self.cause in ("none", MODEL_MISMATCH, INCONCLUSIVE, UNEXPLAINED):
             return ()
         return (self.cause, *(a.cause for a in self.additional_causes))
 
