@@ -48,22 +48,18 @@ def _never(*args, **kwargs):
 
 def test_run_diagnosis_tries_the_residual_only_without_a_physical_cause_and_unless_switched_off(monkeypatch):
     """model_mismatch + the residual's gain -> `unexplained` in the JSON (cause, message, the gain); with
-    unexplained=False (--no-unexplained) or without the held-out evaluation (--no-gain) it is never tried."""
+    unexplained=False (--no-unexplained) it is never tried."""
     recordings = trial(runs=diagnosis_runs()[:2])
     names = tuple(r.name for r in recordings)
     mismatch = dataclasses.replace(_mismatch(), folds=((names[0],), (names[1],)))
     monkeypatch.setattr(dg, "diagnose", lambda *args, **kwargs: mismatch)
     monkeypatch.setattr("usv_predictor.analysis.diagnosis_run.measure_unexplained", _never)
-    for switched_off in ({"unexplained": False}, {"gain": False}):
-        out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5, **switched_off)
-        assert out["cause"] == dg.MODEL_MISMATCH and out["unexplained"] is None
+    out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5, unexplained=False)
+    assert out["cause"] == dg.MODEL_MISMATCH and out["unexplained"] is None
     monkeypatch.setattr("usv_predictor.analysis.diagnosis_run.measure_unexplained", lambda *a, **k: _found(True))
     out = json.loads(json_text(run_diagnosis(recordings, VESSEL, "preset", dt=0.5)))
     assert out["cause"] == dg.UNEXPLAINED and out["unexplained"]["accepted"] and out["parameters"] == {}
     assert out["unexplained"]["gain"] == pytest.approx(1 - 1.4 / 19.0) and out["unexplained"]["replaced"] == dg.MODEL_MISMATCH
-    monkeypatch.setattr("usv_predictor.analysis.diagnosis_run.measure_unexplained", lambda *a, **k: _found(False))
-    out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5)
-    assert out["cause"] == dg.MODEL_MISMATCH and out["unexplained"]["accepted"] is False
 
 
 @pytest.mark.slow
