@@ -169,6 +169,96 @@ def coefficient_rows(result) -> list[dict]:
              "determined_by_data": flags[c.name]["determined_by_data"]} for c in result.coefficients()]
 
 
+# ------------------------------------------------------------------ the hybrid's turns
+
+
+HYBRID_MEMBERS = 5  # members of the hybrid ensemble = its seeds (each its own initial weights and bootstrap)
+HYBRID_EPOCHS = 60  # at most (early stopping on the zig-zags held out whole)
+HYBRID_HORIZON_S = 10.0  # (s, model scale) the multi-step loss' segments: 50 steps at DT, about a zig-zag half-period
+HYBRID_STRIDE_S = 5.0  # (s)
+STRAIGHT_S = 200.0  # (s) straight running from which each member's approach speed is read
+RPM_GRID = 24  # propeller speeds tried around the grey box's approach rpm (+-15 %), one batched rollout
+
+
+def train_kvlcc2_hybrid(result, recordings: list, members: int, epochs: int) -> tuple:
+    """The identified (fix) grey box + GeneralisingResidual trained on the same zig-zags (fitting.hybrid_fit: multi-step
+    loss, early stopping on a quarter of the zig-zags held out whole, pulled toward zero, bounded, its support the
+    zig-zags' range); seed 0, members = seeds."""
+    from usv_predictor.fitting import hybrid_fit
+
+    config = hybrid_fit.HybridTraining(members=members, epochs=epochs, patience=15, horizon_s=HYBRID_HORIZON_S,
+                                       stride_s=HYBRID_STRIDE_S, val_fraction=0.25, seed=0)
+    t0 = time.perf_counter()
+    module, info = hybrid_fit.train_hybrid(result, recordings, DT, config, progress=log)
+    info["seconds"] = time.perf_counter() - t0
+    log(f"  hybrid trained in {info['seconds']:.0f} s: best epochs {info['best_epoch']}, validation "
+        f"{[round(x, 3) for x in info['loss_best']]} (grey box {info['loss_grey_box']:.3f}), held out "
+        f"{info['val_manoeuvres']}")
+    return module, info
+
+
+def _rollout_turn(module, vessel: Vessel, rpm: np.ndarray, side: int, duration_s: float) -> tuple:
+    """Each row's turn with the rollout module (B = len(rpm) rows, one propeller speed each): the rudder of the
+    simulator's TurningCircle (approach, rate-limited execute) sampled at DT, from the grey box's steady straight
+    running at that rpm. Returns t (H + 1,), out (E, B, H + 1, 6) with the start prepended."""
+    import torch
+
+    rows = []
+    for n in rpm:
+        traj = simulate(ManoeuvringModel(vessel), TurningCircle(RUDDER_DEG, float(n), duration_s=duration_s, side=side))
+        every = int(round(DT / (traj.t_s[1] - traj.t_s[0])))
+        rows.append((traj.nu[0], traj.actuators[::every][:-1]))
+    state = torch.tensor(np.array([[*nu0, 0.0] for nu0, _ in rows]), dtype=torch.float64)  # (B, 4)
+    controls = torch.tensor(np.array([c for _, c in rows]), dtype=torch.float64)  # (B, H, 2)
+    with torch.no_grad():
+        out = module(state, controls).numpy()  # (E, B, H, 6)
+    start = np.zeros(out.shape[:2] + (1, 6))
+    start[..., :3] = state.numpy()[None, :, None, :3]
+    t = np.arange(out.shape[2] + 1) * DT
+    return t, np.concatenate([start, out], axis=2)
+
+
+def _criteria(t: np.ndarray, track: np.ndarray, L: float) -> dict[str, float]:
+    """turn_criteria of one rolled-out track (H + 1, 6)."""
+    out = turn_criteria(t, track[:, 3], track[:, 4], np.unwrap(track[:, 5]), APPROACH_S, L, drift_free=True)
+    speed = np.hypot(track[:, 0], track[:, 1])
+    out["speed_ratio"] = float(speed[-1] / speed[0])
+    out["drift_angle_deg"] = float(abs(np.degrees(np.arctan2(-track[-1, 1], track[-1, 0]))))
+    return out
+
+
+def hybrid_turns(module, grey_vessel: Vessel, grey_rpm: float, speed_mps: float) -> dict:
+    """The hybrid's 35 deg turns both ways: per member (seed) at the rpm that gives that member the approach speed in
+    straight running (read off one batched straight rollout over RPM_GRID speeds), and the ensemble mean's track at
+    the members' mean rpm. The grey-box rows of the same torch rollout (twin of the numpy simulation) as a check."""
+    import torch
+
+    from usv_predictor.models.hybrid import ResidualGreyBox, ZeroResidual
+
+    L = grey_vessel.geometry.L_pp
+    members = module.members
+    grid = grey_rpm * np.linspace(0.85, 1.15, RPM_GRID)
+    steps = int(round(STRAIGHT_S / DT))
+    model = ManoeuvringModel(grey_vessel)
+    state = torch.tensor(np.array([[*model.initial_state(n, 0.0)[3:6], 0.0] for n in grid]), dtype=torch.float64)
+    controls = torch.tensor(np.stack([np.column_stack([np.zeros(steps), np.full(steps, n)]) for n in grid]),
+                            dtype=torch.float64)
+    with torch.no_grad():
+        straight = module(state, controls).numpy()  # (E, B, H, 6)
+    final = np.hypot(straight[:, :, -1, 0], straight[:, :, -1, 1])  # (E, B)
+    rpm = np.array([float(np.interp(speed_mps, final[e], grid)) for e in range(members)])  # (E,) monotone in rpm
+    out: dict = {"rpm_members": rpm.tolist()}
+    grey = ResidualGreyBox(grey_vessel, DT, ZeroResidual(), 2)
+    for side, sign in (("starboard", 1), ("port", -1)):
+        t, tracks = _rollout_turn(module, grey_vessel, rpm, sign, KVLCC2_TURN_S)  # (E, E, H + 1, 6): member e, row e
+        per_member = [_criteria(t, tracks[e, e], L) for e in range(members)]
+        t, mean_tracks = _rollout_turn(module, grey_vessel, np.array([rpm.mean()]), sign, KVLCC2_TURN_S)
+        t, twin = _rollout_turn(grey, grey_vessel, np.array([grey_rpm]), sign, KVLCC2_TURN_S)
+        out[side] = {"members": per_member, "ensemble_mean": _criteria(t, mean_tracks.mean(axis=0)[0], L),
+                     "grey_box_torch_twin": _criteria(t, twin[0, 0], L)}
+    return out
+
+
 # ------------------------------------------------------------------ KVLCC2
 
 
@@ -181,7 +271,7 @@ def convert_kvlcc2(raw: Path, work: Path) -> list[Path]:
     return sorted(p for p in out.iterdir() if p.is_dir())
 
 
-def kvlcc2(raw: Path, work: Path) -> dict:
+def kvlcc2(raw: Path, work: Path, members: int = HYBRID_MEMBERS, epochs: int = HYBRID_EPOCHS) -> dict:
     from usv_predictor.replay.identify import identification_recordings
 
     bags = convert_kvlcc2(raw, work)
@@ -210,6 +300,19 @@ def kvlcc2(raw: Path, work: Path) -> dict:
         turns[label] = both_ways(vessel, approach)
         log(f"  {label}: rpm {turns[label]['rpm']:.1f}, " + "; ".join(
             f"{side} " + " ".join(f"{turns[label][side][k]:.3f}" for k in CRITERIA) for side in ("starboard", "port")))
+    hybrid = None
+    if members > 0:
+        module, info = train_kvlcc2_hybrid(variants["fix"], recordings, members, epochs)
+        hybrid = {"training": info, "turns": hybrid_turns(module, models["fix"], turns["fix"]["rpm"], approach)}
+        for side in ("starboard", "port"):
+            h = hybrid["turns"][side]
+            h["errors_pct"] = [errors_pct(m, PUBLISHED) for m in h["members"]]
+            h["errors_vs_preset_pct"] = [errors_pct(m, turns["preset"][side]) for m in h["members"]]
+            h["ensemble_mean_errors_pct"] = {**errors_pct(h["ensemble_mean"], turns["preset"][side]),
+                                             **errors_pct(h["ensemble_mean"], PUBLISHED)}
+            h["twin_vs_numpy_pct"] = errors_pct(h["grey_box_torch_twin"], turns["fix"][side])
+            log(f"  hybrid {side}: " + "; ".join(" ".join(f"{m[k]:.3f}" for k in CRITERIA) for m in h["members"])
+                + f"; torch twin of the grey box vs numpy: {h['twin_vs_numpy_pct']}")
     sensitivity = {}
     base_vessel, base = models["fix"], turns["fix"]
     for c in variants["fix"].coefficients():
@@ -235,6 +338,7 @@ def kvlcc2(raw: Path, work: Path) -> dict:
         "errors_vs_preset_pct": {label: {side: errors_pct(t[side], turns["preset"][side])
                                          for side in ("starboard", "port")} for label, t in turns.items()},
         "sensitivity_pct": sensitivity,
+        "hybrid": hybrid,
     }
 
 
@@ -369,12 +473,22 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("/tmp/study_turning"))
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--only", choices=("kvlcc2", "jari"), default=None)
+    parser.add_argument("--members", type=int, default=HYBRID_MEMBERS,
+                        help="KVLCC2 hybrid ensemble members = seeds (0: no hybrid)")
+    parser.add_argument("--epochs", type=int, default=HYBRID_EPOCHS, help="KVLCC2 hybrid epochs at most")
+    parser.add_argument("--tables", type=Path, default=None, help="only print the tables of an earlier run's --json")
     args = parser.parse_args()
+    if args.tables is not None:
+        print(tables(json.loads(args.tables.read_text())))
+        return
     args.work.mkdir(parents=True, exist_ok=True)
+    import torch
+
+    torch.set_num_threads(1)  # the hybrid's training is deterministic per seed on one thread
     started = time.perf_counter()
     result = {}
     if args.only in (None, "kvlcc2"):
-        result["kvlcc2"] = kvlcc2(args.raw, args.work)
+        result["kvlcc2"] = kvlcc2(args.raw, args.work, args.members, args.epochs)
     if args.only in (None, "jari"):
         result["jari"] = jari(args.work)
     result["seconds"] = time.perf_counter() - started

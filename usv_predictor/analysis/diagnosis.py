@@ -31,7 +31,9 @@ units and more than MISMATCH_SHARE of the calm-water model's.
 (above; or, in run_diagnosis, the 30 s open-loop position error), while the calm-water model with that candidate
 does fit by the loss test. Neither `none` (something is there) nor `model_mismatch` (the model fits; "identify the
 boat first" would be the wrong remedy): the candidate, its parameters and why it is not named are reported
-(Diagnosis.candidate, candidate_parameters, inconclusive_reasons). The calm-water model's held-out loss
+(Diagnosis.candidate, candidate_parameters, inconclusive_reasons). When no physical cause is named (model_mismatch,
+inconclusive), diagnosis_run tries the learned residual of last resort and answers `unexplained` when it lowers the
+held-out loss and track error as a cause must (analysis/diagnosis_unexplained.py). The calm-water model's held-out loss
 and track error before any hypothesis are reported beside the answer (Diagnosis.calm_water_fit).
 """
 from __future__ import annotations

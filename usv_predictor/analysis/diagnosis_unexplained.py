@@ -48,8 +48,8 @@ UNEXPLAINED_TRAINING = hybrid_fit.HybridTraining(members=3, hidden=16, layers=2,
                                                  learning_rate=1e-2)  # the few members and epochs of last resort
 REPLACES = (dg.MODEL_MISMATCH, dg.INCONCLUSIVE)  # the answers the residual may replace (no physical cause named)
 REMEDY = ("the learned residual (`--export` writes it: a hybrid for the node) predicts better than the calm-water "
-          "model, but names no physical cause: look for one the vocabulary lacks (docs/diagnosis.md), or identify the "
-          "boat again (docs/your_boat.md)")
+          "model, but names no physical cause: look for one the vocabulary lacks (an effect record, "
+          "physics/effects.py), or identify the boat again (docs/your_boat.md)")
 
 
 @dataclass(frozen=True)
