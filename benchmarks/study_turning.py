@@ -14,12 +14,19 @@ KVLCC2 (../shared/data/raw/kvlcc2_hsva_simman2008, 13 HSVA model-scale zig-zags,
     steady turning radius (circle fitted after 360 deg of heading change), in ship lengths;
   - against SIMMAN 2008's published free-running KVLCC2 35 deg criteria (PUBLISHED below: advance and tactical
     diameter), and transfer and steady radius against the kvlcc2_model preset simulated the same way;
-  - the sensitivity of the four criteria to each hull coefficient of the identified model (x 0.5 and x 1.5).
+  - the sensitivity of the four criteria to each hull coefficient of the identified model (x 0.5 and x 1.5);
+  - the hybrid (issue 15): the identified (fix) grey box + GeneralisingResidual (fitting.hybrid_fit.train_hybrid)
+    trained on the same 13 zig-zags, early stopping on a quarter of them held out whole, --members members = seeds
+    (each its own initial weights and bootstrap of the windows; seed 0 of the ensemble), through the same turns by
+    its TorchScript-able rollout (the grey box's own rollout reproduces the numpy simulation's criteria within
+    0.003 %), at the zig-zags' rpm (the only one in its residual's support); every seed's criteria (mean +- sd and
+    the worst) and the ensemble mean's, and where along the turn the residual acts (its support envelope).
 jari_usv (bags/, simulated: the truth is the preset): the grey box identified from the two training zig-zags (in the
   sea as shipped, and their calm twins), with the preset's priors and with semi-empirical priors for what the zig-zags
   do not determine, predicts the six sea-trial turning circles (the calm twins measure the calm-water truth).
 Run: .venv/bin/python benchmarks/study_turning.py [--raw ../shared/data/raw] [--work /tmp/study_turning]
-     [--json out.json]. Deterministic (no random numbers); ~5 minutes on one core.
+     [--json out.json] [--members 5] [--epochs 60] [--tables out.json]. Deterministic (the hybrid: fixed seeds, one
+     torch thread); ~5 minutes on one core without the hybrid (--members 0), ~15 more with it.
 """
 from __future__ import annotations
 
