@@ -54,7 +54,7 @@ def one_boat(index: int, seed: int, workroot: Path) -> dict:
     return result
 
 
-CONFIDENT_CAUSES_EXCLUDED = ("model_mismatch", "inconclusive", "identify_failed")
+CONFIDENT_CAUSES_EXCLUDED = ("model_mismatch", "inconclusive", "unexplained", "identify_failed")
 
 
 def summarise(results: list[dict]) -> str:

@@ -14,12 +14,19 @@ KVLCC2 (../shared/data/raw/kvlcc2_hsva_simman2008, 13 HSVA model-scale zig-zags,
     steady turning radius (circle fitted after 360 deg of heading change), in ship lengths;
   - against SIMMAN 2008's published free-running KVLCC2 35 deg criteria (PUBLISHED below: advance and tactical
     diameter), and transfer and steady radius against the kvlcc2_model preset simulated the same way;
-  - the sensitivity of the four criteria to each hull coefficient of the identified model (x 0.5 and x 1.5).
+  - the sensitivity of the four criteria to each hull coefficient of the identified model (x 0.5 and x 1.5);
+  - the hybrid (issue 15): the identified (fix) grey box + GeneralisingResidual (fitting.hybrid_fit.train_hybrid)
+    trained on the same 13 zig-zags, early stopping on a quarter of them held out whole, --members members = seeds
+    (each its own initial weights and bootstrap of the windows; seed 0 of the ensemble), through the same turns by
+    its TorchScript-able rollout (the grey box's own rollout reproduces the numpy simulation's criteria within
+    0.003 %), at the zig-zags' rpm (the only one in its residual's support); every seed's criteria (mean +- sd and
+    the worst) and the ensemble mean's, and where along the turn the residual acts (its support envelope).
 jari_usv (bags/, simulated: the truth is the preset): the grey box identified from the two training zig-zags (in the
   sea as shipped, and their calm twins), with the preset's priors and with semi-empirical priors for what the zig-zags
   do not determine, predicts the six sea-trial turning circles (the calm twins measure the calm-water truth).
 Run: .venv/bin/python benchmarks/study_turning.py [--raw ../shared/data/raw] [--work /tmp/study_turning]
-     [--json out.json]. Deterministic (no random numbers); ~5 minutes on one core.
+     [--json out.json] [--members 5] [--epochs 60] [--tables out.json]. Deterministic (the hybrid: fixed seeds, one
+     torch thread); ~5 minutes on one core without the hybrid (--members 0), ~15 more with it.
 """
 from __future__ import annotations
 
@@ -169,6 +176,123 @@ def coefficient_rows(result) -> list[dict]:
              "determined_by_data": flags[c.name]["determined_by_data"]} for c in result.coefficients()]
 
 
+# ------------------------------------------------------------------ the hybrid's turns
+
+
+HYBRID_MEMBERS = 5  # members of the hybrid ensemble = its seeds (each its own initial weights and bootstrap)
+HYBRID_EPOCHS = 60  # at most (early stopping on the zig-zags held out whole)
+HYBRID_HORIZON_S = 10.0  # (s, model scale) the multi-step loss' segments: 50 steps at DT, about a zig-zag half-period
+HYBRID_STRIDE_S = 5.0  # (s)
+STRAIGHT_S = 200.0  # (s) straight running from which each member's approach speed is read
+
+
+def train_kvlcc2_hybrid(result, recordings: list, members: int, epochs: int) -> tuple:
+    """The identified (fix) grey box + GeneralisingResidual trained on the same zig-zags (fitting.hybrid_fit: multi-step
+    loss, early stopping on a quarter of the zig-zags held out whole, pulled toward zero, bounded, its support the
+    zig-zags' range); seed 0, members = seeds."""
+    from usv_predictor.fitting import hybrid_fit
+
+    config = hybrid_fit.HybridTraining(members=members, epochs=epochs, patience=15, horizon_s=HYBRID_HORIZON_S,
+                                       stride_s=HYBRID_STRIDE_S, val_fraction=0.25, seed=0)
+    t0 = time.perf_counter()
+    module, info = hybrid_fit.train_hybrid(result, recordings, DT, config, progress=log)
+    info["seconds"] = time.perf_counter() - t0
+    log(f"  hybrid trained in {info['seconds']:.0f} s: best epochs {info['best_epoch']}, validation "
+        f"{[round(x, 3) for x in info['loss_best']]} (grey box {info['loss_grey_box']:.3f}), held out "
+        f"{info['val_manoeuvres']}")
+    return module, info
+
+
+def _rollout_turn(module, vessel: Vessel, rpm: np.ndarray, side: int, duration_s: float,
+                  starts: np.ndarray | None = None, with_controls: bool = False) -> tuple:
+    """Each row's turn with the rollout module (B = len(rpm) rows, one propeller speed each): the rudder of the
+    simulator's TurningCircle (approach, rate-limited execute) sampled at DT, from the grey box's steady straight
+    running at that rpm, or from starts (B, 3) [u, v, r]. Returns t (H + 1,), out (E, B, H + 1, 6) with the start
+    prepended (and the controls (B, H, 2) with_controls)."""
+    import torch
+
+    rows = []
+    for n in rpm:
+        traj = simulate(ManoeuvringModel(vessel), TurningCircle(RUDDER_DEG, float(n), duration_s=duration_s, side=side))
+        every = int(round(DT / (traj.t_s[1] - traj.t_s[0])))
+        rows.append((traj.nu[0], traj.actuators[::every][:-1]))
+    first = np.array([nu0 for nu0, _ in rows]) if starts is None else np.asarray(starts)  # (B, 3)
+    state = torch.tensor(np.column_stack([first, np.zeros(len(first))]), dtype=torch.float64)  # (B, 4)
+    controls = torch.tensor(np.array([c for _, c in rows]), dtype=torch.float64)  # (B, H, 2)
+    with torch.no_grad():
+        out = module(state, controls).numpy()  # (E, B, H, 6)
+    start = np.zeros(out.shape[:2] + (1, 6))
+    start[..., :3] = state.numpy()[None, :, None, :3]
+    t = np.arange(out.shape[2] + 1) * DT
+    tracks = np.concatenate([start, out], axis=2)
+    return (t, tracks, controls.numpy()) if with_controls else (t, tracks)
+
+
+def _criteria(t: np.ndarray, track: np.ndarray, L: float) -> dict[str, float]:
+    """turn_criteria of one rolled-out track (H + 1, 6)."""
+    out = turn_criteria(t, track[:, 3], track[:, 4], np.unwrap(track[:, 5]), APPROACH_S, L, drift_free=True)
+    speed = np.hypot(track[:, 0], track[:, 1])
+    out["speed_ratio"] = float(speed[-1] / speed[0])
+    out["drift_angle_deg"] = float(abs(np.degrees(np.arctan2(-track[-1, 1], track[-1, 0]))))
+    return out
+
+
+def residual_activity(module, t: np.ndarray, track: np.ndarray, controls: np.ndarray) -> dict[str, float]:
+    """Where the learned residual acts along a turn (track (H + 1, 6), controls (H, 2) at t[:-1]): the mean support
+    envelope (1 inside the zig-zags' feature range, -> 0 beyond it) and the mean |a'| / bound of the ensemble, over the
+    approach + the first 90 deg of the turn (the transient) and after 360 deg (the steady turn)."""
+    import torch
+
+    learned = module.residual.second  # SumResidual(ZeroResidual or Abkowitz terms, GeneralisingResidual)
+    tr = torch.from_numpy(track[:-1])
+    c = torch.from_numpy(controls)
+    with torch.no_grad():
+        x = learned.features(tr[:, 5], tr[:, 0], tr[:, 1], tr[:, 2], c[:, 0], c[:, 1])  # (H, F)
+        env = learned.envelope((x - learned.in_mean) / learned.in_std)[:, 0].numpy()  # (H,)
+        nd = learned.nondimensional(x.unsqueeze(0).expand(learned.members, -1, -1))  # (E, H, 3)
+        share = (nd.abs() / learned.bound).mean(dim=(0, 2)).numpy()  # (H,)
+    change = np.abs(np.degrees(np.unwrap(track[:-1, 5]) - track[0, 5]))
+    transient = change <= 90.0
+    steady = change >= 360.0
+    return {"envelope_transient": float(env[transient].mean()), "envelope_steady": float(env[steady].mean()),
+            "output_share_transient": float(share[transient].mean()), "output_share_steady": float(share[steady].mean())}
+
+
+def hybrid_turns(module, grey_vessel: Vessel, data_rpm: float, grey_rpm: float) -> dict:
+    """The hybrid's 35 deg turns both ways at the zig-zags' propeller speed data_rpm: every HSVA zig-zag ran at one
+    rpm, so that is the only one inside the learned residual's support (at any other its envelope is 0 and the hybrid
+    is the grey box). Each member (seed) starts from its own steady straight running at that rpm (STRAIGHT_S of
+    straight rollout from the grey box's); the ensemble mean's track from the members' mean start. The grey box rolled
+    out by the same torch rollout at its own approach rpm (the twin of the numpy simulation) as a check."""
+    import torch
+
+    from usv_predictor.models.hybrid import ResidualGreyBox, ZeroResidual
+
+    L = grey_vessel.geometry.L_pp
+    members = module.members
+    steps = int(round(STRAIGHT_S / DT))
+    model = ManoeuvringModel(grey_vessel)
+    state = torch.tensor([[*model.initial_state(data_rpm, 0.0)[3:6], 0.0]], dtype=torch.float64)  # (1, 4)
+    controls = torch.tensor(np.column_stack([np.zeros(steps), np.full(steps, data_rpm)])[None], dtype=torch.float64)
+    with torch.no_grad():
+        straight = module(state, controls).numpy()[:, 0, -1, :3]  # (E, 3) each member's steady u, v, r
+    out: dict = {"rpm": data_rpm, "approach_mps_members": np.hypot(straight[:, 0], straight[:, 1]).tolist(),
+                 "grey_box_approach_mps_at_rpm": float(np.hypot(*model.initial_state(data_rpm, 0.0)[3:5]))}
+    grey = ResidualGreyBox(grey_vessel, DT, ZeroResidual(), 2)
+    for side, sign in (("starboard", 1), ("port", -1)):
+        t, tracks = _rollout_turn(module, grey_vessel, np.full(members, data_rpm), sign, KVLCC2_TURN_S,
+                                  starts=straight)  # (E, E, H + 1, 6): member e from its own start in row e
+        per_member = [_criteria(t, tracks[e, e], L) for e in range(members)]
+        t, mean_tracks, controls = _rollout_turn(module, grey_vessel, np.array([data_rpm]), sign, KVLCC2_TURN_S,
+                                                 starts=straight.mean(axis=0, keepdims=True), with_controls=True)
+        t, twin = _rollout_turn(grey, grey_vessel, np.array([grey_rpm]), sign, KVLCC2_TURN_S)
+        mean_track = mean_tracks.mean(axis=0)[0]
+        out[side] = {"members": per_member, "ensemble_mean": _criteria(t, mean_track, L),
+                     "grey_box_torch_twin": _criteria(t, twin[0, 0], L),
+                     "residual_activity": residual_activity(module, t, mean_track, controls[0])}
+    return out
+
+
 # ------------------------------------------------------------------ KVLCC2
 
 
@@ -181,7 +305,7 @@ def convert_kvlcc2(raw: Path, work: Path) -> list[Path]:
     return sorted(p for p in out.iterdir() if p.is_dir())
 
 
-def kvlcc2(raw: Path, work: Path) -> dict:
+def kvlcc2(raw: Path, work: Path, members: int = HYBRID_MEMBERS, epochs: int = HYBRID_EPOCHS) -> dict:
     from usv_predictor.replay.identify import identification_recordings
 
     bags = convert_kvlcc2(raw, work)
@@ -210,6 +334,23 @@ def kvlcc2(raw: Path, work: Path) -> dict:
         turns[label] = both_ways(vessel, approach)
         log(f"  {label}: rpm {turns[label]['rpm']:.1f}, " + "; ".join(
             f"{side} " + " ".join(f"{turns[label][side][k]:.3f}" for k in CRITERIA) for side in ("starboard", "port")))
+    hybrid = None
+    if members > 0:
+        module, info = train_kvlcc2_hybrid(variants["fix"], recordings, members, epochs)
+        import torch
+
+        torch.save(module.state_dict(), work / "kvlcc2_hybrid_state.pt")  # for a look without training again
+        data_rpm = float(np.median(np.concatenate([r.controls[:, 1] for r in recordings])))
+        hybrid = {"training": info, "turns": hybrid_turns(module, models["fix"], data_rpm, turns["fix"]["rpm"])}
+        for side in ("starboard", "port"):
+            h = hybrid["turns"][side]
+            h["errors_pct"] = [errors_pct(m, PUBLISHED) for m in h["members"]]
+            h["errors_vs_preset_pct"] = [errors_pct(m, turns["preset"][side]) for m in h["members"]]
+            h["ensemble_mean_errors_pct"] = {**errors_pct(h["ensemble_mean"], turns["preset"][side]),
+                                             **errors_pct(h["ensemble_mean"], PUBLISHED)}
+            h["twin_vs_numpy_pct"] = errors_pct(h["grey_box_torch_twin"], turns["fix"][side])
+            log(f"  hybrid {side}: " + "; ".join(" ".join(f"{m[k]:.3f}" for k in CRITERIA) for m in h["members"])
+                + f"; torch twin of the grey box vs numpy: {h['twin_vs_numpy_pct']}")
     sensitivity = {}
     base_vessel, base = models["fix"], turns["fix"]
     for c in variants["fix"].coefficients():
@@ -235,6 +376,7 @@ def kvlcc2(raw: Path, work: Path) -> dict:
         "errors_vs_preset_pct": {label: {side: errors_pct(t[side], turns["preset"][side])
                                          for side in ("starboard", "port")} for label, t in turns.items()},
         "sensitivity_pct": sensitivity,
+        "hybrid": hybrid,
     }
 
 
@@ -306,6 +448,24 @@ def kvlcc2_tables(k: dict | None) -> str:
                      for c in CRITERIA]
             lines.append(f"| {names[label]} | {side} | {t['rpm']:.0f} | " + " | ".join(cells)
                          + f" | {t[side]['speed_ratio']:.3f} |")
+        h = (k.get("hybrid") or {}).get("turns", {}).get(side)
+        if h:
+            errs = [{**pe, **pp} for pe, pp in zip(h["errors_vs_preset_pct"], h["errors_pct"])]
+            cells = []
+            for c in CRITERIA:
+                values = np.array([m[c] for m in h["members"]])
+                e = np.array([x[c] for x in errs])
+                worst = e[np.argmax(np.abs(e))]
+                cells.append(f"{values.mean():.3f} +- {values.std():.3f} ({e.mean():+.1f} +- {e.std():.1f} %, worst "
+                             f"{_mark(worst)})")
+            ratio = np.mean([m["speed_ratio"] for m in h["members"]])
+            lines.append(f"| hybrid: fix + learned residual, {len(h['members'])} seeds, mean +- sd (worst) | {side} | "
+                         f"{k['hybrid']['turns']['rpm']:.0f} | " + " | ".join(cells)
+                         + f" | {ratio:.3f} |")
+            e = h["ensemble_mean_errors_pct"]
+            lines.append(f"| hybrid, ensemble mean | {side} | - | " + " | ".join(
+                f"{h['ensemble_mean'][c]:.3f} ({_mark(e[c])})" for c in CRITERIA)
+                + f" | {h['ensemble_mean']['speed_ratio']:.3f} |")
     ex = k["excitation"]
     lines += ["", f"Zig-zag excitation (99th percentiles): |beta| {ex['beta_deg_p99']:.1f} deg, |v'| "
                   f"{ex['v_prime_p99']:.3f}, |r'| {ex['r_prime_p99']:.3f}; the identified model's steady 35 deg turn: "
@@ -327,6 +487,26 @@ def kvlcc2_tables(k: dict | None) -> str:
             cells.append(f"{lo['starboard'][c]:+.1f}/{lo['port'][c]:+.1f} ; {hi['starboard'][c]:+.1f}/{hi['port'][c]:+.1f}")
         lines.append(f"| {name} | {'yes' if r['determined_by_data'] else '**no: prior used**'} | {r['estimate']:+.4f} "
                      f"({r['prior']:+.4f}) | " + " | ".join(cells) + " |")
+    hy = k.get("hybrid")
+    if hy:
+        t = hy["training"]
+        twin = {side: max(abs(v) for v in hy["turns"][side]["twin_vs_numpy_pct"].values()) for side in ("starboard", "port")}
+        lines += ["", f"Hybrid training: {t['members']} members (seeds), validation on {', '.join(t['val_manoeuvres'])} "
+                      f"held out whole; best epochs {t['best_epoch']} of {t['epochs_run']}; validation loss "
+                      f"{np.mean(t['loss_best']):.3f} against the grey box's {t['loss_grey_box']:.3f} (noise units); "
+                      f"{t['seconds']:.0f} s. The hybrid turns at the zig-zags' {hy['turns']['rpm']:.1f} rpm (the only "
+                      f"one in its residual's support): straight-running speed per seed "
+                      f"{', '.join(f'{v:.3f}' for v in hy['turns']['approach_mps_members'])} m/s (the grey box "
+                      f"{hy['turns']['grey_box_approach_mps_at_rpm']:.3f} m/s at that rpm, {k['turns']['fix']['rpm']:.1f} "
+                      f"rpm for {k['approach_mps']:.3f} m/s). The grey box rolled out by the same torch rollout "
+                      f"matches the numpy simulation within {max(twin.values()):.3f} % on every criterion."]
+        act = {side: hy["turns"][side]["residual_activity"] for side in ("starboard", "port")}
+        lines += ["", "Where the learned residual acts along the ensemble mean's turn (starboard / port): support envelope "
+                      "(1 inside the zig-zags' feature range, 0 far beyond) " + " / ".join(
+                          f"{a['envelope_transient']:.2f}" for a in act.values()) + " over the approach and the first "
+                      "90 deg, " + " / ".join(f"{a['envelope_steady']:.2f}" for a in act.values()) + " after 360 deg; "
+                      "mean |output| / bound " + " / ".join(f"{a['output_share_transient']:.3f}" for a in act.values())
+                  + " and " + " / ".join(f"{a['output_share_steady']:.3f}" for a in act.values()) + "."]
     lines += ["", "Semi-empirical priors used for the held coefficients (preset -> empirical):", ""]
     lines += [f"- {n}: {v['preset']:+.4f} -> {v['empirical']:+.4f} ({v['source']})" for n, v in k["empirical_priors"].items()]
     return "\n".join(lines)
@@ -369,12 +549,22 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("/tmp/study_turning"))
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--only", choices=("kvlcc2", "jari"), default=None)
+    parser.add_argument("--members", type=int, default=HYBRID_MEMBERS,
+                        help="KVLCC2 hybrid ensemble members = seeds (0: no hybrid)")
+    parser.add_argument("--epochs", type=int, default=HYBRID_EPOCHS, help="KVLCC2 hybrid epochs at most")
+    parser.add_argument("--tables", type=Path, default=None, help="only print the tables of an earlier run's --json")
     args = parser.parse_args()
+    if args.tables is not None:
+        print(tables(json.loads(args.tables.read_text())))
+        return
     args.work.mkdir(parents=True, exist_ok=True)
+    import torch
+
+    torch.set_num_threads(1)  # the hybrid's training is deterministic per seed on one thread
     started = time.perf_counter()
     result = {}
     if args.only in (None, "kvlcc2"):
-        result["kvlcc2"] = kvlcc2(args.raw, args.work)
+        result["kvlcc2"] = kvlcc2(args.raw, args.work, args.members, args.epochs)
     if args.only in (None, "jari"):
         result["jari"] = jari(args.work)
     result["seconds"] = time.perf_counter() - started

@@ -31,7 +31,9 @@ units and more than MISMATCH_SHARE of the calm-water model's.
 (above; or, in run_diagnosis, the 30 s open-loop position error), while the calm-water model with that candidate
 does fit by the loss test. Neither `none` (something is there) nor `model_mismatch` (the model fits; "identify the
 boat first" would be the wrong remedy): the candidate, its parameters and why it is not named are reported
-(Diagnosis.candidate, candidate_parameters, inconclusive_reasons). The calm-water model's held-out loss
+(Diagnosis.candidate, candidate_parameters, inconclusive_reasons). When no physical cause is named (model_mismatch,
+inconclusive), diagnosis_run tries the learned residual of last resort and answers `unexplained` when it lowers the
+held-out loss and track error as a cause must (analysis/diagnosis_unexplained.py). The calm-water model's held-out loss
 and track error before any hypothesis are reported beside the answer (Diagnosis.calm_water_fit).
 """
 from __future__ import annotations
@@ -70,6 +72,8 @@ NONE_LOSS = 5.0  # held-out loss (noise units) above which the calm-water model 
 MODEL_MISMATCH = "model_mismatch"  # the answer when the calm-water model itself is wrong (identify it first)
 REMEDY = "identify this boat first (docs/your_boat.md)"
 INCONCLUSIVE = "inconclusive"  # a candidate explains the held-out loss but its extension does not predict tracks better
+UNEXPLAINED = "unexplained"  # no physical cause, but the learned residual of last resort lowers the held-out error
+#                             (analysis/diagnosis_unexplained.py, run by diagnosis_run in place of the two above)
 INCONCLUSIVE_REMEDY = ("record more of the day (longer runs, turns both ways, more headings) or test the candidate "
                        "against its rivals with --hypotheses")
 
@@ -309,7 +313,7 @@ class Diagnosis:
     @property
     def hypotheses(self) -> tuple[str, ...]:
         """Every named cause, primary first (what the extended model contains)."""
-        if self.cause in ("none", MODEL_MISMATCH, INCONCLUSIVE):
+        if self.cause in ("none", MODEL_MISMATCH, INCONCLUSIVE, UNEXPLAINED):
             return ()
         return (self.cause, *(a.cause for a in self.additional_causes))
 

@@ -18,6 +18,7 @@ from typing import Any, NamedTuple
 
 from usv_predictor.analysis import diagnosis as dg
 from usv_predictor.analysis.diagnosis_steps import DiagnosisSteps
+from usv_predictor.analysis.diagnosis_unexplained import REPLACES, export_unexplained, measure_unexplained, unexplained_answer
 from usv_predictor.atomic import finite_or_none
 from usv_predictor.config import load_predictor_config
 from usv_predictor.data.recording import Recording
@@ -75,7 +76,8 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
                   hypotheses: Sequence[str] | None = None, max_causes: int = 2, horizon_s: float = 20.0,
                   stride_s: float = 5.0, gain: bool = True, export: Path | None = None, report: Path | None = None,
                   fit_check: bool = True, progress: Callable[[str], None] = lambda _: None,
-                  suited_steps: DiagnosisSteps | None = None, description: Vessel | None = None) -> dict[str, Any]:
+                  suited_steps: DiagnosisSteps | None = None, description: Vessel | None = None,
+                  unexplained: bool = True) -> dict[str, Any]:
     """Diagnose `recordings` (resampled at dt) against the calm-water `vessel` (from `source`).
 
     suited_steps: the steps that suit the vessel (analysis.diagnosis_steps), recorded in the JSON's `steps` with
@@ -86,6 +88,9 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     gain: also evaluate the extended model on held-out manoeuvres (when a cause is named) and withdraw the cause
     when its extension does not lower the held-out 30 s position error; export: write the extended model
     (TorchScript artifact) there; report: write report.md + plots into that directory.
+    unexplained (with gain): when no physical cause is named (model_mismatch, inconclusive), try the learned residual
+    of last resort and answer `unexplained` when it lowers the held-out loss and track error
+    (analysis/diagnosis_unexplained.py); --export then writes that hybrid.
     """
     if not recordings:
         raise DatasetError("no usable recording in the bags (see the warnings above)")
@@ -129,6 +134,14 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
             measured = None
     else:
         measured = None
+    last_resort = None
+    if (unexplained and gain and result.cause in REPLACES and calm_fit is not None
+            and math.isfinite(calm_fit.heldout_loss)):
+        progress(f"no physical cause named ({result.cause}): trying the learned residual of last resort")
+        last_resort = measure_unexplained(recordings, vessel, result, dt=dt, horizon_s=horizon_s, stride_s=stride_s,
+                                          segments=segments, progress=progress)
+        if last_resort is not None:
+            result = unexplained_answer(result, last_resort, horizon_s)
     progress(f"cause: {result.cause} {result.parameters} — {result.message}")
     calm = result.calm_water_fit
     out: dict[str, Any] = {
@@ -145,6 +158,7 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         "best_environmental_cause": result.best_environmental_cause, "rejected_extension": rejected,
         "inconclusive": ({"candidate": result.candidate, "parameters": result.candidate_parameters,
                           "reasons": list(result.inconclusive_reasons)} if result.cause == dg.INCONCLUSIVE else None),
+        "unexplained": _undefined_as_null(last_resort.to_json()) if last_resort is not None else None,
         "calm_water_model": {"vessel": vessel.name, "source": source},
         "recordings": [{"name": r.name, "source": r.source, "duration_s": r.duration_s} for r in recordings],
         "seconds": result.seconds,
@@ -157,7 +171,13 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     else:
         out.update(baseline=None, extended=None, gain={})
         per_recording = None
-    if export is not None and result.cause == dg.MODEL_MISMATCH:
+    if export is not None and result.cause == dg.UNEXPLAINED:
+        artifact = export_unexplained(export, vessel, recordings, dt, horizon_s=horizon_s, stride_s=stride_s,
+                                      description=description, progress=progress)
+        out["exported_model"] = {"path": str(export), "model_id": artifact.model_id}
+        progress(f"hybrid (calm-water model + learned residual of last resort) written to {export} "
+                 f"({artifact.model_id})")
+    elif export is not None and result.cause == dg.MODEL_MISMATCH:
         out["exported_model"] = None
         progress(f"no model written to {export}: the calm-water model does not fit ({dg.MODEL_MISMATCH}); {dg.REMEDY}")
     elif export is not None and result.cause == dg.INCONCLUSIVE:

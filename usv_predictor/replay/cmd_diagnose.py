@@ -10,7 +10,10 @@ that does not fit the bags at all is refused, exit 2, unless --no-fit-check), mi
 best_environmental_cause (cause model_mismatch: the calm-water model itself is wrong, identify it first),
 rejected_extension (causes withdrawn because their extension did not lower the held-out 30 s position error),
 inconclusive (cause inconclusive: a candidate that explains the held-out loss of a model that fits, but whose
-extension does not predict tracks better: its name, parameters and the reasons it is not named; null otherwise).
+extension does not predict tracks better: its name, parameters and the reasons it is not named; null otherwise),
+unexplained (when no physical cause is named, the learned residual of last resort tried on the same held-out
+manoeuvres: its held-out loss, evidence, track and 30 s open-loop gains, accepted or why not; cause `unexplained`
+when accepted; null when not tried; analysis/diagnosis_unexplained.py).
 The work: usv_predictor.replay.diagnose and usv_predictor.analysis.diagnosis_run.
 """
 from __future__ import annotations
@@ -51,8 +54,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="time between segment starts (s; default 10 of the vessel's model steps: 5 for jari_usv, "
                              "2.5 for otter)")
     parser.add_argument("--no-gain", action="store_true", help="skip the held-out evaluation of the extended model")
+    parser.add_argument("--no-unexplained", action="store_true",
+                        help="when no physical cause is named, do not try the learned residual of last resort (the "
+                             "answer `unexplained`: a grey box + learned residual hybrid trained on one fold of the "
+                             "manoeuvres and measured on the other, about a minute per fold)")
     parser.add_argument("--export", type=Path, default=None, metavar="PATH",
-                        help="write the extended model (TorchScript artifact) for the node")
+                        help="write the extended model (TorchScript artifact) for the node; with the answer "
+                             "`unexplained`, the hybrid")
     parser.add_argument("--report", type=Path, default=None, metavar="DIR", help="write report.md + plots into DIR")
     parser.add_argument("--include-calm", action="store_true", help="also read calm/ twins under bag directories")
     add_scale_argument(parser)
@@ -69,4 +77,4 @@ def run(args: argparse.Namespace) -> dict:
                          max_causes=args.max_causes, horizon_s=args.horizon, stride_s=args.stride,
                          gain=not args.no_gain, export=args.export, report=args.report,
                          include_calm=args.include_calm, config=args.config, fit_check=not args.no_fit_check,
-                         scale=args.scale, progress=log)
+                         scale=args.scale, unexplained=not args.no_unexplained, progress=log)

@@ -10,7 +10,7 @@ def diagnose_bags(bags: Sequence[Path], *, vessel: str | None = None, model: Pat
                   dt: float | None = None, hypotheses: Sequence[str] | None = None, max_causes: int = 2,
                   horizon_s: float | None = None, stride_s: float | None = None, gain: bool = True, export: Path | None = None, report: Path | None = None,
                   include_calm: bool = False, config: Path | None = None, fit_check: bool = True, scale: float = 1.0,
-                  progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+                  unexplained: bool = True, progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """The calm-water model (preset or vessel file `vessel`, or grey-box artifact `model` on the vessel it embeds), the bags' recordings at step dt
     (topics of the predictor config `config`), and the diagnosis run on them (run_diagnosis: the arguments).
     dt, horizon_s, stride_s: None = what suits the calm-water vessel (analysis.diagnosis_steps). scale: Froude scale
@@ -29,6 +29,7 @@ def diagnose_bags(bags: Sequence[Path], *, vessel: str | None = None, model: Pat
                                  progress=progress, layout=calm_water.actuator_layout, scale=scale)
     result = run_diagnosis(recordings, calm_water, source, dt=dt, hypotheses=hypotheses, max_causes=max_causes,
                            horizon_s=horizon_s, stride_s=stride_s, gain=gain, export=export, report=report,
-                           fit_check=fit_check, progress=progress, suited_steps=suited, description=description)
+                           fit_check=fit_check, progress=progress, suited_steps=suited, description=description,
+                           unexplained=unexplained)
     result["froude_scale"] = scale
     return result
