@@ -3,6 +3,7 @@ learned residual ensemble), in seed 000's two protocols (benchmarks/study_seed00
 reference: same bags, same turns, same metrics).
 
     .venv/bin/python benchmarks/study_hybrid.py [--out out/study_hybrid] [--members 5] [--epochs 150]
+        [--protocols paper held_out] [--turns a b c d e f] [--bases identified extended] [--jsonl rows.jsonl]
 
 Data: bags/training (two zig-zags, a port turn, the random run random_7_675rpm) and bags/sea_trial (seed 000 Table 3's
 six starboard turns (a)-(f)), all in the same Rizhao-like sea (current, wind, waves), read at the identification step
@@ -14,6 +15,15 @@ Models, per protocol and test:
                its own initial weights and bootstrap of the windows), early stopping on random_7_675rpm held out whole
                (as seed 000's study); every member is evaluated on its own (the table's mean +- sd and worst seed),
                and the ensemble mean ("hybrid, ensemble mean")
+    calm-water preset   the vessel file jari_usv itself (the calm-water model `replay diagnose` starts from)
+    extended grey box   what `replay diagnose bags/sea_trial bags/training --export` writes, made from the same
+               training manoeuvres: analysis.diagnosis.diagnose against the preset at its suited steps (0.5 s, 20 s
+               segments, every hypothesis, up to 2 causes: the README's diagnosis names current + wave drift), the
+               named causes refitted on all of them and exported at the study's step 0.2 s (export_extended)
+    hybrid on extended `replay identify --hybrid --base extended.pt`: the same residual training (members, epochs,
+               validation run) on top of that file's grey box (fitting.hybrid_fit.base_from_artifact,
+               train_residual): the physics carries the current and the wave drift, the residual what they leave
+               (--bases chooses the base(s): identified = the two rows above, extended = these three)
 Protocols:
     paper      identify / train on bags/training + all six turns, predict each turn (seen data: seed 000's protocol)
     held-out   leave one turn out: identify / train on bags/training + the other five turns, predict the sixth
@@ -69,18 +79,65 @@ def fit(training: list, members: int, epochs: int) -> tuple[Any, Any, dict]:
     return hybrid_fit.greybox_module(result, DT), hybrid, info
 
 
-def rows_of(grey: Any, hybrid: Any, members: int, recordings: list) -> dict[str, list[list[dict]]]:
-    """model -> [recording][seed] turning rows."""
+def fit_extended(training: list, training_05: list, members: int, epochs: int, path: Path) -> tuple[Any, Any, Any,
+                                                                                                   dict]:
+    """(calm-water preset, extended grey box, hybrid on it, info): the diagnosis of `training_05` (the same
+    manoeuvres at the diagnosis' suited step 0.5 s) against the preset, its extension exported to `path` at DT, and
+    the residual trained on that file's grey box with `training` (what `replay identify --hybrid --base` does).
+    The extended grey box and the hybrid are None when the diagnosis names no cause (info says which)."""
+    from usv_predictor.analysis import diagnosis as dg
+    from usv_predictor.fitting import hybrid_fit, identification
+    from usv_predictor.models.artifact import load_artifact
+    from usv_predictor.physics.effects import NONE
+    from usv_predictor.physics.vessel import load_vessel
+
+    preset = load_vessel(VESSEL)
+    calm = hybrid_fit.ResidualGreyBox(preset, DT, hybrid_fit.ZeroResidual())
+    started = time.perf_counter()
+    diagnosis = dg.diagnose(training_05, preset, horizon_s=20.0, stride_s=5.0, max_causes=2, progress=log)
+    info: dict[str, Any] = {"cause": diagnosis.cause, "parameters": diagnosis.parameters,
+                            "additional_causes": [a.cause for a in diagnosis.additional_causes],
+                            "diagnosis_s": time.perf_counter() - started}
+    log(f"  diagnosis: {diagnosis.cause} {diagnosis.parameters} + {info['additional_causes']} "
+        f"({info['diagnosis_s']:.0f} s)")
+    if diagnosis.cause in (NONE, dg.MODEL_MISMATCH, dg.INCONCLUSIVE):
+        return calm, None, None, info
+    dg.export_extended(path, preset, diagnosis, DT)
+    artifact = load_artifact(path)
+    vessel, base = hybrid_fit.base_from_artifact(artifact, preset, training[0])
+    data = identification.prepare(vessel, training)
+    config = hybrid_fit.HybridTraining(members=members, epochs=epochs, validation=(VAL_RUN,))
+    hybrid, hybrid_info = hybrid_fit.train_residual(base, vessel, data, training, DT, config, progress=log)
+    info.update(model_type=artifact.metadata["model_type"], terms=base.terms(), hybrid=hybrid_info)
+    return calm, base, hybrid, info
+
+
+def rows_of(models: dict[str, tuple[Any, int]], recordings: list) -> dict[str, list[list[dict]]]:
+    """model -> [recording][seed] turning rows; models: row name -> (rollout module, members): a grey box (1) is one
+    row, a hybrid of E members gives '<name> (each member)' and '<name>, ensemble mean'."""
     from usv_predictor.analysis.evaluation import evaluate_recording
 
-    single = Single(hybrid, "hybrid", DT)
-    out: dict[str, list[list[dict]]] = {"grey box": [], "hybrid (each member)": [], "hybrid, ensemble mean": []}
-    for rec in recordings:
-        out["grey box"].append([turning_row(evaluate_recording(Single(grey, "grey box", DT), rec, "gnss", (30.0,)))])
-        out["hybrid (each member)"].append([turning_row(evaluate_recording(Member(single, k), rec, "gnss", (30.0,)))
-                                            for k in range(members)])
-        out["hybrid, ensemble mean"].append([turning_row(evaluate_recording(single, rec, "gnss", (30.0,)))])
+    out: dict[str, list[list[dict]]] = {}
+    for name, (module, members) in models.items():
+        single = Single(module, name, DT)
+        for rec in recordings:
+            if members == 1:
+                out.setdefault(name, []).append([turning_row(evaluate_recording(single, rec, "gnss", (30.0,)))])
+                continue
+            out.setdefault(f"{name} (each member)", []).append(
+                [turning_row(evaluate_recording(Member(single, k), rec, "gnss", (30.0,))) for k in range(members)])
+            out.setdefault(f"{name}, ensemble mean", []).append(
+                [turning_row(evaluate_recording(single, rec, "gnss", (30.0,)))])
     return out
+
+
+def append_jsonl(path: Path | None, record: dict) -> None:
+    """One line per finished (protocol, turn): a run stopped early still leaves its rows."""
+    if path is None:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a") as f:
+        f.write(json.dumps(record, default=float) + "\n")
 
 
 def table(title: str, protocol: dict[str, Any]) -> str:
@@ -103,6 +160,24 @@ def table(title: str, protocol: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def fit_models(args: argparse.Namespace, training: list, training_05: list, extended_path: Path
+               ) -> tuple[dict[str, tuple[Any, int]], dict]:
+    """The study's models fitted on `training` (the bases args.bases asks for): row name -> (module, members)."""
+    models: dict[str, tuple[Any, int]] = {}
+    info: dict[str, Any] = {}
+    if "identified" in args.bases:
+        grey, hybrid, info["identified"] = fit(training, args.members, args.epochs)
+        models.update({"grey box": (grey, 1), "hybrid": (hybrid, args.members)})
+    if "extended" in args.bases:
+        extended_path.parent.mkdir(parents=True, exist_ok=True)
+        calm, base, hybrid, info["extended"] = fit_extended(training, training_05, args.members, args.epochs,
+                                                            extended_path)
+        models["calm-water preset"] = (calm, 1)
+        if base is not None:
+            models.update({"extended grey box": (base, 1), "hybrid on extended": (hybrid, args.members)})
+    return models, info
+
+
 TITLES = {"paper": "paper protocol (every turn in the training data)", "held_out": "held-out protocol (leave one turn out)"}
 
 
@@ -114,11 +189,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--protocols", nargs="+", default=["paper", "held_out"], choices=["paper", "held_out"])
     parser.add_argument("--turns", nargs="+", default=list(TESTS), choices=list(TESTS),
                         help="held-out protocol: the turns left out in turn (default all six)")
+    parser.add_argument("--bases", nargs="+", default=["identified", "extended"], choices=["identified", "extended"],
+                        help="the grey boxes (and hybrids on them): identified in the sea, and/or the diagnosed "
+                             "extension of the preset (default both)")
+    parser.add_argument("--jsonl", type=Path, help="append each finished turn's rows to this file (partial results)")
     parser.add_argument("--tables", type=Path, help="only print the tables of an earlier run's study.json")
+    parser.add_argument("--tables-jsonl", type=Path, help="only print the held-out table of the turns a --jsonl holds")
     args = parser.parse_args(argv)
     if args.tables is not None:
         done = json.loads(args.tables.read_text())
         print("\n\n".join(table(TITLES[k], v) for k, v in done["protocols"].items()))
+        return 0
+    if args.tables_jsonl is not None:
+        per_model: dict[str, dict[str, list]] = {}
+        for line in args.tables_jsonl.read_text().splitlines():
+            record = json.loads(line)
+            for m, seeds in record["rows"].items():
+                per_model.setdefault(m, {})[record["turn"]] = seeds
+        turns = sorted({t for rows in per_model.values() for t in rows})
+        complete = {m: rows for m, rows in per_model.items() if sorted(rows) == turns}
+        print(f"turns: {' '.join(turns)}")
+        print(table(TITLES["held_out"], {"rows": complete, "summary": {m: summarise(r) for m, r in complete.items()}}))
         return 0
     torch.set_num_threads(1)
     started = time.perf_counter()
@@ -127,13 +218,19 @@ def main(argv: list[str] | None = None) -> int:
     training = identification_recordings([TRAINING], DT)
     turns = {r.name: r for r in identification_recordings([SEA_TRIAL], DT)}
     tests = {t: turns[name] for t, name in TESTS.items()}
+    if "extended" in args.bases:  # the diagnosis' suited step (analysis.diagnosis_steps: 0.5 s for jari_usv)
+        training_05 = identification_recordings([TRAINING], 0.5)
+        turns_05 = {r.name: r for r in identification_recordings([SEA_TRIAL], 0.5)}
+        tests_05 = {t: turns_05[name] for t, name in TESTS.items()}
     study: dict[str, Any] = {"members": args.members, "epochs": args.epochs, "dt": DT, "target": TARGET,
                              "protocols": {}}
     text = []
     if "paper" in args.protocols:
         log("paper protocol: identify + train on bags/training and the six turns")
-        grey, hybrid, info = fit(training + list(tests.values()), args.members, args.epochs)
-        rows = rows_of(grey, hybrid, args.members, list(tests.values()))
+        models, info = fit_models(args, training + list(tests.values()),
+                                  training_05 + list(tests_05.values()) if "extended" in args.bases else [],
+                                  args.out / "extended_paper.pt")
+        rows = rows_of(models, list(tests.values()))
         per_model = {m: {t: rows[m][i] for i, t in enumerate(tests)} for m in rows}
         study["protocols"]["paper"] = {"info": info, "rows": per_model,
                                        "summary": {m: summarise(r) for m, r in per_model.items()}}
@@ -145,13 +242,23 @@ def main(argv: list[str] | None = None) -> int:
             rec = tests[t]
             log(f"held-out protocol: turn ({t}) {rec.name} left out")
             others = [r for k, r in tests.items() if k != t]
-            grey, hybrid, info = fit(training + others, args.members, args.epochs)
+            others_05 = [r for k, r in tests_05.items() if k != t] if "extended" in args.bases else []
+            models, info = fit_models(args, training + others, (training_05 + others_05) if others_05 else [],
+                                      args.out / f"extended_without_{t}.pt")
             infos[t] = info
-            rows = rows_of(grey, hybrid, args.members, [rec])
+            rows = rows_of(models, [rec])
             for m in rows:
                 per_model.setdefault(m, {})[t] = rows[m][0]
-            log(f"  radius error: grey {rows['grey box'][0][0]['errors']['radius_pct']:+.2f} %, hybrid members "
-                + ", ".join(f"{r['errors']['radius_pct']:+.2f}" for r in rows["hybrid (each member)"][0]))
+            append_jsonl(args.jsonl, {"protocol": "held_out", "turn": t, "bag": rec.name, "members": args.members,
+                                      "epochs": args.epochs, "rows": {m: rows[m][0] for m in rows}, "info": info,
+                                      "elapsed_s": time.perf_counter() - started,
+                                      "loadavg": Path("/proc/loadavg").read_text().split()[:3]})
+            for m in rows:
+                log(f"  ({t}) {m}: radius " + ", ".join(f"{r['errors']['radius_pct']:+.2f}" for r in rows[m][0])
+                    + " %, drift angle " + ", ".join(f"{r['errors']['angle_deg']:+.1f}" if r['errors']['angle_deg']
+                                                     is not None else "-" for r in rows[m][0])
+                    + " deg, drift distance " + ", ".join(f"{r['errors']['distance_pct']:+.1f}" for r in rows[m][0])
+                    + " %")
         study["protocols"]["held_out"] = {"info": infos, "rows": per_model,
                                           "summary": {m: summarise(r) for m, r in per_model.items()}}
         text.append(table(TITLES["held_out"], study["protocols"]["held_out"]))

@@ -199,3 +199,133 @@ def test_replay_identify_hybrid_writes_an_ensemble(tmp_path, capsys):
     code, err = replay(capsys, "identify", training, "--vessel", "jari_usv", "--hybrid",
                        "--hybrid-members", "0", "--output", tmp_path / "x.pt")
     assert code == 2 and "--hybrid-members" in err and not (tmp_path / "x.pt").exists()
+
+
+# ---- the hybrid on an extended grey box (`replay identify --hybrid --base`: the physics carries the sea) ----------
+
+CURRENT_NE = (-0.273, -0.213)  # (m/s) north, east: 0.346 m/s toward 218 deg, the shipped sea trial's diagnosed current
+
+
+def _extended(vessel, dt: float = DT, substeps: int = 2) -> ResidualGreyBox:
+    """The calm-water grey box with a current and a wave drift set (what `replay diagnose --export` carries)."""
+    module = ResidualGreyBox(vessel, dt, ZeroResidual(), substeps)
+    with torch.no_grad():
+        module.current_ne.copy_(torch.tensor(CURRENT_NE, dtype=torch.float64))
+        module.wave_ne.copy_(torch.tensor([-0.20, 0.17], dtype=torch.float64))
+    return module
+
+
+def _export_grey(path, vessel, module, model_type: str = "greybox+current+wave_drift"):
+    from usv_predictor.models.artifact import export_module
+    from usv_predictor.models.greybox import greybox_metadata
+
+    return export_module(path, module, greybox_metadata(vessel, module, model_type=model_type), vessel=vessel)
+
+
+@pytest.fixture(scope="module")
+def probe(vessel):
+    """A short recorded turn (the base check's probe)."""
+    model, env = ManoeuvringModel(vessel), Environment(current_speed=0.35, current_to_deg=218.0)
+    sim = simulate(model, TurningCircle(20.0, 650.0, duration_s=20.0), env, seed=1)
+    return recording_from_signals(measure(sim, env, SensorSpec(), seed=1), DT, name="probe")
+
+
+def test_accelerations_at_is_the_derivative_of_the_rollout_with_a_current_and_waves(vessel):
+    """The one-step targets of a base with extension terms: d/dt of the measured u, v, r at the heading, the current
+    turning in the body frame included (a finite difference of the rollout over 0.01 s)."""
+    h = 0.01  # (s)
+    module = _extended(vessel, dt=h, substeps=1)
+    state = torch.tensor([[5.0, 0.3, 0.05, 0.7], [4.0, -0.2, -0.04, 2.5]], dtype=torch.float64)
+    controls = torch.tensor([[[0.2, 650.0]] * 3, [[-0.1, 700.0]] * 3], dtype=torch.float64)
+    with torch.no_grad():
+        finite = (module(state, controls)[0, :, 0, :3] - state[:, :3]) / h  # (B, 3)
+        model = module.accelerations_at(state[:, 3], state[:, :3], controls[:, 0])
+        turning = model - ResidualGreyBox(vessel, h, ZeroResidual()).accelerations_at(
+            state[:, 3], module.water_velocities(state[:, 3], state[:, :3]), controls[:, 0])
+    torch.testing.assert_close(model, finite, rtol=0.0, atol=2e-3)
+    assert float(turning[:, :2].abs().max()) > 1e-2  # the current's terms are larger than the tolerance
+
+
+def test_untrained_residual_on_an_extended_base_is_that_base_exactly(vessel, probe, tmp_path):
+    """base_from_artifact rebuilds the file's extended grey box (hull + current + wave drift); a hybrid on it with a
+    zero residual rolls out exactly as the file, every member, and not as the calm-water grey box."""
+    art = _export_grey(tmp_path / "extended.pt", vessel, _extended(vessel))
+    loaded = load_artifact(tmp_path / "extended.pt")
+    rebuilt_vessel, base = hybrid_fit.base_from_artifact(loaded, vessel, probe)
+    assert base.terms()["current_ne"] == pytest.approx(CURRENT_NE, abs=0.0)
+    learned = GeneralisingResidual(vessel.geometry.L_pp, 5.0, members=2)
+    hybrid = hybrid_fit.with_terms(ResidualGreyBox(rebuilt_vessel, DT, learned, members=2), base)
+    state, controls = _inputs()
+    with torch.no_grad():
+        out = hybrid(state, controls)  # (2, B, H, 6)
+        theirs = art.module(state, controls, None)[0]
+        calm = GreyBoxRollout(vessel, DT)(state, controls)[0]
+    torch.testing.assert_close(out[0], theirs, rtol=0.0, atol=0.0)
+    torch.testing.assert_close(out[1], theirs, rtol=0.0, atol=0.0)
+    assert float((theirs[:, -1, 3:5] - calm[:, -1, 3:5]).abs().max()) > 1.0  # 6 s in a 0.35 m/s current
+
+
+def test_a_base_that_is_no_grey_box_or_cannot_be_rebuilt_is_refused(vessel, probe, tmp_path):
+    from usv_predictor.errors import ModelError
+    from usv_predictor.models.artifact import export_module
+    from usv_predictor.models.greybox import greybox_metadata
+
+    hybrid = ResidualGreyBox(vessel, DT, GeneralisingResidual(vessel.geometry.L_pp, 5.0, members=2), members=2)
+    meta = greybox_metadata(vessel, hybrid, model_type="hybrid")
+    export_module(tmp_path / "hybrid.pt", hybrid, {**meta, "ensemble_size": 2}, vessel=vessel)
+    with pytest.raises(ModelError, match="must be a grey box"):
+        hybrid_fit.base_from_artifact(load_artifact(tmp_path / "hybrid.pt"), vessel, probe)
+    tampered = _extended(vessel)  # its metadata name the preset's hull, its module carries another
+    meta = greybox_metadata(vessel, tampered, model_type="greybox+current+wave_drift")
+    with torch.no_grad():
+        tampered.hull.mul_(1.5)
+    export_module(tmp_path / "tampered.pt", tampered, meta, vessel=vessel)
+    with pytest.raises(ModelError, match="could not be rebuilt"):
+        hybrid_fit.base_from_artifact(load_artifact(tmp_path / "tampered.pt"), vessel, probe)
+
+
+@pytest.mark.slow
+def test_replay_identify_hybrid_on_an_extended_base(vessel, tmp_path, capsys):
+    """`replay identify --hybrid --base extended.pt` on the shipped training bags (in the sea trial's current): a
+    hybrid+current artifact that keeps the base's current (which the node's online estimator then updates), loads
+    as the node loads a model, and whose residual bound (what the base leaves, 10 s means) is tighter than on the
+    calm-water model in sway and yaw; a --base without --hybrid, or not a grey box, is one line, exit 2."""
+    import json
+    from pathlib import Path
+
+    from replay_helpers import replay
+
+    from usv_predictor.analysis.adaptive import model_terms
+    from usv_predictor.fitting import identification
+    from usv_predictor.models.loading import load_model
+    from usv_predictor.replay.identify import identification_recordings
+
+    bags = Path(__file__).resolve().parents[1] / "bags" / "training"
+    training = [bags / "turning_circle_port_20deg_675rpm", bags / "zigzag_20_20_port_700rpm"]  # lean: two manoeuvres
+    base = ResidualGreyBox(vessel, DT, ZeroResidual())
+    with torch.no_grad():
+        base.current_ne.copy_(torch.tensor(CURRENT_NE, dtype=torch.float64))
+    _export_grey(tmp_path / "extended.pt", vessel, base, model_type="greybox+current")
+    out, js = tmp_path / "hybrid.pt", tmp_path / "hybrid.json"
+    code, err = replay(capsys, "identify", *training, "--hybrid", "--base", tmp_path / "extended.pt",
+                       "--hybrid-members", "2", "--hybrid-epochs", "2", "--output", out, "--json", js)
+    assert code == 0, err
+    result = json.loads(js.read_text())
+    assert result["model_type"] == "hybrid+current" and result["base"]["model_type"] == "greybox+current"
+    info = result["hybrid"]
+    assert info["members"] == 2 and info["epochs_run"] == 2 and info["monitor"] == "val"
+    art = load_model(str(out), dt=DT)  # as the node loads it (the check that it runs included)
+    assert art.ensemble_size == 2 and art.metadata["model_type"] == "hybrid+current"
+    assert model_terms(art)["current_ne"] == pytest.approx(CURRENT_NE, abs=1e-12)
+    assert art.metadata["training"]["base"]["model_type"] == "greybox+current"
+    # the bound: what the extended base leaves against what the calm-water model leaves, on the same data
+    recordings = identification_recordings(training, DT)
+    data = identification.prepare(vessel, recordings)
+    calm = GeneralisingResidual(vessel.geometry.L_pp, info["u_ref_mps"], 1)
+    hybrid_fit._residual_statistics(calm, ResidualGreyBox(vessel, DT, ZeroResidual()), data, recordings,
+                                    hybrid_fit.HybridTraining().bound_window_s)
+    assert np.all(np.array(info["bound"])[1:] < 0.8 * calm.bound.numpy()[1:]), (info["bound"], calm.bound)
+    code, err = replay(capsys, "identify", *training, "--base", tmp_path / "extended.pt", "--output", tmp_path / "x.pt")
+    assert code == 2 and "--hybrid" in err and not (tmp_path / "x.pt").exists()
+    code, err = replay(capsys, "identify", *training, "--hybrid", "--base", out, "--output", tmp_path / "x.pt")
+    assert code == 2 and "must be a grey box" in err and not (tmp_path / "x.pt").exists()

@@ -1,22 +1,35 @@
 """Building the identified grey box and fitting the hybrid's learned residual (models/hybrid.py).
 
     greybox_module      the identified MMG grey box (+ the Abkowitz polynomial terms when that structure won)
+    base_from_artifact  a grey box read back from its artifact (`replay identify`, or `replay diagnose --export`:
+                        the calm-water model extended with the diagnosed causes, e.g. current + wave drift), with its
+                        extension terms, checked to roll out exactly as the file does
     train_hybrid        grey box + GeneralisingResidual (an ensemble), trained by a multi-step (rollout) loss with
                         early stopping on manoeuvres held out whole, and pulled toward zero (issue 15)
+    train_residual      the same on any grey box (train_hybrid's work): on an extended grey box the physics carries
+                        the sea (the current moves the boat, the wave drift pushes it) and the residual only what the
+                        extension leaves, its bound set from what the extension leaves (step 1)
     export_identified   one TorchScript artifact with the identification in its metadata
+    export_on_base      one TorchScript artifact of a hybrid on a base artifact, with the base's metadata
 
 The hybrid's training (train_hybrid):
   1. the residual's feature normalisation, the training range of every feature (its support envelope) and the
      bound of its non-dimensional output come from the identification data: the one-step residual accelerations
-     nu_dot(smoothed) - f_grey box (residual_targets) made non-dimensional by U^2 / L (U^2 / L^2 for yaw); the bound
-     is BOUND_MARGIN x their 99.5th percentile, so the learned term can never exceed what the data showed;
+     nu_dot(smoothed) - f_grey box (residual_targets; the grey box at the sample's heading with its extension terms,
+     features of the velocities through the water) made non-dimensional by U^2 / L (U^2 / L^2 for yaw); the bound
+     is BOUND_MARGIN x the 99.5th percentile of their running mean over bound_window_s (10 s: what persists, the
+     part a residual of the state can explain; per sample, the first-order wave motion of a sea trial set a bound 10
+     times larger), so the learned term can never exceed what the data showed the base leaves (an extension that
+     explains the sea leaves less: on the shipped sea trial a bound 2-5 times tighter than the calm-water model's);
   2. loss of member e = mean over its segments (data/segments.py: horizon_s rollouts from measured states with the
      recorded controls, seed 000's multi-step loss, Fig. 3, here through the grey box) of the squared residuals of
      u, v, r, the track and the heading in noise units (SIGMA)  +  zero_weight x mean (a' / bound)^2 over the
      one-step samples (regularisation toward the pure grey box); each member trains on its own bootstrap of the
      training segments and starts from its own random hidden weights (the ensemble's spread);
   3. early stopping per member on the same loss over whole held-out manoeuvres (data.dataset.split_by_manoeuvre):
-     the weights of the epoch with the lowest validation loss are kept.
+     the weights of the epoch with the lowest validation loss are kept, the untrained residual (epoch 0: the base
+     alone) among them, so a member whose learned term never predicts the held-out manoeuvres better than its base
+     keeps none (best_epoch 0).
 """
 from __future__ import annotations
 
@@ -35,7 +48,10 @@ from usv_predictor.errors import DiagnosisError, ModelError
 from usv_predictor.fitting.identification import ForceData, IdentificationResult
 from usv_predictor.fitting.training import reproducible
 from usv_predictor.models.artifact import OUTPUT_LAYOUT, UNITS, ModelArtifact, export_module
-from usv_predictor.models.greybox import actuator_sections_metadata, engine_speed_metadata, hull_coefficients
+from usv_predictor.models.families import MODEL_FAMILIES, family_name
+from usv_predictor.models.greybox import (actuator_sections_metadata, engine_speed_metadata, hull_coefficients,
+                                          vessel_from_metadata)
+from usv_predictor.physics.vessel import Vessel
 from usv_predictor.models.hybrid import (GENERALISING_FEATURES, GeneralisingResidual, PolynomialResidual,
                                          ResidualGreyBox, SumResidual, ZeroResidual)
 
@@ -50,6 +66,43 @@ def greybox_module(result: IdentificationResult, dt: float, substeps: int = 2) -
     return ResidualGreyBox(result.vessel, dt, residual, substeps)
 
 
+BASE_CHECK_STEPS = 50  # model steps of the probe rollout that proves a rebuilt base equals its artifact
+
+
+def base_from_artifact(artifact: ModelArtifact, preset: Vessel, probe: Recording, *,
+                       source: str = "--base") -> tuple[Vessel, ResidualGreyBox]:
+    """(the vessel, the grey box) of a grey-box artifact (`replay identify --structure mmg`, or `replay diagnose
+    --export`: the calm-water model with the diagnosed causes' terms), `preset` the vessel file it was made with.
+    The hull comes from the metadata (models.greybox.vessel_from_metadata), the extension terms (current_ne,
+    wave_ne, ...) and the held engine speed from the file's module; the rebuilt grey box must roll out the first
+    BASE_CHECK_STEPS steps of `probe` (a recording at the model's step: its first state, its controls) as the file
+    does (to 1e-9), else ModelError: a base it cannot rebuild is refused, never approximated.
+    A learned model, a hybrid or an Abkowitz grey box is refused by name (ModelError)."""
+    meta = artifact.metadata
+    family = MODEL_FAMILIES.get(family_name(str(meta.get("model_type", ""))))
+    try:
+        vessel = vessel_from_metadata(meta, preset) if family is not None and family.physics else None
+    except ValueError as err:
+        raise ModelError(f"{source} {artifact.path}: {err}") from None
+    if vessel is None:
+        raise ModelError(f"{source} {artifact.path}: a hybrid's base must be a grey box without learned or extra terms "
+                         f"(`replay identify --structure mmg`, or its `replay diagnose --export` extension), not "
+                         f"model_type {meta.get('model_type')!r}")
+    substeps = int((meta.get("architecture") or {}).get("substeps", 2))
+    base = with_terms(ResidualGreyBox(vessel, float(meta["dt"]), ZeroResidual(), substeps), artifact.module)
+    steps = min(BASE_CHECK_STEPS, len(probe))
+    state = torch.from_numpy(np.asarray(probe.state()[:1], dtype=np.float64))  # (1, 4)
+    controls = torch.from_numpy(np.asarray(probe.controls[None, :steps], dtype=np.float64))  # (1, H, C)
+    with torch.no_grad():
+        mine = base(state, controls)[0]  # (1, H, 6)
+        theirs = artifact.module(state, controls, None)[0]  # (1, H, 6)
+    if theirs.shape != mine.shape or not torch.allclose(mine, theirs, rtol=0.0, atol=1e-9):
+        raise ModelError(f"{source} {artifact.path}: its grey box could not be rebuilt from its metadata (the rebuilt "
+                         f"rollout differs from the file's by {float((mine - theirs).abs().max()):.3g}): an extension "
+                         f"term this version does not know?")
+    return vessel, base
+
+
 @dataclass(frozen=True)
 class HybridTraining:
     members: int = 5  # ensemble members (spread)
@@ -62,6 +115,8 @@ class HybridTraining:
     horizon_s: float = 20.0  # (s) the multi-step loss' segments (the diagnosis' horizon)
     stride_s: float = 5.0  # (s) between segment starts
     zero_weight: float = 0.1  # (-) weight of the pull toward zero (step 2 of the module docstring)
+    bound_window_s: float = 10.0  # (s) the bound is taken from the one-step residuals averaged over this window
+    #                               (step 1: what persists, not the waves' first-order oscillation; 0: per sample)
     val_fraction: float = 0.25  # of the manoeuvres, held out whole for early stopping (none with one manoeuvre)
     validation: tuple[str, ...] = ()  # glob patterns of manoeuvres held out for early stopping (instead of the fraction)
     seed: int = 0
@@ -73,21 +128,47 @@ class HybridTraining:
         for name in ("learning_rate", "horizon_s", "stride_s"):
             if not getattr(self, name) > 0.0:
                 raise ModelError(f"hybrid training: {name} must be > 0, got {getattr(self, name)}")
+        if not self.bound_window_s >= 0.0:
+            raise ModelError(f"hybrid training: bound_window_s must be >= 0, got {self.bound_window_s}")
 
 
-def residual_targets(module: ResidualGreyBox, data: Sequence[ForceData]) -> tuple[np.ndarray, np.ndarray]:
+def residual_targets(module: ResidualGreyBox, data: Sequence[ForceData],
+                     psi: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(inputs (N, 5) [u, v, r, a, b], residual accelerations (N, 3)) over the kept samples; a, b the actuator
-    levels of the layout (delta and rpm of a rudder boat, the lagged port and starboard commands of twins)."""
+    levels of the layout (delta and rpm of a rudder boat, the lagged port and starboard commands of twins).
+    psi (N,): the samples' headings, for a grey box with extension terms (ResidualGreyBox.accelerations_at: its
+    current and sea loads; u, v are then through the water); None: calm water (heading 0, u, v over ground)."""
     nu = np.vstack([d.nu[d.keep] for d in data])
     controls = np.vstack([d.controls[d.keep] for d in data])
     measured = np.vstack([d.nu_dot[d.keep] for d in data])
     with torch.no_grad():
-        model = module.accelerations(torch.from_numpy(nu), torch.from_numpy(controls)).numpy()
-    return np.column_stack([nu, controls]), measured - model
+        if psi is None:
+            model = module.accelerations(torch.from_numpy(nu), torch.from_numpy(controls)).numpy()
+            velocities = nu
+        else:
+            heading = torch.from_numpy(np.asarray(psi, dtype=np.float64))
+            model = module.accelerations_at(heading, torch.from_numpy(nu), torch.from_numpy(controls)).numpy()
+            velocities = module.water_velocities(heading, torch.from_numpy(nu)).numpy()
+    return np.column_stack([velocities, controls]), measured - model
+
+
+def running_mean(values: np.ndarray, groups: np.ndarray, width: int) -> np.ndarray:
+    """(N, K) centred running mean of `width` samples of (N, K) values within each run of equal (N,) groups (a
+    manoeuvre's kept samples); the window shrinks at a run's ends (same length out)."""
+    out = np.empty_like(values)
+    for g in np.unique(groups):
+        rows = np.flatnonzero(groups == g)
+        v = values[rows]
+        csum = np.vstack([np.zeros((1, v.shape[1])), np.cumsum(v, axis=0)])
+        half = max(width, 1) // 2
+        lo = np.clip(np.arange(len(v)) - half, 0, len(v))
+        hi = np.clip(np.arange(len(v)) + half + 1, 0, len(v))
+        out[rows] = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+    return out
 
 
 def _residual_statistics(residual: GeneralisingResidual, base: ResidualGreyBox, data: Sequence[ForceData],
-                         recordings: Sequence[Recording]) -> torch.Tensor:
+                         recordings: Sequence[Recording], bound_window_s: float = 0.0) -> torch.Tensor:
     """Set the residual's normalisation, training range and bound from the identification data (step 1); returns
     the (N, F) features of the one-step samples (for the pull toward zero)."""
     psi_of = {rec.name: rec.psi for rec in recordings}
@@ -96,13 +177,17 @@ def _residual_statistics(residual: GeneralisingResidual, base: ResidualGreyBox, 
             raise ModelError(f"hybrid: the identification's manoeuvre {d.name!r} is not among the recordings given "
                              f"(or has another length): train the residual on the recordings that were identified")
     psi = np.concatenate([psi_of[d.name][d.keep] for d in data])  # (N,) heading of the one-step samples
-    inputs, targets = residual_targets(base, data)  # (N, 5) [u, v, r, a, b], (N, 3)
+    inputs, targets = residual_targets(base, data, psi)  # (N, 5) [u_r, v_r, r, a, b], (N, 3)
     if len(inputs) < MIN_SAMPLES:
         raise ModelError(f"hybrid: only {len(inputs)} samples to learn the residual from (need >= {MIN_SAMPLES})")
     x = residual.features(*(torch.from_numpy(c) for c in (psi, *inputs.T)))  # (N, F)
     speed = x[:, 2:3].numpy() * residual.u_ref  # (N, 1) floored U
     nondim = targets * residual.L / speed ** 2  # (N, 3): u_dot L / U^2, v_dot L / U^2, then r_dot L / U^2 ...
     nondim[:, 2] *= residual.L  # ... r_dot L^2 / U^2
+    if bound_window_s > 0.0:  # the systematic part: the waves' first-order oscillation averages out
+        groups = np.concatenate([np.full(int(d.keep.sum()), k) for k, d in enumerate(data)])
+        widths = {round(bound_window_s / float(np.median(np.diff(d.t_s)))) for d in data if len(d.t_s) > 1}
+        nondim = running_mean(nondim, groups, max(widths, default=1))
     with torch.no_grad():
         mean, std = x.mean(dim=0), x.std(dim=0).clamp(min=1e-6)
         residual.in_mean.copy_(mean)
@@ -149,22 +234,47 @@ def train_hybrid(result: IdentificationResult, recordings: Sequence[Recording], 
                  progress: Callable[[str], None] = lambda _: None) -> tuple[ResidualGreyBox, dict[str, Any]]:
     """The identified grey box + a GeneralisingResidual ensemble trained as the module docstring says; `recordings`
     are the identification's, at the model step dt (their names split training and validation manoeuvres)."""
-    base = greybox_module(result, dt, substeps)
+    return train_residual(greybox_module(result, dt, substeps), result.vessel, result.data, recordings, dt, config,
+                          progress=progress)
+
+
+def with_terms(module: ResidualGreyBox, source: nn.Module) -> ResidualGreyBox:
+    """`module` with the extension terms (current_ne, wave_ne, ... : physics.effects) of `source` copied in."""
+    with torch.no_grad():
+        for name in module.term_names:
+            getattr(module, name).copy_(getattr(source, name).detach().reshape(getattr(module, name).shape))
+        module.engine_speed_rpm.copy_(source.engine_speed_rpm.detach())
+    return module
+
+
+def train_residual(base: ResidualGreyBox, vessel: Vessel, data: Sequence[ForceData], recordings: Sequence[Recording],
+                   dt: float, config: HybridTraining = HybridTraining(),
+                   progress: Callable[[str], None] = lambda _: None) -> tuple[ResidualGreyBox, dict[str, Any]]:
+    """`base` (a grey box of `vessel`, with its extension terms: greybox_module or base_from_artifact) + a
+    GeneralisingResidual ensemble trained as the module docstring says on the one-step `data` (the smoothed
+    inverse dynamics of `recordings`: identification.prepare) and the multi-step segments of `recordings`, at the
+    model step dt (their names split training and validation manoeuvres). The hybrid keeps the base's terms."""
+    substeps = base.substeps
     train, val, split = _split_segments(recordings, config)
-    speeds = np.hypot(*np.vstack([d.nu[d.keep] for d in result.data])[:, :2].T)
+    speeds = np.hypot(*np.vstack([d.nu[d.keep] for d in data])[:, :2].T)
     u_ref = float(np.median(speeds)) if len(speeds) else 1.0
     with reproducible(config.seed, torch.get_num_threads()):
-        learned = GeneralisingResidual(result.vessel.geometry.L_pp, max(u_ref, 0.1), config.members, config.hidden,
+        learned = GeneralisingResidual(vessel.geometry.L_pp, max(u_ref, 0.1), config.members, config.hidden,
                                        config.layers)
-        x_samples = _residual_statistics(learned, base, result.data, recordings)
+        x_samples = _residual_statistics(learned, base, data, recordings, config.bound_window_s)
         residual = SumResidual(base.residual, learned)
-        module = ResidualGreyBox(result.vessel, dt, residual, substeps, members=config.members)
+        module = with_terms(ResidualGreyBox(vessel, dt, residual, substeps, members=config.members), base)
         bootstrap = torch.from_numpy(np.random.default_rng(config.seed).poisson(1.0, (config.members, len(train)))
                                      .astype(np.float64)) + 1e-3  # (E, N) each member's resampling of the segments
         trainable = [p for p in learned.parameters() if p.requires_grad]
         optimiser = torch.optim.Adam(trainable, lr=config.learning_rate, weight_decay=config.weight_decay)
         samples = x_samples.unsqueeze(0).expand(config.members, -1, -1)  # (E, N, F)
-        best = [float("inf")] * config.members
+        with torch.no_grad():  # epoch 0, the untrained residual (zero: the base itself) is a candidate too, so a
+            #                    member keeps no learned term that does not beat its base on the held-out manoeuvres
+            zero = ((learned.nondimensional(samples) / learned.bound) ** 2).sum(dim=-1).mean(dim=-1)  # (E,)
+            monitor = (_segment_losses(module, val) if val is not None
+                       else _segment_losses(module, train) + config.zero_weight * zero)  # (E,)
+        best = [float(x) for x in monitor]
         best_epoch = [0] * config.members
         best_state = [p.detach().clone() for p in trainable]
         history = []
@@ -195,8 +305,7 @@ def train_hybrid(result: IdentificationResult, recordings: Sequence[Recording], 
         with torch.no_grad():
             for keep, p in zip(best_state, trainable):
                 p.copy_(keep)
-            grey = _segment_losses(ResidualGreyBox(result.vessel, dt, base.residual, substeps),
-                                   val if val is not None else train)
+            grey = _segment_losses(base, val if val is not None else train)
     info = {"residual": "GeneralisingResidual", "features": list(GENERALISING_FEATURES), "members": config.members,
             "hidden": config.hidden, "layers": config.layers, "u_ref_mps": learned.u_ref,
             "bound": learned.bound.tolist(), "horizon_s": config.horizon_s, "zero_weight": config.zero_weight,
@@ -247,3 +356,34 @@ def export_identified(path: str, module: ResidualGreyBox, result: Identification
         **dict(extra or {}),
     }
     return export_module(path, module, metadata, vessel=result.prior)
+
+
+def hybrid_model_type(base_model_type: str) -> str:
+    """The model_type of a hybrid on a base of `base_model_type`: 'greybox+current+wave_drift' ->
+    'hybrid+current+wave_drift' (the family hybrid, the base's diagnosed causes kept: models/families.py)."""
+    _, plus, causes = base_model_type.partition("+")
+    return "hybrid" + plus + causes
+
+
+def export_on_base(path: str, module: ResidualGreyBox, base: ModelArtifact, *, vessel: Vessel | None,
+                   training_data_sha256: str, hybrid: Mapping[str, Any]) -> ModelArtifact:
+    """One TorchScript file of a hybrid trained on the grey box of the artifact `base` (base_from_artifact): the
+    base's metadata (hull, terms, identification or diagnosis, engine speed) with model_type hybrid[+causes], the
+    residual's record under architecture and the base's model_id and training under training.base; `vessel` the
+    description to embed (None: the base's)."""
+    meta = {key: value for key, value in base.metadata.items()
+            if key not in ("model_id", "format", "software_version", "created_utc")}
+    causes = str(base.metadata.get("model_type", "greybox"))
+    meta.update({
+        "model_type": hybrid_model_type(causes),
+        "feature_set": f"{meta.get('feature_set', 'physics')} + learned residual",
+        "training_data_sha256": training_data_sha256,
+        "ensemble_size": int(module.members),
+        "architecture": {**dict(base.metadata.get("architecture") or {}), "residual": type(module.residual).__name__,
+                         "terms": module.terms(), **dict(hybrid)},
+        "training": {"method": "learned residual (fitting.hybrid_fit.train_residual) on the grey box of "
+                               f"{base.path.name} ({causes})",
+                     "base": {"model_id": base.model_id, "model_type": causes,
+                              "training": base.metadata.get("training")}},
+    })  # the base's engine_speed record stays true: with_terms copied its held engine speed
+    return export_module(path, module, meta, vessel=vessel or base.embedded_vessel)

@@ -170,6 +170,31 @@ class ResidualGreyBox(GreyBoxRollout):
         out = self._rollout(state.repeat(self.members, 1), controls.repeat(self.members, 1, 1), reference)  # (E B, H, 6)
         return out.reshape(self.members, rows, out.shape[1], out.shape[2])  # (E, B, H, 6)
 
+    def water_velocities(self, psi: Tensor, nu: Tensor) -> Tensor:
+        """(N, 3) [u_r, v_r, r]: the measured (N, 3) [u, v, r] over ground less the model's current (the
+        current_ne term, turned into the body frame at the (N,) heading psi; zero on a calm-water grey box)."""
+        nu = nu.to(torch.float64)
+        c, s = torch.cos(psi), torch.sin(psi)
+        u_c = self.current_ne[0] * c + self.current_ne[1] * s  # (N,) the current along the body's x ...
+        v_c = -self.current_ne[0] * s + self.current_ne[1] * c  # (N,) ... and y axis
+        return torch.stack([nu[:, 0] - u_c, nu[:, 1] - v_c, nu[:, 2]], dim=-1)
+
+    def accelerations_at(self, psi: Tensor, nu: Tensor, controls: Tensor) -> Tensor:
+        """(N, 3) the model's d/dt of the measured [u, v, r] over ground at (N,) heading psi, (N, 3) nu over ground
+        and (N, 2) actuator levels: the accelerations of the water-relative velocities (hull, actuators, the sea's
+        loads at that heading, the residual) plus the turning of the current in the body frame,
+            d/dt (u - u_r) = r (v - v_r),   d/dt (v - v_r) = -r (u - u_r)
+        (u - u_r = c_n cos psi + c_e sin psi, v - v_r = -c_n sin psi + c_e cos psi). With no extension term it is
+        accelerations(nu, controls) at any heading. The actuator stage's terms (rudder_offset, actuator_delay) and
+        the sensors' (yaw_rate_bias, heading_offset) act in the rollout only, not here."""
+        psi = psi.to(torch.float64)
+        controls = controls.to(torch.float64)
+        water = self.water_velocities(psi, nu)  # (N, 3)
+        zero = torch.zeros_like(psi)
+        d = self._derivative([zero, zero, psi, water[:, 0], water[:, 1], water[:, 2]], controls[:, 0], controls[:, 1])
+        r = water[:, 2]
+        return torch.stack([d[3] + r * (nu[:, 1] - water[:, 1]), d[4] - r * (nu[:, 0] - water[:, 0]), d[5]], dim=-1)
+
     def accelerations(self, nu: Tensor, controls: Tensor) -> Tensor:
         """(N, 3) model accelerations at (N, 3) nu and (N, 2) actuator levels (heading 0: calm water; a single-member
         residual)."""

@@ -10,7 +10,9 @@ manoeuvres are only evaluated, never fitted. --report DIR: summary.md and force-
 (seed 001 Fig. 13) per manoeuvre. The bags are read with the vessel's actuator layout: a small-craft twin-thruster
 boat identifies its damping and each side's thrust gain (structures diagonal / coupled), a throttle boat its thrust
 map's gain, a rudder boat without propulsion data (rudder_only) the hull at an equivalent engine speed per manoeuvre.
---blocks K cuts each recording into K pieces for cross-validation (one long record). --scale LAMBDA Froude-scales
+--blocks K cuts each recording into K pieces for cross-validation (one long record). --hybrid --base MODEL:
+no identification, the residual is trained on top of MODEL's grey box (`replay diagnose --export`'s extension:
+the physics explains the sea, the residual what it leaves). --scale LAMBDA Froude-scales
 bags of a hull LAMBDA times as long as the vessel file's (full-scale bags, a model-scale vessel) to its size first. The work:
 usv_predictor.replay.identify.
 """
@@ -25,15 +27,16 @@ from usv_predictor.replay.options import add_config_argument, add_scale_argument
 NAME = "identify"
 HELP = ("identify the grey box of any actuator layout from bags (hull coefficients, thrust-map gains, engine speeds; "
         "EKF/RTS + inverse-dynamics regression) and export the model")
-INPUTS = ("bags", "vessel", "config")
+INPUTS = ("bags", "vessel", "base", "config")
 OUTPUTS = {"output": "file", "report": "dir"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bags", nargs="+", type=Path, metavar="BAG", help="bags or directories of bags to fit")
-    parser.add_argument("--vessel", required=True, help="vessel preset name or YAML path (mass, added mass, rudder, "
-                                                        "propeller, thrusters: the prior knowledge); its actuator "
-                                                        "layout says which control topics the bags must carry")
+    parser.add_argument("--vessel", default=None, help="vessel preset name or YAML path (mass, added mass, rudder, "
+                                                       "propeller, thrusters: the prior knowledge); its actuator "
+                                                       "layout says which control topics the bags must carry "
+                                                       "(required, unless --base gives it)")
     parser.add_argument("--structure", choices=("mmg", "abkowitz", "diagonal", "coupled", "auto"), default="auto",
                         help="hull model structure: mmg / abkowitz for the MMG hull, diagonal / coupled for the "
                              "small-craft hull (auto: compare the hull model's by cross-validation, default)")
@@ -47,6 +50,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--hybrid: ensemble members, each its own seed (default 5)")
     parser.add_argument("--hybrid-epochs", type=positive_int, default=150, metavar="N",
                         help="--hybrid: training epochs at most, early stopping on held-out manoeuvres (default 150)")
+    parser.add_argument("--base", type=Path, default=None, metavar="MODEL",
+                        help="--hybrid: add the residual to this grey box instead of identifying one: `replay diagnose "
+                             "--export`'s extended model (calm-water hull + the diagnosed current, wave drift, ...) or "
+                             "a `replay identify --structure mmg` model; the physics carries what it explains, the "
+                             "residual (bounded by what the base leaves) the rest (model_type hybrid+<causes>)")
     parser.add_argument("--dt", type=positive_float, default=0.2, help="step (s) of the resampled data and the model (default 0.2)")
     parser.add_argument("--val", default=None, metavar="GLOB", help="bags to validate on only (glob)")
     parser.add_argument("--output", type=Path, required=True, help="model file to write (.pt)")
@@ -65,4 +73,4 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     training = HybridTraining(members=args.hybrid_members, epochs=args.hybrid_epochs) if args.hybrid else None
     return identify_bags(args.bags, args.output, vessel=args.vessel, structure=args.structure, prior=args.prior,
                          hybrid=training, dt=args.dt, validation=args.val, report=args.report, blocks=args.blocks,
-                         config=args.config, scale=args.scale, progress=log)
+                         config=args.config, scale=args.scale, base=args.base, progress=log)

@@ -48,9 +48,10 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
     return pieces
 
 
-def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure: str = "auto", prior: str = "none",
-                  hybrid: HybridTraining | None = None, dt: float = 0.2, validation: str | None = None,
-                  report: Path | None = None, blocks: int = 1, config: Path | None = None, scale: float = 1.0,
+def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, structure: str = "auto",
+                  prior: str = "none", hybrid: HybridTraining | None = None, dt: float = 0.2,
+                  validation: str | None = None, report: Path | None = None, blocks: int = 1,
+                  config: Path | None = None, scale: float = 1.0, base: Path | None = None,
                   progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """Identify the hull (and what the layout lets the data set: thrust gains, engine speeds) of the vessel file
     `vessel` (a preset name or a YAML path) from `bags`, read with its actuator layout (structure mmg / abkowitz /
@@ -58,12 +59,24 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
     fitting.hybrid_fit.HybridTraining: plus a learned residual trained so)
     to `output`; validation: a glob of bags only evaluated; report: a directory for summary.md and the force plots;
     blocks: pieces per recording for cross-validation; config: the predictor.yaml whose topics are read (default
-    the shipped one); scale: Froude scale L_bags / L_vessel, the bags scaled to the vessel's size (1: none). The
-    result of `replay identify`."""
+    the shipped one); scale: Froude scale L_bags / L_vessel, the bags scaled to the vessel's size (1: none).
+    base: with hybrid, a grey-box artifact (`replay diagnose --export`'s extended model, or an earlier `replay
+    identify`) whose hull and extension terms are kept, the residual trained on top of them (hybrid_on_base); the
+    hull is then not identified again. The result of `replay identify`."""
     from usv_predictor.analysis.evaluation import evaluate
     from usv_predictor.fitting import hybrid_fit, identification
     from usv_predictor.physics.vessel import load_vessel
 
+    if base is not None:
+        if hybrid is None:
+            raise DatasetError("--base MODEL is the grey box a learned residual is added to: it needs --hybrid")
+        if structure != "auto" or prior != "none" or blocks != 1 or report is not None:
+            raise DatasetError("--base MODEL keeps the base's hull (nothing is identified): --structure, --prior, "
+                               "--blocks and --report do not apply")
+        return hybrid_on_base(bags, output, base, hybrid, vessel=vessel, dt=dt, validation=validation, config=config,
+                              scale=scale, progress=progress)
+    if vessel is None:
+        raise DatasetError("--vessel is required (the vessel file whose hull is identified), unless --base gives it")
     preset = load_vessel(vessel)
     layout = preset.actuator_layout
     recordings = identification_recordings(list(bags), dt, progress, config, layout=layout, blocks=blocks,
@@ -108,4 +121,50 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
         from usv_predictor.analysis.reports import write_identification_report
 
         out["report"] = str(write_identification_report(report, result, out))
+    return out
+
+
+def hybrid_on_base(bags: Sequence[Path], output: Path, base: Path, hybrid: HybridTraining, *,
+                   vessel: str | None = None, dt: float = 0.2, validation: str | None = None,
+                   config: Path | None = None, scale: float = 1.0,
+                   progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+    """`replay identify --hybrid --base MODEL`: the grey box of MODEL (fitting.hybrid_fit.base_from_artifact: e.g.
+    `replay diagnose --export`'s calm-water model + current + wave drift) + a learned residual trained on `bags`
+    (fitting.hybrid_fit.train_residual), written to `output` (model_type hybrid[+the base's causes]). vessel: the
+    vessel file (None: the one MODEL embeds; a different one is a ModelError naming the fields); dt must be the
+    base's step. The JSON of `replay identify` with the base's record instead of an identification."""
+    from usv_predictor.analysis.evaluation import evaluate
+    from usv_predictor.fitting import hybrid_fit, identification
+    from usv_predictor.models.loading import check_dt, load_model, model_vessel
+
+    artifact = load_model(str(base), option="--base", physics=False)
+    check_dt(artifact, dt, f"--dt for --base {base}")
+    preset = model_vessel(artifact, vessel, source=f"--base {base}")
+    layout = preset.actuator_layout
+    recordings = identification_recordings(list(bags), dt, progress, config, layout=layout, scale=scale)
+    if not recordings:
+        raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
+    identified, grey = hybrid_fit.base_from_artifact(artifact, preset, recordings[0], source=f"--base {base}")
+    progress(f"base {base}: {artifact.metadata['model_type']} ({artifact.model_id}), terms "
+             + ", ".join(f"{k} {[round(x, 4) for x in v]}" for k, v in grey.terms().items() if any(v)))
+    data = identification.prepare(identified, recordings, progress=progress)
+    progress(f"training the learned residual ({hybrid.members} members, multi-step loss, held-out manoeuvres) on "
+             f"the base")
+    module, info = hybrid_fit.train_residual(grey, identified, data, recordings, dt, hybrid, progress=progress)
+    digest = identification.data_digest(recordings)
+    out_artifact = hybrid_fit.export_on_base(str(output), module, artifact, vessel=preset,
+                                             training_data_sha256=digest, hybrid=info)
+    progress(f"wrote {output} (model {out_artifact.model_id}, {out_artifact.metadata['model_type']})")
+    out: dict[str, Any] = {"model": str(output), "model_id": out_artifact.model_id,
+                           "model_type": out_artifact.metadata["model_type"], "training_data_sha256": digest,
+                           "base": {"model": str(base), "model_id": artifact.model_id,
+                                    "model_type": artifact.metadata["model_type"], "terms": grey.terms()},
+                           "hybrid": info, "froude_scale": scale}
+    if validation:
+        paths = sorted(Path(p) for p in glob.glob(validation))
+        if not paths:
+            raise DatasetError(f"--val {validation!r} matches no bag")
+        out["validation"] = evaluate(out_artifact, identification_recordings(paths, dt, progress, config,
+                                                                             layout=layout, scale=scale),
+                                     progress=progress).to_json()
     return out
