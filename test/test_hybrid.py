@@ -141,7 +141,6 @@ def test_hybrid_predicts_held_out_manoeuvres_better_than_the_grey_box(vessel, wi
     config = hybrid_fit.HybridTraining(members=3, hidden=16, epochs=60, patience=15, horizon_s=10.0, stride_s=5.0)
     module, info = hybrid_fit.train_hybrid(result, windy_day, DT, config)
     assert info["monitor"] == "val" and len(info["val_manoeuvres"]) == 2  # 25 % of six, whole manoeuvres
-    # held-out 4 s rollouts: every member beats the identified grey box by a clear margin
     # held-out 10 s rollouts (the training loss): every member beats the identified grey box by a clear margin
     assert max(info["loss_best"]) < 0.7 * info["loss_grey_box"], info
     art_path = tmp_path / "hybrid.pt"
