@@ -100,6 +100,10 @@ def summarise(results: list[dict]) -> str:
             spread = ", ".join(f"{k} median |err| {np.median([abs(r['errors'][k]) for r in rows]):.3g}" for k in keys)
             lines.append(f"  {effect:20s} {sum(r['within_tolerance'] for r in rows)}/{len(rows)} within tolerance; "
                          f"{spread}")
+    searched = [((r.get("identification") or {}).get("interaction") or {}) for r in results]
+    if any(searched):
+        lines.append(f"interaction factors identified (the held-out simulation beat the description's): "
+                     f"{sum(bool(s.get('accepted')) for s in searched)}/{len(results)} boats")
     walls = [r["wall_s"] for r in results]
     lines.append(f"time per boat: median {np.median(walls):.0f} s, max {np.max(walls):.0f} s (wall, simulate + vessel "
                  f"init + identify + diagnose); load average at the end {os.getloadavg()[0]:.1f}")
@@ -112,7 +116,9 @@ def main() -> None:
     parser.add_argument("--first", type=int, default=0, help="index of the first boat (resume a stopped run)")
     parser.add_argument("--seed", type=int, default=2026)
     parser.add_argument("--jsonl", type=Path, default=None, help="append one JSON line per boat here")
-    parser.add_argument("--summarise", type=Path, default=None, metavar="JSONL", help="only print the tables of a run")
+    parser.add_argument("--summarise", type=Path, nargs="+", default=None, metavar="JSONL",
+                        help="only print the tables of a run (several files: the boats of processes run in parallel "
+                             "over disjoint --first/--boats ranges)")
     parser.add_argument("--rerun", type=Path, default=None, metavar="JSONL",
                         help="with --summarise: boats re-run later (e.g. with a newer diagnose) replace the same index")
     args = parser.parse_args()
@@ -120,7 +126,7 @@ def main() -> None:
         def read(path: Path) -> list[dict]:
             return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
-        results = {r["index"]: r for r in read(args.summarise)}
+        results = {r["index"]: r for path in args.summarise for r in read(path)}
         rerun = read(args.rerun) if args.rerun else []
         results.update({r["index"]: r for r in rerun})
         print(summarise([results[i] for i in sorted(results)]))

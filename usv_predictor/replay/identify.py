@@ -51,15 +51,16 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
 def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure: str = "auto", prior: str = "none",
                   hybrid: HybridTraining | None = None, dt: float = 0.2, validation: str | None = None,
                   report: Path | None = None, blocks: int = 1, config: Path | None = None, scale: float = 1.0,
-                  progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+                  interaction: str = "identify", progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """Identify the hull (and what the layout lets the data set: thrust gains, engine speeds) of the vessel file
     `vessel` (a preset name or a YAML path) from `bags`, read with its actuator layout (structure mmg / abkowitz /
     diagonal / coupled / auto, prior none / fix / ridge), export the grey box (with hybrid, a
     fitting.hybrid_fit.HybridTraining: plus a learned residual trained so)
     to `output`; validation: a glob of bags only evaluated; report: a directory for summary.md and the force plots;
     blocks: pieces per recording for cross-validation; config: the predictor.yaml whose topics are read (default
-    the shipped one); scale: Froude scale L_bags / L_vessel, the bags scaled to the vessel's size (1: none). The
-    result of `replay identify`."""
+    the shipped one); scale: Froude scale L_bags / L_vessel, the bags scaled to the vessel's size (1: none);
+    interaction: identify / fix the rudder_propeller interaction factors (fitting/interaction.py). The result of
+    `replay identify`."""
     from usv_predictor.analysis.evaluation import evaluate
     from usv_predictor.fitting import hybrid_fit, identification
     from usv_predictor.physics.vessel import load_vessel
@@ -70,7 +71,8 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure:
                                            scale=scale)
     if not recordings:
         raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
-    result = identification.identify(preset, recordings, structure=structure, prior=prior, progress=progress)
+    result = identification.identify(preset, recordings, structure=structure, prior=prior,
+                                     interaction=interaction, progress=progress)
     from usv_predictor.fitting.candidates import candidate_scores, cv_warning
 
     candidates = candidate_scores(preset, list(result.data), result)

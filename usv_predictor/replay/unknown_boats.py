@@ -96,7 +96,8 @@ def run_unknown_boat(boat: UnknownBoat, truth: Draw, workdir: Path, seed: int, *
             break
         prior = better
     out["identification"] = {"structure": identified["identification"].get("structure"), "prior": prior,
-                             "cv_warning": identified.get("cv_warning")}
+                             "cv_warning": identified.get("cv_warning"),
+                             "interaction": identified["identification"].get("interaction")}
     identified_at = time.perf_counter()
     diagnosis_json = workdir / "diagnosis.json"
     argv = ["diagnose", str(workdir / "effect"), "--model", str(model), "--vessel", str(description),
