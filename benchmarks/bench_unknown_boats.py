@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 
-def one_boat(index: int, seed: int, workroot: Path) -> dict:
+def one_boat(index: int, seed: int, workroot: Path, interaction: str = "identify") -> dict:
     import torch
 
     from usv_predictor.analysis.hidden_effects import draw, effect_names
@@ -44,10 +44,11 @@ def one_boat(index: int, seed: int, workroot: Path) -> dict:
     work = workroot / boat.name
     started = time.perf_counter()
     try:
-        result = run_unknown_boat(boat, truth, work, sim_seed)
+        result = run_unknown_boat(boat, truth, work, sim_seed, interaction=interaction)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     result["index"] = index
+    result["interaction_mode"] = interaction
     result["wall_s"] = time.perf_counter() - started
     result["factors"] = boat.factors
     result.pop("log", None)
@@ -115,6 +116,9 @@ def main() -> None:
     parser.add_argument("--boats", type=int, default=50)
     parser.add_argument("--first", type=int, default=0, help="index of the first boat (resume a stopped run)")
     parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--interaction", choices=("identify", "fix"), default="identify",
+                        help="identify --interaction: the factors searched with the hull (default) or the "
+                             "description's (fix: the suite before the search, for comparison)")
     parser.add_argument("--jsonl", type=Path, default=None, help="append one JSON line per boat here")
     parser.add_argument("--summarise", type=Path, nargs="+", default=None, metavar="JSONL",
                         help="only print the tables of a run (several files: the boats of processes run in parallel "
@@ -137,7 +141,7 @@ def main() -> None:
     results = []
     with tempfile.TemporaryDirectory(prefix="unknown_boats_") as root:
         for index in range(args.first, args.first + args.boats):
-            r = one_boat(index, args.seed, Path(root))
+            r = one_boat(index, args.seed, Path(root), args.interaction)
             results.append(r)
             if args.jsonl:
                 with args.jsonl.open("a") as f:
@@ -147,7 +151,7 @@ def main() -> None:
                   f"{r['truth']:20s} -> {r['cause']:20s} {ok} {r['errors']} ({r['wall_s']:.0f} s)", flush=True)
     print()
     print(summarise(results))
-    print(f"seed {args.seed}, boats {args.first}..{args.first + args.boats - 1}, whole run "
+    print(f"seed {args.seed}, boats {args.first}..{args.first + args.boats - 1}, interaction {args.interaction}, whole run "
           f"{time.perf_counter() - started:.0f} s, one process")
 
 
