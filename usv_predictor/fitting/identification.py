@@ -676,14 +676,22 @@ class IdentificationResult:
 
 NOT_DETERMINED = "not determined by these manoeuvres; prior used"
 PRIOR_HOW = {"fixed to prior": "held at the vessel file's value",
-             "not identifiable": "the value the held-out simulation chose; the force data do not bound it",
              "ridge towards prior": "pulled towards the vessel file's value by the ridge"}
 EXCITATION_MIN_SPEED_FRACTION = 0.2  # samples slower than this fraction of the fastest are left out of v', r' (-)
 
 
+# an interaction factor (fitting/interaction.py) chosen by the held-out simulation error whose force-data interval
+# reaches its search box: set by the data (the motion), not by the prior, but only within the box
+SEARCH_BOX = "identified at the search box"
+SEARCH_BOX_NOTE = ("chosen by the held-out simulation error; the force-data 95 % interval reaches the search box "
+                   "(the data bound it only within the box)")
+
+
 def determined_by_data(c: Coefficient, not_identifiable: Sequence[str]) -> bool:
-    """True when the data set the coefficient: identified, or ridged but identifiable without the prior."""
-    return c.status == "identified" or (c.status == "ridge towards prior" and c.name not in not_identifiable)
+    """True when the data set the coefficient: identified (an interaction factor also at its search box), or ridged
+    but identifiable without the prior."""
+    return (c.status in ("identified", SEARCH_BOX)
+            or (c.status == "ridge towards prior" and c.name not in not_identifiable))
 
 
 def coefficient_flags(c: Coefficient, not_identifiable: Sequence[str], prior_policy: str) -> dict:
@@ -691,6 +699,8 @@ def coefficient_flags(c: Coefficient, not_identifiable: Sequence[str], prior_pol
     "not determined by these manoeuvres; prior used (how)" (issue 15: say which values are the prior's)."""
     determined = determined_by_data(c, not_identifiable)
     how = PRIOR_HOW.get(c.status, f"prior policy {prior_policy}")
+    if c.status == SEARCH_BOX:
+        return {"determined_by_data": True, "note": SEARCH_BOX_NOTE}
     return {"determined_by_data": determined, "note": None if determined else f"{NOT_DETERMINED} ({how})"}
 
 
@@ -892,7 +902,7 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
         if searched.accepted:
             vessel = searched.vessel
             forces = with_known_forces(vessel, forces)
-        gains = gains + searched.coefficients
+            gains = gains + searched.coefficients  # not accepted: the description's, as without the search
     fits, cvs = {}, []
     for s in candidates:
         if progress is not None:

@@ -28,8 +28,9 @@ hull regression is linear GIVEN them, and the factors are searched outside it (a
 Each factor's 95 % interval: along that factor (the others at the chosen values) the equation-error criterion
 J = sum_e RSS_e / sigma_e^2 of the hull regression on all data, the interval where J rises by less than CHI2_95 x
 n / n_eff (identification.profile_throttle_gain's likelihood ratio; conditional on the other factors, so narrower
-than a full profile). An interval reaching the search box means the factor is not determined by these data
-(status "not identifiable": the value is the one chosen by the output error, flagged).
+than a full profile). An interval reaching the search box: status identification.SEARCH_BOX (the value the output
+error chose; the data bound it only within the box), flagged with a note in the identify JSON. When the description's
+factors are kept, no factor is reported as a coefficient (the JSON's `interaction` block says the search lost).
 """
 from __future__ import annotations
 
@@ -43,7 +44,7 @@ import torch
 from usv_predictor.data.recording import Recording
 from usv_predictor.data.segments import make_segments
 from usv_predictor.fitting.identification import (
-    CHI2_95, Coefficient, ForceData, _least_squares_rss, cross_validate, fit_hull, identified_vessel,
+    CHI2_95, SEARCH_BOX, Coefficient, ForceData, _least_squares_rss, cross_validate, fit_hull, identified_vessel,
     with_known_forces)
 from usv_predictor.models.greybox import GreyBoxRollout
 from usv_predictor.physics.vessel import Vessel
@@ -90,7 +91,7 @@ class InteractionFit:
 
     vessel: Vessel  # the description with the chosen factors (hull still the description's)
     scale: dict[str, float]  # chosen multiple of the description's value, per factor (-)
-    coefficients: tuple[Coefficient, ...]  # per factor: estimate, conditional 95 % interval, prior, status
+    coefficients: tuple[Coefficient, ...]  # per factor (none when not accepted): estimate, interval, prior, status
     accepted: bool  # False: the description's factors kept (the search did not beat them by ACCEPT_RATIO)
     cv_description: float  # leave-one-manoeuvre-out hull-force error (normalised MSE) at the description's factors
     cv_searched: float  # ... at the stage-1 optimum
@@ -205,19 +206,17 @@ def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: 
     accepted = best_label != "description" and finite[best_label] < ACCEPT_RATIO * simulation["description"]
     chosen = candidates[best_label] if accepted else candidates["description"]
     chosen_vessel = with_factors(vessel, chosen)
-    coefficients = tuple(_interval(vessel, data, structure, u0, chosen, n, accepted) for n in names)
+    coefficients = tuple(_interval(vessel, data, structure, u0, chosen, n) for n in names) if accepted else ()
     return InteractionFit(chosen_vessel, dict(chosen), coefficients, accepted, cv_description, cv_searched,
                           simulation, evaluations)
 
 
 def _interval(vessel: Vessel, data: Sequence[ForceData], structure: str, u0: float, chosen: Mapping[str, float],
-              name: str, accepted: bool) -> Coefficient:
+              name: str) -> Coefficient:
     """The factor's Coefficient: estimate, the conditional likelihood-ratio 95 % interval along it (module
     docstring) on a fine grid of its search box, the description's value as prior, and its status."""
     prior_value = factor_value(vessel, name)
     estimate = prior_value * chosen[name]
-    if not accepted:
-        return Coefficient(name, prior_value, (prior_value, prior_value), prior_value, "fixed to prior", math.inf)
     trials = _grid(name, 2 * GRID_POINTS + 1)
 
     def parts(multiple: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -233,4 +232,4 @@ def _interval(vessel: Vessel, data: Sequence[ForceData], structure: str, u0: flo
     bounded = low > trials[0] and high < trials[-1]
     ci = (prior_value * low, prior_value * high)
     rel = 0.5 * (ci[1] - ci[0]) / max(abs(estimate), abs(prior_value), 1e-9)
-    return Coefficient(name, estimate, ci, prior_value, "identified" if bounded else "not identifiable", rel)
+    return Coefficient(name, estimate, ci, prior_value, "identified" if bounded else SEARCH_BOX, rel)
