@@ -4,7 +4,7 @@ Each boat: a random rudder-and-propeller hull around jari_usv (usv_predictor.ana
 class small 3-6 m or large 12-20 m, Froude-scaled, every hull derivative, added mass and interaction factor x
 U(0.7, 1.3)), one hidden effect of the vocabulary (or none) with random parameters (analysis.hidden_effects.draw),
 then the public pipeline (usv_predictor.replay.unknown_boats.run_unknown_boat): simulate a calm `training` day and a
-blind `diagnosis` effect day, delete the truth, `vessel init` from the owner's data, `identify --prior fix` (or what
+blind `diagnosis` effect day, delete the truth, `vessel init` from the owner's data, `identify --prior fix --interaction identify` (--interaction fix: as before the search) (or what
 its cv_warning recommends), `diagnose --model`. Effects are balanced (boat i hides effect i mod the number of effects,
 nine for this layout), size classes alternate per round of them. Prints the confusion matrix (rows: truth, columns: named cause; `model_mismatch` and
 a fit-check refusal are columns of their own), the parameter hit rate, the confident wrong answers and the time per

@@ -830,7 +830,7 @@ def profile_throttle_gain(vessel: Vessel, data: Sequence[ForceData], structure: 
 
 def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str = "auto", prior: str = "none",
              smoother: SmootherConfig = SmootherConfig(), rel_ci_limit: float = REL_CI_LIMIT,
-             data: Sequence[ForceData] | None = None, interaction: str = "identify",
+             data: Sequence[ForceData] | None = None, interaction: str = "fix",
              progress: Callable[[str], None] | None = None) -> IdentificationResult:
     """Smoother -> inverse dynamics -> regression of each candidate structure -> CV -> identified vessel.
 
@@ -840,7 +840,8 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     actuator layout decides the levels and what is held (module docstring, "Actuator layouts").
     interaction "identify" (rudder_propeller only): the rudder lift gradient, gamma_R, w_P0 and t_P are searched
     with the hull (fitting/interaction.py) and replace the description's when the held-out simulation says so;
-    "fix": held at the description's values.
+    "fix" (default): held at the description's values (README "Unknown boats": identify gives more right answers on
+    unknown boats but also confident wrong ones, so it is not the default yet).
     """
     prior_vessel = vessel  # the vessel file as given (what the exported model embeds); `vessel` may take fitted gains
     if vessel.hull_model_name == "small_craft":

@@ -39,10 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "small-craft hull (auto: compare the hull model's by cross-validation, default)")
     parser.add_argument("--prior", choices=("none", "fix", "ridge"), default="none",
                         help="what to do with coefficients the data cannot determine (default none: refuse, naming them)")
-    parser.add_argument("--interaction", choices=("identify", "fix"), default="identify",
+    parser.add_argument("--interaction", choices=("identify", "fix"), default="fix",
                         help="rudder_propeller: search the rudder lift gradient, gamma_R, w_P0 and t_P with the hull "
-                             "and keep them when the held-out simulation error drops (default identify), or hold "
-                             "the vessel file's (fix); usv_predictor/fitting/interaction.py")
+                             "and keep them when the held-out simulation error drops (identify), or hold the vessel "
+                             "file's (fix, default); usv_predictor/fitting/interaction.py, README 'Unknown boats'")
     parser.add_argument("--hybrid", action="store_true",
                         help="add a learned residual on the accelerations: an ensemble of 5 bounded MLPs on "
                              "non-dimensional features, trained by a multi-step loss with early stopping on held-out "

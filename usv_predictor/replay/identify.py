@@ -51,7 +51,7 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
 def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str, structure: str = "auto", prior: str = "none",
                   hybrid: HybridTraining | None = None, dt: float = 0.2, validation: str | None = None,
                   report: Path | None = None, blocks: int = 1, config: Path | None = None, scale: float = 1.0,
-                  interaction: str = "identify", progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+                  interaction: str = "fix", progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """Identify the hull (and what the layout lets the data set: thrust gains, engine speeds) of the vessel file
     `vessel` (a preset name or a YAML path) from `bags`, read with its actuator layout (structure mmg / abkowitz /
     diagonal / coupled / auto, prior none / fix / ridge), export the grey box (with hybrid, a
