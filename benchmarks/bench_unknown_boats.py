@@ -4,7 +4,7 @@ Each boat: a random rudder-and-propeller hull around jari_usv (usv_predictor.ana
 class small 3-6 m or large 12-20 m, Froude-scaled, every hull derivative, added mass and interaction factor x
 U(0.7, 1.3)), one hidden effect of the vocabulary (or none) with random parameters (analysis.hidden_effects.draw),
 then the public pipeline (usv_predictor.replay.unknown_boats.run_unknown_boat): simulate a calm `training` day and a
-blind `diagnosis` effect day, delete the truth, `vessel init` from the owner's data, `identify --prior fix` (or what
+blind `diagnosis` effect day, delete the truth, `vessel init` from the owner's data, `identify --prior fix --interaction identify` (--interaction fix: as before the search) (or what
 its cv_warning recommends), `diagnose --model`. Effects are balanced (boat i hides effect i mod the number of effects,
 nine for this layout), size classes alternate per round of them. Prints the confusion matrix (rows: truth, columns: named cause; `model_mismatch` and
 a fit-check refusal are columns of their own), the parameter hit rate, the confident wrong answers and the time per
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 
-def one_boat(index: int, seed: int, workroot: Path) -> dict:
+def one_boat(index: int, seed: int, workroot: Path, interaction: str = "identify") -> dict:
     import torch
 
     from usv_predictor.analysis.hidden_effects import draw, effect_names
@@ -44,10 +44,11 @@ def one_boat(index: int, seed: int, workroot: Path) -> dict:
     work = workroot / boat.name
     started = time.perf_counter()
     try:
-        result = run_unknown_boat(boat, truth, work, sim_seed)
+        result = run_unknown_boat(boat, truth, work, sim_seed, interaction=interaction)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     result["index"] = index
+    result["interaction_mode"] = interaction
     result["wall_s"] = time.perf_counter() - started
     result["factors"] = boat.factors
     result.pop("log", None)
@@ -100,6 +101,10 @@ def summarise(results: list[dict]) -> str:
             spread = ", ".join(f"{k} median |err| {np.median([abs(r['errors'][k]) for r in rows]):.3g}" for k in keys)
             lines.append(f"  {effect:20s} {sum(r['within_tolerance'] for r in rows)}/{len(rows)} within tolerance; "
                          f"{spread}")
+    searched = [((r.get("identification") or {}).get("interaction") or {}) for r in results]
+    if any(searched):
+        lines.append(f"interaction factors identified (the held-out simulation beat the description's): "
+                     f"{sum(bool(s.get('accepted')) for s in searched)}/{len(results)} boats")
     walls = [r["wall_s"] for r in results]
     lines.append(f"time per boat: median {np.median(walls):.0f} s, max {np.max(walls):.0f} s (wall, simulate + vessel "
                  f"init + identify + diagnose); load average at the end {os.getloadavg()[0]:.1f}")
@@ -111,8 +116,13 @@ def main() -> None:
     parser.add_argument("--boats", type=int, default=50)
     parser.add_argument("--first", type=int, default=0, help="index of the first boat (resume a stopped run)")
     parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--interaction", choices=("identify", "fix"), default="identify",
+                        help="identify --interaction: the factors searched with the hull (default) or the "
+                             "description's (fix: the suite before the search, for comparison)")
     parser.add_argument("--jsonl", type=Path, default=None, help="append one JSON line per boat here")
-    parser.add_argument("--summarise", type=Path, default=None, metavar="JSONL", help="only print the tables of a run")
+    parser.add_argument("--summarise", type=Path, nargs="+", default=None, metavar="JSONL",
+                        help="only print the tables of a run (several files: the boats of processes run in parallel "
+                             "over disjoint --first/--boats ranges)")
     parser.add_argument("--rerun", type=Path, default=None, metavar="JSONL",
                         help="with --summarise: boats re-run later (e.g. with a newer diagnose) replace the same index")
     args = parser.parse_args()
@@ -120,7 +130,7 @@ def main() -> None:
         def read(path: Path) -> list[dict]:
             return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
-        results = {r["index"]: r for r in read(args.summarise)}
+        results = {r["index"]: r for path in args.summarise for r in read(path)}
         rerun = read(args.rerun) if args.rerun else []
         results.update({r["index"]: r for r in rerun})
         print(summarise([results[i] for i in sorted(results)]))
@@ -131,7 +141,7 @@ def main() -> None:
     results = []
     with tempfile.TemporaryDirectory(prefix="unknown_boats_") as root:
         for index in range(args.first, args.first + args.boats):
-            r = one_boat(index, args.seed, Path(root))
+            r = one_boat(index, args.seed, Path(root), args.interaction)
             results.append(r)
             if args.jsonl:
                 with args.jsonl.open("a") as f:
@@ -141,7 +151,7 @@ def main() -> None:
                   f"{r['truth']:20s} -> {r['cause']:20s} {ok} {r['errors']} ({r['wall_s']:.0f} s)", flush=True)
     print()
     print(summarise(results))
-    print(f"seed {args.seed}, boats {args.first}..{args.first + args.boats - 1}, whole run "
+    print(f"seed {args.seed}, boats {args.first}..{args.first + args.boats - 1}, interaction {args.interaction}, whole run "
           f"{time.perf_counter() - started:.0f} s, one process")
 
 

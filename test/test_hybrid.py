@@ -328,3 +328,6 @@ def test_replay_identify_hybrid_on_an_extended_base(vessel, tmp_path, capsys):
     assert code == 2 and "--hybrid" in err and not (tmp_path / "x.pt").exists()
     code, err = replay(capsys, "identify", *training, "--hybrid", "--base", out, "--output", tmp_path / "x.pt")
     assert code == 2 and "must be a grey box" in err and not (tmp_path / "x.pt").exists()
+    code, err = replay(capsys, "identify", *training, "--hybrid", "--base", tmp_path / "extended.pt",
+                       "--interaction", "identify", "--output", tmp_path / "x.pt")
+    assert code == 2 and "--interaction do not apply" in err and not (tmp_path / "x.pt").exists()

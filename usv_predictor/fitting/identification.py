@@ -631,6 +631,7 @@ class IdentificationResult:
     notes: tuple[str, ...] = ()
     actuator_coefficients: tuple[Coefficient, ...] = ()  # profiled actuator gains (rudder_throttle's map gain)
     prior: Vessel | None = None  # the vessel file identified (what the exported model embeds: models/artifact.py)
+    interaction: dict | None = None  # how the interaction factors were searched (fitting/interaction.py), or None
 
     @property
     def structure(self) -> str:
@@ -667,6 +668,7 @@ class IdentificationResult:
             "effective_samples": {e.equation: finite_or_none(e.effective_samples) for e in self.fit.equations},
             "cross_validation": [cv.to_json() for cv in self.cross_validation],
             "extra_terms": self.extra_terms,
+            "interaction": self.interaction,
             "manoeuvres": [d.name for d in self.data],
             "notes": list(self.notes),
         }
@@ -678,9 +680,18 @@ PRIOR_HOW = {"fixed to prior": "held at the vessel file's value",
 EXCITATION_MIN_SPEED_FRACTION = 0.2  # samples slower than this fraction of the fastest are left out of v', r' (-)
 
 
+# an interaction factor (fitting/interaction.py) chosen by the held-out simulation error whose force-data interval
+# reaches its search box: set by the data (the motion), not by the prior, but only within the box
+SEARCH_BOX = "identified at the search box"
+SEARCH_BOX_NOTE = ("chosen by the held-out simulation error; the force-data 95 % interval reaches the search box "
+                   "(the data bound it only within the box)")
+
+
 def determined_by_data(c: Coefficient, not_identifiable: Sequence[str]) -> bool:
-    """True when the data set the coefficient: identified, or ridged but identifiable without the prior."""
-    return c.status == "identified" or (c.status == "ridge towards prior" and c.name not in not_identifiable)
+    """True when the data set the coefficient: identified (an interaction factor also at its search box), or ridged
+    but identifiable without the prior."""
+    return (c.status in ("identified", SEARCH_BOX)
+            or (c.status == "ridge towards prior" and c.name not in not_identifiable))
 
 
 def coefficient_flags(c: Coefficient, not_identifiable: Sequence[str], prior_policy: str) -> dict:
@@ -688,6 +699,8 @@ def coefficient_flags(c: Coefficient, not_identifiable: Sequence[str], prior_pol
     "not determined by these manoeuvres; prior used (how)" (issue 15: say which values are the prior's)."""
     determined = determined_by_data(c, not_identifiable)
     how = PRIOR_HOW.get(c.status, f"prior policy {prior_policy}")
+    if c.status == SEARCH_BOX:
+        return {"determined_by_data": True, "note": SEARCH_BOX_NOTE}
     return {"determined_by_data": determined, "note": None if determined else f"{NOT_DETERMINED} ({how})"}
 
 
@@ -817,7 +830,7 @@ def profile_throttle_gain(vessel: Vessel, data: Sequence[ForceData], structure: 
 
 def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str = "auto", prior: str = "none",
              smoother: SmootherConfig = SmootherConfig(), rel_ci_limit: float = REL_CI_LIMIT,
-             data: Sequence[ForceData] | None = None,
+             data: Sequence[ForceData] | None = None, interaction: str = "fix",
              progress: Callable[[str], None] | None = None) -> IdentificationResult:
     """Smoother -> inverse dynamics -> regression of each candidate structure -> CV -> identified vessel.
 
@@ -825,6 +838,10 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     (the simpler structure wins ties: its coefficients are those the grey box and the preset share). A small-craft
     hull (twin thrusters) goes to fitting/small_craft_identification.py (structures diagonal / coupled). The
     actuator layout decides the levels and what is held (module docstring, "Actuator layouts").
+    interaction "identify" (rudder_propeller only): the rudder lift gradient, gamma_R, w_P0 and t_P are searched
+    with the hull (fitting/interaction.py) and replace the description's when the held-out simulation says so;
+    "fix" (default): held at the description's values (README "Unknown boats": identify gives more right answers on
+    unknown boats but also confident wrong ones, so it is not the default yet).
     """
     prior_vessel = vessel  # the vessel file as given (what the exported model embeds); `vessel` may take fitted gains
     if vessel.hull_model_name == "small_craft":
@@ -841,6 +858,8 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
                           f"{list(STRUCTURES) + ['auto']}")
     if prior not in PRIORS:
         raise ConfigError(f"unknown prior policy {prior!r}; use one of {list(PRIORS)}")
+    if interaction not in ("identify", "fix"):
+        raise ConfigError(f"unknown interaction mode {interaction!r}; use 'identify' or 'fix'")
     names = sorted({r.name.split("#")[0].split("@")[0] for r in recordings})
     if len(names) < MIN_MANOEUVRES:
         raise DatasetError(f"identification needs at least {MIN_MANOEUVRES} manoeuvres (one is held out in turn "
@@ -874,6 +893,17 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
         vessel = replace(vessel, throttle=scaled_thrust_map(vessel.throttle, gain.estimate, vessel.throttle.reverse_N))
         forces = with_known_forces(vessel, forces)
         gains = (gain,)
+    searched = None
+    if vessel.layout == "rudder_propeller" and interaction == "identify":
+        from usv_predictor.fitting.interaction import identify_interaction
+
+        u0 = float(np.median(np.concatenate([d.nu[:, 0] for d in forces])))
+        searched = identify_interaction(vessel, forces, recordings, "mmg", "fix", u0, held=held, progress=progress)
+        notes.append(searched.note())
+        if searched.accepted:
+            vessel = searched.vessel
+            forces = with_known_forces(vessel, forces)
+            gains = gains + searched.coefficients  # not accepted: the description's, as without the search
     fits, cvs = {}, []
     for s in candidates:
         if progress is not None:
@@ -891,7 +921,8 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     values = fit.values()
     extra = {n: values[n] for n in EXTRA_NAMES if n in values}
     return IdentificationResult(identified_vessel(vessel, fit), fit, tuple(cvs), extra, tuple(forces), tuple(notes),
-                                gains, prior=prior_vessel)
+                                gains, prior=prior_vessel,
+                                interaction=searched.to_json() if searched is not None else None)
 
 
 def hull_forces(vessel: Vessel, values: Mapping[str, float], nu: np.ndarray, u0: float,

@@ -55,7 +55,7 @@ from torch import Tensor, nn
 from usv_predictor.data.recording import APPROACH_S
 from usv_predictor.physics import dynamics, effects
 from usv_predictor.physics.dynamics import SPEED_FLOOR, SeaConstants, constants_of
-from usv_predictor.physics.vessel import RHO_WATER, Hull, Thrusters, ThrustMap, Vessel
+from usv_predictor.physics.vessel import RHO_WATER, Hull, Propeller, Rudder, Thrusters, ThrustMap, Vessel
 
 HULL_NAMES = tuple(f.name for f in fields(Hull))  # the MMG hull's coefficients, R0 ... N_rrr (vessel.Hull)
 
@@ -589,13 +589,17 @@ def _thrust_map(raw: Mapping[str, Any]) -> ThrustMap:
 
 
 def actuator_sections_metadata(vessel: Vessel) -> Dict[str, Any]:
-    """The vessel's identifiable actuator sections as plain data (artifact metadata): thrusters, throttle."""
+    """The vessel's identifiable actuator sections as plain data (artifact metadata): thrusters, throttle, rudder and
+    propeller (their interaction factors: fitting/interaction.py)."""
     out: Dict[str, Any] = {}
     if vessel.thrusters is not None:
         t = vessel.thrusters
         out["thrusters"] = {"spacing": t.spacing, "x": t.x, "port": asdict(t.port), "starboard": asdict(t.starboard)}
     if vessel.throttle is not None:
         out["throttle"] = asdict(vessel.throttle)
+    if vessel.rudder is not None and vessel.propeller is not None:  # the interaction factors identify may set
+        out["rudder"] = asdict(vessel.rudder)
+        out["propeller"] = asdict(vessel.propeller)
     return out
 
 
@@ -625,4 +629,8 @@ def vessel_from_metadata(meta: Mapping[str, Any], preset: Vessel) -> Vessel | No
                                                      _thrust_map(t["starboard"])))
     if "throttle" in sections and vessel.throttle is not None:
         vessel = replace(vessel, throttle=_thrust_map(sections["throttle"]))
+    if "rudder" in sections and vessel.rudder is not None:
+        vessel = replace(vessel, rudder=Rudder(**{k: float(v) for k, v in sections["rudder"].items()}))
+    if "propeller" in sections and vessel.propeller is not None:
+        vessel = replace(vessel, propeller=Propeller(**{k: float(v) for k, v in sections["propeller"].items()}))
     return vessel

@@ -104,11 +104,13 @@ class Rudder:
     gamma_R_minus: float  # flow straightening coefficient for beta_R < 0 (-)
     gamma_R_plus: float  # flow straightening coefficient for beta_R > 0 (-)
     eta: float  # propeller diameter / rudder span (-)
+    lift_factor: float = 1.0  # (-) the rudder's lift gradient over Fujii's formula: 1 for a description, identified
+    #                           from data by fitting/identification.py (identify_interaction)
 
     @property
     def f_alpha(self) -> float:
-        """Rudder lift gradient coefficient (Fujii): 6.13 Lambda / (Lambda + 2.25)."""
-        return 6.13 * self.aspect_ratio / (self.aspect_ratio + 2.25)
+        """Rudder lift gradient coefficient: Fujii's 6.13 Lambda / (Lambda + 2.25) times lift_factor."""
+        return self.lift_factor * 6.13 * self.aspect_ratio / (self.aspect_ratio + 2.25)
 
 
 @dataclass(frozen=True)

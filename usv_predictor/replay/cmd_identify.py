@@ -42,6 +42,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "small-craft hull (auto: compare the hull model's by cross-validation, default)")
     parser.add_argument("--prior", choices=("none", "fix", "ridge"), default="none",
                         help="what to do with coefficients the data cannot determine (default none: refuse, naming them)")
+    parser.add_argument("--interaction", choices=("identify", "fix"), default="fix",
+                        help="rudder_propeller: search the rudder lift gradient, gamma_R, w_P0 and t_P with the hull "
+                             "and keep them when the held-out simulation error drops (identify), or hold the vessel "
+                             "file's (fix, default); usv_predictor/fitting/interaction.py, README 'Unknown boats'")
     parser.add_argument("--hybrid", action="store_true",
                         help="add a learned residual on the accelerations: an ensemble of 5 bounded MLPs on "
                              "non-dimensional features, trained by a multi-step loss with early stopping on held-out "
@@ -72,5 +76,6 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     training = HybridTraining(members=args.hybrid_members, epochs=args.hybrid_epochs) if args.hybrid else None
     return identify_bags(args.bags, args.output, vessel=args.vessel, structure=args.structure, prior=args.prior,
+                         interaction=args.interaction,
                          hybrid=training, dt=args.dt, validation=args.val, report=args.report, blocks=args.blocks,
                          config=args.config, scale=args.scale, base=args.base, progress=log)

@@ -53,10 +53,12 @@ def _recommended(identify_json: dict[str, Any], structure: str = STRUCTURE) -> s
     return min(scored, key=lambda c: c["cv_score"])["prior"] if scored else None
 
 
-def run_unknown_boat(boat: UnknownBoat, truth: Draw, workdir: Path, seed: int, *, gain: bool = True) -> dict[str, Any]:
+def run_unknown_boat(boat: UnknownBoat, truth: Draw, workdir: Path, seed: int, *, gain: bool = True,
+                     interaction: str = "fix") -> dict[str, Any]:
     """The pipeline of the module docstring for one boat and one hidden effect, in `workdir` (created).
 
-    Returns cause, parameters, within_tolerance, errors, the identification chosen, the fit check, timings and the
+    interaction: `identify --interaction` (identify: the interaction factors searched with the hull, what the
+    benchmark runs by default; fix: the description's, identify's default). Returns cause, parameters, within_tolerance, errors, the identification chosen, the fit check, timings and the
     commands' logs. A failing simulate or vessel init is a RuntimeError (a bug of the suite, not an answer).
     """
     workdir = Path(workdir)
@@ -85,7 +87,7 @@ def run_unknown_boat(boat: UnknownBoat, truth: Draw, workdir: Path, seed: int, *
                            "identify_failed": False}
     for attempt in range(2):
         argv = ["identify", str(workdir / "calm"), "--vessel", str(description), "--structure", STRUCTURE,
-                "--prior", prior, "--output", str(model), "--json", str(identify_json)]
+                "--prior", prior, "--interaction", interaction, "--output", str(model), "--json", str(identify_json)]
         if _replay(argv, log) != 0:
             out.update(identify_failed=True, cause="identify_failed", parameters={}, within_tolerance=False,
                        errors={}, log=log, seconds=time.perf_counter() - started)
@@ -96,7 +98,8 @@ def run_unknown_boat(boat: UnknownBoat, truth: Draw, workdir: Path, seed: int, *
             break
         prior = better
     out["identification"] = {"structure": identified["identification"].get("structure"), "prior": prior,
-                             "cv_warning": identified.get("cv_warning")}
+                             "cv_warning": identified.get("cv_warning"),
+                             "interaction": identified["identification"].get("interaction")}
     identified_at = time.perf_counter()
     diagnosis_json = workdir / "diagnosis.json"
     argv = ["diagnose", str(workdir / "effect"), "--model", str(model), "--vessel", str(description),
