@@ -222,6 +222,18 @@ def harness(ros_context: Any) -> Iterator[Harness]:
         fixture.close()
 
 
+def paced(feed: Any, rate_hz: float = 100.0) -> Any:
+    """`feed` at most rate_hz times a second (a 100 Hz IMU): fed on every spin, an idle machine fills the 2048-sample
+    buffers in about 2 s, less than a steady window needs (that case: the test below)."""
+    last = [0.0]
+
+    def fed() -> None:
+        if time.monotonic() - last[0] >= 1.0 / rate_hz:
+            last[0] = time.monotonic()
+            feed()
+    return fed
+
+
 def spin_long(harness: Harness, condition: Any, feed: Any, seconds: float = 120.0) -> dict[str, Any]:
     """harness.spin_until with a longer bound: a check of a window beyond the allowance rolls the 40-odd strongest
     causes out (several seconds of CPU on a loaded machine), and a window still growing is rolled out again."""
@@ -243,7 +255,7 @@ def test_the_node_flags_a_model_that_does_not_fit_and_refuses_on_request(harness
     false again, they come back."""
     slow = {"velocity": (1.0, 0.0, 0.0), "rudder_angle": (0.0,), "imu": (0.0, 0.0, 0.0, -9.81, math.nan)}
     found = spin_long(harness, lambda s: "fit check" in s and level(s["fit check"]) == predictor_node.ERROR,
-                      lambda: harness.feed(**slow))
+                      paced(lambda: harness.feed(**slow)))
     message = found["fit check"].message
     assert message.startswith(f"model {harness.node.rollout.artifact.model_id} (dnn, vessel jari_usv) does not fit "
                               "the node's inputs: it runs at")
@@ -274,3 +286,18 @@ def test_the_fit_check_parameters_are_validated(harness: Harness) -> None:
     assert harness.node.set_parameters([Parameter("fit_check.enabled", value=False)])[0].successful
     found = harness.spin_until(lambda s: "fit check" in s and "disabled" in s["fit check"].message)
     assert level(found["fit check"]) == predictor_node.OK
+
+
+def test_buffers_too_short_for_a_window_are_a_warning_naming_buffer_capacity(ros_context: Any) -> None:
+    """64 samples per input fed on every spin (a fast IMU in seconds' worth of the default buffers): no steady window
+    can ever be seen, and the check says so (WARN, naming buffer_capacity) instead of `no steady window yet`."""
+    fixture = Harness(ros_context, [Parameter("rate_hz", value=5.0), Parameter("dt", value=0.5),
+                                    Parameter("horizon_s", value=10.0), Parameter("fit_check.period_s", value=1.0),
+                                    Parameter("buffer_capacity", value=64)])
+    try:
+        found = spin_long(fixture, lambda s: "fit check" in s and level(s["fit check"]) == predictor_node.WARN,
+                          fixture.feed, seconds=30.0)
+        message = found["fit check"].message
+        assert "raise buffer_capacity" in message and "64 samples, full" in message, message
+    finally:
+        fixture.close()

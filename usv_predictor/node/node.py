@@ -73,6 +73,8 @@ from msg_adapters.outputs import (
     predicted_velocities_cdr,
 )
 from usv_predictor import __version__
+from usv_predictor.analysis.fit_check import MIN_HOLD_S as FIT_MIN_HOLD_S
+from usv_predictor.analysis.fit_check import STEADY_S as FIT_STEADY_S
 from usv_predictor.config import (
     ENSEMBLE_RANGE,
     FLOAT_RANGES,
@@ -679,17 +681,33 @@ class PredictorNode(Node):
             return
         try:
             recording = self.inputs.buffered_recording(FIT_MAX_GAP_S)  # a snapshot of the buffers, in this thread
-        except RecordingError as err:
-            self.fit.skip(str(err), now_ns)
+        except RecordingError as err:  # less than a step: full buffers say why
+            self.fit.skip(self._buffers_too_short(0.0) or str(err), now_ns)
+            return
+        short = self._buffers_too_short(recording.duration_s)
+        if short:
+            self.fit.skip(short, now_ns)
             return
         self._fit_running = self._fit_worker.submit(self._run_fit, self.fit, recording, now_ns)
+
+    def _buffers_too_short(self, span_s: float) -> str:
+        """Why no steady window can ever be seen ("" when one can): an input's ring buffer is full and the span the
+        check reads is shorter than a window needs (a fast IMU fills buffer_capacity samples in seconds)."""
+        need_s = max(FIT_MIN_HOLD_S, FIT_STEADY_S)
+        full = [role for role in self.inputs.required
+                if len(self.inputs.tracks[role].buffer) == self.inputs.tracks[role].buffer.capacity]
+        if not full or span_s >= need_s:
+            return ""
+        return (f"the input buffers hold {span_s:.1f} s ({', '.join(full)}: {self.inputs.tracks[full[0]].buffer.capacity} "
+                f"samples, full), less than the {need_s:g} s a steady window needs: raise buffer_capacity to at least "
+                f"{need_s:g} s of the fastest input")
 
     def _run_fit(self, fit: LiveFitCheck, recording: Any, now_ns: int) -> None:
         """The check's rollouts, in the worker thread; the verdict is read by the cycle and /diagnostics."""
         try:
             check = fit.run(recording, now_ns)
-        except (ModelError, RecordingError, RuntimeError, ValueError) as err:
-            fit.skip(f"the check failed: {_first_line(err)}", now_ns)
+        except Exception as err:  # noqa: BLE001 -- a worker's exception would vanish in its Future: reported instead
+            fit.skip(f"the check failed: {type(err).__name__}: {_first_line(err)}", now_ns)
             self.get_logger().warning(f"fit check not run: {err}", throttle_duration_sec=ERROR_LOG_PERIOD_S)
             return
         if check is not None and check.mismatch:
