@@ -691,12 +691,18 @@ class PredictorNode(Node):
         self._fit_running = self._fit_worker.submit(self._run_fit, self.fit, recording, now_ns)
 
     def _buffers_too_short(self, span_s: float) -> str:
-        """Why no steady window can ever be seen ("" when one can): an input's ring buffer is full and the span the
-        check reads is shorter than a window needs (a fast IMU fills buffer_capacity samples in seconds)."""
+        """Why no steady window can ever be seen ("" when one can): the span the check reads is shorter than a window
+        needs because an input's ring buffer is full and itself spans less (a fast IMU fills buffer_capacity samples
+        in seconds), not because of a recent gap."""
         need_s = max(FIT_MIN_HOLD_S, FIT_STEADY_S)
-        full = [role for role in self.inputs.required
-                if len(self.inputs.tracks[role].buffer) == self.inputs.tracks[role].buffer.capacity]
-        if not full or span_s >= need_s:
+        if span_s >= need_s:
+            return ""
+        full = []
+        for role in self.inputs.required:
+            buffer = self.inputs.tracks[role].buffer
+            if len(buffer) == buffer.capacity and (buffer.latest_ns - buffer.oldest_ns) / NS_PER_S < need_s:
+                full.append(role)
+        if not full:
             return ""
         return (f"the input buffers hold {span_s:.1f} s ({', '.join(full)}: {self.inputs.tracks[full[0]].buffer.capacity} "
                 f"samples, full), less than the {need_s:g} s a steady window needs: raise buffer_capacity to at least "
