@@ -209,6 +209,12 @@ def _align(position: int | np.ndarray, alignment: int) -> int | np.ndarray:
     return (position + alignment - 1) & -alignment
 
 
+def _past_fixed(position: int | np.ndarray, leaf: _Leaf) -> int | np.ndarray:
+    """The CDR position after a fixed-size leaf (a scalar or fixed array) that starts at or after `position`."""
+    wire = _WIRE_DTYPES[leaf.kind]
+    return _align(position, wire.itemsize) + wire.itemsize * max(leaf.count, 1)
+
+
 @functools.lru_cache(maxsize=1024)
 def _layout(leaves: tuple[_Leaf, ...], string_lengths: tuple[int, ...], itemsize: int) -> _Layout:
     """Offsets of every leaf when the strings have `string_lengths` (each counting its NUL)."""
@@ -293,11 +299,9 @@ def _string_lengths(
     body = starts + _HEADER_SIZE
     position: int | np.ndarray = 0
     found: list[np.ndarray] = []
-    last_string = max((i for i, leaf in enumerate(leaves) if leaf.kind == _STRING), default=-1)
-    for leaf in leaves[: last_string + 1]:
+    for leaf in leaves[: _last_string(tuple(leaves)) + 1]:
         if leaf.kind != _STRING:
-            wire = _WIRE_DTYPES[leaf.kind]
-            position = _align(position, wire.itemsize) + wire.itemsize * max(leaf.count, 1)
+            position = _past_fixed(position, leaf)
             continue
         name = ".".join(leaf.path)
         position = _align(position, 4)
@@ -350,10 +354,9 @@ def _message_string_lengths(ros_type: str, leaves: Sequence[_Leaf], raw: bytes |
     payload = len(raw) - _HEADER_SIZE
     position = 0
     found: list[int] = []
-    for leaf in leaves[: _last_string(leaves) + 1]:
+    for leaf in leaves[: _last_string(tuple(leaves)) + 1]:
         if leaf.kind != _STRING:
-            wire = _WIRE_DTYPES[leaf.kind]
-            position = _align(position, wire.itemsize) + wire.itemsize * max(leaf.count, 1)
+            position = _past_fixed(position, leaf)
             continue
         name = ".".join(leaf.path)
         position = _align(position, 4)

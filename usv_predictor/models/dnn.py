@@ -259,6 +259,27 @@ def _heading_fold(feature_set: str) -> tuple[int, list[float]]:
                          "the folded rollout takes one kind")
     return _HEADING_MODE[kinds.pop() if kinds else "none"], [phase for _, phase in folds]
 
+def _members_of(buffers: Mapping[str, torch.Tensor], feature_set: str, activation: str, members: int | None
+                ) -> tuple[int, int, int, dict[str, torch.Tensor]]:
+    """The checks every fused form of DnnRollout makes of the artifact's network, and its first `members` members:
+    (trig_mode, heading columns, members kept, {buffer: float64 tensor (E, ...)}); ModelError naming what is off."""
+    missing = [name for name in ROLLOUT_BUFFERS if name not in buffers]
+    if missing:
+        raise ModelError(f"not a DnnRollout's network: buffers {missing} missing")
+    if activation not in ACTIVATIONS:
+        raise ModelError(f"activation {activation!r}; expected one of {list(ACTIVATIONS)}")
+    trig_mode, phases = _heading_fold(feature_set)
+    available = int(buffers["m_s"].shape[0])
+    kept = available if members is None else int(members)
+    if not 1 <= kept <= available:
+        raise ModelError(f"{kept} member(s) asked for, the network has {available}")
+    params = {k: buffers[k].detach()[:kept].to(torch.float64) for k in ROLLOUT_BUFFERS}
+    if params["m_s"].shape[1] != 4 + len(phases) or params["phase"].shape[-1] != len(phases):
+        raise ModelError(f"feature set {feature_set} has {len(phases)} heading column(s), the network's step "
+                         f"matrix is {tuple(params['m_s'].shape)}")
+    return trig_mode, len(phases), kept, params
+
+
 
 class DnnRollout(nn.Module):
     """Closed-loop rollout of an ensemble of folded seed-000 networks (see the module docstring).
@@ -485,23 +506,9 @@ class FusedDnnRollout(DnnRollout):
     def __init__(self, buffers: Mapping[str, torch.Tensor], *, feature_set: str, activation: str, ceiling: float,
                  dt: float, members: int | None = None) -> None:
         nn.Module.__init__(self)
-        missing = [name for name in ROLLOUT_BUFFERS if name not in buffers]
-        if missing:
-            raise ModelError(f"not a DnnRollout's network: buffers {missing} missing")
-        if activation not in ACTIVATIONS:
-            raise ModelError(f"activation {activation!r}; expected one of {list(ACTIVATIONS)}")
-        self.trig_mode, phases = _heading_fold(feature_set)
-        self.n_trig = len(phases)
+        self.trig_mode, self.n_trig, self.ensemble_size, params = _members_of(buffers, feature_set, activation, members)
         dtype = buffers["m_s"].dtype
-        available = int(buffers["m_s"].shape[0])
-        self.ensemble_size = available if members is None else int(members)
-        if not 1 <= self.ensemble_size <= available:
-            raise ModelError(f"{self.ensemble_size} member(s) asked for, the network has {available}")
-        params = {k: buffers[k].detach()[: self.ensemble_size].to(torch.float64) for k in ROLLOUT_BUFFERS}
         n_s = 4 + self.n_trig
-        if params["m_s"].shape[1] != n_s or params["phase"].shape[-1] != self.n_trig:
-            raise ModelError(f"feature set {feature_set} has {self.n_trig} heading column(s), the network's step "
-                             f"matrix is {tuple(params['m_s'].shape)}")
         self.n_controls = int(params["w_c"].shape[1])
         self.width = int(params["m_s"].shape[2]) - n_s
         self.n_hidden = int(params["hidden_w"].shape[1])  # hidden layers after the first (depth - 1)
@@ -670,25 +677,13 @@ class NumpyDnnRollout:
 
     def __init__(self, buffers: Mapping[str, torch.Tensor], *, feature_set: str, activation: str, ceiling: float,
                  dt: float, members: int | None = None) -> None:
-        missing = [name for name in ROLLOUT_BUFFERS if name not in buffers]
-        if missing:
-            raise ModelError(f"not a DnnRollout's network: buffers {missing} missing")
-        if activation not in ACTIVATIONS:
-            raise ModelError(f"activation {activation!r}; expected one of {list(ACTIVATIONS)}")
-        self.trig_mode, phases = _heading_fold(feature_set)
-        self.n_trig = len(phases)
+        self.trig_mode, self.n_trig, self.ensemble_size, members_f64 = _members_of(buffers, feature_set, activation,
+                                                                                 members)
         self.dtype = {torch.float32: np.float32, torch.float64: np.float64}.get(buffers["m_s"].dtype)
         if self.dtype is None:
             raise ModelError(f"network dtype {buffers['m_s'].dtype}; expected float32 or float64")
-        available = int(buffers["m_s"].shape[0])
-        self.ensemble_size = available if members is None else int(members)
-        if not 1 <= self.ensemble_size <= available:
-            raise ModelError(f"{self.ensemble_size} member(s) asked for, the network has {available}")
-        p = {k: buffers[k].detach()[: self.ensemble_size].to(torch.float64).numpy() for k in ROLLOUT_BUFFERS}
+        p = {k: v.numpy() for k, v in members_f64.items()}
         n_s = 4 + self.n_trig
-        if p["m_s"].shape[1] != n_s or p["phase"].shape[-1] != self.n_trig:
-            raise ModelError(f"feature set {feature_set} has {self.n_trig} heading column(s), the network's step "
-                             f"matrix is {p['m_s'].shape}")
         self.clipped = activation == "clipped_relu"
         self.ceiling = float(ceiling)
         self.dt = float(dt)
