@@ -42,7 +42,7 @@ import numpy as np
 import torch
 
 from usv_predictor.data.recording import Recording
-from usv_predictor.data.segments import make_segments
+from usv_predictor.data.segments import Segments, make_segments
 from usv_predictor.fitting.identification import (
     CHI2_95, SEARCH_BOX, Coefficient, ForceData, _least_squares_rss, cross_validate, fit_hull, identified_vessel,
     with_known_forces)
@@ -124,20 +124,26 @@ def _cv_score(vessel: Vessel, data: Sequence[ForceData], structure: str, prior: 
     return cross_validate(vessel, data, fit).score
 
 
-def heldout_simulation_error(vessel: Vessel, data: Sequence[ForceData], recordings: Sequence[Recording],
+def manoeuvre_segments(recordings: Sequence[Recording]) -> dict[str, tuple[float, Segments]]:
+    """name -> (dt, its multi-step segments) of every manoeuvre longer than a segment: made once per search, the
+    same for every candidate heldout_simulation_error scores."""
+    return {r.name: (r.dt, make_segments([r], SEGMENT_HORIZON_S, SEGMENT_STRIDE_S)) for r in recordings
+            if len(r) * r.dt > SEGMENT_HORIZON_S}
+
+
+def heldout_simulation_error(vessel: Vessel, data: Sequence[ForceData], segments: Mapping[str, tuple[float, Segments]],
                              structure: str, prior: str, u0: float, held: Sequence[str]) -> float:
-    """Mean over the segments of every manoeuvre of the normalised squared multi-step error of u, v, r, psi
-    (data/segments.SIGMA units) of the grey box whose hull is fitted on the OTHER manoeuvres (leave one out)."""
-    by_name = {r.name: r for r in recordings}
+    """Mean over the segments of every manoeuvre (manoeuvre_segments) of the normalised squared multi-step error of
+    u, v, r, psi (data/segments.SIGMA units) of the grey box whose hull is fitted on the OTHER manoeuvres (leave one
+    out)."""
     total, count = 0.0, 0
     for k, d in enumerate(data):
-        rec = by_name.get(d.name)
-        if rec is None or len(rec) * rec.dt <= SEGMENT_HORIZON_S:
+        if d.name not in segments:
             continue
+        dt, seg = segments[d.name]
         train = [x for j, x in enumerate(data) if j != k]
         model = identified_vessel(vessel, fit_hull(vessel, train, structure, prior, u0=u0, held=held))
-        seg = make_segments([rec], SEGMENT_HORIZON_S, SEGMENT_STRIDE_S)
-        rollout = GreyBoxRollout(model, rec.dt)
+        rollout = GreyBoxRollout(model, dt)
         with torch.no_grad():
             out = rollout(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
         error = ((out - seg.target) * seg.weight)[..., [0, 1, 2, 5]]  # (B, H, 4) in noise units
@@ -197,9 +203,10 @@ def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: 
     if progress is not None:
         progress(f"interaction factors: held-out simulation of {len(candidates)} candidates")
     simulation = {}
+    segments = manoeuvre_segments(recordings)
     for label, s in candidates.items():
         trial = with_factors(vessel, s)
-        simulation[label] = heldout_simulation_error(trial, with_known_forces(trial, data), recordings, structure,
+        simulation[label] = heldout_simulation_error(trial, with_known_forces(trial, data), segments, structure,
                                                      prior, u0, held)
     finite = {k: v for k, v in simulation.items() if math.isfinite(v)}
     best_label = min(finite, key=finite.get) if finite else "description"
