@@ -338,6 +338,18 @@ def check_data(recordings: Sequence[Recording]) -> list[str]:
     return notes
 
 
+def effective_segments(segments: int, stride_s: float, horizon_s: float) -> float:
+    """n_eff of the module docstring: overlapping segments (stride < horizon) count as segments * stride / horizon,
+    at least 2."""
+    return max(segments * stride_s / horizon_s, 2.0)
+
+
+def log_evidence(n_eff: float, loss: float, over_loss: float) -> float:
+    """Held-out log-likelihood ratio (module docstring) of a model leaving mean `loss` over one leaving `over_loss`
+    (noise units): n_eff / 2 * ln(over_loss / loss)."""
+    return 0.5 * n_eff * math.log(max(over_loss, 1e-12) / max(loss, 1e-12))
+
+
 def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Sequence[str] | None = None,
              horizon_s: float = 20.0, stride_s: float = 5.0, substeps: int = 1, max_causes: int = 2,
              progress: Callable[[str], None] = lambda _: None, segments: Segments | None = None,
@@ -397,10 +409,10 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         per_segment[name], per_track[name], fold_params[name] = heldout(name)
         progress(f"{name:15s} held-out loss {per_segment[name].mean():9.3f}, track error after {horizon_s:g} s "
                  f"{_mean_track(per_track[name]):7.2f} m")
-    n_eff = max(len(per_segment["none"]) * stride_s / horizon_s, 2.0)
+    n_eff = effective_segments(len(per_segment["none"]), stride_s, horizon_s)
 
     def evidence_for(a: str, over: str) -> float:
-        return 0.5 * n_eff * math.log(max(per_segment[over].mean(), 1e-12) / max(per_segment[a].mean(), 1e-12))
+        return log_evidence(n_eff, per_segment[a].mean(), per_segment[over].mean())
 
     def track_gain(track: np.ndarray, over: np.ndarray) -> float:
         before = _mean_track(over)
@@ -459,7 +471,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         name = min(trials, key=lambda n: trials[n][0].mean())
         losses, tracks = trials[name]
         gain = 1.0 - losses.mean() / current_loss.mean()
-        evidence_added = 0.5 * n_eff * math.log(max(current_loss.mean(), 1e-12) / max(losses.mean(), 1e-12))
+        evidence_added = log_evidence(n_eff, losses.mean(), current_loss.mean())
         added_track = track_gain(tracks, current_track)
         if evidence_added < EVIDENCE_CAUSE or gain < MIN_GAIN or not lowers_track(added_track):
             break

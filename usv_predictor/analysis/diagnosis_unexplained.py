@@ -165,9 +165,9 @@ def measure_unexplained(recordings: Sequence[Recording], vessel: Vessel, diagnos
         after += evaluation.evaluate(predictor, held_out, horizons_s=(30.0,)).recordings
     loss, calm = np.concatenate(losses), np.concatenate(calm_losses)
     track, calm_track = np.concatenate(tracks), np.concatenate(calm_tracks)
-    n_eff = max(len(loss) * stride_s / horizon_s, 2.0)
     mean, calm_mean = float(loss.mean()), float(calm.mean())
-    evidence = 0.5 * n_eff * math.log(max(calm_mean, 1e-12) / max(mean, 1e-12)) if math.isfinite(mean) else -math.inf
+    evidence = (dg.log_evidence(dg.effective_segments(len(loss), stride_s, horizon_s), mean, calm_mean)
+                if math.isfinite(mean) else -math.inf)
     gain = 1.0 - mean / calm_mean if calm_mean > 0 else float("nan")
     track_after, track_before = _finite_mean(track), _finite_mean(calm_track)
     track_gain = 1.0 - track_after / track_before if track_before > 0 else float("nan")
