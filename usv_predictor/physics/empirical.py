@@ -14,6 +14,9 @@ J' = J / (0.5 rho L^4 d)):
     N_vvr', N_rrr' (others 0)       strip-theory cross-flow drag (Fossen's crossFlowDrag, Hoerner's C_d) fitted to
                                     the cubic terms on |v'| <= 0.5, |r'| <= 0.8; unreliable (+-100 %)
     X_vv', X_vvvv'                  Kijima 1990 (one public implementation: unverified)
+    (kijima_1990_nonlinear)         every nonlinear Y', N' term of Kijima et al. 1990's beta-r polynomial (N_vvr',
+                                    N_vrr', N_rrr', N_vvv', Y_vvr', Y_rrr' too), as cubics: a prior for the terms
+                                    zig-zags leave undetermined (benchmarks/study_turning.py); not used by vessel init
     X_vr'                           Yoshimura & Masumoto 2012 (as implemented), X_rr' = 0 (no reliable formula)
     R0'                             ITTC-57 friction x (1 + k) (Watanabe) x wetted surface x 1.2 appendage
                                     allowance, or calibrated: the thrust at the owner's known speed and command
@@ -271,6 +274,55 @@ def cross_flow_cubics(cd: float) -> dict[str, float]:
     cn = np.linalg.lstsq(design, n, rcond=None)[0]
     names = ("vvv", "vvr", "vrr", "rrr")
     return {**{f"Y_{k}": float(c) for k, c in zip(names, cy)}, **{f"N_{k}": float(c) for k, c in zip(names, cn)}}
+
+
+def abs_square_to_cubic(half_range: float) -> float:
+    """c of the least-squares cubic c x^3 to x|x| on [-a, a], a = half_range: c = int x^4 / int x^6 = 7 / (6 a)."""
+    return 7.0 / (6.0 * half_range)
+
+
+def kijima_1990_nonlinear(L: float, B: float, d: float, c_b: float) -> dict[str, Value]:
+    """The nonlinear MMG hull terms of Kijima et al. 1990 (Kijima, Katsuno, Nakiri & Furukawa, "On the manoeuvring
+    performance of a ship with the parameter of loading condition", J. SNAJ 168; even keel, deep water), in the
+    cubic polynomial of physics/vessel.py.
+
+    Kijima writes the hull forces in drift angle beta and yaw rate r' (prime system as here):
+        Y' = ... + Y_bb b|b| + Y_rr r|r| + Y_bbr b^2 r + Y_brr b r^2,   N' likewise,
+        Y_bb = 2.5 d(1 - C_b)/B + 0.5      Y_rr = 0.343 d C_b/B - 0.07
+        Y_bbr = 1.5 d C_b/B - 0.65         Y_brr = 5.95 d(1 - C_b)/B
+        N_bb = -0.96 d(1 - C_b)/B + 0.066  N_rr = 0.5 C_b B/L - 0.09
+        N_bbr = -(57.5 (C_b B/L)^2 - 18.4 C_b B/L + 1.6)   N_brr = -(0.5 d C_b/B - 0.05)
+    With beta = -v' (v' = -sin beta, small angles): Y_vvr = Y_bbr, Y_vrr = -Y_brr, N_vvr = N_bbr, N_vrr = -N_brr;
+    the |x|x terms become cubics by least squares on |v'| <= V_RANGE, |r'| <= R_RANGE (abs_square_to_cubic):
+    Y_vvv = -Y_bb c_v, Y_rrr = Y_rr c_r, N_vvv = -N_bb c_v, N_rrr = N_rr c_r. Transcribed from secondary sources
+    (two public implementations print N_bbr and N_brr with different signs inside the brackets; the form above is the
+    one whose sign and size are those of a captive-tested full hull: Matsunaga 1993, same group, writes N_brr the
+    same way). Kijima's database: merchant hulls up to C_b ~0.83, C_b B/L ~0.155 at its edge (KVLCC2 0.147).
+    Against KVLCC2's captive values (Yasukawa & Yoshimura 2015 Table 3): Y_vvv -3 %, Y_vrr +4 %; N_vvr -53 %,
+    N_vrr +73 %, N_rrr +86 % (right signs), Y_vvr wrong sign."""
+    cbbl, db = c_b * B / L, d / B
+    c_v, c_r = abs_square_to_cubic(V_RANGE), abs_square_to_cubic(R_RANGE)
+    y_bb = 2.5 * db * (1.0 - c_b) + 0.5
+    y_rr = 0.343 * db * c_b - 0.07
+    y_bbr = 1.5 * db * c_b - 0.65
+    y_brr = 5.95 * db * (1.0 - c_b)
+    n_bb = -0.96 * db * (1.0 - c_b) + 0.066
+    n_rr = 0.5 * cbbl - 0.09
+    n_bbr = -(57.5 * cbbl**2 - 18.4 * cbbl + 1.6)
+    n_brr = -(0.5 * db * c_b - 0.05)
+    src = "Kijima et al. 1990"
+    cubic_v = f"x 7/(6 x {V_RANGE:g}): b|b| -> v^3 by least squares, beta = -v'"
+    cubic_r = f"x 7/(6 x {R_RANGE:g}): r|r| -> r^3 by least squares"
+    return {
+        "Y_vvv": Value(-y_bb * c_v, f"{src} -Y_bb, Y_bb = 2.5d(1-C_b)/B + 0.5, {cubic_v}"),
+        "Y_vvr": Value(y_bbr, f"{src} Y_bbr = 1.5dC_b/B - 0.65"),
+        "Y_vrr": Value(-y_brr, f"{src} -Y_brr, Y_brr = 5.95d(1-C_b)/B"),
+        "Y_rrr": Value(y_rr * c_r, f"{src} Y_rr = 0.343dC_b/B - 0.07, {cubic_r}"),
+        "N_vvv": Value(-n_bb * c_v, f"{src} -N_bb, N_bb = -0.96d(1-C_b)/B + 0.066, {cubic_v}"),
+        "N_vvr": Value(n_bbr, f"{src} N_bbr = -(57.5(C_bB/L)^2 - 18.4C_bB/L + 1.6)"),
+        "N_vrr": Value(-n_brr, f"{src} -N_brr, N_brr = -(0.5dC_b/B - 0.05)"),
+        "N_rrr": Value(n_rr * c_r, f"{src} N_rr = 0.5C_bB/L - 0.09, {cubic_r}"),
+    }
 
 
 def ittc57_cf(speed: float, length: float) -> float:
