@@ -440,7 +440,7 @@ def mmg_hull_estimates(L: float, B: float, d: float, c_b: float) -> dict[str, di
     cl = clarke_linear(L, B, d, c_b)
     yvv = -(2.5 * d * (1 - c_b) / B + 0.5)  # Kijima coefficient of v|v|
     cf = cross_flow_cubics(hoerner_cd(B / (2 * d)))
-    cubic = 7.0 / (6.0 * V_RANGE)  # x|x| ~ c x^3 on [-a, a]
+    cubic = abs_square_to_cubic(V_RANGE)  # x|x| ~ c x^3 on [-a, a]
     unreliable = "cross-flow drag strip theory (Fossen crossFlowDrag, Hoerner C_d) fitted to cubics; UNRELIABLE +-100 %"
     hull = {
         "R0": Value(0.0, "set below"),
