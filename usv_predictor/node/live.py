@@ -56,6 +56,7 @@ from usv_predictor.data.recording import (
     plausible_ranges,
     recording_from_signals,
     required_roles,
+    window_mean,
     window_resample,
 )
 from usv_predictor.errors import CycleSkipped, InputRejected, ModelError, RecordingError
@@ -266,10 +267,20 @@ class SampleBuffer:
     def clear(self) -> None:
         self._next = self.size = 0
 
-    def samples(self) -> tuple[np.ndarray, np.ndarray]:
-        """(t_ns (N,), values (N, k)) oldest first (copies)."""
-        idx = (np.arange(self.size) + self._next - self.size) % self.capacity
-        return self._t[idx], self._v[idx]
+    def samples(self, columns: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(t_ns (N,), values (N, k)) oldest first (copies); `columns`: those value columns only.
+
+        The ring's one or two contiguous runs copied (no index array over the whole capacity)."""
+        start = (self._next - self.size) % self.capacity
+        chosen = slice(None) if columns is None else list(columns)
+
+        def run(first: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+            return self._t[first:end].copy(), self._v[first:end][:, chosen].copy()
+
+        if start + self.size <= self.capacity:
+            return run(start, start + self.size)
+        (t_old, v_old), (t_new, v_new) = run(start, self.capacity), run(0, start + self.size - self.capacity)
+        return np.concatenate((t_old, t_new)), np.concatenate((v_old, v_new))
 
     def rate_hz(self, now_ns: int, span_s: float = RATE_WINDOW_S) -> float:
         """Samples per second over the last span_s before now (0 when fewer than two)."""
@@ -462,21 +473,22 @@ class InputSet:
 
     # --------------------------------------------------------------- state out
     def _window_mean(self, role: str, columns: Sequence[str], t_c_ns: int) -> tuple[np.ndarray, int]:
+        """(mean of `columns` over the window about t_c, samples in it): recording.window_resample's value at t_c
+        (window_mean: the same prefix sums from the ring's first sample, bit for bit), reading the used columns
+        only and no sample after the window."""
         track = self.tracks[role]
-        t, values = track.buffer.samples()
+        t, chosen = track.buffer.samples([track.buffer.fields.index(c) for c in columns])
         half = self.settings.dt_ns // 2
-        inside = int(np.count_nonzero((t >= t_c_ns - half) & (t <= t_c_ns + half)))
+        lo = int(np.searchsorted(t, t_c_ns - half, side="left"))
+        hi = int(np.searchsorted(t, t_c_ns + half, side="right"))  # closed window, as window_resample's
         if t[0] > t_c_ns - half:  # as Recording: whole windows only (a cut window would bias the mean)
             raise CycleSkipped(f"input {role}: the averaging window starts before its first buffered sample")
-        if inside == 0:
+        if hi == lo:
             raise CycleSkipped(f"input {role}: no sample in the averaging window "
                                f"(latest {(t_c_ns + half - int(t[-1])) / NS_PER_S:.2f} s before its end)")
-        cols = [track.buffer.fields.index(c) for c in columns]
-        chosen = values[:, cols]
         if role == "heading":
-            chosen = np.unwrap(chosen, axis=0)  # as Recording: unwrap, then average
-        mean = window_resample(t, chosen, np.array([t_c_ns], dtype=np.int64), self.settings.dt_ns)[0]
-        return mean, inside
+            chosen = np.unwrap(chosen[:hi], axis=0)  # as Recording: unwrap (from the first sample), then average
+        return window_mean(t, chosen, lo, hi), hi - lo
 
     def assemble(self, now_ns: int) -> LiveState:
         """The state at now (see the module docstring); CycleSkipped naming the missing or stale input."""
@@ -509,11 +521,15 @@ class InputSet:
         age = track.age_s(now_ns)
         if age is None or age > track.max_age_s:
             return None
-        t, values = track.buffer.samples()
         fields = track.buffer.fields
-        x_n, y_e = self._plane.to_ned(values[:, fields.index("lat")], values[:, fields.index("lon")])
+        t, values = track.buffer.samples([fields.index("lat"), fields.index("lon")])
         half = self.settings.dt_ns // 2
-        counts[POSITION_ROLE] = int(np.count_nonzero((t >= t_c_ns - half) & (t <= t_c_ns + half)))
+        lo = int(np.searchsorted(t, t_c_ns - half, side="left"))
+        hi = int(np.searchsorted(t, t_c_ns + half, side="right"))
+        counts[POSITION_ROLE] = hi - lo
+        if hi > lo:  # window_resample's mean, bit for bit (window_mean), of the fixes up to the window's end
+            return window_mean(t, np.column_stack(self._plane.to_ned(values[:hi, 0], values[:hi, 1])), lo, hi)
+        x_n, y_e = self._plane.to_ned(values[:, 0], values[:, 1])  # no fix inside: interpolated
         grid = np.array([t_c_ns], dtype=np.int64)
         return np.array([window_resample(t, x_n, grid, self.settings.dt_ns)[0],
                          window_resample(t, y_e, grid, self.settings.dt_ns)[0]])
