@@ -346,3 +346,33 @@ def test_numpy_transposed_batch_form_of_the_shipped_model_is_the_row_forms_withi
     before = _row_form_batch(rollout, state, controls)
     tolerance = np.array([1e-3, 2e-4, 5e-5, 1e-2, 1e-2, 5e-4])  # u, v (m/s), r (rad/s), x, y (m), psi (rad)
     assert np.all(np.abs(got - before).max(axis=(0, 1, 2)) <= tolerance), np.abs(got - before).max(axis=(0, 1, 2))
+
+
+def _kinematics_as_before(dt: float, state: np.ndarray, path: np.ndarray) -> np.ndarray:
+    """NumpyDnnRollout._kinematics as it was before 2026-11-26: member-major (E, B, H + 1, ...) arrays."""
+    e, b, horizon = path.shape[:3]
+    path = path.astype(np.float64)
+    full = np.concatenate([np.broadcast_to(state[None, :, None, :], (e, b, 1, 4)), path], axis=2)
+    cos_psi, sin_psi = np.cos(full[..., 3]), np.sin(full[..., 3])
+    velocity = np.stack([full[..., 0] * cos_psi - full[..., 1] * sin_psi,
+                         full[..., 0] * sin_psi + full[..., 1] * cos_psi], axis=-1)
+    out = np.empty((e, b, horizon, 6))
+    out[..., 0:3] = path[..., 0:3]
+    np.cumsum(0.5 * dt * (velocity[:, :, 1:] + velocity[:, :, :-1]), axis=2, out=out[..., 3:5])
+    out[..., 5] = path[..., 3]
+    return out
+
+
+@pytest.mark.parametrize("batch", [1, 64])
+def test_numpy_kinematics_step_major_equals_the_member_major_form(batch: int) -> None:
+    """The positions are integrated step-major now (each quantity one (H + 1, E, B) array): the same operations in
+    the same order, so the same numbers, bit for bit, from the batch form's (H, E, S, B) memory as from any view."""
+    rollout = _loaded(SHIPPED).inference
+    rng = np.random.default_rng(batch)
+    x = rng.normal(0.0, 2.0, size=(121, 5, 9, batch)).astype(np.float32)  # as _rollout_batch's x
+    path = x[1:, :, :4].transpose(1, 3, 0, 2)  # (E, B, H, 4) view
+    state = rng.normal(0.0, 2.0, size=(batch, 4))
+    got = rollout._kinematics(state, path)
+    np.testing.assert_array_equal(got, _kinematics_as_before(rollout.dt, state, path))
+    np.testing.assert_array_equal(got, rollout._kinematics(state, np.ascontiguousarray(path)))
+    assert got.shape == (5, batch, 120, 6) and np.abs(got[..., 3:5]).max() > 1.0

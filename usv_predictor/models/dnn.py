@@ -874,17 +874,25 @@ class NumpyDnnRollout:
 
     def _kinematics(self, state: np.ndarray, path: np.ndarray) -> np.ndarray:
         """(E, B, H, 6) [u, v, r, x_n, y_e, psi] float64 from the start state (B, 4) and the steps' [u, v, r, psi]
-        (E, B, H, 4): positions by the trapezoidal rule over R(psi) [u, v] (DnnRollout's kinematics)."""
+        (E, B, H, 4): positions by the trapezoidal rule over R(psi) [u, v] (DnnRollout's kinematics).
+
+        Computed step-major, each quantity one (H + 1, E, B) array (the batch form's memory order: B contiguous),
+        the same operations in the same order as the member-major form before, so the same numbers; only the six
+        columns of the result are written strided."""
         e, b, horizon = path.shape[:3]
-        path = path.astype(np.float64)
-        full = np.concatenate([np.broadcast_to(state[None, :, None, :], (e, b, 1, 4)), path], axis=2)
-        cos_psi, sin_psi = np.cos(full[..., 3]), np.sin(full[..., 3])  # (E, B, H + 1)
-        velocity = np.stack([full[..., 0] * cos_psi - full[..., 1] * sin_psi,  # north, east (E, B, H + 1, 2)
-                             full[..., 0] * sin_psi + full[..., 1] * cos_psi], axis=-1)
+        q = np.empty((4, horizon + 1, e, b))  # [u, v, r, psi] float64 of the start and every step
+        q[:, 0] = state.T[:, None, :]
+        q[:, 1:] = path.transpose(3, 2, 0, 1)  # (4, H, E, B)
+        u, v, psi = q[0], q[1], q[3]
+        cos_psi, sin_psi = np.cos(psi), np.sin(psi)  # (H + 1, E, B)
+        north, east = u * cos_psi - v * sin_psi, u * sin_psi + v * cos_psi
         out = np.empty((e, b, horizon, 6))
-        out[..., 0:3] = path[..., 0:3]
-        np.cumsum(0.5 * self.dt * (velocity[:, :, 1:] + velocity[:, :, :-1]), axis=2, out=out[..., 3:5])
-        out[..., 5] = path[..., 3]
+        steps = out.transpose(2, 0, 1, 3)  # (H, E, B, 6) view
+        for j in range(3):
+            steps[..., j] = q[j, 1:]
+        np.cumsum(0.5 * self.dt * (north[1:] + north[:-1]), axis=0, out=steps[..., 3])
+        np.cumsum(0.5 * self.dt * (east[1:] + east[:-1]), axis=0, out=steps[..., 4])
+        steps[..., 5] = psi[1:]
         return out
 
     def __call__(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
