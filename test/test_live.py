@@ -353,3 +353,64 @@ def test_state_from_the_window_equals_the_whole_ring_average_bit_for_bit() -> No
     assert all(inputs.tracks[role].buffer.overwritten > 0 for role in rates if role != "gnss")  # the rings wrapped
     heading = inputs.tracks["heading"].buffer.samples()[1][:, 0]
     assert np.abs(np.diff(heading)).max() > math.pi  # the ring itself crosses the branch cut
+
+
+def _track_record(inputs: live.InputSet, role: str) -> tuple:
+    track = inputs.tracks[role]
+    t, values = track.buffer.samples()
+    return (t.tobytes(), values.tobytes(), track.buffer.overwritten, track.buffer.size, track.received,
+            dict(track.rejected), track.last_reject, track.last_reject_ns, track.last_accept_ns, inputs.datum)
+
+
+@pytest.mark.parametrize("role", ["imu", "velocity", "gnss", "rudder_angle"])
+def test_add_many_equals_add_one_at_a_time(role: str) -> None:
+    """The node buffers a decoded batch with add_many: in bulk when every sample passes, else add() one by one. On
+    random batches (all good, a non-finite or implausible value, a duplicate, a backwards and a future stamp, batches
+    longer than the ring) buffers, counts, refusals and the datum are those of add() called sample by sample."""
+    rng = np.random.default_rng(len(role))
+    bulk, single = make_inputs(capacity=64), make_inputs(capacity=64)
+    width = len(bulk.tracks[role].buffer.fields)
+    base = {"imu": [0.01, 0.0, 0.0, -9.81, math.nan], "velocity": [5.0, 0.1, 0.01], "gnss": [35.0, 120.0, 0.0],
+            "rudder_angle": [0.1]}[role]
+    stamp, bulk_batches = 100 * NS, 0
+    for batch in range(60):
+        count = int(rng.choice([1, 2, 5, 20, 100]))
+        stamps = stamp + np.cumsum(rng.integers(1_000_000, 10_000_000, count))
+        values = np.array(base, dtype=float)[None, :] + rng.normal(0.0, 1e-3, (count, width))
+        arrivals = stamps + rng.integers(0, 2_000_000, count)
+        spoil = batch % 6
+        if spoil == 1:
+            values[rng.integers(count), 0] = math.nan
+        elif spoil == 2:
+            values[rng.integers(count), 0] = 1e9  # implausible
+        elif spoil == 3 and count > 1:
+            stamps[-1] = stamps[-2]  # duplicate
+        elif spoil == 4:
+            stamps[0] = stamp - 5_000_000  # before the buffer's latest
+        elif spoil == 5:
+            arrivals[-1] = stamps[-1] - 2 * NS  # a stamp 2 s ahead of its arrival clock
+        refused = bulk.add_many(role, stamps, values, arrivals)
+        expected = []
+        for t, row, now in zip(stamps.tolist(), values.tolist(), arrivals.tolist()):
+            try:
+                single.add(role, t, tuple(row), now)
+            except live.InputRejected as err:
+                expected.append((err.kind, str(err)))
+        assert [(err.kind, str(err)) for err in refused] == expected
+        assert _track_record(bulk, role) == _track_record(single, role)
+        bulk_batches += not expected
+        stamp = int(stamps.max())
+    assert bulk.tracks[role].buffer.overwritten > 0 and 10 < bulk_batches < 60
+    assert set(bulk.tracks[role].rejected) >= {"duplicate", "backwards", "future", "range" if role != "gnss" else "no_fix"}
+
+
+def test_raw_headings_within_a_turn_is_check_raw_heading_on_every_sample() -> None:
+    for units, raws in [("deg", [10.0, 359.0, -359.0]), ("deg", [10.0, 361.0]), ("rad", [3.0, 7.0]),
+                        ("rad", [math.nan, 1.0]), ("rad", [])]:
+        passes = True
+        for raw in raws:
+            try:
+                live.check_raw_heading(raw, units)
+            except live.InputRejected:
+                passes = False
+        assert live.raw_headings_within_a_turn(np.array(raws), units) is passes
