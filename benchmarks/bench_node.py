@@ -20,6 +20,8 @@
      old      the node of --baseline (git archive of that commit): message objects in and out, rclpy.spin
      events   this node (CDR in and out) with rclpy's EventsExecutor (what main() uses)
      single   this node with the SingleThreadedExecutor
+     events-own-blas   this node (EventsExecutor) without OPENBLAS_CORETYPE in its environment: OpenBLAS picks
+              its kernels itself (AVX-512 `SkylakeX` on this Zen 5 VM, whose environment pins `Haswell`)
    end-to-end = arrival of predicted_path - its header stamp (the node's clock when the cycle started: decoding,
    state, rollout, encoding, DDS); input-to-path = arrival - stamp of the newest IMU message sent before it
    (includes the wait for the next timer tick, up to 1 / rate_hz); CPU of the node process from /proc.
@@ -60,6 +62,7 @@ RATES = {"imu": 200.0, "velocity": 20.0, "heading": 20.0, "rudder_angle": 10.0, 
 VALUES = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), "heading": (0.5,),
           "rudder_angle": (0.1,), "engine_rpm": (650.0,), "gnss": (35.38, 119.56, 0.0)}
 NS = 1_000_000_000
+OWN_BLAS = "events-own-blas"  # variant: this node (EventsExecutor) without OPENBLAS_CORETYPE in its environment
 
 
 def percentiles(seconds: list[float] | np.ndarray) -> dict[str, float]:
@@ -519,8 +522,11 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
         command = [sys.executable, "-m", "usv_predictor.node", "--ros-args", *ros_args]
         node_env, cwd = {**env, "PYTHONPATH": str(tree)}, str(tree)
     else:
-        command = [sys.executable, str(Path(__file__).resolve()), "--serve", variant, "--ros-args", *ros_args]
+        executor = "events" if variant == OWN_BLAS else variant
+        command = [sys.executable, str(Path(__file__).resolve()), "--serve", executor, "--ros-args", *ros_args]
         node_env, cwd = {**env, "PYTHONPATH": str(REPO)}, str(REPO)
+        if variant == OWN_BLAS:  # the node with OpenBLAS's own choice of kernels, whatever this environment pins
+            node_env.pop("OPENBLAS_CORETYPE", None)
     out = tmp / f"received_{variant}.json"
     receiver = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--receive", str(out)],
                                 env={**env, "PYTHONPATH": str(REPO)})
@@ -531,7 +537,7 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
         feeder.wait_for([process, receiver])
         runs["imu_200"] = feeder.run(seconds, 200.0, process)
         runs["imu_1000"] = feeder.run(seconds, 1000.0, process)
-        if variant == "events" or (variant == "old" and old_candidates):
+        if variant in ("events", OWN_BLAS) or (variant == "old" and old_candidates):
             runs["candidates_64"] = feeder.run(seconds, 200.0, process, candidates_hz=2.0)
     finally:
         feeder.close()
@@ -582,7 +588,7 @@ def main() -> int:
     print("\nnode at 10 Hz over DDS; e2e = cycle start -> Path received        p50 / p99 ms      CPU % of one core")
     for variant, runs in result["node"].items():
         label = {"old": f"old ({args.baseline})", "events": "new, EventsExecutor",
-                 "single": "new, SingleThreadedExecutor"}[variant]
+                 "single": "new, SingleThreadedExecutor", OWN_BLAS: "new, OpenBLAS's own kernels"}[variant]
         for name, run in runs.items():
             print(f"  {label:38s} IMU {run['imu_hz']:6.0f} Hz  e2e {run['end_to_end']['p50_ms']:6.2f} / "
                   f"{run['end_to_end']['p99_ms']:6.2f}  input->path {run['input_to_path']['p50_ms']:6.2f} / "
