@@ -14,7 +14,8 @@ State assembly is the replay tool's Recording (recording.py), taken online:
     position   GNSS lat/lon -> NED in the local tangent plane of the datum (parameter, or the first fix),
                box-averaged like the rest; without a fix the path starts at (0, 0)
 
-Each average is recording.window_resample on the buffered samples with grid [t_c], so a state here equals
+Each average is recording.window_resample's on the buffered samples with grid [t_c] (computed by
+recording.window_mean from the samples up to the window's end, bit for bit), so a state here equals
 Recording.state() at the grid time t_c of the same samples (test_live.py proves it on a shipped bag).
 Prediction k (k = 1 .. H) is the model's output at t_c + k dt.
 
