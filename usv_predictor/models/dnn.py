@@ -664,7 +664,8 @@ class NumpyDnnRollout:
         s' = s_lin + h head;  heading columns of s' -> sin (NTF) / remainder 2 pi (NAF)
 
     i.e. three matrix products, two activations, one add and one sin per step, written in place into buffers made
-    before the loop (the states of all steps are one (H + 1, E, B, S + C + 1) array, the controls already in place).
+    before the loop (the states of all steps are one (H + 1, E, S + C + 1, B) array, transposed: _rollout_batch; the controls
+    already in place).
     The bias unit is a unit of the first and hidden layers whose pre-activation is BIAS_UNIT_PRE (1 for clippedReLU),
     so that act() gives exactly 1 and the next layer's bias rides in its product (numpy's matmul has no bias term).
     Why numpy: at these sizes a step is dispatch-bound (one state: ~1 us per numpy op against 1.4-2.9 us per
