@@ -664,14 +664,15 @@ class NumpyDnnRollout:
         s' = s_lin + h head;  heading columns of s' -> sin (NTF) / remainder 2 pi (NAF)
 
     i.e. three matrix products, two activations, one add and one sin per step, written in place into buffers made
-    before the loop (the states of all steps are one (H + 1, E, S + C + 1, B) array, transposed: _rollout_batch; the controls
-    already in place).
+    before the loop (the states of all steps are one (H + 1, E, S + C + 1, B) array, transposed: _rollout_batch;
+    the controls already in place).
     The bias unit is a unit of the first and hidden layers whose pre-activation is BIAS_UNIT_PRE (1 for clippedReLU),
     so that act() gives exactly 1 and the next layer's bias rides in its product (numpy's matmul has no bias term).
     Why numpy: at these sizes a step is dispatch-bound (one state: ~1 us per numpy op against 1.4-2.9 us per
-    TorchScript op) or bound by the hidden product (64 candidates: numpy's OpenBLAS runs it on AVX-512 here, torch's
-    MKL ~1.3x slower), and numpy's tanh is a fast kernel (torch's float tanh was the reason for FusedDnnRollout's
-    sigmoids). benchmarks/bench_node.py measures it against FusedDnnRollout and the file's rollout.
+    TorchScript op) or bound by the hidden product (64 candidates: numpy's OpenBLAS, with the AVX2 kernels this
+    machine's OPENBLAS_CORETYPE pins, ~1.2x faster than torch's MKL; its AVX-512 kernels ~2x faster again), and
+    numpy's tanh is a fast kernel (torch's float tanh was the reason for FusedDnnRollout's sigmoids).
+    benchmarks/bench_node.py measures it against FusedDnnRollout and the file's rollout.
     Positions are integrated after the loop in float64 (trapezoidal, as DnnRollout). Buffers are allocated per call:
     one instance serves any caller and batch size.
     """

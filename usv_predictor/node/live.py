@@ -427,7 +427,8 @@ class InputSet:
         columns = values[:, used]
         low = np.array([self._plausible.get(fields[i], (-math.inf, math.inf))[0] for i in used])
         high = np.array([self._plausible.get(fields[i], (-math.inf, math.inf))[1] for i in used])
-        bulk = (len(stamps_ns) > 0 and bool(np.isfinite(columns).all()) and bool(((columns >= low) & (columns <= high)).all())
+        bulk = (len(stamps_ns) > 0 and bool(np.isfinite(columns).all())
+                and bool(((columns >= low) & (columns <= high)).all())
                 and (latest is None or int(stamps_ns[0]) > latest) and bool((np.diff(stamps_ns) > 0).all())
                 and bool(((stamps_ns - now_ns) / NS_PER_S <= self.settings.max_future_s).all()))
         if not bulk:
