@@ -14,7 +14,8 @@ State assembly is the replay tool's Recording (recording.py), taken online:
     position   GNSS lat/lon -> NED in the local tangent plane of the datum (parameter, or the first fix),
                box-averaged like the rest; without a fix the path starts at (0, 0)
 
-Each average is recording.window_resample on the buffered samples with grid [t_c], so a state here equals
+Each average is recording.window_resample's on the buffered samples with grid [t_c] (computed by
+recording.window_mean from the samples up to the window's end, bit for bit), so a state here equals
 Recording.state() at the grid time t_c of the same samples (test_live.py proves it on a shipped bag).
 Prediction k (k = 1 .. H) is the model's output at t_c + k dt.
 
@@ -56,6 +57,7 @@ from usv_predictor.data.recording import (
     plausible_ranges,
     recording_from_signals,
     required_roles,
+    window_mean,
     window_resample,
 )
 from usv_predictor.errors import CycleSkipped, InputRejected, ModelError, RecordingError
@@ -98,6 +100,8 @@ TRACK_MIN_SPEED = 2.0  # m/s over ground (GNSS) before the dead-reckoned track i
 TRACK_ANGLE_LIMIT_DEG = 60.0  # deg between the dead-reckoned and the GNSS displacement
 TRACK_LENGTH_RATIO = (0.4, 2.5)  # dead-reckoned / GNSS displacement length accepted
 TRACK_END_S = 1.0  # s of GNSS fixes averaged at each end of the window (0.3 m noise per fix)
+BULK_ADD_MIN = 16  # samples of one input from which the node buffers a batch with add_many (~18 us a call against ~1 us
+# per sample for add(), warm: benchmarks/bench_node.py's IMU at 200 Hz brings 20 per cycle, at 1 kHz 100)
 STEADY_SPEED_LIMIT = 50.0  # m/s: a predicted speed beyond this is a diverged model, not a prediction
 
 
@@ -107,6 +111,13 @@ def check_raw_heading(raw: float, units: str) -> None:
     if limit is not None and math.isfinite(raw) and abs(raw) > limit:
         hint = " (degrees configured as rad?)" if units == "rad" else ""
         raise InputRejected("range", f"heading {raw:g} {units} is more than one turn{hint}; check the units option")
+
+
+def raw_headings_within_a_turn(raw: np.ndarray, units: str) -> bool:
+    """Would check_raw_heading pass every one of these raw headings?"""
+    limit = RAW_HEADING_LIMIT.get(units)
+    raw = np.asarray(raw, dtype=np.float64)
+    return limit is None or not bool((np.isfinite(raw) & (np.abs(raw) > limit)).any())
 
 
 def check_values(role: str, fields: Sequence[str], values: Sequence[float],
@@ -263,13 +274,37 @@ class SampleBuffer:
         else:
             self.size += 1
 
+    def push_many(self, stamps_ns: np.ndarray, values: np.ndarray) -> None:
+        """push() of M samples (stamps (M,), values (M, k)) in order, in one write of the ring (the last `capacity`
+        of them when M is larger: what M pushes would leave)."""
+        count = len(stamps_ns)
+        if count == 0:
+            return
+        self.overwritten += max(0, self.size + count - self.capacity)
+        kept = min(count, self.capacity)
+        at = (self._next + np.arange(count - kept, count)) % self.capacity
+        self._t[at] = stamps_ns[count - kept:]
+        self._v[at] = values[count - kept:]
+        self._next = (self._next + count) % self.capacity
+        self.size = min(self.capacity, self.size + count)
+
     def clear(self) -> None:
         self._next = self.size = 0
 
-    def samples(self) -> tuple[np.ndarray, np.ndarray]:
-        """(t_ns (N,), values (N, k)) oldest first (copies)."""
-        idx = (np.arange(self.size) + self._next - self.size) % self.capacity
-        return self._t[idx], self._v[idx]
+    def samples(self, columns: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(t_ns (N,), values (N, k)) oldest first (copies); `columns`: those value columns only.
+
+        The ring's one or two contiguous runs copied (no index array over the whole capacity)."""
+        start = (self._next - self.size) % self.capacity
+        chosen = slice(None) if columns is None else list(columns)
+
+        def run(first: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+            return self._t[first:end].copy(), self._v[first:end][:, chosen].copy()
+
+        if start + self.size <= self.capacity:
+            return run(start, start + self.size)
+        (t_old, v_old), (t_new, v_new) = run(start, self.capacity), run(0, start + self.size - self.capacity)
+        return np.concatenate((t_old, t_new)), np.concatenate((v_old, v_new))
 
     def rate_hz(self, now_ns: int, span_s: float = RATE_WINDOW_S) -> float:
         """Samples per second over the last span_s before now (0 when fewer than two)."""
@@ -375,6 +410,43 @@ class InputSet:
         track.buffer.push(stamp_ns, values)
         track.last_accept_ns = now_ns
 
+    def add_many(self, role: str, stamps_ns: np.ndarray, values: np.ndarray, now_ns: np.ndarray
+                 ) -> list[InputRejected]:
+        """add() of M decoded samples in order (stamps (M,) int64, values (M, k), the clock at each one's arrival
+        (M,) int64): when every sample passes add()'s checks (the used fields finite and plausible, the stamps
+        increasing from the buffer's latest, none ahead of its arrival clock by more than max_future_s) they are
+        counted and buffered in one write; otherwise add() runs one sample at a time, so that the refusals (returned
+        in order) and every count are add()'s. test_live.py proves both ways equal."""
+        track = self.tracks[role]
+        fields = track.buffer.fields
+        used = [i for i, name in enumerate(fields) if name in self._used.get(role, ())]
+        stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+        values = np.asarray(values, dtype=np.float64).reshape(len(stamps_ns), len(fields))
+        now_ns = np.asarray(now_ns, dtype=np.int64)
+        latest = track.buffer.latest_ns
+        columns = values[:, used]
+        low = np.array([self._plausible.get(fields[i], (-math.inf, math.inf))[0] for i in used])
+        high = np.array([self._plausible.get(fields[i], (-math.inf, math.inf))[1] for i in used])
+        bulk = (len(stamps_ns) > 0 and bool(np.isfinite(columns).all())
+                and bool(((columns >= low) & (columns <= high)).all())
+                and (latest is None or int(stamps_ns[0]) > latest) and bool((np.diff(stamps_ns) > 0).all())
+                and bool(((stamps_ns - now_ns) / NS_PER_S <= self.settings.max_future_s).all()))
+        if not bulk:
+            refused = []
+            for stamp, row, now in zip(stamps_ns.tolist(), values.tolist(), now_ns.tolist()):
+                try:
+                    self.add(role, stamp, tuple(row), now)
+                except InputRejected as err:
+                    refused.append(err)
+            return refused
+        track.received += len(stamps_ns)
+        if role == POSITION_ROLE and self.datum is None:
+            self.datum = (float(values[0, fields.index("lat")]), float(values[0, fields.index("lon")]))
+            self._plane = LocalTangentPlane(*self.datum)
+        track.buffer.push_many(stamps_ns, values)
+        track.last_accept_ns = int(now_ns[-1])
+        return []
+
     def observe_clock(self, now_ns: int) -> bool:
         """Clear every buffer when the clock jumped back (a replay restarted); True if it did."""
         jumped = self._last_now_ns is not None and now_ns < self._last_now_ns
@@ -462,21 +534,22 @@ class InputSet:
 
     # --------------------------------------------------------------- state out
     def _window_mean(self, role: str, columns: Sequence[str], t_c_ns: int) -> tuple[np.ndarray, int]:
+        """(mean of `columns` over the window about t_c, samples in it): recording.window_resample's value at t_c
+        (window_mean: the same prefix sums from the ring's first sample, bit for bit), reading the used columns
+        only and no sample after the window."""
         track = self.tracks[role]
-        t, values = track.buffer.samples()
+        t, chosen = track.buffer.samples([track.buffer.fields.index(c) for c in columns])
         half = self.settings.dt_ns // 2
-        inside = int(np.count_nonzero((t >= t_c_ns - half) & (t <= t_c_ns + half)))
+        lo = int(np.searchsorted(t, t_c_ns - half, side="left"))
+        hi = int(np.searchsorted(t, t_c_ns + half, side="right"))  # closed window, as window_resample's
         if t[0] > t_c_ns - half:  # as Recording: whole windows only (a cut window would bias the mean)
             raise CycleSkipped(f"input {role}: the averaging window starts before its first buffered sample")
-        if inside == 0:
+        if hi == lo:
             raise CycleSkipped(f"input {role}: no sample in the averaging window "
                                f"(latest {(t_c_ns + half - int(t[-1])) / NS_PER_S:.2f} s before its end)")
-        cols = [track.buffer.fields.index(c) for c in columns]
-        chosen = values[:, cols]
         if role == "heading":
-            chosen = np.unwrap(chosen, axis=0)  # as Recording: unwrap, then average
-        mean = window_resample(t, chosen, np.array([t_c_ns], dtype=np.int64), self.settings.dt_ns)[0]
-        return mean, inside
+            chosen = np.unwrap(chosen[:hi], axis=0)  # as Recording: unwrap (from the first sample), then average
+        return window_mean(t, chosen, lo, hi), hi - lo
 
     def assemble(self, now_ns: int) -> LiveState:
         """The state at now (see the module docstring); CycleSkipped naming the missing or stale input."""
@@ -509,11 +582,15 @@ class InputSet:
         age = track.age_s(now_ns)
         if age is None or age > track.max_age_s:
             return None
-        t, values = track.buffer.samples()
         fields = track.buffer.fields
-        x_n, y_e = self._plane.to_ned(values[:, fields.index("lat")], values[:, fields.index("lon")])
+        t, values = track.buffer.samples([fields.index("lat"), fields.index("lon")])
         half = self.settings.dt_ns // 2
-        counts[POSITION_ROLE] = int(np.count_nonzero((t >= t_c_ns - half) & (t <= t_c_ns + half)))
+        lo = int(np.searchsorted(t, t_c_ns - half, side="left"))
+        hi = int(np.searchsorted(t, t_c_ns + half, side="right"))
+        counts[POSITION_ROLE] = hi - lo
+        if hi > lo:  # window_resample's mean, bit for bit (window_mean), of the fixes up to the window's end
+            return window_mean(t, np.column_stack(self._plane.to_ned(values[:hi, 0], values[:hi, 1])), lo, hi)
+        x_n, y_e = self._plane.to_ned(values[:, 0], values[:, 1])  # no fix inside: interpolated
         grid = np.array([t_c_ns], dtype=np.int64)
         return np.array([window_resample(t, x_n, grid, self.settings.dt_ns)[0],
                          window_resample(t, y_e, grid, self.settings.dt_ns)[0]])
