@@ -20,7 +20,7 @@
      old      the node of --baseline (git archive of that commit): message objects in and out, rclpy.spin
      events   this node (CDR in and out) with rclpy's EventsExecutor (what main() uses)
      single   this node with the SingleThreadedExecutor
-     events-own-blas   this node (EventsExecutor) without OPENBLAS_CORETYPE in its environment: OpenBLAS picks
+     events-own-blas   this node (EventsExecutor) without OPENBLAS_CORETYPE and OPENBLAS_L2_SIZE: OpenBLAS picks
               its kernels itself (AVX-512 `SkylakeX` on this Zen 5 VM, whose environment pins `Haswell`)
    end-to-end = arrival of predicted_path - its header stamp (the node's clock when the cycle started: decoding,
    state, rollout, encoding, DDS); input-to-path = arrival - stamp of the newest IMU message sent before it
@@ -525,8 +525,10 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
         executor = "events" if variant == OWN_BLAS else variant
         command = [sys.executable, str(Path(__file__).resolve()), "--serve", executor, "--ros-args", *ros_args]
         node_env, cwd = {**env, "PYTHONPATH": str(REPO)}, str(REPO)
-        if variant == OWN_BLAS:  # the node with OpenBLAS's own choice of kernels, whatever this environment pins
+        if variant == OWN_BLAS:  # the node with OpenBLAS's own choice of kernels, whatever this environment pins:
+            # the pair is set together here (an older OpenBLAS computes wrong results on some CPUs), so unset together
             node_env.pop("OPENBLAS_CORETYPE", None)
+            node_env.pop("OPENBLAS_L2_SIZE", None)
     out = tmp / f"received_{variant}.json"
     receiver = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--receive", str(out)],
                                 env={**env, "PYTHONPATH": str(REPO)})
