@@ -367,3 +367,26 @@ def test_a_cause_whose_fitted_parameter_is_not_physical_is_model_mismatch():
     near = diagnose(recordings, VESSEL, segments=seg, rollout=_PartlyExplainedRollout(seg, 4.0, 0.0),
                     hypotheses=["current"])
     assert near.cause == "current" and 0.3 <= near.parameters["speed_mps"] <= 3.0 and near.mismatch_reasons == ()
+
+
+@pytest.mark.parametrize("after, expected", [(0.75, "inconclusive"), (0.9, "none")])
+def test_none_is_only_confident_without_a_strong_candidate(after, expected):
+    """Issue 11 (an unknown boat's 5.5 m/s wind answered `none`: its identified model showed the wind with evidence
+    3.8 and both folds fitted it within 1 m/s): a model within the noise (loss 0.5) that a current brings to
+    0.75^2 / 2 (evidence ~3.7: between EVIDENCE_CANDIDATE and EVIDENCE_CAUSE) is `inconclusive` with the current as
+    the candidate, not a confident `none`; one it brings to 0.9^2 / 2 (evidence ~1.4) stays `none`."""
+    from usv_predictor.analysis.diagnosis import EVIDENCE_CANDIDATE, EVIDENCE_CAUSE, INCONCLUSIVE
+
+    recordings = trial(runs=diagnosis_runs()[:2])
+    seg = make_segments(recordings)
+    result = diagnose(recordings, VESSEL, segments=seg, rollout=_PartlyExplainedRollout(seg, 1.0, after),
+                      hypotheses=["current"])
+    top = next(e for e in result.evidence if e.hypothesis == "current")
+    assert top.heldout_loss == pytest.approx(after**2 / 2, rel=0.01)
+    assert result.cause == expected and result.parameters == {} and result.mismatch_reasons == ()
+    if expected == INCONCLUSIVE:
+        assert EVIDENCE_CANDIDATE <= top.evidence_vs_none < EVIDENCE_CAUSE
+        assert result.candidate == "current" and result.candidate_parameters["speed_mps"] >= 0.3
+        assert f"evidence {top.evidence_vs_none:.1f}: more than a `none` allows" in result.inconclusive_reasons[0]
+    else:
+        assert top.evidence_vs_none < EVIDENCE_CANDIDATE and result.candidate == ""

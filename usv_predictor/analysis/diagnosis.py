@@ -31,7 +31,9 @@ removed, or when a named cause's parameter, fitted on all manoeuvres, lies outsi
 
 `inconclusive`: a cause had the evidence of the loss but its extension does not lower the held-out track error
 (above; or, in run_diagnosis, the 30 s open-loop position error), while the calm-water model with that candidate
-does fit by the loss test. Neither `none` (something is there) nor `model_mismatch` (the model fits; "identify the
+does fit by the loss test; or, where the answer would be `none`, the best hypothesis has evidence between
+EVIDENCE_CANDIDATE and EVIDENCE_CAUSE, removes MIN_GAIN of the loss and lowers the track error (something is
+there, not enough to name it). Neither `none` (something is there) nor `model_mismatch` (the model fits; "identify the
 boat first" would be the wrong remedy): the candidate, its parameters and why it is not named are reported
 (Diagnosis.candidate, candidate_parameters, inconclusive_reasons). When no physical cause is named (model_mismatch,
 inconclusive), diagnosis_run tries the learned residual of last resort and answers `unexplained` when it lowers the
@@ -61,6 +63,11 @@ from usv_predictor.physics.vessel import Vessel
 
 EVIDENCE_CAUSE = 5.0  # held-out log-likelihood ratio over the calm-water model needed to name a cause
 MIN_GAIN = 0.05  # ... and the share of the calm-water model's held-out loss it must remove
+EVIDENCE_CANDIDATE = 3.0  # ... and a `none` is only confident while no hypothesis reaches this evidence (2 ln B > 6:
+#                            "strong" on the Kass & Raftery scale; EVIDENCE_CAUSE is their "very strong"): one between
+#                            the two that removes MIN_GAIN of the loss and lowers the track error is `inconclusive`
+#                            (an unknown boat's identified model showed a 5.5 m/s wind with evidence 3.8 and both
+#                            folds' fits within 1 m/s and 12 deg of it; the clean boats' best reached 1.8)
 EVIDENCE_CONFOUND = 2.0  # a winner beating a runner-up cause by less than this is confounded with it
 MIN_TRACK_GAIN = 0.0  # share of the calm-water model's held-out track error (m, at the segment end) a cause must
 #                       remove: a cause whose extension does not lower it is never named
@@ -442,7 +449,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                      for n in ranked)
     top = evidence[0]
     cause, confounded, message = "none", (), "the calm-water model explains the held-out data within the noise"
-    rejected = ""  # a cause with the evidence of the loss whose extension does not lower the held-out track error
+    rejected = ""  # a candidate not named: the evidence of the loss but its extension does not lower the held-out
+    #                track error, or evidence between EVIDENCE_CANDIDATE and EVIDENCE_CAUSE (the answer: inconclusive)
     strong = top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CAUSE and top.gain_vs_none >= MIN_GAIN
     if strong and lowers_track(top.track_gain_vs_none):
         cause = top.hypothesis
@@ -457,6 +465,16 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error (evidence "
                     f"{top.evidence_vs_none:.1f}) but its extension does not lower the held-out track error after "
                     f"{horizon_s:g} s ({calm.heldout_track_error_m:.3g} -> {top.heldout_track_error_m:.3g} m): not named")
+        message = rejected
+    elif (top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CANDIDATE and top.gain_vs_none >= MIN_GAIN
+          and lowers_track(top.track_gain_vs_none) and base.mean() <= NONE_LOSS):
+        # not enough to name, too much for a confident `none` (a model that fits by the NONE_LOSS test, so the
+        # candidate is no cover for a model that does not)
+        track = (f" and {top.track_gain_vs_none * 100:.0f} % of the held-out track error after {horizon_s:g} s"
+                 if math.isfinite(top.track_gain_vs_none) else "")
+        rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error{track} with "
+                    f"evidence {top.evidence_vs_none:.1f}: more than a `none` allows (< {EVIDENCE_CANDIDATE:g}), "
+                    f"less than names a cause (>= {EVIDENCE_CAUSE:g})")
         message = rejected
     elif top.hypothesis != "none":
         message = (f"best hypothesis {top.hypothesis} removes {top.gain_vs_none * 100:.1f} % of the held-out error "
