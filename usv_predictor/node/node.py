@@ -704,7 +704,11 @@ class PredictorNode(Node):
         if short:
             self.fit.skip(short, now_ns)
             return
-        self._fit_running = self._fit_worker.submit(self._run_fit, self.fit, recording, now_ns)
+        reference = None
+        if self.inputs.approach is not None:  # rudder_only: the approach the predictions hold, seen in the buffers too
+            self.inputs.approach.observe_recording(recording)
+            reference = self.inputs.approach.reference
+        self._fit_running = self._fit_worker.submit(self._run_fit, self.fit, recording, now_ns, reference)
 
     def _buffers_too_short(self, span_s: float) -> str:
         """Why no steady window can ever be seen ("" when one can): the span the check reads is shorter than a window
@@ -724,10 +728,10 @@ class PredictorNode(Node):
                 f"samples, full), less than the {need_s:g} s a steady window needs: raise buffer_capacity to at least "
                 f"{need_s:g} s of the fastest input")
 
-    def _run_fit(self, fit: LiveFitCheck, recording: Any, now_ns: int) -> None:
+    def _run_fit(self, fit: LiveFitCheck, recording: Any, now_ns: int, reference: Any = None) -> None:
         """The check's rollouts, in the worker thread; the verdict is read by the cycle and /diagnostics."""
         try:
-            check = fit.run(recording, now_ns)
+            check = fit.run(recording, now_ns, reference)
         except Exception as err:  # noqa: BLE001 -- a worker's exception would vanish in its Future: reported instead
             fit.skip(f"the check failed: {type(err).__name__}: {_first_line(err)}", now_ns)
             self.get_logger().warning(f"fit check not run: {err}", throttle_duration_sec=ERROR_LOG_PERIOD_S)
