@@ -37,6 +37,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -79,8 +80,8 @@ def fit(training: list, members: int, epochs: int) -> tuple[Any, Any, dict]:
     return hybrid_fit.greybox_module(result, DT), hybrid, info
 
 
-def fit_extended(training: list, training_05: list, members: int, epochs: int, path: Path) -> tuple[Any, Any, Any,
-                                                                                                   dict]:
+def fit_extended(training: list, training_05: list, members: int, epochs: int, path: Path, max_causes: int = 2
+                 ) -> tuple[Any, Any, Any, dict]:
     """(calm-water preset, extended grey box, hybrid on it, info): the diagnosis of `training_05` (the same
     manoeuvres at the diagnosis' suited step 0.5 s) against the preset, its extension exported to `path` at DT, and
     the residual trained on that file's grey box with `training` (what `replay identify --hybrid --base` does).
@@ -94,7 +95,8 @@ def fit_extended(training: list, training_05: list, members: int, epochs: int, p
     preset = load_vessel(VESSEL)
     calm = hybrid_fit.ResidualGreyBox(preset, DT, hybrid_fit.ZeroResidual())
     started = time.perf_counter()
-    diagnosis = dg.diagnose(training_05, preset, horizon_s=20.0, stride_s=5.0, max_causes=2, progress=log)
+    diagnosis = dg.diagnose(training_05, preset, horizon_s=20.0, stride_s=5.0, max_causes=max_causes,
+                             progress=log)
     info: dict[str, Any] = {"cause": diagnosis.cause, "parameters": diagnosis.parameters,
                             "additional_causes": [a.cause for a in diagnosis.additional_causes],
                             "diagnosis_s": time.perf_counter() - started}
@@ -112,22 +114,60 @@ def fit_extended(training: list, training_05: list, members: int, epochs: int, p
     return calm, base, hybrid, info
 
 
-def rows_of(models: dict[str, tuple[Any, int]], recordings: list) -> dict[str, list[list[dict]]]:
+TRUE_TRACK = "true track (the simulator's ground truth scored as a model: the metric's own noise)"
+
+
+@dataclass(frozen=True)
+class TrackScore:
+    """The parts of an evaluation.RecordingEvaluation turning_row reads, for a track that is not a model's."""
+
+    turning: Any
+    state_rmse: dict
+    open_loop: None = None
+
+
+def true_track_row(rec: Any, tracks: Any) -> dict:
+    """The recording's ground truth (T, 6) scored against the reference like a prediction: what a perfect model
+    gets, i.e. the reference's own error on these criteria."""
+    from usv_predictor.analysis import evaluation as ev
+
+    truth = ev.reference_series(rec, "truth")
+    prediction = ev.Prediction(name=rec.name, reference="truth", t_s=rec.t_s - rec.t_s[0], controls=rec.controls,
+                               measured=tracks.measured, predicted=truth, predicted_std=np.zeros_like(truth),
+                               layout=rec.layout)
+    turning = ev.compare_turning(prediction, ev.classify(rec).execute_time_s - float(rec.t_s[0]))
+    return turning_row(TrackScore(turning, ev.state_rmse(prediction)))
+
+
+def row_name(name: str, reference: str) -> str:
+    """The table row of a model against a reference: the GNSS rows keep their names (the earlier tables')."""
+    return name if reference == "gnss" else f"{name} [vs {reference}]"
+
+
+def rows_of(models: dict[str, tuple[Any, int]], recordings: list, references: tuple[str, ...] = ("gnss",)
+            ) -> dict[str, list[list[dict]]]:
     """model -> [recording][seed] turning rows; models: row name -> (rollout module, members): a grey box (1) is one
-    row, a hybrid of E members gives '<name> (each member)' and '<name>, ensemble mean'."""
-    from usv_predictor.analysis.evaluation import evaluate_recording
+    row, a hybrid of E members gives '<name> (each member)' and '<name>, ensemble mean'; one set per reference
+    (row_name), and for the measured references (gnss, smoothed) the true track's row (true_track_row)."""
+    from usv_predictor.analysis.evaluation import evaluate_recording, reference_tracks
 
     out: dict[str, list[list[dict]]] = {}
-    for name, (module, members) in models.items():
-        single = Single(module, name, DT)
-        for rec in recordings:
-            if members == 1:
-                out.setdefault(name, []).append([turning_row(evaluate_recording(single, rec, "gnss", (30.0,)))])
-                continue
-            out.setdefault(f"{name} (each member)", []).append(
-                [turning_row(evaluate_recording(Member(single, k), rec, "gnss", (30.0,))) for k in range(members)])
-            out.setdefault(f"{name}, ensemble mean", []).append(
-                [turning_row(evaluate_recording(single, rec, "gnss", (30.0,)))])
+    for rec in recordings:
+        for reference in references:
+            tracks = reference_tracks(rec, reference)
+            if reference != "truth" and rec.truth is not None:
+                out.setdefault(row_name(TRUE_TRACK, reference), []).append([true_track_row(rec, tracks)])
+            for name, (module, members) in models.items():
+                single = Single(module, name, DT)
+                if members == 1:
+                    out.setdefault(row_name(name, reference), []).append(
+                        [turning_row(evaluate_recording(single, rec, reference, (30.0,), tracks=tracks))])
+                    continue
+                out.setdefault(row_name(f"{name} (each member)", reference), []).append(
+                    [turning_row(evaluate_recording(Member(single, k), rec, reference, (30.0,), tracks=tracks))
+                     for k in range(members)])
+                out.setdefault(row_name(f"{name}, ensemble mean", reference), []).append(
+                    [turning_row(evaluate_recording(single, rec, reference, (30.0,), tracks=tracks))])
     return out
 
 
@@ -171,7 +211,7 @@ def fit_models(args: argparse.Namespace, training: list, training_05: list, exte
     if "extended" in args.bases:
         extended_path.parent.mkdir(parents=True, exist_ok=True)
         calm, base, hybrid, info["extended"] = fit_extended(training, training_05, args.members, args.epochs,
-                                                            extended_path)
+                                                            extended_path, args.max_causes)
         models["calm-water preset"] = (calm, 1)
         if base is not None:
             models.update({"extended grey box": (base, 1), "hybrid on extended": (hybrid, args.members)})
@@ -192,6 +232,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bases", nargs="+", default=["identified", "extended"], choices=["identified", "extended"],
                         help="the grey boxes (and hybrids on them): identified in the sea, and/or the diagnosed "
                              "extension of the preset (default both)")
+    parser.add_argument("--references", nargs="+", default=["gnss"], choices=["gnss", "smoothed", "truth"],
+                        help="what the tracks are scored against (analysis.evaluation.reference_tracks): the raw GNSS "
+                             "track (default, the earlier tables), the same smoothed (EKF + RTS), the simulator's "
+                             "ground truth; each adds its rows, the measured ones with the true track's row")
+    parser.add_argument("--max-causes", type=int, default=2, help="the diagnosis' causes at most (default 2)")
     parser.add_argument("--jsonl", type=Path, help="append each finished turn's rows to this file (partial results)")
     parser.add_argument("--tables", type=Path, help="only print the tables of an earlier run's study.json")
     parser.add_argument("--tables-jsonl", type=Path, help="only print the held-out table of the turns a --jsonl holds")
@@ -230,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
         models, info = fit_models(args, training + list(tests.values()),
                                   training_05 + list(tests_05.values()) if "extended" in args.bases else [],
                                   args.out / "extended_paper.pt")
-        rows = rows_of(models, list(tests.values()))
+        rows = rows_of(models, list(tests.values()), tuple(args.references))
         per_model = {m: {t: rows[m][i] for i, t in enumerate(tests)} for m in rows}
         study["protocols"]["paper"] = {"info": info, "rows": per_model,
                                        "summary": {m: summarise(r) for m, r in per_model.items()}}
@@ -246,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
             models, info = fit_models(args, training + others, (training_05 + others_05) if others_05 else [],
                                       args.out / f"extended_without_{t}.pt")
             infos[t] = info
-            rows = rows_of(models, [rec])
+            rows = rows_of(models, [rec], tuple(args.references))
             for m in rows:
                 per_model.setdefault(m, {})[t] = rows[m][0]
             append_jsonl(args.jsonl, {"protocol": "held_out", "turn": t, "bag": rec.name, "members": args.members,
