@@ -75,6 +75,8 @@ def fit(training: list, members: int, epochs: int) -> tuple[Any, Any, dict]:
     from usv_predictor.physics.vessel import load_vessel
 
     result = identification.identify(load_vessel(VESSEL), training, structure="mmg", prior="fix")
+    if members == 0:  # the grey box only (--members 0)
+        return hybrid_fit.greybox_module(result, DT), None, {}
     config = hybrid_fit.HybridTraining(members=members, epochs=epochs, validation=(VAL_RUN,))
     hybrid, info = hybrid_fit.train_hybrid(result, training, DT, config, progress=log)
     return hybrid_fit.greybox_module(result, DT), hybrid, info
@@ -107,11 +109,31 @@ def fit_extended(training: list, training_05: list, members: int, epochs: int, p
     dg.export_extended(path, preset, diagnosis, DT)
     artifact = load_artifact(path)
     vessel, base = hybrid_fit.base_from_artifact(artifact, preset, training[0])
+    info.update(model_type=artifact.metadata["model_type"], terms=base.terms())
+    if members == 0:  # the grey boxes only (--members 0)
+        return calm, base, None, info
     data = identification.prepare(vessel, training)
     config = hybrid_fit.HybridTraining(members=members, epochs=epochs, validation=(VAL_RUN,))
     hybrid, hybrid_info = hybrid_fit.train_residual(base, vessel, data, training, DT, config, progress=log)
-    info.update(model_type=artifact.metadata["model_type"], terms=base.terms(), hybrid=hybrid_info)
+    info.update(hybrid=hybrid_info)
     return calm, base, hybrid, info
+
+
+def fit_named(training_05: list, causes: tuple[str, ...]) -> tuple[Any, dict]:
+    """The preset extended with `causes` named by the user (no selection: e.g. a wind the trial log reports),
+    their terms fitted on `training_05` at the diagnosis' suited segments (analysis.diagnosis.fit_hypothesis, 20 s /
+    5 s at 0.5 s), the rollout at DT (analysis.diagnosis.extended_rollout, as export_extended builds it)."""
+    from usv_predictor.analysis import diagnosis as dg
+    from usv_predictor.physics.vessel import load_vessel
+
+    preset = load_vessel(VESSEL)
+    started = time.perf_counter()
+    fit = dg.fit_hypothesis(dg.scripted_rollout(preset, training_05[0].dt), dg.make_segments(training_05, 20.0, 5.0),
+                            causes)
+    terms = {k: [float(x) for x in v] for k, v in fit.terms.items()}
+    log(f"  named {'+'.join(causes)}: {terms} ({time.perf_counter() - started:.0f} s)")
+    return dg.extended_rollout(preset, DT, fit.terms), {"causes": list(causes), "terms": terms,
+                                                         "fit_s": time.perf_counter() - started}
 
 
 TRUE_TRACK = "true track (the simulator's ground truth scored as a model: the metric's own noise)"
@@ -207,14 +229,21 @@ def fit_models(args: argparse.Namespace, training: list, training_05: list, exte
     info: dict[str, Any] = {}
     if "identified" in args.bases:
         grey, hybrid, info["identified"] = fit(training, args.members, args.epochs)
-        models.update({"grey box": (grey, 1), "hybrid": (hybrid, args.members)})
+        models["grey box"] = (grey, 1)
+        if hybrid is not None:
+            models["hybrid"] = (hybrid, args.members)
     if "extended" in args.bases:
         extended_path.parent.mkdir(parents=True, exist_ok=True)
         calm, base, hybrid, info["extended"] = fit_extended(training, training_05, args.members, args.epochs,
                                                             extended_path, args.max_causes)
         models["calm-water preset"] = (calm, 1)
         if base is not None:
-            models.update({"extended grey box": (base, 1), "hybrid on extended": (hybrid, args.members)})
+            models["extended grey box"] = (base, 1)
+        if hybrid is not None:
+            models["hybrid on extended"] = (hybrid, args.members)
+        if args.named_causes:
+            named, info["named"] = fit_named(training_05, tuple(args.named_causes))
+            models[f"grey box + named {' + '.join(args.named_causes)}"] = (named, 1)
     return models, info
 
 
@@ -224,7 +253,8 @@ TITLES = {"paper": "paper protocol (every turn in the training data)", "held_out
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, default=REPO / "out" / "study_hybrid")
-    parser.add_argument("--members", type=int, default=5, help="hybrid members = seeds (default 5)")
+    parser.add_argument("--members", type=int, default=5,
+                        help="hybrid members = seeds (default 5; 0: the grey boxes only, no hybrid is trained)")
     parser.add_argument("--epochs", type=int, default=150, help="hybrid epochs at most (early stopping)")
     parser.add_argument("--protocols", nargs="+", default=["paper", "held_out"], choices=["paper", "held_out"])
     parser.add_argument("--turns", nargs="+", default=list(TESTS), choices=list(TESTS),
@@ -237,6 +267,10 @@ def main(argv: list[str] | None = None) -> int:
                              "track (default, the earlier tables), the same smoothed (EKF + RTS), the simulator's "
                              "ground truth; each adds its rows, the measured ones with the true track's row")
     parser.add_argument("--max-causes", type=int, default=2, help="the diagnosis' causes at most (default 2)")
+    parser.add_argument("--named-causes", nargs="+", default=[], metavar="CAUSE",
+                        help="with --bases extended: also the preset extended with these causes, named by the user "
+                             "rather than selected by the diagnosis, fitted on the same data (e.g. current wave_drift "
+                             "wind: the trial log reports the wind)")
     parser.add_argument("--jsonl", type=Path, help="append each finished turn's rows to this file (partial results)")
     parser.add_argument("--tables", type=Path, help="only print the tables of an earlier run's study.json")
     parser.add_argument("--tables-jsonl", type=Path, help="only print the held-out table of the turns a --jsonl holds")
