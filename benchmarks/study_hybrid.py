@@ -119,11 +119,16 @@ def fit_extended(training: list, training_05: list, members: int, epochs: int, p
     return calm, base, hybrid, info
 
 
-def fit_named(training_05: list, causes: tuple[str, ...]) -> tuple[Any, dict]:
-    """The preset extended with `causes` named by the user (no selection: e.g. a wind the trial log reports),
-    their terms fitted on `training_05` at the diagnosis' suited segments (analysis.diagnosis.fit_hypothesis, 20 s /
-    5 s at 0.5 s), the rollout at DT (analysis.diagnosis.extended_rollout, as export_extended builds it)."""
+def fit_named(training: list, training_05: list, causes: tuple[str, ...], members: int, epochs: int, path: Path
+              ) -> tuple[Any, Any, dict]:
+    """(grey box, hybrid on it or None, info): the preset extended with `causes` named by the user (no selection:
+    e.g. a wind the trial log reports), their terms fitted on `training_05` at the diagnosis' suited segments
+    (analysis.diagnosis.fit_hypothesis, 20 s / 5 s at 0.5 s), exported to `path` at DT as export_extended writes an
+    extension, and with members > 0 the residual trained on that file's grey box as fit_extended does."""
     from usv_predictor.analysis import diagnosis as dg
+    from usv_predictor.fitting import hybrid_fit, identification
+    from usv_predictor.models.artifact import export_module, load_artifact
+    from usv_predictor.models.greybox import greybox_metadata
     from usv_predictor.physics.vessel import load_vessel
 
     preset = load_vessel(VESSEL)
@@ -132,8 +137,19 @@ def fit_named(training_05: list, causes: tuple[str, ...]) -> tuple[Any, dict]:
                             causes)
     terms = {k: [float(x) for x in v] for k, v in fit.terms.items()}
     log(f"  named {'+'.join(causes)}: {terms} ({time.perf_counter() - started:.0f} s)")
-    return dg.extended_rollout(preset, DT, fit.terms), {"causes": list(causes), "terms": terms,
-                                                         "fit_s": time.perf_counter() - started}
+    info: dict[str, Any] = {"causes": list(causes), "terms": terms, "fit_s": time.perf_counter() - started}
+    rollout = dg.extended_rollout(preset, DT, fit.terms)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    export_module(path, rollout, greybox_metadata(preset, rollout, model_type=f"greybox+{causes[0]}",
+                                                  training={"method": "named causes", "causes": list(causes)}),
+                  vessel=preset)
+    vessel, base = hybrid_fit.base_from_artifact(load_artifact(path), preset, training[0])
+    if members == 0:
+        return base, None, info
+    config = hybrid_fit.HybridTraining(members=members, epochs=epochs, validation=(VAL_RUN,))
+    hybrid, info["hybrid"] = hybrid_fit.train_residual(base, vessel, identification.prepare(vessel, training), training,
+                                                       DT, config, progress=log)
+    return base, hybrid, info
 
 
 TRUE_TRACK = "true track (the simulator's ground truth scored as a model: the metric's own noise)"
@@ -242,8 +258,13 @@ def fit_models(args: argparse.Namespace, training: list, training_05: list, exte
         if hybrid is not None:
             models["hybrid on extended"] = (hybrid, args.members)
         if args.named_causes:
-            named, info["named"] = fit_named(training_05, tuple(args.named_causes))
-            models[f"grey box + named {' + '.join(args.named_causes)}"] = (named, 1)
+            name = f"grey box + named {' + '.join(args.named_causes)}"
+            named, hybrid, info["named"] = fit_named(training, training_05, tuple(args.named_causes),
+                                                     args.named_members, args.epochs,
+                                                     extended_path.with_name("named_" + extended_path.name))
+            models[name] = (named, 1)
+            if hybrid is not None:
+                models[f"hybrid on {name}"] = (hybrid, args.named_members)
     return models, info
 
 
@@ -271,6 +292,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --bases extended: also the preset extended with these causes, named by the user "
                              "rather than selected by the diagnosis, fitted on the same data (e.g. current wave_drift "
                              "wind: the trial log reports the wind)")
+    parser.add_argument("--named-members", type=int, default=0,
+                        help="hybrid members on the named-causes grey box (default 0: none trained)")
     parser.add_argument("--jsonl", type=Path, help="append each finished turn's rows to this file (partial results)")
     parser.add_argument("--tables", type=Path, help="only print the tables of an earlier run's study.json")
     parser.add_argument("--tables-jsonl", type=Path, help="only print the held-out table of the turns a --jsonl holds")
