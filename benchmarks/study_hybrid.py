@@ -37,6 +37,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -74,13 +75,15 @@ def fit(training: list, members: int, epochs: int) -> tuple[Any, Any, dict]:
     from usv_predictor.physics.vessel import load_vessel
 
     result = identification.identify(load_vessel(VESSEL), training, structure="mmg", prior="fix")
+    if members == 0:  # the grey box only (--members 0)
+        return hybrid_fit.greybox_module(result, DT), None, {}
     config = hybrid_fit.HybridTraining(members=members, epochs=epochs, validation=(VAL_RUN,))
     hybrid, info = hybrid_fit.train_hybrid(result, training, DT, config, progress=log)
     return hybrid_fit.greybox_module(result, DT), hybrid, info
 
 
-def fit_extended(training: list, training_05: list, members: int, epochs: int, path: Path) -> tuple[Any, Any, Any,
-                                                                                                   dict]:
+def fit_extended(training: list, training_05: list, members: int, epochs: int, path: Path, max_causes: int = 2
+                 ) -> tuple[Any, Any, Any, dict]:
     """(calm-water preset, extended grey box, hybrid on it, info): the diagnosis of `training_05` (the same
     manoeuvres at the diagnosis' suited step 0.5 s) against the preset, its extension exported to `path` at DT, and
     the residual trained on that file's grey box with `training` (what `replay identify --hybrid --base` does).
@@ -94,7 +97,8 @@ def fit_extended(training: list, training_05: list, members: int, epochs: int, p
     preset = load_vessel(VESSEL)
     calm = hybrid_fit.ResidualGreyBox(preset, DT, hybrid_fit.ZeroResidual())
     started = time.perf_counter()
-    diagnosis = dg.diagnose(training_05, preset, horizon_s=20.0, stride_s=5.0, max_causes=2, progress=log)
+    diagnosis = dg.diagnose(training_05, preset, horizon_s=20.0, stride_s=5.0, max_causes=max_causes,
+                             progress=log)
     info: dict[str, Any] = {"cause": diagnosis.cause, "parameters": diagnosis.parameters,
                             "additional_causes": [a.cause for a in diagnosis.additional_causes],
                             "diagnosis_s": time.perf_counter() - started}
@@ -105,29 +109,103 @@ def fit_extended(training: list, training_05: list, members: int, epochs: int, p
     dg.export_extended(path, preset, diagnosis, DT)
     artifact = load_artifact(path)
     vessel, base = hybrid_fit.base_from_artifact(artifact, preset, training[0])
+    info.update(model_type=artifact.metadata["model_type"], terms=base.terms())
+    if members == 0:  # the grey boxes only (--members 0)
+        return calm, base, None, info
     data = identification.prepare(vessel, training)
     config = hybrid_fit.HybridTraining(members=members, epochs=epochs, validation=(VAL_RUN,))
     hybrid, hybrid_info = hybrid_fit.train_residual(base, vessel, data, training, DT, config, progress=log)
-    info.update(model_type=artifact.metadata["model_type"], terms=base.terms(), hybrid=hybrid_info)
+    info.update(hybrid=hybrid_info)
     return calm, base, hybrid, info
 
 
-def rows_of(models: dict[str, tuple[Any, int]], recordings: list) -> dict[str, list[list[dict]]]:
+def fit_named(training: list, training_05: list, causes: tuple[str, ...], members: int, epochs: int, path: Path
+              ) -> tuple[Any, Any, dict]:
+    """(grey box, hybrid on it or None, info): the preset extended with `causes` named by the user (no selection:
+    e.g. a wind the trial log reports), their terms fitted on `training_05` at the diagnosis' suited segments
+    (analysis.diagnosis.fit_hypothesis, 20 s / 5 s at 0.5 s), exported to `path` at DT as export_extended writes an
+    extension, and with members > 0 the residual trained on that file's grey box as fit_extended does."""
+    from usv_predictor.analysis import diagnosis as dg
+    from usv_predictor.fitting import hybrid_fit, identification
+    from usv_predictor.models.artifact import export_module, load_artifact
+    from usv_predictor.models.greybox import greybox_metadata
+    from usv_predictor.physics.vessel import load_vessel
+
+    preset = load_vessel(VESSEL)
+    started = time.perf_counter()
+    fit = dg.fit_hypothesis(dg.scripted_rollout(preset, training_05[0].dt), dg.make_segments(training_05, 20.0, 5.0),
+                            causes)
+    terms = {k: [float(x) for x in v] for k, v in fit.terms.items()}
+    log(f"  named {'+'.join(causes)}: {terms} ({time.perf_counter() - started:.0f} s)")
+    info: dict[str, Any] = {"causes": list(causes), "terms": terms, "fit_s": time.perf_counter() - started}
+    rollout = dg.extended_rollout(preset, DT, fit.terms)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    export_module(path, rollout, greybox_metadata(preset, rollout, model_type=f"greybox+{causes[0]}",
+                                                  training={"method": "named causes", "causes": list(causes)}),
+                  vessel=preset)
+    vessel, base = hybrid_fit.base_from_artifact(load_artifact(path), preset, training[0])
+    if members == 0:
+        return base, None, info
+    config = hybrid_fit.HybridTraining(members=members, epochs=epochs, validation=(VAL_RUN,))
+    hybrid, info["hybrid"] = hybrid_fit.train_residual(base, vessel, identification.prepare(vessel, training), training,
+                                                       DT, config, progress=log)
+    return base, hybrid, info
+
+
+TRUE_TRACK = "true track (the simulator's ground truth scored as a model: the metric's own noise)"
+
+
+@dataclass(frozen=True)
+class TrackScore:
+    """The parts of an evaluation.RecordingEvaluation turning_row reads, for a track that is not a model's."""
+
+    turning: Any
+    state_rmse: dict
+    open_loop: None = None
+
+
+def true_track_row(rec: Any, tracks: Any) -> dict:
+    """The recording's ground truth (T, 6) scored against the reference like a prediction: what a perfect model
+    gets, i.e. the reference's own error on these criteria."""
+    from usv_predictor.analysis import evaluation as ev
+
+    truth = ev.reference_series(rec, "truth")
+    prediction = ev.Prediction(name=rec.name, reference="truth", t_s=rec.t_s - rec.t_s[0], controls=rec.controls,
+                               measured=tracks.measured, predicted=truth, predicted_std=np.zeros_like(truth),
+                               layout=rec.layout)
+    turning = ev.compare_turning(prediction, ev.classify(rec).execute_time_s - float(rec.t_s[0]))
+    return turning_row(TrackScore(turning, ev.state_rmse(prediction)))
+
+
+def row_name(name: str, reference: str) -> str:
+    """The table row of a model against a reference: the GNSS rows keep their names (the earlier tables')."""
+    return name if reference == "gnss" else f"{name} [vs {reference}]"
+
+
+def rows_of(models: dict[str, tuple[Any, int]], recordings: list, references: tuple[str, ...] = ("gnss",)
+            ) -> dict[str, list[list[dict]]]:
     """model -> [recording][seed] turning rows; models: row name -> (rollout module, members): a grey box (1) is one
-    row, a hybrid of E members gives '<name> (each member)' and '<name>, ensemble mean'."""
-    from usv_predictor.analysis.evaluation import evaluate_recording
+    row, a hybrid of E members gives '<name> (each member)' and '<name>, ensemble mean'; one set per reference
+    (row_name), and for the measured references (gnss, smoothed) the true track's row (true_track_row)."""
+    from usv_predictor.analysis.evaluation import evaluate_recording, reference_tracks
 
     out: dict[str, list[list[dict]]] = {}
-    for name, (module, members) in models.items():
-        single = Single(module, name, DT)
-        for rec in recordings:
-            if members == 1:
-                out.setdefault(name, []).append([turning_row(evaluate_recording(single, rec, "gnss", (30.0,)))])
-                continue
-            out.setdefault(f"{name} (each member)", []).append(
-                [turning_row(evaluate_recording(Member(single, k), rec, "gnss", (30.0,))) for k in range(members)])
-            out.setdefault(f"{name}, ensemble mean", []).append(
-                [turning_row(evaluate_recording(single, rec, "gnss", (30.0,)))])
+    for rec in recordings:
+        for reference in references:
+            tracks = reference_tracks(rec, reference)
+            if reference != "truth" and rec.truth is not None:
+                out.setdefault(row_name(TRUE_TRACK, reference), []).append([true_track_row(rec, tracks)])
+            for name, (module, members) in models.items():
+                single = Single(module, name, DT)
+                if members == 1:
+                    out.setdefault(row_name(name, reference), []).append(
+                        [turning_row(evaluate_recording(single, rec, reference, (30.0,), tracks=tracks))])
+                    continue
+                out.setdefault(row_name(f"{name} (each member)", reference), []).append(
+                    [turning_row(evaluate_recording(Member(single, k), rec, reference, (30.0,), tracks=tracks))
+                     for k in range(members)])
+                out.setdefault(row_name(f"{name}, ensemble mean", reference), []).append(
+                    [turning_row(evaluate_recording(single, rec, reference, (30.0,), tracks=tracks))])
     return out
 
 
@@ -167,14 +245,26 @@ def fit_models(args: argparse.Namespace, training: list, training_05: list, exte
     info: dict[str, Any] = {}
     if "identified" in args.bases:
         grey, hybrid, info["identified"] = fit(training, args.members, args.epochs)
-        models.update({"grey box": (grey, 1), "hybrid": (hybrid, args.members)})
+        models["grey box"] = (grey, 1)
+        if hybrid is not None:
+            models["hybrid"] = (hybrid, args.members)
     if "extended" in args.bases:
         extended_path.parent.mkdir(parents=True, exist_ok=True)
         calm, base, hybrid, info["extended"] = fit_extended(training, training_05, args.members, args.epochs,
-                                                            extended_path)
+                                                            extended_path, args.max_causes)
         models["calm-water preset"] = (calm, 1)
         if base is not None:
-            models.update({"extended grey box": (base, 1), "hybrid on extended": (hybrid, args.members)})
+            models["extended grey box"] = (base, 1)
+        if hybrid is not None:
+            models["hybrid on extended"] = (hybrid, args.members)
+        if args.named_causes:
+            name = f"grey box + named {' + '.join(args.named_causes)}"
+            named, hybrid, info["named"] = fit_named(training, training_05, tuple(args.named_causes),
+                                                     args.named_members, args.epochs,
+                                                     extended_path.with_name("named_" + extended_path.name))
+            models[name] = (named, 1)
+            if hybrid is not None:
+                models[f"hybrid on {name}"] = (hybrid, args.named_members)
     return models, info
 
 
@@ -184,7 +274,8 @@ TITLES = {"paper": "paper protocol (every turn in the training data)", "held_out
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, default=REPO / "out" / "study_hybrid")
-    parser.add_argument("--members", type=int, default=5, help="hybrid members = seeds (default 5)")
+    parser.add_argument("--members", type=int, default=5,
+                        help="hybrid members = seeds (default 5; 0: the grey boxes only, no hybrid is trained)")
     parser.add_argument("--epochs", type=int, default=150, help="hybrid epochs at most (early stopping)")
     parser.add_argument("--protocols", nargs="+", default=["paper", "held_out"], choices=["paper", "held_out"])
     parser.add_argument("--turns", nargs="+", default=list(TESTS), choices=list(TESTS),
@@ -192,6 +283,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bases", nargs="+", default=["identified", "extended"], choices=["identified", "extended"],
                         help="the grey boxes (and hybrids on them): identified in the sea, and/or the diagnosed "
                              "extension of the preset (default both)")
+    parser.add_argument("--references", nargs="+", default=["gnss"], choices=["gnss", "smoothed", "truth"],
+                        help="what the tracks are scored against (analysis.evaluation.reference_tracks): the raw GNSS "
+                             "track (default, the earlier tables), the same smoothed (EKF + RTS), the simulator's "
+                             "ground truth; each adds its rows, the measured ones with the true track's row")
+    parser.add_argument("--max-causes", type=int, default=2, help="the diagnosis' causes at most (default 2)")
+    parser.add_argument("--named-causes", nargs="+", default=[], metavar="CAUSE",
+                        help="with --bases extended: also the preset extended with these causes, named by the user "
+                             "rather than selected by the diagnosis, fitted on the same data (e.g. current wave_drift "
+                             "wind: the trial log reports the wind)")
+    parser.add_argument("--named-members", type=int, default=0,
+                        help="hybrid members on the named-causes grey box (default 0: none trained)")
     parser.add_argument("--jsonl", type=Path, help="append each finished turn's rows to this file (partial results)")
     parser.add_argument("--tables", type=Path, help="only print the tables of an earlier run's study.json")
     parser.add_argument("--tables-jsonl", type=Path, help="only print the held-out table of the turns a --jsonl holds")
@@ -230,7 +332,7 @@ def main(argv: list[str] | None = None) -> int:
         models, info = fit_models(args, training + list(tests.values()),
                                   training_05 + list(tests_05.values()) if "extended" in args.bases else [],
                                   args.out / "extended_paper.pt")
-        rows = rows_of(models, list(tests.values()))
+        rows = rows_of(models, list(tests.values()), tuple(args.references))
         per_model = {m: {t: rows[m][i] for i, t in enumerate(tests)} for m in rows}
         study["protocols"]["paper"] = {"info": info, "rows": per_model,
                                        "summary": {m: summarise(r) for m, r in per_model.items()}}
@@ -246,7 +348,7 @@ def main(argv: list[str] | None = None) -> int:
             models, info = fit_models(args, training + others, (training_05 + others_05) if others_05 else [],
                                       args.out / f"extended_without_{t}.pt")
             infos[t] = info
-            rows = rows_of(models, [rec])
+            rows = rows_of(models, [rec], tuple(args.references))
             for m in rows:
                 per_model.setdefault(m, {})[t] = rows[m][0]
             append_jsonl(args.jsonl, {"protocol": "held_out", "turn": t, "bag": rec.name, "members": args.members,

@@ -129,24 +129,25 @@ def adaptive_open_loop(model: Any, recording: Recording, reference: str = "gnss"
     estimates = tuple(estimator.run(recording.t_s, recording.nu, recording.psi, recording.controls))
     original = model_terms(model)
     applied = original is not None
-    measured = evaluation.reference_series(recording, reference)
+    tracks = evaluation.reference_tracks(recording, reference)
+    measured, begin = tracks.measured, tracks.start
     fitting = [h for h in horizons_s if h / dt <= len(recording) - 0.5]
     loop = None
     if fitting:
         steps = whole_steps(max(fitting), dt, "open-loop horizon")
         stride = whole_steps(min(stride_s, len(recording) * dt), dt, "--stride")
         starts = np.arange(0, len(recording) - steps, stride)
-        starts = starts[np.isfinite(measured[starts, evaluation.X_N]) & np.isfinite(measured[starts, evaluation.Y_E])]
+        starts = starts[np.isfinite(begin[starts, evaluation.X_N]) & np.isfinite(begin[starts, evaluation.Y_E])]
         if len(starts):
             window = starts[:, None] + np.arange(steps)[None, :]  # (B, H) control indices
-            states = measured[starts][:, [evaluation.U, evaluation.V, evaluation.R, evaluation.PSI]]  # (B, 4)
+            states = begin[starts][:, [evaluation.U, evaluation.V, evaluation.R, evaluation.PSI]]  # (B, 4)
             if applied:
                 with per_start_terms(model, [live_terms(estimates[k], original) for k in starts]):
                     out = evaluation.rollout(model, states, recording.controls[window])  # (E, B, H, 6)
             else:
                 out = evaluation.rollout(model, states, recording.controls[window])
             predicted_xy = out.mean(axis=0)[..., [evaluation.X_N, evaluation.Y_E]] \
-                + measured[starts][:, None, [evaluation.X_N, evaluation.Y_E]]  # (B, H, 2)
+                + begin[starts][:, None, [evaluation.X_N, evaluation.Y_E]]  # (B, H, 2)
             measured_xy = measured[window + 1][..., [evaluation.X_N, evaluation.Y_E]]  # (B, H, 2)
             errors = np.hypot(*(predicted_xy - measured_xy).transpose(2, 0, 1))  # (B, H)
             known = np.isfinite(errors)

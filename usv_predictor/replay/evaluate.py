@@ -25,7 +25,8 @@ if TYPE_CHECKING:
 
 EVALUATION_FILE = "evaluation.json"
 SERIES_FILE = "evaluation_series.npz"
-REFERENCES = ("gnss", "truth")  # compare with the measured GNSS track and states, or the simulator's ground truth
+REFERENCES = ("gnss", "smoothed", "truth")  # the measured GNSS track and states, the same smoothed (EKF + RTS), or
+# the simulator's ground truth (analysis.evaluation.reference_tracks)
 
 
 @dataclass(frozen=True)

@@ -98,8 +98,9 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dt", type=positive_float, default=None,
                         help="step (s) to resample the bags at; must equal the model's dt (default: the model's)")
     parser.add_argument("--reference", choices=REFERENCES, default="gnss",
-                        help="compare with the measured GNSS track and states (default) or the ground truth of "
-                             "simulated bags")
+                        help="compare with the measured GNSS track and states (default), the same smoothed (EKF + RTS "
+                             "over GNSS, compass, INS, gyro: eq. 27-29 on raw GNSS carry its noise; the model still "
+                             "starts from the raw measured state) or the ground truth of simulated bags")
     parser.add_argument("--horizons", type=positive_float, nargs="+", default=[10.0, 30.0, 60.0], metavar="S",
                         help="open-loop horizons (s, default 10 30 60)")
     parser.add_argument("--stride", type=positive_float, default=5.0, metavar="S",
