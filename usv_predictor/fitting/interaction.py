@@ -11,29 +11,37 @@ suite, boat 2: Y_vvv -16.1, N_vvv +15.3 for a truth of -1.3, -0.04) that make a 
 Seed 001 sec. 4 (Alexandersson): hull and rudder identified together by ONE linear regression split the yaw moment
 wrongly (the rudder angle and the yaw rate are collinear in zig-zags). So the factors are not regressors here. The
 hull regression is linear GIVEN them, and the factors are searched outside it (a profile, as the throttle gain of
-`identification.profile_throttle_gain`), in two measured stages:
+`identification.profile_throttle_gain`), in measured stages:
 
  1. equation error, cross-validated: over a bounded box around the description (each factor x INTERACTION_BOUNDS),
     coordinate descent on a log grid minimises the leave-one-manoeuvre-out error of the hull regression
     (identification.cross_validate, prior policy as asked) over EQUATION_ERROR_FACTORS: for each trial the steering
     and propulsion forces are recomputed with the trial factors, the hull refitted on all but one manoeuvre and its
-    forces predicted on it. It sets the propeller's w_P0 and t_P (the surge equation sees them) and a start for the
-    rudder's factors, which the force fit cannot split from the hull (the collinearity above);
- 2. output error, held out: a pattern search (compass search in log space, steps PATTERN_STEPS, at most
-    MAX_SIMULATIONS candidates) over the rudder's OUTPUT_ERROR_FACTORS (lift gradient, gamma_R, eta) minimises the
-    multi-step simulation error of the identified grey box (models/greybox.GreyBoxRollout, the model `diagnose`
-    runs) on segments (data/segments.py, SEGMENT_HORIZON_S) of each manoeuvre, the hull fitted WITHOUT that
-    manoeuvre (leave one manoeuvre out). It starts from the best of the description, the stage-1 optimum and the
-    stage-1 optimum with the description's propeller. Simulation error is what separates rudder from hull: a wrong
-    split fits the forces and fails the motion. Before a candidate is simulated, the grey box its factors give (hull
-    fitted on all manoeuvres) must pass steady_check: its straight-running speed at the recorded engine speed within
-    STRAIGHT_SPEED_RATIO of the measured one, and a steady turn at STEADY_TURN_RUDDER_DEG (or the rudder limit) each
-    way that settles (no divergence), turns the way the rudder says, keeps a plausible speed (TURN_SPEED_RATIO of
-    the straight speed), drift angle and diameter (TURN_DIAMETER_L ship lengths). A candidate that fails is out
-    (recorded with its reason, never chosen): a model that fits 20 s segments and diverges in a long turn is what
-    `diagnose`'s fit check refuses later. The best candidate replaces the description only when its held-out
-    simulation error is below ACCEPT_RATIO of the description's, or when the description itself fails
-    steady_check; otherwise the description's factors stay (a preset whose factors are right keeps them).
+    forces predicted on it. It gives the output-error search a start (the force fit cannot split the rudder from
+    the hull: the collinearity above);
+ 2. output error: the multi-step simulation error of the identified grey box (models/greybox.GreyBoxRollout, the
+    model `diagnose` runs) on the 20 s segments (data/segments.py, SEGMENT_HORIZON_S) of the manoeuvres is minimised
+    over the log of all five SEARCH_FACTORS (the rudder's lift gradient, gamma_R and eta, the propeller's w_P0 and
+    t_P) by Levenberg-Marquardt (finite-difference Jacobian of the residuals, FD_STEP; at most MAX_SEARCH
+    candidates), the hull refitted (linear) for each candidate: a variable-projection least squares. It starts from
+    the best of the description, the stage-1 optimum and that optimum with the description's propeller. Simulation
+    error is what separates rudder from hull: a wrong split fits the forces and fails the motion. The search's
+    criterion is in sample (the hull fitted on all manoeuvres, all segments in one rollout: insample_residuals);
+    the lift gradient, eta and w_P0 lie along one curved valley of it (all three set the rudder's inflow), which a
+    coordinate search crawls along and Levenberg-Marquardt follows (README boat 2: the truth's factors 1.3, 0.68,
+    1.73, 0.50, 0.52 of the description's; found 1.32, 0.57, 1.72, 0.55, 0.78).
+ 3. plausibility: every candidate's grey box (hull fitted on all manoeuvres) must pass steady_check: its
+    straight-running speed at the recorded engine speed within STRAIGHT_SPEED_RATIO of the measured one, and a
+    steady turn at STEADY_TURN_RUDDER_DEG (or the rudder limit) each way (steady_turn: RK4 of the numpy twin over
+    TURN_LENGTHS ship lengths) that does not diverge, settles, turns the way the rudder says, keeps a speed within
+    TURN_SPEED_RATIO of the straight one and turns in fewer than TURN_DIAMETER_MAX_L ship lengths. A candidate that
+    fails is never chosen (its reason is recorded), but the search may pass through it (the valley crosses such
+    pockets): a model that fits 20 s segments and diverges in a long turn is what `diagnose`'s fit check refuses.
+ 4. decision, held out: the description and the search's best plausible candidate are scored by the same multi-step
+    error on each manoeuvre with the hull fitted WITHOUT that manoeuvre (leave one manoeuvre out:
+    heldout_simulation_error). The candidate replaces the description only when its held-out error is below
+    ACCEPT_RATIO of the description's, or when the description itself fails steady_check; otherwise the
+    description's factors stay (a preset whose factors are right keeps them).
 
 Each factor's 95 % interval: along that factor (the others at the chosen values) the equation-error criterion
 J = sum_e RSS_e / sigma_e^2 of the hull regression on all data, the interval where J rises by less than CHI2_95 x
@@ -193,7 +201,7 @@ def manoeuvre_segments(recordings: Sequence[Recording]) -> dict[str, tuple[float
 
 
 def pooled_segments(recordings: Sequence[Recording]) -> list[tuple[float, Segments]]:
-    """(dt, segments) of all manoeuvres longer than a segment, one batch per time step: what insample_simulation_error
+    """(dt, segments) of all manoeuvres longer than a segment, one batch per time step: what insample_residuals
     rolls out at once."""
     steps = sorted({r.dt for r in recordings if len(r) * r.dt > SEGMENT_HORIZON_S})
     return [(dt, make_segments([r for r in recordings if r.dt == dt and len(r) * r.dt > SEGMENT_HORIZON_S],
@@ -398,6 +406,7 @@ def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: 
     searched: dict[str, float] = {}  # label -> in-sample simulation error (inf: excluded)
     residual: dict[str, np.ndarray] = {}  # label -> its multi-step residuals (noise units)
     scales: dict[str, dict[str, float]] = {}  # label -> its multiples
+    models: dict[str, Vessel] = {}  # label -> its grey box's vessel (hull fitted on all manoeuvres)
     excluded: dict[str, str] = {}  # label -> why steady_check (or the hull regression) put it out
     description = {n: 1.0 for n in INTERACTION_BOUNDS}
 
@@ -416,9 +425,7 @@ def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: 
             except (np.linalg.LinAlgError, ValueError) as err:
                 excluded[label], searched[label] = f"hull regression failed: {err}", math.inf
                 return math.inf
-            reason = steady_check(whole, rpm, measured_speed)
-            if reason is not None:  # out of the choice, not of the search's path (the valley may pass it)
-                excluded[label] = reason
+            models[label] = whole  # checked (steady_check) when it may be chosen: out of the choice, not of the path
             residual[label] = insample_residuals(whole, pooled)
             searched[label] = float(np.mean(residual[label] ** 2))
         return searched[label]
@@ -467,12 +474,21 @@ def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: 
             break
     # the decision: held-out simulation of the description and the search's best plausible candidate
     finite = {k: v for k, v in searched.items() if math.isfinite(v)}
-    plausible = {k: v for k, v in finite.items() if k not in excluded}
-    decision = ["description"] + ([min(plausible, key=plausible.get)] if plausible else [])
+    if "description" in finite:
+        reason = steady_check(models["description"], rpm, measured_speed)
+        if reason is not None:
+            excluded["description"] = reason
+    best = None  # the search's best plausible candidate: checked in the order of the in-sample error
+    for label in sorted((k for k in finite if k != "description"), key=finite.get):
+        reason = steady_check(models[label], rpm, measured_speed)
+        if reason is None:
+            best = label
+            break
+        excluded[label] = reason
     segments = manoeuvre_segments(recordings)
     simulation = {}
-    for label in dict.fromkeys(decision):
-        if label in plausible:
+    for label in ("description", best):
+        if label in finite and label not in excluded:
             trial = with_factors(vessel, scales[label])
             simulation[label] = heldout_simulation_error(trial, with_known_forces(trial, data), segments, structure,
                                                          prior, u0, held)
