@@ -24,7 +24,9 @@ hull regression is linear GIVEN them, and the factors are searched outside it (a
     over the log of all five SEARCH_FACTORS (the rudder's lift gradient, gamma_R and eta, the propeller's w_P0 and
     t_P) by Levenberg-Marquardt (finite-difference Jacobian of the residuals, FD_STEP; at most MAX_SEARCH
     candidates), the hull refitted (linear) for each candidate: a variable-projection least squares. It starts from
-    the best of the description, the stage-1 optimum and that optimum with the description's propeller. Simulation
+    the best of the description, the stage-1 optimum, that optimum with the description's propeller and DESIGN_POINTS
+    points of a Halton design over the box (where all of the first three diverge the residuals are clamped flat and
+    Levenberg-Marquardt cannot move: README boat 24). Simulation
     error is what separates rudder from hull: a wrong split fits the forces and fails the motion. The search's
     criterion is in sample (the hull fitted on all manoeuvres, all segments in one rollout: insample_residuals);
     the lift gradient, eta and w_P0 lie along one curved valley of it (all three set the rudder's inflow), which a
@@ -71,14 +73,16 @@ from usv_predictor.physics.vessel import Vessel
 INTERACTION_MODES = ("identify", "fix")  # `identify --interaction`: search the factors, or hold the description's
 # the factors searched: name -> (lowest, highest) multiple of the description's value (-). The lift gradient and eta
 # span a factor 2 both ways (Fujii's formula ignores the slipstream's contraction, the hull's shelter, the profile;
-# D_P / span is the geometric share of the span in the slipstream, not the effective one), the others +-50 % (the
-# issue's bounds; the suite's boats differ from the description by up to about that)
+# D_P / span is the geometric share of the span in the slipstream, not the effective one); gamma_R, w_P0 and t_P a
+# factor 3 down, +50 % up: the regressions over merchant ships vessel init uses give a small USV about twice the
+# wake, thrust deduction and flow straightening of jari_usv (the unknown-boat suite's truths: 0.47-0.57 x the
+# description's, before their own +-30 %)
 INTERACTION_BOUNDS: Mapping[str, tuple[float, float]] = {
     "rudder.lift_factor": (0.5, 2.0),
-    "rudder.gamma_R": (0.5, 1.5),
+    "rudder.gamma_R": (1.0 / 3.0, 1.5),
     "rudder.eta": (0.5, 2.0),
-    "propeller.w_P0": (0.5, 1.5),
-    "propeller.t_P": (0.5, 1.5),
+    "propeller.w_P0": (1.0 / 3.0, 1.5),
+    "propeller.t_P": (1.0 / 3.0, 1.5),
 }
 ETA_MAX = 1.0  # (-) eta at most 1: the slipstream covers at most the whole span (MMG eq. 38 weights 1 - eta)
 EQUATION_ERROR_FACTORS = ("rudder.lift_factor", "rudder.gamma_R", "propeller.w_P0", "propeller.t_P")  # stage 1
@@ -94,11 +98,14 @@ DIVERGED = 1e6  # (-) the normalised squared error counted for a diverged or non
 # simulate (each: one hull fit and one rollout per manoeuvre; the cost the identify budget allows, about the
 # stage-1 search's)
 SEARCH_FACTORS = ("rudder.lift_factor", "rudder.gamma_R", "rudder.eta", "propeller.w_P0", "propeller.t_P")  # stage 2
+DESIGN_POINTS = 8  # (-) Halton points over the log box of the five factors, beside the three starts: where the
+#                     description and the force-fit optimum both diverge (flat clamped residuals), a start that does not
+HALTON_BASES = (2, 3, 5, 7, 11)  # (-) one prime per factor of SEARCH_FACTORS
 FD_STEP = 0.05  # (-) log step of the finite differences of stage 2's Jacobian (5 % of a factor)
 LM_DAMPING = 1e-2  # (-) initial Levenberg-Marquardt damping (x the diagonal of J^T J); / 3 on success, x 4 on failure
 LM_DAMPING_MAX = 1e4  # (-) the search stops when no step this damped lowers the error
 LM_CONVERGED = 1e-3  # (-) the search stops when a step moves no factor by more than this (log)
-MAX_SEARCH = 40  # (-) candidates of stage 2 simulated in sample (0.5 s each on the 2-core machine: a 20 s rollout of
+MAX_SEARCH = 44  # (-) candidates of stage 2 simulated in sample (0.5 s each on the 2-core machine: a 20 s rollout of
 #                  all segments at once), the starts and the Jacobians' included
 # steady_check: what a candidate's identified grey box must do in a steady turn and a straight run
 STEADY_TURN_RUDDER_DEG = 35.0  # (deg) the turn's rudder angle (the vessel's limit when smaller)
@@ -141,6 +148,16 @@ def _eta_bounds(vessel: Vessel) -> tuple[float, float]:
     keeps its own value as the highest)."""
     low, high = INTERACTION_BOUNDS["rudder.eta"]
     return low, max(1.0, min(high, ETA_MAX / vessel.rudder.eta))
+
+
+def _halton(index: int, base: int) -> float:
+    """The index-th element (index >= 1) of the van der Corput sequence in `base`, in (0, 1)."""
+    value, fraction = 0.0, 1.0
+    while index > 0:
+        fraction /= base
+        value += fraction * (index % base)
+        index //= base
+    return value
 
 
 def _label(scale: Mapping[str, float]) -> str:
@@ -439,6 +456,11 @@ def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: 
     starts = {"description": description, "equation-error optimum": dict(scale),
               "equation-error optimum, propeller of the description":
                   {**scale, "propeller.w_P0": 1.0, "propeller.t_P": 1.0}}
+    for k in range(1, DESIGN_POINTS + 1):  # a space-filling design over the box: the starts may all have diverged
+        starts[f"design {k}"] = {**description, **{
+            n: float(math.exp(lo + _halton(k, base) * (hi - lo))) for n, base, lo, hi in zip(
+                SEARCH_FACTORS, HALTON_BASES, np.log([_bounds(vessel, n)[0] for n in SEARCH_FACTORS]),
+                np.log([_bounds(vessel, n)[1] for n in SEARCH_FACTORS]))}}
     start = min(starts.values(), key=insample)
     low = np.log([_bounds(vessel, n)[0] for n in SEARCH_FACTORS])  # (5,)
     high = np.log([_bounds(vessel, n)[1] for n in SEARCH_FACTORS])  # (5,)
