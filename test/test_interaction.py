@@ -3,6 +3,7 @@ steady turn and straight run, and the output-error search on a boat whose rudder
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import numpy as np
@@ -108,3 +109,21 @@ def test_the_search_moves_wrong_rudder_factors_toward_the_truth():
     assert result.vessel.rudder.f_alpha == pytest.approx(factors["rudder.lift_factor"] * description.rudder.f_alpha /
                                                          description.rudder.lift_factor)
     assert not math.isnan(result.fit.values()["N_r"])
+
+
+def test_without_a_segment_long_enough_the_description_stays():
+    """Manoeuvres shorter than a segment give no simulation error: the description's factors stay, said in one line
+    (no NaN in the JSON)."""
+    description = load_vessel("jari_usv")
+    model, env = ManoeuvringModel(description), Environment()
+    short = (ZigZag(10.0, 10.0, 650.0, duration_s=15.0), ZigZag(20.0, 20.0, 700.0, duration_s=15.0, side=-1),
+             TurningCircle(25.0, 650.0, duration_s=15.0))
+    recordings = [recording_from_signals(measure(simulate(model, m, env, seed=i), env, SensorSpec(), seed=i), DT,
+                                         name=m.name) for i, m in enumerate(short)]
+    data = idf.prepare(description, recordings)
+    u0 = float(np.median(np.concatenate([d.nu[:, 0] for d in data])))
+    fit = ia.identify_interaction(description, data, recordings, "mmg", "fix", u0)
+    assert not fit.accepted and fit.scale == {n: 1.0 for n in ia.INTERACTION_BOUNDS}
+    assert fit.vessel.rudder == description.rudder and fit.simulation == {}
+    assert "no candidate could be simulated (no manoeuvre longer than 20 s)" in fit.note()
+    json.dumps(fit.to_json(), allow_nan=False)

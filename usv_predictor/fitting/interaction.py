@@ -184,12 +184,16 @@ class InteractionFit:
         """One line for identify's notes."""
         sim = self.simulation
         out = f"; {len(self.excluded)} candidate(s) excluded by the steady turn / straight run check"
-        described = sim.get("description", math.nan)
+        described = (f"{sim['description']:.3g}" if "description" in sim else
+                     f"none: the description is out, {self.excluded.get('description', 'not simulated')}")
         if not self.accepted:
+            if not sim:
+                return ("interaction factors: no candidate could be simulated (" +
+                        next(iter(self.excluded.values()), "no search") + "); the description's kept" + out)
             return (f"interaction factors: the search did not lower the held-out simulation error below {ACCEPT_RATIO} "
-                    f"x the description's ({described:.3g}); the description's kept" + out)
-        return ("interaction factors identified with the hull (held-out simulation error "
-                f"{described:.3g} with the description's, {sim[self.chosen]:.3g} chosen): "
+                    f"x the description's ({described}); the description's kept" + out)
+        return (f"interaction factors identified with the hull (held-out simulation error {described} with the "
+                f"description's, {sim[self.chosen]:.3g} chosen): "
                 + ", ".join(f"{c.name} {c.estimate:.4g} (description {c.prior:.4g})" for c in self.coefficients) + out)
 
     def to_json(self) -> dict:
@@ -420,6 +424,9 @@ def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: 
     # stage 2: output-error search (Levenberg-Marquardt in the log of the factors), implausible candidates excluded
     rpm, measured_speed = straight_reference(vessel, data)
     pooled = pooled_segments(recordings)
+    if not pooled:  # no manoeuvre as long as a segment: no simulation error to decide by, the description's stay
+        return InteractionFit(vessel, {n: 1.0 for n in INTERACTION_BOUNDS}, (), False, cv_description, cv_searched, {},
+                              evaluations, {"description": f"no manoeuvre longer than {SEGMENT_HORIZON_S:g} s"})
     searched: dict[str, float] = {}  # label -> in-sample simulation error (inf: excluded)
     residual: dict[str, np.ndarray] = {}  # label -> its multi-step residuals (noise units)
     scales: dict[str, dict[str, float]] = {}  # label -> its multiples
