@@ -42,8 +42,9 @@ hull regression is linear GIVEN them, and the factors are searched outside it (a
  4. decision, held out: the description and the search's best plausible candidate are scored by the same multi-step
     error on each manoeuvre with the hull fitted WITHOUT that manoeuvre (leave one manoeuvre out:
     heldout_simulation_error). The candidate replaces the description only when its held-out error is below
-    ACCEPT_RATIO of the description's, or when the description itself fails steady_check; otherwise the
-    description's factors stay (a preset whose factors are right keeps them).
+    ACCEPT_RATIO of the description's, or when the description itself fails steady_check, and in either case at
+    most FIT_CEILING_NMSE (a candidate that does not fit its own calm day is no model to diagnose with); otherwise
+    the description's factors stay (a preset whose factors are right keeps them).
 
 Each factor's 95 % interval: along that factor (the others at the chosen values) the equation-error criterion
 J = sum_e RSS_e / sigma_e^2 of the hull regression on all data, the interval where J rises by less than CHI2_95 x
@@ -93,6 +94,10 @@ FINE_POINTS = 5  # trial values of the fine sweep, spanning one coarse step eith
 SEGMENT_HORIZON_S = 20.0  # (s) multi-step segments of the output-error stage (those diagnose's calm-water fit uses)
 SEGMENT_STRIDE_S = 5.0  # (s) a segment starts every this
 ACCEPT_RATIO = 0.8  # the searched factors replace the description's only below this x its held-out simulation error
+FIT_CEILING_NMSE = 100.0  # (-) the searched factors replace the description's only when their held-out simulation
+# error is at most this (RMS 10 noise units, diagnose's FIT_CEILING_LOSS): a model that does not fit its own calm day
+# is no model to diagnose with, and the description's (often diverging) lets `diagnose` say model_mismatch (suite
+# boat 24: accepted at 134, a 5.9 deg heading offset then answered `none`)
 DIVERGED = 1e6  # (-) the normalised squared error counted for a diverged or non-finite segment
 # stage 2's pattern search: the log step of each round (x1.41, x1.19, x1.09 of a factor), the candidates it may
 # simulate (each: one hull fit and one rollout per manoeuvre; the cost the identify budget allows, about the
@@ -190,6 +195,11 @@ class InteractionFit:
             if not sim:
                 return ("interaction factors: no candidate could be simulated (" +
                         next(iter(self.excluded.values()), "no search") + "); the description's kept" + out)
+            best = min((v for k, v in sim.items() if k != "description"), default=math.inf)
+            if best > FIT_CEILING_NMSE and math.isfinite(best):
+                return (f"interaction factors: the search's best candidate leaves a held-out simulation error of "
+                        f"{best:.3g} (a fit leaves <= {FIT_CEILING_NMSE:g}; the description's: {described}): the "
+                        "description's kept; this calm-water model does not fit its own calm day" + out)
             return (f"interaction factors: the search did not lower the held-out simulation error below {ACCEPT_RATIO} "
                     f"x the description's ({described}); the description's kept" + out)
         return (f"interaction factors identified with the hull (held-out simulation error {described} with the "
@@ -200,6 +210,7 @@ class InteractionFit:
         return {"accepted": self.accepted, "scale": dict(self.scale), "chosen": self.chosen,
                 "cv_nmse_description": self.cv_description, "cv_nmse_searched": self.cv_searched,
                 "heldout_simulation_nmse": dict(self.simulation), "accept_ratio": ACCEPT_RATIO,
+                "fit_ceiling_nmse": FIT_CEILING_NMSE,
                 "excluded": dict(self.excluded),
                 "equation_error_evaluations": self.evaluations, "insample_simulation_nmse": dict(self.searched),
                 "method": "leave-one-manoeuvre-out hull-force CV (coordinate descent over lift gradient, gamma_R, "
@@ -524,8 +535,8 @@ def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: 
     heldout = {k: v for k, v in simulation.items() if math.isfinite(v)}
     chosen_label = min(heldout, key=heldout.get) if heldout else "description"
     described = simulation.get("description", math.inf)  # inf: the description was excluded
-    accepted = chosen_label != "description" and (heldout[chosen_label] < ACCEPT_RATIO * described
-                                                  or "description" in excluded)
+    accepted = chosen_label != "description" and heldout[chosen_label] <= FIT_CEILING_NMSE and (
+        heldout[chosen_label] < ACCEPT_RATIO * described or "description" in excluded)
     chosen = scales[chosen_label] if accepted else description
     chosen_vessel = with_factors(vessel, chosen)
     coefficients = tuple(_interval(vessel, data, structure, u0, chosen, n)
