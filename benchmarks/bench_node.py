@@ -10,8 +10,9 @@
    before) and the file's own rollout; the file's module after torch.jit.freeze, and after freeze +
    optimize_for_inference; the same folded network as a plain eager loop (members one by one, no fused batched
    matmuls) and as a numpy loop (members one by one); the network re-scripted with tanh(x) = 2 sigmoid(2x) - 1; and
-   the 64-candidate batch (B = 64, 64 different rudders, one call) for numpy's, the fused, the file's rollout, freeze
-   and the sigmoid form.
+   the 64-candidate batch (B = 64, 64 different rudders, one call) for numpy's, numpy's row form as it ran before
+   2026-11-26 (row_form_batch), the fused, the file's rollout, freeze and the sigmoid form. The header prints
+   OPENBLAS_CORETYPE (numpy's OpenBLAS kernels: this machine's environment sets Haswell, AVX2).
 2. The node in its own process at 10 Hz, fed from this process over DDS (loopback, localhost discovery) with the
    inputs as CDR bytes (stamps patched in place: the feeder costs next to nothing), IMU at 200 Hz then at 1 kHz,
    the other inputs at 20/20/10/10/5 Hz; the Path arrives on a raw subscription (its header stamp read from the
@@ -19,6 +20,8 @@
      old      the node of --baseline (git archive of that commit): message objects in and out, rclpy.spin
      events   this node (CDR in and out) with rclpy's EventsExecutor (what main() uses)
      single   this node with the SingleThreadedExecutor
+     events-own-blas   this node (EventsExecutor) without OPENBLAS_CORETYPE and OPENBLAS_L2_SIZE: OpenBLAS picks
+              its kernels itself (AVX-512 `SkylakeX` on this Zen 5 VM, whose environment pins `Haswell`)
    end-to-end = arrival of predicted_path - its header stamp (the node's clock when the cycle started: decoding,
    state, rollout, encoding, DDS); input-to-path = arrival - stamp of the newest IMU message sent before it
    (includes the wait for the next timer tick, up to 1 / rate_hz); CPU of the node process from /proc.
@@ -59,6 +62,7 @@ RATES = {"imu": 200.0, "velocity": 20.0, "heading": 20.0, "rudder_angle": 10.0, 
 VALUES = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), "heading": (0.5,),
           "rudder_angle": (0.1,), "engine_rpm": (650.0,), "gnss": (35.38, 119.56, 0.0)}
 NS = 1_000_000_000
+OWN_BLAS = "events-own-blas"  # variant: this node (EventsExecutor) without OPENBLAS_CORETYPE in its environment
 
 
 def percentiles(seconds: list[float] | np.ndarray) -> dict[str, float]:
@@ -145,6 +149,43 @@ def numpy_rollout(p: dict[str, np.ndarray], state: np.ndarray, controls: np.ndar
     return out
 
 
+def row_form_batch(r: NumpyDnnRollout, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+    """NumpyDnnRollout's candidate form as it ran before 2026-11-26 (the usual network: NTF, tanh, depth 2): the B
+    states the rows of x (H + 1, E, B, S + C + 1), the first tanh on the strided [pre | unit] columns, the output
+    product h head, then the member-major kinematics. What the transposed form and the step-major kinematics gain."""
+    e, b, horizon = r.ensemble_size, state.shape[0], controls.shape[1]
+    n_s, c = r.n_state, r.n_controls
+    x = np.empty((horizon + 1, e, b, n_s + c + 1), dtype=r.dtype)
+    x[0, :, :, :4] = state
+    x[0, :, :, 4:n_s] = state[None, :, 3:4] + r.phase[:, None, :]
+    r._heading(x[0, :, :, 4:n_s])
+    x[:horizon, :, :, n_s: n_s + c] = controls.transpose(1, 0, 2)[:, None]
+    x[horizon, :, :, n_s: n_s + c] = 0.0
+    x[:, :, :, n_s + c] = 1.0
+    y = np.empty((e, b, r.first.shape[2]), dtype=r.dtype)
+    s_lin, g = y[..., :n_s], y[..., n_s:]
+    w = r.hidden[0]
+    z, t = np.empty((e, b, w.shape[2]), dtype=r.dtype), np.empty((e, b, n_s), dtype=r.dtype)
+    for x_k, s_next, columns in zip(x[:-1], x[1:, :, :, :n_s], x[1:, :, :, 4:n_s]):
+        np.matmul(x_k, r.first, out=y)
+        np.tanh(g, out=g)
+        np.matmul(g, w, out=z)
+        np.tanh(z, out=z)
+        np.matmul(z, r.head, out=t)
+        np.add(t, s_lin, out=s_next)
+        np.sin(columns, out=columns)
+    path = x[1:, :, :, :4].transpose(1, 2, 0, 3).astype(np.float64)  # (E, B, H, 4)
+    full = np.concatenate([np.broadcast_to(state[None, :, None, :], (e, b, 1, 4)), path], axis=2)
+    cos_psi, sin_psi = np.cos(full[..., 3]), np.sin(full[..., 3])
+    velocity = np.stack([full[..., 0] * cos_psi - full[..., 1] * sin_psi,
+                         full[..., 0] * sin_psi + full[..., 1] * cos_psi], axis=-1)
+    out = np.empty((e, b, horizon, 6))
+    out[..., 0:3] = path[..., 0:3]
+    np.cumsum(0.5 * r.dt * (velocity[:, :, 1:] + velocity[:, :, :-1]), axis=2, out=out[..., 3:5])
+    out[..., 5] = path[..., 3]
+    return out
+
+
 class SigmoidTanhRollout(DnnRollout):
     """The artifact's network with tanh(x) computed as 2 sigmoid(2x) - 1 (in place): what the activation costs."""
 
@@ -226,8 +267,13 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
                               "fused TorchScript (FusedDnnRollout: before)": lambda: fused(state, controls),
                               "torchscript_5 (the file's rollout)": lambda: rollout(state, controls)},
                              repeats)
+    row_form = numpy_model.inference
+    agreement["numpy_vs_row_form_64_candidates_max_abs"] = float(
+        np.abs(numpy_batch - row_form_batch(row_form, state[None].repeat(64, 0), candidates)).max())
     pair_64 = timed_alternating({"batch 64 candidates numpy (the node's call now)":
                                  lambda: numpy_form.batch(state, candidates),
+                                 "batch 64 candidates numpy row form (before)":
+                                 lambda: row_form_batch(row_form, state[None].repeat(64, 0), candidates),
                                  "batch 64 candidates fused TorchScript (before)": lambda: fused.batch(state, candidates),
                                  "batch 64 candidates torchscript_5 (the file's)":
                                  lambda: rollout.batch(state, candidates)}, few)
@@ -476,8 +522,13 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
         command = [sys.executable, "-m", "usv_predictor.node", "--ros-args", *ros_args]
         node_env, cwd = {**env, "PYTHONPATH": str(tree)}, str(tree)
     else:
-        command = [sys.executable, str(Path(__file__).resolve()), "--serve", variant, "--ros-args", *ros_args]
+        executor = "events" if variant == OWN_BLAS else variant
+        command = [sys.executable, str(Path(__file__).resolve()), "--serve", executor, "--ros-args", *ros_args]
         node_env, cwd = {**env, "PYTHONPATH": str(REPO)}, str(REPO)
+        if variant == OWN_BLAS:  # the node with OpenBLAS's own choice of kernels, whatever this environment pins:
+            # the pair is set together here (an older OpenBLAS computes wrong results on some CPUs), so unset together
+            node_env.pop("OPENBLAS_CORETYPE", None)
+            node_env.pop("OPENBLAS_L2_SIZE", None)
     out = tmp / f"received_{variant}.json"
     receiver = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--receive", str(out)],
                                 env={**env, "PYTHONPATH": str(REPO)})
@@ -488,7 +539,7 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
         feeder.wait_for([process, receiver])
         runs["imu_200"] = feeder.run(seconds, 200.0, process)
         runs["imu_1000"] = feeder.run(seconds, 1000.0, process)
-        if variant == "events" or (variant == "old" and old_candidates):
+        if variant in ("events", OWN_BLAS) or (variant == "old" and old_candidates):
             runs["candidates_64"] = feeder.run(seconds, 200.0, process, candidates_hz=2.0)
     finally:
         feeder.close()
@@ -522,7 +573,9 @@ def main() -> int:
     args = parser.parse_args()
     result: dict[str, Any] = {"started": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "load_at_start": load(),
                               "cpu": os.cpu_count()}
-    print(f"{result['started']}, {os.cpu_count()} cores, load average (1/5/15 min) {result['load_at_start']}")
+    result["openblas_coretype"] = os.environ.get("OPENBLAS_CORETYPE", "(unset: OpenBLAS's own detection)")
+    print(f"{result['started']}, {os.cpu_count()} cores, load average (1/5/15 min) {result['load_at_start']}, "
+          f"OPENBLAS_CORETYPE {result['openblas_coretype']}")
     with tempfile.TemporaryDirectory() as tmp:
         if not args.skip_compute:
             result["compute"] = bench_compute(args.repeats, Path(tmp))
@@ -537,7 +590,7 @@ def main() -> int:
     print("\nnode at 10 Hz over DDS; e2e = cycle start -> Path received        p50 / p99 ms      CPU % of one core")
     for variant, runs in result["node"].items():
         label = {"old": f"old ({args.baseline})", "events": "new, EventsExecutor",
-                 "single": "new, SingleThreadedExecutor"}[variant]
+                 "single": "new, SingleThreadedExecutor", OWN_BLAS: "new, OpenBLAS's own kernels"}[variant]
         for name, run in runs.items():
             print(f"  {label:38s} IMU {run['imu_hz']:6.0f} Hz  e2e {run['end_to_end']['p50_ms']:6.2f} / "
                   f"{run['end_to_end']['p99_ms']:6.2f}  input->path {run['input_to_path']['p50_ms']:6.2f} / "

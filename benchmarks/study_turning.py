@@ -6,8 +6,10 @@ KVLCC2 (../shared/data/raw/kvlcc2_hsva_simman2008, 13 HSVA model-scale zig-zags,
     with the prior the tool recommends for it (`--prior none` refuses naming X_rr, X_vvvv, Y_vrr, Y_rrr, N_vvr, N_vrr,
     N_rrr and recommends `--prior fix`), with `--prior ridge`, and with `fix` whose held coefficients take
     semi-empirical values (seed 001's approach: physics/empirical.mmg_hull_estimates, Kijima 1990 and strip-theory
-    cross-flow drag) instead of the preset's captive-test values; the preset itself (Yasukawa & Yoshimura 2015) as a
-    sanity check;
+    cross-flow drag) instead of the preset's captive-test values, with `fix` whose held Y, N terms take Kijima et al.
+    1990's regression (physics/empirical.kijima_1990_nonlinear), and with `--interaction identify` (the rudder lift
+    gradient, gamma_R, w_P0, t_P searched with the hull, fitting/interaction.py); the preset itself (Yasukawa &
+    Yoshimura 2015) as a sanity check;
   - each simulated in calm water through 35 deg turning circles both ways at the zig-zags' approach speed (the
     propeller speed that gives each model the measured approach speed in straight running), from steady straight
     running, 10 s approach; advance, transfer, tactical diameter (IMO MSC.137(76), from the rudder execute) and the
@@ -25,8 +27,9 @@ jari_usv (bags/, simulated: the truth is the preset): the grey box identified fr
   sea as shipped, and their calm twins), with the preset's priors and with semi-empirical priors for what the zig-zags
   do not determine, predicts the six sea-trial turning circles (the calm twins measure the calm-water truth).
 Run: .venv/bin/python benchmarks/study_turning.py [--raw ../shared/data/raw] [--work /tmp/study_turning]
-     [--json out.json] [--members 5] [--epochs 60] [--tables out.json]. Deterministic (the hybrid: fixed seeds, one
-     torch thread); ~5 minutes on one core without the hybrid (--members 0), ~15 more with it.
+     [--json out.json] [--members 5] [--epochs 60] [--interaction identify|fix] [--tables out.json]. Deterministic
+     (the hybrid: fixed seeds, one torch thread); ~5 minutes on one core without the hybrid (--members 0) and without
+     the interaction search (--interaction fix), each of them ~10-15 more.
 """
 from __future__ import annotations
 
@@ -48,7 +51,7 @@ from usv_predictor.analysis import metrics  # noqa: E402
 from usv_predictor.errors import NotIdentifiableError  # noqa: E402
 from usv_predictor.fitting import identification as ident  # noqa: E402
 from usv_predictor.physics.dynamics import ManoeuvringModel  # noqa: E402
-from usv_predictor.physics.empirical import mmg_hull_estimates  # noqa: E402
+from usv_predictor.physics.empirical import kijima_1990_nonlinear, mmg_hull_estimates  # noqa: E402
 from usv_predictor.physics.manoeuvres import TurningCircle  # noqa: E402
 from usv_predictor.physics.simulator import simulate  # noqa: E402
 from usv_predictor.physics.vessel import Vessel, load_vessel  # noqa: E402
@@ -149,6 +152,20 @@ def empirical_priors(vessel: Vessel, names: tuple[str, ...]) -> tuple[Vessel, di
     return replace(vessel, hull=replace(vessel.hull, **{n: hull[n].value for n in names})), used
 
 
+def kijima_priors(vessel: Vessel, names: tuple[str, ...]) -> tuple[Vessel, dict[str, dict]]:
+    """The vessel with those of `names` that Kijima et al. 1990 gives (physics/empirical.kijima_1990_nonlinear: its
+    nonlinear Y, N terms from L, B, d, C_b) replaced by Kijima's values, and what was used. Chosen as the prior for
+    the terms zig-zags leave undetermined because it is the published regression of exactly those terms over captive
+    tests of merchant hulls (the cross-flow strip of empirical_priors is fore-aft symmetric: N_vrr 0 by construction);
+    chosen from the formula's provenance before any turn was simulated with it."""
+    g = vessel.geometry
+    c_b = g.displacement_kg / (1025.0 * g.L_pp * g.B * g.d)
+    kij = kijima_1990_nonlinear(g.L_pp, g.B, g.d, c_b)
+    used = {n: {"preset": getattr(vessel.hull, n), "empirical": kij[n].value, "source": kij[n].source}
+            for n in names if n in kij}
+    return replace(vessel, hull=replace(vessel.hull, **{n: kij[n].value for n in used})), used
+
+
 def prepare(preset: Vessel, recordings: list, label: str) -> list:
     t0 = time.perf_counter()
     data = ident.prepare(preset, recordings)
@@ -156,8 +173,10 @@ def prepare(preset: Vessel, recordings: list, label: str) -> list:
     return data
 
 
-def identify_variants(preset: Vessel, recordings: list, data: list) -> dict:
-    """prior fix (preset priors), ridge, and fix with semi-empirical priors for what fix holds: results + vessels."""
+def identify_variants(preset: Vessel, recordings: list, data: list, interaction: bool = False) -> dict:
+    """prior fix (preset priors), ridge, fix with semi-empirical priors for what fix holds, fix with Kijima 1990's
+    for those Kijima gives, and (interaction) fix with the rudder / propeller interaction factors searched with the
+    hull (`identify --interaction identify`, fitting/interaction.py): results + vessels."""
     out = {}
     fixed = ident.identify(preset, recordings, structure="mmg", prior="fix", data=data)
     out["fix"] = fixed
@@ -167,7 +186,30 @@ def identify_variants(preset: Vessel, recordings: list, data: list) -> dict:
     emp = ident.identify(prior_vessel, recordings, structure="mmg", prior="fix", data=data)
     out["fix_empirical"] = replace(emp, vessel=replace(emp.vessel, name=f"{preset.name}_identified_empirical"))
     out["_empirical_used"] = used
+    kij_vessel, kij_used = kijima_priors(preset, held)
+    kij = ident.identify(kij_vessel, recordings, structure="mmg", prior="fix", data=data)
+    out["fix_kijima"] = replace(kij, vessel=replace(kij.vessel, name=f"{preset.name}_identified_kijima"))
+    out["_kijima_used"] = kij_used
+    if interaction:
+        t0 = time.perf_counter()
+        found = ident.identify(preset, recordings, structure="mmg", prior="fix", data=data, interaction="identify",
+                               progress=log)
+        log(f"  --interaction identify: {time.perf_counter() - t0:.0f} s; {found.notes[0] if found.notes else ''}")
+        out["fix_interaction"] = replace(found, vessel=replace(found.vessel, name=f"{preset.name}_identified_interaction"))
     return out
+
+
+IDENTIFIED = ("fix", "ridge", "fix_empirical", "fix_kijima", "fix_interaction")  # the identified variants
+
+
+def interaction_summary(result) -> dict | None:
+    """What `--interaction identify` chose (fitting/interaction.py's JSON) and the factors it leaves in the vessel."""
+    if result is None:
+        return None
+    r, p = result.vessel.rudder, result.vessel.propeller
+    return {**result.interaction, "lift_factor": r.lift_factor, "gamma_R_plus": r.gamma_R_plus,
+            "gamma_R_minus": r.gamma_R_minus, "w_P0": p.w_P0, "t_P": p.t_P,
+            "hull": {c.name: c.estimate for c in result.coefficients()}}
 
 
 def coefficient_rows(result) -> list[dict]:
@@ -305,7 +347,8 @@ def convert_kvlcc2(raw: Path, work: Path) -> list[Path]:
     return sorted(p for p in out.iterdir() if p.is_dir())
 
 
-def kvlcc2(raw: Path, work: Path, members: int = HYBRID_MEMBERS, epochs: int = HYBRID_EPOCHS) -> dict:
+def kvlcc2(raw: Path, work: Path, members: int = HYBRID_MEMBERS, epochs: int = HYBRID_EPOCHS,
+           interaction: bool = True) -> dict:
     from usv_predictor.replay.identify import identification_recordings
 
     bags = convert_kvlcc2(raw, work)
@@ -320,7 +363,7 @@ def kvlcc2(raw: Path, work: Path, members: int = HYBRID_MEMBERS, epochs: int = H
         refusal = None
     except NotIdentifiableError as err:  # the refusal and the prior it recommends are a result
         refusal = str(err)
-    variants = identify_variants(preset, recordings, data)
+    variants = identify_variants(preset, recordings, data, interaction=interaction)
     # diagnostic: the only port/starboard asymmetry of the MMG model is the rudder's flow straightening (gamma_R+ for
     # beta_R >= 0, gamma_R- below; held as prior knowledge): identified again with one mean gamma_R both ways
     gamma = 0.5 * (preset.rudder.gamma_R_plus + preset.rudder.gamma_R_minus)
@@ -328,7 +371,10 @@ def kvlcc2(raw: Path, work: Path, members: int = HYBRID_MEMBERS, epochs: int = H
     sym = ident.identify(symmetric, recordings, structure="mmg", prior="fix",
                          data=ident.with_known_forces(symmetric, data))
     models = {"preset": preset, "fix": variants["fix"].vessel, "ridge": variants["ridge"].vessel,
-              "fix_empirical": variants["fix_empirical"].vessel, "fix_symmetric_rudder": sym.vessel}
+              "fix_empirical": variants["fix_empirical"].vessel, "fix_kijima": variants["fix_kijima"].vessel,
+              "fix_symmetric_rudder": sym.vessel}
+    if "fix_interaction" in variants:
+        models["fix_interaction"] = variants["fix_interaction"].vessel
     turns = {}
     for label, vessel in models.items():
         turns[label] = both_ways(vessel, approach)
@@ -367,9 +413,11 @@ def kvlcc2(raw: Path, work: Path, members: int = HYBRID_MEMBERS, epochs: int = H
         "published": PUBLISHED,
         "excitation": variants["fix"].excitation(),
         "not_identifiable": list(variants["fix"].fit.not_identifiable),
-        "prior_used": {k: variants[k].prior_used() for k in ("fix", "ridge", "fix_empirical")},
-        "coefficients": {k: coefficient_rows(variants[k]) for k in ("fix", "ridge", "fix_empirical")},
+        "prior_used": {k: variants[k].prior_used() for k in IDENTIFIED if k in variants},
+        "coefficients": {k: coefficient_rows(variants[k]) for k in IDENTIFIED if k in variants},
         "empirical_priors": variants["_empirical_used"],
+        "kijima_priors": variants["_kijima_used"],
+        "interaction": interaction_summary(variants.get("fix_interaction")),
         "turns": turns,
         "errors_pct": {label: {side: errors_pct(t[side], PUBLISHED) for side in ("starboard", "port")}
                        for label, t in turns.items()},  # the published criteria
@@ -402,16 +450,17 @@ def jari(work: Path) -> dict:
         recordings = identification_recordings(bags, DT, layout=preset.actuator_layout)
         variants = identify_variants(preset, recordings, prepare(preset, recordings, f"jari_usv {sea}"))
         predicted = {}
-        for label in ("fix", "ridge", "fix_empirical"):
+        for label in ("fix", "ridge", "fix_empirical", "fix_kijima"):
             rows = {}
             for (rudder, rpm), name in zip(JARI_TRIALS, measured):
                 p = simulate_turn(variants[label].vessel, rudder, rpm, 1, JARI_TURN_S)
                 rows[name] = {"predicted": p, "errors_pct": errors_pct(p, measured[name])}
             predicted[label] = rows
-        out["sets"][sea] = {"prior_used": {k: variants[k].prior_used() for k in ("fix", "ridge", "fix_empirical")},
+        out["sets"][sea] = {"prior_used": {k: variants[k].prior_used() for k in IDENTIFIED if k in variants},
                             "not_identifiable": list(variants["fix"].fit.not_identifiable),
                             "excitation": variants["fix"].excitation(),
-                            "empirical_priors": variants["_empirical_used"], "predicted": predicted}
+                            "empirical_priors": variants["_empirical_used"], "kijima_priors": variants["_kijima_used"],
+                            "predicted": predicted}
     return out
 
 
@@ -431,6 +480,8 @@ def kvlcc2_tables(k: dict | None) -> str:
         return ""
     names = {"preset": "preset kvlcc2_model (captive tests, Y&Y 2015)", "fix": "identified, --prior fix (recommended)",
              "ridge": "identified, --prior ridge", "fix_empirical": "identified, fix + semi-empirical priors",
+             "fix_kijima": "identified, fix + Kijima 1990 priors",
+             "fix_interaction": "identified, fix, --interaction identify",
              "fix_symmetric_rudder": f"diagnostic: identified (fix) with gamma_R+ = gamma_R- = {k['symmetric_gamma_R']:.3f}"}
     lines = ["### KVLCC2: 13 HSVA zig-zags -> 35 deg turning circles (in L)", "",
              f"Approach speed {k['approach_mps']:.3f} m/s (model scale). Advance and tactical diameter: error against "
@@ -509,6 +560,17 @@ def kvlcc2_tables(k: dict | None) -> str:
                   + " and " + " / ".join(f"{a['output_share_steady']:.3f}" for a in act.values()) + "."]
     lines += ["", "Semi-empirical priors used for the held coefficients (preset -> empirical):", ""]
     lines += [f"- {n}: {v['preset']:+.4f} -> {v['empirical']:+.4f} ({v['source']})" for n, v in k["empirical_priors"].items()]
+    lines += ["", "Kijima 1990 priors used for the held coefficients it gives (preset -> Kijima; the others stay the "
+                  "preset's):", ""]
+    lines += [f"- {n}: {v['preset']:+.4f} -> {v['empirical']:+.4f} ({v['source']})" for n, v in k["kijima_priors"].items()]
+    ia = k.get("interaction")
+    if ia:
+        lines += ["", f"--interaction identify: accepted {ia['accepted']}, scale "
+                      + ", ".join(f"{n} x{v:.3g}" for n, v in ia["scale"].items())
+                      + f"; lift_factor {ia['lift_factor']:.3f}, gamma_R+ {ia['gamma_R_plus']:.3f}, gamma_R- "
+                      f"{ia['gamma_R_minus']:.3f}, w_P0 {ia['w_P0']:.3f}, t_P {ia['t_P']:.3f}; held-out simulation "
+                      "error " + ", ".join(f"{n} {v:.3g}" for n, v in ia["heldout_simulation_nmse"].items())
+                  + "; hull " + ", ".join(f"{n} {v:+.4f}" for n, v in ia["hull"].items())]
     return "\n".join(lines)
 
 
@@ -519,14 +581,15 @@ def jari_table(j: dict | None) -> str:
                   "| zig-zags identified in | priors | not determined (held) | advance | transfer | tactical | steady radius |",
                   "|---|---|---|---|---|---|---|"]
         for sea, s in j["sets"].items():
-            for label in ("fix", "fix_empirical", "ridge"):
+            for label in ("fix", "fix_empirical", "fix_kijima", "ridge"):
                 errs = [r["errors_pct"] for r in s["predicted"][label].values()]
                 cells = []
                 for c in CRITERIA:
                     v = [e[c] for e in errs]
                     worst = max(v, key=abs)
                     cells.append(f"{np.mean(v):+.1f} / {worst:+.1f}")
-                prior = {"fix": "preset (fix)", "fix_empirical": "semi-empirical (fix)", "ridge": "preset (ridge)"}[label]
+                prior = {"fix": "preset (fix)", "fix_empirical": "semi-empirical (fix)",
+                         "fix_kijima": "Kijima 1990 (fix)", "ridge": "preset (ridge)"}[label]
                 lines.append(f"| {sea} | {prior} | {', '.join(s['prior_used'][label]) or 'none'} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -552,6 +615,8 @@ def main() -> None:
     parser.add_argument("--members", type=int, default=HYBRID_MEMBERS,
                         help="KVLCC2 hybrid ensemble members = seeds (0: no hybrid)")
     parser.add_argument("--epochs", type=int, default=HYBRID_EPOCHS, help="KVLCC2 hybrid epochs at most")
+    parser.add_argument("--interaction", choices=("identify", "fix"), default="identify",
+                        help="KVLCC2: also identify with the interaction factors searched (identify, the default) or not")
     parser.add_argument("--tables", type=Path, default=None, help="only print the tables of an earlier run's --json")
     args = parser.parse_args()
     if args.tables is not None:
@@ -564,7 +629,7 @@ def main() -> None:
     started = time.perf_counter()
     result = {}
     if args.only in (None, "kvlcc2"):
-        result["kvlcc2"] = kvlcc2(args.raw, args.work, args.members, args.epochs)
+        result["kvlcc2"] = kvlcc2(args.raw, args.work, args.members, args.epochs, args.interaction == "identify")
     if args.only in (None, "jari"):
         result["jari"] = jari(args.work)
     result["seconds"] = time.perf_counter() - started

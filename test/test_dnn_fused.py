@@ -295,3 +295,84 @@ def test_numpy_rollout_refuses_inputs_of_other_shapes() -> None:
         rollout.rollout(np.zeros((2, 4)), np.zeros((2, 120, 3)))  # another layout
     with pytest.raises(ValueError, match="state must be"):
         rollout.rollout(np.zeros((2, 5)), np.zeros((2, 120, 2)))
+
+
+def _row_form_batch(rollout: NumpyDnnRollout, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
+    """The stacked form as it ran before the transposed one (2026-11-25): the B states the rows, [s_lin | pre | unit]
+    the columns of one product, with the row-form weights `first`, `hidden`, `head` the rollout keeps."""
+    e, b, horizon = rollout.ensemble_size, state.shape[0], controls.shape[1]
+    n_s, c = rollout.n_state, rollout.n_controls
+    x = np.empty((horizon + 1, e, b, n_s + c + 1), dtype=rollout.dtype)
+    x[0, :, :, :4] = state
+    x[0, :, :, 4:n_s] = state[None, :, 3:4] + rollout.phase[:, None, :]
+    rollout._heading(x[0, :, :, 4:n_s])
+    x[:horizon, :, :, n_s: n_s + c] = controls.transpose(1, 0, 2)[:, None]
+    x[horizon, :, :, n_s: n_s + c] = 0.0
+    x[:, :, :, n_s + c] = 1.0
+    for k in range(horizon):
+        y = np.matmul(x[k], rollout.first)
+        h = rollout._act(y[..., n_s:].copy())
+        for w in rollout.hidden:
+            h = rollout._act(np.matmul(h, w))
+        x[k + 1, :, :, :n_s] = np.matmul(h[..., : rollout.width], rollout.head) + y[..., :n_s]
+        rollout._heading(x[k + 1, :, :, 4:n_s])
+    return rollout._kinematics(state, x[1:, :, :, :4].transpose(1, 2, 0, 3))
+
+
+@pytest.mark.parametrize("feature_set, activation, depth", [("NTF", "tanh", 2), ("NAF", "tanh", 3),
+                                                             ("F0", "clipped_relu", 1)])
+def test_numpy_transposed_batch_form_equals_the_row_form(tmp_path: Path, feature_set: str, activation: str,
+                                                         depth: int) -> None:
+    """The candidates' form now runs transposed (the states the columns): in float64 it equals the row form it
+    replaced to rounding, for 64 candidates and every member (the usual network's loop and the general one)."""
+    members = [_member(feature_set, seed, activation, depth) for seed in (1, 2, 3)]
+    _export(tmp_path / "m.pt", members, dtype="float64")
+    rollout = _loaded(tmp_path / "m.pt").inference
+    assert isinstance(rollout, NumpyDnnRollout)
+    state, controls = _inputs(batch=64, horizon=60)
+    got = rollout.rollout(state, controls)
+    before = _row_form_batch(rollout, state, controls)
+    assert got.shape == (3, 64, 60, 6)
+    np.testing.assert_allclose(got, before, rtol=0, atol=1e-10)
+    assert np.abs(got[:, 0] - got[:, 1]).max() > 1e-3  # candidates differ: a column mixed up with another would show
+
+
+def test_numpy_transposed_batch_form_of_the_shipped_model_is_the_row_forms_within_float32() -> None:
+    """models/default.pt (float32), 64 candidates over 120 steps: the transposed form stays within float32 rounding
+    of the row form (the bounds of test_numpy_rollout_equals_the_torchscript_fused_rollout)."""
+    rollout = _loaded(SHIPPED).inference
+    state, controls = _shipped_inputs(64, seed=77)
+    got = rollout.rollout(state, controls)
+    before = _row_form_batch(rollout, state, controls)
+    tolerance = np.array([1e-3, 2e-4, 5e-5, 1e-2, 1e-2, 5e-4])  # u, v (m/s), r (rad/s), x, y (m), psi (rad)
+    assert np.all(np.abs(got - before).max(axis=(0, 1, 2)) <= tolerance), np.abs(got - before).max(axis=(0, 1, 2))
+
+
+def _kinematics_as_before(dt: float, state: np.ndarray, path: np.ndarray) -> np.ndarray:
+    """NumpyDnnRollout._kinematics as it was before 2026-11-26: member-major (E, B, H + 1, ...) arrays."""
+    e, b, horizon = path.shape[:3]
+    path = path.astype(np.float64)
+    full = np.concatenate([np.broadcast_to(state[None, :, None, :], (e, b, 1, 4)), path], axis=2)
+    cos_psi, sin_psi = np.cos(full[..., 3]), np.sin(full[..., 3])
+    velocity = np.stack([full[..., 0] * cos_psi - full[..., 1] * sin_psi,
+                         full[..., 0] * sin_psi + full[..., 1] * cos_psi], axis=-1)
+    out = np.empty((e, b, horizon, 6))
+    out[..., 0:3] = path[..., 0:3]
+    np.cumsum(0.5 * dt * (velocity[:, :, 1:] + velocity[:, :, :-1]), axis=2, out=out[..., 3:5])
+    out[..., 5] = path[..., 3]
+    return out
+
+
+@pytest.mark.parametrize("batch", [1, 64])
+def test_numpy_kinematics_step_major_equals_the_member_major_form(batch: int) -> None:
+    """The positions are integrated step-major now (each quantity one (H + 1, E, B) array): the same operations in
+    the same order, so the same numbers, bit for bit, from the batch form's (H, E, S, B) memory as from any view."""
+    rollout = _loaded(SHIPPED).inference
+    rng = np.random.default_rng(batch)
+    x = rng.normal(0.0, 2.0, size=(121, 5, 9, batch)).astype(np.float32)  # as _rollout_batch's x
+    path = x[1:, :, :4].transpose(1, 3, 0, 2)  # (E, B, H, 4) view
+    state = rng.normal(0.0, 2.0, size=(batch, 4))
+    got = rollout._kinematics(state, path)
+    np.testing.assert_array_equal(got, _kinematics_as_before(rollout.dt, state, path))
+    np.testing.assert_array_equal(got, rollout._kinematics(state, np.ascontiguousarray(path)))
+    assert got.shape == (5, batch, 120, 6) and np.abs(got[..., 3:5]).max() > 1.0

@@ -183,6 +183,29 @@ def test_truth_to_terms_to_vocabulary_round_trips(name):
         assert hidden_effects.within_tolerance(truth, found)[0]
 
 
+@pytest.mark.parametrize("name", SIMULATED)
+def test_a_fitted_value_beyond_its_parameters_range_is_not_physical(name):
+    """diagnose turns a named cause into model_mismatch when a fitted value lies outside the range `replay simulate`
+    admits for the parameter it estimates: every drawn truth is within, 1.5 x the range's end is not, and the reason
+    names the key and the range; directions are never out of range."""
+    effect = EFFECTS[name]
+    rng = np.random.default_rng(7 + list(EFFECTS).index(name))
+    truth = hidden_effects.draw(rng, name, layout_for(name))
+    found = diagnosis.physical_parameters(name, effect.readout.terms_from_truth(truth.parameters))
+    assert effect.outside_range(found) == ()
+    ranges = {p.name: p for p in effect.parameters}
+    for c in effect.readout.comparisons:
+        beyond = dict(found)
+        if c.angle:
+            beyond[c.key] = found[c.key] + 720.0
+            assert effect.outside_range(beyond) == (), c
+            continue
+        p = ranges[c.parameter]
+        beyond[c.key] = 1.5 * p.high if p.high > 0 else 1.5 * p.low
+        (reason,) = effect.outside_range(beyond)
+        assert c.key in reason and f"{p.low:g}..{p.high:g} {p.unit}" in reason and p.name in reason
+
+
 def test_scalar_terms_are_what_the_simulator_is_given():
     """For a scalar effect the grey-box term (SI) is the simulator's field (SI): a wrong factor fails here."""
     rng = np.random.default_rng(3)

@@ -275,3 +275,42 @@ def test_no_sea_at_the_top_of_its_range_fails_a_small_boat(tmp_path, vessel_name
                                     (check.yaw_rate_ratio, YAW_RATE_RATIO_LIMIT, check.yaw_rate_explanation)):
         if ratio is not None and not (1.0 / limit <= ratio <= limit):  # beyond the allowance: a cause explains it
             assert explained.explained and explained.cause is not None, check.summary()
+
+
+def test_the_causes_of_a_rudder_only_window_hold_its_approach_engine_speed():
+    """cause_changes rolls the causes out as the check's prediction was: a rudder_only grey box holds the engine
+    speed of the window's approach (Rolled.reference), not the one of the rollout's start. Here the approach ran
+    north at 5.5 m/s into a 15 m/s wind from the north (its engine works against it) and the window runs south,
+    started at 3 m/s: with that engine speed and the wind astern, a right model runs faster than the calm one; held
+    at the start's engine speed (tailwind already in it), the wind changes almost nothing."""
+    import numpy as np
+    import torch
+
+    from usv_predictor.analysis import fit_check as fc
+    from usv_predictor.models.greybox import GreyBoxRollout
+
+    vessel = layout_variants()["rudder_only"]
+    dt = 0.5
+    steps, averaged = int(fc.SETTLE_S / dt), int(fc.STEADY_S / dt)
+    start = np.array([3.0, 0.0, 0.0, math.pi])  # (4,) heading south
+    approach = np.array([5.5, 0.0, 0.0, 0.0])  # (4,) heading north
+    wind = fc.Cause("wind", {"wind_speed": 15.0, "wind_from_deg": 0.0}, {"wind_ne": (-15.0, 0.0)})  # from north
+
+    def window(kind: str, rudder_rad: float, reference) -> fc.Rolled:
+        controls = np.full((steps, 1), rudder_rad)  # (H, 1) rudder only
+        return fc.Rolled(fc.SteadyWindow("r", kind, 0.0, 1.0, rudder_rad, 0.0, 3.0, 3.0, 0.0, 0.0), start, controls,
+                         averaged, reference)
+
+    du, _ = fc.cause_changes(vessel, dt, [window("straight", 0.0, approach), window("straight", 0.0, None)], [wind])
+    assert du[0, 0] > 0.3 and abs(du[0, 1]) < 0.1, du
+    # a turn (sway and yaw free) is exactly the vessel's grey box with that reference
+    turn = window("turn", math.radians(15.0), approach)
+    du, dr = fc.cause_changes(vessel, dt, [turn], [wind])
+    model = GreyBoxRollout(vessel, dt, substeps=max(2, math.ceil(dt / fc.CAUSE_SUBSTEP_S - 1e-9)))
+    state, controls, ref = (torch.as_tensor(a[None]) for a in (start, turn.controls, approach))
+    with torch.no_grad():
+        calm = model(state, controls, ref)[0, 0, -averaged:].mean(dim=0)  # (6,)
+        model.wind_ne[:] = torch.tensor([-15.0, 0.0], dtype=torch.float64)
+        windy = model(state, controls, ref)[0, 0, -averaged:].mean(dim=0)  # (6,)
+    assert du[0, 0] == pytest.approx(float(windy[0] - calm[0]), abs=1e-9)
+    assert dr[0, 0] == pytest.approx(float(windy[2] - calm[2]), abs=1e-12)

@@ -10,7 +10,7 @@ import pytest
 
 import msg_adapters
 from usv_predictor.config import load_predictor_config, package_share_path
-from usv_predictor.data.recording import NS
+from usv_predictor.data.recording import NS, window_resample
 from usv_predictor.errors import ModelError
 from usv_predictor.models.artifact import load_artifact
 from usv_predictor.node import live
@@ -291,3 +291,127 @@ def test_consistency_checks_need_evidence() -> None:
     drift = live.track_vs_gnss(t, np.full_like(t, 5.0), np.zeros_like(t), t, np.zeros_like(t), t, 5.0 * t,
                                1.5 * t, 0.0, 20.0)
     assert drift == ("velocity", live.Consistency(True))  # a current of 30 % of the speed across the track passes
+
+
+def _state_as_before(inputs: live.InputSet, now_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(state, controls, position) computed as assemble computed them before 2026-11-26: every ring copied whole,
+    recording.window_resample over all of it, the heading unwrapped from the ring's first sample."""
+    t_c = now_ns - inputs.settings.dt_ns // 2
+    grid = np.array([t_c], dtype=np.int64)
+    means = {}
+    for role in inputs.required:
+        buffer = inputs.tracks[role].buffer
+        t, values = buffer.samples()
+        chosen = values[:, [buffer.fields.index(c) for c in inputs.fields[role]]]
+        if role == "heading":
+            chosen = np.unwrap(chosen, axis=0)
+        means[role] = window_resample(t, chosen, grid, inputs.settings.dt_ns)[0]
+    state = np.array([means["velocity"][0], means["velocity"][1], means["imu"][0], means["heading"][0]])
+    controls = np.array([means[c.role][inputs.layout.fields_of(c.role).index(c.field)] for c in inputs.layout.controls])
+    buffer = inputs.tracks["gnss"].buffer
+    t, values = buffer.samples()
+    x_n, y_e = inputs._plane.to_ned(values[:, buffer.fields.index("lat")], values[:, buffer.fields.index("lon")])
+    position = np.array([window_resample(t, x_n, grid, inputs.settings.dt_ns)[0],
+                         window_resample(t, y_e, grid, inputs.settings.dt_ns)[0]])
+    return state, controls, position
+
+
+def test_state_from_the_window_equals_the_whole_ring_average_bit_for_bit() -> None:
+    """assemble reads each ring's used columns up to the window's end only (window_mean): on wrapped rings of
+    random samples, a heading that crosses +-180 deg many times, and GNSS at 1 Hz (windows with no fix: interpolated),
+    its state, controls and position are those of the whole-ring window_resample, bit for bit, every cycle."""
+    rng = np.random.default_rng(13)
+    inputs = make_inputs(capacity=150)
+    rates = {"imu": 200.0, "velocity": 20.0, "heading": 20.0, "rudder_angle": 10.0, "engine_rpm": 10.0, "gnss": 1.0}
+    start = 50 * NS
+    stamps = sorted((int(start + k * NS / hz + rng.integers(0, 1000)), role)
+                    for role, hz in rates.items() for k in range(int(18 * hz)))
+    psi = 3.0  # rad
+    compared, interpolated = 0, 0
+    next_cycle = start + 3 * NS
+    for stamp, role in stamps:
+        if stamp > next_cycle:
+            got = inputs.assemble(next_cycle)
+            state, controls, position = _state_as_before(inputs, next_cycle)
+            np.testing.assert_array_equal(got.state, state)
+            np.testing.assert_array_equal(got.controls, controls)
+            np.testing.assert_array_equal(got.position, position)
+            compared += 1
+            interpolated += got.samples["gnss"] == 0
+            next_cycle += NS // 10
+        if role == "heading":
+            psi = (psi + math.radians(rng.normal(4.0, 3.0)) + math.pi) % (2 * math.pi) - math.pi  # turning through pi
+            values = (psi,)
+        elif role == "gnss":
+            values = (35.0 + rng.normal(0, 1e-5), 120.0 + rng.normal(0, 1e-5), 0.0)
+        else:
+            values = tuple(float(x) for x in 0.1 * rng.normal(size=len(inputs.tracks[role].buffer.fields)))
+            values = {"velocity": (5.0 + values[0], *values[1:]), "engine_rpm": (650.0 + 100 * values[0],),
+                      "imu": (values[0], 0.0, 0.0, -9.81, math.nan)}.get(role, values)
+        inputs.add(role, stamp, values, now_ns=stamp)
+    assert compared > 80 and 0 < interpolated < compared
+    assert all(inputs.tracks[role].buffer.overwritten > 0 for role in rates if role != "gnss")  # the rings wrapped
+    heading = inputs.tracks["heading"].buffer.samples()[1][:, 0]
+    assert np.abs(np.diff(heading)).max() > math.pi  # the ring itself crosses the branch cut
+
+
+def _track_record(inputs: live.InputSet, role: str) -> tuple:
+    track = inputs.tracks[role]
+    t, values = track.buffer.samples()
+    return (t.tobytes(), values.tobytes(), track.buffer.overwritten, track.buffer.size, track.received,
+            dict(track.rejected), track.last_reject, track.last_reject_ns, track.last_accept_ns, inputs.datum)
+
+
+@pytest.mark.parametrize("role", ["imu", "velocity", "gnss", "rudder_angle"])
+def test_add_many_equals_add_one_at_a_time(role: str) -> None:
+    """The node buffers a decoded batch with add_many: in bulk when every sample passes, else add() one by one. On
+    random batches (all good, a non-finite or implausible value, a duplicate, a backwards and a future stamp, batches
+    longer than the ring) buffers, counts, refusals and the datum are those of add() called sample by sample."""
+    rng = np.random.default_rng(len(role))
+    bulk, single = make_inputs(capacity=64), make_inputs(capacity=64)
+    width = len(bulk.tracks[role].buffer.fields)
+    base = {"imu": [0.01, 0.0, 0.0, -9.81, math.nan], "velocity": [5.0, 0.1, 0.01], "gnss": [35.0, 120.0, 0.0],
+            "rudder_angle": [0.1]}[role]
+    stamp, bulk_batches = 100 * NS, 0
+    for batch in range(60):
+        count = int(rng.choice([1, 2, 5, 20, 100]))
+        stamps = stamp + np.cumsum(rng.integers(1_000_000, 10_000_000, count))
+        values = np.array(base, dtype=float)[None, :] + rng.normal(0.0, 1e-3, (count, width))
+        arrivals = stamps + rng.integers(0, 2_000_000, count)
+        spoil = batch % 6
+        if spoil == 1:
+            values[rng.integers(count), 0] = math.nan
+        elif spoil == 2:
+            values[rng.integers(count), 0] = 1e9  # implausible
+        elif spoil == 3 and count > 1:
+            stamps[-1] = stamps[-2]  # duplicate
+        elif spoil == 4:
+            stamps[0] = stamp - 5_000_000  # before the buffer's latest
+        elif spoil == 5:
+            arrivals[-1] = stamps[-1] - 2 * NS  # a stamp 2 s ahead of its arrival clock
+        refused = bulk.add_many(role, stamps, values, arrivals)
+        expected = []
+        for t, row, now in zip(stamps.tolist(), values.tolist(), arrivals.tolist()):
+            try:
+                single.add(role, t, tuple(row), now)
+            except live.InputRejected as err:
+                expected.append((err.kind, str(err)))
+        assert [(err.kind, str(err)) for err in refused] == expected
+        assert _track_record(bulk, role) == _track_record(single, role)
+        bulk_batches += not expected
+        stamp = int(stamps.max())
+    assert bulk.tracks[role].buffer.overwritten > 0 and 10 < bulk_batches < 60
+    value_refusal = "range" if role != "gnss" else "no_fix"
+    assert set(bulk.tracks[role].rejected) >= {"duplicate", "backwards", "future", value_refusal}
+
+
+def test_raw_headings_within_a_turn_is_check_raw_heading_on_every_sample() -> None:
+    for units, raws in [("deg", [10.0, 359.0, -359.0]), ("deg", [10.0, 361.0]), ("rad", [3.0, 7.0]),
+                        ("rad", [math.nan, 1.0]), ("rad", [])]:
+        passes = True
+        for raw in raws:
+            try:
+                live.check_raw_heading(raw, units)
+            except live.InputRejected:
+                passes = False
+        assert live.raw_headings_within_a_turn(np.array(raws), units) is passes

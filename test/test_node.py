@@ -214,6 +214,29 @@ def test_a_bad_model_at_start_exits_2_naming_the_file(tmp_path: Path, case: str)
     assert expected in done.stderr
 
 
+def test_the_sea_estimate_of_a_dnn_is_fed_after_the_cycle_publishes(harness: Harness) -> None:
+    """The estimate is not applied to the shipped DNN, so the node feeds it the cycle's state after the outputs are
+    published (the filter step is not in the prediction's latency): every cycle publishes, then observes the same
+    state, and the estimator is fed as before."""
+    node, events = harness.node, []
+    publish, observe = node._publish, node.sea.observe
+
+    def publishing(prediction, stamp_ns):
+        events.append(("publish", prediction.state.t_c_ns))
+        return publish(prediction, stamp_ns)
+
+    def observing(state):
+        events.append(("observe", state.t_c_ns))
+        return observe(state)
+
+    node._publish, node.sea.observe = publishing, observing
+    found = harness.spin_until(lambda s: int(values_of(s["sea estimate"]).get("samples_fed", 0)) >= 3, harness.feed)
+    assert values_of(found["sea estimate"])["applied"] == "no" and not node.sea.applied
+    assert len(events) >= 6 and len(events) % 2 == 0
+    assert [kind for kind, _ in events] == ["publish", "observe"] * (len(events) // 2)
+    assert all(events[i][1] == events[i + 1][1] for i in range(0, len(events), 2))  # the cycle's own state
+
+
 def test_the_sea_estimate_survives_bad_input_resets_on_a_clock_jump_and_follows_its_parameters(
         harness: Harness) -> None:
     """The estimator (on by default; the shipped DNN: computed, not applied) is fed one sample per dt and publishes

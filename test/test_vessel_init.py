@@ -167,7 +167,9 @@ def test_a_small_planing_monohull_gets_one_warning_per_range(tmp_path: Path) -> 
 
 def test_no_warning_for_a_hull_inside_the_ranges() -> None:
     owner = OwnerData(**{**vars(KVLCC2), "speed_m_s": 1.179, "speed_command": KV_RPM})
-    assert estimate_vessel(owner).warnings == []
+    warnings = estimate_vessel(owner).warnings
+    assert [w for w in warnings if not w.startswith("wave drift:")] == []
+    assert len(warnings) == 1 and "UPPER BOUND" in warnings[0]  # the short-wave asymptote's, always given
 
 
 BASE = ["vessel", "init", "--name", "b", "--layout", "twin_thrusters", "--lpp", "4", "--beam", "1.6",

@@ -23,13 +23,17 @@ the same rule to the measured 30 s open-loop gain and withdraws a cause whose ex
 Otherwise the answer is `none` — unless the calm-water model itself does not fit: then it is `model_mismatch`
 (identify the boat first), when nothing is named but the calm-water model leaves a held-out loss above NONE_LOSS
 noise units (not "within the noise"), when the fit check failed (analysis/fit_check.py, the caller passes its reasons), when
-its rollout diverges on the data (diverged_segments), or when the best model (the calm-water one with the named
+its rollout diverges on the data (diverged_segments), when the best model (the calm-water one with the named
 causes; with a candidate that was not named, with that candidate) leaves a held-out loss above MISMATCH_LOSS noise
-units and more than MISMATCH_SHARE of the calm-water model's.
+units and more than MISMATCH_SHARE of the calm-water model's, or above FIT_CEILING_LOSS whatever share its causes
+removed, or when a named cause's parameter, fitted on all manoeuvres, lies outside its effect's physical range
+(physics.effects.Effect.outside_range). The best environmental cause is reported beside model_mismatch.
 
 `inconclusive`: a cause had the evidence of the loss but its extension does not lower the held-out track error
 (above; or, in run_diagnosis, the 30 s open-loop position error), while the calm-water model with that candidate
-does fit by the loss test. Neither `none` (something is there) nor `model_mismatch` (the model fits; "identify the
+does fit by the loss test; or, where the answer would be `none`, the best hypothesis has evidence between
+EVIDENCE_CANDIDATE and EVIDENCE_CAUSE, removes MIN_GAIN of the loss and lowers the track error (something is
+there, not enough to name it). Neither `none` (something is there) nor `model_mismatch` (the model fits; "identify the
 boat first" would be the wrong remedy): the candidate, its parameters and why it is not named are reported
 (Diagnosis.candidate, candidate_parameters, inconclusive_reasons). When no physical cause is named (model_mismatch,
 inconclusive), diagnosis_run tries the learned residual of last resort and answers `unexplained` when it lowers the
@@ -59,6 +63,11 @@ from usv_predictor.physics.vessel import Vessel
 
 EVIDENCE_CAUSE = 5.0  # held-out log-likelihood ratio over the calm-water model needed to name a cause
 MIN_GAIN = 0.05  # ... and the share of the calm-water model's held-out loss it must remove
+EVIDENCE_CANDIDATE = 3.0  # ... and a `none` is only confident while no hypothesis reaches this evidence (2 ln B > 6:
+#                            "strong" on the Kass & Raftery scale; EVIDENCE_CAUSE is their "very strong"): one between
+#                            the two that removes MIN_GAIN of the loss and lowers the track error is `inconclusive`
+#                            (an unknown boat's identified model showed a 5.5 m/s wind with evidence 3.8 and both
+#                            folds' fits within 1 m/s and 12 deg of it; the clean boats' best reached 1.8)
 EVIDENCE_CONFOUND = 2.0  # a winner beating a runner-up cause by less than this is confounded with it
 MIN_TRACK_GAIN = 0.0  # share of the calm-water model's held-out track error (m, at the segment end) a cause must
 #                       remove: a cause whose extension does not lower it is never named
@@ -66,6 +75,14 @@ MISMATCH_LOSS = 25.0  # held-out loss (mean squared error in noise units) the be
 MISMATCH_SHARE = 0.5  # ... unless its causes removed more than half of the calm-water model's: above both, no
 #                       environmental cause explains the data and the answer is model_mismatch (waves of 1.1 m
 #                       leave 27 of 95 after wave_drift: explained; a clean day leaves 0.1)
+FIT_CEILING_LOSS = 100.0  # held-out loss (noise units) no model that fits leaves, whatever share of the calm-water
+#                           model's its causes removed (the MISMATCH_SHARE exception ends here): the loss is the mean
+#                           squared residual in noise scales (data.segments.SIGMA), so 100 is an RMS error of
+#                           sqrt(100) = 10 noise scales in every channel over the segment (0.5 m/s in u and v,
+#                           2.9 deg/s in r, 10 m in position, 5.7 deg in heading), an order of magnitude above the
+#                           noise: a cause fitted to such a model absorbs the model's error (an unknown boat's 1.4 m
+#                           wave drift was named as a 28 m/s wind that left 1190 of 2432). The right causes of the 50
+#                           unknown boats of 2026-11-26 left at most 43 (a current, 94 before), waves of 1.1 m 27
 NONE_LOSS = 5.0  # held-out loss (noise units) above which the calm-water model is not "within the noise": `none`
 #                 is then model_mismatch (clean presets leave 0.1, the right cause <= 0.5; an identified unknown
 #                 boat that fits 0.3; one that left 17 hid a 0.77 deg/s gyro bias behind a confident `none`)
@@ -432,7 +449,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                      for n in ranked)
     top = evidence[0]
     cause, confounded, message = "none", (), "the calm-water model explains the held-out data within the noise"
-    rejected = ""  # a cause with the evidence of the loss whose extension does not lower the held-out track error
+    rejected = ""  # a candidate not named: the evidence of the loss but its extension does not lower the held-out
+    #                track error, or evidence between EVIDENCE_CANDIDATE and EVIDENCE_CAUSE (the answer: inconclusive)
     strong = top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CAUSE and top.gain_vs_none >= MIN_GAIN
     if strong and lowers_track(top.track_gain_vs_none):
         cause = top.hypothesis
@@ -447,6 +465,16 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error (evidence "
                     f"{top.evidence_vs_none:.1f}) but its extension does not lower the held-out track error after "
                     f"{horizon_s:g} s ({calm.heldout_track_error_m:.3g} -> {top.heldout_track_error_m:.3g} m): not named")
+        message = rejected
+    elif (top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CANDIDATE and top.gain_vs_none >= MIN_GAIN
+          and lowers_track(top.track_gain_vs_none) and base.mean() <= NONE_LOSS):
+        # not enough to name, too much for a confident `none` (a model that fits by the NONE_LOSS test, so the
+        # candidate is no cover for a model that does not)
+        track = (f" and {top.track_gain_vs_none * 100:.0f} % of the held-out track error after {horizon_s:g} s"
+                 if math.isfinite(top.track_gain_vs_none) else "")
+        rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error{track} with "
+                    f"evidence {top.evidence_vs_none:.1f}: more than a `none` allows (< {EVIDENCE_CANDIDATE:g}), "
+                    f"less than names a cause (>= {EVIDENCE_CAUSE:g})")
         message = rejected
     elif top.hypothesis != "none":
         message = (f"best hypothesis {top.hypothesis} removes {top.gain_vs_none * 100:.1f} % of the held-out error "
@@ -486,7 +514,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     # the loss test of model_mismatch, on the best model: with the named causes, or with the candidate not named
     best_loss = per_segment[top.hypothesis] if rejected else current_loss
     best_model = top.hypothesis if rejected else "+".join(chosen) or "the calm-water model"
-    loss_mismatch = best_loss.mean() > MISMATCH_LOSS and best_loss.mean() > MISMATCH_SHARE * base.mean()
+    loss_mismatch = best_loss.mean() > MISMATCH_LOSS and (best_loss.mean() > MISMATCH_SHARE * base.mean()
+                                                          or best_loss.mean() > FIT_CEILING_LOSS)
     if rejected and (fit_mismatch or loss_mismatch):
         mismatch.append(rejected)
     if cause == "none" and not rejected and not loss_mismatch and base.mean() > NONE_LOSS:
@@ -494,8 +523,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                         f"(`none` needs <= {NONE_LOSS:g}: the model explains the data within the noise)")
     if loss_mismatch:
         mismatch.append(f"{best_model} leaves a held-out loss of {best_loss.mean():.3g} noise units "
-                        f"(a model that fits leaves <= {MISMATCH_LOSS:g}, or its causes remove more than "
-                        f"{MISMATCH_SHARE:.0%} of the calm-water model's)")
+                        f"(a model that fits leaves <= {MISMATCH_LOSS:g}, or <= {FIT_CEILING_LOSS:g} when its causes "
+                        f"remove more than {MISMATCH_SHARE:.0%} of the calm-water model's)")
     best_environmental = cause if cause != "none" else ""
     if rejected and not mismatch:
         candidate_fit = fit_hypothesis(model, seg, top.hypothesis)
@@ -506,7 +535,14 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
             top.hypothesis, physical_parameters(top.hypothesis, candidate_fit.terms),
             f"{rejected}; with it the calm-water model leaves a held-out loss of {best_loss.mean():.3g} noise units "
             f"(it fits by the loss test)", model, seg)
+    # the named causes refitted on all manoeuvres; a parameter outside its effect's physical range (the record's:
+    # a wind beyond what `replay simulate` admits) is the model's error absorbed by the cause, not a cause
+    final = fit_hypothesis(model, seg, chosen) if chosen and not mismatch else None
+    if final is not None:
+        mismatch.extend(reason for name in chosen
+                        for reason in fx.EFFECTS[name].outside_range(physical_parameters(name, final.terms)))
     if mismatch:
+        final = None
         message = (f"{MODEL_MISMATCH}: the calm-water model does not fit these bags (held-out loss {calm.heldout_loss:.3g} "
                    f"noise units, track error {calm.heldout_track_error_m:.3g} m after {horizon_s:g} s before any "
                    f"hypothesis): {'; '.join(mismatch)}"
@@ -515,7 +551,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         cause, confounded, chosen, added_raw = MODEL_MISMATCH, (), [], []
     progress(f"calm-water model before any hypothesis: held-out loss {calm.heldout_loss:.3g} noise units, track "
              f"error {calm.heldout_track_error_m:.3g} m after {horizon_s:g} s")
-    final = fit_hypothesis(model, seg, chosen or "none")
+    final = final if final is not None else fit_hypothesis(model, seg, "none")
     parameters = physical_parameters(cause, final.terms)
     uncertainty = _physical_uncertainty(cause, final)
     added = tuple(AddedCause(n, physical_parameters(n, final.terms), _physical_uncertainty(n, final), loss_, ev, g, tg)

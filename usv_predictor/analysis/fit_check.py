@@ -251,10 +251,17 @@ class Rolled:
     state: np.ndarray = field(repr=False)  # (4,) [u, v, r, psi] measured at the rollout's start
     controls: np.ndarray = field(repr=False)  # (H, C) the controls of the rollout
     averaged: int  # the last `averaged` steps of the rollout are averaged
+    reference: np.ndarray | None = field(default=None, repr=False)  # (4,) rudder_only: the approach whose engine
+    #                                                                  speed the rollouts hold; None: the start state
 
 
-def rolled_windows(predictor: Predictor, recordings: Sequence[Recording], layout: ActuatorLayout) -> list[Rolled]:
+def rolled_windows(predictor: Predictor, recordings: Sequence[Recording], layout: ActuatorLayout,
+                   reference: np.ndarray | None = None) -> list[Rolled]:
     """Every window of held commands whose measured u and r have settled, with the model's u and r for it.
+
+    rudder_only: every rollout holds the engine speed of an approach (models/greybox.py `reference`): `reference`
+    (4,) when given (the node's, node/live.ApproachTracker: its buffers may start inside a turn), else each
+    recording's own (evaluation.held_reference); the layouts with propulsion data ignore it.
 
     Straight windows: the model starts from the settled measured state and runs SETTLE_S at the held commands (its
     own straight-running equilibrium). Turns: the model starts where the commands were first held and runs with the
@@ -267,7 +274,8 @@ def rolled_windows(predictor: Predictor, recordings: Sequence[Recording], layout
     windows = []
     for rec in recordings:
         # rudder_only: the engine speed of the manoeuvre's approach, held in every rollout (evaluation.held_reference)
-        held_state = held_reference(rec, np.column_stack([rec.nu, rec.position, rec.psi]))
+        held_state = (None if layout.propulsion else np.asarray(reference, dtype=float)) if reference is not None \
+            else held_reference(rec, np.column_stack([rec.nu, rec.position, rec.psi]))
         for first, end in held_windows(rec, layout):
             last = rec.nu[max(first, end - steady_n):end]  # (n, 3)
             if not (_settled(last[:, 0], SETTLED_SPEED, SETTLED_SPEED_ABS)
@@ -290,7 +298,7 @@ def rolled_windows(predictor: Predictor, recordings: Sequence[Recording], layout
             windows.append(Rolled(SteadyWindow(
                 rec.name, "straight" if straight else "turn", float(rec.t_s[first]), float(rec.t_s[end - 1]),
                 steering, float(layout.propulsion_signal(held)), float(measured[0]), float(predicted[:, 0].mean()),
-                float(measured[2]), float(predicted[:, 2].mean())), state[0], controls[0], averaged))
+                float(measured[2]), float(predicted[:, 2].mean())), state[0], controls[0], averaged, held_state))
     return windows
 
 
@@ -304,7 +312,8 @@ def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: S
     (rad/s, as the gyro reports it) averaged where the window's prediction is, rolled out by the vessel's grey box
     from the same state with the same controls (straight windows steered: SteeredRollout). One batch: rows =
     windows x (calm + causes), every cause's terms set per row (the grey box's terms broadcast over the batch), the
-    windows padded to the longest with their last controls."""
+    windows padded to the longest with their last controls. rudder_only: every row holds the engine speed of its
+    window's reference (Rolled.reference, the approach its prediction held; the start state without one)."""
     import torch
 
     from usv_predictor.models.greybox import GreyBoxRollout
@@ -321,6 +330,8 @@ def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: S
     rows = 1 + len(causes)
     horizon = max(r.controls.shape[0] for r in rolled)
     states = np.concatenate([np.repeat(r.state[None], rows, axis=0) for r in rolled])  # (W rows, 4)
+    references = np.concatenate([np.repeat((r.state if r.reference is None else r.reference)[None], rows, axis=0)
+                                 for r in rolled])  # (W rows, 4): the start state is what None means
     controls = np.concatenate([np.repeat(np.concatenate(
         [r.controls, np.repeat(r.controls[-1:], horizon - r.controls.shape[0], axis=0)])[None], rows, axis=0)
         for r in rolled])  # (W rows, H, C)
@@ -334,7 +345,7 @@ def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: S
                 values[:, :, j] = np.asarray(cause.terms[name])[:, None]
         setattr(model, name, torch.nn.Parameter(torch.as_tensor(values.reshape(size, -1)), requires_grad=False))
     with torch.no_grad():
-        out = model(torch.as_tensor(states), torch.as_tensor(controls))[0].numpy()  # (W rows, H, 6)
+        out = model(torch.as_tensor(states), torch.as_tensor(controls), torch.as_tensor(references))[0].numpy()  # (W rows, H, 6)
     out = out.reshape(len(rolled), rows, horizon, 6)
     du, dr = np.zeros((len(causes), len(rolled))), np.zeros((len(causes), len(rolled)))
     for w, r in enumerate(rolled):

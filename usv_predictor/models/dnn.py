@@ -664,13 +664,15 @@ class NumpyDnnRollout:
         s' = s_lin + h head;  heading columns of s' -> sin (NTF) / remainder 2 pi (NAF)
 
     i.e. three matrix products, two activations, one add and one sin per step, written in place into buffers made
-    before the loop (the states of all steps are one (H + 1, E, B, S + C + 1) array, the controls already in place).
+    before the loop (the states of all steps are one (H + 1, E, S + C + 1, B) array, transposed: _rollout_batch;
+    the controls already in place).
     The bias unit is a unit of the first and hidden layers whose pre-activation is BIAS_UNIT_PRE (1 for clippedReLU),
     so that act() gives exactly 1 and the next layer's bias rides in its product (numpy's matmul has no bias term).
     Why numpy: at these sizes a step is dispatch-bound (one state: ~1 us per numpy op against 1.4-2.9 us per
-    TorchScript op) or bound by the hidden product (64 candidates: numpy's OpenBLAS runs it on AVX-512 here, torch's
-    MKL ~1.3x slower), and numpy's tanh is a fast kernel (torch's float tanh was the reason for FusedDnnRollout's
-    sigmoids). benchmarks/bench_node.py measures it against FusedDnnRollout and the file's rollout.
+    TorchScript op) or bound by the hidden product (64 candidates: numpy's OpenBLAS, with the AVX2 kernels this
+    machine's OPENBLAS_CORETYPE pins, ~1.2x faster than torch's MKL; its AVX-512 kernels ~2x faster again), and
+    numpy's tanh is a fast kernel (torch's float tanh was the reason for FusedDnnRollout's sigmoids).
+    benchmarks/bench_node.py measures it against FusedDnnRollout and the file's rollout.
     Positions are integrated after the loop in float64 (trapezoidal, as DnnRollout). Buffers are allocated per call:
     one instance serves any caller and batch size.
     """
@@ -713,6 +715,10 @@ class NumpyDnnRollout:
         self.first = np.ascontiguousarray(first, dtype=self.dtype)
         self.hidden = tuple(hidden)
         self.head = np.ascontiguousarray(p["head"], dtype=self.dtype)  # (E, W, S)
+        # the batch form's transposes (_rollout_batch): (E, S + W [+ 1], S + C + 1), (E, W [+ 1], W + 1), (E, S, W)
+        self.first_t = np.ascontiguousarray(self.first.transpose(0, 2, 1))
+        self.hidden_t = tuple(np.ascontiguousarray(w.transpose(0, 2, 1)) for w in self.hidden)
+        self.head_t = np.ascontiguousarray(self.head.transpose(0, 2, 1))
         self.phase = p["phase"][:, 0].astype(self.dtype)  # (E, T)
         self.width = width
         self._vector_weights(p, unit)
@@ -771,47 +777,53 @@ class NumpyDnnRollout:
         return self._rollout_one(state, controls) if state.shape[0] == 1 else self._rollout_batch(state, controls)
 
     def _rollout_batch(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        """rollout() of B states: the members stacked (E the stacked dimension of matmul, B its rows)."""
+        """rollout() of B states: the members stacked (E the stacked dimension of matmul), the B states the columns.
+
+        Transposed (column vectors, x_k (S + C + 1, B) per member) so that every activation runs on memory that is
+        contiguous per member ([s_lin | pre | unit] are rows: pre's rows are one block), where the row form's
+        [s_lin | pre | unit] columns made the first tanh a strided walk of E B rows (11 us against 6 us for
+        64 candidates), and the output product is head^T h^T, an N of B columns, not BLAS's slow case of N = S."""
         e, b, horizon = self.ensemble_size, state.shape[0], controls.shape[1]
         n_s, c = self.n_state, self.n_controls
-        # x (H + 1, E, B, S + C + 1): [s_k | c_k | 1] of every step; s_k written by step k - 1's add
-        x = np.empty((horizon + 1, e, b, n_s + c + 1), dtype=self.dtype)
-        x[0, :, :, :4] = state
-        x[0, :, :, 4:n_s] = state[None, :, 3:4] + self.phase[:, None, :]  # (E, B, T)
-        self._heading(x[0, :, :, 4:n_s])
-        x[:horizon, :, :, n_s: n_s + c] = controls.transpose(1, 0, 2)[:, None]  # (H, 1, B, C)
-        x[horizon, :, :, n_s: n_s + c] = 0.0
-        x[:, :, :, n_s + c] = 1.0
-        y = np.empty((e, b, self.first.shape[2]), dtype=self.dtype)  # (E, B, S + W [+ 1]): [s_lin | pre | unit]
-        s_lin, g = y[..., :n_s], y[..., n_s:]
-        layers = [(w, np.empty((e, b, w.shape[2]), dtype=self.dtype)) for w in self.hidden]
-        last = layers[-1][1] if layers else g  # (E, B, W)
-        t = np.empty((e, b, n_s), dtype=self.dtype)  # (E, B, S): h head
-        matmul, add, first, head = np.matmul, np.add, self.first, self.head
+        # x (H + 1, E, S + C + 1, B): [s_k; c_k; 1] of every step; s_k written by step k - 1's add
+        x = np.empty((horizon + 1, e, n_s + c + 1, b), dtype=self.dtype)
+        x[0, :, :4] = state.T
+        x[0, :, 4:n_s] = state[None, :, 3] + self.phase[:, :, None]  # (E, T, B)
+        self._heading(x[0, :, 4:n_s])
+        x[:horizon, :, n_s: n_s + c] = controls.transpose(1, 2, 0)[:, None]  # (H, 1, C, B)
+        x[horizon, :, n_s: n_s + c] = 0.0
+        x[:, :, n_s + c] = 1.0
+        first = self.first_t
+        y = np.empty((e, first.shape[1], b), dtype=self.dtype)  # (E, S + W [+ 1], B): [s_lin; pre; unit]
+        s_lin, g = y[:, :n_s], y[:, n_s:]
+        layers = [(w, np.empty((e, w.shape[1], b), dtype=self.dtype)) for w in self.hidden_t]
+        last = layers[-1][1] if layers else g  # (E, W, B)
+        t = np.empty((e, n_s, b), dtype=self.dtype)  # (E, S, B): head^T h^T
+        matmul, add, head = np.matmul, np.add, self.head_t
         heading = None if self.trig_mode == 0 else (np.sin if self.trig_mode == 2 else self._heading)
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging model gives inf / NaN: the caller refuses it
             if not self.clipped and len(layers) == 1 and heading is np.sin:  # the usual network (NTF, tanh, depth 2)
                 tanh, sin, (w, z) = np.tanh, np.sin, layers[0]
-                for x_k, s_next, columns in zip(x[:-1], x[1:, :, :, :n_s], x[1:, :, :, 4:n_s]):
-                    matmul(x_k, first, out=y)
+                for x_k, s_next, columns in zip(x[:-1], x[1:, :, :n_s], x[1:, :, 4:n_s]):
+                    matmul(first, x_k, out=y)
                     tanh(g, out=g)
-                    matmul(g, w, out=z)
+                    matmul(w, g, out=z)
                     tanh(z, out=z)
-                    matmul(z, head, out=t)
+                    matmul(head, z, out=t)
                     add(t, s_lin, out=s_next)
                     sin(columns, out=columns)
             else:  # the same step for any depth, activation and heading columns
-                for x_k, s_next, columns in zip(x[:-1], x[1:, :, :, :n_s], x[1:, :, :, 4:n_s]):
-                    matmul(x_k, first, out=y)
+                for x_k, s_next, columns in zip(x[:-1], x[1:, :, :n_s], x[1:, :, 4:n_s]):
+                    matmul(first, x_k, out=y)
                     h = self._act(g)
                     for w, z in layers:
-                        matmul(h, w, out=z)
+                        matmul(w, h, out=z)
                         h = self._act(z)
-                    matmul(last, head, out=t)
+                    matmul(head, last, out=t)
                     add(t, s_lin, out=s_next)
                     if heading is not None:
                         self._heading(columns)
-        return self._kinematics(state, x[1:, :, :, :4].transpose(1, 2, 0, 3))  # (E, B, H, 4)
+        return self._kinematics(state, x[1:, :, :4].transpose(1, 3, 0, 2))  # (E, B, H, 4)
 
     def _rollout_one(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
         """rollout() of one state (the node's cycle): the members side by side in one vector per step (the
@@ -864,17 +876,25 @@ class NumpyDnnRollout:
 
     def _kinematics(self, state: np.ndarray, path: np.ndarray) -> np.ndarray:
         """(E, B, H, 6) [u, v, r, x_n, y_e, psi] float64 from the start state (B, 4) and the steps' [u, v, r, psi]
-        (E, B, H, 4): positions by the trapezoidal rule over R(psi) [u, v] (DnnRollout's kinematics)."""
+        (E, B, H, 4): positions by the trapezoidal rule over R(psi) [u, v] (DnnRollout's kinematics).
+
+        Computed step-major, each quantity one (H + 1, E, B) array (the batch form's memory order: B contiguous),
+        the same operations in the same order as the member-major form before, so the same numbers; only the six
+        columns of the result are written strided."""
         e, b, horizon = path.shape[:3]
-        path = path.astype(np.float64)
-        full = np.concatenate([np.broadcast_to(state[None, :, None, :], (e, b, 1, 4)), path], axis=2)
-        cos_psi, sin_psi = np.cos(full[..., 3]), np.sin(full[..., 3])  # (E, B, H + 1)
-        velocity = np.stack([full[..., 0] * cos_psi - full[..., 1] * sin_psi,  # north, east (E, B, H + 1, 2)
-                             full[..., 0] * sin_psi + full[..., 1] * cos_psi], axis=-1)
+        q = np.empty((4, horizon + 1, e, b))  # [u, v, r, psi] float64 of the start and every step
+        q[:, 0] = state.T[:, None, :]
+        q[:, 1:] = path.transpose(3, 2, 0, 1)  # (4, H, E, B)
+        u, v, psi = q[0], q[1], q[3]
+        cos_psi, sin_psi = np.cos(psi), np.sin(psi)  # (H + 1, E, B)
+        north, east = u * cos_psi - v * sin_psi, u * sin_psi + v * cos_psi
         out = np.empty((e, b, horizon, 6))
-        out[..., 0:3] = path[..., 0:3]
-        np.cumsum(0.5 * self.dt * (velocity[:, :, 1:] + velocity[:, :, :-1]), axis=2, out=out[..., 3:5])
-        out[..., 5] = path[..., 3]
+        steps = out.transpose(2, 0, 1, 3)  # (H, E, B, 6) view
+        for j in range(3):
+            steps[..., j] = q[j, 1:]
+        np.cumsum(0.5 * self.dt * (north[1:] + north[:-1]), axis=0, out=steps[..., 3])
+        np.cumsum(0.5 * self.dt * (east[1:] + east[:-1]), axis=0, out=steps[..., 4])
+        steps[..., 5] = psi[1:]
         return out
 
     def __call__(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:

@@ -533,8 +533,8 @@ def engine_speed_metadata(vessel: Vessel, rollout: GreyBoxRollout) -> Dict[str, 
                 "model's wind and wave terms at the reference heading",
         "reference": "forward's third argument (B, 4) [u, v, r, psi] as measured; replay evaluate, diagnose and the "
                      "fit check pass the manoeuvre's approach (medians over its straight running before the first "
-                     "turn command, at least approach_s); without it (the predictor node, which knows no manoeuvre "
-                     "boundaries) the start state",
+                     "turn command, at least approach_s); the predictor node the latest straight running it has seen "
+                     "(node/live.ApproachTracker); without one the start state",
         "approach_s": APPROACH_S}}
 
 

@@ -130,14 +130,17 @@ class LiveFitCheck:
             self.error = why
             self._next_ns = now_ns + int(self.settings.period_s * NS_PER_S)
 
-    def run(self, recording: Recording, now_ns: int) -> fc.FitCheck | None:
+    def run(self, recording: Recording, now_ns: int, reference: np.ndarray | None = None) -> fc.FitCheck | None:
         """One check on the buffered `recording` (live.InputSet.buffered_recording), the windows merged with the kept
-        ones; the verdict of every kept window (module docstring), or None when a reset came while it ran."""
+        ones; the verdict of every kept window (module docstring), or None when a reset came while it ran.
+        reference (4,): a rudder_only boat's approach (live.ApproachTracker, the predictions' own), whose engine speed
+        the rollouts hold; None: the buffered span's own approach (which, in a buffer that starts inside a long
+        turn, is the turn's slower speed)."""
         started = time.perf_counter()
         with self._lock:
             generation = self._generation
             self._next_ns = now_ns + int(self.settings.period_s * NS_PER_S)
-        found = fc.rolled_windows(self.model, [recording], self.layout)  # the model's rollouts: the long part
+        found = fc.rolled_windows(self.model, [recording], self.layout, reference)  # the model's rollouts: the long part
         grid_ns = recording.t0_ns + np.round(recording.t_s * NS_PER_S).astype(np.int64)  # (T,)
         with self._lock:
             if generation != self._generation:

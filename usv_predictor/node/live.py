@@ -13,8 +13,11 @@ State assembly is the replay tool's Recording (recording.py), taken online:
                held for the whole horizon (the current actuator commands)
     position   GNSS lat/lon -> NED in the local tangent plane of the datum (parameter, or the first fix),
                box-averaged like the rest; without a fix the path starts at (0, 0)
+    reference  rudder_only (no propulsion data): the latest straight running (ApproachTracker), whose engine
+               speed the grey box holds, as replay holds the manoeuvre's approach
 
-Each average is recording.window_resample on the buffered samples with grid [t_c], so a state here equals
+Each average is recording.window_resample's on the buffered samples with grid [t_c] (computed by
+recording.window_mean from the samples up to the window's end, bit for bit), so a state here equals
 Recording.state() at the grid time t_c of the same samples (test_live.py proves it on a shipped bag).
 Prediction k (k = 1 .. H) is the model's output at t_c + k dt.
 
@@ -42,6 +45,7 @@ finds it consistent again; the node shows the reason on /diagnostics.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -52,10 +56,12 @@ import torch
 
 from msg_adapters.standard import ScalarHeadingAdapter
 from usv_predictor.data.recording import (
+    APPROACH_S,
     Recording,
     plausible_ranges,
     recording_from_signals,
     required_roles,
+    window_mean,
     window_resample,
 )
 from usv_predictor.errors import CycleSkipped, InputRejected, ModelError, RecordingError
@@ -98,7 +104,12 @@ TRACK_MIN_SPEED = 2.0  # m/s over ground (GNSS) before the dead-reckoned track i
 TRACK_ANGLE_LIMIT_DEG = 60.0  # deg between the dead-reckoned and the GNSS displacement
 TRACK_LENGTH_RATIO = (0.4, 2.5)  # dead-reckoned / GNSS displacement length accepted
 TRACK_END_S = 1.0  # s of GNSS fixes averaged at each end of the window (0.3 m noise per fix)
+BULK_ADD_MIN = 16  # samples of one input from which the node buffers a batch with add_many (~18 us a call against ~1 us
+# per sample for add(), warm: benchmarks/bench_node.py's IMU at 200 Hz brings 20 per cycle, at 1 kHz 100)
 STEADY_SPEED_LIMIT = 50.0  # m/s: a predicted speed beyond this is a diverged model, not a prediction
+APPROACH_WINDOW_S = 30.0  # (s) the latest straight running whose medians are a rudder_only boat's approach online
+#                           (ApproachTracker): long enough to average out the first-order wave motion of the
+#                           measured speed, short enough to follow an engine setting changed while running straight
 
 
 def check_raw_heading(raw: float, units: str) -> None:
@@ -107,6 +118,13 @@ def check_raw_heading(raw: float, units: str) -> None:
     if limit is not None and math.isfinite(raw) and abs(raw) > limit:
         hint = " (degrees configured as rad?)" if units == "rad" else ""
         raise InputRejected("range", f"heading {raw:g} {units} is more than one turn{hint}; check the units option")
+
+
+def raw_headings_within_a_turn(raw: np.ndarray, units: str) -> bool:
+    """Would check_raw_heading pass every one of these raw headings?"""
+    limit = RAW_HEADING_LIMIT.get(units)
+    raw = np.asarray(raw, dtype=np.float64)
+    return limit is None or not bool((np.isfinite(raw) & (np.abs(raw) > limit)).any())
 
 
 def check_values(role: str, fields: Sequence[str], values: Sequence[float],
@@ -263,13 +281,37 @@ class SampleBuffer:
         else:
             self.size += 1
 
+    def push_many(self, stamps_ns: np.ndarray, values: np.ndarray) -> None:
+        """push() of M samples (stamps (M,), values (M, k)) in order, in one write of the ring (the last `capacity`
+        of them when M is larger: what M pushes would leave)."""
+        count = len(stamps_ns)
+        if count == 0:
+            return
+        self.overwritten += max(0, self.size + count - self.capacity)
+        kept = min(count, self.capacity)
+        at = (self._next + np.arange(count - kept, count)) % self.capacity
+        self._t[at] = stamps_ns[count - kept:]
+        self._v[at] = values[count - kept:]
+        self._next = (self._next + count) % self.capacity
+        self.size = min(self.capacity, self.size + count)
+
     def clear(self) -> None:
         self._next = self.size = 0
 
-    def samples(self) -> tuple[np.ndarray, np.ndarray]:
-        """(t_ns (N,), values (N, k)) oldest first (copies)."""
-        idx = (np.arange(self.size) + self._next - self.size) % self.capacity
-        return self._t[idx], self._v[idx]
+    def samples(self, columns: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(t_ns (N,), values (N, k)) oldest first (copies); `columns`: those value columns only.
+
+        The ring's one or two contiguous runs copied (no index array over the whole capacity)."""
+        start = (self._next - self.size) % self.capacity
+        chosen = slice(None) if columns is None else list(columns)
+
+        def run(first: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+            return self._t[first:end].copy(), self._v[first:end][:, chosen].copy()
+
+        if start + self.size <= self.capacity:
+            return run(start, start + self.size)
+        (t_old, v_old), (t_new, v_new) = run(start, self.capacity), run(0, start + self.size - self.capacity)
+        return np.concatenate((t_old, t_new)), np.concatenate((v_old, v_new))
 
     def rate_hz(self, now_ns: int, span_s: float = RATE_WINDOW_S) -> float:
         """Samples per second over the last span_s before now (0 when fewer than two)."""
@@ -326,6 +368,69 @@ class LiveState(NamedTuple):
     controls: np.ndarray  # (C,) the layout's controls (e.g. delta rad, rpm): held over the horizon
     position: np.ndarray | None  # (2,) x_n, y_e (m) in the datum's plane; None without GNSS
     samples: Mapping[str, int]  # samples averaged per role
+    reference: np.ndarray | None = None  # (4,) rudder_only: the approach (ApproachTracker.reference); None: the start
+
+
+class ApproachTracker:
+    """A rudder_only boat's approach, online: data.recording.approach_state for a node that knows no manoeuvres.
+
+    A boat without propulsion data runs its grey box at the engine speed that holds, in straight running, the speed
+    of a reference state (models/greybox.py); replay gives it the manoeuvre's approach, the straight running before
+    the first turn command, because a boat slows down in a turn at the same engine setting: the engine speed of a
+    start inside a turn runs slow. Online the approach is the latest straight running (|steering| below the layout's
+    straight_below, physics/actuators.py) that lasted at least APPROACH_S (data.recording): the medians of its
+    u, v, r and the circular mean of its heading over its latest APPROACH_WINDOW_S. It is kept through the turns
+    that follow and replaced by the next straight running once that has lasted APPROACH_S; a gap of more than
+    APPROACH_S in the states observed ends a straight run. None before the first such run: the start state, as
+    before. Thread-safe (the prediction cycle and the fit check's timer feed it)."""
+
+    def __init__(self, layout: ActuatorLayout) -> None:
+        self.layout = layout
+        self._lock = threading.Lock()
+        self._run: list[tuple[int, np.ndarray]] = []  # the current straight run: (t_ns, (4,) state)
+        self._last_ns: int | None = None  # the latest state observed
+        self._reference: np.ndarray | None = None
+
+    def clear(self) -> None:
+        """Forget the approach (the clock jumped back: a replay restarted)."""
+        with self._lock:
+            self._run, self._last_ns, self._reference = [], None, None
+
+    @property
+    def reference(self) -> np.ndarray | None:
+        """(4,) [u, v, r, psi] of the approach, or None (class docstring)."""
+        with self._lock:
+            return None if self._reference is None else self._reference.copy()
+
+    def observe(self, t_ns: int, state: np.ndarray, controls: np.ndarray) -> None:
+        """One state (4,) and its controls (C,) at t_ns; states not after the latest observed are ignored."""
+        state = np.asarray(state, dtype=float)
+        steering = float(self.layout.steering_signal(np.asarray(controls, dtype=float)))
+        if not (np.all(np.isfinite(state)) and math.isfinite(steering)):
+            return
+        with self._lock:
+            if self._last_ns is not None and t_ns <= self._last_ns:
+                return
+            if self._last_ns is not None and t_ns - self._last_ns > APPROACH_S * NS_PER_S:
+                self._run = []  # a gap ends the straight run
+            self._last_ns = t_ns
+            if abs(steering) >= self.layout.straight_below:
+                self._run = []  # a turn: the approach before it is kept
+                return
+            self._run.append((t_ns, state))
+            oldest = t_ns - int(APPROACH_WINDOW_S * NS_PER_S)
+            while self._run[0][0] < oldest:
+                self._run.pop(0)
+            if (t_ns - self._run[0][0]) / NS_PER_S >= APPROACH_S:
+                rows = np.array([row for _, row in self._run])  # (n, 4)
+                heading = float(np.arctan2(np.sin(rows[:, 3]).mean(), np.cos(rows[:, 3]).mean()))
+                self._reference = np.array([*np.median(rows[:, :3], axis=0), heading])
+
+    def observe_recording(self, recording: Recording) -> None:
+        """Every step of a Recording (the fit check's buffered span), in time order."""
+        t_ns = recording.t0_ns + np.round(recording.t_s * NS_PER_S).astype(np.int64)  # (T,)
+        for k in range(len(recording)):
+            self.observe(int(t_ns[k]), np.array([*recording.nu[k], recording.psi[k]]), recording.controls[k])
 
 
 class InputSet:
@@ -348,6 +453,8 @@ class InputSet:
         self._last_now_ns: int | None = None
         self.refusals: dict[str, tuple[str, str]] = {}  # check -> (refused role, why), see check_consistency
         self._next_check_ns: int | None = None
+        # rudder_only: the approach whose engine speed its grey box holds (fed by every assembled state)
+        self.approach = None if layout.propulsion else ApproachTracker(layout)
 
     # --------------------------------------------------------------- messages in
     def add(self, role: str, stamp_ns: int, values: Sequence[float], now_ns: int) -> None:
@@ -375,6 +482,43 @@ class InputSet:
         track.buffer.push(stamp_ns, values)
         track.last_accept_ns = now_ns
 
+    def add_many(self, role: str, stamps_ns: np.ndarray, values: np.ndarray, now_ns: np.ndarray
+                 ) -> list[InputRejected]:
+        """add() of M decoded samples in order (stamps (M,) int64, values (M, k), the clock at each one's arrival
+        (M,) int64): when every sample passes add()'s checks (the used fields finite and plausible, the stamps
+        increasing from the buffer's latest, none ahead of its arrival clock by more than max_future_s) they are
+        counted and buffered in one write; otherwise add() runs one sample at a time, so that the refusals (returned
+        in order) and every count are add()'s. test_live.py proves both ways equal."""
+        track = self.tracks[role]
+        fields = track.buffer.fields
+        used = [i for i, name in enumerate(fields) if name in self._used.get(role, ())]
+        stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+        values = np.asarray(values, dtype=np.float64).reshape(len(stamps_ns), len(fields))
+        now_ns = np.asarray(now_ns, dtype=np.int64)
+        latest = track.buffer.latest_ns
+        columns = values[:, used]
+        low = np.array([self._plausible.get(fields[i], (-math.inf, math.inf))[0] for i in used])
+        high = np.array([self._plausible.get(fields[i], (-math.inf, math.inf))[1] for i in used])
+        bulk = (len(stamps_ns) > 0 and bool(np.isfinite(columns).all())
+                and bool(((columns >= low) & (columns <= high)).all())
+                and (latest is None or int(stamps_ns[0]) > latest) and bool((np.diff(stamps_ns) > 0).all())
+                and bool(((stamps_ns - now_ns) / NS_PER_S <= self.settings.max_future_s).all()))
+        if not bulk:
+            refused = []
+            for stamp, row, now in zip(stamps_ns.tolist(), values.tolist(), now_ns.tolist()):
+                try:
+                    self.add(role, stamp, tuple(row), now)
+                except InputRejected as err:
+                    refused.append(err)
+            return refused
+        track.received += len(stamps_ns)
+        if role == POSITION_ROLE and self.datum is None:
+            self.datum = (float(values[0, fields.index("lat")]), float(values[0, fields.index("lon")]))
+            self._plane = LocalTangentPlane(*self.datum)
+        track.buffer.push_many(stamps_ns, values)
+        track.last_accept_ns = int(now_ns[-1])
+        return []
+
     def observe_clock(self, now_ns: int) -> bool:
         """Clear every buffer when the clock jumped back (a replay restarted); True if it did."""
         jumped = self._last_now_ns is not None and now_ns < self._last_now_ns
@@ -382,6 +526,8 @@ class InputSet:
         if jumped:
             for track in self.tracks.values():
                 track.buffer.clear()
+            if self.approach is not None:
+                self.approach.clear()
             self._set_refusals({})
             self._next_check_ns = None
         return jumped
@@ -462,21 +608,22 @@ class InputSet:
 
     # --------------------------------------------------------------- state out
     def _window_mean(self, role: str, columns: Sequence[str], t_c_ns: int) -> tuple[np.ndarray, int]:
+        """(mean of `columns` over the window about t_c, samples in it): recording.window_resample's value at t_c
+        (window_mean: the same prefix sums from the ring's first sample, bit for bit), reading the used columns
+        only and no sample after the window."""
         track = self.tracks[role]
-        t, values = track.buffer.samples()
+        t, chosen = track.buffer.samples([track.buffer.fields.index(c) for c in columns])
         half = self.settings.dt_ns // 2
-        inside = int(np.count_nonzero((t >= t_c_ns - half) & (t <= t_c_ns + half)))
+        lo = int(np.searchsorted(t, t_c_ns - half, side="left"))
+        hi = int(np.searchsorted(t, t_c_ns + half, side="right"))  # closed window, as window_resample's
         if t[0] > t_c_ns - half:  # as Recording: whole windows only (a cut window would bias the mean)
             raise CycleSkipped(f"input {role}: the averaging window starts before its first buffered sample")
-        if inside == 0:
+        if hi == lo:
             raise CycleSkipped(f"input {role}: no sample in the averaging window "
                                f"(latest {(t_c_ns + half - int(t[-1])) / NS_PER_S:.2f} s before its end)")
-        cols = [track.buffer.fields.index(c) for c in columns]
-        chosen = values[:, cols]
         if role == "heading":
-            chosen = np.unwrap(chosen, axis=0)  # as Recording: unwrap, then average
-        mean = window_resample(t, chosen, np.array([t_c_ns], dtype=np.int64), self.settings.dt_ns)[0]
-        return mean, inside
+            chosen = np.unwrap(chosen[:hi], axis=0)  # as Recording: unwrap (from the first sample), then average
+        return window_mean(t, chosen, lo, hi), hi - lo
 
     def assemble(self, now_ns: int) -> LiveState:
         """The state at now (see the module docstring); CycleSkipped naming the missing or stale input."""
@@ -500,7 +647,11 @@ class InputSet:
         state = np.array([means["velocity"][0], means["velocity"][1], means["imu"][0], means["heading"][0]])
         controls = np.array([means[c.role][self.layout.fields_of(c.role).index(c.field)] for c in self.layout.controls])
         position = self._position(t_c, now_ns, counts)
-        return LiveState(t_c, state, controls, position, counts)
+        reference = None
+        if self.approach is not None:
+            self.approach.observe(t_c, state, controls)
+            reference = self.approach.reference
+        return LiveState(t_c, state, controls, position, counts, reference)
 
     def _position(self, t_c_ns: int, now_ns: int, counts: dict[str, int]) -> np.ndarray | None:
         track = self.tracks.get(POSITION_ROLE)
@@ -509,11 +660,15 @@ class InputSet:
         age = track.age_s(now_ns)
         if age is None or age > track.max_age_s:
             return None
-        t, values = track.buffer.samples()
         fields = track.buffer.fields
-        x_n, y_e = self._plane.to_ned(values[:, fields.index("lat")], values[:, fields.index("lon")])
+        t, values = track.buffer.samples([fields.index("lat"), fields.index("lon")])
         half = self.settings.dt_ns // 2
-        counts[POSITION_ROLE] = int(np.count_nonzero((t >= t_c_ns - half) & (t <= t_c_ns + half)))
+        lo = int(np.searchsorted(t, t_c_ns - half, side="left"))
+        hi = int(np.searchsorted(t, t_c_ns + half, side="right"))
+        counts[POSITION_ROLE] = hi - lo
+        if hi > lo:  # window_resample's mean, bit for bit (window_mean), of the fixes up to the window's end
+            return window_mean(t, np.column_stack(self._plane.to_ned(values[:hi, 0], values[:hi, 1])), lo, hi)
+        x_n, y_e = self._plane.to_ned(values[:, 0], values[:, 1])  # no fix inside: interpolated
         grid = np.array([t_c_ns], dtype=np.int64)
         return np.array([window_resample(t, x_n, grid, self.settings.dt_ns)[0],
                          window_resample(t, y_e, grid, self.settings.dt_ns)[0]])
@@ -562,11 +717,15 @@ class Rollout:
         self._state = torch.zeros(1, 4, dtype=self.dtype)
         self.n_controls = len(artifact.metadata["control_layout"])  # C, the model's control columns
         self._controls = torch.zeros(1, self.horizon_steps, self.n_controls, dtype=self.dtype)
+        # a rudder_only grey box takes the approach whose engine speed it holds (ApproachTracker); other models do not
+        self.accepts_reference = self.module is artifact.module and artifact.accepts_reference
+        self._reference = torch.zeros(1, 4, dtype=self.dtype)
         for _ in range(WARM_UP_CALLS):  # TorchScript profiles and optimises its first calls: not in a live cycle
             self(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(self.n_controls))
 
-    def __call__(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        """(E, H, 6) [u, v, r, x_n, y_e, psi] relative to the start; controls (C,) held for every step, or (H, C).
+    def __call__(self, state: np.ndarray, controls: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
+        """(E, H, 6) [u, v, r, x_n, y_e, psi] relative to the start; controls (C,) held for every step, or (H, C);
+        reference (4,): a rudder_only grey box's approach (LiveState.reference; ignored by a model that takes none).
 
         ModelError "model X fails when run: ..." when the model's code raises (at warm-up: a start-up error)."""
         try:
@@ -576,13 +735,18 @@ class Rollout:
             self._state[0].copy_(torch.from_numpy(np.asarray(state, dtype=np.float64)))
             self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)))  # (C,) to (H, C)
             with torch.inference_mode():
-                out = self.module(self._state, self._controls)  # (E, 1, H, 6)
+                if reference is not None and self.accepts_reference:
+                    self._reference[0].copy_(torch.from_numpy(np.asarray(reference, dtype=np.float64)))
+                    out = self.module(self._state, self._controls, self._reference)  # (E, 1, H, 6)
+                else:
+                    out = self.module(self._state, self._controls)  # (E, 1, H, 6)
             return out[: self.members, 0].double().numpy()
         except MODEL_RUN_ERRORS as err:
             raise ModelError(f"model {self.artifact.path} fails when run: {failure_reason(err)}") from err
 
-    def batch(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        """(E, B, H, 6) from one state (4,) under B control sequences (B, H, C): one call of the model."""
+    def batch(self, state: np.ndarray, controls: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
+        """(E, B, H, 6) from one state (4,) under B control sequences (B, H, C): one call of the model; reference
+        (4,) as for __call__."""
         controls = np.asarray(controls, dtype=np.float64)
         if controls.ndim != 3 or controls.shape[1:] != (self.horizon_steps, self.n_controls):
             raise ModelError(f"controls of shape {controls.shape}, expected (B, {self.horizon_steps}, {self.n_controls})")
@@ -593,7 +757,11 @@ class Rollout:
                 return self._numpy(states, controls)[: self.members]
             states = torch.from_numpy(np.asarray(state, dtype=np.float64)).to(self.dtype).expand(count, 4)  # (B, 4)
             with torch.inference_mode():
-                out = self.module(states, torch.from_numpy(controls).to(self.dtype))  # (E, B, H, 6)
+                if reference is not None and self.accepts_reference:
+                    references = torch.from_numpy(np.asarray(reference, dtype=np.float64)).to(self.dtype).expand(count, 4)
+                    out = self.module(states, torch.from_numpy(controls).to(self.dtype), references)  # (E, B, H, 6)
+                else:
+                    out = self.module(states, torch.from_numpy(controls).to(self.dtype))  # (E, B, H, 6)
             return out[: self.members].double().numpy()
         except MODEL_RUN_ERRORS as err:
             raise ModelError(f"model {self.artifact.path} fails when run: {failure_reason(err)}") from err
@@ -634,7 +802,7 @@ def predict(inputs: InputSet, rollout: Rollout, now_ns: int, schedule: Schedule 
         observe(live)
     controls = live.controls if schedule is None else schedule(step_times(live, inputs.settings), live.controls)[0]
     started = time.perf_counter()
-    out = rollout(live.state, controls)  # (E, H, 6)
+    out = rollout(live.state, controls, live.reference)  # (E, H, 6)
     compute_s = time.perf_counter() - started
     _check_output(out)
     eta_members = _anchored(out, live.position)  # (E, H, 3)
@@ -660,7 +828,7 @@ def predict_batch(inputs: InputSet, rollout: Rollout, now_ns: int, schedule: Sch
     live = inputs.assemble(now_ns)
     controls = schedule(step_times(live, inputs.settings), live.controls)  # (N, H, C)
     started = time.perf_counter()
-    out = rollout.batch(live.state, controls)  # (E, N, H, 6)
+    out = rollout.batch(live.state, controls, live.reference)  # (E, N, H, 6)
     compute_s = time.perf_counter() - started
     _check_output(out)
     mean = out.mean(axis=0)  # (N, H, 6): anchoring moves every member alike, so the mean is anchored once

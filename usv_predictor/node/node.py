@@ -493,12 +493,20 @@ class PredictorNode(Node):
                 self._take(role, messages)
 
     def _take(self, role: str, messages: list[tuple[bytes, int]]) -> None:
-        """Decode one input's messages in one call (msg_adapters.cdr) and add them in arrival order."""
+        """Decode one input's messages in one call (msg_adapters.cdr) and add them in arrival order (a batch of
+        live.BULK_ADD_MIN or more with no decode error and no raw heading beyond a turn: InputSet.add_many)."""
         entry = self._entries[role]
         batch = decode_values(self._adapters[role], [raw for raw, _ in messages], deserialize=self._deserializers[role])
         errors = dict(batch.errors)
         raw_heading = getattr(batch.columns, "data", None) if role == "heading" else None
         units = str(entry.options.get("units", "deg"))
+        if (len(messages) >= live.BULK_ADD_MIN and not errors
+                and (raw_heading is None or live.raw_headings_within_a_turn(raw_heading, units))):
+            arrivals = np.fromiter((arrival_ns for _, arrival_ns in messages), dtype=np.int64, count=len(messages))
+            stamps = arrivals if batch.stamps is None else batch.stamps
+            for err in self.inputs.add_many(role, stamps, batch.values, arrivals):  # in bulk when all pass
+                self._warn_input(role, str(err))
+            return
         row = 0
         for i, (_, arrival_ns) in enumerate(messages):
             if i in errors:
@@ -591,11 +599,15 @@ class PredictorNode(Node):
         now_ns = self._clock.now().nanoseconds
         self._catch_up(now_ns)
         plan = self._current_plan(now_ns)
+        # the sea estimate feeds on the cycle's state; a model it sets terms of (grey box, hybrid) needs it before the
+        # rollout, a model it is not applied to (a DNN) gets it after the outputs are published (the same state: the
+        # filter step, ~0.5 ms every dt, is then not in the prediction's latency)
+        deferred: list[live.LiveState] = []
         try:
             if self.fit.refusing:  # fit_check.refuse: a model that does not fit the inputs predicts nothing
                 raise live.CycleSkipped(self.fit.refusing)
             prediction = live.predict(self.inputs, self.rollout, now_ns, None if plan is None else plan.schedule,
-                                      observe=self._observe_sea)
+                                      observe=self._observe_sea if self.sea.applied else deferred.append)
             self._publish(prediction, prediction.stamp_ns if plan is None else plan.stamp_ns)
         except (live.CycleSkipped, ModelError, AdapterError, RuntimeError) as err:
             # RuntimeError: what a TorchScript module raises; the cycle is lost, the node carries on
@@ -608,6 +620,9 @@ class PredictorNode(Node):
             self.last_prediction = prediction
             self._latencies.append(prediction.compute_s)
             self._cycle_times.append(time.perf_counter() - started)
+        finally:
+            for state in deferred:
+                self._observe_sea(state)
 
     def _publish(self, prediction: live.Prediction, stamp_ns: int) -> None:
         """The three outputs as CDR bytes; header.stamp = the cycle's clock, or the stamp of the plan followed."""
@@ -635,7 +650,8 @@ class PredictorNode(Node):
         return sea.LiveSea(rollout.artifact, self.vessel, config, enabled, self.config.dt, self.config.rate_hz)
 
     def _observe_sea(self, state: live.LiveState) -> None:
-        """Before the cycle's rollout: feed the estimator when the state is on its dt grid, publish the estimate."""
+        """The cycle's state (before its rollout when the estimate is applied to the model, else after its outputs):
+        feed the estimator when the state is on its dt grid, publish the estimate."""
         fed = self.sea.observe(state)
         if fed is not None and self.sea.started():
             estimate = fed.estimate
@@ -688,7 +704,11 @@ class PredictorNode(Node):
         if short:
             self.fit.skip(short, now_ns)
             return
-        self._fit_running = self._fit_worker.submit(self._run_fit, self.fit, recording, now_ns)
+        reference = None
+        if self.inputs.approach is not None:  # rudder_only: the approach the predictions hold, seen in the buffers too
+            self.inputs.approach.observe_recording(recording)
+            reference = self.inputs.approach.reference
+        self._fit_running = self._fit_worker.submit(self._run_fit, self.fit, recording, now_ns, reference)
 
     def _buffers_too_short(self, span_s: float) -> str:
         """Why no steady window can ever be seen ("" when one can): the span the check reads is shorter than a window
@@ -708,10 +728,10 @@ class PredictorNode(Node):
                 f"samples, full), less than the {need_s:g} s a steady window needs: raise buffer_capacity to at least "
                 f"{need_s:g} s of the fastest input")
 
-    def _run_fit(self, fit: LiveFitCheck, recording: Any, now_ns: int) -> None:
+    def _run_fit(self, fit: LiveFitCheck, recording: Any, now_ns: int, reference: Any = None) -> None:
         """The check's rollouts, in the worker thread; the verdict is read by the cycle and /diagnostics."""
         try:
-            check = fit.run(recording, now_ns)
+            check = fit.run(recording, now_ns, reference)
         except Exception as err:  # noqa: BLE001 -- a worker's exception would vanish in its Future: reported instead
             fit.skip(f"the check failed: {type(err).__name__}: {_first_line(err)}", now_ns)
             self.get_logger().warning(f"fit check not run: {err}", throttle_duration_sec=ERROR_LOG_PERIOD_S)

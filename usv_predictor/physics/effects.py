@@ -328,6 +328,22 @@ class Effect:
         """Whether a boat of this actuator layout can have the effect (None: any layout)."""
         return layout is None or self.layouts is None or layout in self.layouts
 
+    def outside_range(self, found: Mapping[str, float]) -> tuple[str, ...]:
+        """Why fitted values (vocabulary keys, as the readout reads them) are not physical for this effect: each
+        value outside the range of the simulator parameter it estimates (EffectParameter low..high, the range
+        `replay simulate` admits; the grey-box terms' bounds are wider, for the fit's conditioning). Directions are
+        not checked (every compass direction is physical); () when every value is within, or nothing is simulated."""
+        ranges = {p.name: p for p in self.parameters}
+        reasons = []
+        for c in self.readout.comparisons:
+            p = ranges.get(c.parameter)
+            if c.angle or p is None or c.key not in found:
+                continue
+            if not p.low <= found[c.key] <= p.high:
+                reasons.append(f"{self.name} {c.key} {found[c.key]:.3g} is outside {p.low:g}..{p.high:g} {p.unit} "
+                               f"(the physical range of {p.name})")
+        return tuple(reasons)
+
     def acts_on(self, target: type) -> bool:
         """Whether any of its parameters sets a field of `target` (e.g. Environment: it is part of the sea)."""
         return any(p.sets.target is target for p in self.parameters)

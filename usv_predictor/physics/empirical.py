@@ -14,6 +14,9 @@ J' = J / (0.5 rho L^4 d)):
     N_vvr', N_rrr' (others 0)       strip-theory cross-flow drag (Fossen's crossFlowDrag, Hoerner's C_d) fitted to
                                     the cubic terms on |v'| <= 0.5, |r'| <= 0.8; unreliable (+-100 %)
     X_vv', X_vvvv'                  Kijima 1990 (one public implementation: unverified)
+    (kijima_1990_nonlinear)         every nonlinear Y', N' term of Kijima et al. 1990's beta-r polynomial (N_vvr',
+                                    N_vrr', N_rrr', N_vvv', Y_vvr', Y_rrr' too), as cubics: a prior for the terms
+                                    zig-zags leave undetermined (benchmarks/study_turning.py); not used by vessel init
     X_vr'                           Yoshimura & Masumoto 2012 (as implemented), X_rr' = 0 (no reliable formula)
     R0'                             ITTC-57 friction x (1 + k) (Watanabe) x wetted surface x 1.2 appendage
                                     allowance, or calibrated: the thrust at the owner's known speed and command
@@ -273,6 +276,55 @@ def cross_flow_cubics(cd: float) -> dict[str, float]:
     return {**{f"Y_{k}": float(c) for k, c in zip(names, cy)}, **{f"N_{k}": float(c) for k, c in zip(names, cn)}}
 
 
+def abs_square_to_cubic(half_range: float) -> float:
+    """c of the least-squares cubic c x^3 to x|x| on [-a, a], a = half_range: c = int x^4 / int x^6 = 7 / (6 a)."""
+    return 7.0 / (6.0 * half_range)
+
+
+def kijima_1990_nonlinear(L: float, B: float, d: float, c_b: float) -> dict[str, Value]:
+    """The nonlinear MMG hull terms of Kijima et al. 1990 (Kijima, Katsuno, Nakiri & Furukawa, "On the manoeuvring
+    performance of a ship with the parameter of loading condition", J. SNAJ 168; even keel, deep water), in the
+    cubic polynomial of physics/vessel.py.
+
+    Kijima writes the hull forces in drift angle beta and yaw rate r' (prime system as here):
+        Y' = ... + Y_bb b|b| + Y_rr r|r| + Y_bbr b^2 r + Y_brr b r^2,   N' likewise,
+        Y_bb = 2.5 d(1 - C_b)/B + 0.5      Y_rr = 0.343 d C_b/B - 0.07
+        Y_bbr = 1.5 d C_b/B - 0.65         Y_brr = 5.95 d(1 - C_b)/B
+        N_bb = -0.96 d(1 - C_b)/B + 0.066  N_rr = 0.5 C_b B/L - 0.09
+        N_bbr = -(57.5 (C_b B/L)^2 - 18.4 C_b B/L + 1.6)   N_brr = -(0.5 d C_b/B - 0.05)
+    With beta = -v' (v' = -sin beta, small angles): Y_vvr = Y_bbr, Y_vrr = -Y_brr, N_vvr = N_bbr, N_vrr = -N_brr;
+    the |x|x terms become cubics by least squares on |v'| <= V_RANGE, |r'| <= R_RANGE (abs_square_to_cubic):
+    Y_vvv = -Y_bb c_v, Y_rrr = Y_rr c_r, N_vvv = -N_bb c_v, N_rrr = N_rr c_r. Transcribed from secondary sources
+    (two public implementations print N_bbr and N_brr with different signs inside the brackets; the form above is the
+    one whose sign and size are those of a captive-tested full hull: Matsunaga 1993, same group, writes N_brr the
+    same way). Kijima's database: merchant hulls up to C_b ~0.83, C_b B/L ~0.155 at its edge (KVLCC2 0.147).
+    Against KVLCC2's captive values (Yasukawa & Yoshimura 2015 Table 3): Y_vvv -3 %, Y_vrr +4 %; N_vvr -53 %,
+    N_vrr +73 %, N_rrr +86 % (right signs), Y_vvr wrong sign."""
+    cbbl, db = c_b * B / L, d / B
+    c_v, c_r = abs_square_to_cubic(V_RANGE), abs_square_to_cubic(R_RANGE)
+    y_bb = 2.5 * db * (1.0 - c_b) + 0.5
+    y_rr = 0.343 * db * c_b - 0.07
+    y_bbr = 1.5 * db * c_b - 0.65
+    y_brr = 5.95 * db * (1.0 - c_b)
+    n_bb = -0.96 * db * (1.0 - c_b) + 0.066
+    n_rr = 0.5 * cbbl - 0.09
+    n_bbr = -(57.5 * cbbl**2 - 18.4 * cbbl + 1.6)
+    n_brr = -(0.5 * db * c_b - 0.05)
+    src = "Kijima et al. 1990"
+    cubic_v = f"x 7/(6 x {V_RANGE:g}): b|b| -> v^3 by least squares, beta = -v'"
+    cubic_r = f"x 7/(6 x {R_RANGE:g}): r|r| -> r^3 by least squares"
+    return {
+        "Y_vvv": Value(-y_bb * c_v, f"{src} -Y_bb, Y_bb = 2.5d(1-C_b)/B + 0.5, {cubic_v}"),
+        "Y_vvr": Value(y_bbr, f"{src} Y_bbr = 1.5dC_b/B - 0.65"),
+        "Y_vrr": Value(-y_brr, f"{src} -Y_brr, Y_brr = 5.95d(1-C_b)/B"),
+        "Y_rrr": Value(y_rr * c_r, f"{src} Y_rr = 0.343dC_b/B - 0.07, {cubic_r}"),
+        "N_vvv": Value(-n_bb * c_v, f"{src} -N_bb, N_bb = -0.96d(1-C_b)/B + 0.066, {cubic_v}"),
+        "N_vvr": Value(n_bbr, f"{src} N_bbr = -(57.5(C_bB/L)^2 - 18.4C_bB/L + 1.6)"),
+        "N_vrr": Value(-n_brr, f"{src} -N_brr, N_brr = -(0.5dC_b/B - 0.05)"),
+        "N_rrr": Value(n_rr * c_r, f"{src} N_rr = 0.5C_bB/L - 0.09, {cubic_r}"),
+    }
+
+
 def ittc57_cf(speed: float, length: float) -> float:
     """ITTC-57 friction line C_F = 0.075 / (log10 Re - 2)^2, Re = U L / nu."""
     return 0.075 / (math.log10(max(speed * length / NU_WATER, 1e3)) - 2.0) ** 2
@@ -388,7 +440,7 @@ def mmg_hull_estimates(L: float, B: float, d: float, c_b: float) -> dict[str, di
     cl = clarke_linear(L, B, d, c_b)
     yvv = -(2.5 * d * (1 - c_b) / B + 0.5)  # Kijima coefficient of v|v|
     cf = cross_flow_cubics(hoerner_cd(B / (2 * d)))
-    cubic = 7.0 / (6.0 * V_RANGE)  # x|x| ~ c x^3 on [-a, a]
+    cubic = abs_square_to_cubic(V_RANGE)  # x|x| ~ c x^3 on [-a, a]
     unreliable = "cross-flow drag strip theory (Fossen crossFlowDrag, Hoerner C_d) fitted to cubics; UNRELIABLE +-100 %"
     hull = {
         "R0": Value(0.0, "set below"),
@@ -653,9 +705,142 @@ def _windage_and_waves(e: Estimate, o: OwnerData, d: float) -> None:
         "c_y": Value(c_y, f"(-) Blendermann 1994 '{row}' CD_t"),
         "c_n": Value(0.10, "(-) peak of Blendermann's C_N with the centroid at midship (about 0.1)"),
     }
-    zero = "(-) not estimated from dimensions: no wave drift until identified (replay diagnose names wave_drift)"
-    e.sections["wave_drift"] = {k: Value((0.0,) if k.startswith("a") else (), zero)
-                                for k in ("a_x", "b_x", "a_y", "b_y", "a_n", "b_n")}
+    e.sections["wave_drift"] = wave_drift_estimate(o)
+    e.notes.append(WAVE_NOTE)
+    period = math.sqrt(2.0 * math.pi * 0.5 * o.L_pp / GRAVITY)  # (s) deep-water wave of length L_pp / 2
+    e.warnings.append(
+        f"wave drift: the short-wave asymptote (Faltinsen 1990 sec. 5, total reflection) is an UPPER BOUND, valid "
+        f"for wavelengths << L_pp (lambda = g T^2 / 2 pi < L_pp / 2 = {0.5 * o.L_pp:.3g} m: periods below "
+        f"{period:.2g} s); in longer waves the drift is smaller, so the wave height `replay diagnose` identifies "
+        f"with these coefficients is an UNDERESTIMATE")
+
+
+# ------------------------------------------------------------------ short-wave mean drift
+
+
+def waterplane_coefficient(c_b: float) -> float:
+    """C_wp from C_b: Schneekluth & Bertram 1998 ("Ship design for efficiency and economy", U-sections)
+    C_wp = (1 + 2 C_b) / 3, kept in [0.5, 1] (the wedge bow of waterline_polygon needs C_wp >= 0.5: C_b < 0.25
+    gives a waterline that is all bow, transom to stem)."""
+    return min(max((1.0 + 2.0 * c_b) / 3.0, 0.5), 1.0)
+
+
+def waterline_polygon(L: float, B: float, c_wp: float, y_c: float = 0.0) -> np.ndarray:
+    """(K, 2) vertices (x forward, y starboard, m; short_wave_drift takes either orientation) of a
+    transom-stern waterline: full beam B from the transom (x = -L/2) over a parallel middle body, then a straight-
+    sided (wedge) bow to a point at the stem (x = +L/2, y = y_c). Its area is C_wp L B: the bow's length
+    L_e = 2 L (1 - C_wp) (C_wp in [0.5, 1]; 1 = a rectangle)."""
+    if not 0.5 <= c_wp <= 1.0:
+        raise ConfigError(f"waterplane coefficient {c_wp:g}: expected 0.5-1 for a wedge-bow waterline")
+    x_e = 0.5 * L - 2.0 * L * (1.0 - c_wp)  # (m) start of the bow
+    h = 0.5 * B
+    if c_wp == 1.0:
+        pts = [(-0.5 * L, y_c - h), (0.5 * L, y_c - h), (0.5 * L, y_c + h), (-0.5 * L, y_c + h)]
+    else:
+        pts = [(-0.5 * L, y_c - h), (x_e, y_c - h), (0.5 * L, y_c), (x_e, y_c + h), (-0.5 * L, y_c + h)]
+    return np.array(pts, dtype=float)
+
+
+def short_wave_drift(polygons: list[np.ndarray], L: float, chi: np.ndarray,
+                     step: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(C_X, C_Y, C_N), each (len(chi),), of the short-wave asymptotic mean drift of Faltinsen, Dysthe, Aanesen &
+    Sortland 1980 / Faltinsen 1990 ("Sea loads on ships and offshore structures", sec. 5, eq. 5.49):
+
+        F_i = 0.5 rho g zeta_a^2 int_{lit waterline} sin^2(theta + beta) n_i dl,  N = int x dF_y - y dF_x
+
+    theta the waterline's tangent angle, beta the direction the waves travel, n the normal INTO the body (a lit
+    wall is pushed along the waves). sin^2(theta + beta) = (k . n)^2 with k the unit propagation vector, and a
+    waterline element is lit where k . n_out < 0 and the ray toward the waves meets no other waterline (the second
+    hull of a catamaran; each polygon must be convex). Non-dimensional as physics/vessel.py's WaveDrift:
+    F = 0.5 rho g zeta_a^2 L [C_X, C_Y, C_N L]; chi = wave-from direction - heading (rad), 0 = head seas, +90 deg =
+    from starboard: waves travel along k = -(cos chi, sin chi). Total reflection, so valid for wavelength << L and
+    an upper bound otherwise. Midpoint rule on elements of at most `step` (m; default L / 400)."""
+    step = step or L / 400.0
+    mids, normals, lengths, owner = [], [], [], []
+    for i, poly in enumerate(polygons):
+        area2 = float(np.sum(poly[:, 0] * np.roll(poly[:, 1], -1) - np.roll(poly[:, 0], -1) * poly[:, 1]))
+        for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+            edge = b - a
+            length = float(np.hypot(*edge))
+            if length == 0.0:  # a repeated vertex (a wedge bow from the transom: no parallel body)
+                continue
+            n = max(int(math.ceil(length / step)), 1)
+            t = (np.arange(n) + 0.5) / n
+            mids.append(a[None, :] + t[:, None] * edge[None, :])
+            out = np.array([edge[1], -edge[0]]) / length * (1.0 if area2 > 0 else -1.0)  # outward normal
+            normals.append(np.repeat(out[None, :], n, axis=0))
+            lengths.append(np.full(n, length / n))
+            owner.append(np.full(n, i))
+    p, n_out, dl, who = (np.concatenate(mids), np.concatenate(normals), np.concatenate(lengths),
+                         np.concatenate(owner))  # (M, 2), (M, 2), (M,), (M,)
+    chi = np.asarray(chi, dtype=float)
+    c = np.zeros((3, len(chi)))
+    for j, angle in enumerate(chi):
+        s = np.array([math.cos(angle), math.sin(angle)])  # toward the waves
+        kn = -(n_out @ s)  # k . n_out (M,)
+        lit = kn < 0.0
+        for i, poly in enumerate(polygons):  # shadows cast by the other hulls
+            check = lit & (who != i)
+            if not check.any():
+                continue
+            a, b = poly, np.roll(poly, -1, axis=0)
+            e = b - a  # (E, 2)
+            denom = s[0] * e[:, 1] - s[1] * e[:, 0]  # cross(s, e) (E,)
+            ap = a[None, :, :] - p[check][:, None, :]  # (m, E, 2)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (ap[..., 0] * e[:, 1] - ap[..., 1] * e[:, 0]) / denom
+                u = (ap[..., 0] * s[1] - ap[..., 1] * s[0]) / denom
+            hit = np.any((np.abs(denom) > 1e-12) & (t > 1e-9) & (u >= 0.0) & (u <= 1.0), axis=1)
+            idx = np.flatnonzero(check)
+            lit[idx[hit]] = False
+        w = np.where(lit, kn**2 * dl, 0.0)  # sin^2(theta + beta) dl (M,)
+        fx, fy = -w * n_out[:, 0], -w * n_out[:, 1]  # along the inward normal
+        c[:, j] = (fx.sum() / L, fy.sum() / L, float(np.sum(p[:, 0] * fy - p[:, 1] * fx)) / L**2)
+    return c[0], c[1], c[2]
+
+
+def fourier_fit(chi: np.ndarray, values: np.ndarray, harmonics: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """((a0, a1, ..), (b1, b2, ..)) of values ~ a0/2 + sum_n a_n cos(n chi) + b_n sin(n chi) by least squares
+    (physics/dynamics.py fourier_terms' layout), rounded to 1e-6."""
+    n = np.arange(1, harmonics + 1)
+    design = np.column_stack([np.full(len(chi), 0.5), np.cos(np.outer(chi, n)), np.sin(np.outer(chi, n))])
+    coef = np.linalg.lstsq(design, values, rcond=None)[0]
+    rounded = [round(float(x), 6) + 0.0 for x in coef]  # + 0.0: no -0.0 in the file
+    return tuple(rounded[:harmonics + 1]), tuple(rounded[harmonics + 1:])
+
+
+WAVE_HARMONICS = 3  # Fourier harmonics of the wave-drift estimate (-): C_X of a wall is cos|cos|, odd harmonics
+WAVE_CHI = np.radians(np.arange(0.0, 360.0, 2.0))  # encounter angles of the least-squares projection (rad)
+WAVE_SOURCE = ("Faltinsen et al. 1980 / Faltinsen 1990 sec. 5 short-wave asymptote (total reflection: an UPPER "
+               "BOUND, valid for wavelength << L_pp)")
+WAVE_NOTE = ("Wave drift: " + WAVE_SOURCE + ", integrated on a transom-stern waterline with a parallel middle body "
+             "and a straight-sided bow whose length gives C_wp = (1 + 2 C_b) / 3 (Schneekluth & Bertram 1998), "
+             f"projected on {WAVE_HARMONICS} Fourier harmonics in chi by least squares; in longer waves the drift "
+             "is smaller and an identified wave height an underestimate")
+
+
+def wave_drift_estimate(o: OwnerData) -> dict[str, Value]:
+    """The wave_drift section (a_x .. b_n) from the waterline(s) of the owner's L_pp, B and C_b (short_wave_drift);
+    a catamaran: two pontoons of demihull beam (default B / 4), centred B/2 - b/2 off the centreline."""
+    _, c_b, _ = _draught_and_cb(o, [])
+    c_wp = waterplane_coefficient(c_b)
+    if o.hulls == 2:
+        b = o.demihull_beam or o.B / 4.0
+        off = 0.5 * (o.B - b)
+        polygons = [waterline_polygon(o.L_pp, b, c_wp, -off), waterline_polygon(o.L_pp, b, c_wp, off)]
+        shape = f"two pontoons {b:.3g} m wide at +-{off:.3g} m"
+    else:
+        polygons = [waterline_polygon(o.L_pp, o.B, c_wp)]
+        shape = f"{o.L_pp:g} x {o.B:g} m"
+    cx, cy, cn = short_wave_drift(polygons, o.L_pp, WAVE_CHI)
+    a_x, b_x = fourier_fit(WAVE_CHI, cx, WAVE_HARMONICS)
+    a_y, b_y = fourier_fit(WAVE_CHI, cy, WAVE_HARMONICS)
+    a_n, b_n = fourier_fit(WAVE_CHI, cn, WAVE_HARMONICS)
+    how = (f"(-) {WAVE_SOURCE}; waterline {shape}, wedge bow {2.0 * (1.0 - c_wp):.2f} L_pp long (C_wp {c_wp:.3f}), "
+           f"{WAVE_HARMONICS} harmonics by least squares")
+    return {"a_x": Value(a_x, how), "b_x": Value(b_x, "(-) the same integral: 0 by port-starboard symmetry"),
+            "a_y": Value(a_y, "(-) the same integral: 0 by port-starboard symmetry"), "b_y": Value(b_y, how),
+            "a_n": Value(a_n, "(-) the same integral: 0 by port-starboard symmetry"), "b_n": Value(b_n, how)}
 
 
 def _propulsion_command(o: OwnerData, command: float) -> float:
