@@ -838,7 +838,7 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     (the simpler structure wins ties: its coefficients are those the grey box and the preset share). A small-craft
     hull (twin thrusters) goes to fitting/small_craft_identification.py (structures diagonal / coupled). The
     actuator layout decides the levels and what is held (module docstring, "Actuator layouts").
-    interaction "identify" (rudder_propeller only): the rudder lift gradient, gamma_R, w_P0 and t_P are searched
+    interaction "identify" (rudder_propeller only): the rudder lift gradient, gamma_R, eta, w_P0 and t_P are searched
     with the hull (fitting/interaction.py) and replace the description's when the held-out simulation says so;
     "fix" (default): held at the description's values (README "Unknown boats": identify gives more right answers on
     unknown boats but also confident wrong ones, so it is not the default yet).

@@ -1,0 +1,129 @@
+"""The interaction factors' search (usv_predictor/fitting/interaction.py): its plausibility check of a candidate's
+steady turn and straight run, and the output-error search on a boat whose rudder differs from its description."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+from usv_predictor.analysis.hidden_effects import effect_names
+from usv_predictor.analysis.unknown_boats import SIZE_CLASSES, TRIAL_RPM, draw_boat
+from usv_predictor.data.recording import recording_from_signals
+from usv_predictor.fitting import identification as idf
+from usv_predictor.fitting import interaction as ia
+from usv_predictor.physics.dynamics import ManoeuvringModel
+from usv_predictor.physics.environment import Environment
+from usv_predictor.physics.manoeuvres import RandomManoeuvre, TurningCircle, ZigZag
+from usv_predictor.physics.sensors import SensorSpec, measure
+from usv_predictor.physics.simulator import simulate
+from usv_predictor.physics.vessel import load_vessel
+
+DT = 0.2  # (s) the identification grid
+
+
+def _straight(vessel):
+    return ManoeuvringModel(vessel).straight_speed(TRIAL_RPM)
+
+
+def test_the_preset_and_the_benchmark_truths_pass_the_steady_check():
+    """The check's bounds admit every truth of the unknown-boat benchmark's first boats (seed 2026), which pivot at
+    full rudder (their steady speed down to a few % of the straight speed), and jari_usv."""
+    preset = load_vessel("jari_usv")
+    assert ia.steady_check(preset, TRIAL_RPM, _straight(preset)) is None
+    effects = effect_names("rudder_propeller")
+    classes = tuple(SIZE_CLASSES)
+    for index in range(0, 60, 7):
+        rng = np.random.default_rng([2026, index])
+        truth = draw_boat(rng, classes[(index // len(effects)) % len(classes)]).truth_vessel()
+        assert ia.steady_check(truth, TRIAL_RPM, _straight(truth)) is None, index
+
+
+def test_the_steady_turn_of_jari_usv_is_its_simulated_turning_circle():
+    """steady_turn's RK4 gives the simulator's steady circle (physics/simulator.py, the same equations)."""
+    preset = load_vessel("jari_usv")
+    model = ManoeuvringModel(preset)
+    turn = ia.steady_turn(model, TRIAL_RPM, _straight(preset), 35.0)
+    traj = simulate(model, TurningCircle(35.0, TRIAL_RPM, duration_s=400.0), Environment(), dt=0.05)
+    tail = traj.nu[-len(traj.nu) // 10:]  # (n, 3) u, v, r over the last 40 s
+    assert turn.diverged_after_s is None
+    assert turn.yaw_rate == pytest.approx(float(np.mean(tail[:, 2])), rel=0.01)
+    speed = float(np.mean(np.hypot(tail[:, 0], tail[:, 1])))
+    assert turn.speed_ratio == pytest.approx(speed / _straight(preset), rel=0.01)
+    assert turn.yaw_rate_spread < 1e-3 * abs(turn.yaw_rate)  # steady
+
+
+def test_the_steady_check_names_what_is_implausible():
+    preset = load_vessel("jari_usv")
+    u0 = _straight(preset)
+    # the measured straight-running speed far from the model's
+    assert "straight-running speed" in ia.steady_check(preset, TRIAL_RPM, 2.0 * u0)
+    # a rudder that hardly turns a course-stable boat: a steady diameter of thousands of ship lengths
+    weak = dataclasses.replace(preset, hull=dataclasses.replace(preset.hull, N_r=-0.5, N_v=-0.05),
+                               rudder=dataclasses.replace(preset.rudder, lift_factor=1e-3))
+    assert "steady diameter" in ia.steady_check(weak, TRIAL_RPM, None)
+    # a rudder whose force points the wrong way (jari_usv itself is course-unstable: a turn is not proof enough)
+    assert "turns the other way" in ia.steady_check(
+        dataclasses.replace(preset, rudder=dataclasses.replace(preset.rudder, lift_factor=-1.0)), TRIAL_RPM, None)
+    # cubic terms that make the turn run away (what a wrong rudder split does to the hull regression: README boat 2)
+    runaway = dataclasses.replace(preset, hull=dataclasses.replace(preset.hull, N_r=0.3, N_rrr=0.5, Y_vvv=5.0))
+    assert "diverges" in ia.steady_check(runaway, TRIAL_RPM, None)
+
+
+def test_eta_is_searched_at_most_to_a_full_slipstream():
+    preset = load_vessel("jari_usv")  # eta 0.9
+    assert ia.with_factors(preset, {"rudder.eta": 2.0}).rudder.eta == pytest.approx(ia.ETA_MAX)
+    assert ia.with_factors(preset, {"rudder.eta": 0.5}).rudder.eta == pytest.approx(0.45)
+    low, high = ia._bounds(preset, "rudder.eta")
+    assert low == 0.5 and high == pytest.approx(ia.ETA_MAX / 0.9)
+    scaled = ia.with_factors(preset, {"rudder.lift_factor": 1.25, "rudder.gamma_R": 0.75})
+    assert scaled.rudder.f_alpha == pytest.approx(1.25 * preset.rudder.f_alpha)
+    assert scaled.rudder.gamma_R_minus == pytest.approx(0.75 * preset.rudder.gamma_R_minus)
+
+
+TRIALS = (ZigZag(10.0, 10.0, 650.0, duration_s=80.0), ZigZag(20.0, 20.0, 700.0, duration_s=80.0, side=-1),
+          TurningCircle(25.0, 650.0, duration_s=80.0), RandomManoeuvre(seed=3, duration_s=150.0))
+
+
+@pytest.mark.slow
+def test_the_search_moves_wrong_rudder_factors_toward_the_truth():
+    """jari_usv's description, a boat whose rudder lift gradient is 25 % higher and gamma_R 25 % lower (its hull the
+    description's): identified from a noisy calm day, the searched lift gradient and gamma_R are both closer to the
+    boat's than the description's, and the chosen factors simulate the held-out manoeuvres better."""
+    description = load_vessel("jari_usv")
+    truth = ia.with_factors(description, {"rudder.lift_factor": 1.25, "rudder.gamma_R": 0.75})
+    model, env = ManoeuvringModel(truth), Environment()
+    recordings = [recording_from_signals(measure(simulate(model, m, env, seed=i), env, SensorSpec(), seed=i), DT,
+                                         name=m.name) for i, m in enumerate(TRIALS)]
+    result = idf.identify(description, recordings, structure="mmg", prior="fix", interaction="identify")
+    searched = result.interaction
+    assert searched["accepted"], result.notes
+    factors = {c.name: c.estimate for c in result.actuator_coefficients}
+    for name in ("rudder.lift_factor", "rudder.gamma_R"):
+        true, prior = ia.factor_value(truth, name), ia.factor_value(description, name)
+        assert abs(factors[name] - true) < 0.5 * abs(prior - true), (name, factors[name], true, prior)
+    heldout = searched["heldout_simulation_nmse"]
+    assert heldout[searched["chosen"]] < ia.ACCEPT_RATIO * heldout["description"]
+    assert result.vessel.rudder.f_alpha == pytest.approx(factors["rudder.lift_factor"] * description.rudder.f_alpha /
+                                                         description.rudder.lift_factor)
+    assert not math.isnan(result.fit.values()["N_r"])
+
+
+def test_without_a_segment_long_enough_the_description_stays():
+    """Manoeuvres shorter than a segment give no simulation error: the description's factors stay, said in one line
+    (no NaN in the JSON)."""
+    description = load_vessel("jari_usv")
+    model, env = ManoeuvringModel(description), Environment()
+    short = (ZigZag(10.0, 10.0, 650.0, duration_s=15.0), ZigZag(20.0, 20.0, 700.0, duration_s=15.0, side=-1),
+             TurningCircle(25.0, 650.0, duration_s=15.0))
+    recordings = [recording_from_signals(measure(simulate(model, m, env, seed=i), env, SensorSpec(), seed=i), DT,
+                                         name=m.name) for i, m in enumerate(short)]
+    data = idf.prepare(description, recordings)
+    u0 = float(np.median(np.concatenate([d.nu[:, 0] for d in data])))
+    fit = ia.identify_interaction(description, data, recordings, "mmg", "fix", u0)
+    assert not fit.accepted and fit.scale == {n: 1.0 for n in ia.INTERACTION_BOUNDS}
+    assert fit.vessel.rudder == description.rudder and fit.simulation == {}
+    assert "no candidate could be simulated (no manoeuvre longer than 20 s)" in fit.note()
+    json.dumps(fit.to_json(), allow_nan=False)
