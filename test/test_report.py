@@ -236,7 +236,7 @@ def test_the_evaluation_request_refuses_what_cannot_be_evaluated(capsys):
     for fields in ({"stride_s": 0.0}, {"horizons_s": (10.0, -30.0)}):
         with pytest.raises(EvaluationError, match=r"--stride .* and --horizons .* must be finite and positive \(s\)"):
             EvaluationRequest(**fields)
-    with pytest.raises(EvaluationError, match="--reference 'radar': expected one of gnss, truth"):
+    with pytest.raises(EvaluationError, match="--reference 'radar': expected one of gnss, smoothed, truth"):
         EvaluationRequest(reference="radar")
     assert main(["evaluate", "--model", "physics", "--stride", "-5"]) == 2  # refused before any bag is read
     err = capsys.readouterr().err
