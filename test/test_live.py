@@ -155,6 +155,28 @@ def test_backwards_duplicate_and_future_stamps_are_refused() -> None:
     assert len(inputs.tracks["heading"].buffer) == 1
 
 
+def test_a_header_less_sample_at_the_same_clock_supersedes_the_previous_one() -> None:
+    """A header-less message is stamped with the node's clock at its arrival; two arriving at one clock reading (sim
+    time moves in /clock steps, and a busy node takes queued messages at one reading) are no repeat: the newer value
+    replaces the latest sample, nothing is refused. A repeated header stamp stays a refused duplicate."""
+    inputs = make_inputs()
+    inputs.add("heading", 2 * NS, (0.1,), 2 * NS, at_arrival=True)
+    inputs.add("heading", 2 * NS, (0.2,), 2 * NS, at_arrival=True)
+    track = inputs.tracks["heading"]
+    t, values = track.buffer.samples()
+    assert t.tolist() == [2 * NS] and values[:, 0].tolist() == [0.2]
+    assert (track.received, track.superseded, track.rejected) == (2, 1, {})
+    with pytest.raises(live.InputRejected, match="heading: stamp 1.000 s before"):  # backwards stays refused
+        inputs.add("heading", NS, (0.3,), 2 * NS, at_arrival=True)
+    with pytest.raises(live.InputRejected, match="heading.psi is nan"):  # a bad newer value keeps the older
+        inputs.add("heading", 2 * NS, (math.nan,), 2 * NS, at_arrival=True)
+    assert track.buffer.samples()[1][:, 0].tolist() == [0.2]
+    with pytest.raises(live.InputRejected, match=r"velocity: header stamp 2\.000000000 s repeats") as refused:
+        inputs.add("velocity", 2 * NS, (5.0, 0.0, 0.0), 2 * NS)
+        inputs.add("velocity", 2 * NS, (5.0, 0.0, 0.0), 2 * NS)
+    assert refused.value.kind == "duplicate" and inputs.tracks["velocity"].superseded == 0
+
+
 def test_clock_jump_back_clears_the_buffers() -> None:
     inputs = make_inputs()
     last = feed_all(inputs, 100 * NS, 1.0)
@@ -359,25 +381,31 @@ def _track_record(inputs: live.InputSet, role: str) -> tuple:
     track = inputs.tracks[role]
     t, values = track.buffer.samples()
     return (t.tobytes(), values.tobytes(), track.buffer.overwritten, track.buffer.size, track.received,
-            dict(track.rejected), track.last_reject, track.last_reject_ns, track.last_accept_ns, inputs.datum)
+            dict(track.rejected), track.last_reject, track.last_reject_ns, track.last_accept_ns, track.superseded,
+            inputs.datum)
 
 
-@pytest.mark.parametrize("role", ["imu", "velocity", "gnss", "rudder_angle"])
-def test_add_many_equals_add_one_at_a_time(role: str) -> None:
+@pytest.mark.parametrize("role, at_arrival", [("imu", False), ("velocity", False), ("gnss", False),
+                                              ("rudder_angle", False), ("rudder_angle", True), ("engine_rpm", True)])
+def test_add_many_equals_add_one_at_a_time(role: str, at_arrival: bool) -> None:
     """The node buffers a decoded batch with add_many: in bulk when every sample passes, else add() one by one. On
     random batches (all good, a non-finite or implausible value, a duplicate, a backwards and a future stamp, batches
-    longer than the ring) buffers, counts, refusals and the datum are those of add() called sample by sample."""
+    longer than the ring; arrival-stamped: runs of equal stamps, also at the buffer's latest) buffers, counts,
+    refusals and the datum are those of add() called sample by sample."""
     rng = np.random.default_rng(len(role))
     bulk, single = make_inputs(capacity=64), make_inputs(capacity=64)
     width = len(bulk.tracks[role].buffer.fields)
     base = {"imu": [0.01, 0.0, 0.0, -9.81, math.nan], "velocity": [5.0, 0.1, 0.01], "gnss": [35.0, 120.0, 0.0],
-            "rudder_angle": [0.1]}[role]
+            "rudder_angle": [0.1], "engine_rpm": [650.0]}[role]
     stamp, bulk_batches = 100 * NS, 0
     for batch in range(60):
         count = int(rng.choice([1, 2, 5, 20, 100]))
         stamps = stamp + np.cumsum(rng.integers(1_000_000, 10_000_000, count))
         values = np.array(base, dtype=float)[None, :] + rng.normal(0.0, 1e-3, (count, width))
         arrivals = stamps + rng.integers(0, 2_000_000, count)
+        if at_arrival:  # the node's clock at each arrival: runs of equal readings, the first maybe the latest's
+            stamps = stamp + np.cumsum(rng.integers(0, 3, count)) * 10_000_000  # 10 ms /clock steps
+            arrivals = stamps.copy()
         spoil = batch % 6
         if spoil == 1:
             values[rng.integers(count), 0] = math.nan
@@ -389,11 +417,11 @@ def test_add_many_equals_add_one_at_a_time(role: str) -> None:
             stamps[0] = stamp - 5_000_000  # before the buffer's latest
         elif spoil == 5:
             arrivals[-1] = stamps[-1] - 2 * NS  # a stamp 2 s ahead of its arrival clock
-        refused = bulk.add_many(role, stamps, values, arrivals)
+        refused = bulk.add_many(role, stamps, values, arrivals, at_arrival=at_arrival)
         expected = []
         for t, row, now in zip(stamps.tolist(), values.tolist(), arrivals.tolist()):
             try:
-                single.add(role, t, tuple(row), now)
+                single.add(role, t, tuple(row), now, at_arrival=at_arrival)
             except live.InputRejected as err:
                 expected.append((err.kind, str(err)))
         assert [(err.kind, str(err)) for err in refused] == expected
@@ -402,7 +430,10 @@ def test_add_many_equals_add_one_at_a_time(role: str) -> None:
         stamp = int(stamps.max())
     assert bulk.tracks[role].buffer.overwritten > 0 and 10 < bulk_batches < 60
     value_refusal = "range" if role != "gnss" else "no_fix"
-    assert set(bulk.tracks[role].rejected) >= {"duplicate", "backwards", "future", value_refusal}
+    assert set(bulk.tracks[role].rejected) >= {"backwards", "future", value_refusal}
+    # arrival-stamped: equal stamps supersede, never a refused duplicate
+    assert ("duplicate" in bulk.tracks[role].rejected) is not at_arrival
+    assert (bulk.tracks[role].superseded > 0) is at_arrival
 
 
 def test_raw_headings_within_a_turn_is_check_raw_heading_on_every_sample() -> None:

@@ -206,12 +206,18 @@ def main(argv: list[str] | None = None) -> int:
         deadline = time.monotonic() + 30.0  # the node's start-up (torch import, model load) and discovery
         first_topic = messages[0].topic if messages else "imu/data"
         while time.monotonic() < deadline and (node.count_subscribers(first_topic) == 0
-                                               or node.count_publishers("predicted_path") == 0):
+                                               or node.count_publishers("predicted_path") == 0
+                                               or (args.run_node and node.count_subscribers("/clock") == 0)):
             executor.spin_once(timeout_sec=0.05)
             if node_process is not None and node_process.poll() is not None:
                 print(f"the predictor node exited with code {node_process.returncode} before playback",
                       file=sys.stderr)
                 return 2
+        if messages:  # the node's clock first: a message arriving before any /clock is stamped at time 0
+            end = time.monotonic() + 0.2
+            while time.monotonic() < end:
+                player.publish_clock(messages[0].log_time_ns)
+                executor.spin_once(timeout_sec=0.01)
         print(f"playing {len(messages)} messages ({args.seconds:g} s of {args.bag.name}) at {args.rate:g}x",
               file=sys.stderr)
         play(player, executor, args.rate)

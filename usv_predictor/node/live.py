@@ -22,7 +22,8 @@ Recording.state() at the grid time t_c of the same samples (test_live.py proves 
 Prediction k (k = 1 .. H) is the model's output at t_c + k dt.
 
 Samples are checked on arrival (reject reasons are counted per input and reported): non-finite values in
-a field the state uses, a stamp not after the previous one (backwards or duplicate), a stamp more than
+a field the state uses, a stamp not after the previous one (backwards or a repeated header stamp; a header-less
+message arriving at the same clock reading as the previous one supersedes it, InputSet.add), a stamp more than
 max_future_s ahead of the clock, values outside data.recording.PLAUSIBLE or a control's plausible range (wrong units
 configuration, e.g. heading configured as rad but > 2 pi, rudder degrees read as radians, absurd rpm). Buffers are fixed-size rings:
 memory does not grow with the message rate.
@@ -131,6 +132,12 @@ def check_values(role: str, fields: Sequence[str], values: Sequence[float],
                  layout: ActuatorLayout = DEFAULT_LAYOUT) -> None:
     """Used fields must be finite and plausible (InputRejected 'non_finite' or 'range' naming the field)."""
     _check_values(role, fields, values, state_fields(layout).get(role, ()), plausible_ranges(layout))
+
+
+def _stamp_text(stamp_ns: int) -> str:
+    """A stamp as the header writes it: sec.nanosec (9 digits)."""
+    sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
+    return f"{sec}.{nanosec:09d} s"
 
 
 def _check_values(role: str, fields: Sequence[str], values: Sequence[float], used: Sequence[str],
@@ -295,6 +302,12 @@ class SampleBuffer:
         self._next = (self._next + count) % self.capacity
         self.size = min(self.capacity, self.size + count)
 
+    def replace_latest(self, values: Sequence[float]) -> None:
+        """The latest sample's values replaced (its stamp kept): a newer message at the same clock reading."""
+        if not self.size:
+            raise ValueError("replace_latest on an empty buffer")
+        self._v[(self._next - 1) % self.capacity] = values
+
     def clear(self) -> None:
         self._next = self.size = 0
 
@@ -334,6 +347,7 @@ class InputTrack:
     last_reject: str = ""
     last_reject_ns: int | None = None
     last_accept_ns: int | None = None  # clock when the latest good sample was accepted
+    superseded: int = 0  # arrival-stamped samples replaced by a newer message at the same clock (InputSet.add)
     refused: str = ""  # why the whole input is refused (it disagrees with a redundant input); "" when it is not
 
     def reject(self, kind: str, message: str, now_ns: int) -> None:
@@ -457,16 +471,28 @@ class InputSet:
         self.approach = None if layout.propulsion else ApproachTracker(layout)
 
     # --------------------------------------------------------------- messages in
-    def add(self, role: str, stamp_ns: int, values: Sequence[float], now_ns: int) -> None:
-        """Check and buffer one decoded sample (InputRejected says why it was refused; it is also counted)."""
+    def add(self, role: str, stamp_ns: int, values: Sequence[float], now_ns: int, at_arrival: bool = False) -> None:
+        """Check and buffer one decoded sample (InputRejected says why it was refused; it is also counted).
+
+        at_arrival: the stamp is the node's clock at the message's arrival (a header-less message). Then a stamp equal
+        to the buffer's latest is no repeated message: the clock did not advance between two arrivals (sim time
+        moves in /clock steps, 10-25 ms, and a node busy for longer takes several queued messages at one reading),
+        and the newer message supersedes the latest sample's values (counted in `superseded`). A header stamp
+        equal to the previous one is a repeat and refused ("duplicate")."""
         track = self.tracks[role]
         track.received += 1
         try:
             _check_values(role, track.buffer.fields, values, self._used.get(role, ()), self._plausible)
             latest = track.buffer.latest_ns
             if latest is not None and stamp_ns <= latest:
+                if stamp_ns == latest and at_arrival:
+                    track.buffer.replace_latest(values)
+                    track.superseded += 1
+                    track.last_accept_ns = now_ns
+                    return
                 if stamp_ns == latest:
-                    raise InputRejected("duplicate", f"{role}: stamp repeats the previous one")
+                    raise InputRejected("duplicate", f"{role}: header stamp {_stamp_text(stamp_ns)} repeats the "
+                                                     f"previous message's")
                 raise InputRejected("backwards", f"{role}: stamp {(latest - stamp_ns) / NS_PER_S:.3f} s before the previous one")
             ahead = (stamp_ns - now_ns) / NS_PER_S
             if ahead > self.settings.max_future_s:
@@ -482,11 +508,12 @@ class InputSet:
         track.buffer.push(stamp_ns, values)
         track.last_accept_ns = now_ns
 
-    def add_many(self, role: str, stamps_ns: np.ndarray, values: np.ndarray, now_ns: np.ndarray
-                 ) -> list[InputRejected]:
+    def add_many(self, role: str, stamps_ns: np.ndarray, values: np.ndarray, now_ns: np.ndarray,
+                 at_arrival: bool = False) -> list[InputRejected]:
         """add() of M decoded samples in order (stamps (M,) int64, values (M, k), the clock at each one's arrival
-        (M,) int64): when every sample passes add()'s checks (the used fields finite and plausible, the stamps
-        increasing from the buffer's latest, none ahead of its arrival clock by more than max_future_s) they are
+        (M,) int64, at_arrival as add()): when every sample passes add()'s checks (the used fields finite and
+        plausible, the stamps increasing from the buffer's latest -- or, at_arrival, not decreasing, a run of equal
+        stamps keeping its last sample -- none ahead of its arrival clock by more than max_future_s) they are
         counted and buffered in one write; otherwise add() runs one sample at a time, so that the refusals (returned
         in order) and every count are add()'s. test_live.py proves both ways equal."""
         track = self.tracks[role]
@@ -499,15 +526,19 @@ class InputSet:
         columns = values[:, used]
         low = np.array([self._plausible.get(fields[i], (-math.inf, math.inf))[0] for i in used])
         high = np.array([self._plausible.get(fields[i], (-math.inf, math.inf))[1] for i in used])
+        steps = np.diff(stamps_ns)
+        if at_arrival:  # equal stamps allowed (the later supersedes)
+            ordered = bool((steps >= 0).all()) and (latest is None or int(stamps_ns[0]) >= latest)
+        else:
+            ordered = bool((steps > 0).all()) and (latest is None or int(stamps_ns[0]) > latest)
         bulk = (len(stamps_ns) > 0 and bool(np.isfinite(columns).all())
-                and bool(((columns >= low) & (columns <= high)).all())
-                and (latest is None or int(stamps_ns[0]) > latest) and bool((np.diff(stamps_ns) > 0).all())
+                and bool(((columns >= low) & (columns <= high)).all()) and ordered
                 and bool(((stamps_ns - now_ns) / NS_PER_S <= self.settings.max_future_s).all()))
         if not bulk:
             refused = []
             for stamp, row, now in zip(stamps_ns.tolist(), values.tolist(), now_ns.tolist()):
                 try:
-                    self.add(role, stamp, tuple(row), now)
+                    self.add(role, stamp, tuple(row), now, at_arrival)
                 except InputRejected as err:
                     refused.append(err)
             return refused
@@ -515,6 +546,14 @@ class InputSet:
         if role == POSITION_ROLE and self.datum is None:
             self.datum = (float(values[0, fields.index("lat")]), float(values[0, fields.index("lon")]))
             self._plane = LocalTangentPlane(*self.datum)
+        if at_arrival:  # the last of each run of equal stamps; a first run at the latest stamp replaces it
+            last_of_run = np.append(steps > 0, True)  # (M,)
+            track.superseded += len(stamps_ns) - int(last_of_run.sum())
+            stamps_ns, values = stamps_ns[last_of_run], values[last_of_run]
+            if latest is not None and int(stamps_ns[0]) == latest:
+                track.buffer.replace_latest(values[0])
+                track.superseded += 1
+                stamps_ns, values = stamps_ns[1:], values[1:]
         track.buffer.push_many(stamps_ns, values)
         track.last_accept_ns = int(now_ns[-1])
         return []

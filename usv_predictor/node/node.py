@@ -504,7 +504,7 @@ class PredictorNode(Node):
                 and (raw_heading is None or live.raw_headings_within_a_turn(raw_heading, units))):
             arrivals = np.fromiter((arrival_ns for _, arrival_ns in messages), dtype=np.int64, count=len(messages))
             stamps = arrivals if batch.stamps is None else batch.stamps
-            for err in self.inputs.add_many(role, stamps, batch.values, arrivals):  # in bulk when all pass
+            for err in self.inputs.add_many(role, stamps, batch.values, arrivals, at_arrival=batch.stamps is None):
                 self._warn_input(role, str(err))
             return
         row = 0
@@ -527,7 +527,7 @@ class PredictorNode(Node):
                 continue
             row += 1
             try:
-                self.inputs.add(role, stamp_ns, values, arrival_ns)
+                self.inputs.add(role, stamp_ns, values, arrival_ns, at_arrival=batch.stamps is None)
             except live.InputRejected as err:
                 self._warn_input(role, str(err))
 
@@ -775,6 +775,7 @@ class PredictorNode(Node):
             "rejected": sum(track.rejected.values()),
             **{f"rejected_{kind}": count for kind, count in sorted(track.rejected.items())},
             "dropped_undecoded": self.dropped[role],
+            "superseded": track.superseded,  # header-less: a newer message at the same clock reading (live.InputSet.add)
             "rate_hz": f"{track.buffer.rate_hz(now_ns):.1f}",
             "buffer": f"{len(track.buffer)}/{track.buffer.capacity}",
             "max_age_s": f"{track.max_age_s:g}",
