@@ -120,6 +120,7 @@ def prediction(steps: int, seed: int, special: bool = False) -> tuple[int, np.nd
 @pytest.mark.parametrize("frame", FRAMES)
 def test_path_bytes_equal_rclpy(steps: int, frame: str) -> None:
     stamp, t_ns, eta, _ = prediction(steps, len(frame), special=True)
+    outputs.path_cdr(stamp + 1, t_ns + 7, eta * 2 + 1, frame)  # the layout's buffer holds other values first
     ours = outputs.path_cdr(stamp, t_ns, eta, frame)
     assert_same_bytes(ours, outputs.encode_path(stamp, t_ns, eta, frame, RCLPY),
                       outputs.encode_path(stamp, t_ns, eta, frame, ROSBAGS), outputs.PATH_TYPE)
@@ -130,6 +131,7 @@ def test_path_bytes_equal_rclpy(steps: int, frame: str) -> None:
                                               ("odo", "b")])
 def test_predicted_velocities_bytes_equal_rclpy(steps: int, frame: str, child: str) -> None:
     stamp, t_ns, eta, nu = prediction(steps, steps + len(child), special=True)
+    outputs.predicted_velocities_cdr(stamp + 1, t_ns + 7, eta * 2 + 1, nu - 3, frame, child)  # other values first
     ours = outputs.predicted_velocities_cdr(stamp, t_ns, eta, nu, frame, child)
     assert_same_bytes(ours, outputs.encode_predicted_velocities(stamp, t_ns, eta, nu, frame, child, RCLPY),
                       outputs.encode_predicted_velocities(stamp, t_ns, eta, nu, frame, child, ROSBAGS),
@@ -142,7 +144,10 @@ def test_candidate_predictions_bytes_equal_rclpy(bodies: int, steps: int) -> Non
     rng = np.random.default_rng(bodies)
     eta, nu = rng.normal(0, 100, (bodies, steps, 3)), rng.normal(0, 2, (bodies, steps, 3))
     names = [f"c{i}" + "x" * (i % 5) for i in range(bodies)]  # odd and even name lengths
+    # the layout's buffer is reused (CdrLayout.fill_in_place): other values first, every byte must be rewritten
+    earlier = outputs.candidate_predictions_cdr(stamp + 1, t_ns + 7, eta * 2 + 1, nu - 3, "odom", names)
     ours = outputs.candidate_predictions_cdr(stamp, t_ns, eta, nu, "odom", names)
+    assert earlier != ours or steps * bodies == 0
     assert_same_bytes(ours, outputs.encode_candidate_predictions(stamp, t_ns, eta, nu, "odom", names, RCLPY),
                       outputs.encode_candidate_predictions(stamp, t_ns, eta, nu, "odom", names, ROSBAGS),
                       outputs.TRAJECTORY_TYPE)
