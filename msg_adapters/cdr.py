@@ -24,7 +24,8 @@ from __future__ import annotations
 
 import functools
 import operator
-from collections.abc import Callable
+import struct
+from collections.abc import Callable, Sequence
 from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -647,6 +648,9 @@ class JointTrajectoryData(NamedTuple):
     positions: np.ndarray  # (P, J) float64
 
 
+_UINT32_LE = struct.Struct("<I")
+
+
 class _Reader:
     """Sequential little-endian CDR reader over one message (after its header); AdapterError on overrun."""
 
@@ -687,6 +691,31 @@ class _Reader:
         except UnicodeDecodeError as err:
             raise AdapterError(f"{self.what}: {field} is not valid UTF-8") from err
 
+    def strings(self, field: str, count: int) -> tuple[str, ...]:
+        """`count` strings named field[0], field[1], ...: string() in one loop with local variables (a 128-joint plan
+        has 128 names), the same checks and messages."""
+        data, size, position, out = self.data, len(self.data), self.position, []
+        for j in range(count):
+            position = (position + 3) & -4
+            if position + 4 > size:
+                raise AdapterError(f"{self.what}: truncated in {field}[{j}] ({size + _HEADER_SIZE} bytes)")
+            (length,) = _UINT32_LE.unpack_from(data, position)
+            position += 4
+            if length < 1:
+                raise AdapterError(f"{self.what}: {field}[{j}] has length 0, expected >= 1 (its NUL included)")
+            if position + length > size:
+                raise AdapterError(f"{self.what}: truncated in {field}[{j}] ({size + _HEADER_SIZE} bytes)")
+            text = bytes(data[position:position + length])
+            position += length
+            if text[-1] != 0:
+                raise AdapterError(f"{self.what}: {field}[{j}] lacks its NUL terminator")
+            try:
+                out.append(text[:-1].decode("utf-8"))
+            except UnicodeDecodeError as err:
+                raise AdapterError(f"{self.what}: {field}[{j}] is not valid UTF-8") from err
+            self.position = position
+        return tuple(out)
+
     def float64s(self, field: str, limit: int) -> np.ndarray | int:
         """A sequence<float64>: its values (offset into data returned as a view-free copy)."""
         count = self.uint32(field)
@@ -703,7 +732,41 @@ def decode_joint_trajectory(raw: bytes | memoryview, max_joints: int = 1024, max
 
     Every point must carry exactly one position per joint; velocities, accelerations and effort are
     read past (any length) and not returned. Bytes after the last point are ignored.
+
+    Points 0 and 1 are walked field by field; when point 1's size is a multiple of 8 bytes (the alignment of
+    float64), every later point with point 1's sequence lengths has its layout at point 1's offsets plus a whole
+    stride, so their lengths are checked and their positions and time_from_start read with numpy views at those
+    offsets (`_later_points`); a plan that is not so regular, or is truncated, is walked point by point
+    (`_walk_points`), which gives its error. test_plans.py proves both equal to rclpy's deserialisation and to each
+    other, on malformed bytes too.
     """
+    reader, stamp_ns, frame_id, names, count = _trajectory_head(raw, max_joints, max_points)
+    joints = len(names)
+    times = np.empty(count, dtype=np.int64)
+    positions = np.empty((count, joints), dtype=np.float64)
+    first = min(count, 2)
+    lengths = _walk_points(reader, joints, max_joints, times, positions, 0, first)
+    if count > 2 and _later_points(reader, lengths, times, positions):
+        return JointTrajectoryData(stamp_ns, frame_id, names, times, positions)
+    _walk_points(reader, joints, max_joints, times, positions, first, count)
+    return JointTrajectoryData(stamp_ns, frame_id, names, times, positions)
+
+
+def decode_joint_trajectory_walk(raw: bytes | memoryview, max_joints: int = 1024, max_points: int = 100_000
+                                 ) -> JointTrajectoryData:
+    """decode_joint_trajectory walking every name and point field by field (as before 2026-11-26): the reference
+    its names loop and numpy reading of the later points are tested and benchmarked against."""
+    reader, stamp_ns, frame_id, names, count = _trajectory_head(raw, max_joints, max_points, walk=True)
+    times = np.empty(count, dtype=np.int64)
+    positions = np.empty((count, len(names)), dtype=np.float64)
+    _walk_points(reader, len(names), max_joints, times, positions, 0, count)
+    return JointTrajectoryData(stamp_ns, frame_id, names, times, positions)
+
+
+def _trajectory_head(raw: bytes | memoryview, max_joints: int, max_points: int, walk: bool = False
+                     ) -> tuple[_Reader, int, str, tuple[str, ...], int]:
+    """The reader after the points' count, with the header, the joint names (walk: one string() call each, as
+    before 2026-11-26) and the count of points."""
     what = JOINT_TRAJECTORY_TYPE
     if len(raw) < _HEADER_SIZE or bytes(raw[:2]) != bytes(_LITTLE_ENDIAN_HEADER):
         raise AdapterError(f"{what}: not a little-endian CDR message")
@@ -713,18 +776,72 @@ def decode_joint_trajectory(raw: bytes | memoryview, max_joints: int = 1024, max
     joints = reader.uint32("joint_names")
     if joints > max_joints:
         raise AdapterError(f"{what}: {joints} joint names, more than the {max_joints} allowed")
-    names = tuple(reader.string(f"joint_names[{j}]") for j in range(joints))
+    if walk:
+        names = tuple(reader.string(f"joint_names[{j}]") for j in range(joints))
+    else:
+        names = reader.strings("joint_names", joints)
     count = reader.uint32("points")
     if count > max_points:
         raise AdapterError(f"{what}: {count} points, more than the {max_points} allowed")
-    times = np.empty(count, dtype=np.int64)
-    positions = np.empty((count, joints), dtype=np.float64)
-    for k in range(count):
+    return reader, stamp_ns, frame_id, names, count
+
+
+_POINT_SEQUENCES = ("positions", "velocities", "accelerations", "effort")  # JointTrajectoryPoint's float64 sequences
+
+
+def _walk_points(reader: _Reader, joints: int, max_joints: int, times: np.ndarray, positions: np.ndarray,
+                 start: int, end: int) -> tuple[int, ...]:
+    """Points start..end-1 field by field into times (P,) and positions (P, J); the sequence lengths of the last."""
+    lengths: tuple[int, ...] = ()
+    for k in range(start, end):
         values = reader.float64s(f"points[{k}].positions", max_joints)
         if len(values) != joints:
-            raise AdapterError(f"{what}: points[{k}] has {len(values)} positions for {joints} joint names")
+            raise AdapterError(f"{reader.what}: points[{k}] has {len(values)} positions for {joints} joint names")
         positions[k] = values
-        for name in ("velocities", "accelerations", "effort"):
-            reader.float64s(f"points[{k}].{name}", max_joints)
+        lengths = (joints, *(len(reader.float64s(f"points[{k}].{name}", max_joints)) for name in _POINT_SEQUENCES[1:]))
         times[k] = reader.time_ns(f"points[{k}].time_from_start")
-    return JointTrajectoryData(stamp_ns, frame_id, names, times, positions)
+    return lengths
+
+
+def _point_offsets(start: int, lengths: Sequence[int]) -> tuple[list[int], int, int, int]:
+    """A JointTrajectoryPoint at body offset `start` with these sequence lengths (positions, velocities,
+    accelerations, effort): (offsets of the four lengths, of the positions' first value, of time_from_start, end)."""
+    position, counts, values = start, [], start
+    for index, length in enumerate(lengths):
+        position = _align(position, 4)
+        counts.append(position)
+        position += 4
+        if length:
+            position = _align(position, 8)
+            if index == 0:
+                values = position
+            position += 8 * length
+    time_at = _align(position, 4)
+    return counts, values, time_at, time_at + 8
+
+
+def _later_points(reader: _Reader, lengths: tuple[int, ...], times: np.ndarray, positions: np.ndarray) -> bool:
+    """Points 2.. read with numpy at point 1's offsets plus k strides (decode_joint_trajectory's docstring); False
+    (nothing read, the reader where it was) when point 1's size is not a multiple of 8, a later point's sequence
+    lengths differ from point 1's or the message is too short for them all: the caller walks them."""
+    count = len(times)
+    start = reader.position
+    counts_at, values_at, time_at, end = _point_offsets(start, lengths)
+    stride = end - start
+    # point 1 (index 1) ended at `start`; the same layout holds from there when the stride keeps the 8-byte phase
+    if stride % 8 or start + (count - 2) * stride > len(reader.data):
+        return False
+    later = count - 2  # points 2 .. count-1
+    data = reader.data
+    for offset, length in zip(counts_at, lengths):
+        found = np.ndarray((later,), dtype="<u4", buffer=data, offset=offset, strides=(stride,))
+        if (found != length).any():
+            return False
+    joints = lengths[0]
+    if joints:
+        positions[2:] = np.ndarray((later, joints), dtype="<f8", buffer=data, offset=values_at, strides=(stride, 8))
+    sec = np.ndarray((later,), dtype="<i4", buffer=data, offset=time_at, strides=(stride,))
+    nanosec = np.ndarray((later,), dtype="<u4", buffer=data, offset=time_at + 4, strides=(stride,))
+    times[2:] = sec.astype(np.int64) * NS_PER_S + nanosec
+    reader.position = start + later * stride
+    return True

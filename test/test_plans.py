@@ -3,13 +3,14 @@ from __future__ import annotations
 
 import math
 import struct
+from typing import Any
 
 import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 
 import msg_adapters
-from msg_adapters.cdr import decode_joint_trajectory
+from msg_adapters.cdr import decode_joint_trajectory, decode_joint_trajectory_walk
 from usv_predictor.config import package_share_path
 from usv_predictor.errors import AdapterError, InputRejected
 from usv_predictor.models.artifact import load_artifact
@@ -90,6 +91,99 @@ def test_malformed_trajectory_bytes_are_adapter_errors_naming_the_field() -> Non
     struct.pack_into("<I", huge, 4 + 8 + 4 + 4, 10**9)  # the joint_names count (after stamp, frame_id "\0" + pad)
     with pytest.raises(AdapterError, match="joint names, more than"):
         decode_joint_trajectory(bytes(huge))
+
+
+def random_trajectory(rng: np.random.Generator, joints: int, points: int, irregular: bool) -> Any:
+    """A JointTrajectory message (rclpy) of `points` points with one position per joint; the other sequences of
+    one length for all points (0-3), or (irregular) a random length for some points; frame and names of random
+    lengths (they move the alignment of everything after them)."""
+    msg = MAKE("trajectory_msgs/msg/JointTrajectory")()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = int(rng.integers(-2**31, 2**31)), int(rng.integers(0, NS))
+    msg.header.frame_id = "f" * int(rng.integers(0, 9))
+    msg.joint_names = [f"j{j}" + "x" * int(rng.integers(0, 4)) for j in range(joints)]
+    point_type, duration = MAKE("trajectory_msgs/msg/JointTrajectoryPoint"), MAKE("builtin_interfaces/msg/Duration")
+    lengths = rng.integers(0, 4, 3)
+    out = []
+    for k in range(points):
+        own = rng.integers(0, 4, 3) if irregular and rng.random() < 0.3 else lengths
+        out.append(point_type(positions=rng.normal(size=joints).tolist(),
+                              velocities=rng.normal(size=int(own[0])).tolist(),
+                              accelerations=rng.normal(size=int(own[1])).tolist(),
+                              effort=rng.normal(size=int(own[2])).tolist(),
+                              time_from_start=duration(sec=int(rng.integers(-2**31, 2**31)),
+                                                       nanosec=int(rng.integers(0, NS)))))
+    msg.points = out
+    return msg
+
+
+def decoded_or_error(decode: Any, raw: bytes) -> Any:
+    try:
+        data = decode(raw)
+    except AdapterError as err:
+        return str(err)
+    return (data.stamp_ns, data.frame_id, data.joint_names, data.time_from_start_ns.tobytes(), data.positions.shape,
+            data.positions.tobytes())
+
+
+@pytest.mark.parametrize("irregular", [False, True])
+@pytest.mark.parametrize("joints", [0, 1, 2, 3, 128])
+def test_the_numpy_reading_of_the_points_equals_rclpy_and_the_walk(joints: int, irregular: bool) -> None:
+    """decode_joint_trajectory reads points 2.. with numpy at point 1's offsets when the layout repeats; on random
+    plans (0-120 points, 0-3 velocities, accelerations and effort per point, all alike or some not, names and
+    frame of every alignment) it equals rclpy's deserialisation, and the point-by-point walk exactly."""
+    rng = np.random.default_rng(joints * 2 + irregular)
+    for case in range(12):
+        msg = random_trajectory(rng, joints, [0, 1, 2, 3, 5, 120][case % 6], irregular)
+        raw = wire_bytes(serialize_message(msg))
+        data = decode_joint_trajectory(raw)
+        assert decoded_or_error(decode_joint_trajectory, raw) == decoded_or_error(decode_joint_trajectory_walk, raw)
+        assert data.stamp_ns == msg.header.stamp.sec * NS + msg.header.stamp.nanosec
+        assert data.frame_id == msg.header.frame_id and data.joint_names == tuple(msg.joint_names)
+        expected = np.array([p.positions for p in msg.points], dtype=np.float64).reshape(len(msg.points), joints)
+        np.testing.assert_array_equal(data.positions, expected)
+        assert data.time_from_start_ns.tolist() == [p.time_from_start.sec * NS + p.time_from_start.nanosec
+                                                    for p in msg.points]
+
+
+@pytest.mark.parametrize("first", [(0, 0, 0), (1, 0, 0), (0, 1, 1), (2, 0, 1)])
+@pytest.mark.parametrize("later", [(0, 0, 0), (1, 0, 0), (0, 0, 1)])
+def test_a_first_point_unlike_the_others_moves_their_alignment_and_still_decodes(first: tuple[int, ...],
+                                                                                later: tuple[int, ...]) -> None:
+    """Point 0's sequence lengths set where point 1 starts within 8 bytes; unlike the later points' they can make
+    point 1's size 4 bytes off a multiple of 8, so that point 2's padding differs from point 1's: then the points
+    are walked. Every pairing of first-point and later-point lengths equals rclpy's values and the walk."""
+    rng = np.random.default_rng(sum(first) * 7 + sum(later))
+    for joints in (1, 2, 3):
+        msg = random_trajectory(rng, joints, 6, irregular=False)
+        for k, point in enumerate(msg.points):
+            point.velocities, point.accelerations, point.effort = ([0.25] * n for n in (first if k == 0 else later))
+        raw = wire_bytes(serialize_message(msg))
+        found = decoded_or_error(decode_joint_trajectory, raw)
+        assert found == decoded_or_error(decode_joint_trajectory_walk, raw)
+        np.testing.assert_array_equal(decode_joint_trajectory(raw).positions, [p.positions for p in msg.points])
+
+
+def test_malformed_plans_are_refused_by_the_numpy_reading_as_by_the_walk() -> None:
+    """Truncated at every length, a sequence length or a byte overwritten anywhere, a later point with a position
+    more or fewer: decode_joint_trajectory refuses with the walk's message (or both decode the same)."""
+    rng = np.random.default_rng(13)
+    outcomes = set()
+    for joints, points in ((2, 6), (3, 5), (128, 4)):
+        raw = wire_bytes(serialize_message(random_trajectory(rng, joints, points, irregular=False)))
+        variants = [raw[:cut] for cut in range(len(raw) - 1, 0, -max(1, len(raw) // 300))]
+        for _ in range(200):
+            spoiled = bytearray(raw)
+            at = int(rng.integers(4, len(raw) - 3)) & -4
+            struct.pack_into("<I", spoiled, at, int(rng.choice([0, 1, joints - 1, joints + 1, 2**31, 255])))
+            variants.append(bytes(spoiled))
+        uneven = random_trajectory(rng, joints, points, irregular=False)
+        uneven.points[-1].positions = uneven.points[-1].positions[:-1]  # the last point one position short
+        variants.append(wire_bytes(serialize_message(uneven)))
+        for variant in variants:
+            found = decoded_or_error(decode_joint_trajectory, variant)
+            assert found == decoded_or_error(decode_joint_trajectory_walk, variant)
+            outcomes.add("refused" if isinstance(found, str) else "decoded")
+    assert outcomes == {"refused", "decoded"}
 
 
 # --- one plan ----------------------------------------------------------------------------------
