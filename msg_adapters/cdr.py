@@ -80,6 +80,10 @@ _MAX_TRAILING_PADDING = 3  # rosbags accepts up to 3 unread bytes at the end
 # the same checks, messages and layouts as the vectorised walk, without its fixed cost of ~40 numpy calls, which
 # dominates for the node's 1-2 messages per input and cycle (benchmarks/bench_decode.py --small)
 SMALL_BATCH = 16
+# decode_values of at most this many messages that are alike (one length, one set of strings: one publisher's
+# stream) reads them as one structured array and converts a field only when the adapter asks for it
+# (_lean_columns): the node's inputs every cycle. 0 turns it off (test_cdr_fast.py, benchmarks/bench_decode.py).
+LEAN_BATCH = 256
 
 
 class _Leaf(NamedTuple):
@@ -165,7 +169,8 @@ def _default_typestore() -> Typestore:
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-def _all_fixed(leaves: Sequence[_Leaf]) -> bool:
+@functools.lru_cache(maxsize=256)
+def _all_fixed(leaves: tuple[_Leaf, ...]) -> bool:
     """Whether flattened leaves have a layout fixed by their string lengths alone."""
     return all(leaf.kind != _OBJECT for leaf in leaves)
 
@@ -352,9 +357,16 @@ def _decode_small(ros_type: str, leaves: tuple[_Leaf, ...], raws: Sequence[bytes
 
 def _message_string_lengths(ros_type: str, leaves: Sequence[_Leaf], raw: bytes | memoryview, index: int) -> list[int]:
     """_string_lengths for one message (its position `index` in the batch), in Python integers."""
+    return [length for length, _, _ in _message_strings(ros_type, leaves, raw, index)]
+
+
+def _message_strings(ros_type: str, leaves: Sequence[_Leaf], raw: bytes | memoryview, index: int
+                     ) -> list[tuple[int, int, int]]:
+    """(length counting the NUL, offset of its uint32 length field, end offset) of each string of one message, the
+    offsets from the message's first byte; BagError as _string_lengths."""
     payload = len(raw) - _HEADER_SIZE
     position = 0
-    found: list[int] = []
+    found: list[tuple[int, int, int]] = []
     for leaf in leaves[: _last_string(tuple(leaves)) + 1]:
         if leaf.kind != _STRING:
             position = _past_fixed(position, leaf)
@@ -372,7 +384,7 @@ def _message_string_lengths(ros_type: str, leaves: Sequence[_Leaf], raw: bytes |
             raise BagError(_where(ros_type, index, f"truncated inside string {name!r}"))
         if raw[_HEADER_SIZE + end - 1] != 0:
             raise BagError(_where(ros_type, index, f"string {name!r} lacks its NUL terminator"))
-        found.append(length)
+        found.append((length, at, _HEADER_SIZE + end))
         position = end
     return found
 
@@ -421,17 +433,17 @@ def _read_records(
     group_index: np.ndarray,
 ) -> list[np.ndarray]:
     """One owned, native-endian array per leaf from a structured view over the group."""
-    columns: list[np.ndarray] = []
-    for index, leaf in enumerate(leaves):
-        field = layout.fields[index]
-        if leaf.kind == _STRING:
-            chars = records[field] if field else None
-            columns.append(_decode_strings(ros_type, leaf, chars, group_index))
-        elif leaf.kind == "bool":
-            columns.append(records[field] != 0)  # rosbags: any non-zero byte is True
-        else:
-            columns.append(records[field].astype(_native(leaf.kind)))  # owned, contiguous
-    return columns
+    return [_read_leaf(ros_type, leaf, layout.fields[index], records, group_index) for index, leaf in enumerate(leaves)]
+
+
+def _read_leaf(ros_type: str, leaf: _Leaf, field: str | None, records: np.ndarray, group_index: np.ndarray
+               ) -> np.ndarray:
+    """One leaf's owned, native-endian array from the records' `field`."""
+    if leaf.kind == _STRING:
+        return _decode_strings(ros_type, leaf, records[field] if field else None, group_index)
+    if leaf.kind == "bool":
+        return records[field] != 0  # rosbags: any non-zero byte is True
+    return records[field].astype(_native(leaf.kind))  # owned, contiguous
 
 
 def _decode_strings(
@@ -596,6 +608,79 @@ def decode_values(
     return batch._replace(errors=errors)
 
 
+class _LazyColumns(SimpleNamespace):
+    """decode_many's namespace over alike messages whose leaves are converted on first access (then kept as plain
+    attributes): an adapter reads 3-8 of an Imu's 14 leaves. A field the type lacks is an AttributeError, as
+    in decode_many's namespace."""
+
+    def __init__(self, source: tuple[str, tuple[_Leaf, ...], _Layout, np.ndarray, np.ndarray],
+                 children: dict[str, Any]) -> None:
+        super().__init__()
+        object.__setattr__(self, "_source", source)
+        object.__setattr__(self, "_children", children)
+
+    def __getattr__(self, name: str) -> Any:
+        child = self.__dict__["_children"].get(name) if not name.startswith("_") else None
+        if child is None:
+            raise AttributeError(f"{name!r} is not a field here")
+        source = self.__dict__["_source"]
+        if isinstance(child, dict):
+            value: Any = _LazyColumns(source, child)
+        else:
+            ros_type, leaves, layout, records, group_index = source
+            value = _read_leaf(ros_type, leaves[child], layout.fields[child], records, group_index)
+        self.__dict__[name] = value
+        return value
+
+
+@functools.lru_cache(maxsize=256)
+def _leaf_tree(leaves: tuple[_Leaf, ...]) -> dict[str, Any]:
+    """The leaves nested by field path: name -> the leaf's index, or the dict of an inner message's fields."""
+    tree: dict[str, Any] = {}
+    for index, leaf in enumerate(leaves):
+        node = tree
+        for name in leaf.path[:-1]:
+            node = node.setdefault(name, {})
+        node[leaf.path[-1]] = index
+    return tree
+
+
+def _lean_columns(ros_type: str, raws: Sequence[bytes | memoryview], typestore: Typestore) -> SimpleNamespace | None:
+    """decode_many(ros_type, raws) for alike messages, its leaves converted on access (_LazyColumns): every message
+    little-endian CDR of one length, every string's length and bytes those of the first message, which decodes
+    (its strings walked with _decode_small's checks, within _check_size's limits, valid UTF-8). None otherwise:
+    decode_many then decodes the batch, or gives its error."""
+    leaves = _flatten(ros_type, typestore)
+    if not raws or not _all_fixed(leaves):
+        return None
+    first = raws[0]
+    size = len(first)
+    if size < _HEADER_SIZE or (first[0], first[1]) != _LITTLE_ENDIAN_HEADER:
+        return None
+    try:
+        strings = _message_strings(ros_type, leaves, first, 0)
+    except BagError:
+        return None
+    layout = _layout(leaves, tuple(length for length, _, _ in strings), size)
+    if not layout.size <= size <= layout.size + _MAX_TRAILING_PADDING:
+        return None
+    try:
+        for _, at, end in strings:
+            bytes(first[at + 4:end - 1]).decode("utf-8")
+    except UnicodeDecodeError:
+        return None
+    spans = [(at, end, first[at:end]) for _, at, end in strings]
+    for raw in raws[1:]:
+        if len(raw) != size or (raw[0], raw[1]) != _LITTLE_ENDIAN_HEADER:
+            return None
+        for at, end, text in spans:
+            if raw[at:end] != text:
+                return None
+    joined = first if len(raws) == 1 else b"".join(raws)
+    records = np.frombuffer(joined, dtype=layout.dtype, count=len(raws))
+    return _LazyColumns((ros_type, leaves, layout, records, np.arange(len(raws))), _leaf_tree(leaves))
+
+
 def _rosbags_message(typestore: Typestore, ros_type: str, raw: bytes | memoryview) -> Any:
     try:
         return typestore.deserialize_cdr(raw, ros_type)
@@ -605,7 +690,9 @@ def _rosbags_message(typestore: Typestore, ros_type: str, raw: bytes | memoryvie
 
 def _decode_values_in_bulk(adapter: Any, raws: Sequence[bytes | memoryview], typestore: Typestore,
                            index: np.ndarray) -> DecodedBatch:
-    columns = decode_many(adapter.ros_type, raws, typestore)
+    columns = _lean_columns(adapter.ros_type, raws, typestore) if len(raws) <= LEAN_BATCH else None
+    if columns is None:
+        columns = decode_many(adapter.ros_type, raws, typestore)
     stamp, values = adapter.decode(columns)
     table = np.column_stack([np.asarray(v, dtype=np.float64) for v in values]).reshape(len(raws), len(adapter.fields))
     stamps = None if stamp is None else np.asarray(stamp, dtype=np.int64).reshape(len(raws))

@@ -363,3 +363,88 @@ def test_a_big_endian_message_in_a_small_batch_takes_the_general_path() -> None:
     big = b"\x00\x00\x00\x00" + struct.pack(">d", message.data)
     decoded = decode_many("std_msgs/msg/Float64", [little, big])
     np.testing.assert_array_equal(decoded.data, [message.data, message.data])
+
+
+# --- decode_values' lean path (alike messages, fields converted on access: the node's inputs) ---------------------
+
+
+def _lean_cases() -> list[tuple[str, str]]:
+    from msg_adapters.standard import ADAPTER_CLASSES
+
+    return sorted((role, ros_type) for role, ros_type in ADAPTER_CLASSES if has_fast_layout(ros_type))
+
+
+def _decoded_values(adapter: object, batch: list[bytes]) -> tuple:
+    from msg_adapters.cdr import decode_values
+
+    out = decode_values(adapter, batch)
+    return (out.index.tolist(), None if out.stamps is None else out.stamps.tolist(), bits(out.values).tolist(),
+            out.errors, out.columns)
+
+
+def _leaf_bits(columns: SimpleNamespace, ros_type: str) -> list:
+    from msg_adapters.cdr import _flatten
+
+    found = []
+    for leaf in _flatten(ros_type, TYPESTORE):
+        value = columns
+        for name in leaf.path:
+            value = getattr(value, name)
+        found.append((leaf.path, value.dtype.str, value.tolist() if value.dtype == object else bits(value).tolist()))
+    return found
+
+
+@pytest.mark.parametrize(("role", "ros_type"), _lean_cases())
+def test_alike_messages_decode_lazily_to_decode_many_s_values(role: str, ros_type: str, monkeypatch) -> None:
+    """decode_values reads a batch of alike messages (one length, one frame id) as one structured array and converts
+    a field when the adapter reads it (cdr.LEAN_BATCH); against the same batches with it off (decode_many): the
+    same index, stamps, values (bit for bit) and errors, and every leaf of the columns equal, on intact batches of
+    1-40 messages and with a message truncated, overwritten, padded, of another frame id, or a frame id that is
+    not UTF-8 in every message."""
+    from msg_adapters import cdr
+    from msg_adapters import get_adapter
+
+    try:
+        adapter = get_adapter(role, ros_type)
+    except Exception as err:  # an adapter that needs options (units, full_scale) is covered through its default
+        pytest.skip(f"{role} {ros_type} needs options: {err}")
+    rng = random.Random(f"{role} {ros_type} lean")
+    lean_used = 0
+    original = cdr._lean_columns
+
+    def counted(*args: object) -> object:
+        nonlocal lean_used
+        found = original(*args)
+        lean_used += found is not None
+        return found
+
+    monkeypatch.setattr(cdr, "_lean_columns", counted)
+    for trial in range(60):
+        frame = random_frame_id(rng) or "f"
+        messages = [random_message(ros_type, rng) for _ in range(rng.choice([1, 2, 5, 20, 40]))]
+        for message in messages:
+            if hasattr(message, "header"):
+                message.header.frame_id = frame
+        batch = [serialize(message) for message in messages]
+        victim, spoil = rng.randrange(len(batch)), trial % 6
+        raw = bytearray(batch[victim])
+        if spoil == 1:
+            batch[victim] = bytes(raw[: rng.randrange(len(raw))])
+        elif spoil == 2:
+            raw[rng.randrange(min(24, len(raw)))] = rng.randrange(256)
+            batch[victim] = bytes(raw)
+        elif spoil == 3:
+            batch[victim] = bytes(raw + bytes(rng.randint(1, 6)))
+        elif spoil == 4 and hasattr(messages[victim], "header"):
+            messages[victim].header.frame_id = frame + "x"
+            batch[victim] = serialize(messages[victim])
+        elif spoil == 5 and hasattr(messages[0], "header"):
+            batch = [raw[:16] + b"\xff" + raw[17:] for raw in batch]  # the frame id's first byte (after the stamp)
+        lean = _decoded_values(adapter, batch)
+        monkeypatch.setattr(cdr, "LEAN_BATCH", 0)
+        general = _decoded_values(adapter, batch)
+        monkeypatch.setattr(cdr, "LEAN_BATCH", 256)
+        assert lean[:4] == general[:4], (trial, spoil)
+        if lean[4] is not None and general[4] is not None:
+            assert _leaf_bits(lean[4], ros_type) == _leaf_bits(general[4], ros_type)
+    assert 10 < lean_used, lean_used  # the lean path was taken (intact batches), and not always
