@@ -15,7 +15,7 @@ content when a message holds empty float64 sequences; DDS sends the content only
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -41,9 +41,10 @@ class CdrLayout:
 
     `fill` writes into a buffer kept with the layout (laid out from the template once; every fill writes every
     occurrence of every slot, so the constant bytes are never touched again) and returns it as `bytes`: one copy
-    per message. A fresh template copy per message cost more than the copy itself: an 800 kB answer to 64 candidate
-    plans is 200 pages of new memory to fault in, twice (the copy, then `tobytes`). A lock per layout keeps two
-    threads filling one layout apart."""
+    per message. A fresh template copy per message could cost four times the copy itself: an 800 kB answer to 64
+    candidate plans, when the allocator has returned the last one's memory to the system, is 200 pages to fault
+    in twice (the copy, then `tobytes`): 1.6 ms against 0.4 (benchmarks/bench_decode.py --node-codec, docs/node.md).
+    A lock per layout keeps two threads filling one layout apart."""
 
     def __init__(self, template: np.ndarray, slots: dict[str, tuple[np.dtype, int, int, tuple[_Run, ...]]]) -> None:
         self.template = template  # (size,) uint8: the message with every slot zero (read-only)
@@ -75,24 +76,6 @@ class CdrLayout:
                     view = np.ndarray((run.count, count), dtype=dtype, buffer=self._buffer, offset=run.offset,
                                       strides=(run.stride, dtype.itemsize))
                     view[...] = block[run.first:run.first + run.count]
-            return self._buffer.tobytes()
-
-    def fill_in_place(self, write: Callable[[dict[str, np.ndarray]], None]) -> bytes | None:
-        """The message bytes, the slots written by `write` straight into the layout's buffer: it gets a writable
-        (occurrences, count) view per slot and must set every element of every view (test_output_cdr.py fills
-        a layout twice to prove it). No temporaries of the message's size. None when a slot's occurrences are
-        not equally spaced (one strided view cannot hold them): use fill then."""
-        views: dict[str, np.ndarray] = {}
-        for name, (dtype, count, occurrences, runs) in self.slots.items():
-            if not occurrences or not count:
-                views[name] = np.zeros((occurrences, count), dtype=dtype)  # nothing to write: a scratch array
-            elif len(runs) != 1:
-                return None
-            else:
-                views[name] = np.ndarray((occurrences, count), dtype=dtype, buffer=self._buffer,
-                                         offset=runs[0].offset, strides=(runs[0].stride, dtype.itemsize))
-        with self._lock:
-            write(views)
             return self._buffer.tobytes()
 
 

@@ -122,20 +122,13 @@ def encode_candidate_predictions(stamp_ns: int, t_ns: np.ndarray, eta: np.ndarra
     return make(TRAJECTORY_TYPE)(header=c.header(make, int(stamp_ns), frame_id), joint_names=list(names), points=points)
 
 
-def _checked_batch(t_ns: np.ndarray, eta: np.ndarray, nu: np.ndarray, names: Sequence[str]
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """eta, nu (N, H, 3) as float64, or AdapterError naming the mismatched shape."""
+def _check_batch(t_ns: np.ndarray, eta: np.ndarray, nu: np.ndarray, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    """(N, H, 7) poses and (N, H, 6) twists, or AdapterError naming the mismatched shape."""
     eta, nu = np.asarray(eta, dtype=np.float64), np.asarray(nu, dtype=np.float64)
     expected = (len(names), len(t_ns), 3)
     for name, array in (("eta", eta), ("nu", nu)):
         if array.shape != expected:
             raise AdapterError(f"{name} must have shape {expected} (names, times, 3), got {array.shape}")
-    return eta, nu
-
-
-def _check_batch(t_ns: np.ndarray, eta: np.ndarray, nu: np.ndarray, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
-    """(N, H, 7) poses and (N, H, 6) twists, or AdapterError naming the mismatched shape."""
-    eta, nu = _checked_batch(t_ns, eta, nu, names)
     return enu_poses(eta), flu_twists(nu)
 
 
@@ -208,28 +201,9 @@ def candidate_predictions_cdr(stamp_ns: int, t_ns: np.ndarray, eta: np.ndarray, 
                               names: Sequence[str]) -> bytes:
     """Serialized MultiDOFJointTrajectory of N bodies (eta, nu (N, H, 3)), as encode_candidate_predictions."""
     t_ns = np.asarray(t_ns, dtype=np.int64)
-    eta, nu = _checked_batch(t_ns, eta, nu, names)
+    poses, twists = _check_batch(t_ns, eta, nu, names)
     layout = _trajectory_layout(len(t_ns), frame_id, tuple(names))
     steps, bodies = len(t_ns), len(names)
-
-    def write(views: dict[str, np.ndarray]) -> None:
-        """enu_poses and flu_twists column by column into the message: no (N, H, 7) temporaries."""
-        views["stamp"][...] = time_parts(stamp_ns)
-        views["time_from_start"][...] = time_parts(t_ns - int(stamp_ns))
-        transforms = views["transforms"].view()
-        transforms.shape = (steps, bodies, 7)  # (H, N, 7), still a view of the message (else AttributeError)
-        qx, qy, qz, qw = yaw_to_quaternion(heading_to_enu_yaw(eta[..., 2]))  # (N, H) each
-        for column, value in enumerate((eta[..., 1], eta[..., 0], 0.0, qx, qy, qz, qw)):
-            transforms[:, :, column] = np.transpose(value)
-        twists = views["twists"].view()
-        twists.shape = (steps, bodies, 6)  # (H, N, 6) view
-        for column, value in enumerate((nu[..., 0], -nu[..., 1], 0.0, 0.0, 0.0, -nu[..., 2])):
-            twists[:, :, column] = np.transpose(value)
-
-    data = layout.fill_in_place(write) if steps and bodies else None
-    if data is not None:
-        return data
-    poses, twists = enu_poses(eta), flu_twists(nu)
     return layout.fill(stamp=time_parts(stamp_ns), time_from_start=time_parts(t_ns - int(stamp_ns)),
                        transforms=poses.transpose(1, 0, 2).reshape(steps, 7 * bodies),  # (H, N x 7)
                        twists=twists.transpose(1, 0, 2).reshape(steps, 6 * bodies))  # (H, N x 6)

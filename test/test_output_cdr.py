@@ -144,7 +144,7 @@ def test_candidate_predictions_bytes_equal_rclpy(bodies: int, steps: int) -> Non
     rng = np.random.default_rng(bodies)
     eta, nu = rng.normal(0, 100, (bodies, steps, 3)), rng.normal(0, 2, (bodies, steps, 3))
     names = [f"c{i}" + "x" * (i % 5) for i in range(bodies)]  # odd and even name lengths
-    # the layout's buffer is reused (CdrLayout.fill_in_place): other values first, every byte must be rewritten
+    # the layout's buffer is reused (CdrLayout.fill): other values first, every value byte must be rewritten
     earlier = outputs.candidate_predictions_cdr(stamp + 1, t_ns + 7, eta * 2 + 1, nu - 3, "odom", names)
     ours = outputs.candidate_predictions_cdr(stamp, t_ns, eta, nu, "odom", names)
     assert earlier != ours or steps * bodies == 0
