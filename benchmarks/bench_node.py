@@ -29,6 +29,8 @@
    candidate_predictions (matched by the stamp) - publication of the plans; the node's own figures from
    /diagnostics (compute of the batched rollout, arrival -> published).
 Figures depend on the machine and its load (2 shared cores here): the load average is printed with them.
+--candidates-thread: only a quick in-process measure (bench_candidates_thread): a cycle due while 64 candidates are
+answered, the answer run first on the cycle's thread (as before) or on a worker thread (as the node now does).
 """
 from __future__ import annotations
 
@@ -555,6 +557,54 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
     return {name: figures(run, received) for name, run in runs.items()}
 
 
+def bench_candidates_thread(repeats: int) -> dict:
+    """A 10 Hz cycle due while a batch of 64 candidates is being answered, in one process without DDS: the cycle's
+    compute (the node's one-state rollout and its Path) started right after the batch's, the batch (batched rollout,
+    mean, answer encoded) either run first on the same thread (the node before 2026-11-26) or on a worker thread
+    (the node's candidates worker). Latency of each from the common start; alternating, p50 / p99 ms."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from msg_adapters.outputs import candidate_predictions_cdr, path_cdr
+
+    torch.set_num_threads(1)
+    model = loading.load_model(str(package_share_path("models", "default.pt")), physics=False)
+    rollout = live.Rollout(model, H)
+    state, controls = np.array([5.0, 0.1, 0.02, 0.3]), np.array([0.2, 650.0])
+    candidates = np.tile(controls, (64, H, 1))
+    candidates[:, :, 0] = np.linspace(-0.5, 0.5, 64)[:, None]
+    t_ns = 10**18 + np.arange(1, H + 1, dtype=np.int64) * 500_000_000
+    names = [f"c{i}" for i in range(64)]
+
+    def answer() -> float:
+        out = rollout.batch(state, candidates).mean(axis=0)  # (64, H, 6)
+        candidate_predictions_cdr(10**18, t_ns, out[..., 3:6], out[..., 0:3], "odom", names)
+        return time.perf_counter()
+
+    def cycle() -> float:
+        out = rollout(state, controls).mean(axis=0)  # (H, 6)
+        path_cdr(10**18, t_ns, out[:, 3:6], "odom")
+        return time.perf_counter()
+
+    worker = ThreadPoolExecutor(max_workers=1)
+    times: dict[str, dict[str, list[float]]] = {way: {"cycle": [], "answer": []} for way in ("inline", "worker")}
+    answer(), cycle()
+    for _ in range(repeats):
+        start = time.perf_counter()
+        answered = answer()
+        cycled = cycle()
+        times["inline"]["cycle"].append(cycled - start)
+        times["inline"]["answer"].append(answered - start)
+        time.sleep(0.005)
+        start = time.perf_counter()
+        future = worker.submit(answer)
+        cycled = cycle()
+        times["worker"]["cycle"].append(cycled - start)
+        times["worker"]["answer"].append(future.result() - start)
+        time.sleep(0.005)
+    worker.shutdown()
+    return {way: {what: percentiles(values) for what, values in found.items()} for way, found in times.items()}
+
+
 def main() -> int:
     if "--serve" in sys.argv:  # the node process of a variant (see bench_node)
         index = sys.argv.index("--serve")
@@ -570,7 +620,17 @@ def main() -> int:
     parser.add_argument("--old-candidates", action="store_true",
                         help="the candidate-plans phase for the old node too (a --baseline that has candidate_plans)")
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--candidates-thread", action="store_true",
+                        help="only: a cycle due during a 64-candidate answer, inline or on a worker (in one process)")
     args = parser.parse_args()
+    if args.candidates_thread:
+        print(f"a cycle due while 64 candidates are answered, {args.repeats} rounds alternating, load {load()}")
+        found = bench_candidates_thread(args.repeats)
+        for way, figures in found.items():
+            print(f"  {way:7s} cycle p50 / p99 {figures['cycle']['p50_ms']:6.2f} / {figures['cycle']['p99_ms']:6.2f} ms"
+                  f"   answer {figures['answer']['p50_ms']:6.2f} / {figures['answer']['p99_ms']:6.2f} ms")
+        print(f"  (load at the end {load()})")
+        return 0
     result: dict[str, Any] = {"started": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "load_at_start": load(),
                               "cpu": os.cpu_count()}
     result["openblas_coretype"] = os.environ.get("OPENBLAS_CORETYPE", "(unset: OpenBLAS's own detection)")

@@ -169,6 +169,39 @@ def test_candidate_plans_are_answered_in_one_batch_tagged_with_their_stamp(harne
     assert float(values["answer_ms_p50"]) > 0 and float(values["compute_ms_p50"]) > 0
 
 
+def test_the_cycle_publishes_while_a_candidate_batch_is_computed(harness: Harness, monkeypatch) -> None:
+    """The batched rollout of candidate plans runs on the node's candidates worker: while it runs (here held until
+    the test releases it, 10 s at most) the 20 Hz cycle keeps publishing Paths; then the answer arrives, tagged.
+    Run on the executor's thread, as before, the held rollout would have stopped every Path until it ended."""
+    import threading
+
+    answers: list[Any] = []
+    harness.peer.create_subscription(harness.make("trajectory_msgs/msg/MultiDOFJointTrajectory"),
+                                     "candidate_predictions", answers.append, 10)
+    harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, harness.feed)
+    entered, release = threading.Event(), threading.Event()
+    during: list[int] = []
+    original = predictor_node.live.predict_prepared
+
+    def held(*args: Any) -> Any:
+        count = len(harness.paths)
+        entered.set()
+        release.wait(10.0)
+        during.append(len(harness.paths) - count)  # Paths received while the rollout was held
+        return original(*args)
+
+    monkeypatch.setattr(predictor_node.live, "predict_prepared", held)
+    stamp = now_ns(harness)
+    publisher(harness, "candidate_plans").publish(candidates_message(harness, {"a": 0.1, "b": -0.3}, stamp))
+    wait_for(harness, entered.is_set, "the candidates' rollout to start")
+    count = len(harness.paths)
+    wait_for(harness, lambda: len(harness.paths) >= count + 3 or during, "Paths while the rollout is held")
+    release.set()
+    wait_for(harness, lambda: answers, "candidate_predictions")
+    assert during and during[0] >= 3, during
+    assert stamp_of(answers[0]) == stamp and list(answers[0].joint_names) == ["a", "b"]
+
+
 def test_too_many_candidates_are_refused_and_nothing_is_answered(harness: Harness) -> None:
     answers: list[Any] = []
     harness.peer.create_subscription(harness.make("trajectory_msgs/msg/MultiDOFJointTrajectory"),

@@ -864,14 +864,34 @@ class BatchPrediction(NamedTuple):
 
 def predict_batch(inputs: InputSet, rollout: Rollout, now_ns: int, schedule: Schedule) -> BatchPrediction:
     """State at now -> one rollout of batch N under schedule's N control sequences -> checked predictions."""
+    return predict_prepared(rollout, prepare_batch(inputs, now_ns, schedule), now_ns)
+
+
+class PreparedBatch(NamedTuple):
+    """What a batched prediction needs from the inputs (prepare_batch): the rollout can then run on another thread
+    while the input buffers go on filling."""
+
+    live: LiveState
+    controls: np.ndarray  # (N, H, C)
+    first_ns: np.ndarray  # (H,) the predicted steps' times (step_times(..., first=1))
+
+
+def prepare_batch(inputs: InputSet, now_ns: int, schedule: Schedule) -> PreparedBatch:
+    """The state at now (CycleSkipped when there is none) and schedule's N control sequences at its step times."""
     live = inputs.assemble(now_ns)
     controls = schedule(step_times(live, inputs.settings), live.controls)  # (N, H, C)
+    return PreparedBatch(live, controls, step_times(live, inputs.settings, first=1))
+
+
+def predict_prepared(rollout: Rollout, prepared: PreparedBatch, now_ns: int) -> BatchPrediction:
+    """One rollout of batch N from a prepare_batch -> checked predictions (ModelError: the model failed)."""
+    live, controls = prepared.live, prepared.controls
     started = time.perf_counter()
     out = rollout.batch(live.state, controls, live.reference)  # (E, N, H, 6)
     compute_s = time.perf_counter() - started
     _check_output(out)
     mean = out.mean(axis=0)  # (N, H, 6): anchoring moves every member alike, so the mean is anchored once
-    return BatchPrediction(now_ns, step_times(live, inputs.settings, first=1), _anchored(mean, live.position),
+    return BatchPrediction(now_ns, prepared.first_ns, _anchored(mean, live.position),
                            mean[..., 0:3], live.position is not None, live, compute_s)
 
 

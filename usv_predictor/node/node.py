@@ -34,6 +34,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import math
 import signal
 import sys
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -363,6 +364,12 @@ class PredictorNode(Node):
         self.fit = self._make_fit(self.rollout)
         self._fit_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fit_check")
         self._fit_running: Future | None = None
+        # candidate plans: state and controls on the executor's thread, the batched rollout (13-20 ms for 64), the
+        # answer's encoding and publishing on this worker, in arrival order, so that the 10 Hz cycle is not held up
+        # (numpy releases the GIL inside its products and activations); where the sea estimate writes the model's
+        # terms (sea.py: grey box, hybrid) they and a candidate rollout take turns on _terms_lock (_terms_guard)
+        self._candidates_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="candidates")
+        self._terms_lock = threading.Lock()
         self.plan = PlanInput(PLAN_TOPIC)
         self.candidates = PlanInput(CANDIDATE_PLANS_TOPIC)
         self.following: plans.Plan | None = None  # the plan the predictions are made under
@@ -390,9 +397,10 @@ class PredictorNode(Node):
 
     def destroy_node(self) -> None:
         """The fit check's worker ends first (a check running finishes: at most a few seconds of rollouts)."""
-        worker = getattr(self, "_fit_worker", None)
-        if worker is not None:
-            worker.shutdown(wait=True, cancel_futures=True)
+        for name in ("_candidates_worker", "_fit_worker"):
+            worker = getattr(self, name, None)
+            if worker is not None:
+                worker.shutdown(wait=True, cancel_futures=True)
         super().destroy_node()
 
     # --------------------------------------------------------------- parameters
@@ -451,7 +459,8 @@ class PredictorNode(Node):
             self.rollout = swap
             self.get_logger().info(f"model swapped to {swap.artifact.path} ({swap.artifact.model_id})")
         if swap is not None or online:
-            self.sea.restore()
+            with self._terms_lock:
+                self.sea.restore()
             self.sea = self._make_sea(self.rollout, online)
             self.sea.last_reset = "the model was swapped" if swap is not None else "online parameters changed"
         if swap is not None:
@@ -480,7 +489,8 @@ class PredictorNode(Node):
         """Clear the buffers if the clock jumped back, then decode and buffer every pending message."""
         if self.inputs.observe_clock(now_ns):
             self.get_logger().warning("the clock jumped back: input buffers cleared, sea estimate reset")
-            self.sea.reset("the clock jumped back")
+            with self._terms_lock:
+                self.sea.reset("the clock jumped back")
             self.fit.reset("the clock jumped back")
             for pending in self._pending.values():  # what arrived before the jump belongs to the old time line
                 kept = [(raw, at_ns) for raw, at_ns in pending if at_ns <= now_ns]
@@ -561,7 +571,8 @@ class PredictorNode(Node):
         return plan
 
     def _on_candidates(self, raw: bytes) -> None:
-        """Predict N candidate plans now, in one batched rollout, and publish the batch tagged with their stamp."""
+        """Candidate plans: decoded, checked and their state and controls prepared here; the batched rollout and the
+        answer, tagged with the plans' stamp, on the candidates' worker (_answer_candidates)."""
         started = time.perf_counter()
         now_ns = self._clock.now().nanoseconds
         self.candidates.received += 1
@@ -577,19 +588,44 @@ class PredictorNode(Node):
         try:
             if self.fit.refusing:
                 raise live.CycleSkipped(self.fit.refusing)
-            result = live.predict_batch(self.inputs, self.rollout, now_ns, batch.schedule)
+            prepared = live.prepare_batch(self.inputs, now_ns, batch.schedule)
         except (live.CycleSkipped, ModelError, AdapterError, RuntimeError) as err:
-            self.candidates.skipped = str(err)
-            self.get_logger().warning(f"no prediction for the candidate plans: {err}",
-                                      throttle_duration_sec=ERROR_LOG_PERIOD_S)
+            self._no_candidates_answer(err)
             return
-        self._candidates_pub.publish(candidate_predictions_cdr(batch.stamp_ns, result.t_ns, result.eta, result.nu,
-                                                               self.config.frame_id, batch.names))
-        self.candidates.answered += 1
-        self.candidates.skipped = ""
-        self.candidates.batch = len(batch.names)
-        self.candidates.compute_s.append(result.compute_s)
-        self.candidates.answer_s.append(time.perf_counter() - started)
+        self._candidates_worker.submit(self._answer_candidates, self.rollout, batch, prepared, now_ns, started)
+
+    def _answer_candidates(self, rollout: live.Rollout, batch: plans.Plan, prepared: live.PreparedBatch, now_ns: int,
+                           started: float) -> None:
+        """The candidates' worker: one batched rollout, the answer encoded and published. An unexpected exception is
+        logged here (a worker's exception would otherwise stay in its Future, unseen)."""
+        try:
+            try:
+                with self._terms_guard():
+                    result = live.predict_prepared(rollout, prepared, now_ns)
+            except (ModelError, AdapterError, RuntimeError) as err:
+                self._no_candidates_answer(err)
+                return
+            if not self.context.ok():  # shutting down: publishing would fail
+                return
+            self._candidates_pub.publish(candidate_predictions_cdr(batch.stamp_ns, result.t_ns, result.eta, result.nu,
+                                                                   self.config.frame_id, batch.names))
+            self.candidates.answered += 1
+            self.candidates.skipped = ""
+            self.candidates.batch = len(batch.names)
+            self.candidates.compute_s.append(result.compute_s)
+            self.candidates.answer_s.append(time.perf_counter() - started)
+        except Exception as err:  # noqa: BLE001 - the worker's boundary: say it, the node carries on
+            self.candidates.skipped = f"{type(err).__name__}: {err}"
+            self.get_logger().error(f"candidate plans: the answer failed: {type(err).__name__}: {err}")
+
+    def _terms_guard(self) -> Any:
+        """_terms_lock when the sea estimate writes terms into the model (sea.applied: grey box, hybrid), else
+        nothing to guard: a DNN's estimate is computed beside it, and its cycle never waits for candidates."""
+        return self._terms_lock if self.sea.applied else contextlib.nullcontext()
+
+    def _no_candidates_answer(self, err: Exception) -> None:
+        self.candidates.skipped = str(err)
+        self.get_logger().warning(f"no prediction for the candidate plans: {err}", throttle_duration_sec=ERROR_LOG_PERIOD_S)
 
     # --------------------------------------------------------------- the cycle
     def _on_timer(self) -> None:
@@ -652,7 +688,8 @@ class PredictorNode(Node):
     def _observe_sea(self, state: live.LiveState) -> None:
         """The cycle's state (before its rollout when the estimate is applied to the model, else after its outputs):
         feed the estimator when the state is on its dt grid, publish the estimate."""
-        fed = self.sea.observe(state)
+        with self._terms_guard():
+            fed = self.sea.observe(state)
         if fed is not None and self.sea.started():
             estimate = fed.estimate
             self._current_pub.publish(current_cdr(fed.t_c_ns, estimate.current_ne, estimate.current_cov,
