@@ -615,9 +615,7 @@ class _LazyColumns(SimpleNamespace):
 
     def __init__(self, source: tuple[str, tuple[_Leaf, ...], _Layout, np.ndarray, np.ndarray],
                  children: dict[str, Any]) -> None:
-        super().__init__()
-        object.__setattr__(self, "_source", source)
-        object.__setattr__(self, "_children", children)
+        self.__dict__.update(_source=source, _children=children)  # (SimpleNamespace's own __init__: no fields)
 
     def __getattr__(self, name: str) -> Any:
         child = self.__dict__["_children"].get(name) if not name.startswith("_") else None

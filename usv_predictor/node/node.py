@@ -925,7 +925,7 @@ def _percentiles(name: str, seconds: deque[float]) -> dict[str, str]:
     """{name_p50, name_p99, name_max} in ms of the latest values (none when empty)."""
     if not seconds:
         return {}
-    ms = np.array(seconds) * 1e3
+    ms = np.array(list(seconds)) * 1e3  # list(): one C-level copy, whole, while the candidates' worker may append
     return {f"{name}_p50": f"{np.percentile(ms, 50):.3f}", f"{name}_p99": f"{np.percentile(ms, 99):.3f}",
             f"{name}_max": f"{ms.max():.3f}"}
 
