@@ -153,3 +153,40 @@ def test_a_plan_names_the_thrusters(twin: TwinHarness) -> None:
         found = twin.spin_until(lambda s: why in values_of(s["plan"]).get("last_refused", ""), twin.feed)
         assert level(found["plan"]) == predictor_node.WARN and twin.node.following is None
     assert math.isfinite(GOOD["heading"][0]) and statuses(twin.latest)["prediction"].level[0] == predictor_node.OK
+
+
+def test_a_grey_box_s_candidates_take_turns_with_the_sea_estimate_and_are_answered(twin: TwinHarness) -> None:
+    """The grey box with the sea estimate applied (it writes the live current into the model): a candidate batch's
+    rollout on the node's candidates worker takes the terms lock, as the estimate's writes on the executor's thread
+    do, and the answer comes: more starboard thrust turns to port."""
+    import threading
+
+    answers: list[Any] = []
+    twin.peer.create_subscription(twin.make("trajectory_msgs/msg/MultiDOFJointTrajectory"), "candidate_predictions",
+                                  answers.append, 10)
+    twin.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, twin.feed)
+    assert twin.node.sea.applied
+    holders: list[str] = []
+    lock = twin.node._terms_lock
+
+    class Counted:
+        def __enter__(self) -> None:
+            lock.acquire()
+            holders.append(threading.current_thread().name)
+
+        def __exit__(self, *exc: object) -> None:
+            lock.release()
+
+    twin.node._terms_lock = Counted()
+    stamp = now_ns(twin)
+    names = ["port_turn/port", "port_turn/starboard", "stbd_turn/port", "stbd_turn/starboard"]
+    publisher(twin, "candidate_plans").publish(joint_trajectory(twin, names, np.array([[0.2, 0.8, 0.8, 0.2]]), [0.0],
+                                                                stamp))
+    wait_for(twin, lambda: answers, "candidate_predictions")
+    answer = answers[0]
+    assert stamp_of(answer) == stamp and list(answer.joint_names) == ["port_turn", "stbd_turn"]
+    yaw = np.array([[2.0 * math.atan2(tf.rotation.z, tf.rotation.w) for tf in p.transforms] for p in answer.points])
+    turned = np.unwrap(yaw, axis=0)[-1] - np.unwrap(yaw, axis=0)[0]  # ENU yaw: + counter-clockwise (to port)
+    assert turned[0] > 0.2 and turned[1] < -0.2
+    assert any(name.startswith("candidates") for name in holders)  # the worker's rollout under the lock
+    assert any(name == threading.main_thread().name for name in holders)  # the estimate's writes (the executor)
