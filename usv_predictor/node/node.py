@@ -486,7 +486,13 @@ class PredictorNode(Node):
             self.arrived[role] += 1
 
     def _catch_up(self, now_ns: int) -> None:
-        """Clear the buffers if the clock jumped back, then decode and buffer every pending message."""
+        """Clear the buffers if the clock jumped back, then decode and buffer every pending message.
+
+        Under use_sim_time the clock reads 0 until the first /clock message: nothing is decoded then, and messages
+        that arrived then take the first reading after it as their arrival clock (else a header stamp would be
+        refused as 1.6e9 s ahead of the clock, and a header-less message stamped 0)."""
+        if now_ns == 0:
+            return
         if self.inputs.observe_clock(now_ns):
             self.get_logger().warning("the clock jumped back: input buffers cleared, sea estimate reset")
             with self._terms_lock:
@@ -498,7 +504,7 @@ class PredictorNode(Node):
                 pending.extend(kept)
         for role, pending in self._pending.items():
             if pending:
-                messages = list(pending)
+                messages = [(raw, at_ns or now_ns) for raw, at_ns in pending]  # at_ns 0: before the clock started
                 pending.clear()
                 self._take(role, messages)
 
