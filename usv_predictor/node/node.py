@@ -396,7 +396,7 @@ class PredictorNode(Node):
         )
 
     def destroy_node(self) -> None:
-        """The fit check's worker ends first (a check running finishes: at most a few seconds of rollouts)."""
+        """The workers end first (a candidate batch or a fit check running finishes: at most a few seconds)."""
         for name in ("_candidates_worker", "_fit_worker"):
             worker = getattr(self, name, None)
             if worker is not None:
