@@ -1,7 +1,8 @@
 """`vessel init`'s wave-drift coefficients: the short-wave asymptote of Faltinsen 1990 sec. 5 integrated numerically
 on the waterline (physics/empirical.py short_wave_drift), its closed forms on a rectangle, its symmetry, its signs
-against the jari_usv preset (the yaw toward beam seas in both), and the diagnosis' wave_drift term moving the prediction of a boat made by `vessel init`
-(with all-zero coefficients, as `vessel init` wrote them before, it moved nothing)."""
+against the jari_usv preset (the yaw toward beam seas in both), and the diagnosis' wave_drift term moving the
+prediction of a boat made by `vessel init` (with all-zero coefficients, as `vessel init` wrote them before, it moved
+nothing)."""
 from __future__ import annotations
 
 import dataclasses
