@@ -23,8 +23,10 @@ from usv_predictor.analysis.unknown_boats import (
     PERTURBED,
     PRESET,
     SIZE_CLASSES,
+    SHAPE_SPREAD,
     SPREAD,
     TRIAL_RPM,
+    WAVE_DRIFT_EXPONENT,
     draw_boat,
 )
 from usv_predictor.physics.dynamics import ManoeuvringModel
@@ -61,6 +63,17 @@ def test_a_drawn_boat_is_a_froude_scaled_perturbed_preset(size_class):
     assert 0.7 * fn_preset < fn < 1.4 * fn_preset
     assert truth.propeller.D_P == pytest.approx(preset.propeller.D_P * s)
     assert truth.propeller.gear_ratio == pytest.approx(math.sqrt(s))
+    # wave drift: the preset's coefficients x min(1, s)^2, so a wave of given H_s pushes the boat per unit of its
+    # weight as it pushes the preset (0.5 rho g zeta_a^2 L C / (m g)), within the spread of the displacement's shape
+    wave = min(1.0, s) ** WAVE_DRIFT_EXPONENT
+    for key in ("a_x", "b_x", "a_y", "b_y", "a_n", "b_n"):
+        assert getattr(truth.wave_drift, key) == pytest.approx([c * wave for c in getattr(preset.wave_drift, key)])
+    per_weight = truth.wave_drift.b_y[0] * truth.geometry.L_pp / truth.geometry.displacement_kg
+    per_weight_preset = preset.wave_drift.b_y[0] * preset.geometry.L_pp / preset.geometry.displacement_kg
+    if s <= 1.0:
+        assert (1 + SHAPE_SPREAD) ** -3 <= per_weight / per_weight_preset <= (1 - SHAPE_SPREAD) ** -3
+    else:  # a longer boat keeps the preset's coefficients: less drift per weight
+        assert per_weight / per_weight_preset < (1 - SHAPE_SPREAD) ** -3 / s**2
 
 
 def test_the_draw_is_deterministic_and_the_classes_differ():

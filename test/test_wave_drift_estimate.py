@@ -1,7 +1,8 @@
 """`vessel init`'s wave-drift coefficients: the short-wave asymptote of Faltinsen 1990 sec. 5 integrated numerically
 on the waterline (physics/empirical.py short_wave_drift), its closed forms on a rectangle, its symmetry, its signs
-against the jari_usv preset, and the diagnosis' wave_drift term moving the prediction of a boat made by `vessel init`
-(with all-zero coefficients, as `vessel init` wrote them before, it moved nothing)."""
+against the jari_usv preset (the yaw toward beam seas in both), and the diagnosis' wave_drift term moving the
+prediction of a boat made by `vessel init` (with all-zero coefficients, as `vessel init` wrote them before, it moved
+nothing)."""
 from __future__ import annotations
 
 import dataclasses
@@ -96,10 +97,20 @@ def test_jari_dimensions_give_the_signs_of_the_preset():
     assert _series(est, "x", 0.0) < 0.0 < _series(est, "x", 180.0)  # head seas astern, following seas ahead
     assert _series(est, "y", 90.0) < 0.0 < _series(est, "y", -90.0)
     # yaw: with a pointed bow the lit bow flank outweighs the side, bow-quarter seas turn the bow away from the
-    # waves, toward beam seas (a drifting ship lies beam-on); the preset's generic b_n = [0, 0.05] turns it toward
-    # head seas: the estimate and the preset DISAGREE in yaw (docs/vessel.md)
+    # waves and quarter seas the stern: toward beam seas (a drifting ship lies beam-on, docs/vessel.md). The preset
+    # agrees since 2026-11-26 (its generic b_n [0, 0.05] turned the bow toward head seas)
     assert _series(est, "n", 45.0) < 0.0 < _series(est, "n", -45.0)
-    assert fourier(fourier_terms(preset.a_n, preset.b_n), math.radians(45.0)) > 0.0
+    assert _series(est, "n", -135.0) < 0.0 < _series(est, "n", 135.0)
+    chi = np.radians(np.arange(-180.0, 180.0, 1.0))
+    preset_n = np.array([fourier(fourier_terms(preset.a_n, preset.b_n), c) for c in chi])
+    est_n = np.array([_series(est, "n", math.degrees(c)) for c in chi])
+    assert np.all(np.sign(preset_n[np.abs(est_n) > 0.003]) == np.sign(est_n[np.abs(est_n) > 0.003]))
+    # the estimate is total reflection, an upper bound: the preset's yaw is that shape times the fraction of the
+    # bound its sway has (0.35 / 0.837 = 0.418), so it stays below the bound everywhere
+    ratio = preset.b_y[0] / b_y[0]
+    assert ratio == pytest.approx(0.418, abs=0.002)
+    assert np.max(np.abs(preset_n - ratio * est_n)) < 0.002  # the preset's rounding to 1e-3
+    assert np.max(np.abs(preset_n)) < np.max(np.abs(est_n))
 
 
 def test_the_yaml_carries_the_estimate_and_says_it_is_an_upper_bound():
