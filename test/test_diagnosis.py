@@ -390,3 +390,17 @@ def test_none_is_only_confident_without_a_strong_candidate(after, expected):
         assert f"evidence {top.evidence_vs_none:.1f}: more than a `none` allows" in result.inconclusive_reasons[0]
     else:
         assert top.evidence_vs_none < EVIDENCE_CANDIDATE and result.candidate == ""
+
+
+def test_a_fit_starts_where_it_is_told():
+    """fit_hypothesis(start=...): the values a larger set's fit gives (diagnose refits a nested set of causes from
+    them, select_causes); terms not given start at their record's start, a start beyond a bound at the bound."""
+    recordings = trial(runs=diagnosis_runs()[:2])
+    seg = make_segments(recordings)
+    model = scripted_rollout(VESSEL, 0.5)
+    untouched = fit_hypothesis(model, seg, ["current", "rudder_offset"], max_iter=0)
+    assert untouched.terms["current_ne"] == fx.EFFECTS["current"].terms[0].start
+    told = fit_hypothesis(model, seg, ["current", "rudder_offset"], max_iter=0, start={"current_ne": (0.2, -9.0)})
+    assert told.terms["current_ne"] == (0.2, -3.0)  # -9 m/s clipped to the term's bound
+    assert told.terms["rudder_offset"] == untouched.terms["rudder_offset"]
+    assert told.loss != untouched.loss

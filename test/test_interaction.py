@@ -127,3 +127,32 @@ def test_without_a_segment_long_enough_the_description_stays():
     assert fit.vessel.rudder == description.rudder and fit.simulation == {}
     assert "no candidate could be simulated (no manoeuvre longer than 20 s)" in fit.note()
     json.dumps(fit.to_json(), allow_nan=False)
+
+
+@pytest.mark.parametrize("argv, expected", [([], "identify"), (["--interaction", "fix"], "fix")])
+def test_replay_identify_searches_the_interaction_factors_by_default(monkeypatch, tmp_path, argv, expected):
+    """Since 2026-11-26 (a whole 50-boat unknown-boat run without a confident wrong answer, README "Unknown boats")
+    `replay identify` searches the interaction factors unless told `--interaction fix`; with `--base` nothing is
+    identified and the option does not apply."""
+    from usv_predictor.replay import cli
+    from usv_predictor.replay import identify as replay_identify
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def identify(vessel, recordings, **kwargs):
+        seen.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr(replay_identify, "identification_recordings", lambda *a, **k: ["a recording"])
+    monkeypatch.setattr(idf, "identify", identify)
+    (tmp_path / "bags").mkdir()
+    with pytest.raises(Stop):
+        cli.main(["identify", str(tmp_path / "bags"), "--vessel", "jari_usv", "--prior", "fix", "--output",
+                  str(tmp_path / "m.pt"), *argv])
+    assert seen["interaction"] == expected
+    with pytest.raises(Exception, match="--interaction do not apply"):
+        replay_identify.identify_bags([tmp_path / "bags"], tmp_path / "m.pt", vessel=None, base=tmp_path / "x.pt",
+                                      hybrid=object(), interaction=expected)

@@ -15,6 +15,15 @@ EVIDENCE_CAUSE (5: "strong" on the Kass & Raftery scale, 2 ln B > 10) and it rem
 its held-out loss; a runner-up that is itself a cause and that the winner beats by less than
 EVIDENCE_CONFOUND is reported as confounded with it.
 
+Further causes (select_causes): after the primary, the cause whose set with the chosen ones leaves the lowest
+held-out loss is added while it passes the same three tests (evidence, MIN_GAIN, track) over the model with the
+chosen causes (forward); after each addition every chosen cause, the primary included, must still pass them over the
+model with all the others (backward): the weakest that does not is dropped and the rest checked again, and the named
+cause that explains most alone becomes the primary (a 5.4 m/s wind was named as 0.05 m wave drift, the wind "further").
+Every set of causes is fitted once per fold; a set nested in a larger fitted one is refitted from the larger fit's
+values of its terms where those fit its fold better than its own fit (Levenberg-Marquardt from the records' starts can
+end in a poorer minimum: that wind alone left 3.2 noise units, with the wave drift 1.1).
+
 A cause is also named only when its extension lowers the held-out TRACK error (the mean distance between the
 predicted and the GNSS position at the end of the held-out segments, MIN_TRACK_GAIN): a term that lowers the
 loss by bending the velocities while the predicted track gets worse is no physical cause (run_diagnosis applies
@@ -71,6 +80,9 @@ EVIDENCE_CANDIDATE = 3.0  # ... and a `none` is only confident while no hypothes
 EVIDENCE_CONFOUND = 2.0  # a winner beating a runner-up cause by less than this is confounded with it
 MIN_TRACK_GAIN = 0.0  # share of the calm-water model's held-out track error (m, at the segment end) a cause must
 #                       remove: a cause whose extension does not lower it is never named
+NESTED_REFIT = 1e-3  # a set of causes is refitted from a larger set's fit (select_causes, diagnose) when that fit,
+#                      without the other causes' terms, leaves at least this share less of the fold's loss than the
+#                      set's own fit (smaller differences are the fit's convergence tolerance, not a poorer minimum)
 MISMATCH_LOSS = 25.0  # held-out loss (mean squared error in noise units) the best model may leave ...
 MISMATCH_SHARE = 0.5  # ... unless its causes removed more than half of the calm-water model's: above both, no
 #                       environmental cause explains the data and the answer is model_mismatch (waves of 1.1 m
@@ -164,10 +176,13 @@ class Fit:
     seconds: float
 
 
-def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Sequence[str], *, max_iter: int = 12) -> Fit:
+def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Sequence[str], *, max_iter: int = 12,
+                   start: Mapping[str, Sequence[float]] | None = None) -> Fit:
     """Levenberg-Marquardt on the weighted residuals, finite-difference Jacobian in scaled parameters.
 
     `hypothesis` is one name of HYPOTHESES or several, fitted together (a cause and the ones added to it).
+    `start`: initial values (SI) of some of its terms in place of their records' Term.start (cause selection starts a
+    set of causes from a larger set's fit, select_causes).
 
     Standard errors come from (J^T J)^-1 s^2, inflated by the steps per segment because the residuals of
     one segment are strongly correlated (a conservative effective sample size: one per segment).
@@ -180,7 +195,9 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
     scale = np.concatenate([[t.scale] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
     low = np.concatenate([[t.low] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
     high = np.concatenate([[t.high] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
-    theta = np.concatenate([t.start for t in terms]) / scale if terms else np.zeros(0)
+    start = start or {}
+    theta = (np.concatenate([np.clip(start.get(t.name, t.start), t.low, t.high) for t in terms]) / scale if terms
+             else np.zeros(0))
 
     def unpack(p: np.ndarray) -> dict[str, tuple[float, ...]]:
         values, k = {}, 0
@@ -326,6 +343,7 @@ class Diagnosis:
     candidate: str = ""  # inconclusive: the hypothesis that explains the loss but was not named
     candidate_parameters: dict[str, float] = field(default_factory=dict)  # ... its parameters, fitted on all data
     inconclusive_reasons: tuple[str, ...] = ()  # ... why it is not named
+    dropped_causes: tuple[str, ...] = ()  # causes dropped by the backward step of select_causes, and why
 
     @property
     def hypotheses(self) -> tuple[str, ...]:
@@ -367,6 +385,118 @@ def log_evidence(n_eff: float, loss: float, over_loss: float) -> float:
     return 0.5 * n_eff * math.log(max(over_loss, 1e-12) / max(loss, 1e-12))
 
 
+# ---- the selection of causes (forward, then backward elimination) -----------------------------------
+
+def lowers_track(track_gain: float) -> bool:
+    """The track rule of naming a cause (MIN_TRACK_GAIN): its extension lowers the held-out track error; without GNSS
+    at the segment ends (NaN) there is no track to judge by."""
+    return not math.isfinite(track_gain) or track_gain > MIN_TRACK_GAIN
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """Held-out scores of the calm-water model with a set of causes (each fold fitted on the other)."""
+
+    loss: float  # mean held-out loss (noise units); inf for a diverged fit
+    track_m: float = float("nan")  # mean held-out track error at the segment end (m); NaN without GNSS fixes
+
+
+@dataclass(frozen=True)
+class Contribution:
+    """What one cause adds to the model with the `given` causes (the rule of naming it: `earns_place`)."""
+
+    cause: str
+    given: tuple[str, ...]  # the other causes (empty: over the calm-water model)
+    heldout_loss: float  # of the model with `given` and the cause (noise units)
+    evidence: float  # held-out log-likelihood ratio over the model with `given` only
+    gain: float  # share of that model's held-out loss the cause removes
+    track_gain: float  # share of that model's held-out track error it removes (NaN without GNSS)
+
+    @property
+    def earns_place(self) -> bool:
+        """The one rule a cause is named by, first, added or kept: evidence >= EVIDENCE_CAUSE, gain >= MIN_GAIN and
+        a lower held-out track error, over the model without it."""
+        return self.evidence >= EVIDENCE_CAUSE and self.gain >= MIN_GAIN and lowers_track(self.track_gain)
+
+    def describe(self) -> str:
+        """'given wind it adds evidence 0.8 (removes 3 % of the held-out loss, 1 % of the track error)'."""
+        given = f"given {'+'.join(self.given)}" if self.given else "over the calm-water model"
+        track = f", {self.track_gain * 100:.0f} % of the track error" if math.isfinite(self.track_gain) else ""
+        return f"{given} it adds evidence {self.evidence:.1f} (removes {self.gain * 100:.0f} % of the held-out loss{track})"
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The causes named and the ones dropped (select_causes)."""
+
+    causes: tuple[str, ...]  # the named causes, the one that explains most alone first
+    contributions: tuple[Contribution, ...]  # per named cause (same order): what it adds given all the others
+    dropped: tuple[Contribution, ...]  # causes dropped, in order, each with what it added given the others then
+
+    def drop_reasons(self) -> tuple[str, ...]:
+        """'wave_drift dropped: given wind it adds evidence 0.8 (...; a cause needs >= 5 and >= 5 %)' per drop."""
+        return tuple(f"{c.cause} dropped: {c.describe()}; a cause needs evidence >= {EVIDENCE_CAUSE:g}, >= "
+                     f"{MIN_GAIN * 100:.0f} % and a lower track error" for c in self.dropped)
+
+
+def contribution(cause: str, given: Sequence[str], score: Callable[[tuple[str, ...]], HeldOut],
+                 n_eff: float) -> Contribution:
+    """What `cause` adds to the model with `given`: score(given + (cause,)) over score(given) (module docstring)."""
+    given = tuple(given)
+    with_, without = score((*given, cause)), score(given)
+    if not math.isfinite(with_.loss):  # a diverged fit adds nothing
+        evidence, gain = -math.inf, -math.inf
+    elif not math.isfinite(without.loss):
+        evidence, gain = math.inf, 1.0
+    else:
+        evidence = log_evidence(n_eff, with_.loss, without.loss)
+        gain = 1.0 - with_.loss / without.loss if without.loss > 0 else 0.0
+    track_gain = (1.0 - with_.track_m / without.track_m
+                  if math.isfinite(with_.track_m) and math.isfinite(without.track_m) and without.track_m > 0
+                  else float("nan"))
+    return Contribution(cause, given, float(with_.loss), float(evidence), float(gain), float(track_gain))
+
+
+def select_causes(primary: str, candidates: Sequence[str], score: Callable[[tuple[str, ...]], HeldOut],
+                  n_eff: float, max_causes: int = 2) -> Selection:
+    """Stepwise selection of the causes, from the primary (the cause named first): forward, then backward.
+
+    Forward: of the candidates not chosen (nor dropped before), the one whose set with the chosen causes leaves the
+    lowest held-out loss is added if it earns its place given them (Contribution.earns_place), up to max_causes.
+    Backward, after each addition: every chosen cause, the primary included, must still earn its place given all
+    the others; while some do not, the one with the least evidence is dropped (and never added again) and the rest
+    re-checked. A first cause that a later one makes redundant is so dropped (an unknown boat's 5.4 m/s wind was
+    named as 0.05 m wave drift, with the wind "further"). The named cause that explains most alone (lowest
+    score((cause,)).loss) comes first. Nothing remains when no cause earns its place (possible only by the track
+    rule). score(causes) is the held-out score of the calm-water model with the set of causes (a table of fitted
+    sets in diagnose; the order of `causes` only orders the fit); a pure function of it.
+    """
+    chosen, dropped = [primary], []
+    while len(chosen) < max_causes:
+        trials = {name: score((*chosen, name)) for name in candidates if name not in chosen
+                  and name not in {d.cause for d in dropped}}
+        trials = {name: t for name, t in trials.items() if math.isfinite(t.loss)}  # a diverged fit is no cause
+        if not trials:
+            break
+        name = min(trials, key=lambda n: trials[n].loss)
+        if not contribution(name, chosen, score, n_eff).earns_place:
+            break
+        chosen.append(name)
+        while chosen:
+            weak = [c for c in (contribution(cause, [o for o in chosen if o != cause], score, n_eff) for cause in chosen)
+                    if not c.earns_place]
+            if not weak:
+                break
+            weakest = min(weak, key=lambda c: (c.evidence, c.gain))
+            chosen.remove(weakest.cause)
+            dropped.append(weakest)
+    if chosen:  # the one that explains most alone first, the others in the order they were added
+        first = min(chosen, key=lambda c: score((c,)).loss)
+        chosen = [first, *(c for c in chosen if c != first)]
+    contributions = tuple(contribution(c, [o for o in chosen if o != c], score, n_eff) for c in chosen)
+    return Selection(tuple(chosen), contributions, tuple(dropped))
+
+
 def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Sequence[str] | None = None,
              horizon_s: float = 20.0, stride_s: float = 5.0, substeps: int = 1, max_causes: int = 2,
              progress: Callable[[str], None] = lambda _: None, segments: Segments | None = None,
@@ -374,7 +504,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     """Name the cause of what the calm-water grey box gets wrong on these recordings.
 
     After the primary cause, up to max_causes - 1 further ones are added one at a time (forward selection)
-    while each passes the same held-out evidence test against the model with the causes before it.
+    while each passes the same held-out evidence test against the model with the causes before it; after each
+    addition a cause that no longer passes it given the others is dropped (backward elimination, select_causes).
     segments / rollout: make_segments(recordings, horizon_s, stride_s) and scripted_rollout(vessel, dt, substeps)
     when the caller has them already (built here otherwise); the rollout's terms are left at the final fit.
     """
@@ -410,20 +541,68 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     per_segment: dict[str, np.ndarray] = {}
     per_track: dict[str, np.ndarray] = {}
     fold_params: dict[str, tuple[dict[str, float], ...]] = {}
+    fold_segments = tuple(seg.select(np.isin(seg.recording, fold)) for fold in folds)
+    # every set of causes fitted (the first round's single hypotheses, `none` as the empty set, the selection's
+    # sets): its fit order and, per fold k (fitted on fold k, held out on the other), the held-out segment losses,
+    # track errors, physical parameters and the fit
+    fitted: dict[frozenset[str], tuple[tuple[str, ...], list[tuple[np.ndarray, np.ndarray, dict[str, float], Fit]]]] = {}
+    nested_checked: set[tuple[frozenset[str], frozenset[str]]] = set()
 
-    def heldout(hypothesis: str | Sequence[str]) -> tuple[np.ndarray, np.ndarray, tuple[dict[str, float], ...]]:
-        """Held-out segment losses and track errors of the hypothesis fitted on the other fold, and its parameters."""
-        losses, tracks, params = [], [], []
-        for fit_fold, test_fold in ((0, 1), (1, 0)):
-            fit = fit_hypothesis(model, seg.select(np.isin(seg.recording, folds[fit_fold])), hypothesis)
-            loss_, track_ = segment_scores(model, seg.select(np.isin(seg.recording, folds[test_fold])))
-            losses.append(loss_)
-            tracks.append(track_)
-            params.append(physical_parameters(hypothesis, fit.terms) if isinstance(hypothesis, str) else {})
-        return np.concatenate(losses), np.concatenate(tracks), tuple(params)
+    def fold_fit(causes: tuple[str, ...], k: int,
+                 start: Mapping[str, Sequence[float]] | None = None) -> tuple[np.ndarray, np.ndarray, dict[str, float], Fit]:
+        """The set of causes fitted on fold k, scored on the other: held-out losses, track errors, parameters, fit."""
+        hypothesis = causes[0] if len(causes) == 1 else (causes or "none")
+        fit = fit_hypothesis(model, fold_segments[k], hypothesis, start=start)
+        loss_, track_ = segment_scores(model, fold_segments[1 - k])
+        return loss_, track_, physical_parameters(hypothesis, fit.terms) if isinstance(hypothesis, str) else {}, fit
+
+    def fit_set(causes: tuple[str, ...]) -> None:
+        if frozenset(causes) not in fitted:
+            fitted[frozenset(causes)] = (causes, [fold_fit(causes, 0), fold_fit(causes, 1)])
+
+    def refit_nested(key: frozenset[str]) -> None:
+        """A set of causes nested in a larger fitted set fits its fold at least as well as the larger set's fit
+        without the other causes' terms: where that restriction beats the set's own fit (Levenberg-Marquardt from
+        the records' starts ends in a poorer minimum), refit the set from it and keep the better fit of the fold."""
+        own_terms = {term.name for name in key for term in HYPOTHESES[name]}
+        for larger in [k for k in fitted if key < k and (key, k) not in nested_checked]:
+            nested_checked.add((key, larger))
+            causes, folds_ = fitted[key]
+            for k in (0, 1):
+                restriction = {t: v for t, v in fitted[larger][1][k][3].terms.items() if t in own_terms}
+                set_terms(model, restriction)
+                if not loss(model, fold_segments[k]) < folds_[k][3].loss * (1.0 - NESTED_REFIT):
+                    continue
+                refit = fold_fit(causes, k, restriction)
+                if refit[3].loss < folds_[k][3].loss:
+                    progress(f"{'+'.join(causes):30s} fold {k + 1} refitted from {'+'.join(fitted[larger][0])}'s fit: "
+                             f"loss on its fold {folds_[k][3].loss:.3f} -> {refit[3].loss:.3f}")
+                    folds_[k] = refit
+
+    def score(causes: tuple[str, ...]) -> HeldOut:
+        """The held-out score of the calm-water model with these causes (fitted once per set; select_causes)."""
+        key = frozenset(causes)
+        new = key not in fitted
+        fit_set(tuple(causes))
+        if key:
+            refit_nested(key)
+        losses, tracks = held_out(key)
+        if new and len(key) > 1:
+            progress(f"{'+'.join(causes):30s} held-out loss {losses.mean():9.3f}, track error {_mean_track(tracks):7.2f} m")
+        return HeldOut(float(losses.mean()), _mean_track(tracks))
+
+    def held_out(key: frozenset[str]) -> tuple[np.ndarray, np.ndarray]:
+        folds_ = fitted[key][1]
+        return np.concatenate([folds_[0][0], folds_[1][0]]), np.concatenate([folds_[0][1], folds_[1][1]])
+
+    def first_round(name: str) -> None:
+        key = frozenset() if name == "none" else frozenset({name})
+        per_segment[name], per_track[name] = held_out(key)
+        fold_params[name] = tuple(f[2] for f in fitted[key][1])
 
     for name in names:
-        per_segment[name], per_track[name], fold_params[name] = heldout(name)
+        fit_set(() if name == "none" else (name,))
+        first_round(name)
         progress(f"{name:15s} held-out loss {per_segment[name].mean():9.3f}, track error after {horizon_s:g} s "
                  f"{_mean_track(per_track[name]):7.2f} m")
     n_eff = effective_segments(len(per_segment["none"]), stride_s, horizon_s)
@@ -435,18 +614,27 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         before = _mean_track(over)
         return 1.0 - _mean_track(track) / before if before > 0 else float("nan")
 
-    def lowers_track(gain: float) -> bool:  # without GNSS at the segment ends there is no track to judge by
-        return not math.isfinite(gain) or gain > MIN_TRACK_GAIN
-
     base = per_segment["none"]
     calm = CalmWaterFit(float(base.mean()), _mean_track(per_track["none"]), float(horizon_s))
-    # a hypothesis whose fit diverged (non-finite held-out loss) ranks last, never first (NaN does not sort)
-    ranked = sorted(names, key=lambda n: (not math.isfinite(per_segment[n].mean()), per_segment[n].mean()))
-    best = ranked[0]
-    evidence = tuple(Evidence(n, float(per_segment[n].mean()), float(1.0 - per_segment[n].mean() / base.mean()),
+
+    def evidence_table() -> tuple[Evidence, ...]:
+        # a hypothesis whose fit diverged (non-finite held-out loss) ranks last, never first (NaN does not sort)
+        ranked = sorted(names, key=lambda n: (not math.isfinite(per_segment[n].mean()), per_segment[n].mean()))
+        best = ranked[0]
+        return tuple(Evidence(n, float(per_segment[n].mean()), float(1.0 - per_segment[n].mean() / base.mean()),
                               evidence_for(n, "none"), 0.0 if n == best else evidence_for(best, n),
                               fold_params[n], _mean_track(per_track[n]), track_gain(per_track[n], per_track["none"]))
                      for n in ranked)
+
+    def named(e: Evidence, confounded: tuple[str, ...]) -> str:
+        text = (f"{e.hypothesis} removes {e.gain_vs_none * 100:.0f} % of the calm-water model's held-out error "
+                f"(evidence {e.evidence_vs_none:.1f}) and {e.track_gain_vs_none * 100:.0f} % of its held-out "
+                f"track error after {horizon_s:g} s")
+        if confounded:
+            text += f"; {', '.join(confounded)} explain(s) it almost as well: the data cannot tell them apart"
+        return text
+
+    evidence = evidence_table()
     top = evidence[0]
     cause, confounded, message = "none", (), "the calm-water model explains the held-out data within the noise"
     rejected = ""  # a candidate not named: the evidence of the loss but its extension does not lower the held-out
@@ -456,11 +644,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         cause = top.hypothesis
         confounded = tuple(e.hypothesis for e in evidence[1:] if e.hypothesis != "none"
                            and e.evidence_vs_none >= EVIDENCE_CAUSE and e.evidence_of_best < EVIDENCE_CONFOUND)
-        message = (f"{cause} removes {top.gain_vs_none * 100:.0f} % of the calm-water model's held-out error "
-                   f"(evidence {top.evidence_vs_none:.1f}) and {top.track_gain_vs_none * 100:.0f} % of its held-out "
-                   f"track error after {horizon_s:g} s")
-        if confounded:
-            message += f"; {', '.join(confounded)} explain(s) it almost as well: the data cannot tell them apart"
+        message = named(top, confounded)
     elif strong:
         rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error (evidence "
                     f"{top.evidence_vs_none:.1f}) but its extension does not lower the held-out track error after "
@@ -480,33 +664,33 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         message = (f"best hypothesis {top.hypothesis} removes {top.gain_vs_none * 100:.1f} % of the held-out error "
                    f"with evidence {top.evidence_vs_none:.1f} (a cause needs >= {EVIDENCE_CAUSE:g} and "
                    f">= {MIN_GAIN * 100:.0f} %): no cause named")
-    chosen = [] if cause == "none" else [cause]
-    current_loss = per_segment.get(cause, base)
-    current_track = per_track.get(cause, per_track["none"])
+    # further causes, forward, each followed by the backward check that every chosen cause still earns its place
+    # given the others (select_causes); the sets are fitted once, a set nested in a larger one refitted from it
+    drops: tuple[str, ...] = ()
     added_raw: list[tuple[str, float, float, float, float]] = []
-    while chosen and len(chosen) < max_causes:
-        trials: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        for name in names:
-            if name == "none" or name in chosen or name in confounded:
-                continue
-            losses, tracks, _ = heldout((*chosen, name))
-            trials[name] = (losses, tracks)
-            progress(f"{'+'.join((*chosen, name)):30s} held-out loss {losses.mean():9.3f}, track error "
-                     f"{_mean_track(tracks):7.2f} m")
-        trials = {n: t for n, t in trials.items() if math.isfinite(t[0].mean())}  # a diverged fit is no cause
-        if not trials:
-            break
-        name = min(trials, key=lambda n: trials[n][0].mean())
-        losses, tracks = trials[name]
-        gain = 1.0 - losses.mean() / current_loss.mean()
-        evidence_added = log_evidence(n_eff, losses.mean(), current_loss.mean())
-        added_track = track_gain(tracks, current_track)
-        if evidence_added < EVIDENCE_CAUSE or gain < MIN_GAIN or not lowers_track(added_track):
-            break
-        chosen.append(name)
-        added_raw.append((name, float(losses.mean()), evidence_added, gain, added_track))
-        current_loss, current_track = losses, tracks
-
+    chosen: list[str] = []
+    if cause != "none":
+        selection = select_causes(cause, [n for n in names if n != "none" and n not in confounded], score, n_eff,
+                                  max_causes)
+        drops = selection.drop_reasons()
+        for reason in drops:
+            progress(reason)
+        for name in names:  # the single hypotheses refitted from a larger set's fit (refit_nested)
+            first_round(name)
+        evidence = evidence_table()
+        chosen = list(selection.causes)
+        if not chosen:  # no cause earns its place given the others (by the track rule): not named
+            rejected = f"{'; '.join(drops)}: no cause earns its place"
+            cause, confounded, message = "none", (), rejected
+        elif chosen[0] != cause or drops:
+            cause = chosen[0]
+            primary = next(e for e in evidence if e.hypothesis == cause)
+            confounded = tuple(e.hypothesis for e in evidence if e.hypothesis not in ("none", *chosen)
+                               and e.evidence_vs_none >= EVIDENCE_CAUSE
+                               and evidence_for(cause, e.hypothesis) < EVIDENCE_CONFOUND)
+            message = named(primary, confounded)
+        added_raw = [(c.cause, c.heldout_loss, c.evidence, c.gain, c.track_gain) for c in selection.contributions[1:]]
+    current_loss = held_out(frozenset(chosen))[0] if chosen else base
     # model_mismatch: the calm-water model itself is wrong, so no environmental answer (nor `none`) can be trusted
     mismatch: list[str] = []
     if fit_mismatch:
@@ -559,10 +743,12 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     if added:
         message += "; further: " + ", ".join(f"{a.cause} (removes {a.gain * 100:.0f} % more, evidence {a.evidence:.1f})"
                                             for a in added)
+    if drops and cause != MODEL_MISMATCH:
+        message += "; " + "; ".join(drops)
     return Diagnosis(cause, parameters, uncertainty, confounded, tuple(evidence), final,
                      (tuple(recordings[i].name for i in folds[0]), tuple(recordings[i].name for i in folds[1])),
                      message, time.perf_counter() - started, tuple(notes), added, calm, tuple(mismatch),
-                     best_environmental)
+                     best_environmental, dropped_causes=drops)
 
 
 def withdraw_causes(diagnosis: Diagnosis, reason: str, model: GreyBoxRollout | torch.jit.ScriptModule,

@@ -131,6 +131,8 @@ def write_report(directory: Path, out: dict, recordings: Sequence[Recording], ve
                   f"error (evidence {extra['evidence']:.1f}): " + ", ".join(
                       f"{k} {_fmt(v, 4)} ± {_fmt(extra['uncertainty'].get(k), 2)}"
                       for k, v in extra["parameters"].items())]
+    for dropped in out.get("dropped_causes", []):
+        lines += ["", f"> {dropped} (backward elimination: every named cause must earn its place given the others)"]
     lines += ["", "## Evidence (held-out manoeuvres, two folds)", "",
               f"Folds: {' / '.join(', '.join(f) for f in out['folds'])}.", "",
               "| hypothesis | held-out loss | share of the calm-water error removed | evidence over calm water | "

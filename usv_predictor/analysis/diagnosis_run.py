@@ -150,6 +150,7 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         "uncertainty": _undefined_as_null(result.uncertainty),
         "confounded_with": list(result.confounded_with), "message": result.message, "notes": list(result.notes),
         "additional_causes": [_undefined_as_null(dataclasses.asdict(a)) for a in result.additional_causes],
+        "dropped_causes": list(result.dropped_causes),
         # a hypothesis whose fit diverged has a non-finite held-out loss and evidence: written as null (undefined)
         "evidence": [_undefined_as_null(dataclasses.asdict(e)) for e in result.evidence],
         "folds": [list(f) for f in result.folds], "discrepancy": discrepancy,

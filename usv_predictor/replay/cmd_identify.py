@@ -42,12 +42,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "small-craft hull (auto: compare the hull model's by cross-validation, default)")
     parser.add_argument("--prior", choices=("none", "fix", "ridge"), default="none",
                         help="what to do with coefficients the data cannot determine (default none: refuse, naming them)")
-    parser.add_argument("--interaction", choices=("identify", "fix"), default="fix",
+    parser.add_argument("--interaction", choices=("identify", "fix"), default=None,
                         help="rudder_propeller: search the rudder lift gradient, gamma_R, eta, w_P0 and t_P with the "
                              "hull on the multi-step simulation error, candidates with an implausible steady turn "
-                             "left out, and keep them when the held-out simulation error drops (identify), or hold "
-                             "the vessel file's (fix, default); usv_predictor/fitting/interaction.py, README "
-                             "'Unknown boats'")
+                             "left out, and keep them when the held-out simulation error drops (identify, default), or "
+                             "hold the vessel file's (fix; with --base nothing is identified); "
+                             "usv_predictor/fitting/interaction.py, README 'Unknown boats'")
     parser.add_argument("--hybrid", action="store_true",
                         help="add a learned residual on the accelerations: an ensemble of 5 bounded MLPs on "
                              "non-dimensional features, trained by a multi-step loss with early stopping on held-out "

@@ -52,7 +52,7 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, str
                   prior: str = "none", hybrid: HybridTraining | None = None, dt: float = 0.2,
                   validation: str | None = None, report: Path | None = None, blocks: int = 1,
                   config: Path | None = None, scale: float = 1.0, base: Path | None = None,
-                  interaction: str = "fix", progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+                  interaction: str | None = None, progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """Identify the hull (and what the layout lets the data set: thrust gains, engine speeds) of the vessel file
     `vessel` (a preset name or a YAML path) from `bags`, read with its actuator layout (structure mmg / abkowitz /
     diagonal / coupled / auto, prior none / fix / ridge), export the grey box (with hybrid, a
@@ -63,7 +63,8 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, str
     base: with hybrid, a grey-box artifact (`replay diagnose --export`'s extended model, or an earlier `replay
     identify`) whose hull and extension terms are kept, the residual trained on top of them (hybrid_on_base); the
     hull is then not identified again. interaction: identify / fix the rudder_propeller interaction factors
-    (fitting/interaction.py). The result of `replay identify`."""
+    (fitting/interaction.py; None: identify, the default since 2026-11-26; with `base` it must stay None). The
+    result of `replay identify`."""
     from usv_predictor.analysis.evaluation import evaluate
     from usv_predictor.fitting import hybrid_fit, identification
     from usv_predictor.physics.vessel import load_vessel
@@ -71,7 +72,7 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, str
     if base is not None:
         if hybrid is None:
             raise DatasetError("--base MODEL is the grey box a learned residual is added to: it needs --hybrid")
-        if structure != "auto" or prior != "none" or blocks != 1 or report is not None or interaction != "fix":
+        if structure != "auto" or prior != "none" or blocks != 1 or report is not None or interaction is not None:
             raise DatasetError("--base MODEL keeps the base's hull (nothing is identified): --structure, --prior, "
                                "--blocks, --report and --interaction do not apply")
         return hybrid_on_base(bags, output, base, hybrid, vessel=vessel, dt=dt, validation=validation, config=config,
@@ -85,7 +86,7 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, str
     if not recordings:
         raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
     result = identification.identify(preset, recordings, structure=structure, prior=prior,
-                                     interaction=interaction, progress=progress)
+                                     interaction=interaction or "identify", progress=progress)
     from usv_predictor.fitting.candidates import candidate_scores, cv_warning
 
     candidates = candidate_scores(preset, list(result.data), result)
