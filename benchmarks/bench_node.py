@@ -514,11 +514,13 @@ def baseline_tree(revision: str, tmp: Path) -> Path:
     return target
 
 
-def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candidates: bool = False) -> dict:
+def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candidates: bool = False,
+               params: tuple[str, ...] = ()) -> dict:
+    """One variant's node fed over DDS; params: NAME:=VALUE node parameters for every variant (--param)."""
     domain = 150 + (os.getpid() + len(variant)) % 80
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    ros_args = ["-p", "rate_hz:=10.0", "--log-level", "error"]
+    ros_args = ["-p", "rate_hz:=10.0", *(arg for param in params for arg in ("-p", param)), "--log-level", "error"]
     if variant == "old":
         tree = baseline_tree(baseline, tmp)
         command = [sys.executable, "-m", "usv_predictor.node", "--ros-args", *ros_args]
@@ -620,9 +622,15 @@ def main() -> int:
     parser.add_argument("--old-candidates", action="store_true",
                         help="the candidate-plans phase for the old node too (a --baseline that has candidate_plans)")
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE",
+                        help="a node parameter for every variant (repeatable), e.g. fit_check.period_s:=600.0: the "
+                             "node without its fit check's rollouts")
     parser.add_argument("--candidates-thread", action="store_true",
                         help="only: a cycle due during a 64-candidate answer, inline or on a worker (in one process)")
     args = parser.parse_args()
+    for param in args.param:
+        if ":=" not in param:
+            parser.error(f"--param {param!r}: expected NAME:=VALUE (a ROS parameter)")
     if args.candidates_thread:
         print(f"a cycle due while 64 candidates are answered, {args.repeats} rounds alternating, load {load()}")
         found = bench_candidates_thread(args.repeats)
@@ -645,9 +653,12 @@ def main() -> int:
                     print(f"  {name:45s} {figures['p50_ms']:7.3f}  {figures['p99_ms']:7.3f}   (n={figures['n']})")
             print(f"  agreement with the artifact (max abs): {result['compute']['agreement']}")
         variants = [v for v in args.variants.split(",") if v and (v != "old" or args.baseline)]
-        result["node"] = {v: bench_node(v, args.seconds, Path(tmp), args.baseline, args.old_candidates)
+        result["params"] = list(args.param)
+        result["node"] = {v: bench_node(v, args.seconds, Path(tmp), args.baseline, args.old_candidates,
+                                        tuple(args.param))
                           for v in variants}
-    print("\nnode at 10 Hz over DDS; e2e = cycle start -> Path received        p50 / p99 ms      CPU % of one core")
+    print("\nnode at 10 Hz over DDS; e2e = cycle start -> Path received        p50 / p99 ms      CPU % of one core"
+          + (f"; parameters {', '.join(args.param)}" if args.param else ""))
     for variant, runs in result["node"].items():
         label = {"old": f"old ({args.baseline})", "events": "new, EventsExecutor",
                  "single": "new, SingleThreadedExecutor", OWN_BLAS: "new, OpenBLAS's own kernels"}[variant]
