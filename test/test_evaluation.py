@@ -366,3 +366,10 @@ def test_smoothed_reference_takes_the_gnss_noise_out_of_eq_27_29(sea_turn):
     prediction = ev.closed_loop(ev.physics_predictor("jari_usv", 0.2), sea_turn, "smoothed", tracks)
     np.testing.assert_allclose(prediction.predicted[0], gnss[0])
     np.testing.assert_array_equal(prediction.measured, tracks.measured)
+
+
+def test_the_command_line_offers_the_references_the_evaluation_knows():
+    """replay.evaluate spells REFERENCES itself (the parser stays light); it must be the analysis' own tuple."""
+    from usv_predictor.replay import evaluate as replay_evaluate
+
+    assert replay_evaluate.REFERENCES == ev.REFERENCES

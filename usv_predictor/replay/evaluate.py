@@ -26,7 +26,8 @@ if TYPE_CHECKING:
 EVALUATION_FILE = "evaluation.json"
 SERIES_FILE = "evaluation_series.npz"
 REFERENCES = ("gnss", "smoothed", "truth")  # the measured GNSS track and states, the same smoothed (EKF + RTS), or
-# the simulator's ground truth (analysis.evaluation.reference_tracks)
+# the simulator's ground truth (analysis.evaluation.reference_tracks); spelled here so that the CLI's parser does not
+# import the analysis (torch): test_evaluation.py proves it equal to analysis.evaluation.REFERENCES
 
 
 @dataclass(frozen=True)
