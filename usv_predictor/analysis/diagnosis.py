@@ -634,6 +634,12 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
             text += f"; {', '.join(confounded)} explain(s) it almost as well: the data cannot tell them apart"
         return text
 
+    def confounded_with(cause: str, named_causes: Sequence[str], table: Sequence[Evidence]) -> tuple[str, ...]:
+        """The hypotheses (none and the named causes aside) that are causes themselves and that `cause` beats by
+        less than EVIDENCE_CONFOUND: the data cannot tell them apart from it (in the table's order)."""
+        return tuple(e.hypothesis for e in table if e.hypothesis not in ("none", *named_causes)
+                     and e.evidence_vs_none >= EVIDENCE_CAUSE and evidence_for(cause, e.hypothesis) < EVIDENCE_CONFOUND)
+
     evidence = evidence_table()
     top = evidence[0]
     cause, confounded, message = "none", (), "the calm-water model explains the held-out data within the noise"
@@ -642,8 +648,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     strong = top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CAUSE and top.gain_vs_none >= MIN_GAIN
     if strong and lowers_track(top.track_gain_vs_none):
         cause = top.hypothesis
-        confounded = tuple(e.hypothesis for e in evidence[1:] if e.hypothesis != "none"
-                           and e.evidence_vs_none >= EVIDENCE_CAUSE and e.evidence_of_best < EVIDENCE_CONFOUND)
+        confounded = confounded_with(cause, (cause,), evidence)
         message = named(top, confounded)
     elif strong:
         rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error (evidence "
@@ -685,9 +690,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         elif chosen[0] != cause or drops:
             cause = chosen[0]
             primary = next(e for e in evidence if e.hypothesis == cause)
-            confounded = tuple(e.hypothesis for e in evidence if e.hypothesis not in ("none", *chosen)
-                               and e.evidence_vs_none >= EVIDENCE_CAUSE
-                               and evidence_for(cause, e.hypothesis) < EVIDENCE_CONFOUND)
+            confounded = confounded_with(cause, chosen, evidence)
             message = named(primary, confounded)
         added_raw = [(c.cause, c.heldout_loss, c.evidence, c.gain, c.track_gain) for c in selection.contributions[1:]]
     current_loss = held_out(frozenset(chosen))[0] if chosen else base
