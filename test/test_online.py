@@ -275,6 +275,20 @@ def test_adaptive_prediction_halves_the_error_in_a_changing_sea_and_costs_nothin
     assert adaptive.model_terms(model)["current_ne"] == [0.0, 0.0]  # the model is left as it was
 
 
+def test_adaptive_open_loop_adds_only_the_live_terms(bags, monkeypatch):
+    """With every estimate not yet started (live_terms then gives the model's own terms, set per start through
+    per_start_terms) adaptive_open_loop is open_loop to the bit: the same windows, starts and errors."""
+    model = physics_predictor("jari_usv", DT)
+    rec = recording(bags, "step")
+    started = adaptive.live_terms
+    monkeypatch.setattr(adaptive, "live_terms", lambda estimate, original: started(
+        dataclasses.replace(estimate, state=(math.nan,) * len(estimate.state)), original))
+    plain = evaluation.open_loop(model, rec, "gnss", (10.0, 60.0), 5.0)
+    live = adaptive.adaptive_open_loop(model, rec, "gnss", (10.0, 60.0), 5.0)
+    assert live.applied and live.open_loop.starts > 1
+    assert live.open_loop.to_json(DT) == plain.to_json(DT)
+
+
 def test_replay_evaluate_adaptive_reports_the_estimate(bags):
     data = evaluate(EvaluationRequest(bags=(bags["step"],), model="physics", adaptive=True, horizons_s=(30.0, 60.0)))
     section = data["adaptive"]

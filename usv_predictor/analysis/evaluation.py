@@ -358,9 +358,25 @@ def open_loop(model: Predictor, recording: Recording, reference: str = "gnss",
 
     None when the recording is shorter than the shortest horizon plus one step.
     """
-    dt = recording.dt
-    check_dt(model, dt, f"recording {recording.name}")
+    check_dt(model, recording.dt, f"recording {recording.name}")
     tracks = tracks or reference_tracks(recording, reference)
+    return windowed_open_loop(recording, tracks, horizons_s, stride_s,
+                              lambda starts, states, controls: rollout(model, states, controls,
+                                                                       held_reference(recording, tracks.start)))
+
+
+WindowRollout = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+"""predict(starts (B,) sample indices, states (B, 4) [u, v, r, psi], controls (B, H, C)) -> (E, B, H, 6)."""
+
+
+def windowed_open_loop(recording: Recording, tracks: ReferenceTracks, horizons_s: Sequence[float], stride_s: float,
+                       predict: WindowRollout) -> OpenLoop | None:
+    """The open-loop windows of a recording and their position errors: one rollout of the longest horizon that fits
+    from every `stride_s` (from each sample whose start track has a position), each placed at its start position and
+    compared with the measured track (k + 1) dt after the start. `predict` rolls all windows out in one batch
+    (open_loop: the model as it is; analysis.adaptive: with the live estimate of each start). None when no horizon
+    fits or no start has a position."""
+    dt = recording.dt
     measured, begin = tracks.measured, tracks.start
     fitting = [h for h in horizons_s if h / dt <= len(recording) - 0.5]  # round(h / dt) <= T - 1, for any h
     if not fitting:
@@ -374,8 +390,7 @@ def open_loop(model: Predictor, recording: Recording, reference: str = "gnss",
     if len(starts) == 0:
         return None
     window = starts[:, None] + np.arange(steps)[None, :]  # (B, H) control indices
-    out = rollout(model, begin[starts][:, [U, V, R, PSI]], recording.controls[window],
-                  held_reference(recording, begin))
+    out = predict(starts, begin[starts][:, [U, V, R, PSI]], recording.controls[window])  # (E, B, H, 6)
     predicted_xy = out.mean(axis=0)[..., [X_N, Y_E]] + begin[starts][:, None, [X_N, Y_E]]  # (B, H, 2)
     measured_xy = measured[window + 1][..., [X_N, Y_E]]
     errors = np.hypot(*(predicted_xy - measured_xy).transpose(2, 0, 1))  # (B, H)
