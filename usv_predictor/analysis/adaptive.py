@@ -187,9 +187,5 @@ def summarise(adaptive: Sequence[AdaptiveRecording], horizons_s: Sequence[float]
     out: dict[str, Any] = {"applied": bool(adaptive) and all(a.applied for a in adaptive)}
     if adaptive and not adaptive[0].applied:
         out["reason"] = NOT_APPLIED
-    for horizon in horizons_s:
-        pairs = [(h.mean_m, h.count) for a in adaptive if a.open_loop is not None
-                 for h in a.open_loop.horizons if h.horizon_s == horizon and h.count > 0]
-        total = sum(c for _, c in pairs)
-        out[f"mean_position_error_after_{horizon:g}s_m"] = sum(m * c for m, c in pairs) / total if total else None
+    out.update(evaluation.pooled_open_loop([a.open_loop for a in adaptive], horizons_s))
     return out

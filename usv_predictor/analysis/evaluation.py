@@ -657,14 +657,21 @@ def summarise(evaluations: Sequence[RecordingEvaluation], horizons_s: Sequence[f
         "mean_rmse_v_mps": _mean([e.state_rmse["v_mps"] for e in evaluations]),
         "mean_rmse_r_deg_s": _mean([e.state_rmse["r_deg_s"] for e in evaluations]),
     }
-    for horizon in horizons_s:
-        # pooled over every start point of every recording, so long recordings weigh more
-        pairs = [(h.mean_m, h.count) for e in evaluations if e.open_loop is not None
-                 for h in e.open_loop.horizons if h.horizon_s == horizon and h.count > 0]
-        total = sum(c for _, c in pairs)
-        summary[f"mean_position_error_after_{horizon:g}s_m"] = (
-            sum(m * c for m, c in pairs) / total if total else None)
+    summary.update(pooled_open_loop([e.open_loop for e in evaluations], horizons_s))
     return summary
+
+
+def pooled_open_loop(loops: Sequence[OpenLoop | None], horizons_s: Sequence[float]) -> dict[str, float | None]:
+    """mean_position_error_after_<h>s_m (m) per horizon: the open-loop errors of several recordings pooled over
+    every start point with a finite error (the count-weighted mean of the means), so long recordings weigh more;
+    None where no start point has one (summarise, analysis.adaptive.summarise)."""
+    out: dict[str, float | None] = {}
+    for horizon in horizons_s:
+        pairs = [(h.mean_m, h.count) for loop in loops if loop is not None
+                 for h in loop.horizons if h.horizon_s == horizon and h.count > 0]
+        total = sum(c for _, c in pairs)
+        out[f"mean_position_error_after_{horizon:g}s_m"] = sum(m * c for m, c in pairs) / total if total else None
+    return out
 
 
 def _mean(values: Sequence[float]) -> float | None:
