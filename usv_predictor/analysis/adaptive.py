@@ -120,20 +120,22 @@ def estimator_for(model: Any, vessel: str | Vessel | None = None, config: Online
 def adaptive_open_loop(model: Any, recording: Recording, reference: str = "gnss",
                        horizons_s: Sequence[float] = evaluation.DEFAULT_HORIZONS_S, stride_s: float = 5.0,
                        config: OnlineConfig | None = None, vessel: str | Vessel | None = None) -> AdaptiveRecording:
-    """evaluation.open_loop with the live estimate: the same windows (evaluation.windowed_open_loop); the estimator
-    runs causally over the recording; before the rollout from sample k the model's terms are set to the estimate
-    after sample k (when the model has them). Unlike open_loop, no held reference (a rudder_only layout's approach,
-    evaluation.held_reference) is given to the rollout."""
+    """evaluation.open_loop with the live estimate: the same windows and the same held reference (a rudder_only
+    layout's approach, evaluation.held_reference, given to every rollout by evaluation.windowed_open_loop); the
+    estimator runs causally over the recording (OnlineEstimator.run_recording: its process model holds the engine
+    speed of the same approach, of the measured track); before the rollout from sample k the model's terms are set
+    to the estimate after sample k (when the model has them)."""
     check_dt(model, recording.dt, f"recording {recording.name}")
     estimator = estimator_for(model, vessel or recording_vessel(recording, model), config)
-    estimates = tuple(estimator.run(recording.t_s, recording.nu, recording.psi, recording.controls))
+    estimates = tuple(estimator.run_recording(recording))
     original = model_terms(model)
 
-    def predict(starts: np.ndarray, states: np.ndarray, controls: np.ndarray) -> np.ndarray:  # -> (E, B, H, 6)
+    def predict(starts: np.ndarray, states: np.ndarray, controls: np.ndarray, held: np.ndarray | None
+                ) -> np.ndarray:  # -> (E, B, H, 6)
         if original is None:
-            return evaluation.rollout(model, states, controls)
+            return evaluation.rollout(model, states, controls, held)
         with per_start_terms(model, [live_terms(estimates[k], original) for k in starts]):
-            return evaluation.rollout(model, states, controls)
+            return evaluation.rollout(model, states, controls, held)
 
     loop = evaluation.windowed_open_loop(recording, evaluation.reference_tracks(recording, reference), horizons_s,
                                          stride_s, predict)

@@ -44,7 +44,8 @@ import numpy as np
 
 from usv_predictor.analysis import metrics
 from usv_predictor.atomic import finite_or_none
-from usv_predictor.data.recording import Recording, approach_state, straight_samples
+from usv_predictor.data.recording import Recording
+from usv_predictor.data.recording import held_reference as recording_held_reference
 from usv_predictor.errors import DatasetError, EvaluationError, ModelError
 from usv_predictor.frames import angle_difference_deg
 from usv_predictor.models import loading
@@ -270,13 +271,8 @@ def rollout(model: Predictor, state: np.ndarray, controls: np.ndarray, reference
 def held_reference(recording: Recording, series: np.ndarray) -> np.ndarray | None:
     """(4,) the approach state [u, v, r, psi] of the recording's reference `series` (T, 6) for a layout that reports
     no propulsion (rudder_only: the straight running whose engine speed its grey box holds); None for the others
-    (and when the approach has no finite sample)."""
-    layout = actuator_layout(recording.layout)
-    if layout.propulsion:
-        return None
-    approach = approach_state(series[:, [U, V, R]], series[:, PSI], recording.dt,
-                              straight_samples(recording.controls, layout))
-    return approach if np.all(np.isfinite(approach)) else None
+    (and when the approach has no finite sample). data.recording.held_reference of the series."""
+    return recording_held_reference(recording, series[:, [U, V, R]], series[:, PSI])
 
 
 @dataclass(frozen=True)
@@ -361,12 +357,12 @@ def open_loop(model: Predictor, recording: Recording, reference: str = "gnss",
     check_dt(model, recording.dt, f"recording {recording.name}")
     tracks = tracks or reference_tracks(recording, reference)
     return windowed_open_loop(recording, tracks, horizons_s, stride_s,
-                              lambda starts, states, controls: rollout(model, states, controls,
-                                                                       held_reference(recording, tracks.start)))
+                              lambda starts, states, controls, held: rollout(model, states, controls, held))
 
 
-WindowRollout = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-"""predict(starts (B,) sample indices, states (B, 4) [u, v, r, psi], controls (B, H, C)) -> (E, B, H, 6)."""
+WindowRollout = Callable[[np.ndarray, np.ndarray, np.ndarray, "np.ndarray | None"], np.ndarray]
+"""predict(starts (B,) sample indices, states (B, 4) [u, v, r, psi], controls (B, H, C), held (4,) | None: the
+held reference of every window, held_reference) -> (E, B, H, 6)."""
 
 
 def windowed_open_loop(recording: Recording, tracks: ReferenceTracks, horizons_s: Sequence[float], stride_s: float,
@@ -374,8 +370,9 @@ def windowed_open_loop(recording: Recording, tracks: ReferenceTracks, horizons_s
     """The open-loop windows of a recording and their position errors: one rollout of the longest horizon that fits
     from every `stride_s` (from each sample whose start track has a position), each placed at its start position and
     compared with the measured track (k + 1) dt after the start. `predict` rolls all windows out in one batch
-    (open_loop: the model as it is; analysis.adaptive: with the live estimate of each start). None when no horizon
-    fits or no start has a position."""
+    (open_loop: the model as it is; analysis.adaptive: with the live estimate of each start), given the held
+    reference of the start track (held_reference: a rudder_only layout's approach, whose engine speed every rollout
+    holds; None for the others). None when no horizon fits or no start has a position."""
     dt = recording.dt
     measured, begin = tracks.measured, tracks.start
     fitting = [h for h in horizons_s if h / dt <= len(recording) - 0.5]  # round(h / dt) <= T - 1, for any h
@@ -390,7 +387,8 @@ def windowed_open_loop(recording: Recording, tracks: ReferenceTracks, horizons_s
     if len(starts) == 0:
         return None
     window = starts[:, None] + np.arange(steps)[None, :]  # (B, H) control indices
-    out = predict(starts, begin[starts][:, [U, V, R, PSI]], recording.controls[window])  # (E, B, H, 6)
+    out = predict(starts, begin[starts][:, [U, V, R, PSI]], recording.controls[window],
+                  held_reference(recording, begin))  # (E, B, H, 6)
     predicted_xy = out.mean(axis=0)[..., [X_N, Y_E]] + begin[starts][:, None, [X_N, Y_E]]  # (B, H, 2)
     measured_xy = measured[window + 1][..., [X_N, Y_E]]
     errors = np.hypot(*(predicted_xy - measured_xy).transpose(2, 0, 1))  # (B, H)
