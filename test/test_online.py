@@ -412,3 +412,25 @@ def test_the_node_sea_estimate_of_a_rudder_only_boat_holds_its_states_reference(
     assert [e.state for e in fed["approach"]] == [e.state for e in expected]
     assert fed["none"][-1].state != expected[-1].state
     assert adaptive.model_terms(model)["current_ne"] == [0.0, 0.0]
+
+
+def test_the_filter_holds_the_grey_box_engine_speed_in_wind_current_and_a_resistance_change(rudder_only):
+    """Twins: the filter's process model and the grey box hold one engine speed, the one that balances the straight
+    running of the reference through the water against (1 + k_R) times the resistance less the wind's surge force
+    (dynamics.engine_speed_for, greybox.RudderOnlyModule.begin). Fed the reference itself, straight on, the grey
+    box keeps its speed and the filter sees no innovation: its current, k_R and speed through the water stay."""
+    vessel, _ = rudder_only
+    reference = np.array([4.8, 0.0, 0.0, 0.6])  # (m/s, m/s, rad/s, rad) over ground, as measured
+    along = np.array([math.cos(reference[3]), math.sin(reference[3])])  # (-) the heading's direction, north/east
+    # along the heading: a following current and a head wind keep the straight running straight (no sway, no yaw)
+    terms = {"current_ne": list(0.25 * along), "resistance_change": [0.08], "wind_ne": list(-8.0 * along)}  # SI
+    model = physics_predictor(vessel, DT)
+    adaptive.set_terms(model, terms)
+    track = evaluation.rollout(model, reference[None], np.zeros((1, 60, 1)), reference)[0, 0]  # (H, 6), 30 s
+    assert np.abs(track[:, 0] - reference[0]).max() < 1e-3
+    estimator = OnlineEstimator(vessel, None, terms)
+    estimates = [estimator.step(t, *reference[:3], reference[3], [0.0], reference) for t in np.arange(0.0, 30.0, DT)]
+    assert estimator.x[0] == pytest.approx(reference[0] - 0.25, abs=1e-4)  # through the water
+    assert estimates[-1].current_ne == pytest.approx(tuple(0.25 * along), abs=1e-4)
+    assert estimates[-1].state[K_R] == pytest.approx(0.08, abs=1e-4)
+    assert max(e.nis for e in estimates[1:]) < 1e-4
