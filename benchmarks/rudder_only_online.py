@@ -49,7 +49,8 @@ def main() -> None:
     vessel_file.write_text(yaml.safe_dump({**raw, "name": "jari_rudder_only", "actuator_layout": "rudder_only"}))
     vessel = load_vessel(str(vessel_file))
     model = physics_predictor(vessel, DT)
-    print(f"jari_usv as rudder_only (650 rpm, not recorded), 120 s, model step {DT:g} s, GNSS reference; bags in {root}")
+    print(f"jari_usv as rudder_only (650 rpm, not recorded), 120 s, model step {DT:g} s, GNSS reference; "
+          f"bags in {root}")
     print(f"{'case':26s} {'open_loop 10/30 s (m)':>22s} {'adaptive 10/30 s (m)':>21s} {'truth':>14s}  final estimate")
     for k, (case, (manoeuvre, current)) in enumerate(CASES.items()):
         bags = root / f"case{k}"
