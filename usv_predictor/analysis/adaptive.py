@@ -26,13 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from usv_predictor.analysis import evaluation, metrics
+from usv_predictor.analysis import evaluation
 from usv_predictor.data.recording import Recording
 from usv_predictor.fitting.online import TERMS, OnlineConfig, OnlineEstimate, OnlineEstimator
 from usv_predictor.models.loading import check_dt
 from usv_predictor.physics import effects
 from usv_predictor.physics.vessel import Vessel, load_vessel
-from usv_predictor.records import whole_steps
 
 NOT_APPLIED = ("not applied: a learned model has no physical current term; its training sea is in its weights, so "
                "adding the estimate to its track would count the current twice")
@@ -121,42 +120,26 @@ def estimator_for(model: Any, vessel: str | Vessel | None = None, config: Online
 def adaptive_open_loop(model: Any, recording: Recording, reference: str = "gnss",
                        horizons_s: Sequence[float] = evaluation.DEFAULT_HORIZONS_S, stride_s: float = 5.0,
                        config: OnlineConfig | None = None, vessel: str | Vessel | None = None) -> AdaptiveRecording:
-    """evaluation.open_loop with the live estimate: the estimator runs causally over the recording; before the
-    rollout from sample k the model's terms are set to the estimate after sample k (when the model has them)."""
-    dt = recording.dt
-    check_dt(model, dt, f"recording {recording.name}")
+    """evaluation.open_loop with the live estimate: the same windows and the same held reference (a rudder_only
+    layout's approach, evaluation.held_reference, given to every rollout by evaluation.windowed_open_loop); the
+    estimator runs causally over the recording (OnlineEstimator.run_recording: its process model holds the engine
+    speed of the same approach, of the measured track); before the rollout from sample k the model's terms are set
+    to the estimate after sample k (when the model has them)."""
+    check_dt(model, recording.dt, f"recording {recording.name}")
     estimator = estimator_for(model, vessel or recording_vessel(recording, model), config)
-    estimates = tuple(estimator.run(recording.t_s, recording.nu, recording.psi, recording.controls))
+    estimates = tuple(estimator.run_recording(recording))
     original = model_terms(model)
-    applied = original is not None
-    tracks = evaluation.reference_tracks(recording, reference)
-    measured, begin = tracks.measured, tracks.start
-    fitting = [h for h in horizons_s if h / dt <= len(recording) - 0.5]
-    loop = None
-    if fitting:
-        steps = whole_steps(max(fitting), dt, "open-loop horizon")
-        stride = whole_steps(min(stride_s, len(recording) * dt), dt, "--stride")
-        starts = np.arange(0, len(recording) - steps, stride)
-        starts = starts[np.isfinite(begin[starts, evaluation.X_N]) & np.isfinite(begin[starts, evaluation.Y_E])]
-        if len(starts):
-            window = starts[:, None] + np.arange(steps)[None, :]  # (B, H) control indices
-            states = begin[starts][:, [evaluation.U, evaluation.V, evaluation.R, evaluation.PSI]]  # (B, 4)
-            if applied:
-                with per_start_terms(model, [live_terms(estimates[k], original) for k in starts]):
-                    out = evaluation.rollout(model, states, recording.controls[window])  # (E, B, H, 6)
-            else:
-                out = evaluation.rollout(model, states, recording.controls[window])
-            predicted_xy = out.mean(axis=0)[..., [evaluation.X_N, evaluation.Y_E]] \
-                + begin[starts][:, None, [evaluation.X_N, evaluation.Y_E]]  # (B, H, 2)
-            measured_xy = measured[window + 1][..., [evaluation.X_N, evaluation.Y_E]]  # (B, H, 2)
-            errors = np.hypot(*(predicted_xy - measured_xy).transpose(2, 0, 1))  # (B, H)
-            known = np.isfinite(errors)
-            counts = known.sum(axis=0)
-            by_step = np.where(counts > 0, np.where(known, errors, 0.0).sum(axis=0) / np.maximum(counts, 1), np.nan)
-            loop = evaluation.OpenLoop(stride_s=stride * dt, horizon_s=steps * dt, starts=int(len(starts)),
-                                       horizons=metrics.open_loop_errors(predicted_xy, measured_xy, fitting, dt),
-                                       mean_error_by_step_m=by_step)
-    return AdaptiveRecording(recording.name, applied, loop, estimates, recording.t_s - recording.t_s[0])
+
+    def predict(starts: np.ndarray, states: np.ndarray, controls: np.ndarray, held: np.ndarray | None
+                ) -> np.ndarray:  # -> (E, B, H, 6)
+        if original is None:
+            return evaluation.rollout(model, states, controls, held)
+        with per_start_terms(model, [live_terms(estimates[k], original) for k in starts]):
+            return evaluation.rollout(model, states, controls, held)
+
+    loop = evaluation.windowed_open_loop(recording, evaluation.reference_tracks(recording, reference), horizons_s,
+                                         stride_s, predict)
+    return AdaptiveRecording(recording.name, original is not None, loop, estimates, recording.t_s - recording.t_s[0])
 
 
 @contextlib.contextmanager
@@ -206,9 +189,5 @@ def summarise(adaptive: Sequence[AdaptiveRecording], horizons_s: Sequence[float]
     out: dict[str, Any] = {"applied": bool(adaptive) and all(a.applied for a in adaptive)}
     if adaptive and not adaptive[0].applied:
         out["reason"] = NOT_APPLIED
-    for horizon in horizons_s:
-        pairs = [(h.mean_m, h.count) for a in adaptive if a.open_loop is not None
-                 for h in a.open_loop.horizons if h.horizon_s == horizon and h.count > 0]
-        total = sum(c for _, c in pairs)
-        out[f"mean_position_error_after_{horizon:g}s_m"] = sum(m * c for m, c in pairs) / total if total else None
+    out.update(evaluation.pooled_open_loop([a.open_loop for a in adaptive], horizons_s))
     return out

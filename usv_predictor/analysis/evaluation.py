@@ -44,7 +44,8 @@ import numpy as np
 
 from usv_predictor.analysis import metrics
 from usv_predictor.atomic import finite_or_none
-from usv_predictor.data.recording import Recording, approach_state, straight_samples
+from usv_predictor.data.recording import Recording
+from usv_predictor.data.recording import held_reference as recording_held_reference
 from usv_predictor.errors import DatasetError, EvaluationError, ModelError
 from usv_predictor.frames import angle_difference_deg
 from usv_predictor.models import loading
@@ -270,13 +271,8 @@ def rollout(model: Predictor, state: np.ndarray, controls: np.ndarray, reference
 def held_reference(recording: Recording, series: np.ndarray) -> np.ndarray | None:
     """(4,) the approach state [u, v, r, psi] of the recording's reference `series` (T, 6) for a layout that reports
     no propulsion (rudder_only: the straight running whose engine speed its grey box holds); None for the others
-    (and when the approach has no finite sample)."""
-    layout = actuator_layout(recording.layout)
-    if layout.propulsion:
-        return None
-    approach = approach_state(series[:, [U, V, R]], series[:, PSI], recording.dt,
-                              straight_samples(recording.controls, layout))
-    return approach if np.all(np.isfinite(approach)) else None
+    (and when the approach has no finite sample). data.recording.held_reference of the series."""
+    return recording_held_reference(recording, series[:, [U, V, R]], series[:, PSI])
 
 
 @dataclass(frozen=True)
@@ -358,9 +354,26 @@ def open_loop(model: Predictor, recording: Recording, reference: str = "gnss",
 
     None when the recording is shorter than the shortest horizon plus one step.
     """
-    dt = recording.dt
-    check_dt(model, dt, f"recording {recording.name}")
+    check_dt(model, recording.dt, f"recording {recording.name}")
     tracks = tracks or reference_tracks(recording, reference)
+    return windowed_open_loop(recording, tracks, horizons_s, stride_s,
+                              lambda starts, states, controls, held: rollout(model, states, controls, held))
+
+
+WindowRollout = Callable[[np.ndarray, np.ndarray, np.ndarray, "np.ndarray | None"], np.ndarray]
+"""predict(starts (B,) sample indices, states (B, 4) [u, v, r, psi], controls (B, H, C), held (4,) | None: the
+held reference of every window, held_reference) -> (E, B, H, 6)."""
+
+
+def windowed_open_loop(recording: Recording, tracks: ReferenceTracks, horizons_s: Sequence[float], stride_s: float,
+                       predict: WindowRollout) -> OpenLoop | None:
+    """The open-loop windows of a recording and their position errors: one rollout of the longest horizon that fits
+    from every `stride_s` (from each sample whose start track has a position), each placed at its start position and
+    compared with the measured track (k + 1) dt after the start. `predict` rolls all windows out in one batch
+    (open_loop: the model as it is; analysis.adaptive: with the live estimate of each start), given the held
+    reference of the start track (held_reference: a rudder_only layout's approach, whose engine speed every rollout
+    holds; None for the others). None when no horizon fits or no start has a position."""
+    dt = recording.dt
     measured, begin = tracks.measured, tracks.start
     fitting = [h for h in horizons_s if h / dt <= len(recording) - 0.5]  # round(h / dt) <= T - 1, for any h
     if not fitting:
@@ -374,8 +387,8 @@ def open_loop(model: Predictor, recording: Recording, reference: str = "gnss",
     if len(starts) == 0:
         return None
     window = starts[:, None] + np.arange(steps)[None, :]  # (B, H) control indices
-    out = rollout(model, begin[starts][:, [U, V, R, PSI]], recording.controls[window],
-                  held_reference(recording, begin))
+    out = predict(starts, begin[starts][:, [U, V, R, PSI]], recording.controls[window],
+                  held_reference(recording, begin))  # (E, B, H, 6)
     predicted_xy = out.mean(axis=0)[..., [X_N, Y_E]] + begin[starts][:, None, [X_N, Y_E]]  # (B, H, 2)
     measured_xy = measured[window + 1][..., [X_N, Y_E]]
     errors = np.hypot(*(predicted_xy - measured_xy).transpose(2, 0, 1))  # (B, H)
@@ -642,14 +655,21 @@ def summarise(evaluations: Sequence[RecordingEvaluation], horizons_s: Sequence[f
         "mean_rmse_v_mps": _mean([e.state_rmse["v_mps"] for e in evaluations]),
         "mean_rmse_r_deg_s": _mean([e.state_rmse["r_deg_s"] for e in evaluations]),
     }
-    for horizon in horizons_s:
-        # pooled over every start point of every recording, so long recordings weigh more
-        pairs = [(h.mean_m, h.count) for e in evaluations if e.open_loop is not None
-                 for h in e.open_loop.horizons if h.horizon_s == horizon and h.count > 0]
-        total = sum(c for _, c in pairs)
-        summary[f"mean_position_error_after_{horizon:g}s_m"] = (
-            sum(m * c for m, c in pairs) / total if total else None)
+    summary.update(pooled_open_loop([e.open_loop for e in evaluations], horizons_s))
     return summary
+
+
+def pooled_open_loop(loops: Sequence[OpenLoop | None], horizons_s: Sequence[float]) -> dict[str, float | None]:
+    """mean_position_error_after_<h>s_m (m) per horizon: the open-loop errors of several recordings pooled over
+    every start point with a finite error (the count-weighted mean of the means), so long recordings weigh more;
+    None where no start point has one (summarise, analysis.adaptive.summarise)."""
+    out: dict[str, float | None] = {}
+    for horizon in horizons_s:
+        pairs = [(h.mean_m, h.count) for loop in loops if loop is not None
+                 for h in loop.horizons if h.horizon_s == horizon and h.count > 0]
+        total = sum(c for _, c in pairs)
+        out[f"mean_position_error_after_{horizon:g}s_m"] = sum(m * c for m, c in pairs) / total if total else None
+    return out
 
 
 def _mean(values: Sequence[float]) -> float | None:

@@ -52,6 +52,23 @@ def approach_state(nu: np.ndarray, psi: np.ndarray, dt: float, straight: np.ndar
     return np.array([*np.median(rows[:, :3], axis=0), heading])
 
 
+def held_reference(recording: "Recording", nu: np.ndarray | None = None, psi: np.ndarray | None = None
+                   ) -> np.ndarray | None:
+    """(4,) the approach state [u, v, r, psi] (approach_state) of a recording whose layout reports no propulsion
+    (rudder_only): the straight running whose engine speed the boat holds all manoeuvre long, what its grey box's
+    rollouts (models/greybox.py `reference`) and the online estimator's process model (fitting/online.py) hold the
+    engine speed from. Of the recording's measured nu, psi, or of another series of the same samples (nu (T, 3),
+    psi (T,): a reference track such as the ground truth). None for a layout with propulsion data, and when the
+    approach has no finite sample."""
+    layout = recording.actuator_layout
+    if layout.propulsion:
+        return None
+    nu = recording.nu if nu is None else nu
+    psi = recording.psi if psi is None else psi
+    approach = approach_state(nu, psi, recording.dt, straight_samples(recording.controls, layout))
+    return approach if np.all(np.isfinite(approach)) else None
+
+
 def straight_samples(controls: np.ndarray, layout: ActuatorLayout) -> np.ndarray:
     """(T,) bool: the samples whose turn command is below the layout's straight_below (straight running)."""
     return np.abs(layout.steering_signal(controls)) < layout.straight_below

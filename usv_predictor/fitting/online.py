@@ -19,9 +19,18 @@ from the measured psi_{k-1} with r):
     X_k = -k_R (r1 u_r + r2 u_r |u_r|)            the resistance change exactly as models/greybox.py applies it
                                                   (r1, r2 = ManoeuvringModel.resistance_coefficients())
     c_dot = w_c, b_r_dot = w_b, k_R_dot = w_k     random walks (Brown & Hwang 2012 sec. 7.2; Fossen 2021 sec. 13.3)
+    an engine the layout does not report (rudder_only) runs as the grey box's rollouts hold it (models/greybox.py
+    RudderOnlyModule): at the engine speed that holds, in straight running, the water speed of the `reference`
+    state (the held reference: replay the manoeuvre's approach, data.recording.held_reference; the node its latest
+    straight running, node/live.ApproachTracker), u_ref - (c_n cos psi_ref + c_e sin psi_ref), against the
+    resistance (1 + k_R) (r1 u + r2 u^2) less the wind and wave terms' surge force there
+    (dynamics.RudderPropellerForces.engine_speed_for); without a reference at the present u_r (the grey box's
+    start state). A boat slows down in a turn at the same engine setting: an engine speed taken from the present
+    speed keeps it from settling, and the filter would explain the missing speed by a current.
 propagated by RK4 with substeps <= max_substep_s; the transition matrix is Phi = (I + A h + (A h)^2 / 2)^n with
 A = df/dx at the start of the interval (the 3 x 3 nu_r block by central differences of `accelerations`: 6 calls;
-d u_dot / d k_R analytic); Q = diag(q^2) dt for the white-noise densities q of OnlineConfig.
+d u_dot / d k_R analytic; with a reference, nu_r_dot through the held engine speed's dependence on c_n, c_e, k_R by
+central differences: 6 more); Q = diag(q^2) dt for the white-noise densities q of OnlineConfig.
 
 Measurement model (Fossen 2021 eq. 2.40 with nu = nu_r + R(psi)^T V_c; the gyro with its bias):
     z = [u, v, r_gyro] = [u_r + c_n cos psi + c_e sin psi,  v_r - c_n sin psi + c_e cos psi,  r + b_r] + e
@@ -63,6 +72,7 @@ from typing import Any
 
 import numpy as np
 
+from usv_predictor.data.recording import Recording, held_reference
 from usv_predictor.errors import ConfigError
 from usv_predictor.frames import compass_deg
 from usv_predictor.physics import effects
@@ -78,6 +88,7 @@ NU = slice(0, 3)  # the velocity states
 TERMS = dict(zip(effects.ONLINE_TERMS, ((C_N, C_E), (B_R,), (K_R,))))  # grey-box term -> its states
 RUDDER_OFFSET, SIDE_FORCE, IMBALANCE, WIND, WAVE = effects.FIXED_TERMS  # terms the process model takes as they are
 FD_STEP = (1e-4, 1e-4, 1e-5)  # central-difference steps for d(nu_r_dot)/d(u_r, v_r, r) (m/s, m/s, rad/s)
+HELD_FD_STEP = 1e-5  # central-difference step in k_R (-) of the held engine speed (rudder_only)
 
 
 @dataclass(frozen=True)
@@ -281,24 +292,33 @@ class OnlineEstimator:
         self._nis_mean = math.nan
         self._last_nis = math.nan
         self._last_elapsed = 0.0  # (s) the last prediction's interval: the weight of the running NIS mean
+        self._reference: np.ndarray | None = None  # (4,) the held reference of the latest call (step)
 
     def reset(self) -> None:
         """Back to the prior (the node calls it on a clock jump it detects itself; step() also does)."""
         self._clear()
 
     # ------------------------------------------------------------------ the public step
-    def step(self, t_s: float, u: float, v: float, r: float, psi: float, controls: Sequence[float]) -> OnlineEstimate:
+    def step(self, t_s: float, u: float, v: float, r: float, psi: float, controls: Sequence[float],
+             reference: Sequence[float] | None = None) -> OnlineEstimate:
         """One cycle: predict to t_s, update with the measurement (u, v over ground in m/s, r gyro in rad/s),
-        psi (rad) the measured heading and `controls` (C,) the layout's controls at t_s (the node's LiveState
-        fields). NaN/inf in any input never reaches the state: without a finite psi or controls nothing is done
+        psi (rad) the measured heading, `controls` (C,) the layout's controls at t_s and `reference` (4,)
+        [u, v, r, psi] as measured: the held reference whose engine speed a layout without propulsion data holds
+        (module docstring; None: the present speed's; ignored by the other layouts) (the node's LiveState fields).
+        NaN/inf in any input never reaches the state: without a finite psi, controls or reference nothing is done
         ("skipped"), non-finite measurement components are left out of the update."""
         controls = np.asarray(controls, dtype=float).reshape(-1)
         if controls.shape != (len(self.layout.controls),):
             raise ConfigError(f"online estimator: controls must be ({len(self.layout.controls)},) "
                               f"{self.layout.control_names}, got shape {controls.shape}")
+        held = None if reference is None else np.asarray(reference, dtype=float).reshape(-1)
+        if held is not None and held.shape != (4,):
+            raise ConfigError(f"online estimator: reference must be (4,) [u, v, r, psi], got shape {held.shape}")
         z = np.array([u, v, r], dtype=float)
-        if not (math.isfinite(t_s) and math.isfinite(psi) and np.isfinite(controls).all()):
-            return self._answer(t_s, "skipped: non-finite time, heading or controls", math.nan)
+        if not (math.isfinite(t_s) and math.isfinite(psi) and np.isfinite(controls).all()
+                and (held is None or np.isfinite(held).all())):
+            return self._answer(t_s, "skipped: non-finite time, heading, controls or reference", math.nan)
+        self._reference = held
         status = ""
         if self.t_s is not None:
             gap = t_s - self.t_s
@@ -378,14 +398,34 @@ class OnlineEstimator:
         levels = []
         for k, (column, source) in enumerate(self._columns):
             if column is None:
-                levels.append(self.model.engine_speed_for(max(self.x[U_R], 0.0), self.x[K_R])
-                              if hasattr(self.model, "engine_speed_for") else 0.0)
+                levels.append(self._engine_speed(self.x))
             elif source == "command" and previous is not None:
                 levels.append(previous[k])
             else:
                 value = float(controls[column])
                 levels.append(value + self.rudder_offset if self.layout.commands[k] == "delta" else value)
         return levels
+
+    def _engine_speed(self, x: np.ndarray) -> float:
+        """The engine speed (rpm) of a layout that does not report it, at the filter state x (7,) (module
+        docstring): the one that holds the held reference's water speed in straight running; without a reference
+        the present u_r's."""
+        if not hasattr(self.model, "engine_speed_for"):
+            return 0.0
+        if self._reference is None:
+            return self.model.engine_speed_for(max(x[U_R], 0.0), x[K_R])
+        u_ref, psi_ref = float(self._reference[0]), float(self._reference[3])
+        c, s = math.cos(psi_ref), math.sin(psi_ref)
+        c_n, c_e = float(x[C_N]), float(x[C_E])
+        water = u_ref - (c_n * c + c_e * s)  # the engine holds a speed through the water
+        # the sea's surge force in that straight running (over ground: the water speed plus the current)
+        wind, waves = self.model.environment_loads(psi_ref, water + c_n * c + c_e * s, -c_n * s + c_e * c,
+                                                   self._sea())
+        return self.model.engine_speed_for(max(water, 0.0), float(x[K_R]), wind[0] + waves[0])
+
+    def _held_column(self) -> int | None:
+        """The actuator level (index into the layout's commands) the layout does not report, or None."""
+        return next((k for k, (column, _) in enumerate(self._columns) if column is None), None)
 
     def _commands(self, controls: np.ndarray, levels: list[float]) -> tuple[float, float]:
         """The commands that hold a reported state where it is and drive a reported command's lag."""
@@ -462,6 +502,18 @@ class OnlineEstimator:
                 A[i, j] = (f_up[i] - f_down[i]) / (2.0 * eps)
         u_r = base[0]
         A[U_R, K_R] = -(self.r1 * u_r + self.r2 * u_r * abs(u_r)) / self.model.m11
+        held = self._held_column()
+        if held is not None and self._reference is not None:  # the held engine speed moves with c_n, c_e, k_R
+            for j, eps in ((C_N, FD_STEP[0]), (C_E, FD_STEP[0]), (K_R, HELD_FD_STEP)):
+                rows = []
+                for sign in (1.0, -1.0):
+                    x = self.x.copy()
+                    x[j] += sign * eps
+                    levels = [a, b]
+                    levels[held] = self._engine_speed(x)
+                    rows.append(self._accel(psi, *base, levels[0], levels[1], k_r, sea))
+                for i in range(3):
+                    A[i, j] += (rows[0][i] - rows[1][i]) / (2.0 * eps)
         return A
 
     # ------------------------------------------------------------------ measurement update
@@ -547,15 +599,23 @@ class OnlineEstimator:
         return replace(estimate, converged=bool(converged))
 
     # ------------------------------------------------------------------ batch
-    def run(self, t_s: np.ndarray, nu: np.ndarray, psi: np.ndarray, controls: np.ndarray) -> list[OnlineEstimate]:
-        """step() over a series: t_s (T,) s, nu (T, 3) u, v, r, psi (T,), controls (T, C) (a Recording's arrays)."""
+    def run(self, t_s: np.ndarray, nu: np.ndarray, psi: np.ndarray, controls: np.ndarray,
+            reference: np.ndarray | None = None) -> list[OnlineEstimate]:
+        """step() over a series: t_s (T,) s, nu (T, 3) u, v, r, psi (T,), controls (T, C) (a Recording's arrays),
+        reference (4,) | None the held reference of the whole series (step)."""
         t_s = np.asarray(t_s, dtype=float)
         nu = np.asarray(nu, dtype=float)
         out = []
         for k in range(len(t_s)):
             out.append(self.step(float(t_s[k]), float(nu[k, 0]), float(nu[k, 1]), float(nu[k, 2]), float(psi[k]),
-                                 controls[k]))
+                                 controls[k], reference))
         return out
+
+    def run_recording(self, recording: Recording) -> list[OnlineEstimate]:
+        """run() over a Recording with its held reference (data.recording.held_reference: a rudder_only boat's
+        approach, the one its grey box's rollouts in replay hold; None for the other layouts): one estimate per
+        sample."""
+        return self.run(recording.t_s, recording.nu, recording.psi, recording.controls, held_reference(recording))
 
 
 def _term(terms: Mapping[str, Sequence[float]], name: str) -> float:
@@ -563,9 +623,10 @@ def _term(terms: Mapping[str, Sequence[float]], name: str) -> float:
     return float(values[0]) if values else 0.0
 
 
-def estimate_recording(recording: Any, vessel: Vessel, config: OnlineConfig | None = None,
+def estimate_recording(recording: Recording, vessel: Vessel, config: OnlineConfig | None = None,
                        terms: Mapping[str, Sequence[float]] | None = None) -> list[OnlineEstimate]:
-    """The estimator over a Recording (data/recording.py): one estimate per sample, causal (sample k's estimate
-    uses samples 0..k only)."""
-    estimator = OnlineEstimator(vessel, config, terms)
-    return estimator.run(recording.t_s, recording.nu, recording.psi, recording.controls)
+    """The estimator over a Recording (data/recording.py): one estimate per sample (OnlineEstimator.run_recording),
+    causal (sample k's estimate uses samples 0..k only) but for a rudder_only recording's held reference: the
+    manoeuvre's approach, its straight running before the first turn, held from its start as replay's rollouts
+    hold it."""
+    return OnlineEstimator(vessel, config, terms).run_recording(recording)

@@ -6,11 +6,14 @@ parameters `online.*` (config/predictor.yaml). Per prediction cycle, between the
 
     feed      one sample per model step dt, on the grid t_0 + k dt of the first sample fed since the last reset
               (t_0 = that sample's t_c): a cycle whose t_c lies within half a cycle period (at most dt/2) of the
-              next grid time feeds its LiveState (u, v, r, psi, controls at t_c, time (t_c - t_0) s); the others
-              feed nothing. The box averages of consecutive 10 Hz cycles overlap: feeding every cycle would treat
-              correlated measurements as independent (docs/online.md). When t_c falls on the grid (rate_hz * dt a
-              whole number, cycles on whole periods: the lock-step DDS test) the samples and their times are those
-              of the Recording `replay evaluate` builds, so the estimates are its estimates.
+              next grid time feeds its LiveState (u, v, r, psi, controls at t_c, time (t_c - t_0) s, and a
+              rudder_only boat's reference: the approach its rollout holds the engine speed of, ApproachTracker,
+              so the filter's process model holds the same engine speed); the others feed nothing. The box averages
+              of consecutive 10 Hz cycles overlap: feeding every cycle would treat correlated measurements as
+              independent (docs/online.md). When t_c falls on the grid (rate_hz * dt a whole number, cycles on
+              whole periods: the lock-step DDS test) the samples and their times are those of the Recording
+              `replay evaluate` builds, so the estimates are its estimates (for rudder_only only once both hold the
+              same approach: replay the manoeuvre's, the node the latest straight running it has seen).
     apply     grey box, extended grey box, hybrid: the model's current_ne, yaw_rate_bias, resistance_change are set
               to the estimate after each sample fed (analysis/adaptive.set_terms / live_terms: a copy_, microseconds)
               and stay until the next one, so the cycle's rollout (and a candidate-plans rollout) predicts with
@@ -89,7 +92,8 @@ class LiveSea:
         steps = (state.t_c_ns - self._t0_ns + self.tolerance_ns) // self.dt_ns + 1  # the grid time after this one
         self._next_ns = self._t0_ns + steps * self.dt_ns
         u, v, r, psi = (float(x) for x in state.state)
-        estimate = self.estimator.step((state.t_c_ns - self._t0_ns) / NS_PER_S, u, v, r, psi, state.controls)
+        estimate = self.estimator.step((state.t_c_ns - self._t0_ns) / NS_PER_S, u, v, r, psi, state.controls,
+                                       state.reference)
         if self.applied:
             adaptive.set_terms(self.model, adaptive.live_terms(estimate, self.original))
         self.cost_s.append(time.perf_counter() - started)

@@ -547,11 +547,12 @@ class RudderPropellerForces:
     def initial_actuators(self, command: float) -> tuple[float, float]:
         return 0.0, command  # rudder amidships, the engine at the commanded speed
 
-    def engine_speed_for(self, speed: float, resistance_change: float = 0.0) -> float:
+    def engine_speed_for(self, speed: float, resistance_change: float = 0.0, surge_force: float = 0.0) -> float:
         """The engine speed (rpm) that holds `speed` (m/s, through the water) in straight running: the inverse of
         straight_speed, in closed form. Straight (v = r = delta = 0): beta_P = 0, u_P = u (1 - w_P0), and
-        (1 - t_P) rho (k0 D^4 n^2 + k1 D^3 u_P n + k2 D^2 u_P^2) = (1 + resistance_change) (r1 u + r2 u^2),
-        a quadratic in n (rev/s) whose positive root is taken; 0 for speed <= 0."""
+        (1 - t_P) rho (k0 D^4 n^2 + k1 D^3 u_P n + k2 D^2 u_P^2) = (1 + resistance_change) (r1 u + r2 u^2) - X_sea,
+        a quadratic in n (rev/s) whose positive root is taken; 0 for speed <= 0. surge_force X_sea (N): the sea's
+        surge force in that straight running (wind and waves; models/greybox.py RudderOnlyModule.begin's)."""
         if speed <= 0.0:
             return 0.0
         r1, r2 = self.resistance_coefficients()
@@ -559,7 +560,8 @@ class RudderPropellerForces:
         scale = (1.0 - self.t_P) * RHO_WATER
         qa = scale * self.k0 * self.D_P**4
         qb = scale * self.k1 * self.D_P**3 * u_p
-        qc = scale * self.k2 * self.D_P**2 * u_p * u_p - (1.0 + resistance_change) * (r1 * speed + r2 * speed * speed)
+        qc = scale * self.k2 * self.D_P**2 * u_p * u_p - ((1.0 + resistance_change) * (r1 * speed + r2 * speed * speed)
+                                                         - surge_force)
         n = (-qb + math.sqrt(max(qb * qb - 4.0 * qa * qc, 0.0))) / (2.0 * qa)
         return max(n, 0.0) * 60.0 * self.gear_ratio
 
