@@ -64,6 +64,10 @@ RATES = {"imu": 200.0, "velocity": 20.0, "heading": 20.0, "rudder_angle": 10.0, 
 VALUES = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), "heading": (0.5,),
           "rudder_angle": (0.1,), "engine_rpm": (650.0,), "gnss": (35.38, 119.56, 0.0)}
 NS = 1_000_000_000
+# --noisy-feed: sensor-like noise (standard deviations in the message's units: m/s, rad/s, m/s^2, deg), so that no
+# two fit checks see the same box means (the fit check serves a window whose content it rolled out before, node/fit.py)
+NOISE = {"imu": (0.002, 0.05, 0.05, 0.05, 0.0), "velocity": (0.02, 0.02, 0.002), "heading": (0.2,)}
+NOISY_VARIANTS = 16  # pre-serialized messages per noisy input, one drawn per send
 OWN_BLAS = "events-own-blas"  # variant: this node (EventsExecutor) without OPENBLAS_CORETYPE in its environment
 
 
@@ -385,7 +389,7 @@ def receive(out: Path) -> int:
 class Feeder:
     """Publishes the inputs as CDR bytes with fresh stamps (paced by sleeping), and the candidate plans."""
 
-    def __init__(self, domain: int) -> None:
+    def __init__(self, domain: int, noisy: bool = False) -> None:
         import rclpy
         from rclpy.context import Context
         from rclpy.node import Node
@@ -400,6 +404,7 @@ class Feeder:
         make = msg_adapters.rclpy_factory()
         cfg = load_predictor_config()
         self.publishers, self.templates, self.stamped = {}, {}, {}
+        self.rng = np.random.default_rng(13)
         for role in RATES:
             entry = cfg.input(role)
             adapter = msg_adapters.get_adapter(role, entry.ros_type, **entry.options)
@@ -408,13 +413,19 @@ class Feeder:
             changed = [i for i in range(len(first)) if first[i] != second[i]]
             self.stamped[role] = bool(changed)
             assert not changed or (min(changed) >= 4 and max(changed) < 12), f"{role}: stamp not at bytes 4..12"
-            self.templates[role] = bytearray(first)
+            variants = [VALUES[role]]
+            if noisy and role in NOISE:  # --noisy-feed: NOISY_VARIANTS messages of each noisy input, one drawn per send
+                variants = [tuple(v + self.rng.normal(0.0, sd) for v, sd in zip(VALUES[role], NOISE[role]))
+                            for _ in range(NOISY_VARIANTS)]
+            self.templates[role] = [bytearray(serialize_message(adapter.encode(NS, values, make, entry.frame_id)))
+                                    for values in variants]
             self.publishers[role] = self.node.create_publisher(make(entry.ros_type), entry.topic, 10)
         self.plans = self.node.create_publisher(make("trajectory_msgs/msg/JointTrajectory"), "candidate_plans", 10)
         self.candidates = bytearray(serialize_message(candidates_message(make, 64, H)))
 
     def publish(self, role: str) -> None:
-        buffer = self.templates[role]
+        variants = self.templates[role]
+        buffer = variants[int(self.rng.integers(len(variants)))] if len(variants) > 1 else variants[0]
         if self.stamped[role]:
             struct.pack_into("<iI", buffer, 4, *divmod(time.time_ns(), NS))
         self.publishers[role].publish(bytes(buffer))
@@ -515,8 +526,9 @@ def baseline_tree(revision: str, tmp: Path) -> Path:
 
 
 def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candidates: bool = False,
-               params: tuple[str, ...] = ()) -> dict:
-    """One variant's node fed over DDS; params: NAME:=VALUE node parameters for every variant (--param)."""
+               params: tuple[str, ...] = (), noisy: bool = False) -> dict:
+    """One variant's node fed over DDS; params: NAME:=VALUE node parameters for every variant (--param); noisy: the
+    feed with sensor-like noise (--noisy-feed)."""
     domain = 150 + (os.getpid() + len(variant)) % 80
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -537,7 +549,7 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
     receiver = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--receive", str(out)],
                                 env={**env, "PYTHONPATH": str(REPO)})
     process = subprocess.Popen(command, env=node_env, cwd=cwd)
-    feeder = Feeder(domain)
+    feeder = Feeder(domain, noisy)
     runs: dict[str, dict] = {}
     try:
         feeder.wait_for([process, receiver])
@@ -625,6 +637,9 @@ def main() -> int:
     parser.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE",
                         help="a node parameter for every variant (repeatable), e.g. fit_check.period_s:=600.0: the "
                              "node without its fit check's rollouts")
+    parser.add_argument("--noisy-feed", action="store_true",
+                        help="the inputs with sensor-like noise (NOISE): no two fit checks see the same window content, "
+                             "so none is served from the fit check's cache (the default feed is constant)")
     parser.add_argument("--candidates-thread", action="store_true",
                         help="only: a cycle due during a 64-candidate answer, inline or on a worker (in one process)")
     args = parser.parse_args()
@@ -654,11 +669,12 @@ def main() -> int:
             print(f"  agreement with the artifact (max abs): {result['compute']['agreement']}")
         variants = [v for v in args.variants.split(",") if v and (v != "old" or args.baseline)]
         result["params"] = list(args.param)
+        result["noisy_feed"] = args.noisy_feed
         result["node"] = {v: bench_node(v, args.seconds, Path(tmp), args.baseline, args.old_candidates,
-                                        tuple(args.param))
+                                        tuple(args.param), args.noisy_feed)
                           for v in variants}
     print("\nnode at 10 Hz over DDS; e2e = cycle start -> Path received        p50 / p99 ms      CPU % of one core"
-          + (f"; parameters {', '.join(args.param)}" if args.param else ""))
+          + (f"; parameters {', '.join(args.param)}" if args.param else "") + ("; noisy feed" if args.noisy_feed else ""))
     for variant, runs in result["node"].items():
         label = {"old": f"old ({args.baseline})", "events": "new, EventsExecutor",
                  "single": "new, SingleThreadedExecutor", OWN_BLAS: "new, OpenBLAS's own kernels"}[variant]
