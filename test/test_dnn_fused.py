@@ -376,3 +376,29 @@ def test_numpy_kinematics_step_major_equals_the_member_major_form(batch: int) ->
     np.testing.assert_array_equal(got, _kinematics_as_before(rollout.dt, state, path))
     np.testing.assert_array_equal(got, rollout._kinematics(state, np.ascontiguousarray(path)))
     assert got.shape == (5, batch, 120, 6) and np.abs(got[..., 3:5]).max() > 1.0
+
+
+@pytest.mark.parametrize("count", [64, 7])
+def test_candidates_split_across_two_threads_are_the_whole_batch_within_float32(count: int) -> None:
+    """The node's candidates_threads 2 (live.Rollout.batch with a helper): the first half of the batch rolled out on
+    another thread, the second here, concatenated in order: within float32 rounding of the whole batch in one call
+    (BLAS may block a narrower product otherwise), and as far from the float64 network as the whole batch is."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    model = _loaded(SHIPPED)
+    rollout = live.Rollout(model, 120)
+    _, controls = _shipped_inputs(count, seed=90 + count)
+    state = np.array([5.0, 0.1, 0.02, 0.3])
+    with ThreadPoolExecutor(max_workers=1) as helper:
+        split = rollout.batch(state, controls, helper=helper)  # (5, count, 120, 6)
+    whole = rollout.batch(state, controls)
+    with torch.inference_mode():
+        exact = load_artifact(SHIPPED).module.double()(torch.from_numpy(np.tile(state, (count, 1))),
+                                                       torch.from_numpy(controls)).numpy()
+    assert split.shape == whole.shape == (5, count, 120, 6)
+    tolerance = np.array([1e-3, 2e-4, 5e-5, 1e-2, 1e-2, 5e-4])  # u, v (m/s), r (rad/s), x, y (m), psi (rad)
+    assert np.all(np.abs(split - whole).max(axis=(0, 1, 2)) <= tolerance), np.abs(split - whole).max(axis=(0, 1, 2))
+    split_error, whole_error = (np.abs(out - exact).max(axis=(0, 1, 2)) for out in (split, whole))
+    assert np.all(split_error <= 3.0 * whole_error + 1e-6), (split_error, whole_error)
+    assert np.abs(split[:, 0] - split[:, -1]).max() > 1e-2  # candidates differ: halves swapped or mixed would show
+    np.testing.assert_array_equal(split[:, count // 2:], rollout.batch(state, controls[count // 2:]))  # the order
