@@ -515,3 +515,28 @@ def test_the_cache_is_not_served_when_a_window_changed_at_the_same_stamps() -> N
     assert after == fresh.check and after.windows[0].start_s == before.windows[0].start_s
     assert after.windows[0].measured_speed_mps != before.windows[0].measured_speed_mps
     assert after.yaw_rate_explanation != before.yaw_rate_explanation  # the causes' limits of the new window
+
+
+def test_the_check_waits_for_the_gap_after_a_cycle_and_never_long_without_cycles() -> None:
+    """CycleGap: in a gap (a cycle ended less than GAP_SHARE of a period ago) wait() returns at once; outside one it
+    returns when the next cycle ends; without cycles it gives up after WAIT_PERIODS periods."""
+    import threading
+
+    from usv_predictor.node.fit import GAP_SHARE, WAIT_PERIODS, CycleGap
+
+    period = 1.0  # (s) a 1 Hz node: wide margins between the three cases on a loaded machine
+    gap = CycleGap(period)
+    started = time.monotonic()
+    gap.wait()  # no cycle ever ran
+    assert WAIT_PERIODS * period - 0.01 <= time.monotonic() - started < WAIT_PERIODS * period + 0.5
+    gap.ended()
+    started = time.monotonic()
+    gap.wait()  # just after a cycle: at once
+    assert time.monotonic() - started < 0.1
+    time.sleep(GAP_SHARE * period + 0.01)  # the gap is over: wait for the next cycle's end
+    timer = threading.Timer(0.3, gap.ended)
+    started = time.monotonic()
+    timer.start()
+    gap.wait()
+    assert 0.29 <= time.monotonic() - started < WAIT_PERIODS * period - 0.1
+    timer.join()

@@ -27,6 +27,13 @@ The same check `replay evaluate` and `replay diagnose` run before they answer (a
               that ended and is re-read unchanged, and inputs that repeat bit for bit (a simulated or benchmark
               feed of constant values); a live window seen longer, or from a later start, is new content.
 
+Between cycles: the check's own Python (the model's rollouts of its windows, the verdict, compiling the causes'
+rollout) holds the GIL for a few ms at a time, and a cycle that starts meanwhile waits for it (up to the interpreter's
+5 ms switch interval: the end-to-end p99 of the node was ~8 ms with the check, 2.6 ms without it, 2026-11-26). So
+the worker starts those parts in the gap after a cycle (CycleGap: within GAP_SHARE of a period after a cycle ended,
+never waiting longer than WAIT_PERIODS periods: without cycles it does not wait for them); the causes' TorchScript
+rollout itself releases the GIL and runs beside the cycles.
+
 Reported on /diagnostics as `predictor: fit check`: OK with the ratios (or "no steady window yet"), WARN when a ratio
 lies beyond the calm-water allowance and only a strong sea or fault at the top of its range explains it, or when the
 check cannot run, ERROR on a mismatch with the numbers and the remedy (fit_check.REMEDY). On a mismatch the predictions
@@ -64,6 +71,8 @@ MAX_WINDOWS = 40  # steady windows kept (the latest): bounds the cost of a check
 SPEED_SAMPLES = 3000  # measured |u| samples kept, one per model step (10 min at dt 0.2 s)
 PERIOD_RANGE_S = (0.5, 600.0)  # (s) allowed fit_check.period_s
 COST_WINDOW = 50  # checks kept for the cost percentiles
+GAP_SHARE = 0.25  # (-) the check's GIL-heavy parts start within this share of a cycle period after a cycle ended
+WAIT_PERIODS = 1.5  # (-) and wait at most this many periods for one (no cycle ran: the node is not predicting)
 DATA = "the node's inputs"  # how the reasons name what was measured
 
 
@@ -89,6 +98,35 @@ class LiveWindow:
     start_ns: int
     end_ns: int
     rolled: fc.Rolled
+
+
+class CycleGap:
+    """Where the node's prediction cycles leave room (module docstring, "Between cycles"): the cycle calls ended()
+    at its end, the check's worker wait() before a part that holds the GIL. Thread-safe."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = float(period_s)  # (s) between two cycles (1 / rate_hz)
+        self._ended: float | None = None  # time.monotonic() at the end of the latest cycle
+        self._changed = threading.Condition()
+        self.waited_s = 0.0  # (s) total time the check waited for a gap
+
+    def ended(self) -> None:
+        with self._changed:
+            self._ended = time.monotonic()
+            self._changed.notify_all()
+
+    def wait(self) -> None:
+        """Return within GAP_SHARE of a period after a cycle ended (at once when in such a gap now), or after
+        WAIT_PERIODS periods without one."""
+        started = time.monotonic()
+        deadline = started + WAIT_PERIODS * self.period_s
+        with self._changed:
+            while True:
+                now = time.monotonic()
+                if (self._ended is not None and now - self._ended < GAP_SHARE * self.period_s) or now >= deadline:
+                    self.waited_s += now - started
+                    return
+                self._changed.wait(deadline - now)
 
 
 def content_key(*arrays: np.ndarray | None) -> tuple:
@@ -152,13 +190,16 @@ class LiveFitCheck:
             self.error = why
             self._next_ns = now_ns + int(self.settings.period_s * NS_PER_S)
 
-    def run(self, recording: Recording, now_ns: int, reference: np.ndarray | None = None) -> fc.FitCheck | None:
+    def run(self, recording: Recording, now_ns: int, reference: np.ndarray | None = None,
+            gap: CycleGap | None = None) -> fc.FitCheck | None:
         """One check on the buffered `recording` (live.InputSet.buffered_recording), the windows merged with the kept
         ones; the verdict of every kept window (module docstring), or None when a reset came while it ran.
         reference (4,): a rudder_only boat's approach (live.ApproachTracker, the predictions' own), whose engine speed
         the rollouts hold; None: the buffered span's own approach (which, in a buffer that starts inside a long
-        turn, is the turn's slower speed)."""
-        started = time.perf_counter()
+        turn, is the turn's slower speed). gap: the node's cycles, whose gaps the check's GIL-heavy parts wait for."""
+        if gap is not None:
+            gap.wait()
+        started, waited = time.perf_counter(), gap.waited_s if gap is not None else 0.0
         with self._lock:
             generation = self._generation
             self._next_ns = now_ns + int(self.settings.period_s * NS_PER_S)
@@ -183,7 +224,7 @@ class LiveFitCheck:
                 self._speeds_until_ns = int(grid_ns[-1])
             rolled_kept, speeds = [w.rolled for w in self.windows], np.array(self.speeds)
         check = fc.judge_windows(self.label, self.layout, rolled_kept, speeds, recording.dt, vessel=self.vessel,
-                                 data=DATA, changes_of=partial(self._cause_changes, recording.dt, generation))
+                                 data=DATA, changes_of=partial(self._cause_changes, recording.dt, generation, gap))
         with self._lock:
             if generation != self._generation:
                 return None
@@ -191,7 +232,7 @@ class LiveFitCheck:
             self.error = ""
             self.runs += 1
             self.last_run_ns = now_ns
-            self.cost_s.append(time.perf_counter() - started)
+            self.cost_s.append(time.perf_counter() - started - ((gap.waited_s - waited) if gap is not None else 0.0))
         return check
 
     def _predict(self, previous: dict[tuple, np.ndarray], rollouts: dict[tuple, np.ndarray], state: np.ndarray,
@@ -208,8 +249,8 @@ class LiveFitCheck:
         rollouts[key] = out
         return out
 
-    def _cause_changes(self, dt: float, generation: int, rolled: list[fc.Rolled], causes: tuple[fc.Cause, ...]
-                       ) -> tuple[np.ndarray, np.ndarray]:
+    def _cause_changes(self, dt: float, generation: int, gap: CycleGap | None, rolled: list[fc.Rolled],
+                       causes: tuple[fc.Cause, ...]) -> tuple[np.ndarray, np.ndarray]:
         """fit_check.cause_changes of the windows, rolled out once per window content (a kept window is not rolled
         again, nor a new one the same as a kept one: the causes' rollouts are the check's most expensive part);
         (du, dr) each (N causes, W windows). Kept for the next check unless a reset came (generation)."""
@@ -217,6 +258,8 @@ class LiveFitCheck:
         keys = [(dt, r.window.kind, r.averaged, *content_key(r.state, r.controls, r.reference)) for r in rolled]
         missing = {key: r for key, r in zip(keys, rolled) if key not in cache}
         if missing:
+            if gap is not None:  # building and compiling the causes' rollout holds the GIL for a few ms
+                gap.wait()
             du, dr = fc.cause_changes(self.vessel, dt, list(missing.values()), causes)
             cache = {**cache, **{key: (du[:, k], dr[:, k]) for k, key in enumerate(missing)}}
         self.causes_rolled_out += len(missing)
