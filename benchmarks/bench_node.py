@@ -68,6 +68,7 @@ NS = 1_000_000_000
 # two fit checks see the same box means (the fit check serves a window whose content it rolled out before, node/fit.py)
 NOISE = {"imu": (0.002, 0.05, 0.05, 0.05, 0.0), "velocity": (0.02, 0.02, 0.002), "heading": (0.2,)}
 NOISY_VARIANTS = 16  # pre-serialized messages per noisy input, one drawn per send
+GC_LOG = "BENCH_GC_LOG"  # environment variable of the node process (--gc-stats): where its gc pauses are written
 OWN_BLAS = "events-own-blas"  # variant: this node (EventsExecutor) without OPENBLAS_CORETYPE in its environment
 
 
@@ -329,6 +330,7 @@ def serve(executor_name: str, ros_args: list[str]) -> int:
     rclpy.init(args=["predictor", "--ros-args", *ros_args])
     node = predictor_node.PredictorNode()
     executor = EventsExecutor() if executor_name == "events" else SingleThreadedExecutor()
+    pauses = gc_pauses() if os.environ.get(GC_LOG) else None
     try:
         predictor_node.spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -336,7 +338,34 @@ def serve(executor_name: str, ros_args: list[str]) -> int:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+        if pauses is not None:
+            Path(os.environ[GC_LOG]).write_text(json.dumps(pauses))
     return 0
+
+
+def gc_pauses() -> list[tuple[int, int, float]]:
+    """[(wall clock ns at the start, generation, ms)] of every garbage collection from now on (--gc-stats), filled
+    by a gc callback."""
+    import gc
+
+    pauses: list[tuple[int, int, float]] = []
+    started = [0, 0.0]
+
+    def callback(phase: str, info: dict) -> None:
+        if phase == "start":
+            started[0], started[1] = time.time_ns(), time.perf_counter()
+        else:
+            pauses.append((started[0], int(info["generation"]), 1e3 * (time.perf_counter() - started[1])))
+
+    gc.callbacks.append(callback)
+    return pauses
+
+
+def gc_summary(pauses: list, start: int, end: int) -> dict[str, Any]:
+    """Collections per generation within [start, end] (ns) and their longest pause (ms)."""
+    inside = [(gen, ms) for at, gen, ms in pauses if start <= at <= end]
+    return {f"gen{g}": {"n": sum(1 for gen, _ in inside if gen == g),
+                        "max_ms": round(max([ms for gen, ms in inside if gen == g], default=0.0), 3)} for g in range(3)}
 
 
 def receive(out: Path) -> int:
@@ -362,8 +391,9 @@ def receive(out: Path) -> int:
         last_imu[0] = header_stamp(raw)
 
     def on_report(msg: Any) -> None:
-        figures = {status.name.split(": ", 1)[-1]: {kv.key: kv.value for kv in status.values if "_ms_" in kv.key}
-                   for status in msg.status if status.name.endswith(("prediction", "candidate plans"))}
+        figures = {status.name.split(": ", 1)[-1]: {kv.key: kv.value for kv in status.values
+                                                    if "_ms_" in kv.key or kv.key in ("checks", "rollouts_served")}
+                   for status in msg.status if status.name.endswith(("prediction", "candidate plans", "fit check"))}
         reports.append((time.time_ns(), figures))
 
     node.create_subscription(make("nav_msgs/msg/Path"), "predicted_path",
@@ -482,15 +512,18 @@ class Feeder:
         rclpy.try_shutdown(context=self.context)
 
 
-def figures(run: dict, received: dict) -> dict:
-    """The run's latencies from what the receiver recorded inside the run's window."""
+def figures(run: dict, received: dict, pauses: list | None = None) -> dict:
+    """The run's latencies from what the receiver recorded inside the run's window (and the node's gc pauses)."""
     start, end = run.pop("window_ns")
+    if pauses is not None:
+        run["gc"] = gc_summary(pauses, start, end)
     sent = run.pop("candidates_sent")
     arrivals = np.array([p for p in received["paths"] if start <= p[0] <= end], dtype=np.int64).reshape(-1, 3)
     run.update(paths=len(arrivals), end_to_end=percentiles((arrivals[:, 0] - arrivals[:, 1]) / 1e9),
                input_to_path=percentiles((arrivals[:, 0] - arrivals[:, 2]) / 1e9))
     reports = [figures for at, figures in received["reports"] if start <= at <= end + NS]
     run["node_reports"] = reports[-1].get("prediction", {}) if reports else {}
+    run["fit_check"] = reports[-1].get("fit check", {}) if reports else {}
     if sent:
         answered = {stamp: at for at, stamp in received["answers"]}
         latency = [answered[s] - s for s in sent if s in answered]
@@ -526,9 +559,9 @@ def baseline_tree(revision: str, tmp: Path) -> Path:
 
 
 def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candidates: bool = False,
-               params: tuple[str, ...] = (), noisy: bool = False) -> dict:
+               params: tuple[str, ...] = (), noisy: bool = False, gc_stats: bool = False) -> dict:
     """One variant's node fed over DDS; params: NAME:=VALUE node parameters for every variant (--param); noisy: the
-    feed with sensor-like noise (--noisy-feed)."""
+    feed with sensor-like noise (--noisy-feed); gc_stats: the node's garbage collections (this node's variants)."""
     domain = 150 + (os.getpid() + len(variant)) % 80
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -541,6 +574,8 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
         executor = "events" if variant == OWN_BLAS else variant
         command = [sys.executable, str(Path(__file__).resolve()), "--serve", executor, "--ros-args", *ros_args]
         node_env, cwd = {**env, "PYTHONPATH": str(REPO)}, str(REPO)
+        if gc_stats:
+            node_env[GC_LOG] = str(tmp / f"gc_{variant}.json")
         if variant == OWN_BLAS:  # the node with OpenBLAS's own choice of kernels, whatever this environment pins:
             # the pair is set together here (an older OpenBLAS computes wrong results on some CPUs), so unset together
             node_env.pop("OPENBLAS_CORETYPE", None)
@@ -568,7 +603,9 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
     received = json.loads(out.read_text())
     if os.environ.get("BENCH_KEEP"):
         Path(os.environ["BENCH_KEEP"]).write_text(json.dumps({"received": received, "runs": runs}))
-    return {name: figures(run, received) for name, run in runs.items()}
+    gc_log = Path(node_env.get(GC_LOG, tmp / "none"))
+    pauses = json.loads(gc_log.read_text()) if gc_log.exists() else None
+    return {name: figures(run, received, pauses) for name, run in runs.items()}
 
 
 def bench_candidates_thread(repeats: int) -> dict:
@@ -637,6 +674,8 @@ def main() -> int:
     parser.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE",
                         help="a node parameter for every variant (repeatable), e.g. fit_check.period_s:=600.0: the "
                              "node without its fit check's rollouts")
+    parser.add_argument("--gc-stats", action="store_true",
+                        help="count the garbage collections of this node's variants per phase, with their longest pause")
     parser.add_argument("--noisy-feed", action="store_true",
                         help="the inputs with sensor-like noise (NOISE): no two fit checks see the same window content, "
                              "so none is served from the fit check's cache (the default feed is constant)")
@@ -671,7 +710,7 @@ def main() -> int:
         result["params"] = list(args.param)
         result["noisy_feed"] = args.noisy_feed
         result["node"] = {v: bench_node(v, args.seconds, Path(tmp), args.baseline, args.old_candidates,
-                                        tuple(args.param), args.noisy_feed)
+                                        tuple(args.param), args.noisy_feed, args.gc_stats)
                           for v in variants}
     print("\nnode at 10 Hz over DDS; e2e = cycle start -> Path received        p50 / p99 ms      CPU % of one core"
           + (f"; parameters {', '.join(args.param)}" if args.param else "") + ("; noisy feed" if args.noisy_feed else ""))
@@ -686,6 +725,10 @@ def main() -> int:
             reported = run["node_reports"]
             if reported:
                 print(f"    the node's own figures (last 200 cycles): {reported}")
+            if run.get("fit_check"):
+                print(f"    its fit check: {run['fit_check']}")
+            if "gc" in run:
+                print(f"    its garbage collections: {run['gc']}")
             if "candidates" in run:
                 c = run["candidates"]
                 print(f"    64 candidates x {H} steps at 2 Hz: {c['answered']}/{c['sent']} answered, publish -> answer "
