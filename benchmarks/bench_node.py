@@ -10,8 +10,9 @@
    before) and the file's own rollout; the file's module after torch.jit.freeze, and after freeze +
    optimize_for_inference; the same folded network as a plain eager loop (members one by one, no fused batched
    matmuls) and as a numpy loop (members one by one); the network re-scripted with tanh(x) = 2 sigmoid(2x) - 1; and
-   the 64-candidate batch (B = 64, 64 different rudders, one call) for numpy's, numpy's row form as it ran before
-   2026-11-26 (row_form_batch), the fused, the file's rollout, freeze and the sigmoid form. The header prints
+   the 64-candidate batch (B = 64, 64 different rudders, one call) for numpy's, numpy's split across two threads
+   (the node's candidates_threads 2) and by its first 3 members (candidates_members 3), numpy's row form as it ran
+   before 2026-11-26 (row_form_batch), the fused, the file's rollout, freeze and the sigmoid form. The header prints
    OPENBLAS_CORETYPE (numpy's OpenBLAS kernels: this machine's environment sets Haswell, AVX2).
 2. The node in its own process at 10 Hz, fed from this process over DDS (loopback, localhost discovery) with the
    inputs as CDR bytes (stamps patched in place: the feeder costs next to nothing), IMU at 200 Hz then at 1 kHz,
@@ -22,6 +23,8 @@
      single   this node with the SingleThreadedExecutor
      events-own-blas   this node (EventsExecutor) without OPENBLAS_CORETYPE and OPENBLAS_L2_SIZE: OpenBLAS picks
               its kernels itself (AVX-512 `SkylakeX` on this Zen 5 VM, whose environment pins `Haswell`)
+     events-2threads, events-3members   this node (EventsExecutor) with candidates_threads:=2 (a candidate batch
+              split across two threads) or candidates_members:=3 (answered by the first 3 members' mean)
    end-to-end = arrival of predicted_path - its header stamp (the node's clock when the cycle started: decoding,
    state, rollout, encoding, DDS); input-to-path = arrival - stamp of the newest IMU message sent before it
    (includes the wait for the next timer tick, up to 1 / rate_hz); CPU of the node process from /proc.
@@ -70,6 +73,9 @@ NOISE = {"imu": (0.002, 0.05, 0.05, 0.05, 0.0), "velocity": (0.02, 0.02, 0.002),
 NOISY_VARIANTS = 16  # pre-serialized messages per noisy input, one drawn per send
 GC_LOG = "BENCH_GC_LOG"  # environment variable of the node process (--gc-stats): where its gc pauses are written
 OWN_BLAS = "events-own-blas"  # variant: this node (EventsExecutor) without OPENBLAS_CORETYPE in its environment
+# variants: this node (EventsExecutor) with node parameters of its own (on top of --param), their label
+TUNED = {"events-2threads": (("candidates_threads:=2",), "new, candidates on 2 threads"),
+         "events-3members": (("candidates_members:=3",), "new, candidates by 3 members")}
 
 
 def percentiles(seconds: list[float] | np.ndarray) -> dict[str, float]:
@@ -277,8 +283,20 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
     row_form = numpy_model.inference
     agreement["numpy_vs_row_form_64_candidates_max_abs"] = float(
         np.abs(numpy_batch - row_form_batch(row_form, state[None].repeat(64, 0), candidates)).max())
+    from concurrent.futures import ThreadPoolExecutor
+
+    helper = ThreadPoolExecutor(max_workers=1)  # candidates_threads 2
+    three = live.Rollout(numpy_model, H, ensemble_size=3)  # candidates_members 3
+    agreement["numpy_2_threads_vs_one_call_64_candidates_max_abs"] = float(
+        np.abs(numpy_form.batch(state, candidates, helper=helper) - numpy_batch).max())
+    agreement["numpy_3_members_mean_vs_5_members_mean_64_candidates_max_abs_position_m"] = float(
+        np.abs(three.batch(state, candidates).mean(axis=0) - numpy_batch.mean(axis=0))[..., 3:5].max())
     pair_64 = timed_alternating({"batch 64 candidates numpy (the node's call now)":
                                  lambda: numpy_form.batch(state, candidates),
+                                 "batch 64 candidates numpy, 2 threads (candidates_threads 2)":
+                                 lambda: numpy_form.batch(state, candidates, helper=helper),
+                                 "batch 64 candidates numpy, 3 members (candidates_members 3)":
+                                 lambda: three.batch(state, candidates),
                                  "batch 64 candidates numpy row form (before)":
                                  lambda: row_form_batch(row_form, state[None].repeat(64, 0), candidates),
                                  "batch 64 candidates fused TorchScript (before)": lambda: fused.batch(state, candidates),
@@ -295,6 +313,7 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
         "batch 64 candidates jit.freeze": timed(call(frozen, batch_state, batch_controls), few),
         "batch 64 candidates sigmoid tanh": timed(call(sigmoid, batch_state, batch_controls), few),
     }
+    helper.shutdown()
     # 8 untrained members of the same architecture: the cost, not the answer, is measured
     members = [DnnModel(DnnConfig.for_features("NTF")).eval() for _ in range(8)]
     eight = export_module(tmp / "ensemble8.pt", DnnRollout(members, artifact.dt), {**artifact.metadata, "ensemble_size": 8})
@@ -571,8 +590,10 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
         command = [sys.executable, "-m", "usv_predictor.node", "--ros-args", *ros_args]
         node_env, cwd = {**env, "PYTHONPATH": str(tree)}, str(tree)
     else:
-        executor = "events" if variant == OWN_BLAS else variant
+        executor = "events" if variant == OWN_BLAS or variant in TUNED else variant
         command = [sys.executable, str(Path(__file__).resolve()), "--serve", executor, "--ros-args", *ros_args]
+        if variant in TUNED:
+            command += [arg for param in TUNED[variant][0] for arg in ("-p", param)]
         node_env, cwd = {**env, "PYTHONPATH": str(REPO)}, str(REPO)
         if gc_stats:
             node_env[GC_LOG] = str(tmp / f"gc_{variant}.json")
@@ -590,7 +611,7 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
         feeder.wait_for([process, receiver])
         runs["imu_200"] = feeder.run(seconds, 200.0, process)
         runs["imu_1000"] = feeder.run(seconds, 1000.0, process)
-        if variant in ("events", OWN_BLAS) or (variant == "old" and old_candidates):
+        if variant in ("events", OWN_BLAS, *TUNED) or (variant == "old" and old_candidates):
             runs["candidates_64"] = feeder.run(seconds, 200.0, process, candidates_hz=2.0)
     finally:
         feeder.close()
@@ -716,7 +737,8 @@ def main() -> int:
           + (f"; parameters {', '.join(args.param)}" if args.param else "") + ("; noisy feed" if args.noisy_feed else ""))
     for variant, runs in result["node"].items():
         label = {"old": f"old ({args.baseline})", "events": "new, EventsExecutor",
-                 "single": "new, SingleThreadedExecutor", OWN_BLAS: "new, OpenBLAS's own kernels"}[variant]
+                 "single": "new, SingleThreadedExecutor", OWN_BLAS: "new, OpenBLAS's own kernels",
+                 **{name: label for name, (_, label) in TUNED.items()}}[variant]
         for name, run in runs.items():
             print(f"  {label:38s} IMU {run['imu_hz']:6.0f} Hz  e2e {run['end_to_end']['p50_ms']:6.2f} / "
                   f"{run['end_to_end']['p99_ms']:6.2f}  input->path {run['input_to_path']['p50_ms']:6.2f} / "
