@@ -23,13 +23,15 @@ The same check `replay evaluate` and `replay diagnose` run before they answer (a
               bytes as a window of the previous check is not rolled out again: the model's rollout and the causes'
               changes are served from that check (keyed on the content, never on the stamps: a window seen again
               on a shifted grid has other box means and is rolled out anew). The rollouts are deterministic, so
-              the verdict and its numbers are the same with and without it (test_node_fit.py). It serves a window
-              that ended and is re-read unchanged, and inputs that repeat bit for bit (a simulated or benchmark
-              feed of constant values); a live window seen longer, or from a later start, is new content.
+              the verdict and its numbers are the same with and without it (test_node_fit.py). It serves the
+              kept windows (as the check did before by the window's identity) and windows found again with the same
+              bytes: inputs that repeat bit for bit (a simulated or benchmark feed of constant values, in one
+              process). Live, a window found again is new content: its grid moves with the buffers' first samples
+              (other box means) and its length with their span.
 
 Between cycles: the check's own Python (the model's rollouts of its windows, the verdict, compiling the causes'
 rollout) holds the GIL for a few ms at a time, and a cycle that starts meanwhile waits for it (up to the interpreter's
-5 ms switch interval: the end-to-end p99 of the node was ~8 ms with the check, 2.6 ms without it, 2026-11-26). So
+5 ms switch interval: the node's cycle took 8.5-10 ms at its p99 with the check, 2.6 ms without it, 2026-11-26). So
 the worker starts those parts in the gap after a cycle (CycleGap: within GAP_SHARE of a period after a cycle ended,
 never waiting longer than WAIT_PERIODS periods: without cycles it does not wait for them); the causes' TorchScript
 rollout itself releases the GIL and runs beside the cycles.
