@@ -163,9 +163,11 @@ def numpy_rollout(p: dict[str, np.ndarray], state: np.ndarray, controls: np.ndar
 
 
 def row_form_batch(r: NumpyDnnRollout, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-    """NumpyDnnRollout's candidate form as it ran before 2026-11-26 (the usual network: NTF, tanh, depth 2): the B
-    states the rows of x (H + 1, E, B, S + C + 1), the first tanh on the strided [pre | unit] columns, the output
-    product h head, then the member-major kinematics. What the transposed form and the step-major kinematics gain."""
+    """NumpyDnnRollout's candidate form as it ran before 2026-11-26: the B states the rows of x (H + 1, E, B,
+    S + C + 1), the first activation on the strided [pre | unit] columns, the output product h head, then the
+    member-major kinematics; with the row-form weights `first`, `hidden`, `head` the rollout keeps. What the
+    transposed form and the step-major kinematics gain (timed here); test_dnn_fused.py proves the transposed form
+    equal to it (any depth, activation and heading columns)."""
     e, b, horizon = r.ensemble_size, state.shape[0], controls.shape[1]
     n_s, c = r.n_state, r.n_controls
     x = np.empty((horizon + 1, e, b, n_s + c + 1), dtype=r.dtype)
@@ -177,16 +179,18 @@ def row_form_batch(r: NumpyDnnRollout, state: np.ndarray, controls: np.ndarray) 
     x[:, :, :, n_s + c] = 1.0
     y = np.empty((e, b, r.first.shape[2]), dtype=r.dtype)
     s_lin, g = y[..., :n_s], y[..., n_s:]
-    w = r.hidden[0]
-    z, t = np.empty((e, b, w.shape[2]), dtype=r.dtype), np.empty((e, b, n_s), dtype=r.dtype)
+    layers = [(w, np.empty((e, b, w.shape[2]), dtype=r.dtype)) for w in r.hidden]
+    last = layers[-1][1] if layers else g  # (E, B, W): what the head reads
+    t = np.empty((e, b, n_s), dtype=r.dtype)
     for x_k, s_next, columns in zip(x[:-1], x[1:, :, :, :n_s], x[1:, :, :, 4:n_s]):
         np.matmul(x_k, r.first, out=y)
-        np.tanh(g, out=g)
-        np.matmul(g, w, out=z)
-        np.tanh(z, out=z)
-        np.matmul(z, r.head, out=t)
+        h = r._act(g)
+        for w, z in layers:
+            np.matmul(h, w, out=z)
+            h = r._act(z)
+        np.matmul(last, r.head, out=t)
         np.add(t, s_lin, out=s_next)
-        np.sin(columns, out=columns)
+        r._heading(columns)
     path = x[1:, :, :, :4].transpose(1, 2, 0, 3).astype(np.float64)  # (E, B, H, 4)
     full = np.concatenate([np.broadcast_to(state[None, :, None, :], (e, b, 1, 4)), path], axis=2)
     cos_psi, sin_psi = np.cos(full[..., 3]), np.sin(full[..., 3])
