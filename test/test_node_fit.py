@@ -540,3 +540,16 @@ def test_the_check_waits_for_the_gap_after_a_cycle_and_never_long_without_cycles
     gap.wait()
     assert 0.29 <= time.monotonic() - started < WAIT_PERIODS * period - 0.1
     timer.join()
+
+
+def test_the_fit_check_worker_runs_nicer_than_the_node(ros_context: Any) -> None:
+    """On busy cores the prediction cycle goes first: the check's worker thread is FIT_NICE nicer (Linux)."""
+    import os
+
+    node = predictor_node.PredictorNode(context=ros_context)
+    try:
+        own = os.getpriority(os.PRIO_PROCESS, 0)  # this thread's
+        worker = node._fit_worker.submit(os.getpriority, os.PRIO_PROCESS, 0).result()
+        assert worker == min(19, own + predictor_node.FIT_NICE) and worker > own
+    finally:
+        node.destroy_node()

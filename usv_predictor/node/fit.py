@@ -34,7 +34,8 @@ rollout) holds the GIL for a few ms at a time, and a cycle that starts meanwhile
 5 ms switch interval: the node's cycle took 8.5-10 ms at its p99 with the check, 2.6 ms without it, 2026-11-26). So
 the worker starts those parts in the gap after a cycle (CycleGap: within GAP_SHARE of a period after a cycle ended,
 never waiting longer than WAIT_PERIODS periods: without cycles it does not wait for them); the causes' TorchScript
-rollout itself releases the GIL and runs beside the cycles.
+rollout itself releases the GIL and runs beside the cycles, in a worker thread that node.py makes FIT_NICE nicer
+than the node (on busy cores the cycle gets the core first).
 
 Reported on /diagnostics as `predictor: fit check`: OK with the ratios (or "no steady window yet"), WARN when a ratio
 lies beyond the calm-water allowance and only a strong sea or fault at the top of its range explains it, or when the

@@ -32,6 +32,7 @@ import argparse
 import contextlib
 from concurrent.futures import Future, ThreadPoolExecutor
 import math
+import os
 import signal
 import sys
 import threading
@@ -114,6 +115,7 @@ RECENT_REJECT_S = 5.0  # an input with a rejected sample this recently is WARN (
 LATENCY_WINDOW = 200  # cycles kept for the latency percentiles
 FIT_LOG_PERIOD_S = 60.0  # throttle of the fit check's mismatch log line (s): the verdict stays on /diagnostics
 FIT_TIMER_S = 0.5  # (s) how often the fit check's timer looks whether a check is due (fit_check.period_s >= this)
+FIT_NICE = 10  # (-) the fit check's worker thread runs this much nicer than the node: on busy cores the cycle first
 
 # DiagnosticStatus levels are `byte` fields (bytes of length 1 in rclpy); compare them as ints.
 OK, WARN, ERROR = (level[0] for level in (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR))
@@ -370,7 +372,8 @@ class PredictorNode(Node):
         self.candidate_rollout = self._candidates_of(self.rollout)  # the candidates' model (candidates_members)
         self.sea = self._make_sea(self.rollout, {})
         self.fit = self._make_fit(self.rollout)
-        self._fit_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fit_check")
+        self._fit_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fit_check",
+                                              initializer=_lower_priority, initargs=(FIT_NICE,))
         self._cycle_gap = CycleGap(1.0 / self.config.rate_hz)  # the fit check's GIL-heavy parts run between cycles
         self._fit_running: Future | None = None
         # candidate plans: state and controls on the executor's thread, the batched rollout (13-20 ms for 64), the
@@ -1071,6 +1074,16 @@ def spin(node: Node, executor: Executor, stop: _StopRequest | None = None) -> No
             raise
     finally:
         executor.shutdown(timeout_sec=SPIN_PERIOD_S)
+
+
+def _lower_priority(steps: int) -> None:
+    """Make the calling thread `steps` nicer (Linux: a thread is a task of its own; nice is capped at 19). A
+    platform without per-thread priorities leaves it alone."""
+    try:
+        own = os.getpriority(os.PRIO_PROCESS, 0)  # the calling thread's on Linux
+        os.setpriority(os.PRIO_PROCESS, 0, min(19, own + steps))
+    except (AttributeError, OSError):
+        pass
 
 
 def _first_line(err: BaseException) -> str:
