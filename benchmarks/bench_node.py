@@ -23,8 +23,9 @@
      single   this node with the SingleThreadedExecutor
      events-own-blas   this node (EventsExecutor) without OPENBLAS_CORETYPE and OPENBLAS_L2_SIZE: OpenBLAS picks
               its kernels itself (AVX-512 `SkylakeX` on this Zen 5 VM, whose environment pins `Haswell`)
-     events-2threads, events-3members   this node (EventsExecutor) with candidates_threads:=2 (a candidate batch
-              split across two threads) or candidates_members:=3 (answered by the first 3 members' mean)
+     events-2threads, events-3members, events-2threads-3members   this node (EventsExecutor) with
+              candidates_threads:=2 (a candidate batch split across two threads), candidates_members:=3 (answered
+              by the first 3 members' mean), or both
    end-to-end = arrival of predicted_path - its header stamp (the node's clock when the cycle started: decoding,
    state, rollout, encoding, DDS); input-to-path = arrival - stamp of the newest IMU message sent before it
    (includes the wait for the next timer tick, up to 1 / rate_hz); CPU of the node process from /proc.
@@ -75,7 +76,8 @@ GC_LOG = "BENCH_GC_LOG"  # environment variable of the node process (--gc-stats)
 OWN_BLAS = "events-own-blas"  # variant: this node (EventsExecutor) without OPENBLAS_CORETYPE in its environment
 # variants: this node (EventsExecutor) with node parameters of its own (on top of --param), their label
 TUNED = {"events-2threads": (("candidates_threads:=2",), "new, candidates on 2 threads"),
-         "events-3members": (("candidates_members:=3",), "new, candidates by 3 members")}
+         "events-3members": (("candidates_members:=3",), "new, candidates by 3 members"),
+         "events-2threads-3members": (("candidates_threads:=2", "candidates_members:=3"), "new, candidates 2 thr x 3 mem")}
 
 
 def percentiles(seconds: list[float] | np.ndarray) -> dict[str, float]:
