@@ -10,8 +10,9 @@
    before) and the file's own rollout; the file's module after torch.jit.freeze, and after freeze +
    optimize_for_inference; the same folded network as a plain eager loop (members one by one, no fused batched
    matmuls) and as a numpy loop (members one by one); the network re-scripted with tanh(x) = 2 sigmoid(2x) - 1; and
-   the 64-candidate batch (B = 64, 64 different rudders, one call) for numpy's, numpy's row form as it ran before
-   2026-11-26 (row_form_batch), the fused, the file's rollout, freeze and the sigmoid form. The header prints
+   the 64-candidate batch (B = 64, 64 different rudders, one call) for numpy's, numpy's split across two threads
+   (the node's candidates_threads 2) and by its first 3 members (candidates_members 3), numpy's row form as it ran
+   before 2026-11-26 (row_form_batch), the fused, the file's rollout, freeze and the sigmoid form. The header prints
    OPENBLAS_CORETYPE (numpy's OpenBLAS kernels: this machine's environment sets Haswell, AVX2).
 2. The node in its own process at 10 Hz, fed from this process over DDS (loopback, localhost discovery) with the
    inputs as CDR bytes (stamps patched in place: the feeder costs next to nothing), IMU at 200 Hz then at 1 kHz,
@@ -22,6 +23,9 @@
      single   this node with the SingleThreadedExecutor
      events-own-blas   this node (EventsExecutor) without OPENBLAS_CORETYPE and OPENBLAS_L2_SIZE: OpenBLAS picks
               its kernels itself (AVX-512 `SkylakeX` on this Zen 5 VM, whose environment pins `Haswell`)
+     events-2threads, events-3members, events-2threads-3members   this node (EventsExecutor) with
+              candidates_threads:=2 (a candidate batch split across two threads), candidates_members:=3 (answered
+              by the first 3 members' mean), or both
    end-to-end = arrival of predicted_path - its header stamp (the node's clock when the cycle started: decoding,
    state, rollout, encoding, DDS); input-to-path = arrival - stamp of the newest IMU message sent before it
    (includes the wait for the next timer tick, up to 1 / rate_hz); CPU of the node process from /proc.
@@ -64,7 +68,16 @@ RATES = {"imu": 200.0, "velocity": 20.0, "heading": 20.0, "rudder_angle": 10.0, 
 VALUES = {"imu": (0.02, 0.0, 0.0, -9.81, math.nan), "velocity": (5.0, 0.1, 0.02), "heading": (0.5,),
           "rudder_angle": (0.1,), "engine_rpm": (650.0,), "gnss": (35.38, 119.56, 0.0)}
 NS = 1_000_000_000
+# --noisy-feed: sensor-like noise (standard deviations in the message's units: m/s, rad/s, m/s^2, deg), so that no
+# two fit checks see the same box means (the fit check serves a window whose content it rolled out before, node/fit.py)
+NOISE = {"imu": (0.002, 0.05, 0.05, 0.05, 0.0), "velocity": (0.02, 0.02, 0.002), "heading": (0.2,)}
+NOISY_VARIANTS = 16  # pre-serialized messages per noisy input, one drawn per send
+GC_LOG = "BENCH_GC_LOG"  # environment variable of the node process (--gc-stats): where its gc pauses are written
 OWN_BLAS = "events-own-blas"  # variant: this node (EventsExecutor) without OPENBLAS_CORETYPE in its environment
+# variants: this node (EventsExecutor) with node parameters of its own (on top of --param), their label
+TUNED = {"events-2threads": (("candidates_threads:=2",), "new, candidates on 2 threads"),
+         "events-3members": (("candidates_members:=3",), "new, candidates by 3 members"),
+         "events-2threads-3members": (("candidates_threads:=2", "candidates_members:=3"), "new, candidates 2 thr x 3 mem")}
 
 
 def percentiles(seconds: list[float] | np.ndarray) -> dict[str, float]:
@@ -152,9 +165,11 @@ def numpy_rollout(p: dict[str, np.ndarray], state: np.ndarray, controls: np.ndar
 
 
 def row_form_batch(r: NumpyDnnRollout, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-    """NumpyDnnRollout's candidate form as it ran before 2026-11-26 (the usual network: NTF, tanh, depth 2): the B
-    states the rows of x (H + 1, E, B, S + C + 1), the first tanh on the strided [pre | unit] columns, the output
-    product h head, then the member-major kinematics. What the transposed form and the step-major kinematics gain."""
+    """NumpyDnnRollout's candidate form as it ran before 2026-11-26: the B states the rows of x (H + 1, E, B,
+    S + C + 1), the first activation on the strided [pre | unit] columns, the output product h head, then the
+    member-major kinematics; with the row-form weights `first`, `hidden`, `head` the rollout keeps. What the
+    transposed form and the step-major kinematics gain (timed here); test_dnn_fused.py proves the transposed form
+    equal to it (any depth, activation and heading columns)."""
     e, b, horizon = r.ensemble_size, state.shape[0], controls.shape[1]
     n_s, c = r.n_state, r.n_controls
     x = np.empty((horizon + 1, e, b, n_s + c + 1), dtype=r.dtype)
@@ -166,16 +181,18 @@ def row_form_batch(r: NumpyDnnRollout, state: np.ndarray, controls: np.ndarray) 
     x[:, :, :, n_s + c] = 1.0
     y = np.empty((e, b, r.first.shape[2]), dtype=r.dtype)
     s_lin, g = y[..., :n_s], y[..., n_s:]
-    w = r.hidden[0]
-    z, t = np.empty((e, b, w.shape[2]), dtype=r.dtype), np.empty((e, b, n_s), dtype=r.dtype)
+    layers = [(w, np.empty((e, b, w.shape[2]), dtype=r.dtype)) for w in r.hidden]
+    last = layers[-1][1] if layers else g  # (E, B, W): what the head reads
+    t = np.empty((e, b, n_s), dtype=r.dtype)
     for x_k, s_next, columns in zip(x[:-1], x[1:, :, :, :n_s], x[1:, :, :, 4:n_s]):
         np.matmul(x_k, r.first, out=y)
-        np.tanh(g, out=g)
-        np.matmul(g, w, out=z)
-        np.tanh(z, out=z)
-        np.matmul(z, r.head, out=t)
+        h = r._act(g)
+        for w, z in layers:
+            np.matmul(h, w, out=z)
+            h = r._act(z)
+        np.matmul(last, r.head, out=t)
         np.add(t, s_lin, out=s_next)
-        np.sin(columns, out=columns)
+        r._heading(columns)
     path = x[1:, :, :, :4].transpose(1, 2, 0, 3).astype(np.float64)  # (E, B, H, 4)
     full = np.concatenate([np.broadcast_to(state[None, :, None, :], (e, b, 1, 4)), path], axis=2)
     cos_psi, sin_psi = np.cos(full[..., 3]), np.sin(full[..., 3])
@@ -272,8 +289,20 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
     row_form = numpy_model.inference
     agreement["numpy_vs_row_form_64_candidates_max_abs"] = float(
         np.abs(numpy_batch - row_form_batch(row_form, state[None].repeat(64, 0), candidates)).max())
+    from concurrent.futures import ThreadPoolExecutor
+
+    helper = ThreadPoolExecutor(max_workers=1)  # candidates_threads 2
+    three = live.Rollout(numpy_model, H, ensemble_size=3)  # candidates_members 3
+    agreement["numpy_2_threads_vs_one_call_64_candidates_max_abs"] = float(
+        np.abs(numpy_form.batch(state, candidates, helper=helper) - numpy_batch).max())
+    agreement["numpy_3_members_mean_vs_5_members_mean_64_candidates_max_abs_position_m"] = float(
+        np.abs(three.batch(state, candidates).mean(axis=0) - numpy_batch.mean(axis=0))[..., 3:5].max())
     pair_64 = timed_alternating({"batch 64 candidates numpy (the node's call now)":
                                  lambda: numpy_form.batch(state, candidates),
+                                 "batch 64 candidates numpy, 2 threads (candidates_threads 2)":
+                                 lambda: numpy_form.batch(state, candidates, helper=helper),
+                                 "batch 64 candidates numpy, 3 members (candidates_members 3)":
+                                 lambda: three.batch(state, candidates),
                                  "batch 64 candidates numpy row form (before)":
                                  lambda: row_form_batch(row_form, state[None].repeat(64, 0), candidates),
                                  "batch 64 candidates fused TorchScript (before)": lambda: fused.batch(state, candidates),
@@ -290,6 +319,7 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
         "batch 64 candidates jit.freeze": timed(call(frozen, batch_state, batch_controls), few),
         "batch 64 candidates sigmoid tanh": timed(call(sigmoid, batch_state, batch_controls), few),
     }
+    helper.shutdown()
     # 8 untrained members of the same architecture: the cost, not the answer, is measured
     members = [DnnModel(DnnConfig.for_features("NTF")).eval() for _ in range(8)]
     eight = export_module(tmp / "ensemble8.pt", DnnRollout(members, artifact.dt), {**artifact.metadata, "ensemble_size": 8})
@@ -325,6 +355,7 @@ def serve(executor_name: str, ros_args: list[str]) -> int:
     rclpy.init(args=["predictor", "--ros-args", *ros_args])
     node = predictor_node.PredictorNode()
     executor = EventsExecutor() if executor_name == "events" else SingleThreadedExecutor()
+    pauses = gc_pauses() if os.environ.get(GC_LOG) else None
     try:
         predictor_node.spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -332,7 +363,34 @@ def serve(executor_name: str, ros_args: list[str]) -> int:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+        if pauses is not None:
+            Path(os.environ[GC_LOG]).write_text(json.dumps(pauses))
     return 0
+
+
+def gc_pauses() -> list[tuple[int, int, float]]:
+    """[(wall clock ns at the start, generation, ms)] of every garbage collection from now on (--gc-stats), filled
+    by a gc callback."""
+    import gc
+
+    pauses: list[tuple[int, int, float]] = []
+    started = [0, 0.0]
+
+    def callback(phase: str, info: dict) -> None:
+        if phase == "start":
+            started[0], started[1] = time.time_ns(), time.perf_counter()
+        else:
+            pauses.append((started[0], int(info["generation"]), 1e3 * (time.perf_counter() - started[1])))
+
+    gc.callbacks.append(callback)
+    return pauses
+
+
+def gc_summary(pauses: list, start: int, end: int) -> dict[str, Any]:
+    """Collections per generation within [start, end] (ns) and their longest pause (ms)."""
+    inside = [(gen, ms) for at, gen, ms in pauses if start <= at <= end]
+    return {f"gen{g}": {"n": sum(1 for gen, _ in inside if gen == g),
+                        "max_ms": round(max([ms for gen, ms in inside if gen == g], default=0.0), 3)} for g in range(3)}
 
 
 def receive(out: Path) -> int:
@@ -358,8 +416,9 @@ def receive(out: Path) -> int:
         last_imu[0] = header_stamp(raw)
 
     def on_report(msg: Any) -> None:
-        figures = {status.name.split(": ", 1)[-1]: {kv.key: kv.value for kv in status.values if "_ms_" in kv.key}
-                   for status in msg.status if status.name.endswith(("prediction", "candidate plans"))}
+        figures = {status.name.split(": ", 1)[-1]: {kv.key: kv.value for kv in status.values
+                                                    if "_ms_" in kv.key or kv.key in ("checks", "rollouts_served")}
+                   for status in msg.status if status.name.endswith(("prediction", "candidate plans", "fit check"))}
         reports.append((time.time_ns(), figures))
 
     node.create_subscription(make("nav_msgs/msg/Path"), "predicted_path",
@@ -385,7 +444,7 @@ def receive(out: Path) -> int:
 class Feeder:
     """Publishes the inputs as CDR bytes with fresh stamps (paced by sleeping), and the candidate plans."""
 
-    def __init__(self, domain: int) -> None:
+    def __init__(self, domain: int, noisy: bool = False) -> None:
         import rclpy
         from rclpy.context import Context
         from rclpy.node import Node
@@ -400,6 +459,7 @@ class Feeder:
         make = msg_adapters.rclpy_factory()
         cfg = load_predictor_config()
         self.publishers, self.templates, self.stamped = {}, {}, {}
+        self.rng = np.random.default_rng(13)
         for role in RATES:
             entry = cfg.input(role)
             adapter = msg_adapters.get_adapter(role, entry.ros_type, **entry.options)
@@ -408,13 +468,19 @@ class Feeder:
             changed = [i for i in range(len(first)) if first[i] != second[i]]
             self.stamped[role] = bool(changed)
             assert not changed or (min(changed) >= 4 and max(changed) < 12), f"{role}: stamp not at bytes 4..12"
-            self.templates[role] = bytearray(first)
+            variants = [VALUES[role]]
+            if noisy and role in NOISE:  # --noisy-feed: NOISY_VARIANTS messages of each noisy input, one drawn per send
+                variants = [tuple(v + self.rng.normal(0.0, sd) for v, sd in zip(VALUES[role], NOISE[role]))
+                            for _ in range(NOISY_VARIANTS)]
+            self.templates[role] = [bytearray(serialize_message(adapter.encode(NS, values, make, entry.frame_id)))
+                                    for values in variants]
             self.publishers[role] = self.node.create_publisher(make(entry.ros_type), entry.topic, 10)
         self.plans = self.node.create_publisher(make("trajectory_msgs/msg/JointTrajectory"), "candidate_plans", 10)
         self.candidates = bytearray(serialize_message(candidates_message(make, 64, H)))
 
     def publish(self, role: str) -> None:
-        buffer = self.templates[role]
+        variants = self.templates[role]
+        buffer = variants[int(self.rng.integers(len(variants)))] if len(variants) > 1 else variants[0]
         if self.stamped[role]:
             struct.pack_into("<iI", buffer, 4, *divmod(time.time_ns(), NS))
         self.publishers[role].publish(bytes(buffer))
@@ -471,15 +537,18 @@ class Feeder:
         rclpy.try_shutdown(context=self.context)
 
 
-def figures(run: dict, received: dict) -> dict:
-    """The run's latencies from what the receiver recorded inside the run's window."""
+def figures(run: dict, received: dict, pauses: list | None = None) -> dict:
+    """The run's latencies from what the receiver recorded inside the run's window (and the node's gc pauses)."""
     start, end = run.pop("window_ns")
+    if pauses is not None:
+        run["gc"] = gc_summary(pauses, start, end)
     sent = run.pop("candidates_sent")
     arrivals = np.array([p for p in received["paths"] if start <= p[0] <= end], dtype=np.int64).reshape(-1, 3)
     run.update(paths=len(arrivals), end_to_end=percentiles((arrivals[:, 0] - arrivals[:, 1]) / 1e9),
                input_to_path=percentiles((arrivals[:, 0] - arrivals[:, 2]) / 1e9))
     reports = [figures for at, figures in received["reports"] if start <= at <= end + NS]
     run["node_reports"] = reports[-1].get("prediction", {}) if reports else {}
+    run["fit_check"] = reports[-1].get("fit check", {}) if reports else {}
     if sent:
         answered = {stamp: at for at, stamp in received["answers"]}
         latency = [answered[s] - s for s in sent if s in answered]
@@ -515,8 +584,9 @@ def baseline_tree(revision: str, tmp: Path) -> Path:
 
 
 def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candidates: bool = False,
-               params: tuple[str, ...] = ()) -> dict:
-    """One variant's node fed over DDS; params: NAME:=VALUE node parameters for every variant (--param)."""
+               params: tuple[str, ...] = (), noisy: bool = False, gc_stats: bool = False) -> dict:
+    """One variant's node fed over DDS; params: NAME:=VALUE node parameters for every variant (--param); noisy: the
+    feed with sensor-like noise (--noisy-feed); gc_stats: the node's garbage collections (this node's variants)."""
     domain = 150 + (os.getpid() + len(variant)) % 80
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -526,9 +596,13 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
         command = [sys.executable, "-m", "usv_predictor.node", "--ros-args", *ros_args]
         node_env, cwd = {**env, "PYTHONPATH": str(tree)}, str(tree)
     else:
-        executor = "events" if variant == OWN_BLAS else variant
+        executor = "events" if variant == OWN_BLAS or variant in TUNED else variant
         command = [sys.executable, str(Path(__file__).resolve()), "--serve", executor, "--ros-args", *ros_args]
+        if variant in TUNED:
+            command += [arg for param in TUNED[variant][0] for arg in ("-p", param)]
         node_env, cwd = {**env, "PYTHONPATH": str(REPO)}, str(REPO)
+        if gc_stats:
+            node_env[GC_LOG] = str(tmp / f"gc_{variant}.json")
         if variant == OWN_BLAS:  # the node with OpenBLAS's own choice of kernels, whatever this environment pins:
             # the pair is set together here (an older OpenBLAS computes wrong results on some CPUs), so unset together
             node_env.pop("OPENBLAS_CORETYPE", None)
@@ -537,13 +611,13 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
     receiver = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--receive", str(out)],
                                 env={**env, "PYTHONPATH": str(REPO)})
     process = subprocess.Popen(command, env=node_env, cwd=cwd)
-    feeder = Feeder(domain)
+    feeder = Feeder(domain, noisy)
     runs: dict[str, dict] = {}
     try:
         feeder.wait_for([process, receiver])
         runs["imu_200"] = feeder.run(seconds, 200.0, process)
         runs["imu_1000"] = feeder.run(seconds, 1000.0, process)
-        if variant in ("events", OWN_BLAS) or (variant == "old" and old_candidates):
+        if variant in ("events", OWN_BLAS, *TUNED) or (variant == "old" and old_candidates):
             runs["candidates_64"] = feeder.run(seconds, 200.0, process, candidates_hz=2.0)
     finally:
         feeder.close()
@@ -556,7 +630,9 @@ def bench_node(variant: str, seconds: float, tmp: Path, baseline: str, old_candi
     received = json.loads(out.read_text())
     if os.environ.get("BENCH_KEEP"):
         Path(os.environ["BENCH_KEEP"]).write_text(json.dumps({"received": received, "runs": runs}))
-    return {name: figures(run, received) for name, run in runs.items()}
+    gc_log = Path(node_env.get(GC_LOG, tmp / "none"))
+    pauses = json.loads(gc_log.read_text()) if gc_log.exists() else None
+    return {name: figures(run, received, pauses) for name, run in runs.items()}
 
 
 def bench_candidates_thread(repeats: int) -> dict:
@@ -625,6 +701,11 @@ def main() -> int:
     parser.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE",
                         help="a node parameter for every variant (repeatable), e.g. fit_check.period_s:=600.0: the "
                              "node without its fit check's rollouts")
+    parser.add_argument("--gc-stats", action="store_true",
+                        help="count the garbage collections of this node's variants per phase, with their longest pause")
+    parser.add_argument("--noisy-feed", action="store_true",
+                        help="the inputs with sensor-like noise (NOISE): no two fit checks see the same window content, "
+                             "so none is served from the fit check's cache (the default feed is constant)")
     parser.add_argument("--candidates-thread", action="store_true",
                         help="only: a cycle due during a 64-candidate answer, inline or on a worker (in one process)")
     args = parser.parse_args()
@@ -654,14 +735,16 @@ def main() -> int:
             print(f"  agreement with the artifact (max abs): {result['compute']['agreement']}")
         variants = [v for v in args.variants.split(",") if v and (v != "old" or args.baseline)]
         result["params"] = list(args.param)
+        result["noisy_feed"] = args.noisy_feed
         result["node"] = {v: bench_node(v, args.seconds, Path(tmp), args.baseline, args.old_candidates,
-                                        tuple(args.param))
+                                        tuple(args.param), args.noisy_feed, args.gc_stats)
                           for v in variants}
     print("\nnode at 10 Hz over DDS; e2e = cycle start -> Path received        p50 / p99 ms      CPU % of one core"
-          + (f"; parameters {', '.join(args.param)}" if args.param else ""))
+          + (f"; parameters {', '.join(args.param)}" if args.param else "") + ("; noisy feed" if args.noisy_feed else ""))
     for variant, runs in result["node"].items():
         label = {"old": f"old ({args.baseline})", "events": "new, EventsExecutor",
-                 "single": "new, SingleThreadedExecutor", OWN_BLAS: "new, OpenBLAS's own kernels"}[variant]
+                 "single": "new, SingleThreadedExecutor", OWN_BLAS: "new, OpenBLAS's own kernels",
+                 **{name: label for name, (_, label) in TUNED.items()}}[variant]
         for name, run in runs.items():
             print(f"  {label:38s} IMU {run['imu_hz']:6.0f} Hz  e2e {run['end_to_end']['p50_ms']:6.2f} / "
                   f"{run['end_to_end']['p99_ms']:6.2f}  input->path {run['input_to_path']['p50_ms']:6.2f} / "
@@ -670,6 +753,10 @@ def main() -> int:
             reported = run["node_reports"]
             if reported:
                 print(f"    the node's own figures (last 200 cycles): {reported}")
+            if run.get("fit_check"):
+                print(f"    its fit check: {run['fit_check']}")
+            if "gc" in run:
+                print(f"    its garbage collections: {run['gc']}")
             if "candidates" in run:
                 c = run["candidates"]
                 print(f"    64 candidates x {H} steps at 2 Hz: {c['answered']}/{c['sent']} answered, publish -> answer "

@@ -5,6 +5,7 @@ artifacts keep loading and a DNN file that cannot be fused keeps its own rollout
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,8 @@ from usv_predictor.models.dnn import (BIAS_UNIT_PRE, NUMPY_FORM, DnnModel, DnnRo
 from usv_predictor.node import live
 
 SHIPPED = Path(__file__).resolve().parents[1] / "models" / "default.pt"
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from bench_node import row_form_batch  # noqa: E402 -- the candidates' row form as it ran before 2026-11-26, timed there
 
 
 def _member(feature_set: str, seed: int, activation: str, depth: int, increment: bool = True) -> DnnModel:
@@ -297,28 +300,6 @@ def test_numpy_rollout_refuses_inputs_of_other_shapes() -> None:
         rollout.rollout(np.zeros((2, 5)), np.zeros((2, 120, 2)))
 
 
-def _row_form_batch(rollout: NumpyDnnRollout, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
-    """The stacked form as it ran before the transposed one (2026-11-25): the B states the rows, [s_lin | pre | unit]
-    the columns of one product, with the row-form weights `first`, `hidden`, `head` the rollout keeps."""
-    e, b, horizon = rollout.ensemble_size, state.shape[0], controls.shape[1]
-    n_s, c = rollout.n_state, rollout.n_controls
-    x = np.empty((horizon + 1, e, b, n_s + c + 1), dtype=rollout.dtype)
-    x[0, :, :, :4] = state
-    x[0, :, :, 4:n_s] = state[None, :, 3:4] + rollout.phase[:, None, :]
-    rollout._heading(x[0, :, :, 4:n_s])
-    x[:horizon, :, :, n_s: n_s + c] = controls.transpose(1, 0, 2)[:, None]
-    x[horizon, :, :, n_s: n_s + c] = 0.0
-    x[:, :, :, n_s + c] = 1.0
-    for k in range(horizon):
-        y = np.matmul(x[k], rollout.first)
-        h = rollout._act(y[..., n_s:].copy())
-        for w in rollout.hidden:
-            h = rollout._act(np.matmul(h, w))
-        x[k + 1, :, :, :n_s] = np.matmul(h[..., : rollout.width], rollout.head) + y[..., :n_s]
-        rollout._heading(x[k + 1, :, :, 4:n_s])
-    return rollout._kinematics(state, x[1:, :, :, :4].transpose(1, 2, 0, 3))
-
-
 @pytest.mark.parametrize("feature_set, activation, depth", [("NTF", "tanh", 2), ("NAF", "tanh", 3),
                                                              ("F0", "clipped_relu", 1)])
 def test_numpy_transposed_batch_form_equals_the_row_form(tmp_path: Path, feature_set: str, activation: str,
@@ -331,7 +312,7 @@ def test_numpy_transposed_batch_form_equals_the_row_form(tmp_path: Path, feature
     assert isinstance(rollout, NumpyDnnRollout)
     state, controls = _inputs(batch=64, horizon=60)
     got = rollout.rollout(state, controls)
-    before = _row_form_batch(rollout, state, controls)
+    before = row_form_batch(rollout, state, controls)
     assert got.shape == (3, 64, 60, 6)
     np.testing.assert_allclose(got, before, rtol=0, atol=1e-10)
     assert np.abs(got[:, 0] - got[:, 1]).max() > 1e-3  # candidates differ: a column mixed up with another would show
@@ -343,7 +324,7 @@ def test_numpy_transposed_batch_form_of_the_shipped_model_is_the_row_forms_withi
     rollout = _loaded(SHIPPED).inference
     state, controls = _shipped_inputs(64, seed=77)
     got = rollout.rollout(state, controls)
-    before = _row_form_batch(rollout, state, controls)
+    before = row_form_batch(rollout, state, controls)
     tolerance = np.array([1e-3, 2e-4, 5e-5, 1e-2, 1e-2, 5e-4])  # u, v (m/s), r (rad/s), x, y (m), psi (rad)
     assert np.all(np.abs(got - before).max(axis=(0, 1, 2)) <= tolerance), np.abs(got - before).max(axis=(0, 1, 2))
 
@@ -376,3 +357,29 @@ def test_numpy_kinematics_step_major_equals_the_member_major_form(batch: int) ->
     np.testing.assert_array_equal(got, _kinematics_as_before(rollout.dt, state, path))
     np.testing.assert_array_equal(got, rollout._kinematics(state, np.ascontiguousarray(path)))
     assert got.shape == (5, batch, 120, 6) and np.abs(got[..., 3:5]).max() > 1.0
+
+
+@pytest.mark.parametrize("count", [64, 7])
+def test_candidates_split_across_two_threads_are_the_whole_batch_within_float32(count: int) -> None:
+    """The node's candidates_threads 2 (live.Rollout.batch with a helper): the first half of the batch rolled out on
+    another thread, the second here, concatenated in order: within float32 rounding of the whole batch in one call
+    (BLAS may block a narrower product otherwise), and as far from the float64 network as the whole batch is."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    model = _loaded(SHIPPED)
+    rollout = live.Rollout(model, 120)
+    _, controls = _shipped_inputs(count, seed=90 + count)
+    state = np.array([5.0, 0.1, 0.02, 0.3])
+    with ThreadPoolExecutor(max_workers=1) as helper:
+        split = rollout.batch(state, controls, helper=helper)  # (5, count, 120, 6)
+    whole = rollout.batch(state, controls)
+    with torch.inference_mode():
+        exact = load_artifact(SHIPPED).module.double()(torch.from_numpy(np.tile(state, (count, 1))),
+                                                       torch.from_numpy(controls)).numpy()
+    assert split.shape == whole.shape == (5, count, 120, 6)
+    tolerance = np.array([1e-3, 2e-4, 5e-5, 1e-2, 1e-2, 5e-4])  # u, v (m/s), r (rad/s), x, y (m), psi (rad)
+    assert np.all(np.abs(split - whole).max(axis=(0, 1, 2)) <= tolerance), np.abs(split - whole).max(axis=(0, 1, 2))
+    split_error, whole_error = (np.abs(out - exact).max(axis=(0, 1, 2)) for out in (split, whole))
+    assert np.all(split_error <= 3.0 * whole_error + 1e-6), (split_error, whole_error)
+    assert np.abs(split[:, 0] - split[:, -1]).max() > 1e-2  # candidates differ: halves swapped or mixed would show
+    np.testing.assert_array_equal(split[:, count // 2:], rollout.batch(state, controls[count // 2:]))  # the order

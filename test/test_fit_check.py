@@ -314,3 +314,30 @@ def test_the_causes_of_a_rudder_only_window_hold_its_approach_engine_speed():
         windy = model(state, controls, ref)[0, 0, -averaged:].mean(dim=0)  # (6,)
     assert du[0, 0] == pytest.approx(float(windy[0] - calm[0]), abs=1e-9)
     assert dr[0, 0] == pytest.approx(float(windy[2] - calm[2]), abs=1e-12)
+
+
+def test_the_scripted_causes_are_the_eager_ones_bit_for_bit():
+    """cause_changes runs its steered grey box as TorchScript without the executor's optimisation (half eager's
+    time): the same numbers bit for bit as eager, on random straight windows and turns of different lengths in one
+    batch, with and without a rudder_only reference, for every strongest cause of both layouts."""
+    import numpy as np
+
+    from usv_predictor.analysis import fit_check as fc
+
+    rng = np.random.default_rng(7)
+    for vessel, dt in ((load_vessel("jari_usv"), 0.5), (layout_variants()["rudder_only"], 0.25)):
+        layout = vessel.actuator_layout
+        causes = fc.strongest_causes(layout.name)
+        rolled = []
+        for kind, steps in (("straight", 40), ("turn", 17), ("turn", 29)):
+            held = [0.0 if kind == "straight" else 0.2, 600.0][:2 if layout.propulsion else 1]  # rudder (rad), rpm
+            controls = np.tile(held, (steps, 1)) + rng.normal(0.0, 0.01, (steps, len(held)))  # (H, C)
+            state = np.array([4.0, 0.1, 0.02, 1.0]) + rng.normal(0.0, 0.1, 4)  # (4,)
+            reference = None if layout.propulsion else np.array([4.5, 0.0, 0.0, 0.3])
+            rolled.append(fc.Rolled(fc.SteadyWindow("r", kind, 0.0, 1.0, 0.0, 0.0, 4.0, 4.0, 0.0, 0.0), state,
+                                    controls, min(steps, 12), reference))
+        eager = fc.cause_changes(vessel, dt, rolled, causes, scripted=False)
+        scripted = fc.cause_changes(vessel, dt, rolled, causes, scripted=True)
+        assert np.isfinite(eager[0]).all() and np.abs(eager[0]).max() > 0.01  # the causes change something
+        np.testing.assert_array_equal(scripted[0], eager[0])
+        np.testing.assert_array_equal(scripted[1], eager[1])

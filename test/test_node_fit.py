@@ -432,3 +432,124 @@ def test_the_live_check_of_a_rudder_only_boat_holds_the_approach_its_buffers_no_
         assert check is not None and [w.kind for w in check.windows] == ["turn"]
         ratios[label] = check.yaw_rate_ratio
     assert abs(ratios["node"] - 1.0) < 0.05 and ratios["buffer"] < 0.6, ratios
+
+
+# ------------------------------------------------------------------ the cache (fit.py): same content, same numbers
+FEED_HZ = {"imu": 200.0, "velocity": 20.0, "heading": 20.0, "rudder_angle": 10.0, "engine_rpm": 10.0, "gnss": 5.0}
+
+
+def constant_feed(u_mps: float, seconds: float, t0_ns: int = 10**18, checks_every_s: float = 5.0,
+                  first_check_s: float = 12.0) -> list[tuple[int, Any]]:
+    """The benchmark's feed (benchmarks/bench_node.py) from t0_ns on: every input at its rate with constant values
+    (surge u_mps, yaw rate 0.02 rad/s, rudder 0.1 rad at 650 rpm), buffered as the node does (capacity 2048: 10 s of
+    the 200 Hz gyro); [(clock ns, InputSet.buffered_recording)] every checks_every_s from first_check_s on."""
+    jari = load_vessel("jari_usv")
+    roles = (*required_roles(jari.actuator_layout), live.POSITION_ROLE)
+    fields = {role: msg_adapters.ROLE_FIELDS[role] for role in roles}
+    inputs = live.InputSet(fields, {role: 1.0 for role in roles}, live.LiveSettings(dt=DT, horizon_steps=2),
+                           jari.actuator_layout)
+    values = {"imu": [0.02, 0.0, 0.0, -9.81, math.nan], "velocity": [u_mps, 0.1, 0.02], "heading": [1.2],
+              "rudder_angle": [0.1], "engine_rpm": [650.0], "gnss": [35.38, 119.56, 0.0]}
+    events = sorted((t0_ns + int(k * NS_PER_S / rate), role) for role, rate in FEED_HZ.items()
+                    for k in range(int(seconds * rate)))
+    due, out = t0_ns + int(first_check_s * NS_PER_S), []
+    for t_ns, role in events:
+        inputs.add(role, t_ns, values[role], t_ns)
+        if t_ns >= due:
+            out.append((t_ns, inputs.buffered_recording(MAX_GAP_S)))
+            due += int(checks_every_s * NS_PER_S)
+    return out
+
+
+def shipped_check(cached: bool) -> LiveFitCheck:
+    """The node's check of the shipped model (the benchmark's case: it turns at 6 deg/s where the feed turns at 1.1,
+    so the causes are rolled out too)."""
+    from usv_predictor.config import package_share_path
+    from usv_predictor.models.loading import load_model
+
+    jari = load_vessel("jari_usv")
+    model = load_model(str(package_share_path("models", "default.pt")), physics=False)
+    return LiveFitCheck(model, jari, jari.actuator_layout, "the shipped model", FitCheckSettings(period_s=5.0),
+                        cached=cached)
+
+
+def comparable(fit: LiveFitCheck, now_ns: int) -> tuple:
+    """The verdict, its numbers and the /diagnostics report, without the timing and the cache's counters."""
+    level, message, values = fit.report(now_ns)
+    values = {k: v for k, v in values.items() if not k.startswith(("compute_ms", "rollouts_served"))}
+    return fit.check, level, message, values
+
+
+def test_the_cache_serves_repeated_windows_with_the_same_verdict_and_numbers() -> None:
+    """The benchmark's constant feed, then the boat 0.3 m/s faster: with the cache, every check after the first of
+    each feed serves the model's and the causes' rollouts of the previous check; the verdict, every number and the
+    report are the ones of the check that rolls everything out every time."""
+    feed = constant_feed(5.0, 27.0) + constant_feed(5.3, 22.0, 10**18 + 30 * NS_PER_S)
+    cached, uncached = shipped_check(True), shipped_check(False)
+    for now_ns, recording in feed:
+        cached.run(recording, now_ns)
+        uncached.run(recording, now_ns)
+        assert comparable(cached, now_ns) == comparable(uncached, now_ns)
+    assert cached.check.verdict == "mismatch" and cached.check.yaw_rate_explanation is not None  # causes rolled out
+    assert len(feed) == 5 and uncached.served == 0 and uncached.causes_served == 0
+    # 5 checks, one window found in each: the first of each feed rolls out, the others are served; the 5.0 m/s
+    # window is kept beside the 5.3 one (no overlap in time), its causes served from then on
+    assert len(cached.windows) == 2
+    assert (cached.rolled_out, cached.served, cached.causes_rolled_out, cached.causes_served) == (2, 3, 2, 5)
+    assert cached.report(feed[-1][0])[2]["rollouts_served"].startswith("3 of 5 windows' model rollouts, 5 of 7")
+
+
+def test_the_cache_is_not_served_when_a_window_changed_at_the_same_stamps() -> None:
+    """Two recordings on the same clock whose windows differ only in content (u 5.0 then 5.1 m/s): the second check
+    rolls its window out (a cache keyed on the stamps would serve the first one's numbers)."""
+    (now_ns, first), = constant_feed(5.0, 13.0)
+    (same_ns, second), = constant_feed(5.1, 13.0)
+    assert same_ns == now_ns and np.array_equal(first.t_s, second.t_s) and first.t0_ns == second.t0_ns
+    fit = shipped_check(True)
+    before = fit.run(first, now_ns)
+    after = fit.run(second, now_ns + 5 * NS_PER_S)
+    assert (fit.rolled_out, fit.served, fit.causes_rolled_out, fit.causes_served) == (2, 0, 2, 0)
+    fresh = shipped_check(False)
+    fresh.run(first, now_ns)
+    fresh.run(second, now_ns + 5 * NS_PER_S)
+    assert after == fresh.check and after.windows[0].start_s == before.windows[0].start_s
+    assert after.windows[0].measured_speed_mps != before.windows[0].measured_speed_mps
+    assert after.yaw_rate_explanation != before.yaw_rate_explanation  # the causes' limits of the new window
+
+
+def test_the_check_waits_for_the_gap_after_a_cycle_and_never_long_without_cycles() -> None:
+    """CycleGap: in a gap (a cycle ended less than GAP_SHARE of a period ago) wait() returns at once; outside one it
+    returns when the next cycle ends; without cycles it gives up after WAIT_PERIODS periods."""
+    import threading
+
+    from usv_predictor.node.fit import GAP_SHARE, WAIT_PERIODS, CycleGap
+
+    period = 1.0  # (s) a 1 Hz node: wide margins between the three cases on a loaded machine
+    gap = CycleGap(period)
+    started = time.monotonic()
+    gap.wait()  # no cycle ever ran
+    assert WAIT_PERIODS * period - 0.01 <= time.monotonic() - started < WAIT_PERIODS * period + 0.5
+    gap.ended()
+    started = time.monotonic()
+    gap.wait()  # just after a cycle: at once
+    assert time.monotonic() - started < 0.1
+    time.sleep(GAP_SHARE * period + 0.01)  # the gap is over: wait for the next cycle's end
+    timer = threading.Timer(0.3, gap.ended)
+    started = time.monotonic()
+    timer.start()
+    gap.wait()
+    assert 0.29 <= time.monotonic() - started < WAIT_PERIODS * period - 0.1
+    timer.join()
+
+
+def test_the_fit_check_worker_runs_nicer_than_the_node(ros_context: Any) -> None:
+    """On busy cores the prediction cycle goes first: the check's worker thread is FIT_NICE nicer (Linux)."""
+    import os
+
+    node = predictor_node.PredictorNode(context=ros_context)
+    try:
+        own = os.getpriority(os.PRIO_PROCESS, 0)  # this thread's
+        worker = node._fit_worker.submit(os.getpriority, os.PRIO_PROCESS, 0).result()
+        assert worker == min(19, own + predictor_node.FIT_NICE) and worker > own
+    finally:
+        node.destroy_node()

@@ -23,6 +23,7 @@ from rclpy.parameter import Parameter
 from msg_adapters.outputs import decode_path
 from usv_predictor.config import load_predictor_config
 from usv_predictor.frames import enu_yaw_to_heading, quaternion_to_yaw
+from usv_predictor.errors import ConfigError
 from usv_predictor.node import node as predictor_node
 from usv_predictor.node import plans
 
@@ -33,9 +34,10 @@ HORIZON_STEPS = 20  # 10 s at dt 0.5 s
 
 
 @pytest.fixture()
-def harness(ros_context: Context) -> Iterator[Harness]:
+def harness(ros_context: Context, request: pytest.FixtureRequest) -> Iterator[Harness]:
+    extra = list(getattr(request, "param", ()))  # more parameters (indirect parametrisation)
     fixture = Harness(ros_context, [Parameter("rate_hz", value=20.0), Parameter("horizon_s", value=10.0),
-                                    Parameter("plan_max_age_s", value=2.0)], peer_name="plan_peer")
+                                    Parameter("plan_max_age_s", value=2.0), *extra], peer_name="plan_peer")
     try:
         yield fixture
     finally:
@@ -144,7 +146,11 @@ def candidates_message(harness: Harness, rudders: dict[str, float], stamp_ns: in
     return joint_trajectory(harness, names, positions, [0.0], stamp_ns)
 
 
+@pytest.mark.parametrize("harness", [(), (Parameter("candidates_threads", value=2),
+                                      Parameter("candidates_members", value=3))], indirect=True, ids=["default", "2x3"])
 def test_candidate_plans_are_answered_in_one_batch_tagged_with_their_stamp(harness: Harness) -> None:
+    """Also with the batch split across two threads (its first half on a helper: the turns stay in the candidates'
+    order) and the mean of the first 3 members."""
     answers: list[Any] = []
     harness.peer.create_subscription(harness.make("trajectory_msgs/msg/MultiDOFJointTrajectory"),
                                      "candidate_predictions", answers.append, 10)
@@ -167,6 +173,13 @@ def test_candidate_plans_are_answered_in_one_batch_tagged_with_their_stamp(harne
     values = values_of(found["candidate plans"])
     assert level(found["candidate plans"]) == predictor_node.OK and values["last_batch"] == "3"
     assert float(values["answer_ms_p50"]) > 0 and float(values["compute_ms_p50"]) > 0
+    split = harness.node.get_parameter("candidates_threads").value == 2
+    assert values["threads"] == ("2" if split else "1") and values["members"] == ("3/5" if split else "5/5")
+
+
+def test_more_candidate_members_than_the_node_uses_are_refused(ros_context: Context) -> None:
+    with pytest.raises(ConfigError, match="candidates_members = 6: expected at most the 5 member"):
+        predictor_node.PredictorNode(context=ros_context, parameter_overrides=[Parameter("candidates_members", value=6)])
 
 
 def test_the_cycle_publishes_while_a_candidate_batch_is_computed(harness: Harness, monkeypatch) -> None:

@@ -39,7 +39,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from itertools import product
-from functools import partial
+from functools import lru_cache, partial
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -255,9 +255,15 @@ class Rolled:
     #                                                                  speed the rollouts hold; None: the start state
 
 
+Predict = Callable[[np.ndarray, np.ndarray, "np.ndarray | None"], np.ndarray]
+"""predict(state (1, 4), controls (1, H, C), reference (4,) or None) -> (E, 1, H, 6): evaluation.rollout of a model."""
+
+
 def rolled_windows(predictor: Predictor, recordings: Sequence[Recording], layout: ActuatorLayout,
-                   reference: np.ndarray | None = None) -> list[Rolled]:
+                   reference: np.ndarray | None = None, predict: Predict | None = None) -> list[Rolled]:
     """Every window of held commands whose measured u and r have settled, with the model's u and r for it.
+    predict: how a window is rolled out (default evaluation.rollout of `predictor`; the node's check serves the
+    rollouts of windows it has rolled out before, node/fit.py).
 
     rudder_only: every rollout holds the engine speed of an approach (models/greybox.py `reference`): `reference`
     (4,) when given (the node's, node/live.ApproachTracker: its buffers may start inside a turn), else each
@@ -293,7 +299,8 @@ def rolled_windows(predictor: Predictor, recordings: Sequence[Recording], layout
             else:
                 controls = rec.controls[None, k:end]  # (1, H, C) the recorded commands
             averaged = min(steady_n, controls.shape[1])
-            predicted = rollout(predictor, state, controls, held_state).mean(axis=0)[0, -averaged:]  # (steady, 6)
+            predicted = (predict or partial(rollout, predictor))(state, controls, held_state)
+            predicted = predicted.mean(axis=0)[0, -averaged:]  # (steady, 6)
             measured = last.mean(axis=0)  # (3,)
             windows.append(Rolled(SteadyWindow(
                 rec.name, "straight" if straight else "turn", float(rec.t_s[first]), float(rec.t_s[end - 1]),
@@ -306,26 +313,21 @@ ChangesOf = Callable[[Sequence[Rolled], Sequence[Cause]], tuple[np.ndarray, np.n
 """changes_of(rolled, causes) -> (du, dr), each (N causes, W windows): cause_changes of the windows."""
 
 
-def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: Sequence[Cause]
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: Sequence[Cause], *,
+                  scripted: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """(du, dr), each (N causes, W windows): what each cause changes in the vessel's u (m/s, over ground) and r
     (rad/s, as the gyro reports it) averaged where the window's prediction is, rolled out by the vessel's grey box
-    from the same state with the same controls (straight windows steered: SteeredRollout). One batch: rows =
+    from the same state with the same controls (straight windows steered: _steered_rollout). One batch: rows =
     windows x (calm + causes), every cause's terms set per row (the grey box's terms broadcast over the batch), the
-    windows padded to the longest with their last controls. rudder_only: every row holds the engine speed of its
-    window's reference (Rolled.reference, the approach its prediction held; the start state without one)."""
+    windows padded to the longest with their last controls (the rows are independent: a window's numbers do not
+    depend on the others in its batch). rudder_only: every row holds the engine speed of its window's reference
+    (Rolled.reference, the approach its prediction held; the start state without one).
+
+    scripted: the module is run as TorchScript without the graph executor's optimisation (the interpreter runs the
+    same aten ops in the same order as eager: the same numbers bit for bit, test_fit_check.py; half the time of eager
+    here, whose per-op Python overhead is the cost of these small batches, ~0.4 ms per derivative of 45 rows; the
+    profiling executor would spend its first two calls profiling a shape that each check changes); False: eager."""
     import torch
-
-    from usv_predictor.models.greybox import GreyBoxRollout
-
-    class SteeredRollout(GreyBoxRollout):
-        """The grey box with the straight windows' rows steered: their sway and yaw held at the measured values (a
-        straight run in a sea is a steered run; at held commands the model would veer to its own weathervane
-        heading, where the sea acts otherwise than at the course the data held)."""
-
-        def _model_accelerations(self, psi, u_r, v_r, r, a, b):
-            acc = self._accelerations(psi, u_r, v_r, r, a, b)
-            return [acc[0], acc[1] * self.free, acc[2] * self.free]
 
     rows = 1 + len(causes)
     horizon = max(r.controls.shape[0] for r in rolled)
@@ -335,8 +337,9 @@ def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: S
     controls = np.concatenate([np.repeat(np.concatenate(
         [r.controls, np.repeat(r.controls[-1:], horizon - r.controls.shape[0], axis=0)])[None], rows, axis=0)
         for r in rolled])  # (W rows, H, C)
-    model = SteeredRollout(vessel, dt, substeps=max(2, math.ceil(dt / CAUSE_SUBSTEP_S - 1e-9)))
-    model.free = torch.as_tensor(np.repeat([0.0 if r.window.kind == "straight" else 1.0 for r in rolled], rows))
+    model = _steered_rollout()(vessel, dt, substeps=max(2, math.ceil(dt / CAUSE_SUBSTEP_S - 1e-9)))
+    model.register_buffer("free", torch.as_tensor(
+        np.repeat([0.0 if r.window.kind == "straight" else 1.0 for r in rolled], rows)))  # (W rows,)
     for name in sorted({t for c in causes for t in c.terms}):
         size = getattr(model, name).shape[0]
         values = np.zeros((size, len(rolled), rows))  # (size, W, rows)
@@ -344,8 +347,9 @@ def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: S
             if name in cause.terms:
                 values[:, :, j] = np.asarray(cause.terms[name])[:, None]
         setattr(model, name, torch.nn.Parameter(torch.as_tensor(values.reshape(size, -1)), requires_grad=False))
-    with torch.no_grad():
-        out = model(torch.as_tensor(states), torch.as_tensor(controls), torch.as_tensor(references))[0].numpy()  # (W rows, H, 6)
+    run = torch.jit.script(model) if scripted else model
+    with torch.no_grad(), torch.jit.optimized_execution(False):  # thread-local: other threads' TorchScript unaffected
+        out = run(torch.as_tensor(states), torch.as_tensor(controls), torch.as_tensor(references))[0].numpy()  # (W rows, H, 6)
     out = out.reshape(len(rolled), rows, horizon, 6)
     du, dr = np.zeros((len(causes), len(rolled))), np.zeros((len(causes), len(rolled)))
     for w, r in enumerate(rolled):
@@ -353,6 +357,22 @@ def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: S
         mean = out[w, :, end - r.averaged:end].mean(axis=1)  # (rows, 6)
         du[:, w], dr[:, w] = mean[1:, 0] - mean[0, 0], mean[1:, 2] - mean[0, 2]
     return du, dr
+
+
+@lru_cache(maxsize=None)
+def _steered_rollout() -> type:
+    """The grey box with the straight windows' rows steered: their sway and yaw held at the measured values (a
+    straight run in a sea is a steered run; at held commands the model would veer to its own weathervane heading,
+    where the sea acts otherwise than at the course the data held). Its buffer `free` (B,): 0 on a steered row, 1 on
+    a free one, set by cause_changes. One class per process (TorchScript compiles a class once)."""
+    from usv_predictor.models.greybox import GreyBoxRollout
+
+    class SteeredRollout(GreyBoxRollout):
+        def _model_accelerations(self, psi, u_r, v_r, r, a, b):
+            acc = self._accelerations(psi, u_r, v_r, r, a, b)
+            return [acc[0], acc[1] * self.free, acc[2] * self.free]
+
+    return SteeredRollout
 
 
 def _explain(ratio: float, predicted: np.ndarray, changes: np.ndarray, limit: float, floor: float,

@@ -19,6 +19,23 @@ The same check `replay evaluate` and `replay diagnose` run before they answer (a
               TorchScript for a 0.2 s step on this machine; TorchScript releases the GIL), and the sea estimate the
               node applies to its own grey box (sea.py) never reaches the copy: the check judges the calm-water
               model, as the replay tool does. A check starts when period_s has passed and the previous one ended.
+    the cache a window whose rollout inputs (start state, controls, reference, kind, averaged steps) are the same
+              bytes as a window of the previous check is not rolled out again: the model's rollout and the causes'
+              changes are served from that check (keyed on the content, never on the stamps: a window seen again
+              on a shifted grid has other box means and is rolled out anew). The rollouts are deterministic, so
+              the verdict and its numbers are the same with and without it (test_node_fit.py). It serves the
+              kept windows (as the check did before by the window's identity) and windows found again with the same
+              bytes: inputs that repeat bit for bit (a simulated or benchmark feed of constant values, in one
+              process). Live, a window found again is new content: its grid moves with the buffers' first samples
+              (other box means) and its length with their span.
+
+Between cycles: the check's own Python (the model's rollouts of its windows, the verdict, compiling the causes'
+rollout) holds the GIL for a few ms at a time, and a cycle that starts meanwhile waits for it (up to the interpreter's
+5 ms switch interval: the node's cycle took 8.5-10 ms at its p99 with the check, 2.6 ms without it, 2026-11-26). So
+the worker starts those parts in the gap after a cycle (CycleGap: within GAP_SHARE of a period after a cycle ended,
+never waiting longer than WAIT_PERIODS periods: without cycles it does not wait for them); the causes' TorchScript
+rollout itself releases the GIL and runs beside the cycles, in a worker thread that node.py makes FIT_NICE nicer
+than the node (on busy cores the cycle gets the core first).
 
 Reported on /diagnostics as `predictor: fit check`: OK with the ratios (or "no steady window yet"), WARN when a ratio
 lies beyond the calm-water allowance and only a strong sea or fault at the top of its range explains it, or when the
@@ -42,6 +59,7 @@ from typing import Any
 import numpy as np
 
 from usv_predictor.analysis import fit_check as fc
+from usv_predictor.analysis.evaluation import rollout
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import ConfigError
 from usv_predictor.physics.actuators import ActuatorLayout
@@ -56,6 +74,8 @@ MAX_WINDOWS = 40  # steady windows kept (the latest): bounds the cost of a check
 SPEED_SAMPLES = 3000  # measured |u| samples kept, one per model step (10 min at dt 0.2 s)
 PERIOD_RANGE_S = (0.5, 600.0)  # (s) allowed fit_check.period_s
 COST_WINDOW = 50  # checks kept for the cost percentiles
+GAP_SHARE = 0.25  # (-) the check's GIL-heavy parts start within this share of a cycle period after a cycle ended
+WAIT_PERIODS = 1.5  # (-) and wait at most this many periods for one (no cycle ran: the node is not predicting)
 DATA = "the node's inputs"  # how the reasons name what was measured
 
 
@@ -83,11 +103,46 @@ class LiveWindow:
     rolled: fc.Rolled
 
 
+class CycleGap:
+    """Where the node's prediction cycles leave room (module docstring, "Between cycles"): the cycle calls ended()
+    at its end, the check's worker wait() before a part that holds the GIL. Thread-safe."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = float(period_s)  # (s) between two cycles (1 / rate_hz)
+        self._ended: float | None = None  # time.monotonic() at the end of the latest cycle
+        self._changed = threading.Condition()
+        self.waited_s = 0.0  # (s) total time the check waited for a gap
+
+    def ended(self) -> None:
+        with self._changed:
+            self._ended = time.monotonic()
+            self._changed.notify_all()
+
+    def wait(self) -> None:
+        """Return within GAP_SHARE of a period after a cycle ended (at once when in such a gap now), or after
+        WAIT_PERIODS periods without one."""
+        started = time.monotonic()
+        deadline = started + WAIT_PERIODS * self.period_s
+        with self._changed:
+            while True:
+                now = time.monotonic()
+                if (self._ended is not None and now - self._ended < GAP_SHARE * self.period_s) or now >= deadline:
+                    self.waited_s += now - started
+                    return
+                self._changed.wait(deadline - now)
+
+
+def content_key(*arrays: np.ndarray | None) -> tuple:
+    """A hashable key of arrays' exact content (dtype, shape, bytes; None stays None): equal keys, equal inputs."""
+    return tuple(None if a is None else (np.asarray(a).dtype.str, np.asarray(a).shape,
+                                         np.ascontiguousarray(a).tobytes()) for a in arrays)
+
+
 class LiveFitCheck:
     """The fit check of one model on the node's inputs: windows collected over time, the latest verdict."""
 
     def __init__(self, model: Any, vessel: Vessel | None, layout: ActuatorLayout, label: str,
-                 settings: FitCheckSettings) -> None:
+                 settings: FitCheckSettings, cached: bool = True) -> None:
         self.model = model  # a fit_check Predictor (the ModelArtifact)
         self.vessel = vessel
         self.layout = layout
@@ -105,7 +160,14 @@ class LiveFitCheck:
         self.last_reset = ""
         self._lock = threading.Lock()  # run() may work in another thread than reset() and report()
         self._generation = 0  # a reset while a check runs discards that check's result
-        self._changes: dict[int, tuple[fc.Rolled, np.ndarray, np.ndarray]] = {}  # id -> (window, du (N,), dr (N,))
+        self.cached = cached  # serve the rollouts of windows whose content the previous check rolled out (False: the
+        #                      reference the tests compare with)
+        self._rollouts: dict[tuple, np.ndarray] = {}  # content -> the model's rollout (E, 1, H, 6), previous check
+        self._changes: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # content -> (du (N,), dr (N,)), kept windows
+        self.rolled_out = 0  # model rollouts run (windows)
+        self.served = 0  # model rollouts served from the cache (windows)
+        self.causes_rolled_out = 0  # windows whose causes were rolled out
+        self.causes_served = 0  # windows whose causes' changes were served from the cache
 
     def due(self, now_ns: int) -> bool:
         """Is a check due (enabled, and period_s after the previous one)?"""
@@ -116,6 +178,7 @@ class LiveFitCheck:
         with self._lock:
             self._generation += 1
             self.windows = []
+            self._rollouts = {}
             self._changes = {}
             self.speeds.clear()
             self._speeds_until_ns = None
@@ -130,17 +193,22 @@ class LiveFitCheck:
             self.error = why
             self._next_ns = now_ns + int(self.settings.period_s * NS_PER_S)
 
-    def run(self, recording: Recording, now_ns: int, reference: np.ndarray | None = None) -> fc.FitCheck | None:
+    def run(self, recording: Recording, now_ns: int, reference: np.ndarray | None = None,
+            gap: CycleGap | None = None) -> fc.FitCheck | None:
         """One check on the buffered `recording` (live.InputSet.buffered_recording), the windows merged with the kept
         ones; the verdict of every kept window (module docstring), or None when a reset came while it ran.
         reference (4,): a rudder_only boat's approach (live.ApproachTracker, the predictions' own), whose engine speed
         the rollouts hold; None: the buffered span's own approach (which, in a buffer that starts inside a long
-        turn, is the turn's slower speed)."""
-        started = time.perf_counter()
+        turn, is the turn's slower speed). gap: the node's cycles, whose gaps the check's GIL-heavy parts wait for."""
+        if gap is not None:
+            gap.wait()
+        started, waited = time.perf_counter(), gap.waited_s if gap is not None else 0.0
         with self._lock:
             generation = self._generation
             self._next_ns = now_ns + int(self.settings.period_s * NS_PER_S)
-        found = fc.rolled_windows(self.model, [recording], self.layout, reference)  # the model's rollouts: the long part
+        previous, rollouts = self._rollouts, {}
+        found = fc.rolled_windows(self.model, [recording], self.layout, reference,
+                                  partial(self._predict, previous, rollouts))  # the model's rollouts: the long part
         grid_ns = recording.t0_ns + np.round(recording.t_s * NS_PER_S).astype(np.int64)  # (T,)
         with self._lock:
             if generation != self._generation:
@@ -152,13 +220,14 @@ class LiveFitCheck:
                 windows = [w for w in windows if w.end_ns < start or w.start_ns > end]  # seen longer now
                 windows.append(LiveWindow(start, end, rolled))
             self.windows = sorted(windows, key=lambda w: w.end_ns)[-MAX_WINDOWS:]
+            self._rollouts = rollouts  # this check's: the next one serves a window it sees again unchanged
             new = grid_ns > (self._speeds_until_ns if self._speeds_until_ns is not None else -1)
             self.speeds.extend(np.abs(recording.nu[new, 0]).tolist())
             if len(grid_ns):
                 self._speeds_until_ns = int(grid_ns[-1])
             rolled_kept, speeds = [w.rolled for w in self.windows], np.array(self.speeds)
         check = fc.judge_windows(self.label, self.layout, rolled_kept, speeds, recording.dt, vessel=self.vessel,
-                                 data=DATA, changes_of=partial(self._cause_changes, recording.dt))
+                                 data=DATA, changes_of=partial(self._cause_changes, recording.dt, generation, gap))
         with self._lock:
             if generation != self._generation:
                 return None
@@ -166,22 +235,43 @@ class LiveFitCheck:
             self.error = ""
             self.runs += 1
             self.last_run_ns = now_ns
-            self.cost_s.append(time.perf_counter() - started)
+            self.cost_s.append(time.perf_counter() - started - ((gap.waited_s - waited) if gap is not None else 0.0))
         return check
 
-    def _cause_changes(self, dt: float, rolled: list[fc.Rolled], causes: tuple[fc.Cause, ...]
-                       ) -> tuple[np.ndarray, np.ndarray]:
-        """fit_check.cause_changes of the windows, rolled out once per window (a kept window is not rolled again:
-        the causes' rollouts are the check's most expensive part); (du, dr) each (N causes, W windows)."""
-        cache = self._changes  # this check's own reference (a reset rebinds self._changes)
-        missing = [r for r in rolled if id(r) not in cache]
+    def _predict(self, previous: dict[tuple, np.ndarray], rollouts: dict[tuple, np.ndarray], state: np.ndarray,
+                 controls: np.ndarray, reference: np.ndarray | None) -> np.ndarray:
+        """evaluation.rollout of the model (fit_check.Predict), or the previous check's of the same content (the
+        module docstring's cache); recorded in `rollouts`, this check's."""
+        key = content_key(state, controls, reference)
+        out = previous.get(key) if self.cached else None
+        if out is None:
+            out = rollout(self.model, state, controls, reference)  # (E, 1, H, 6)
+            self.rolled_out += 1
+        else:
+            self.served += 1
+        rollouts[key] = out
+        return out
+
+    def _cause_changes(self, dt: float, generation: int, gap: CycleGap | None, rolled: list[fc.Rolled],
+                       causes: tuple[fc.Cause, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """fit_check.cause_changes of the windows, rolled out once per window content (a kept window is not rolled
+        again, nor a new one the same as a kept one: the causes' rollouts are the check's most expensive part);
+        (du, dr) each (N causes, W windows). Kept for the next check unless a reset came (generation)."""
+        cache = self._changes if self.cached else {}  # this check's own reference (a reset rebinds self._changes)
+        keys = [(dt, r.window.kind, r.averaged, *content_key(r.state, r.controls, r.reference)) for r in rolled]
+        missing = {key: r for key, r in zip(keys, rolled) if key not in cache}
         if missing:
-            du, dr = fc.cause_changes(self.vessel, dt, missing, causes)
-            for k, r in enumerate(missing):
-                cache[id(r)] = (r, du[:, k], dr[:, k])  # the window itself is kept: its id stays its own
-        cache = {id(r): cache[id(r)] for r in rolled}
-        self._changes = cache
-        return (np.stack([cache[id(r)][1] for r in rolled], axis=1), np.stack([cache[id(r)][2] for r in rolled], axis=1))
+            if gap is not None:  # building and compiling the causes' rollout holds the GIL for a few ms
+                gap.wait()
+            du, dr = fc.cause_changes(self.vessel, dt, list(missing.values()), causes)
+            cache = {**cache, **{key: (du[:, k], dr[:, k]) for k, key in enumerate(missing)}}
+        self.causes_rolled_out += len(missing)
+        self.causes_served += len(keys) - len(missing)
+        cache = {key: cache[key] for key in keys}
+        with self._lock:
+            if self.cached and generation == self._generation:
+                self._changes = cache
+        return np.stack([cache[key][0] for key in keys], axis=1), np.stack([cache[key][1] for key in keys], axis=1)
 
     @property
     def refusing(self) -> str:
@@ -205,6 +295,10 @@ class LiveFitCheck:
         if self.cost_s:
             ms = np.array(self.cost_s) * 1e3
             values.update(compute_ms_p50=f"{np.percentile(ms, 50):.1f}", compute_ms_max=f"{ms.max():.1f}")
+        if self.rolled_out or self.served:
+            values["rollouts_served"] = (f"{self.served} of {self.served + self.rolled_out} windows' model rollouts, "
+                                         f"{self.causes_served} of {self.causes_served + self.causes_rolled_out} "
+                                         "windows' causes (from the previous check: the same content)")
         if self.last_run_ns is not None:
             values["last_check_age_s"] = f"{(now_ns - self.last_run_ns) / NS_PER_S:.1f}"
         if self.last_reset:

@@ -49,6 +49,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -783,9 +784,13 @@ class Rollout:
         except MODEL_RUN_ERRORS as err:
             raise ModelError(f"model {self.artifact.path} fails when run: {failure_reason(err)}") from err
 
-    def batch(self, state: np.ndarray, controls: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
+    def batch(self, state: np.ndarray, controls: np.ndarray, reference: np.ndarray | None = None,
+              helper: Executor | None = None) -> np.ndarray:
         """(E, B, H, 6) from one state (4,) under B control sequences (B, H, C): one call of the model; reference
-        (4,) as for __call__."""
+        (4,) as for __call__. helper: a NumpyDnnRollout's batch is split in two, the first half rolled out on this
+        executor's thread while the caller rolls out the second (numpy releases the GIL inside its products and
+        activations: two cores work on one answer); the columns are independent, so the halves are the whole
+        batch's up to the float rounding of BLAS's blocking for a narrower product (test_dnn_fused.py)."""
         controls = np.asarray(controls, dtype=np.float64)
         if controls.ndim != 3 or controls.shape[1:] != (self.horizon_steps, self.n_controls):
             raise ModelError(f"controls of shape {controls.shape}, expected (B, {self.horizon_steps}, {self.n_controls})")
@@ -793,6 +798,11 @@ class Rollout:
         try:
             if self._numpy is not None:
                 states = np.broadcast_to(np.asarray(state, dtype=np.float64), (count, 4))  # (B, 4)
+                if helper is not None and count >= 2:
+                    half = count // 2
+                    first = helper.submit(self._numpy, states[:half], controls[:half])
+                    second = self._numpy(states[half:], controls[half:])  # (E, B - half, H, 6)
+                    return np.concatenate([first.result(), second], axis=1)[: self.members]  # (E, B, H, 6)
                 return self._numpy(states, controls)[: self.members]
             states = torch.from_numpy(np.asarray(state, dtype=np.float64)).to(self.dtype).expand(count, 4)  # (B, 4)
             with torch.inference_mode():
@@ -883,11 +893,13 @@ def prepare_batch(inputs: InputSet, now_ns: int, schedule: Schedule) -> Prepared
     return PreparedBatch(live, controls, step_times(live, inputs.settings, first=1))
 
 
-def predict_prepared(rollout: Rollout, prepared: PreparedBatch, now_ns: int) -> BatchPrediction:
-    """One rollout of batch N from a prepare_batch -> checked predictions (ModelError: the model failed)."""
+def predict_prepared(rollout: Rollout, prepared: PreparedBatch, now_ns: int, helper: Executor | None = None
+                     ) -> BatchPrediction:
+    """One rollout of batch N from a prepare_batch -> checked predictions (ModelError: the model failed); helper:
+    Rollout.batch's second thread."""
     live, controls = prepared.live, prepared.controls
     started = time.perf_counter()
-    out = rollout.batch(live.state, controls, live.reference)  # (E, N, H, 6)
+    out = rollout.batch(live.state, controls, live.reference, helper)  # (E, N, H, 6)
     compute_s = time.perf_counter() - started
     _check_output(out)
     mean = out.mean(axis=0)  # (N, H, 6): anchoring moves every member alike, so the mean is anchored once

@@ -32,6 +32,7 @@ import argparse
 import contextlib
 from concurrent.futures import Future, ThreadPoolExecutor
 import math
+import os
 import signal
 import sys
 import threading
@@ -99,7 +100,7 @@ from usv_predictor.models.artifact import metadata_differences
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.node import live, plans, sea
 from usv_predictor.node.fit import MAX_GAP_S as FIT_MAX_GAP_S
-from usv_predictor.node.fit import PERIOD_RANGE_S, FitCheckSettings, LiveFitCheck
+from usv_predictor.node.fit import PERIOD_RANGE_S, CycleGap, FitCheckSettings, LiveFitCheck
 from usv_predictor.physics.actuators import ActuatorLayout, check_layout_inputs, unused_roles
 from usv_predictor.physics.vessel import Vessel, load_vessel, vessel_preset_exists
 from usv_predictor.records import NS_PER_S
@@ -114,6 +115,7 @@ RECENT_REJECT_S = 5.0  # an input with a rejected sample this recently is WARN (
 LATENCY_WINDOW = 200  # cycles kept for the latency percentiles
 FIT_LOG_PERIOD_S = 60.0  # throttle of the fit check's mismatch log line (s): the verdict stays on /diagnostics
 FIT_TIMER_S = 0.5  # (s) how often the fit check's timer looks whether a check is due (fit_check.period_s >= this)
+FIT_NICE = 10  # (-) the fit check's worker thread runs this much nicer than the node: on busy cores the cycle first
 
 # DiagnosticStatus levels are `byte` fields (bytes of length 1 in rclpy); compare them as ints.
 OK, WARN, ERROR = (level[0] for level in (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR))
@@ -156,6 +158,12 @@ NODE_PARAMETERS: dict[str, NodeParameter] = {
     "diagnostics_rate_hz": NodeParameter(1.0, "rate of /diagnostics (Hz)", 0.01, 100.0),
     "plan_max_age_s": NodeParameter(1.0, "a plan (or candidate plans) stamped longer ago than this is refused, and a "
                                          "followed plan is dropped for the held commands (s)", 0.01, 60.0),
+    "candidates_threads": NodeParameter(1, "threads the candidate plans' batched rollout runs on: 2 splits a batch "
+                                           "of a numpy DNN in halves, the second on a helper thread (a second core "
+                                           "when the machine has one free; docs/node.md)", 1, 2),
+    "candidates_members": NodeParameter(0, "ensemble members whose mean answers the candidate plans: 0 = the "
+                                           "node's own (ensemble_size); fewer cost less in proportion and give a "
+                                           "different mean, from fewer members (docs/node.md)", 0, 64),
     f"{FIT_PREFIX}enabled": NodeParameter(FitCheckSettings.enabled, "run the fit check on the inputs (fit.py): the "
                                           "model's steady speed and yaw rate at held commands against the measured "
                                           "ones, on /diagnostics as 'fit check'", read_only=False),
@@ -246,7 +254,8 @@ def _descriptor(name: str, value: Any) -> ParameterDescriptor:
 
 def _node_descriptor(name: str, spec: NodeParameter) -> ParameterDescriptor:
     descriptor = ParameterDescriptor(name=name, description=spec.description, read_only=spec.read_only)
-    unit = "s" if name.endswith("_s") else "Hz" if name.endswith("_hz") else "samples"
+    unit = ("s" if name.endswith("_s") else "Hz" if name.endswith("_hz") else "threads" if name.endswith("_threads")
+            else "samples")
     allowed = None if spec.low is None else Range(spec.low, spec.high, unit)
     return _ranged(descriptor, name, spec.default, allowed)
 
@@ -360,15 +369,21 @@ class PredictorNode(Node):
         self._diagnostics = self.create_publisher(make(DIAGNOSTICS_TYPE), DIAGNOSTICS_TOPIC, 10)
         self._candidates_pub = self.create_publisher(make(TRAJECTORY_TYPE), CANDIDATE_PREDICTIONS_TOPIC, 10)
         self._current_pub = self.create_publisher(make(CURRENT_TYPE), outputs["estimated_current"].topic, 10)
+        self.candidate_rollout = self._candidates_of(self.rollout)  # the candidates' model (candidates_members)
         self.sea = self._make_sea(self.rollout, {})
         self.fit = self._make_fit(self.rollout)
-        self._fit_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fit_check")
+        self._fit_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fit_check",
+                                              initializer=_lower_priority, initargs=(FIT_NICE,))
+        self._cycle_gap = CycleGap(1.0 / self.config.rate_hz)  # the fit check's GIL-heavy parts run between cycles
         self._fit_running: Future | None = None
         # candidate plans: state and controls on the executor's thread, the batched rollout (13-20 ms for 64), the
         # answer's encoding and publishing on this worker, in arrival order, so that the 10 Hz cycle is not held up
         # (numpy releases the GIL inside its products and activations); where the sea estimate writes the model's
         # terms (sea.py: grey box, hybrid) they and a candidate rollout take turns on _terms_lock (_terms_guard)
         self._candidates_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="candidates")
+        # candidates_threads 2: the worker's helper, which rolls out the first half of each batch (live.Rollout.batch)
+        self._candidates_helper = (ThreadPoolExecutor(max_workers=1, thread_name_prefix="candidates_helper")
+                                   if int(self.get_parameter("candidates_threads").value) > 1 else None)
         self._terms_lock = threading.Lock()
         self.plan = PlanInput(PLAN_TOPIC)
         self.candidates = PlanInput(CANDIDATE_PLANS_TOPIC)
@@ -397,7 +412,7 @@ class PredictorNode(Node):
 
     def destroy_node(self) -> None:
         """The workers end first (a candidate batch or a fit check running finishes: at most a few seconds)."""
-        for name in ("_candidates_worker", "_fit_worker"):
+        for name in ("_candidates_worker", "_candidates_helper", "_fit_worker"):
             worker = getattr(self, name, None)
             if worker is not None:
                 worker.shutdown(wait=True, cancel_futures=True)
@@ -452,11 +467,13 @@ class PredictorNode(Node):
             if parameter.name == "model_path":
                 try:
                     swap, _ = load_model(str(parameter.value), self.config, self.vessel)
+                    candidates = self._candidates_of(swap)
                 except (ModelError, ConfigError) as err:
                     self.get_logger().error(f"model_path not changed, keeping {self.rollout.artifact.path}: {err}")
                     return SetParametersResult(successful=False, reason=str(err))
         if swap is not None:
             self.rollout = swap
+            self.candidate_rollout = candidates
             self.get_logger().info(f"model swapped to {swap.artifact.path} ({swap.artifact.model_id})")
         if swap is not None or online:
             with self._terms_lock:
@@ -598,7 +615,19 @@ class PredictorNode(Node):
         except (live.CycleSkipped, ModelError, AdapterError, RuntimeError) as err:
             self._no_candidates_answer(err)
             return
-        self._candidates_worker.submit(self._answer_candidates, self.rollout, batch, prepared, now_ns, started)
+        self._candidates_worker.submit(self._answer_candidates, self.candidate_rollout, batch, prepared, now_ns, started)
+
+    def _candidates_of(self, rollout: live.Rollout) -> live.Rollout:
+        """The model the candidate plans are rolled out with: `rollout` itself, or its first candidates_members
+        members (live.Rollout: a fused DNN is fused again with those only); ConfigError when it asks for more members
+        than the node uses."""
+        wanted = int(self.get_parameter("candidates_members").value)
+        if wanted == 0 or wanted == rollout.members:
+            return rollout
+        if wanted > rollout.members:
+            raise ConfigError(f"node {NODE_NAME}: parameter candidates_members = {wanted}: expected at most the "
+                              f"{rollout.members} member(s) the node uses (ensemble_size), or 0 for all of them")
+        return live.Rollout(rollout.artifact, rollout.horizon_steps, wanted)
 
     def _answer_candidates(self, rollout: live.Rollout, batch: plans.Plan, prepared: live.PreparedBatch, now_ns: int,
                            started: float) -> None:
@@ -607,7 +636,7 @@ class PredictorNode(Node):
         try:
             try:
                 with self._terms_guard():
-                    result = live.predict_prepared(rollout, prepared, now_ns)
+                    result = live.predict_prepared(rollout, prepared, now_ns, self._candidates_helper)
             except (ModelError, AdapterError, RuntimeError) as err:
                 self._no_candidates_answer(err)
                 return
@@ -665,6 +694,7 @@ class PredictorNode(Node):
         finally:
             for state in deferred:
                 self._observe_sea(state)
+            self._cycle_gap.ended()
 
     def _publish(self, prediction: live.Prediction, stamp_ns: int) -> None:
         """The three outputs as CDR bytes; header.stamp = the cycle's clock, or the stamp of the plan followed."""
@@ -774,7 +804,7 @@ class PredictorNode(Node):
     def _run_fit(self, fit: LiveFitCheck, recording: Any, now_ns: int, reference: Any = None) -> None:
         """The check's rollouts, in the worker thread; the verdict is read by the cycle and /diagnostics."""
         try:
-            check = fit.run(recording, now_ns, reference)
+            check = fit.run(recording, now_ns, reference, self._cycle_gap)
         except Exception as err:  # noqa: BLE001 -- a worker's exception would vanish in its Future: reported instead
             fit.skip(f"the check failed: {type(err).__name__}: {_first_line(err)}", now_ns)
             self.get_logger().warning(f"fit check not run: {err}", throttle_duration_sec=ERROR_LOG_PERIOD_S)
@@ -914,7 +944,9 @@ class PredictorNode(Node):
     def _candidates_status(self, now_ns: int) -> Status:
         found = self.candidates
         values = self._plan_values(found)
-        values.update(answered=found.answered, last_batch=found.batch, max_candidates=plans.MAX_CANDIDATES)
+        values.update(answered=found.answered, last_batch=found.batch, max_candidates=plans.MAX_CANDIDATES,
+                      threads=1 if self._candidates_helper is None else 2,
+                      members=f"{self.candidate_rollout.members}/{self.rollout.members}")
         values.update(_percentiles("compute_ms", found.compute_s))
         values.update(_percentiles("answer_ms", found.answer_s))  # arrival -> published
         if found.last_refused_ns is not None and now_ns - found.last_refused_ns < RECENT_REJECT_S * NS_PER_S:
@@ -1042,6 +1074,16 @@ def spin(node: Node, executor: Executor, stop: _StopRequest | None = None) -> No
             raise
     finally:
         executor.shutdown(timeout_sec=SPIN_PERIOD_S)
+
+
+def _lower_priority(steps: int) -> None:
+    """Make the calling thread `steps` nicer (Linux: a thread is a task of its own; nice is capped at 19). A
+    platform without per-thread priorities leaves it alone."""
+    try:
+        own = os.getpriority(os.PRIO_PROCESS, 0)  # the calling thread's on Linux
+        os.setpriority(os.PRIO_PROCESS, 0, min(19, own + steps))
+    except (AttributeError, OSError):
+        pass
 
 
 def _first_line(err: BaseException) -> str:
