@@ -1,11 +1,13 @@
 """Seed 000's study (sec. 3.2-3.4, Tables 6-8) on the shipped sea-trial bags, in two protocols.
 
-    .venv/bin/python benchmarks/study_seed000.py [--out out/study_seed000] [--seeds 3] [--figures docs/study]
+    .venv/bin/python benchmarks/study_seed000.py [--out out/study_seed000] [--seeds 3] [--figures docs/study] [--multi-step K]
 
 Models (seed 000 Fig. 1, Table 5 recipe, early stopping on the validation manoeuvre, patience 50):
     NTF clippedReLU, NTF tanh   Table 6 (activation, NTF)
     NTF, NAF, F0, all tanh      Tables 7-8 (input features)
     physics                     the calm-water MMG model of the jari_usv preset (`replay evaluate --model physics`)
+    NTF tanh, multi-step K      with --multi-step K: trained on closed-loop rollouts of K steps (issue 15's
+                                "network trained with multi-step loss"; not in seed 000)
 
 Data (bags/README.md): bags/sea_trial = the six Table 3 turning tests (a)-(f); bags/training = two zig-zags,
 a port turn and a random run, all in the same Rizhao-like sea. The validation split (early stopping) is always
@@ -137,11 +139,18 @@ def evaluate_members(artifact_path: Path, recordings: list, seeds: int) -> list[
              for rec in recordings] for k in range(seeds)]
 
 
-def train(dataset: Path, out: Path, feature_set: str, activation: str, seeds: int) -> tuple[list[str], dict]:
+def train(dataset: Path, out: Path, feature_set: str, activation: str, seeds: int,
+          multi_step: int = 1) -> tuple[list[str], dict]:
     argv = ["train", str(dataset), "--output", str(out), "--features", feature_set, "--activation", activation,
             "--ensemble", str(seeds), "--seed", "0", "--threads", "1", "--json", str(out.with_suffix(".json"))]
+    if multi_step > 1:
+        argv += ["--multi-step", str(multi_step)]
     replay(argv)
     return argv, json.loads(out.with_suffix(".json").read_text())
+
+
+def _steps_suffix(steps: int) -> str:
+    return f"_ms{steps}" if steps > 1 else ""
 
 
 # ------------------------------------------------------------------ aggregation and tables
@@ -251,7 +260,7 @@ def tables(study: dict) -> str:
                   "| model | radius eq. 29 (%) | radius, circle fit (%) | drift angle (deg) | drift distance (%) "
                   "| meets target (seeds) | mean RMSE u / v (m/s), r (deg/s) | open-loop error at 30 s (m) |",
                   "|---|---|---|---|---|---|---|---|"]
-        for cfg in list(CONFIGS) + [PHYSICS]:
+        for cfg in list(res) + [PHYSICS]:
             block = physics if cfg == PHYSICS else res[cfg]
             s = block["summary"]
             rows = [r for t in letters for r in block["rows"][t]]
@@ -334,8 +343,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, default=REPO / "out" / "study_seed000", help="work and result directory")
     parser.add_argument("--seeds", type=int, default=3, help="networks per configuration (seeds 0..S-1, default 3)")
-    parser.add_argument("--figures", type=Path, default=REPO / "docs" / "study", help="PNG directory ('' for none)")
+    parser.add_argument("--figures", type=str, default=str(REPO / "docs" / "study"),
+                        help="PNG directory ('' for none)")
+    parser.add_argument("--multi-step", type=int, default=1, metavar="K",
+                        help="also NTF tanh trained on closed-loop rollouts of K steps (replay train --multi-step K; "
+                             "default 1: not trained), a row of its own in the summaries")
     args = parser.parse_args(argv)
+    # name -> (feature set, activation, rollout steps of the training loss)
+    configs = {name: (features, activation, 1) for name, (features, activation) in CONFIGS.items()}
+    if args.multi_step > 1:
+        configs[f"NTF tanh, multi-step {args.multi_step}"] = ("NTF", "tanh", args.multi_step)
     started = time.perf_counter()
     from usv_predictor.analysis import evaluation
     from usv_predictor.replay.recordings import load_recordings
@@ -367,10 +384,10 @@ def main(argv: list[str] | None = None) -> int:
     replay(argv)
     commands.append("replay " + " ".join(argv[:1] + ["bags/training", "bags/sea_trial"] + argv[3:]))
     paper: dict[str, Any] = {}
-    for cfg, (features, activation) in CONFIGS.items():
+    for cfg, (features, activation, steps) in configs.items():
         log(f"paper protocol: training {cfg} ({args.seeds} seeds)")
-        path = out / f"paper_{features}_{activation}.pt"
-        targv, result = train(dataset, path, features, activation, args.seeds)
+        path = out / f"paper_{features}_{activation}{_steps_suffix(steps)}.pt"
+        targv, result = train(dataset, path, features, activation, args.seeds, steps)
         commands.append("replay " + " ".join(targv))
         members = evaluate_members(path, list(recordings.values()), args.seeds)
         rows = {t: [members[k][i] for k in range(args.seeds)] for i, t in enumerate(TESTS)}
@@ -384,31 +401,31 @@ def main(argv: list[str] | None = None) -> int:
 
     # (ii) held-out protocol: leave one turn out
     t0 = time.perf_counter()
-    held: dict[str, Any] = {cfg: {"rows": {}, "best_epoch": {}, "train_time_s": 0.0} for cfg in CONFIGS}
+    held: dict[str, Any] = {cfg: {"rows": {}, "best_epoch": {}, "train_time_s": 0.0} for cfg in configs}
     for t, name in TESTS.items():
         dataset = out / f"held_out_{t}.npz"
         argv = ["dataset", str(TRAINING), str(SEA_TRIAL), "--output", str(dataset), "--val", VAL_RUN,
                 "--test", name, "--jobs", "1"]
         replay(argv)
         commands.append("replay " + " ".join(argv[:1] + ["bags/training", "bags/sea_trial"] + argv[3:]))
-        for cfg, (features, activation) in CONFIGS.items():
+        for cfg, (features, activation, steps) in configs.items():
             log(f"held-out protocol: test ({t}) {name}, training {cfg} ({args.seeds} seeds)")
-            path = out / f"held_out_{t}_{features}_{activation}.pt"
-            targv, result = train(dataset, path, features, activation, args.seeds)
+            path = out / f"held_out_{t}_{features}_{activation}{_steps_suffix(steps)}.pt"
+            targv, result = train(dataset, path, features, activation, args.seeds, steps)
             commands.append("replay " + " ".join(targv))
             members = evaluate_members(path, [recordings[t]], args.seeds)
             held[cfg]["rows"][t] = [members[k][0] for k in range(args.seeds)]
             held[cfg]["best_epoch"][t] = result["best_epoch"]
             held[cfg]["train_time_s"] += result["time_s"]
             paths[("held_out", cfg, t)] = path
-    for cfg in CONFIGS:
+    for cfg in configs:
         held[cfg]["summary"] = summarise(held[cfg]["rows"])
         log(f"held-out {cfg}: max |err| per seed: {held[cfg]['summary']['per_seed_max_abs']}")
     study["protocols"]["held_out"] = held
     timing["held_out_s"] = time.perf_counter() - t0
 
-    if str(args.figures):
-        study["figures"] = figures(study, recordings, paths, args.figures)
+    if args.figures:  # a str: Path("") would be "." and write the figures into the working directory
+        study["figures"] = figures(study, recordings, paths, Path(args.figures))
     timing["total_s"] = time.perf_counter() - started
     study["timing"] = timing
     from usv_predictor.replay.cli import write_json_atomic
