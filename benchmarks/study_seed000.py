@@ -1,6 +1,7 @@
 """Seed 000's study (sec. 3.2-3.4, Tables 6-8) on the shipped sea-trial bags, in two protocols.
 
-    .venv/bin/python benchmarks/study_seed000.py [--out out/study_seed000] [--seeds 3] [--figures docs/study] [--multi-step K]
+    .venv/bin/python benchmarks/study_seed000.py [--out out/study_seed000] [--seeds 3] [--figures docs/study]
+        [--multi-step K]
 
 Models (seed 000 Fig. 1, Table 5 recipe, early stopping on the validation manoeuvre, patience 50):
     NTF clippedReLU, NTF tanh   Table 6 (activation, NTF)
