@@ -274,6 +274,7 @@ def rolled_windows(predictor: Predictor, recordings: Sequence[Recording], layout
     recorded commands to the window's end, so a turn that has not reached its steady state in the data (a zig-zag
     of a slow ship) is compared with the same stage of the model's turn, never with the model's steady turn.
     """
+    predict = predict or partial(rollout, predictor)
     dt = recordings[0].dt if recordings else 1.0
     settle_n = max(int(round(SETTLE_S / dt)), 2)
     steady_n = max(int(round(STEADY_S / dt)), 2)
@@ -299,7 +300,7 @@ def rolled_windows(predictor: Predictor, recordings: Sequence[Recording], layout
             else:
                 controls = rec.controls[None, k:end]  # (1, H, C) the recorded commands
             averaged = min(steady_n, controls.shape[1])
-            predicted = (predict or partial(rollout, predictor))(state, controls, held_state)
+            predicted = predict(state, controls, held_state)
             predicted = predicted.mean(axis=0)[0, -averaged:]  # (steady, 6)
             measured = last.mean(axis=0)  # (3,)
             windows.append(Rolled(SteadyWindow(
