@@ -36,16 +36,22 @@ CASES = {"calm water": [], "current 0.5 m/s toward 250 deg": ["--effect", "curre
 
 
 
+def rudder_only_jari(root: Path) -> Path:
+    """The jari_usv preset as a rudder_only vessel file (its propulsion not logged), written into `root`."""
+    root.mkdir(parents=True, exist_ok=True)
+    raw = yaml.safe_load((vessel_dir() / "jari_usv.yaml").read_text())
+    vessel_file = root / "jari_rudder_only.yaml"
+    vessel_file.write_text(yaml.safe_dump({**raw, "name": "jari_rudder_only", "actuator_layout": "rudder_only"}))
+    return vessel_file
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dt", type=float, default=0.5, help="model step (s), default 0.5 (diagnose's for jari_usv)")
     parser.add_argument("--out", type=Path, default=None, help="where the bags go (default: a temporary directory)")
     args = parser.parse_args()
     root = args.out or Path(tempfile.mkdtemp(prefix="rudder_only_"))
-    raw = yaml.safe_load((vessel_dir() / "jari_usv.yaml").read_text())
-    vessel_file = root / "jari_rudder_only.yaml"
-    root.mkdir(parents=True, exist_ok=True)
-    vessel_file.write_text(yaml.safe_dump({**raw, "name": "jari_rudder_only", "actuator_layout": "rudder_only"}))
+    vessel_file = rudder_only_jari(root)
     vessel = load_vessel(str(vessel_file))
     print(f"jari_usv as rudder_only (650 rpm, not recorded), diagnosis programme, model step {args.dt:g} s, "
           f"open-loop starts every 5 s, truth reference; bags in {root}")

@@ -18,14 +18,14 @@ import argparse
 import tempfile
 from pathlib import Path
 
-import yaml
-
 from usv_predictor.analysis import adaptive, evaluation
 from usv_predictor.models.loading import physics_predictor
 from usv_predictor.physics.actuators import actuator_layout
-from usv_predictor.physics.vessel import load_vessel, vessel_dir
+from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.replay.recordings import load_recordings
 from usv_predictor.replay.simulate import SimulationRequest, simulate
+
+from rudder_only_engine_speed import rudder_only_jari  # benchmarks/: the script's directory is on sys.path
 
 DT = 0.5  # (s) model step
 HORIZONS_S = (10.0, 30.0)  # (s) open-loop horizons
@@ -43,10 +43,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="where the bags go (default: a temporary directory)")
     args = parser.parse_args()
     root = args.out or Path(tempfile.mkdtemp(prefix="rudder_only_online_"))
-    root.mkdir(parents=True, exist_ok=True)
-    raw = yaml.safe_load((vessel_dir() / "jari_usv.yaml").read_text())
-    vessel_file = root / "jari_rudder_only.yaml"
-    vessel_file.write_text(yaml.safe_dump({**raw, "name": "jari_rudder_only", "actuator_layout": "rudder_only"}))
+    vessel_file = rudder_only_jari(root)
     vessel = load_vessel(str(vessel_file))
     model = physics_predictor(vessel, DT)
     print(f"jari_usv as rudder_only (650 rpm, not recorded), 120 s, model step {DT:g} s, GNSS reference; "
