@@ -72,7 +72,8 @@ TWIN_EFFECTS = effect_names("twin_thrusters")
 # Strict: the day these cases pass, the marks must go.
 TWIN_NOT_FOUND = {
     # the preset's windage and wave-drift coefficients are estimates with similar heading dependence: the 10 m/s
-    # wind of this draw is named wave_drift (0.45 m from 47 deg, evidence 16): confounded, a wrong cause
+    # wind of this draw is named wave_drift (0.45 m from 47 deg, evidence 16): confounded, a wrong cause (re-run
+    # 2026-11-26: refused by the fit check instead, yaw-rate ratio -11.8, with the former wave coefficients too)
     "wind": "wind on the Otter preset is taken for wave drift (similar estimated coefficients)",
 }
 # (the wave_drift draw was refused by the fit check while its limits were the 15 m jari_usv's: its 0.81 m waves stopped
