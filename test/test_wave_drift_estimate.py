@@ -1,8 +1,9 @@
 """`vessel init`'s wave-drift coefficients: the short-wave asymptote of Faltinsen 1990 sec. 5 integrated numerically
 on the waterline (physics/empirical.py short_wave_drift), its closed forms on a rectangle, its symmetry, its signs
-against the jari_usv preset (the yaw toward beam seas in both), and the diagnosis' wave_drift term moving the
-prediction of a boat made by `vessel init` (with all-zero coefficients, as `vessel init` wrote them before, it moved
-nothing)."""
+against the jari_usv preset (the yaw toward beam seas in both), every preset's yaw toward beam seas (the twin-hull
+presets' yaw the estimate on their own waterlines times their sway's fraction of it), and the diagnosis' wave_drift
+term moving the prediction of a boat made by `vessel init` (with all-zero coefficients, as `vessel init` wrote them
+before, it moved nothing)."""
 from __future__ import annotations
 
 import dataclasses
@@ -26,7 +27,7 @@ from usv_predictor.physics.environment import Environment
 from usv_predictor.physics.manoeuvres import diagnosis_runs
 from usv_predictor.physics.sensors import measure
 from usv_predictor.physics.simulator import simulate
-from usv_predictor.physics.vessel import WaveDrift, load_vessel
+from usv_predictor.physics.vessel import WaveDrift, available_vessels, load_vessel
 
 L, B = 10.0, 2.0  # (m) a rectangular waterline
 RECTANGLE = [waterline_polygon(L, B, 1.0)]
@@ -37,6 +38,14 @@ JARI = OwnerData(name="jari_init", layout="rudder_propeller", L_pp=13.5, B=3.6, 
 SMALL = OwnerData(name="small_usv", layout="rudder_propeller", L_pp=4.5, B=1.6, d=0.3, mass_kg=700.0,
                   rudder_area=0.06, rudder_span=0.25, propeller_diameter=0.25, thrust_points=((3000.0, 700.0),),
                   thrust_unit="rpm", rpm_max=3600.0, speed_m_s=2.5, speed_command=2400.0)
+
+# the twin-hull presets' dimensions (config/vessels/otter.yaml, wamv.yaml) as an owner would give them: the Otter's
+# pontoons 0.25 m wide (Fossen's B_pont, C_b 0.4 from the mass at its draught), the WAM-V's 0.2 m radius floats cut at
+# its 0.1 m draught (0.346 m wide at the waterline, centred +-1.03 m as VRX's floats)
+OTTER = OwnerData(name="otter_init", layout="twin_thrusters", L_pp=2.0, B=1.08, d=0.195122, mass_kg=80.0, hulls=2,
+                  demihull_beam=0.25, thruster_spacing=0.79, thrust_points=((1.0, 119.682),))
+WAMV = OwnerData(name="wamv_init", layout="twin_thrusters", L_pp=4.9, B=2.4, d=0.1, mass_kg=180.0, hulls=2,
+                 demihull_beam=0.346, thruster_spacing=2.05427, thrust_points=((1.0, 242.67),))
 
 
 def test_rectangle_reproduces_the_closed_forms():
@@ -111,6 +120,48 @@ def test_jari_dimensions_give_the_signs_of_the_preset():
     assert ratio == pytest.approx(0.418, abs=0.002)
     assert np.max(np.abs(preset_n - ratio * est_n)) < 0.002  # the preset's rounding to 1e-3
     assert np.max(np.abs(preset_n)) < np.max(np.abs(est_n))
+
+
+@pytest.mark.parametrize("name", available_vessels())
+def test_every_preset_turns_toward_beam_seas(name):
+    """docs/vessel.md, the sign of the yaw moment: bow-quarter seas turn the bow away from the waves, stern-quarter
+    seas the stern (the Otter's b_n [0, 0.01] and the WAM-V's [0, 0.02] of before 2026-11-26 turned them toward head
+    seas). A preset without any wave drift force (kvlcc2_model) has no moment either."""
+    w = load_vessel(name).wave_drift
+
+    def c_n(chi_deg: float) -> float:
+        return fourier(fourier_terms(w.a_n, w.b_n), math.radians(chi_deg))
+
+    if not any(w.a_x + w.b_x + w.a_y + w.b_y):
+        assert not any(w.a_n + w.b_n), w
+        return
+    assert c_n(45.0) < 0.0 < c_n(-45.0), w  # waves on the starboard bow turn the bow to port, away from them
+    assert c_n(-135.0) < 0.0 < c_n(135.0), w  # waves on the starboard quarter turn the stern to port
+    assert c_n(0.0) == pytest.approx(0.0, abs=1e-12) and c_n(180.0) == pytest.approx(0.0, abs=1e-12)  # symmetric
+
+
+@pytest.mark.parametrize("owner, name, ratio", [(OTTER, "otter", 0.070), (WAMV, "wamv", 0.119)],
+                         ids=["otter", "wamv"])
+def test_twin_hull_presets_yaw_is_the_estimate_times_their_sway_fraction(owner, name, ratio):
+    """As jari_usv's (0.418): the yaw of the estimate on the boat's own pontoons (total reflection, the inner hull's
+    side lit only near the bow in oblique seas) times the fraction of the estimate's beam-sea sway the preset's generic
+    sway has (Otter 0.07 / 0.999, WAM-V 0.12 / 1.012); the preset's surge and sway are left as they were."""
+    preset = load_vessel(name).wave_drift
+    est = estimate_vessel(owner).sections["wave_drift"]
+    assert est["b_y"].value[0] < -0.9  # one pontoon's side reflects in beam seas (the other lies in its shadow)
+    exact = preset.b_y[0] / est["b_y"].value[0]
+    assert exact == pytest.approx(ratio, abs=0.001)
+    # the estimate's yaw is mostly sin(2 chi) and toward beam seas, up to ~0.06 (the shadowed inner side)
+    assert est["b_n"].value[1] < -0.05 and abs(est["b_n"].value[0]) < 0.01 and abs(est["b_n"].value[2]) < 0.01
+    assert _series(est, "n", 45.0) < 0.0 < _series(est, "n", 135.0)
+    assert np.allclose(preset.b_n, [exact * b for b in est["b_n"].value], atol=5e-5)  # the preset's 1e-4 rounding
+    assert not any(preset.a_n)
+    chi = np.radians(np.arange(-180.0, 180.0, 1.0))
+    preset_n = np.array([fourier(fourier_terms(preset.a_n, preset.b_n), c) for c in chi])
+    est_n = np.array([_series(est, "n", math.degrees(c)) for c in chi])
+    assert np.all(np.sign(preset_n[np.abs(est_n) > 0.003]) == np.sign(est_n[np.abs(est_n) > 0.003]))
+    # as far below the bound as its sway
+    assert np.max(np.abs(preset_n)) == pytest.approx(exact * np.max(np.abs(est_n)), rel=0.03)
 
 
 def test_the_yaml_carries_the_estimate_and_says_it_is_an_upper_bound():

@@ -22,7 +22,9 @@ import your_boat  # noqa: E402  (tools/ is not a package)
 
 # what docs/your_boat.md reports for the example (step 2 and step 3)
 IDENTIFIED = {"X_u": -109.0, "Y_v": -233.0, "N_v": 147.0, "thrusters.port.forward_N": 175.0}  # SI
-RATIOS = {"speed_ratio": 1.10, "yaw_rate_ratio": 1.21}  # fit check of evaluate and diagnose
+# fit check of evaluate and diagnose on the otter sea trial; 1.10 / 1.21 on the bags of before the otter preset's
+# wave-drift yaw correction (2026-11-26), which moved the sea days' tracks (docs/your_boat.md step 3)
+RATIOS = {"speed_ratio": 1.11, "yaw_rate_ratio": 1.28}
 
 
 def test_the_doc_has_at_most_five_commands_from_dimensions_to_the_node() -> None:
