@@ -306,7 +306,7 @@ def test_the_causes_of_a_rudder_only_window_hold_its_approach_engine_speed():
     # a turn (sway and yaw free) is exactly the vessel's grey box with that reference
     turn = window("turn", math.radians(15.0), approach)
     du, dr = fc.cause_changes(vessel, dt, [turn], [wind])
-    model = GreyBoxRollout(vessel, dt, substeps=max(2, math.ceil(dt / fc.CAUSE_SUBSTEP_S - 1e-9)))
+    model = GreyBoxRollout(vessel, dt, substeps=fc.cause_substeps(vessel, dt))
     state, controls, ref = (torch.as_tensor(a[None]) for a in (start, turn.controls, approach))
     with torch.no_grad():
         calm = model(state, controls, ref)[0, 0, -averaged:].mean(dim=0)  # (6,)
