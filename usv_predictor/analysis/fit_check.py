@@ -575,7 +575,8 @@ def judge_windows(label: str, layout: ActuatorLayout, rolled: Sequence[Rolled], 
     """The verdict of check_fit on steady windows already rolled out (rolled_windows), `speeds` (N,) the measured
     |u| (m/s) the data's speed is the 90th percentile of, dt (s) the step of the windows' rollouts (None: no
     window), `data` how the reasons name what was measured, `changes_of(rolled, causes)` what the causes change in
-    the windows (default cause_changes of the vessel at dt; the node's check keeps them per window). check_fit's
+    the windows whose ratio needs them (beyond its allowance, or explain_always; default cause_changes of the vessel
+    at dt; the node's check keeps them per window). check_fit's
     second half, shared with the node's live fit check (node/fit.py), which collects its
     windows from its input buffers over time."""
     rolled = list(rolled)
@@ -589,13 +590,6 @@ def judge_windows(label: str, layout: ActuatorLayout, rolled: Sequence[Rolled], 
         rolled = [r for r in rolled if r.window not in diverged]
         windows = [r.window for r in rolled]
     causes = strongest_causes(layout.name) if vessel is not None and rolled else ()
-    changes: list[tuple[np.ndarray, np.ndarray]] = []  # [(du, dr)] of every window, rolled out when first needed
-
-    def change(index: list[int], which: int) -> np.ndarray:
-        if not changes:
-            changes.append((changes_of or partial(cause_changes, vessel, dt))(rolled, causes))
-        return changes[0][which][:, index]  # (N, len(index))
-
     size = f"for the {vessel.geometry.L_pp:g} m boat it describes" if vessel is not None else ""
     usable = [w for w in windows if w.measured_speed_mps >= MIN_SPEED]
     straight = [w for w in usable if w.kind == "straight"]
@@ -603,9 +597,26 @@ def judge_windows(label: str, layout: ActuatorLayout, rolled: Sequence[Rolled], 
     if not layout.propulsion:  # rudder_only: the engine speed is the model's own; straight running from the
         # approach speed holds that speed in a right model (a grey box by construction), turns say nothing of it
         speed_set, speed_kind = (straight, "straight") if straight else ([], "")
-    speed_ratio = speed_explanation = None
+    turns = [w for w in windows if w.kind == "turn" and abs(w.measured_yaw_rate_rad_s) >= MIN_YAW_RATE]
+    speed_ratio = float(np.median([w.predicted_speed_mps / w.measured_speed_mps for w in speed_set])) \
+        if speed_set else None
+    yaw_ratio = float(np.median([w.predicted_yaw_rate_rad_s / w.measured_yaw_rate_rad_s for w in turns])) \
+        if turns else None
+    # the causes are rolled out (one batch) for the windows of a ratio beyond its allowance only: a straight window
+    # is SETTLE_S of rollout, a turn a few seconds, and each window's changes are its own (cause_changes)
+    needed = sorted({windows.index(w) for subset, ratio, limit in ((speed_set, speed_ratio, SPEED_RATIO_LIMIT),
+                                                                   (turns, yaw_ratio, YAW_RATE_RATIO_LIMIT))
+                     if causes and ratio is not None and (explain_always or not 1.0 / limit <= ratio <= limit)
+                     for w in subset})
+    changes: list[tuple[np.ndarray, np.ndarray]] = []  # [(du, dr)] of the needed windows, rolled out when first needed
+
+    def change(index: list[int], which: int) -> np.ndarray:
+        if not changes:
+            changes.append((changes_of or partial(cause_changes, vessel, dt))([rolled[i] for i in needed], causes))
+        return changes[0][which][:, [needed.index(i) for i in index]]  # (N, len(index))
+
+    speed_explanation = None
     if speed_set:
-        speed_ratio = float(np.median([w.predicted_speed_mps / w.measured_speed_mps for w in speed_set]))
         beyond = not (1.0 / SPEED_RATIO_LIMIT <= speed_ratio <= SPEED_RATIO_LIMIT)
         if causes and (beyond or explain_always):
             index = [windows.index(w) for w in speed_set]
@@ -617,10 +628,8 @@ def judge_windows(label: str, layout: ActuatorLayout, rolled: Sequence[Rolled], 
             reasons.append(f"it runs at {w.predicted_speed_mps:.2g} m/s at {_propulsion_text(layout, w.propulsion)}"
                            f"{turning}, {data} at {w.measured_speed_mps:.2g} m/s (ratio {speed_ratio:.2f}, "
                            f"{_limit_text(speed_ratio, SPEED_RATIO_LIMIT, speed_explanation, size)})")
-    turns = [w for w in windows if w.kind == "turn" and abs(w.measured_yaw_rate_rad_s) >= MIN_YAW_RATE]
-    yaw_ratio = yaw_explanation = None
+    yaw_explanation = None
     if turns:
-        yaw_ratio = float(np.median([w.predicted_yaw_rate_rad_s / w.measured_yaw_rate_rad_s for w in turns]))
         beyond = not (1.0 / YAW_RATE_RATIO_LIMIT <= yaw_ratio <= YAW_RATE_RATIO_LIMIT)
         if causes and (beyond or explain_always):
             index = [windows.index(w) for w in turns]
