@@ -321,10 +321,11 @@ def cause_substeps(vessel: Vessel, dt: float) -> int:
     """RK4 substeps per step dt (s) of the causes' rollouts (at least 2): the longest substep is CAUSE_SUBSTEP_S
     for a 2 m boat, scaled with sqrt(L_pp / CAUSE_SUBSTEP_L) (a hull's time scales go with sqrt(L / g) at the same
     Froude number, and the strongest causes are the same for every boat: 0.6 m/s current, 15 m/s wind, 1.5 m
-    waves, so a longer boat is spun less). test_fit_check.py: on every preset and layout, every cause's du and dr
-    within 1e-3 m/s and 2e-3 deg/s of a 32-substep rollout at dt 0.2 and 0.5 s, as the 2 m boat's own rule is
-    (the 13.5 m jari_usv at dt 0.5 s: 2 substeps instead of 4, 4.7e-4 m/s and 1.2e-3 deg/s of 2.2 m/s and 7.2
-    deg/s, 2026-11-26)."""
+    waves, so a longer boat is spun less). Against 32 substeps on every preset and layout at dt 0.2 and 0.5 s, every
+    cause's du and dr is as close as the 2 m boat's own rule gets (the 13.5 m jari_usv at dt 0.5 s: 2 substeps
+    instead of 4, 4.7e-4 m/s and 1.2e-3 deg/s of changes up to 2.2 m/s and 7.2 deg/s; the otter at 4: 7.3e-4 m/s
+    and 1.4e-3 deg/s; 2026-11-26); test_fit_check.py holds every preset whose substeps it changes within 1e-3 m/s
+    and 2e-3 deg/s of 16 substeps."""
     longest = CAUSE_SUBSTEP_S * math.sqrt(max(vessel.geometry.L_pp, CAUSE_SUBSTEP_L) / CAUSE_SUBSTEP_L)  # (s)
     return max(2, math.ceil(dt / longest - 1e-9))
 
@@ -371,8 +372,9 @@ def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: S
     else:
         run, lock = (_causes_rollout() if lean else _steered_rollout())(vessel, dt, substeps=substeps), threading.Lock()
         run.register_buffer("free", free)
-    with lock, torch.no_grad(), torch.jit.optimized_execution(False):  # thread-local: other threads' TorchScript
-        for name, term in fx.grey_box_terms().items():                 # unaffected
+    # optimized_execution is thread-local: other threads' TorchScript is unaffected
+    with lock, torch.no_grad(), torch.jit.optimized_execution(False):
+        for name, term in fx.grey_box_terms().items():
             setattr(run, name, torch.nn.Parameter(terms[name] if name in terms else
                                                   torch.zeros(term.size, dtype=torch.float64), requires_grad=False))
         run.free = free
