@@ -328,7 +328,7 @@ def test_the_causes_of_a_rudder_only_window_hold_its_approach_engine_speed():
     # a turn (sway and yaw free) is exactly the vessel's grey box with that reference
     turn = window("turn", math.radians(15.0), approach)
     du, dr = fc.cause_changes(vessel, dt, [turn], [wind])
-    model = GreyBoxRollout(vessel, dt, substeps=max(2, math.ceil(dt / fc.CAUSE_SUBSTEP_S - 1e-9)))
+    model = GreyBoxRollout(vessel, dt, substeps=fc.cause_substeps(vessel, dt))
     state, controls, ref = (torch.as_tensor(a[None]) for a in (start, turn.controls, approach))
     with torch.no_grad():
         calm = model(state, controls, ref)[0, 0, -averaged:].mean(dim=0)  # (6,)
@@ -340,8 +340,11 @@ def test_the_causes_of_a_rudder_only_window_hold_its_approach_engine_speed():
 
 def test_the_scripted_causes_are_the_eager_ones_bit_for_bit():
     """cause_changes runs its steered grey box as TorchScript without the executor's optimisation (half eager's
-    time): the same numbers bit for bit as eager, on random straight windows and turns of different lengths in one
-    batch, with and without a rudder_only reference, for every strongest cause of both layouts."""
+    time) and reduced to u and r (fit_check._causes_rollout: the positions not integrated, the sea terms and hull
+    coefficients once per rollout): the same numbers bit for bit as the steered grey box's whole rollout, eager, on
+    random straight windows and turns of different lengths in one batch, with and without a rudder_only reference,
+    for every strongest cause of both layouts, at the node's substeps and at others; the scripted module, kept per
+    vessel and step, gives the same numbers again after another batch."""
     import numpy as np
 
     from usv_predictor.analysis import fit_check as fc
@@ -358,8 +361,94 @@ def test_the_scripted_causes_are_the_eager_ones_bit_for_bit():
             reference = None if layout.propulsion else np.array([4.5, 0.0, 0.0, 0.3])
             rolled.append(fc.Rolled(fc.SteadyWindow("r", kind, 0.0, 1.0, 0.0, 0.0, 4.0, 4.0, 0.0, 0.0), state,
                                     controls, min(steps, 12), reference))
-        eager = fc.cause_changes(vessel, dt, rolled, causes, scripted=False)
-        scripted = fc.cause_changes(vessel, dt, rolled, causes, scripted=True)
-        assert np.isfinite(eager[0]).all() and np.abs(eager[0]).max() > 0.01  # the causes change something
-        np.testing.assert_array_equal(scripted[0], eager[0])
-        np.testing.assert_array_equal(scripted[1], eager[1])
+        for substeps in (None, 3):
+            whole = fc.cause_changes(vessel, dt, rolled, causes, scripted=False, lean=False, substeps=substeps)
+            assert np.isfinite(whole[0]).all() and np.abs(whole[0]).max() > 0.01  # the causes change something
+            assert np.abs(whole[1]).max() > 1e-3
+            for scripted, lean in ((False, True), (True, True), (True, False)):
+                out = fc.cause_changes(vessel, dt, rolled, causes, scripted=scripted, lean=lean, substeps=substeps)
+                np.testing.assert_array_equal(out[0], whole[0])
+                np.testing.assert_array_equal(out[1], whole[1])
+        fc.cause_changes(vessel, dt, rolled[:1], causes[:3])  # another batch through the kept scripted module
+        again = fc.cause_changes(vessel, dt, rolled, causes)
+        np.testing.assert_array_equal(again[0], fc.cause_changes(vessel, dt, rolled, causes, scripted=False)[0])
+
+
+@pytest.mark.slow
+def test_the_causes_substeps_scale_with_the_boat_and_keep_du_and_dr():
+    """fit_check.cause_substeps: the causes' RK4 substep grows with sqrt(L_pp / 2 m) (Froude: a hull's time scales
+    go with sqrt(L / g)). On every preset and layout whose substeps it changes (dt 0.5 s: jari_usv and its
+    rudder_throttle and rudder_only variants 4 -> 2, kvlcc2_model and wamv 4 -> 3), every strongest cause's du and
+    dr of a straight window (steered, SETTLE_S) and two held turns at full and half propulsion stay within 1e-3 m/s
+    and 2e-3 deg/s of 16 substeps, the accuracy the 2 m otter gets from the rule at 4 substeps (7.3e-4 m/s, 1.4e-3
+    deg/s, 2026-11-26); the otter keeps its substeps."""
+    import numpy as np
+
+    from usv_predictor.analysis import fit_check as fc
+    from usv_predictor.physics.dynamics import ManoeuvringModel
+
+    dt = 0.5
+    assert fc.cause_substeps(load_vessel("otter"), dt) == 4 and fc.cause_substeps(load_vessel("otter"), 0.2) == 2
+    variants = layout_variants()
+    vessels = {"jari_usv": (variants["rudder_propeller"], 2), "rudder_throttle": (variants["rudder_throttle"], 2),
+               "rudder_only": (variants["rudder_only"], 2), "kvlcc2_model": (load_vessel("kvlcc2_model"), 3),
+               "wamv": (load_vessel("wamv"), 3)}
+    for name, (vessel, substeps) in vessels.items():
+        assert fc.cause_substeps(vessel, dt) == substeps, name
+        layout = vessel.actuator_layout
+        full = layout.propulsion_input.limits(vessel)[1] * layout.propulsion_input.to_command \
+            if layout.propulsion_input else 0.0
+        turn = layout.turn_input.limits(vessel)[1] * layout.turn_input.to_command
+        rolled = []
+        for kind, propulsion, steering, steps in (("straight", full, 0.0, int(fc.SETTLE_S / dt)),
+                                                  ("turn", full, turn, int(30.0 / dt)),
+                                                  ("turn", 0.5 * full, 0.3 * turn, int(30.0 / dt))):
+            command = np.array(layout.to_commands(steering, propulsion), dtype=float)[:len(layout.controls)]
+            speed = ManoeuvringModel(vessel).straight_speed(propulsion) if layout.propulsion_input else 3.0
+            state = np.array([max(speed, 0.5), 0.0, 0.0, 0.3])  # (4,)
+            rolled.append(fc.Rolled(fc.SteadyWindow("r", kind, 0.0, 1.0, steering, propulsion, 1.0, 1.0, 0.0, 0.0),
+                                    state, np.repeat(command[None], steps, axis=0), int(fc.STEADY_S / dt),
+                                    None if layout.propulsion else state))
+        causes = fc.strongest_causes(layout.name)
+        du, dr = fc.cause_changes(vessel, dt, rolled, causes)
+        fine_du, fine_dr = fc.cause_changes(vessel, dt, rolled, causes, substeps=16)
+        assert np.isfinite(fine_du).all() and np.abs(fine_du).max() > 0.5 and np.abs(fine_dr).max() > 0.03, name
+        assert np.abs(du - fine_du).max() < 1e-3, (name, np.abs(du - fine_du).max())
+        assert np.degrees(np.abs(dr - fine_dr).max()) < 2e-3, (name, np.degrees(np.abs(dr - fine_dr).max()))
+
+
+def test_the_causes_are_rolled_out_for_the_windows_of_a_ratio_beyond_its_allowance_only():
+    """judge_windows rolls the causes out for the windows whose ratio needs them: a straight window whose speed
+    ratio lies within the allowance (1.0) is not rolled out (SETTLE_S of rollout) when only the yaw-rate ratio of
+    the turn (6.0) is beyond; the turn's explanation is the one of all windows rolled out in one batch, bit for bit;
+    with both ratios beyond, both windows go in one batch."""
+    import numpy as np
+
+    from usv_predictor.analysis import fit_check as fc
+
+    vessel = load_vessel("jari_usv")
+    dt = 0.5
+    straight = fc.Rolled(fc.SteadyWindow("r", "straight", 0.0, 30.0, 0.0, 650.0, 5.0, 5.0, 0.0, 0.0),
+                         np.array([5.0, 0.0, 0.0, 0.0]), np.tile([0.0, 650.0], (int(fc.SETTLE_S / dt), 1)), 20)
+    turn = fc.Rolled(fc.SteadyWindow("r", "turn", 40.0, 50.0, 0.1, 650.0, 5.0, 5.0, math.radians(1.0),
+                                     math.radians(6.0)), np.array([5.0, 0.0, 0.0, 0.0]), np.tile([0.1, 650.0], (20, 1)),
+                     20)
+    calls = []
+
+    def changes_of(rolled, causes):
+        calls.append([r.window.kind for r in rolled])
+        return fc.cause_changes(vessel, dt, rolled, causes)
+
+    layout = vessel.actuator_layout
+    check = fc.judge_windows("m", layout, [straight, turn], np.array([5.0]), dt, vessel=vessel, changes_of=changes_of)
+    assert calls == [["turn"]] and check.speed_ratio == 1.0 and check.speed_explanation is None
+    assert check.yaw_rate_ratio == pytest.approx(6.0) and check.yaw_rate_explanation is not None
+    causes = fc.strongest_causes(layout.name)
+    _, dr = fc.cause_changes(vessel, dt, [straight, turn], causes)  # every window in one batch
+    assert check.yaw_rate_explanation == fc._explain(check.yaw_rate_ratio, np.array([math.radians(6.0)]), dr[:, 1:],
+                                                     fc.YAW_RATE_RATIO_LIMIT, fc.MIN_YAW_RATE, causes)
+    slow = fc.Rolled(fc.SteadyWindow("r", "straight", 0.0, 30.0, 0.0, 650.0, 2.0, 5.0, 0.0, 0.0), straight.state,
+                     straight.controls, 20)  # speed ratio 2.5: beyond
+    calls.clear()
+    check = fc.judge_windows("m", layout, [slow, turn], np.array([2.0]), dt, vessel=vessel, changes_of=changes_of)
+    assert calls == [["straight", "turn"]] and check.speed_explanation is not None

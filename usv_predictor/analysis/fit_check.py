@@ -37,6 +37,7 @@ numbers, the boat's limit and the cause behind it, and the remedy, unless told -
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 from itertools import product
 from functools import lru_cache, partial
@@ -66,8 +67,10 @@ SETTLED_YAW_ABS = math.radians(0.5)  # ... plus this (rad/s)
 SPEED_RATIO_LIMIT = 1.5  # (-) calm-water allowance: predicted / measured speed within [1/1.5, 1.5] needs no cause
 YAW_RATE_RATIO_LIMIT = 2.0  # (-) ... and steady yaw rate within [1/2, 2] (opposite sign: beyond)
 STRONGEST_DIRECTIONS = 12  # compass directions a sea (current, wind, waves) at the top of its range is tried from
-CAUSE_SUBSTEP_S = 0.125  # (s) longest integration step of the causes' rollouts: a 2 m boat spun by 1.5 m waves has
-# yaw dynamics of ~20 |r| 1/s (N_rr |r| / m_66), beyond explicit RK4's stability at 0.25 s
+CAUSE_SUBSTEP_S = 0.125  # (s) longest integration step of the causes' rollouts for a CAUSE_SUBSTEP_L boat: a 2 m
+# boat spun by 1.5 m waves has yaw dynamics of ~20 |r| 1/s (N_rr |r| / m_66), beyond explicit RK4's stability at 0.25 s
+CAUSE_SUBSTEP_L = 2.0  # (m) ... and it scales with sqrt(L_pp / this): a hull's time scales go with sqrt(L / g)
+# (Froude similarity; cause_substeps)
 TOP_SPEED_LIMIT = 1.5  # (-) the data runs faster than this times the vessel's top speed at full command
 REMEDY = "identify this boat first (docs/your_boat.md)"
 
@@ -314,8 +317,22 @@ ChangesOf = Callable[[Sequence[Rolled], Sequence[Cause]], tuple[np.ndarray, np.n
 """changes_of(rolled, causes) -> (du, dr), each (N causes, W windows): cause_changes of the windows."""
 
 
+def cause_substeps(vessel: Vessel, dt: float) -> int:
+    """RK4 substeps per step dt (s) of the causes' rollouts (at least 2): the longest substep is CAUSE_SUBSTEP_S
+    for a 2 m boat, scaled with sqrt(L_pp / CAUSE_SUBSTEP_L) (a hull's time scales go with sqrt(L / g) at the same
+    Froude number, and the strongest causes are the same for every boat: 0.6 m/s current, 15 m/s wind, 1.5 m
+    waves, so a longer boat is spun less). Against 32 substeps on every preset and layout at dt 0.2 and 0.5 s, every
+    cause's du and dr is as close as the 2 m boat's own rule gets (the 13.5 m jari_usv at dt 0.5 s: 2 substeps
+    instead of 4, 4.7e-4 m/s and 1.2e-3 deg/s of changes up to 2.2 m/s and 7.2 deg/s; the otter at 4: 7.3e-4 m/s
+    and 1.4e-3 deg/s; 2026-11-26); test_fit_check.py holds every preset whose substeps it changes within 1e-3 m/s
+    and 2e-3 deg/s of 16 substeps."""
+    longest = CAUSE_SUBSTEP_S * math.sqrt(max(vessel.geometry.L_pp, CAUSE_SUBSTEP_L) / CAUSE_SUBSTEP_L)  # (s)
+    return max(2, math.ceil(dt / longest - 1e-9))
+
+
 def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: Sequence[Cause], *,
-                  scripted: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                  scripted: bool = True, lean: bool = True,
+                  substeps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(du, dr), each (N causes, W windows): what each cause changes in the vessel's u (m/s, over ground) and r
     (rad/s, as the gyro reports it) averaged where the window's prediction is, rolled out by the vessel's grey box
     from the same state with the same controls (straight windows steered: _steered_rollout). One batch: rows =
@@ -327,7 +344,10 @@ def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: S
     scripted: the module is run as TorchScript without the graph executor's optimisation (the interpreter runs the
     same aten ops in the same order as eager: the same numbers bit for bit, test_fit_check.py; half the time of eager
     here, whose per-op Python overhead is the cost of these small batches, ~0.4 ms per derivative of 45 rows; the
-    profiling executor would spend its first two calls profiling a shape that each check changes); False: eager."""
+    profiling executor would spend its first two calls profiling a shape that each check changes); False: eager.
+    lean: the rollout reduced to u and r (_causes_rollout: the same numbers bit for bit, fewer ops); False: the
+    steered grey box's whole rollout (_steered_rollout), the reference the tests compare with. substeps: RK4
+    substeps per step (default cause_substeps of the vessel)."""
     import torch
 
     rows = 1 + len(causes)
@@ -338,26 +358,46 @@ def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: S
     controls = np.concatenate([np.repeat(np.concatenate(
         [r.controls, np.repeat(r.controls[-1:], horizon - r.controls.shape[0], axis=0)])[None], rows, axis=0)
         for r in rolled])  # (W rows, H, C)
-    model = _steered_rollout()(vessel, dt, substeps=max(2, math.ceil(dt / CAUSE_SUBSTEP_S - 1e-9)))
-    model.register_buffer("free", torch.as_tensor(
-        np.repeat([0.0 if r.window.kind == "straight" else 1.0 for r in rolled], rows)))  # (W rows,)
-    for name in sorted({t for c in causes for t in c.terms}):
-        size = getattr(model, name).shape[0]
-        values = np.zeros((size, len(rolled), rows))  # (size, W, rows)
+    substeps = cause_substeps(vessel, dt) if substeps is None else substeps
+    terms = {}  # every extension term of the grey box, (size, W rows): each cause's on its rows, 0 elsewhere
+    for name in {t for c in causes for t in c.terms}:
+        values = np.zeros((len(next(c.terms[name] for c in causes if name in c.terms)), len(rolled), rows))
         for j, cause in enumerate(causes, start=1):
             if name in cause.terms:
                 values[:, :, j] = np.asarray(cause.terms[name])[:, None]
-        setattr(model, name, torch.nn.Parameter(torch.as_tensor(values.reshape(size, -1)), requires_grad=False))
-    run = torch.jit.script(model) if scripted else model
-    with torch.no_grad(), torch.jit.optimized_execution(False):  # thread-local: other threads' TorchScript unaffected
-        out = run(torch.as_tensor(states), torch.as_tensor(controls), torch.as_tensor(references))[0].numpy()  # (W rows, H, 6)
-    out = out.reshape(len(rolled), rows, horizon, 6)
+        terms[name] = torch.as_tensor(values.reshape(values.shape[0], -1))
+    free = torch.as_tensor(np.repeat([0.0 if r.window.kind == "straight" else 1.0 for r in rolled], rows))  # (W rows,)
+    if scripted:
+        run, lock = _scripted_causes(vessel, float(dt), substeps, lean)
+    else:
+        run, lock = (_causes_rollout() if lean else _steered_rollout())(vessel, dt, substeps=substeps), threading.Lock()
+        run.register_buffer("free", free)
+    # optimized_execution is thread-local: other threads' TorchScript is unaffected
+    with lock, torch.no_grad(), torch.jit.optimized_execution(False):
+        for name, term in fx.grey_box_terms().items():
+            setattr(run, name, torch.nn.Parameter(terms[name] if name in terms else
+                                                  torch.zeros(term.size, dtype=torch.float64), requires_grad=False))
+        run.free = free
+        out = run(torch.as_tensor(states), torch.as_tensor(controls), torch.as_tensor(references))
+    # (W rows, H, 2) [u, r] of the lean rollout, (1, W rows, H, 6) [u, v, r, x_n, y_e, psi] of the whole one
+    out = (out if lean else out[0, :, :, 0:3:2]).numpy().reshape(len(rolled), rows, horizon, 2)
     du, dr = np.zeros((len(causes), len(rolled))), np.zeros((len(causes), len(rolled)))
     for w, r in enumerate(rolled):
         end = r.controls.shape[0]
-        mean = out[w, :, end - r.averaged:end].mean(axis=1)  # (rows, 6)
-        du[:, w], dr[:, w] = mean[1:, 0] - mean[0, 0], mean[1:, 2] - mean[0, 2]
+        mean = out[w, :, end - r.averaged:end].mean(axis=1)  # (rows, 2) [u, r]
+        du[:, w], dr[:, w] = mean[1:, 0] - mean[0, 0], mean[1:, 1] - mean[0, 1]
     return du, dr
+
+
+@lru_cache(maxsize=8)
+def _scripted_causes(vessel: Vessel, dt: float, substeps: int, lean: bool) -> tuple[Any, threading.Lock]:
+    """The causes' rollout of a vessel, step and substeps, scripted once (scripting a module takes ~10-15 ms, a
+    tenth of a rollout), and the lock its users hold while they set its terms and run it."""
+    import torch
+
+    model = (_causes_rollout() if lean else _steered_rollout())(vessel, dt, substeps=substeps)
+    model.register_buffer("free", torch.ones(1, dtype=torch.float64))
+    return torch.jit.script(model), threading.Lock()
 
 
 @lru_cache(maxsize=None)
@@ -374,6 +414,56 @@ def _steered_rollout() -> type:
             return [acc[0], acc[1] * self.free, acc[2] * self.free]
 
     return SteeredRollout
+
+
+@lru_cache(maxsize=None)
+def _causes_rollout() -> type:
+    """_steered_rollout's rollout reduced to what cause_changes reads: forward -> (B, H, 2) [u over ground, r as the
+    gyro reports it], the same equations (GreyBoxRollout's own methods) and RK4 steps, the same numbers bit for bit
+    (test_fit_check.py), with fewer small ops per derivative (its cost is their count: 45 rows):
+      - the state is [psi, u_r, v_r, r]: the positions (x_n, y_e) feed nothing back, they are not integrated;
+      - what does not change over the rollout is computed once: the hull coefficients unbound (hull_list) and the
+        sea terms' values (_sea_terms: the current's and wind's components, the wave amplitude and direction);
+      - only u and r are output."""
+    from typing import List, Optional
+
+    import torch
+    from torch import Tensor
+
+    class CausesRollout(_steered_rollout()):
+        def forward(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
+            controls, x, carry = self._start(state, controls, reference)
+            hull, sea = self.hull_list(), self._sea_terms()
+            s = [x[2], x[3], x[4], x[5]]  # (B,) each: psi, u_r, v_r, r
+            h = self.dt / self.substeps
+            outputs: List[Tensor] = []
+            steps = controls.shape[1]
+            for k in range(steps):  # GreyBoxRollout._rollout's steps and substeps
+                c0 = controls[:, k]
+                dc = controls[:, min(k + 1, steps - 1)] - c0
+                for j in range(self.substeps):
+                    a0 = float(j) / self.substeps
+                    a1 = (float(j) + 0.5) / self.substeps
+                    a2 = (float(j) + 1.0) / self.substeps
+                    lv = self.actuator_forces.stage(c0 + a0 * dc, c0 + a1 * dc, c0 + a2 * dc, carry,
+                                                    self.rudder_offset)
+                    k1 = self._lean_derivative(hull, sea, s, lv[0], lv[1])
+                    k2 = self._lean_derivative(hull, sea, [p + 0.5 * h * q for p, q in zip(s, k1)], lv[2], lv[3])
+                    k3 = self._lean_derivative(hull, sea, [p + 0.5 * h * q for p, q in zip(s, k2)], lv[2], lv[3])
+                    k4 = self._lean_derivative(hull, sea, [p + h * q for p, q in zip(s, k3)], lv[4], lv[5])
+                    s = [p + h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4) for p, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4)]
+                    carry = lv[6]
+                u_g = s[1] + sea[0] * torch.cos(s[0]) + sea[1] * torch.sin(s[0])  # over ground, as _rollout's
+                outputs.append(torch.stack([u_g, s[3] + self.yaw_rate_bias[0]], dim=-1))
+            return torch.stack(outputs, dim=1)  # (B, H, 2)
+
+        def _lean_derivative(self, hull: List[Tensor], sea: List[Tensor], s: List[Tensor], a: Tensor,
+                             b: Tensor) -> List[Tensor]:
+            """d/dt of [psi, u_r, v_r, r] (GreyBoxRollout._derivative without the positions; steered)."""
+            acc = self._accelerations_with(hull, sea, s[0], s[1], s[2], s[3], a, b)
+            return [s[3], acc[0], acc[1] * self.free, acc[2] * self.free]
+
+    return CausesRollout
 
 
 def _explain(ratio: float, predicted: np.ndarray, changes: np.ndarray, limit: float, floor: float,
@@ -487,7 +577,8 @@ def judge_windows(label: str, layout: ActuatorLayout, rolled: Sequence[Rolled], 
     """The verdict of check_fit on steady windows already rolled out (rolled_windows), `speeds` (N,) the measured
     |u| (m/s) the data's speed is the 90th percentile of, dt (s) the step of the windows' rollouts (None: no
     window), `data` how the reasons name what was measured, `changes_of(rolled, causes)` what the causes change in
-    the windows (default cause_changes of the vessel at dt; the node's check keeps them per window). check_fit's
+    the windows whose ratio needs them (beyond its allowance, or explain_always; default cause_changes of the vessel
+    at dt; the node's check keeps them per window). check_fit's
     second half, shared with the node's live fit check (node/fit.py), which collects its
     windows from its input buffers over time."""
     rolled = list(rolled)
@@ -501,13 +592,6 @@ def judge_windows(label: str, layout: ActuatorLayout, rolled: Sequence[Rolled], 
         rolled = [r for r in rolled if r.window not in diverged]
         windows = [r.window for r in rolled]
     causes = strongest_causes(layout.name) if vessel is not None and rolled else ()
-    changes: list[tuple[np.ndarray, np.ndarray]] = []  # [(du, dr)] of every window, rolled out when first needed
-
-    def change(index: list[int], which: int) -> np.ndarray:
-        if not changes:
-            changes.append((changes_of or partial(cause_changes, vessel, dt))(rolled, causes))
-        return changes[0][which][:, index]  # (N, len(index))
-
     size = f"for the {vessel.geometry.L_pp:g} m boat it describes" if vessel is not None else ""
     usable = [w for w in windows if w.measured_speed_mps >= MIN_SPEED]
     straight = [w for w in usable if w.kind == "straight"]
@@ -515,9 +599,26 @@ def judge_windows(label: str, layout: ActuatorLayout, rolled: Sequence[Rolled], 
     if not layout.propulsion:  # rudder_only: the engine speed is the model's own; straight running from the
         # approach speed holds that speed in a right model (a grey box by construction), turns say nothing of it
         speed_set, speed_kind = (straight, "straight") if straight else ([], "")
-    speed_ratio = speed_explanation = None
+    turns = [w for w in windows if w.kind == "turn" and abs(w.measured_yaw_rate_rad_s) >= MIN_YAW_RATE]
+    speed_ratio = float(np.median([w.predicted_speed_mps / w.measured_speed_mps for w in speed_set])) \
+        if speed_set else None
+    yaw_ratio = float(np.median([w.predicted_yaw_rate_rad_s / w.measured_yaw_rate_rad_s for w in turns])) \
+        if turns else None
+    # the causes are rolled out (one batch) for the windows of a ratio beyond its allowance only: a straight window
+    # is SETTLE_S of rollout, a turn a few seconds, and each window's changes are its own (cause_changes)
+    needed = sorted({windows.index(w) for subset, ratio, limit in ((speed_set, speed_ratio, SPEED_RATIO_LIMIT),
+                                                                   (turns, yaw_ratio, YAW_RATE_RATIO_LIMIT))
+                     if causes and ratio is not None and (explain_always or not 1.0 / limit <= ratio <= limit)
+                     for w in subset})
+    changes: list[tuple[np.ndarray, np.ndarray]] = []  # [(du, dr)] of the needed windows, rolled out when first needed
+
+    def change(index: list[int], which: int) -> np.ndarray:
+        if not changes:
+            changes.append((changes_of or partial(cause_changes, vessel, dt))([rolled[i] for i in needed], causes))
+        return changes[0][which][:, [needed.index(i) for i in index]]  # (N, len(index))
+
+    speed_explanation = None
     if speed_set:
-        speed_ratio = float(np.median([w.predicted_speed_mps / w.measured_speed_mps for w in speed_set]))
         beyond = not (1.0 / SPEED_RATIO_LIMIT <= speed_ratio <= SPEED_RATIO_LIMIT)
         if causes and (beyond or explain_always):
             index = [windows.index(w) for w in speed_set]
@@ -529,10 +630,8 @@ def judge_windows(label: str, layout: ActuatorLayout, rolled: Sequence[Rolled], 
             reasons.append(f"it runs at {w.predicted_speed_mps:.2g} m/s at {_propulsion_text(layout, w.propulsion)}"
                            f"{turning}, {data} at {w.measured_speed_mps:.2g} m/s (ratio {speed_ratio:.2f}, "
                            f"{_limit_text(speed_ratio, SPEED_RATIO_LIMIT, speed_explanation, size)})")
-    turns = [w for w in windows if w.kind == "turn" and abs(w.measured_yaw_rate_rad_s) >= MIN_YAW_RATE]
-    yaw_ratio = yaw_explanation = None
+    yaw_explanation = None
     if turns:
-        yaw_ratio = float(np.median([w.predicted_yaw_rate_rad_s / w.measured_yaw_rate_rad_s for w in turns]))
         beyond = not (1.0 / YAW_RATE_RATIO_LIMIT <= yaw_ratio <= YAW_RATE_RATIO_LIMIT)
         if causes and (beyond or explain_always):
             index = [windows.index(w) for w in turns]

@@ -87,14 +87,15 @@ def hull_coefficients(vessel: Vessel) -> Tuple[Tuple[str, ...], Tuple[float, ...
 # ---- hull models (dynamics.MmgHullForces, dynamics.SmallCraftHullForces) ----------------------------------------
 
 class MmgHullModule(nn.Module):
-    """The MMG hull polynomial; h = the 17 coefficients of vessel.Hull in HULL_NAMES order."""
+    """The MMG hull polynomial; h = the 17 coefficients of vessel.Hull in HULL_NAMES order (the rollout's `hull`
+    unbound: a list of 0-dim tensors, GreyBoxRollout.hull_list)."""
 
     def __init__(self, vessel: Vessel) -> None:
         super().__init__()
         self.speed_floor = SPEED_FLOOR
         _set_constants(self, constants_of(vessel, dynamics.MmgHullForces.constants))
 
-    def forces(self, h: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor, resistance_change: Tensor) -> List[Tensor]:
+    def forces(self, h: List[Tensor], u_r: Tensor, v_r: Tensor, r: Tensor, resistance_change: Tensor) -> List[Tensor]:
         L = self.L
         U = torch.clamp(torch.sqrt(u_r * u_r + v_r * v_r), min=self.speed_floor)
         vp = v_r / U
@@ -108,7 +109,7 @@ class MmgHullModule(nn.Module):
                        + h[16] * rp ** 3)
         return [x_h, y_h, n_h]
 
-    def solve(self, h: Tensor, x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor) -> List[Tensor]:
+    def solve(self, h: List[Tensor], x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor) -> List[Tensor]:
         """nu_r_dot = M^-1 (tau - C(nu_r) nu_r) with MMG's Coriolis terms (no Munk moment: it is in N_v)."""
         rhs_x = x + self.m22 * v_r * r + self.x_G * self.m * r * r
         rhs_y = y - self.m11 * u_r * r
@@ -116,7 +117,7 @@ class MmgHullModule(nn.Module):
         return [rhs_x / self.m11, (self.m33 * rhs_y - self.m23 * rhs_n) / self.det_vr,
                 (self.m22 * rhs_n - self.m32 * rhs_y) / self.det_vr]
 
-    def resistance(self, h: Tensor, resistance_change: Tensor) -> List[Tensor]:
+    def resistance(self, h: List[Tensor], resistance_change: Tensor) -> List[Tensor]:
         """[r1 (N s/m), r2 (N s^2/m^2)] of the straight-running resistance R = r1 u + r2 u^2."""
         return [torch.zeros_like(h[0]), self.q_force * h[0] * (1.0 + resistance_change[0])]
 
@@ -134,7 +135,7 @@ class SmallCraftHullModule(nn.Module):
          self.i_nrr, self.i_cd) = (names.index(n) for n in ("X_udot", "Y_vdot", "N_rdot", "X_u", "X_uu", "Y_v", "Y_r",
                                                            "N_v", "N_r", "N_rr", "cross_flow_cd"))
 
-    def forces(self, h: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor, resistance_change: Tensor) -> List[Tensor]:
+    def forces(self, h: List[Tensor], u_r: Tensor, v_r: Tensor, r: Tensor, resistance_change: Tensor) -> List[Tensor]:
         w = v_r[:, None] + self.strips[None, :] * r[:, None]  # (B, S) relative cross-flow velocity along the hull
         f = torch.abs(w) * w  # (B, S)
         cross = -self.half_rho_d * h[self.i_cd] * self.strip_dx
@@ -145,7 +146,7 @@ class SmallCraftHullModule(nn.Module):
         n_h = h[self.i_nv] * v_r + h[self.i_nr] * r + h[self.i_nrr] * torch.abs(r) * r + n_cf
         return [x_h, y_h, n_h]
 
-    def solve(self, h: Tensor, x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor) -> List[Tensor]:
+    def solve(self, h: List[Tensor], x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor) -> List[Tensor]:
         """nu_r_dot = M^-1 (tau - C_RB(nu_r) nu_r - C_A(nu_r) nu_r), M with the fitted added mass; the yaw row has
         the Munk moment (Y_vdot - X_udot) u_r v_r."""
         m11 = self.m - h[self.i_xud]
@@ -157,7 +158,7 @@ class SmallCraftHullModule(nn.Module):
         rhs_n = n - self.x_G * self.m * u_r * r + (h[self.i_yvd] - h[self.i_xud]) * u_r * v_r
         return [rhs_x / m11, (m33 * rhs_y - self.m23 * rhs_n) / det, (m22 * rhs_n - self.m32 * rhs_y) / det]
 
-    def resistance(self, h: Tensor, resistance_change: Tensor) -> List[Tensor]:
+    def resistance(self, h: List[Tensor], resistance_change: Tensor) -> List[Tensor]:
         return [-h[self.i_xu] * (1.0 + resistance_change[0]), -h[self.i_xuu] * (1.0 + resistance_change[0])]
 
 
@@ -351,6 +352,8 @@ ACTUATOR_MODULES: Dict[str, type] = {  # actuator layout (physics/actuators.py) 
 
 
 class GreyBoxRollout(nn.Module):
+    __annotations__ = {"drift_harmonics": List[List[float]]}  # TorchScript: the list may be empty
+
     def __init__(self, vessel: Vessel, dt: float, substeps: int = 2) -> None:
         super().__init__()
         self.dt = float(dt)
@@ -360,6 +363,11 @@ class GreyBoxRollout(nn.Module):
         # the mass matrix and the sea here, the hull model's and the layout's in the two submodules
         self.L = vessel.geometry.L_pp  # (m), the wave-drift moment arm
         _set_constants(self, constants_of(vessel, (SeaConstants,)))
+        # the wave-drift harmonics any of the three series uses: [n, its cos needed, its sin needed] (_drift)
+        series = (self.drift_x, self.drift_y, self.drift_n)
+        self.drift_harmonics = [[float(n), float(any(len(t) > n and t[n][1] != 0.0 for t in series)),
+                                 float(any(len(t) > n and t[n][2] != 0.0 for t in series))]
+                                for n in range(1, max(len(t) for t in series))]
         self.hull_forces = HULL_MODULES[vessel.hull_model_name](vessel)
         self.actuator_forces = ACTUATOR_MODULES[vessel.layout](vessel, self.dt / self.substeps)
         names, values = hull_coefficients(vessel)
@@ -374,11 +382,26 @@ class GreyBoxRollout(nn.Module):
             setattr(self, term.name, nn.Parameter(torch.zeros(term.size, dtype=torch.float64), requires_grad=False))
 
     # ---- forces ---------------------------------------------------------------------------------
-    def _fourier(self, table: List[List[float]], chi: Tensor) -> Tensor:
-        value = torch.full_like(chi, table[0][0])
-        for row in table[1:]:
-            value = value + row[1] * torch.cos(row[0] * chi) + row[2] * torch.sin(row[0] * chi)
-        return value
+    def _drift(self, chi: Tensor) -> List[Tensor]:
+        """The wave-drift Fourier series [C_x, C_y, C_n] at (B,) chi (seed 000 eq. 19): a0/2 + sum a_n cos(n chi) +
+        b_n sin(n chi), each harmonic's cos and sin computed once for the three series (drift_harmonics), a zero
+        coefficient's term left out (it adds 0)."""
+        cos: List[Tensor] = []
+        sin: List[Tensor] = []
+        for harmonic in self.drift_harmonics:  # [n, cos needed, sin needed]
+            angle = chi if harmonic[0] == 1.0 else harmonic[0] * chi
+            cos.append(torch.cos(angle) if harmonic[1] > 0.0 else chi)
+            sin.append(torch.sin(angle) if harmonic[2] > 0.0 else chi)
+        out: List[Tensor] = []
+        for table in (self.drift_x, self.drift_y, self.drift_n):
+            value = torch.full_like(chi, table[0][0])
+            for k, row in enumerate(table[1:]):
+                if row[1] != 0.0:
+                    value = value + row[1] * cos[k]
+                if row[2] != 0.0:
+                    value = value + row[2] * sin[k]
+            out.append(value)
+        return out
 
     def _air_load(self, u_rw: Tensor, v_rw: Tensor) -> List[Tensor]:
         v2 = u_rw * u_rw + v_rw * v_rw
@@ -389,32 +412,53 @@ class GreyBoxRollout(nn.Module):
     def _accelerations(self, psi: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor, a: Tensor, b: Tensor) -> List[Tensor]:
         """[u_r_dot, v_r_dot, r_dot] for (B,) tensors at the actuator levels a, b (delta rad and rpm for
         rudder_propeller; dynamics.ManoeuvringModel.accelerations)."""
-        hull = self.hull_forces.forces(self.hull, u_r, v_r, r, self.resistance_change)
+        return self._accelerations_with(self.hull_list(), self._sea_terms(), psi, u_r, v_r, r, a, b)
+
+    def _accelerations_with(self, hull: List[Tensor], sea: List[Tensor], psi: Tensor, u_r: Tensor, v_r: Tensor,
+                            r: Tensor, a: Tensor, b: Tensor) -> List[Tensor]:
+        """_accelerations with the hull coefficients unbound (hull_list) and the sea terms' values (_sea_terms)
+        given: a rollout that holds them computes them once (fit_check's causes, CausesRollout)."""
+        h = self.hull_forces.forces(hull, u_r, v_r, r, self.resistance_change)
         act = self.actuator_forces.forces(u_r, v_r, r, a, b, self.propeller_side_force, self.thrust_imbalance)
-        sea = self._sea_loads(psi, u_r, v_r)
-        x = hull[0] + act[0] + act[3] + sea[0]
-        y = hull[1] + act[1] + act[4] + sea[1]
-        n = hull[2] + act[2] + act[5] + sea[2]
-        return self.hull_forces.solve(self.hull, x, y, n, u_r, v_r, r)
+        loads = self._sea_loads_with(sea, psi, u_r, v_r)
+        x = h[0] + act[0] + act[3] + loads[0]
+        y = h[1] + act[1] + act[4] + loads[1]
+        n = h[2] + act[2] + act[5] + loads[2]
+        return self.hull_forces.solve(hull, x, y, n, u_r, v_r, r)
+
+    def hull_list(self) -> List[Tensor]:
+        """The hull coefficients as a list of 0-dim tensors (one unbind, no select per coefficient and use)."""
+        return self.hull.unbind(0)
+
+    def _sea_terms(self) -> List[Tensor]:
+        """What the sea loads take from the extension terms, the same over a rollout: [current north, east (m/s),
+        wind north, east (m/s), q_wave zeta_a^2 (N), the direction the waves come from (rad)], each 0-dim, or (B,)
+        when the terms are set per row."""
+        amp = torch.sqrt(self.wave_ne[0] ** 2 + self.wave_ne[1] ** 2 + 1e-30)  # finite gradient at zero
+        return [self.current_ne[0], self.current_ne[1], self.wind_ne[0], self.wind_ne[1], self.q_wave * amp,
+                torch.atan2(self.wave_ne[1], self.wave_ne[0])]
 
     def _sea_loads(self, psi: Tensor, u_r: Tensor, v_r: Tensor) -> List[Tensor]:
         """[X, Y, N] of the sea terms on (B,) heading psi and water velocity u_r, v_r: the wind over the still-air
         drag (seed 000 eq. 12-18) and the mean wave drift (eq. 19)."""
+        return self._sea_loads_with(self._sea_terms(), psi, u_r, v_r)
+
+    def _sea_loads_with(self, sea: List[Tensor], psi: Tensor, u_r: Tensor, v_r: Tensor) -> List[Tensor]:
+        """_sea_loads with the sea terms' values given (_sea_terms)."""
         L = self.L
         # sea: apparent wind over ground, mean wave drift
         c, s = torch.cos(psi), torch.sin(psi)
-        u_g = u_r + self.current_ne[0] * c + self.current_ne[1] * s
-        v_g = v_r - self.current_ne[0] * s + self.current_ne[1] * c
-        wind = self._air_load(u_g - (self.wind_ne[0] * c + self.wind_ne[1] * s),
-                              v_g - (-self.wind_ne[0] * s + self.wind_ne[1] * c))
+        u_g = u_r + sea[0] * c + sea[1] * s
+        v_g = v_r - sea[0] * s + sea[1] * c
+        wind = self._air_load(u_g - (sea[2] * c + sea[3] * s), v_g - (-sea[2] * s + sea[3] * c))
         still = self._air_load(u_g, v_g)  # still-air drag is in the resistance: the load is the increment (dynamics.py)
         x_w, y_w, n_w = wind[0] - still[0], wind[1] - still[1], wind[2] - still[2]
-        amp = torch.sqrt(self.wave_ne[0] ** 2 + self.wave_ne[1] ** 2 + 1e-30)  # finite gradient at zero
-        chi = torch.atan2(self.wave_ne[1], self.wave_ne[0]) - psi
-        qw = self.q_wave * amp
-        x_wv = qw * self._fourier(self.drift_x, chi)
-        y_wv = qw * self._fourier(self.drift_y, chi)
-        n_wv = qw * L * self._fourier(self.drift_n, chi)
+        chi = sea[5] - psi
+        qw = sea[4]
+        drift = self._drift(chi)
+        x_wv = qw * drift[0]
+        y_wv = qw * drift[1]
+        n_wv = qw * L * drift[2]
         return [x_w + x_wv, y_w + y_wv, n_w + n_wv]
 
     def _derivative(self, s: List[Tensor], a: Tensor, b: Tensor) -> List[Tensor]:
@@ -446,8 +490,10 @@ class GreyBoxRollout(nn.Module):
     def forward(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
         return self._rollout(state, controls, reference).unsqueeze(0)  # (1, B, H, 6)
 
-    def _rollout(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
-        """(B, H, 6) [u, v, r, x_n, y_e, psi] as measured (the module docstring's interface without the ensemble axis)."""
+    def _start(self, state: Tensor, controls: Tensor,
+               reference: Optional[Tensor]) -> Tuple[Tensor, List[Tensor], Tensor]:
+        """(controls (B, H, C) in float64 as the hull feels them, the start [x_n, y_e, psi, u_r, v_r, r] (B,) each,
+        the layout's carry (B, K)): what a rollout starts from (_rollout's first part, shared with fit_check's)."""
         state = state.to(torch.float64)  # (B, 4) measured u, v, r, psi
         controls = controls.to(torch.float64)  # (B, H, C) reported controls of the actuator layout
         if controls.dim() != 3 or controls.shape[2] != self.n_controls:
@@ -467,11 +513,16 @@ class GreyBoxRollout(nn.Module):
             ref = reference.to(torch.float64)  # (B, 4) measured u, v, r, psi
             psi_held = ref[:, 3] - self.heading_offset[0]
             held = ref[:, 0] - (self.current_ne[0] * torch.cos(psi_held) + self.current_ne[1] * torch.sin(psi_held))
-        resistance = self.hull_forces.resistance(self.hull, self.resistance_change)
+        resistance = self.hull_forces.resistance(self.hull_list(), self.resistance_change)
         # the sea's surge force in that straight running (wind, waves): the engine holds the speed against it too
         sea_x = self._sea_loads(psi_held, held, torch.zeros_like(held))[0]  # (B,) N
         carry = self.actuator_forces.begin(held, controls, [resistance[0], resistance[1], sea_x],
                                            self.engine_speed_rpm)  # (B, K)
+        return controls, x, carry
+
+    def _rollout(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
+        """(B, H, 6) [u, v, r, x_n, y_e, psi] as measured (the module docstring's interface without the ensemble axis)."""
+        controls, x, carry = self._start(state, controls, reference)
         h = self.dt / self.substeps
         outputs: List[Tensor] = []
         steps = controls.shape[1]

@@ -20,14 +20,15 @@ The same check `replay evaluate` and `replay diagnose` run before they answer (a
               node applies to its own grey box (sea.py) never reaches the copy: the check judges the calm-water
               model, as the replay tool does. A check starts when period_s has passed and the previous one ended.
     the cache a window whose rollout inputs (start state, controls, reference, kind, averaged steps) are the same
-              bytes as a window of the previous check is not rolled out again: the model's rollout and the causes'
-              changes are served from that check (keyed on the content, never on the stamps: a window seen again
-              on a shifted grid has other box means and is rolled out anew). The rollouts are deterministic, so
-              the verdict and its numbers are the same with and without it (test_node_fit.py). It serves the
-              kept windows (as the check did before by the window's identity) and windows found again with the same
-              bytes: inputs that repeat bit for bit (a simulated or benchmark feed of constant values, in one
-              process). Live, a window found again is new content: its grid moves with the buffers' first samples
-              (other box means) and its length with their span.
+              bytes as a window of the previous check does not get its causes rolled out again: their changes are
+              served from that check (keyed on the content, never on the stamps: a window seen again on a shifted
+              grid has other box means and is rolled out anew). The rollouts are deterministic, so the verdict and
+              its numbers are the same with and without it (test_node_fit.py). It serves the kept windows (as the
+              check did before by the window's identity) and windows found again with the same bytes (inputs that
+              repeat bit for bit: a simulated or benchmark feed of constant values, in one process). The model's
+              rollout of a window found by a check is made anew each time: live, a window found again is new content
+              (its grid moves with the buffers' first samples, its length with their span; over DDS the cache of
+              those rollouts served none of them, 2026-11-26, so it was removed).
 
 Between cycles: the check's own Python (the model's rollouts of its windows, the verdict, compiling the causes'
 rollout) holds the GIL for a few ms at a time, and a cycle that starts meanwhile waits for it (up to the interpreter's
@@ -59,7 +60,6 @@ from typing import Any
 import numpy as np
 
 from usv_predictor.analysis import fit_check as fc
-from usv_predictor.analysis.evaluation import rollout
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import ConfigError
 from usv_predictor.physics.actuators import ActuatorLayout
@@ -160,12 +160,9 @@ class LiveFitCheck:
         self.last_reset = ""
         self._lock = threading.Lock()  # run() may work in another thread than reset() and report()
         self._generation = 0  # a reset while a check runs discards that check's result
-        self.cached = cached  # serve the rollouts of windows whose content the previous check rolled out (False: the
-        #                      reference the tests compare with)
-        self._rollouts: dict[tuple, np.ndarray] = {}  # content -> the model's rollout (E, 1, H, 6), previous check
+        self.cached = cached  # serve the causes' changes of windows whose content the previous check rolled out
+        #                      (False: the reference the tests compare with)
         self._changes: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # content -> (du (N,), dr (N,)), kept windows
-        self.rolled_out = 0  # model rollouts run (windows)
-        self.served = 0  # model rollouts served from the cache (windows)
         self.causes_rolled_out = 0  # windows whose causes were rolled out
         self.causes_served = 0  # windows whose causes' changes were served from the cache
 
@@ -178,7 +175,6 @@ class LiveFitCheck:
         with self._lock:
             self._generation += 1
             self.windows = []
-            self._rollouts = {}
             self._changes = {}
             self.speeds.clear()
             self._speeds_until_ns = None
@@ -206,9 +202,7 @@ class LiveFitCheck:
         with self._lock:
             generation = self._generation
             self._next_ns = now_ns + int(self.settings.period_s * NS_PER_S)
-        previous, rollouts = self._rollouts, {}
-        found = fc.rolled_windows(self.model, [recording], self.layout, reference,
-                                  partial(self._predict, previous, rollouts))  # the model's rollouts: the long part
+        found = fc.rolled_windows(self.model, [recording], self.layout, reference)  # the model's rollouts
         grid_ns = recording.t0_ns + np.round(recording.t_s * NS_PER_S).astype(np.int64)  # (T,)
         with self._lock:
             if generation != self._generation:
@@ -220,7 +214,6 @@ class LiveFitCheck:
                 windows = [w for w in windows if w.end_ns < start or w.start_ns > end]  # seen longer now
                 windows.append(LiveWindow(start, end, rolled))
             self.windows = sorted(windows, key=lambda w: w.end_ns)[-MAX_WINDOWS:]
-            self._rollouts = rollouts  # this check's: the next one serves a window it sees again unchanged
             new = grid_ns > (self._speeds_until_ns if self._speeds_until_ns is not None else -1)
             self.speeds.extend(np.abs(recording.nu[new, 0]).tolist())
             if len(grid_ns):
@@ -238,20 +231,6 @@ class LiveFitCheck:
             self.cost_s.append(time.perf_counter() - started - ((gap.waited_s - waited) if gap is not None else 0.0))
         return check
 
-    def _predict(self, previous: dict[tuple, np.ndarray], rollouts: dict[tuple, np.ndarray], state: np.ndarray,
-                 controls: np.ndarray, reference: np.ndarray | None) -> np.ndarray:
-        """evaluation.rollout of the model (fit_check.Predict), or the previous check's of the same content (the
-        module docstring's cache); recorded in `rollouts`, this check's."""
-        key = content_key(state, controls, reference)
-        out = previous.get(key) if self.cached else None
-        if out is None:
-            out = rollout(self.model, state, controls, reference)  # (E, 1, H, 6)
-            self.rolled_out += 1
-        else:
-            self.served += 1
-        rollouts[key] = out
-        return out
-
     def _cause_changes(self, dt: float, generation: int, gap: CycleGap | None, rolled: list[fc.Rolled],
                        causes: tuple[fc.Cause, ...]) -> tuple[np.ndarray, np.ndarray]:
         """fit_check.cause_changes of the windows, rolled out once per window content (a kept window is not rolled
@@ -261,7 +240,7 @@ class LiveFitCheck:
         keys = [(dt, r.window.kind, r.averaged, *content_key(r.state, r.controls, r.reference)) for r in rolled]
         missing = {key: r for key, r in zip(keys, rolled) if key not in cache}
         if missing:
-            if gap is not None:  # building and compiling the causes' rollout holds the GIL for a few ms
+            if gap is not None:  # building the causes' batch (compiling their rollout the first time) holds the GIL
                 gap.wait()
             du, dr = fc.cause_changes(self.vessel, dt, list(missing.values()), causes)
             cache = {**cache, **{key: (du[:, k], dr[:, k]) for k, key in enumerate(missing)}}
@@ -295,9 +274,8 @@ class LiveFitCheck:
         if self.cost_s:
             ms = np.array(self.cost_s) * 1e3
             values.update(compute_ms_p50=f"{np.percentile(ms, 50):.1f}", compute_ms_max=f"{ms.max():.1f}")
-        if self.rolled_out or self.served:
-            values["rollouts_served"] = (f"{self.served} of {self.served + self.rolled_out} windows' model rollouts, "
-                                         f"{self.causes_served} of {self.causes_served + self.causes_rolled_out} "
+        if self.causes_rolled_out or self.causes_served:
+            values["rollouts_served"] = (f"{self.causes_served} of {self.causes_served + self.causes_rolled_out} "
                                          "windows' causes (from the previous check: the same content)")
         if self.last_run_ns is not None:
             values["last_check_age_s"] = f"{(now_ns - self.last_run_ns) / NS_PER_S:.1f}"
