@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import subprocess
 import sys
@@ -32,15 +31,13 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 DT = 0.5  # (s) the shipped model's step
-FEED_HZ = {"imu": 200.0, "velocity": 20.0, "heading": 20.0, "rudder_angle": 10.0, "engine_rpm": 10.0, "gnss": 5.0}
-FEED = {"imu": [0.02, 0.0, 0.0, -9.81, math.nan], "velocity": [5.0, 0.1, 0.02], "heading": [1.2],
-        "rudder_angle": [0.1], "engine_rpm": [650.0], "gnss": [35.38, 119.56, 0.0]}  # bench_node.py's VALUES
 
 
 def bench_window() -> dict:
     """The window the node's check finds on bench_node.py's constant feed after 13 s (10 s of a 200 Hz IMU buffered),
     rolled out by the shipped model (its prediction is not needed here, only what the causes start from)."""
     import msg_adapters
+    from bench_node import RATES, VALUES  # the node benchmark's feed: its rates (Hz) and values
     from usv_predictor.analysis import fit_check as fc
     from usv_predictor.config import package_share_path
     from usv_predictor.data.recording import required_roles
@@ -54,9 +51,9 @@ def bench_window() -> dict:
     inputs = live.InputSet({role: msg_adapters.ROLE_FIELDS[role] for role in roles}, {role: 1.0 for role in roles},
                            live.LiveSettings(dt=DT, horizon_steps=2), jari.actuator_layout)
     t0 = 10**18
-    for t_ns, role in sorted((t0 + int(k * NS_PER_S / rate), role) for role, rate in FEED_HZ.items()
+    for t_ns, role in sorted((t0 + int(k * NS_PER_S / rate), role) for role, rate in RATES.items()
                              for k in range(int(13.0 * rate))):
-        inputs.add(role, t_ns, FEED[role], t_ns)
+        inputs.add(role, t_ns, list(VALUES[role]), t_ns)
     recording = inputs.buffered_recording(2.0)
     model = load_model(str(package_share_path("models", "default.pt")), physics=False)
     rolled = fc.rolled_windows(model, [recording], jari.actuator_layout)
