@@ -442,11 +442,7 @@ def _causes_rollout() -> type:
                 c0 = controls[:, k]
                 dc = controls[:, min(k + 1, steps - 1)] - c0
                 for j in range(self.substeps):
-                    a0 = float(j) / self.substeps
-                    a1 = (float(j) + 0.5) / self.substeps
-                    a2 = (float(j) + 1.0) / self.substeps
-                    lv = self.actuator_forces.stage(c0 + a0 * dc, c0 + a1 * dc, c0 + a2 * dc, carry,
-                                                    self.rudder_offset)
+                    lv = self._stage(c0, dc, j, carry)
                     k1 = self._lean_derivative(hull, sea, s, lv[0], lv[1])
                     k2 = self._lean_derivative(hull, sea, [p + 0.5 * h * q for p, q in zip(s, k1)], lv[2], lv[3])
                     k3 = self._lean_derivative(hull, sea, [p + 0.5 * h * q for p, q in zip(s, k2)], lv[2], lv[3])

@@ -520,6 +520,15 @@ class GreyBoxRollout(nn.Module):
                                            self.engine_speed_rpm)  # (B, K)
         return controls, x, carry
 
+    def _stage(self, c0: Tensor, dc: Tensor, j: int, carry: Tensor) -> List[Tensor]:
+        """The actuator levels of substep j of a step whose reported controls go from c0 to c0 + dc (B, C) (first-order
+        hold), at RK4's three stages (the substep's start, middle, end): actuator_forces.stage's [a, b] x 3 and the
+        carry at the end (shared by _rollout and fit_check's causes' rollout)."""
+        a0 = float(j) / self.substeps
+        a1 = (float(j) + 0.5) / self.substeps
+        a2 = (float(j) + 1.0) / self.substeps
+        return self.actuator_forces.stage(c0 + a0 * dc, c0 + a1 * dc, c0 + a2 * dc, carry, self.rudder_offset)
+
     def _rollout(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
         """(B, H, 6) [u, v, r, x_n, y_e, psi] as measured (the module docstring's interface without the ensemble axis)."""
         controls, x, carry = self._start(state, controls, reference)
@@ -531,10 +540,7 @@ class GreyBoxRollout(nn.Module):
             c0 = controls[:, k]
             dc = controls[:, min(k + 1, steps - 1)] - c0
             for j in range(self.substeps):
-                a0 = float(j) / self.substeps
-                a1 = (float(j) + 0.5) / self.substeps
-                a2 = (float(j) + 1.0) / self.substeps
-                lv = self.actuator_forces.stage(c0 + a0 * dc, c0 + a1 * dc, c0 + a2 * dc, carry, self.rudder_offset)
+                lv = self._stage(c0, dc, j, carry)
                 k1 = self._derivative(x, lv[0], lv[1])
                 k2 = self._derivative([p + 0.5 * h * q for p, q in zip(x, k1)], lv[2], lv[3])
                 k3 = self._derivative([p + 0.5 * h * q for p, q in zip(x, k2)], lv[2], lv[3])
