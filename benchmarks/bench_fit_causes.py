@@ -154,10 +154,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{row['new']['max']:7.1f} ms   new/old {row['ratio_p50']:.2f}   max |du new - old| "
               f"{row['max_diff_du_mps']:.1e} m/s, |dr| {row['max_diff_dr_deg_s']:.1e} deg/s")
     if args.json:
+        from usv_predictor.atomic import write_json_atomic
+
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        partial = args.json.with_suffix(".partial")
-        partial.write_text(json.dumps(report, indent=1))
-        partial.replace(args.json)
+        write_json_atomic(args.json, report)
     return 0
 
 
