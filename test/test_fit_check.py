@@ -268,12 +268,9 @@ def _trial_at(vessel, dt: float) -> list:
 
 
 # each sea effect at the top of the suite's range on the two twin-thruster presets: the right model is never refused.
-# A known limit since the WAM-V's wave-drift yaw turns it toward beam seas (2026-11-26; the former yaw held it head to
-# sea): 1.5 m waves push it sideways at ~41 m/s (its estimated sway drift 0.5 rho g zeta_a^2 L 0.12 = 1.66 kN against
-# VRX's linear sway damping of 40 N s/m, no cross-flow drag), beyond what the bag reader takes as plausible (15 m/s):
-# no recording is left to check. Strict: the day the preset's sway drift or damping is made physical, the mark goes.
-WAMV_BEAM_ON = pytest.mark.xfail(reason="1.5 m waves drift the WAM-V preset sideways at ~41 m/s: no readable recording",
-                                 raises=AssertionError, strict=True)
+# The WAM-V's waves were a strict expected failure until its preset had the floats' cross-flow drag (2026-11-26):
+# VRX's 40 N s/m of linear sway damping alone let 1.5 m waves push the beam-on boat sideways at ~41 m/s, beyond
+# what the bag reader takes as plausible (15 m/s), so no recording was left to check.
 
 
 @pytest.mark.parametrize("vessel_name", ["otter", "wamv"])
@@ -282,9 +279,7 @@ WAMV_BEAM_ON = pytest.mark.xfail(reason="1.5 m waves drift the WAM-V preset side
     ["--effect", "wind", "--wind-speed", "15", "--wind-from", "100"],
     ["--effect", "wave_drift", "--wave-height", "1.5", "--wave-from", "45"],
 ], ids=["current", "wind", "waves"])
-def test_no_sea_at_the_top_of_its_range_fails_a_small_boat(request, tmp_path, vessel_name, flags):
-    if vessel_name == "wamv" and "wave_drift" in flags:
-        request.applymarker(WAMV_BEAM_ON)
+def test_no_sea_at_the_top_of_its_range_fails_a_small_boat(tmp_path, vessel_name, flags):
     bags = tmp_path / "bags"
     assert run("simulate", "--programme", "diagnosis", "--vessel", vessel_name, *flags, "--seed", "5", "--heading",
                "37", "--output", bags) == 0

@@ -116,6 +116,21 @@ def test_a_twin_boat_turns_on_the_spot(otter, wamv):
         assert np.all(np.isfinite(spin.nu))
 
 
+@pytest.mark.parametrize("turn, throttle", [(0.4, 0.6), (0.8, 0.3)])
+def test_a_twin_boat_follows_its_turn_without_skidding(otter, wamv, turn, throttle):
+    """A held differential turn settles with the hull's lateral resistance balancing the centrifugal force m u r
+    (Fossen 2021 eq. 6.5, C_RB), at a drift angle atan(-v / u) of a catamaran's 5-17 deg (otter 4.8, 4.5; wamv 15.3,
+    16.5 deg). Until 2026-11-26 the WAM-V preset had VRX's 40 N s/m of linear sway damping alone (yVV = 0: VRX also
+    leaves out C_RB, so its own boat cannot skid): with the Coriolis force the boat slid at 60 and 62 deg (v -1.74 m/s
+    for u 0.99 m/s), and 1.5 m beam seas pushed it at ~41 m/s. The floats' cross-flow drag holds it now."""
+    for model in (otter, wamv):
+        held = simulate(model, CommandTurningCircle("twin_thrusters", turn, throttle, duration_s=120.0))
+        u, v, r = held.nu[-1]
+        assert r > math.radians(5.0) and u > 0.5, (model.vessel.name, held.nu[-1])  # a turn ahead, settled below
+        assert np.ptp(held.nu[-100:, 2]) < 1e-3 * r, (model.vessel.name, held.nu[-100:, 2])
+        assert 2.0 < math.degrees(math.atan2(-v, u)) < 20.0, (model.vessel.name, held.nu[-1])
+
+
 def test_a_thruster_imbalance_pulls_to_the_weaker_side_s_opposite(otter):
     """k > 0: the starboard side is weaker, so at equal commands the boat turns to starboard; the surge force is
     unchanged (the imbalance moves thrust from one side to the other)."""
