@@ -105,6 +105,12 @@ def test_names_flags_and_terms_are_unique():
         effects._registry(EFFECTS["wind"], EFFECTS["wind"])
     with pytest.raises(ValueError, match="start"):
         Term("x", 2, 1.0, -1.0, 1.0, (0.0,))
+    with pytest.raises(ValueError, match="probe 0.5 needs a 2-D term"):  # a direction needs two components
+        Term("x", 1, 1.0, -1.0, 1.0, (0.0,), probe=0.5)
+    with pytest.raises(ValueError, match=r"within its bounds \[-1, 1\]"):
+        Term("x", 2, 1.0, -1.0, 1.0, (0.0, 0.0), probe=1.5)
+    assert Term("x", 2, 1.0, -1.0, 1.0, (0.0, 0.0), probe=1.0).probe == 1.0
+    assert {name for name, e in EFFECTS.items() for t in e.terms if t.probe} == {"wind", "wave_drift"}
 
 
 def test_the_tolerances_and_draw_ranges_are_the_published_ones():

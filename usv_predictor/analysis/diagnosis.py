@@ -83,6 +83,8 @@ MIN_TRACK_GAIN = 0.0  # share of the calm-water model's held-out track error (m,
 NESTED_REFIT = 1e-3  # a set of causes is refitted from a larger set's fit (select_causes, diagnose) when that fit,
 #                      without the other causes' terms, leaves at least this share less of the fold's loss than the
 #                      set's own fit (smaller differences are the fit's convergence tolerance, not a poorer minimum)
+PROBE_DIRECTIONS = 8  # (-) compass directions (every 45 deg) a direction-valued term is probed at before the fit's
+#                       descent (Term.probe, _probes)
 MISMATCH_LOSS = 25.0  # held-out loss (mean squared error in noise units) the best model may leave ...
 MISMATCH_SHARE = 0.5  # ... unless its causes removed more than half of the calm-water model's: above both, no
 #                       environmental cause explains the data and the answer is model_mismatch (waves of 1.1 m
@@ -225,6 +227,11 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
                              "segments (NaN/inf in the recordings, or a rollout that diverges at this step: try a "
                              "smaller --dt)")
     cost = float(r @ r)
+    for probe in _probes(terms, sizes, theta, start):  # other basins of a direction: descend from the lowest
+        r_probe = res(probe)
+        cost_probe = float(r_probe @ r_probe)
+        if np.all(np.isfinite(r_probe)) and cost_probe < cost:
+            theta, r, cost = probe, r_probe, cost_probe
     lam, it = 1e-2, 0
     jac = np.zeros((len(r), len(theta)))
     for it in range(1, max_iter + 1 if len(theta) else 1):
@@ -270,6 +277,23 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
             k += n
     set_terms(model, values)
     return Fit(hypothesis, values, cost / count, std, it, time.perf_counter() - started)
+
+
+def _probes(terms: Sequence[Term], sizes: Sequence[int], theta: np.ndarray,
+            given: Mapping[str, Sequence[float]]) -> list[np.ndarray]:
+    """fit_hypothesis's other starting points (scaled like theta): each 2-D term with a probe magnitude (Term.probe)
+    and no given start set to that magnitude toward each of PROBE_DIRECTIONS compass directions, the other terms as
+    in theta. One rollout each; the descent starts from the lowest loss of them and theta."""
+    found, k = [], 0
+    for term, n in zip(terms, sizes):
+        if term.probe > 0.0 and term.name not in given:
+            for j in range(PROBE_DIRECTIONS):
+                angle = 2.0 * math.pi * j / PROBE_DIRECTIONS  # (rad) from north, clockwise (north, east components)
+                probe = theta.copy()
+                probe[k:k + n] = term.probe * np.array([math.cos(angle), math.sin(angle)]) / term.scale
+                found.append(probe)
+        k += n
+    return found
 
 
 def scripted_rollout(vessel: Vessel, dt: float, substeps: int = 1) -> torch.jit.ScriptModule:
