@@ -173,6 +173,19 @@ def test_metadata_round_trip(tmp_path: Path) -> None:
     assert sorted(os.listdir(tmp_path)) == ["again.pt", "m.pt", "other.pt"]  # no temporary files left
 
 
+def test_model_id_leaves_out_the_training_wall_time_only(tmp_path: Path) -> None:
+    """A rebuild of the same model takes another time (training.time_s, kept in the file): same id (models/README.md,
+    the shipped model's determinism); a different best epoch or loss under `training` is another id."""
+    members = [_member("NTF", 1)]
+    training = {"best_epoch": [7], "val_loss": [0.1], "time_s": 6.7}
+    first = _export(tmp_path / "a.pt", members, training=training)
+    slower = _export(tmp_path / "b.pt", members, training={**training, "time_s": 11.0})
+    assert load_artifact(tmp_path / "b.pt").metadata["training"]["time_s"] == 11.0  # kept, only not hashed
+    assert slower.model_id == first.model_id
+    for changed in ({"best_epoch": [8]}, {"val_loss": [0.11]}):
+        assert _export(tmp_path / "c.pt", members, training={**training, **changed}).model_id != first.model_id
+
+
 def test_mismatch_names_the_file_and_every_field(tmp_path: Path) -> None:
     path = tmp_path / "m.pt"
     _export(path, [_member("NTF", 1)], dt=0.25, vessel="other_usv")

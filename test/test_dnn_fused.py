@@ -129,8 +129,8 @@ def _shipped_inputs(batch: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize("batch", [1, 64])
 def test_shipped_model_fused_equals_its_own_rollout(batch: int) -> None:
-    """models/default.pt (exported before the fused rollout existed: the format is unchanged, it is fused when
-    loaded): the fused rollout, one state and a 64-candidate batch, against the file's float32 rollout and against
+    """models/default.pt (its file holds the plain network, as every artifact: the format is unchanged, it is fused
+    when loaded): the fused rollout, one state and a 64-candidate batch, against the file's float32 rollout and against
     the file's network run in float64. The fused rollout's error from float64 is of the float32 rollout's own size."""
     model = _loaded(SHIPPED)
     assert model.inference is not None, model.inference_note

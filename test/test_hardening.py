@@ -25,7 +25,7 @@ from replay_helpers import assert_one_line, bag_streams, digest, leftovers, repl
 from msg_adapters import ROLE_FIELDS
 from usv_predictor.atomic import check_outputs, jsonable, write_json_atomic
 from usv_predictor.errors import OutputError
-from usv_predictor.models.artifact import export_module, load_artifact, read_metadata
+from usv_predictor.models.artifact import export_module, load_artifact
 from usv_predictor.records import Signal
 from usv_predictor.replay import cli
 from usv_predictor.replay.options import NUMBER_TYPES
@@ -62,7 +62,7 @@ def one_bag_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _failing_model(path: Path) -> Path:
-    """A TorchScript model with the shipped metadata whose code raises when called."""
+    """A TorchScript model with the shipped metadata and vessel description whose code raises when called."""
 
     class Raises(torch.nn.Module):
         def forward(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
@@ -70,9 +70,10 @@ def _failing_model(path: Path) -> Path:
                 raise RuntimeError("boom: this model always fails")
             return torch.zeros(1, state.shape[0], controls.shape[1], 6)
 
-    _, meta = read_metadata(DEFAULT_MODEL)
-    meta = {k: v for k, v in meta.items() if k not in ("format", "software_version", "created_utc", "model_id")}
-    export_module(path, Raises(), meta)
+    shipped = load_artifact(DEFAULT_MODEL)
+    meta = {k: v for k, v in shipped.metadata.items()
+            if k not in ("format", "software_version", "created_utc", "model_id")}
+    export_module(path, Raises(), meta, vessel=shipped.embedded_vessel)
     return path
 
 

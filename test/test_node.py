@@ -278,7 +278,7 @@ def test_a_model_for_other_controls_is_refused_naming_the_layouts(ros_context: C
     shipped = load_artifact(DEFAULT_MODEL)
     other = dict(shipped.metadata, control_layout=["port", "starboard"])
     path = tmp_path / "twin.pt"
-    export_module(path, shipped.module, other)
+    export_module(path, shipped.module, other, vessel=shipped.embedded_vessel)
     with pytest.raises(ModelError, match=r"twin.pt does not match the configuration: control_layout: "
                                          r"model \['port', 'starboard'\], config \['delta', 'rpm'\]"):
         predictor_node.PredictorNode(context=ros_context, parameter_overrides=[Parameter("model_path", value=str(path))])
@@ -293,7 +293,8 @@ def test_a_bad_model_at_start_exits_2_naming_the_file(tmp_path: Path, case: str)
                           capture_output=True, text=True, timeout=60, env=env)
     assert done.returncode == predictor_node.EXIT_ERROR == 2, done.stderr[-2000:]
     assert "predictor: error: " in done.stderr and "Traceback" not in done.stderr
-    expected = str(models[case]) if case in models else 'vessel: model "jari_usv", config "kvlcc2_model"'
+    expected = (str(models[case]) if case in models else  # the shipped model embeds its vessel's description
+                "was made for vessel 'jari_usv' (the description it embeds), vessel kvlcc2_model differs: ")
     assert expected in done.stderr
 
 

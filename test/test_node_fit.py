@@ -20,7 +20,7 @@ import pytest
 
 import msg_adapters
 from rclpy.parameter import Parameter
-from usv_predictor.analysis.fit_check import REMEDY, SPEED_RATIO_LIMIT, check_fit
+from usv_predictor.analysis.fit_check import REMEDY, SPEED_RATIO_LIMIT, YAW_RATE_RATIO_LIMIT, check_fit
 from usv_predictor.data.recording import recording_from_signals, required_roles
 from usv_predictor.errors import ConfigError, RecordingError
 from usv_predictor.models.loading import physics_predictor
@@ -212,7 +212,7 @@ def test_a_period_out_of_range_is_refused_naming_the_parameter(period: float) ->
 # ----------------------------------------------------------------------------------------------- over DDS
 @pytest.fixture()
 def harness(ros_context: Any) -> Iterator[Harness]:
-    """The node (shipped model: jari_usv, 5.9 m/s at 700 rpm) checking every second, on the wall clock."""
+    """The node (shipped model: the jari_usv DNN, 5.7 m/s at 700 rpm) checking every second, on the wall clock."""
     fixture = Harness(ros_context, [Parameter("rate_hz", value=5.0), Parameter("dt", value=0.5),
                                     Parameter("horizon_s", value=10.0), Parameter("fit_check.period_s", value=1.0)])
     try:
@@ -248,8 +248,8 @@ def spin_long(harness: Harness, condition: Any, feed: Any, seconds: float = 120.
 
 @pytest.mark.slow
 def test_the_node_flags_a_model_that_does_not_fit_and_refuses_on_request(harness: Harness) -> None:
-    """Rudder amidships and 650 rpm held on a boat that runs straight at 1 m/s: the shipped jari_usv model (5.1 m/s
-    there) does not fit, beyond what waves of 1.5 m explain for its 13.5 m boat (ratio 2.8). /diagnostics says so
+    """Rudder amidships and 650 rpm held on a boat that runs straight at 1 m/s: the shipped jari_usv model (5.0 m/s
+    there, ratio 4.95) does not fit, beyond what waves of 1.5 m explain for its 13.5 m boat (limit 2.9). /diagnostics says so
     with the numbers and the remedy while the paths keep coming; fit_check.refuse stops them, naming the refusal;
     false again, they come back."""
     slow = {"velocity": (1.0, 0.0, 0.0), "rudder_angle": (0.0,), "imu": (0.0, 0.0, 0.0, -9.81, math.nan)}
@@ -441,7 +441,7 @@ FEED_HZ = {"imu": 200.0, "velocity": 20.0, "heading": 20.0, "rudder_angle": 10.0
 def constant_feed(u_mps: float, seconds: float, t0_ns: int = 10**18, checks_every_s: float = 5.0,
                   first_check_s: float = 12.0) -> list[tuple[int, Any]]:
     """The benchmark's feed (benchmarks/bench_node.py) from t0_ns on: every input at its rate with constant values
-    (surge u_mps, yaw rate 0.02 rad/s, rudder 0.1 rad at 650 rpm), buffered as the node does (capacity 2048: 10 s of
+    (surge u_mps, yaw rate 0.02 rad/s, rudder 0.1 rad at 650 rpm; heading 1.2 rad, the benchmark's 0.5), buffered as the node does (capacity 2048: 10 s of
     the 200 Hz gyro); [(clock ns, InputSet.buffered_recording)] every checks_every_s from first_check_s on."""
     jari = load_vessel("jari_usv")
     roles = (*required_roles(jari.actuator_layout), live.POSITION_ROLE)
@@ -462,8 +462,8 @@ def constant_feed(u_mps: float, seconds: float, t0_ns: int = 10**18, checks_ever
 
 
 def shipped_check(cached: bool) -> LiveFitCheck:
-    """The node's check of the shipped model (the benchmark's case: it turns at 6 deg/s where the feed turns at 1.1,
-    so the causes are rolled out too)."""
+    """The node's check of the shipped model (the benchmark's case: it turns at 5.5 deg/s on constant_feed, 6.3 on
+    the benchmark's, where the feed turns at 1.1: beyond the calm-water allowance, so the causes are rolled out too)."""
     from usv_predictor.config import package_share_path
     from usv_predictor.models.loading import load_model
 
@@ -490,7 +490,9 @@ def test_the_cache_serves_repeated_windows_with_the_same_verdict_and_numbers() -
         cached.run(recording, now_ns)
         uncached.run(recording, now_ns)
         assert comparable(cached, now_ns) == comparable(uncached, now_ns)
-    assert cached.check.verdict == "mismatch" and cached.check.yaw_rate_explanation is not None  # causes rolled out
+    # beyond the calm-water allowance: causes rolled out (the verdict, "mismatch" or a WARN "fits only with a strong sea
+    # or fault", depends on the model's yaw rate against the strongest cause's: 5.5 deg/s here is a WARN)
+    assert cached.check.yaw_rate_ratio > YAW_RATE_RATIO_LIMIT and cached.check.yaw_rate_explanation is not None
     assert len(feed) == 5 and uncached.causes_rolled_out == 7 and uncached.causes_served == 0
     # 5 checks, one window found in each: the first of each feed rolls its causes out, the others are served; the
     # 5.0 m/s window is kept beside the 5.3 one (no overlap in time), its causes served from then on

@@ -185,7 +185,7 @@ def test_missing_config_file_exits_2_with_its_name(tmp_path: Path) -> None:
 def _failing_model(path: Path) -> Path:
     import torch
 
-    from usv_predictor.models.artifact import export_module, read_metadata
+    from usv_predictor.models.artifact import export_module, load_artifact
 
     class Raises(torch.nn.Module):
         def forward(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
@@ -193,8 +193,9 @@ def _failing_model(path: Path) -> Path:
                 raise RuntimeError("boom at start-up")
             return torch.zeros(1, state.shape[0], controls.shape[1], 6)
 
-    _, meta = read_metadata(package_share_path("models", "default.pt"))
-    export_module(path, Raises(), {k: v for k, v in meta.items() if k not in ("format", "model_id")})
+    shipped = load_artifact(package_share_path("models", "default.pt"))  # its metadata and vessel description
+    export_module(path, Raises(), {k: v for k, v in shipped.metadata.items() if k not in ("format", "model_id")},
+                  vessel=shipped.embedded_vessel)
     return path
 
 
@@ -210,7 +211,9 @@ STARTUP_CASES = {
     "broken remap": (["-r", "__node:="], "invalid ROS arguments"),
     "rate out of range": (["-p", "rate_hz:=1000.0"], "Parameter rate_hz out of range"),
     "unknown vessel": (["-p", "vessel:=nope"], "unknown vessel preset 'nope'"),
-    "vessel of another layout/model": (["-p", "vessel:=kvlcc2_model"], 'vessel: model "jari_usv", config "kvlcc2_model"'),
+    "vessel of another layout/model": (["-p", "vessel:=kvlcc2_model"],
+                                       "was made for vessel 'jari_usv' (the description it embeds), vessel "
+                                       "kvlcc2_model differs: "),
     "adapter option": (["-p", "inputs.heading.units:=furlongs"], "option units='furlongs' is invalid"),
     "adapter sign": (["-p", "inputs.rudder_angle.sign:=3"], "rudder_angle"),
     "message type": (["-p", "inputs.heading.type:=std_msgs/msg/String"], "no adapter for role 'heading'"),

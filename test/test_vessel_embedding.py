@@ -1,6 +1,7 @@
 """The artifact embeds its vessel description (issue 11): written with a digest, used where no vessel is given
 (evaluate, diagnose --model, the fit check, the node), a given vessel that differs refused in one line naming the
-fields, and artifacts of before (name only, the shipped models/default.pt) still found by their name."""
+fields, and artifacts of before (name only, as the shipped models/default.pt was until 2026-11-26) still
+found by their name."""
 from __future__ import annotations
 
 import dataclasses
@@ -118,12 +119,27 @@ def test_a_modified_description_is_refused_by_its_digest(tmp_path):
         load_artifact(tmp_path / "lost.pt")
 
 
+def as_written_before(source: Path, path: Path) -> Path:
+    """`source` as artifacts were written before the description was embedded (the shipped model until 2026-11-26,
+    81c5143c983762d4): its metadata without vessel_sha256, no vessel.json."""
+    extra = {METADATA_FILE: "", VESSEL_FILE: ""}
+    module = torch.jit.load(str(source), _extra_files=extra)
+    meta = json.loads(extra[METADATA_FILE])
+    assert meta.pop(VESSEL_DIGEST_KEY) and extra[VESSEL_FILE]  # the source embeds its description
+    buffer = io.BytesIO()
+    torch.jit.save(module, buffer, _extra_files={METADATA_FILE: json.dumps(meta)})
+    path.write_bytes(buffer.getvalue())
+    return path
+
+
 def test_artifacts_of_before_are_found_by_their_vessel_name(tmp_path):
-    shipped = loading.load_model("")  # models/default.pt: written before the description was embedded
-    _, meta = read_metadata(package_share_path("models", "default.pt"))
-    assert VESSEL_DIGEST_KEY not in meta and shipped.vessel_description is None and shipped.embedded_vessel is None
-    assert loading.model_vessel(shipped) == load_vessel("jari_usv")
-    assert loading.model_vessel(shipped, "jari_usv") == load_vessel("jari_usv")
+    shipped = loading.load_model("")  # models/default.pt, rebuilt 2026-11-26 by `replay train`: it embeds jari_usv
+    assert shipped.embedded_vessel == load_vessel("jari_usv")
+    before = loading.load_model(str(as_written_before(package_share_path("models", "default.pt"), tmp_path / "b.pt")))
+    _, meta = read_metadata(tmp_path / "b.pt")
+    assert VESSEL_DIGEST_KEY not in meta and before.vessel_description is None and before.embedded_vessel is None
+    assert loading.model_vessel(before) == load_vessel("jari_usv")
+    assert loading.model_vessel(before, "jari_usv") == load_vessel("jari_usv")
     _, vessel = my_boat(tmp_path)
     old = greybox_artifact(tmp_path / "old.pt", vessel, embed=False)
     with pytest.raises(ConfigError, match=r"names vessel 'my_otter' but embeds no description .* pass --vessel FILE"):

@@ -174,9 +174,15 @@ def weights_digest(module: nn.Module) -> str:
     return h.hexdigest()
 
 
+VOLATILE_TRAINING_KEYS = ("time_s",)  # under `training`: how long the run took (s), not what it made
+
+
 def model_id(module: nn.Module, metadata: Mapping[str, Any]) -> str:
-    """Short sha256 of the weights and the metadata (without model_id and created_utc: reproducible)."""
+    """Short sha256 of the weights and the metadata, without model_id, created_utc and the training's wall time
+    (training.time_s): the same data, recipe and software give the same id (models/README.md)."""
     stable = {k: v for k, v in metadata.items() if k not in ("model_id", "created_utc")}
+    if isinstance(stable.get("training"), Mapping):
+        stable["training"] = {k: v for k, v in stable["training"].items() if k not in VOLATILE_TRAINING_KEYS}
     h = hashlib.sha256(weights_digest(module).encode())
     h.update(json.dumps(stable, sort_keys=True).encode())
     return h.hexdigest()[:16]
