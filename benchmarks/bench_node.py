@@ -322,7 +322,8 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
     helper.shutdown()
     # 8 untrained members of the same architecture: the cost, not the answer, is measured
     members = [DnnModel(DnnConfig.for_features("NTF")).eval() for _ in range(8)]
-    eight = export_module(tmp / "ensemble8.pt", DnnRollout(members, artifact.dt), {**artifact.metadata, "ensemble_size": 8})
+    eight = export_module(tmp / "ensemble8.pt", DnnRollout(members, artifact.dt), {**artifact.metadata, "ensemble_size": 8},
+                          vessel=artifact.embedded_vessel)
     rollout8 = live.Rollout(eight, H)
     results["torchscript_8 batched members"] = timed(lambda: rollout8(state, controls), repeats)
     results["agreement"] = agreement

@@ -137,7 +137,7 @@ def test_a_model_with_nan_metadata_names_the_field(tmp_path) -> None:
     shipped = load_artifact(DEFAULT_MODEL)
     meta = dict(shipped.metadata, training={"val_loss": [math.nan]})
     with pytest.raises(ModelError, match=r"metadata: field training\.val_loss\[0\] is nan"):
-        export_module(tmp_path / "m.pt", shipped.module, meta)
+        export_module(tmp_path / "m.pt", shipped.module, meta, vessel=shipped.embedded_vessel)
     assert list(tmp_path.iterdir()) == []
 
 

@@ -119,6 +119,21 @@ def test_a_modified_description_is_refused_by_its_digest(tmp_path):
         load_artifact(tmp_path / "lost.pt")
 
 
+def test_a_copied_digest_without_its_description_is_not_written(tmp_path):
+    """export_module with another model's metadata (its vessel_sha256) and no vessel: the file would carry a digest
+    of a description it does not hold and not load (above), so it is refused before anything is written; given the
+    other model's embedded vessel, it is written and carries it."""
+    _, vessel = my_boat(tmp_path)
+    source = greybox_artifact(tmp_path / "m.pt", vessel)
+    with pytest.raises(ModelError, match=r"copy.pt: metadata has vessel_sha256 \(copied from another model\?\) but no "
+                                         r"vessel is given"):
+        export_module(tmp_path / "copy.pt", source.module, source.metadata)
+    assert not (tmp_path / "copy.pt").exists()
+    copy = export_module(tmp_path / "copy.pt", source.module, source.metadata, vessel=source.embedded_vessel)
+    assert copy.metadata[VESSEL_DIGEST_KEY] == source.metadata[VESSEL_DIGEST_KEY]
+    assert copy.embedded_vessel == vessel
+
+
 def as_written_before(source: Path, path: Path) -> Path:
     """`source` as artifacts were written before the description was embedded (the shipped model until 2026-11-26,
     81c5143c983762d4): its metadata without vessel_sha256, no vessel.json."""

@@ -207,6 +207,10 @@ def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, An
         description = vessel_to_dict(vessel)
         extra[VESSEL_FILE] = description_text(description)
         meta.update(vessel=vessel.name, **{VESSEL_DIGEST_KEY: description_sha256(description)})
+    elif VESSEL_DIGEST_KEY in meta:  # copied from another model's metadata: the file would not load (its digest names
+        #                              a description it does not carry), so nothing is written
+        raise ModelError(f"model {path}: metadata has {VESSEL_DIGEST_KEY} (copied from another model?) but no vessel "
+                         "is given: pass vessel= (the description it digests, e.g. the other model's embedded_vessel)")
     meta["model_id"] = model_id(module, meta)
     missing = [k for k in REQUIRED_KEYS if k not in meta]
     if missing:
