@@ -180,11 +180,12 @@ class Fit:
 
 def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Sequence[str], *, max_iter: int = 12,
                    start: Mapping[str, Sequence[float]] | None = None) -> Fit:
-    """Levenberg-Marquardt on the weighted residuals, finite-difference Jacobian in scaled parameters.
+    """Levenberg-Marquardt on the weighted residuals, finite-difference Jacobian in scaled parameters, from the
+    lowest loss of the start and the probes of its directions (_probes: a wind or wave direction toward every 45 deg).
 
     `hypothesis` is one name of HYPOTHESES or several, fitted together (a cause and the ones added to it).
     `start`: initial values (SI) of some of its terms in place of their records' Term.start (cause selection starts a
-    set of causes from a larger set's fit, select_causes).
+    set of causes from a larger set's fit, select_causes); a term given a start is not probed.
 
     Standard errors come from (J^T J)^-1 s^2, inflated by the steps per segment because the residuals of
     one segment are strongly correlated (a conservative effective sample size: one per segment).

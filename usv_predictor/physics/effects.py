@@ -408,7 +408,8 @@ EFFECTS: Mapping[str, Effect] = _registry(
         "wind", "wind: air loads on the superstructure from the apparent wind",
         terms=(Term("wind_ne", 2, 2.0, -40.0, 40.0, (0.5, 0.5), "m/s", probe=8.0),),  # velocity (toward) north/east;
         #     probed at 8 m/s (the middle of the acceptance suite's 5-15 m/s): the air loads' coefficients over the
-        #     apparent wind angle give the loss more than one minimum over the direction
+        #     apparent wind angle give the loss more than one minimum over the direction (the Otter's 7.1 and 7.6 m/s
+        #     winds of bench_diagnosis.py, named wave drift before the probe, are named wind with it)
         readout=VelocityReadout("wind_ne", "wind_speed", "wind_from_deg", toward=False),
         parameters=(
             sea_parameter("wind_speed", 8.0, 0.0, 30.0, "m/s", "mean true wind speed", Uniform(5.0, 15.0)),
