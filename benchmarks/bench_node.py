@@ -57,7 +57,7 @@ import torch
 
 from usv_predictor.config import package_share_path
 from usv_predictor.models import loading
-from usv_predictor.models.artifact import export_module, load_artifact
+from usv_predictor.models.artifact import export_like, load_artifact
 from usv_predictor.models.dnn import DnnConfig, DnnModel, DnnRollout, NumpyDnnRollout, _heading_fold, fused_rollout
 from usv_predictor.node import live
 
@@ -322,8 +322,7 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
     helper.shutdown()
     # 8 untrained members of the same architecture: the cost, not the answer, is measured
     members = [DnnModel(DnnConfig.for_features("NTF")).eval() for _ in range(8)]
-    eight = export_module(tmp / "ensemble8.pt", DnnRollout(members, artifact.dt), {**artifact.metadata, "ensemble_size": 8},
-                          vessel=artifact.embedded_vessel)
+    eight = export_like(tmp / "ensemble8.pt", DnnRollout(members, artifact.dt), artifact, ensemble_size=8)
     rollout8 = live.Rollout(eight, H)
     results["torchscript_8 batched members"] = timed(lambda: rollout8(state, controls), repeats)
     results["agreement"] = agreement

@@ -30,7 +30,7 @@ import pytest
 import torch
 from replay_helpers import assert_one_line, bag_streams, digest, leftovers, replay, write_variant
 
-from usv_predictor.models.artifact import export_module, load_artifact
+from usv_predictor.models.artifact import export_like, load_artifact
 from usv_predictor.physics.scenario import EFFECTS
 from usv_predictor.records import Signal
 from usv_predictor.replay import cli
@@ -440,8 +440,6 @@ def test_outputs_on_top_of_inputs(command: str, base: dict[str, Path], tmp_path:
 
 def _models(tmp_path: Path) -> dict[str, Path]:
     shipped = load_artifact(SHIPPED_MODEL)  # its metadata and vessel description on modules of other code
-    meta = {k: v for k, v in shipped.metadata.items()
-            if k not in ("format", "software_version", "created_utc", "model_id")}
 
     class Raises(torch.nn.Module):
         def forward(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
@@ -474,9 +472,9 @@ def _models(tmp_path: Path) -> dict[str, Path]:
     for name, module in (("raises", Raises()), ("wrong_shape", WrongShape()), ("not_finite", NotFinite()),
                          ("raises_later", RaisesLater())):
         out[name] = tmp_path / f"{name}.pt"
-        export_module(out[name], module, meta, vessel=shipped.embedded_vessel)
+        export_like(out[name], module, shipped)
     out["other_dt"] = tmp_path / "other_dt.pt"
-    export_module(out["other_dt"], RaisesLater(), dict(meta, dt=0.25), vessel=shipped.embedded_vessel)
+    export_like(out["other_dt"], RaisesLater(), shipped, dt=0.25)
     out["directory"] = tmp_path / "a_directory.pt"
     out["directory"].mkdir()
     return out

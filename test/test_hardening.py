@@ -25,7 +25,7 @@ from replay_helpers import assert_one_line, bag_streams, digest, leftovers, repl
 from msg_adapters import ROLE_FIELDS
 from usv_predictor.atomic import check_outputs, jsonable, write_json_atomic
 from usv_predictor.errors import OutputError
-from usv_predictor.models.artifact import export_module, load_artifact
+from usv_predictor.models.artifact import export_like, load_artifact
 from usv_predictor.records import Signal
 from usv_predictor.replay import cli
 from usv_predictor.replay.options import NUMBER_TYPES
@@ -70,10 +70,7 @@ def _failing_model(path: Path) -> Path:
                 raise RuntimeError("boom: this model always fails")
             return torch.zeros(1, state.shape[0], controls.shape[1], 6)
 
-    shipped = load_artifact(DEFAULT_MODEL)
-    meta = {k: v for k, v in shipped.metadata.items()
-            if k not in ("format", "software_version", "created_utc", "model_id")}
-    export_module(path, Raises(), meta, vessel=shipped.embedded_vessel)
+    export_like(path, Raises(), load_artifact(DEFAULT_MODEL))
     return path
 
 
@@ -135,9 +132,8 @@ def test_a_model_with_nan_metadata_names_the_field(tmp_path) -> None:
     from usv_predictor.errors import ModelError
 
     shipped = load_artifact(DEFAULT_MODEL)
-    meta = dict(shipped.metadata, training={"val_loss": [math.nan]})
     with pytest.raises(ModelError, match=r"metadata: field training\.val_loss\[0\] is nan"):
-        export_module(tmp_path / "m.pt", shipped.module, meta, vessel=shipped.embedded_vessel)
+        export_like(tmp_path / "m.pt", shipped.module, shipped, training={"val_loss": [math.nan]})
     assert list(tmp_path.iterdir()) == []
 
 

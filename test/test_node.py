@@ -273,12 +273,11 @@ def test_an_incompatible_model_at_start_is_a_model_error_naming_the_mismatch(ros
 
 def test_a_model_for_other_controls_is_refused_naming_the_layouts(ros_context: Context, tmp_path: Path) -> None:
     """A model whose control columns are not the vessel's actuator layout cannot be fed: refused at start-up."""
-    from usv_predictor.models.artifact import export_module, load_artifact
+    from usv_predictor.models.artifact import export_like, load_artifact
 
     shipped = load_artifact(DEFAULT_MODEL)
-    other = dict(shipped.metadata, control_layout=["port", "starboard"])
     path = tmp_path / "twin.pt"
-    export_module(path, shipped.module, other, vessel=shipped.embedded_vessel)
+    export_like(path, shipped.module, shipped, control_layout=["port", "starboard"])
     with pytest.raises(ModelError, match=r"twin.pt does not match the configuration: control_layout: "
                                          r"model \['port', 'starboard'\], config \['delta', 'rpm'\]"):
         predictor_node.PredictorNode(context=ros_context, parameter_overrides=[Parameter("model_path", value=str(path))])

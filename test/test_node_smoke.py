@@ -185,7 +185,7 @@ def test_missing_config_file_exits_2_with_its_name(tmp_path: Path) -> None:
 def _failing_model(path: Path) -> Path:
     import torch
 
-    from usv_predictor.models.artifact import export_module, load_artifact
+    from usv_predictor.models.artifact import export_like, load_artifact
 
     class Raises(torch.nn.Module):
         def forward(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
@@ -193,9 +193,7 @@ def _failing_model(path: Path) -> Path:
                 raise RuntimeError("boom at start-up")
             return torch.zeros(1, state.shape[0], controls.shape[1], 6)
 
-    shipped = load_artifact(package_share_path("models", "default.pt"))  # its metadata and vessel description
-    export_module(path, Raises(), {k: v for k, v in shipped.metadata.items() if k not in ("format", "model_id")},
-                  vessel=shipped.embedded_vessel)
+    export_like(path, Raises(), load_artifact(package_share_path("models", "default.pt")))  # its metadata, vessel
     return path
 
 

@@ -21,6 +21,7 @@ from usv_predictor.models.artifact import (
     METADATA_FILE,
     VESSEL_DIGEST_KEY,
     VESSEL_FILE,
+    export_like,
     export_module,
     load_artifact,
     read_metadata,
@@ -132,6 +133,21 @@ def test_a_copied_digest_without_its_description_is_not_written(tmp_path):
     copy = export_module(tmp_path / "copy.pt", source.module, source.metadata, vessel=source.embedded_vessel)
     assert copy.metadata[VESSEL_DIGEST_KEY] == source.metadata[VESSEL_DIGEST_KEY]
     assert copy.embedded_vessel == vessel
+
+
+def test_a_model_like_another_carries_its_metadata_with_the_changes_and_its_vessel(tmp_path):
+    """export_like (the tests' failing models, the benchmark's larger ensemble): the other model's metadata with the
+    named fields changed, its vessel description embedded, the fields export fills made anew."""
+    _, vessel = my_boat(tmp_path)
+    source = greybox_artifact(tmp_path / "m.pt", vessel)
+    like = export_like(tmp_path / "like.pt", GreyBoxRollout(vessel, dt=DT), source, horizon_steps=7,
+                       training_data_sha256="1" * 64)
+    assert like.embedded_vessel == vessel and like.metadata[VESSEL_DIGEST_KEY] == source.metadata[VESSEL_DIGEST_KEY]
+    assert like.metadata["horizon_steps"] == 7 and source.metadata["horizon_steps"] != 7
+    assert like.metadata["training_data_sha256"] == "1" * 64
+    unchanged = set(source.metadata) - {"horizon_steps", "training_data_sha256", "model_id", "created_utc"}
+    assert {k: like.metadata[k] for k in unchanged} == {k: source.metadata[k] for k in unchanged}
+    assert like.model_id != source.model_id  # the changed fields are in the id
 
 
 def as_written_before(source: Path, path: Path) -> Path:

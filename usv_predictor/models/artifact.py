@@ -231,6 +231,14 @@ def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, An
     return load_artifact(path)
 
 
+def export_like(path: str | Path, module: nn.Module, like: ModelArtifact, **changes: Any) -> ModelArtifact:
+    """export_module of `module` as a model like `like`: its metadata updated by `changes` (export_module fills
+    format, software_version, created_utc, model_id and the vessel's keys anew) and the vessel description it embeds
+    (without which the copied vessel_sha256 is refused). For a model file that differs from an existing one in its
+    code or in named fields: a test's failing model, a benchmark's larger ensemble."""
+    return export_module(path, module, {**like.metadata, **changes}, vessel=like.embedded_vessel)
+
+
 # ----------------------------------------------------------------------------- loading
 
 def _lookup(metadata: Mapping[str, Any], dotted: str) -> Any:
