@@ -9,8 +9,8 @@ import math
 
 import pytest
 
-from usv_predictor.analysis.diagnosis import (EVIDENCE_CAUSE, MIN_GAIN, HeldOut, contribution, log_evidence,
-                                              select_causes)
+from usv_predictor.analysis.diagnosis import (EVIDENCE_CANDIDATE, EVIDENCE_CAUSE, MIN_GAIN, HeldOut, contribution,
+                                              log_evidence, select_causes)
 
 # boat 20 of the unknown-boat benchmark of 2026-11-26 (seed 2026): a 5.4 m/s wind. The first round ranked wave_drift
 # first (held-out loss 2.94 of the calm-water model's 4.80) on a poor fit of the wind alone (3.20); wave_drift+wind
@@ -125,3 +125,48 @@ def test_a_diverged_fit_is_never_added():
     selection = select_causes("current", ("current", "wind"), table(scores), 20.0)
     assert selection.causes == ("current",) and selection.dropped == ()
     assert not contribution("wind", ("current",), table(scores), 20.0).earns_place
+
+
+# the shipped Otter sea trial (bags/otter/sea_trial: current 0.2 m/s, wind 4.5 m/s and 0.25 m waves at once),
+# diagnosed against the preset on 2026-11-26 (`replay diagnose bags/otter/sea_trial --vessel otter`): 80 held-out
+# segments of 10 s every 2.5 s; wave_drift named (the wind confounded with it, so not a further candidate)
+OTTER_N_EFF = 20.0  # 80 * 2.5 / 10
+OTTER_SEA_TRIAL = {
+    (): HeldOut(136.882, 2.49), ("wave_drift",): HeldOut(31.767, 2.21), ("current",): HeldOut(56.197, 2.64),
+    ("yaw_rate_bias",): HeldOut(137.139, 2.49), ("resistance",): HeldOut(126.209, 2.50),
+    ("current", "wave_drift"): HeldOut(19.375, 0.76), ("wave_drift", "yaw_rate_bias"): HeldOut(31.777, 2.21),
+    ("resistance", "wave_drift"): HeldOut(32.119, 2.21),
+}
+
+
+def test_a_further_cause_short_of_evidence_alone_is_reported_not_named():
+    """The Otter sea trial's current: given wave_drift it removes 39 % of the held-out loss and 66 % of the track
+    error, evidence 4.94 (< 5): not added, but reported as the further candidate, with why; with half the segments
+    (evidence 2.5 < EVIDENCE_CANDIDATE) it is not reported, and with one cause allowed it is never tried."""
+    candidates = ("wave_drift", "current", "yaw_rate_bias", "resistance")
+    selection = select_causes("wave_drift", candidates, table(OTTER_SEA_TRIAL), OTTER_N_EFF)
+    assert selection.causes == ("wave_drift",) and selection.dropped == ()
+    further = selection.further_candidate
+    assert further is selection.not_added and further.cause == "current" and further.given == ("wave_drift",)
+    assert further.evidence == pytest.approx(log_evidence(OTTER_N_EFF, 19.375, 31.767))
+    assert EVIDENCE_CANDIDATE <= further.evidence < EVIDENCE_CAUSE and not further.earns_place
+    assert further.gain == pytest.approx(1 - 19.375 / 31.767) and further.track_gain == pytest.approx(1 - 0.76 / 2.21)
+    assert selection.further_candidate_reason() == (
+        "current not named as a further cause: given wave_drift it adds evidence 4.9 (removes 39 % of the held-out "
+        "loss, 66 % of the track error); a cause needs evidence >= 5, >= 5 % and a lower track error")
+    few = select_causes("wave_drift", candidates, table(OTTER_SEA_TRIAL), OTTER_N_EFF / 2)
+    assert few.not_added.cause == "current" and few.not_added.evidence < EVIDENCE_CANDIDATE
+    assert few.further_candidate is None and few.further_candidate_reason() == ""
+    one = select_causes("wave_drift", candidates, table(OTTER_SEA_TRIAL), OTTER_N_EFF, max_causes=1)
+    assert one.not_added is None and one.further_candidate is None
+    # short of the share or of the track, evidence alone is not what is missing: no further candidate either
+    worse_track = {**OTTER_SEA_TRIAL, ("current", "wave_drift"): HeldOut(19.375, 2.30)}
+    assert select_causes("wave_drift", candidates, table(worse_track), OTTER_N_EFF).further_candidate is None
+
+
+def test_a_further_cause_that_is_named_is_no_candidate():
+    """With the evidence (n_eff 25: 6.2 >= 5) the current is added; two causes allowed, the forward step ends there
+    and no further candidate is reported beside the named further cause."""
+    candidates = ("wave_drift", "current")
+    selection = select_causes("wave_drift", candidates, table(OTTER_SEA_TRIAL), 25.0)
+    assert selection.causes == ("wave_drift", "current") and selection.further_candidate is None

@@ -369,6 +369,9 @@ class Diagnosis:
     candidate_parameters: dict[str, float] = field(default_factory=dict)  # ... its parameters, fitted on all data
     inconclusive_reasons: tuple[str, ...] = ()  # ... why it is not named
     dropped_causes: tuple[str, ...] = ()  # causes dropped by the backward step of select_causes, and why
+    further_candidate: AddedCause | None = None  # a further cause not named for want of evidence alone
+    #                      (Selection.further_candidate; its parameters fitted with the named causes on all manoeuvres)
+    further_candidate_reason: str = ""  # ... why it is not named ("" without one)
 
     @property
     def hypotheses(self) -> tuple[str, ...]:
@@ -457,11 +460,31 @@ class Selection:
     causes: tuple[str, ...]  # the named causes, the one that explains most alone first
     contributions: tuple[Contribution, ...]  # per named cause (same order): what it adds given all the others
     dropped: tuple[Contribution, ...]  # causes dropped, in order, each with what it added given the others then
+    not_added: Contribution | None = None  # the best further cause the forward step tried last and did not add,
+    #                                        given the named causes (None: none tried, max_causes reached)
 
     def drop_reasons(self) -> tuple[str, ...]:
         """'wave_drift dropped: given wind it adds evidence 0.8 (...; a cause needs >= 5 and >= 5 %)' per drop."""
-        return tuple(f"{c.cause} dropped: {c.describe()}; a cause needs evidence >= {EVIDENCE_CAUSE:g}, >= "
-                     f"{MIN_GAIN * 100:.0f} % and a lower track error" for c in self.dropped)
+        return tuple(f"{c.cause} dropped: {c.describe()}; {NEEDS}" for c in self.dropped)
+
+    @property
+    def further_candidate(self) -> Contribution | None:
+        """The further cause not added for want of evidence alone (not_added with EVIDENCE_CANDIDATE <= evidence <
+        EVIDENCE_CAUSE, removing MIN_GAIN and lowering the track error): something more is there, not enough to name
+        it; the answer reports it as the primary's `inconclusive` reports a candidate. None otherwise."""
+        c = self.not_added  # given the named causes: the forward step ends where it is tried
+        if c is None:
+            return None
+        near = EVIDENCE_CANDIDATE <= c.evidence < EVIDENCE_CAUSE and c.gain >= MIN_GAIN and lowers_track(c.track_gain)
+        return c if near else None
+
+    def further_candidate_reason(self) -> str:
+        """'current not named as a further cause: given wave_drift it adds evidence 4.9 (...); a cause needs ...'."""
+        c = self.further_candidate
+        return "" if c is None else f"{c.cause} not named as a further cause: {c.describe()}; {NEEDS}"
+
+
+NEEDS = (f"a cause needs evidence >= {EVIDENCE_CAUSE:g}, >= {MIN_GAIN * 100:.0f} % and a lower track error")  # the rule
 
 
 def contribution(cause: str, given: Sequence[str], score: Callable[[tuple[str, ...]], HeldOut],
@@ -496,7 +519,7 @@ def select_causes(primary: str, candidates: Sequence[str], score: Callable[[tupl
     rule). score(causes) is the held-out score of the calm-water model with the set of causes (a table of fitted
     sets in diagnose; the order of `causes` only orders the fit); a pure function of it.
     """
-    chosen, dropped = [primary], []
+    chosen, dropped, not_added = [primary], [], None
     while len(chosen) < max_causes:
         trials = {name: score((*chosen, name)) for name in candidates if name not in chosen
                   and name not in {d.cause for d in dropped}}
@@ -504,7 +527,9 @@ def select_causes(primary: str, candidates: Sequence[str], score: Callable[[tupl
         if not trials:
             break
         name = min(trials, key=lambda n: trials[n].loss)
-        if not contribution(name, chosen, score, n_eff).earns_place:
+        tried = contribution(name, chosen, score, n_eff)
+        if not tried.earns_place:
+            not_added = tried
             break
         chosen.append(name)
         while chosen:
@@ -519,7 +544,7 @@ def select_causes(primary: str, candidates: Sequence[str], score: Callable[[tupl
         first = min(chosen, key=lambda c: score((c,)).loss)
         chosen = [first, *(c for c in chosen if c != first)]
     contributions = tuple(contribution(c, [o for o in chosen if o != c], score, n_eff) for c in chosen)
-    return Selection(tuple(chosen), contributions, tuple(dropped))
+    return Selection(tuple(chosen), contributions, tuple(dropped), not_added)
 
 
 def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Sequence[str] | None = None,
@@ -699,6 +724,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     drops: tuple[str, ...] = ()
     added_raw: list[tuple[str, float, float, float, float]] = []
     chosen: list[str] = []
+    further: Contribution | None = None
+    further_reason = ""
     if cause != "none":
         selection = select_causes(cause, [n for n in names if n != "none" and n not in confounded], score, n_eff,
                                   max_causes)
@@ -718,6 +745,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
             confounded = confounded_with(cause, chosen, evidence)
             message = named(primary, confounded)
         added_raw = [(c.cause, c.heldout_loss, c.evidence, c.gain, c.track_gain) for c in selection.contributions[1:]]
+        further, further_reason = selection.further_candidate, selection.further_candidate_reason()
     current_loss = held_out(frozenset(chosen))[0] if chosen else base
     # model_mismatch: the calm-water model itself is wrong, so no environmental answer (nor `none`) can be trusted
     mismatch: list[str] = []
@@ -747,6 +775,9 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
             top.hypothesis, physical_parameters(top.hypothesis, candidate_fit.terms),
             f"{rejected}; with it the calm-water model leaves a held-out loss of {best_loss.mean():.3g} noise units "
             f"(it fits by the loss test)", model, seg)
+    # a further cause not named for want of evidence (reported, not in the extended model): its parameters fitted with
+    # the named causes on all manoeuvres, before their own final fit (whose terms the rollout is left with)
+    further_fit = fit_hypothesis(model, seg, [*chosen, further.cause]) if further is not None and not mismatch else None
     # the named causes refitted on all manoeuvres; a parameter outside its effect's physical range (the record's:
     # a wind beyond what `replay simulate` admits) is the model's error absorbed by the cause, not a cause
     final = fit_hypothesis(model, seg, chosen) if chosen and not mismatch else None
@@ -760,7 +791,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                    f"hypothesis): {'; '.join(mismatch)}"
                    + (f"; the best environmental cause would be {best_environmental}" if best_environmental else "")
                    + f": {REMEDY}")
-        cause, confounded, chosen, added_raw = MODEL_MISMATCH, (), [], []
+        cause, confounded, chosen, added_raw, further_fit = MODEL_MISMATCH, (), [], [], None
     progress(f"calm-water model before any hypothesis: held-out loss {calm.heldout_loss:.3g} noise units, track "
              f"error {calm.heldout_track_error_m:.3g} m after {horizon_s:g} s")
     final = final if final is not None else fit_hypothesis(model, seg, "none")
@@ -773,10 +804,17 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                                             for a in added)
     if drops and cause != MODEL_MISMATCH:
         message += "; " + "; ".join(drops)
+    candidate = None
+    if further is not None and further_fit is not None:
+        candidate = AddedCause(further.cause, physical_parameters(further.cause, further_fit.terms),
+                               _physical_uncertainty(further.cause, further_fit), further.heldout_loss,
+                               further.evidence, further.gain, further.track_gain)
+        message += "; " + further_reason
     return Diagnosis(cause, parameters, uncertainty, confounded, tuple(evidence), final,
                      (tuple(recordings[i].name for i in folds[0]), tuple(recordings[i].name for i in folds[1])),
                      message, time.perf_counter() - started, tuple(notes), added, calm, tuple(mismatch),
-                     best_environmental, dropped_causes=drops)
+                     best_environmental, dropped_causes=drops, further_candidate=candidate,
+                     further_candidate_reason=further_reason if candidate is not None else "")
 
 
 def withdraw_causes(diagnosis: Diagnosis, reason: str, model: GreyBoxRollout | torch.jit.ScriptModule,
@@ -789,7 +827,8 @@ def withdraw_causes(diagnosis: Diagnosis, reason: str, model: GreyBoxRollout | t
     parameters = dict(diagnosis.parameters)
     for added in diagnosis.additional_causes:
         parameters.update(added.parameters)
-    return _inconclusive(dataclasses.replace(diagnosis, uncertainty={}, confounded_with=(), additional_causes=()),
+    return _inconclusive(dataclasses.replace(diagnosis, uncertainty={}, confounded_with=(), additional_causes=(),
+                                             further_candidate=None, further_candidate_reason=""),
                          candidate, parameters, reason, model, seg)
 
 

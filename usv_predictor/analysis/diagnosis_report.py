@@ -131,6 +131,10 @@ def write_report(directory: Path, out: dict, recordings: Sequence[Recording], ve
                   f"error (evidence {extra['evidence']:.1f}): " + ", ".join(
                       f"{k} {_fmt(v, 4)} ± {_fmt(extra['uncertainty'].get(k), 2)}"
                       for k, v in extra["parameters"].items())]
+    further = out.get("further_candidate")
+    if further:
+        lines += ["", f"**Further candidate** — {further['reason']}; fitted beside the named cause(s): " + ", ".join(
+            f"{k} {_fmt(v, 4)} ± {_fmt(further['uncertainty'].get(k), 2)}" for k, v in further["parameters"].items())]
     for dropped in out.get("dropped_causes", []):
         lines += ["", f"> {dropped} (backward elimination: every named cause must earn its place given the others)"]
     lines += ["", "## Evidence (held-out manoeuvres, two folds)", "",

@@ -151,6 +151,9 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         "confounded_with": list(result.confounded_with), "message": result.message, "notes": list(result.notes),
         "additional_causes": [_undefined_as_null(dataclasses.asdict(a)) for a in result.additional_causes],
         "dropped_causes": list(result.dropped_causes),
+        "further_candidate": (_undefined_as_null({**dataclasses.asdict(result.further_candidate),
+                                                  "reason": result.further_candidate_reason})
+                              if result.further_candidate is not None else None),
         # a hypothesis whose fit diverged has a non-finite held-out loss and evidence: written as null (undefined)
         "evidence": [_undefined_as_null(dataclasses.asdict(e)) for e in result.evidence],
         "folds": [list(f) for f in result.folds], "discrepancy": discrepancy,

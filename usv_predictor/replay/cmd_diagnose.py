@@ -3,7 +3,9 @@ model and its measured gain on held-out manoeuvres (usv_predictor.analysis.diagn
 
 JSON result: cause, parameters (DESIGN.md vocabulary and units), uncertainty, confounded_with, additional_causes
 (further causes added one at a time while the evidence holds, with their parameters), dropped_causes (causes that
-no longer earned their place given the others, and why), evidence (every
+no longer earned their place given the others, and why), further_candidate (a further cause not named for want of
+evidence alone: evidence between 3 and 5 given the named causes, with the share of the loss and track error it
+removes, its parameters fitted with them, and why; null otherwise), evidence (every
 hypothesis: held-out loss, gain, log-likelihood evidence, per-fold parameters), discrepancy (what the calm-water
 model gets wrong), baseline / extended / gain (evaluation metrics on held-out manoeuvres), notes, calm_water_fit (the
 calm-water model's held-out loss and track error before any hypothesis), fit_check (analysis/fit_check.py: a model
