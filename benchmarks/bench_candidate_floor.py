@@ -49,6 +49,7 @@ def floors(candidates: int, rounds: int, with_torch: bool) -> dict[str, dict[str
     e, n_s, c = r.ensemble_size, r.n_state, r.n_controls
     first, w, head = r.first_t, r.hidden_t[0], r.head_t  # (E, S + W + 1, S + C + 1), (E, W, W + 1), (E, S, W)
     x = rng.uniform(-1.0, 1.0, (e, n_s + c + 1, candidates)).astype(r.dtype)  # (E, S + C + 1, B): one step's input
+    x[:, -1] = 1.0  # its bias unit
     y = np.empty((e, first.shape[1], candidates), dtype=r.dtype)  # (E, S + W + 1, B)
     g = y[:, n_s:]  # (E, W + 1, B): the activations and the bias unit
     z = np.empty((e, w.shape[1], candidates), dtype=r.dtype)  # (E, W, B)
@@ -67,17 +68,27 @@ def floors(candidates: int, rounds: int, with_torch: bool) -> dict[str, dict[str
         return run
 
     def np_products() -> None:
-        np.matmul(first, x, out=y), np.matmul(w, g, out=z), np.matmul(head, z, out=t)
+        np.matmul(first, x, out=y)
+        np.matmul(w, g, out=z)
+        np.matmul(head, z, out=t)
 
     def np_activated() -> None:
-        np.matmul(first, x, out=y), np.tanh(g, out=g), np.matmul(w, g, out=z), np.tanh(z, out=z)
+        np.matmul(first, x, out=y)
+        np.tanh(g, out=g)
+        np.matmul(w, g, out=z)
+        np.tanh(z, out=z)
         np.matmul(head, z, out=t)
 
     def torch_products() -> None:
-        torch.matmul(tf, tx, out=ty), torch.matmul(tw, tg, out=tz), torch.matmul(th, tz, out=tt)
+        torch.matmul(tf, tx, out=ty)
+        torch.matmul(tw, tg, out=tz)
+        torch.matmul(th, tz, out=tt)
 
     def torch_activated() -> None:
-        torch.matmul(tf, tx, out=ty), torch.tanh(tg, out=tg), torch.matmul(tw, tg, out=tz), torch.tanh(tz, out=tz)
+        torch.matmul(tf, tx, out=ty)
+        torch.tanh(tg, out=tg)
+        torch.matmul(tw, tg, out=tz)
+        torch.tanh(tz, out=tz)
         torch.matmul(th, tz, out=tt)
 
     parts = {"numpy hidden": loop(lambda: np.matmul(w, g, out=z)), "numpy products": loop(np_products),

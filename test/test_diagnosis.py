@@ -472,3 +472,16 @@ def test_the_otter_sea_trials_current_is_reported_as_the_further_candidate(tmp_p
     assert further["reason"].startswith("current not named as a further cause: given wave_drift it adds evidence 4.")
     assert further["reason"] in found["message"]
     assert f"**Further candidate** — {further['reason']}" in (report / "report.md").read_text()
+
+
+def test_a_nearly_diverging_trial_costs_inf_without_a_warning() -> None:
+    """Residuals beyond ~1e19 in float32 square to inf: the cost of such a trial (or probe) is inf, silently (CI printed
+    numpy's overflow warning from the Otter's wave-drift and an unknown boat's probes), and a finite cost is r . r."""
+    import warnings
+
+    from usv_predictor.analysis.diagnosis import _cost
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _cost(np.array([1e20, 3.0], dtype=np.float32)) == math.inf
+        assert _cost(np.array([3.0, 4.0])) == 25.0

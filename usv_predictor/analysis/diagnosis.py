@@ -178,6 +178,13 @@ class Fit:
     seconds: float
 
 
+def _cost(r: np.ndarray) -> float:
+    """The squared norm r . r of weighted residuals (N,); inf, without numpy's overflow warning, when a trial's rollout
+    nearly diverges (residuals beyond ~1e19 in float32): such a trial is never better than the current one."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return float(r @ r)
+
+
 def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Sequence[str], *, max_iter: int = 12,
                    start: Mapping[str, Sequence[float]] | None = None) -> Fit:
     """Levenberg-Marquardt on the weighted residuals, finite-difference Jacobian in scaled parameters, from the
@@ -227,10 +234,10 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
         raise DiagnosisError(f"hypothesis {hypothesis}: the calm-water model's residuals are not finite on these "
                              "segments (NaN/inf in the recordings, or a rollout that diverges at this step: try a "
                              "smaller --dt)")
-    cost = float(r @ r)
+    cost = _cost(r)
     for probe in _probes(terms, sizes, theta, start):  # other basins of a direction: descend from the lowest
         r_probe = res(probe)
-        cost_probe = float(r_probe @ r_probe)
+        cost_probe = _cost(r_probe)
         if np.all(np.isfinite(r_probe)) and cost_probe < cost:
             theta, r, cost = probe, r_probe, cost_probe
     lam, it = 1e-2, 0
@@ -253,7 +260,7 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
                 lam *= 10.0
                 continue
             r_trial = res(trial)
-            c_trial = float(r_trial @ r_trial)
+            c_trial = _cost(r_trial)
             if c_trial < cost:
                 theta, r, improved = trial, r_trial, True
                 converged = (cost - c_trial) < 1e-6 * cost
