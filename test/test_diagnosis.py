@@ -444,7 +444,6 @@ def test_a_direction_is_probed_all_round_before_the_descent(monkeypatch):
     assert start_loss > 10.0 * found_loss
 
 
-
 @pytest.mark.slow
 def test_the_otter_sea_trials_current_is_reported_as_the_further_candidate(tmp_path) -> None:
     """The shipped Otter sea trial hides a 0.2 m/s current toward 215 deg beside a 4.5 m/s wind and 0.25 m waves
@@ -452,7 +451,7 @@ def test_the_otter_sea_trials_current_is_reported_as_the_further_candidate(tmp_p
     39 % of the held-out loss and 65 % of the track error with evidence 4.9, short of the 5 a cause needs: not named,
     not in the extended model, but reported as the further candidate with why, in the JSON, the message and the report,
     its parameters (fitted beside the waves on all manoeuvres) within the acceptance suite's tolerances of the truth.
-    Before 2026-11-26 the answer did not mention it. (~40 s.)"""
+    Until this change (2026-11-26) the answer did not mention it. (~40 s.)"""
     import json
 
     from usv_predictor.analysis.hidden_effects import Draw, within_tolerance
