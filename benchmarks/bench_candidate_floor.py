@@ -59,43 +59,34 @@ def floors(candidates: int, rounds: int, with_torch: bool) -> dict[str, dict[str
     state = np.tile(np.array([5.0, 0.1, 0.02, 0.3]), (candidates, 1))  # (B, 4)
     controls = np.tile(np.array([0.2, 650.0]), (candidates, STEPS, 1))  # (B, H, 2): 64 rudders
     controls[:, :, 0] = np.linspace(-0.5, 0.5, candidates)[:, None]
-    tf, tx, ty, tg, tw, tz, th, tt = (torch.from_numpy(a) for a in (first, x, y, g, w, z, head, t))
+    arrays = (first, x, y, g, w, z, head, t)
 
-    def loop(step: Callable[[], None]) -> Callable[[], None]:
-        def run() -> None:
+    def parts_of(library: str, matmul: Callable, tanh: Callable, arrays: tuple) -> dict[str, Callable[[], None]]:
+        """120 steps of the hidden product, of the three products and of those with the two tanh, by one library."""
+        first, x, y, g, w, z, head, t = arrays
+
+        def steps(activate: bool) -> Callable[[], None]:
+            def run() -> None:
+                for _ in range(STEPS):
+                    matmul(first, x, out=y)
+                    if activate:
+                        tanh(g, out=g)
+                    matmul(w, g, out=z)
+                    if activate:
+                        tanh(z, out=z)
+                    matmul(head, z, out=t)
+            return run
+
+        def hidden() -> None:
             for _ in range(STEPS):
-                step()
-        return run
+                matmul(w, g, out=z)
 
-    def np_products() -> None:
-        np.matmul(first, x, out=y)
-        np.matmul(w, g, out=z)
-        np.matmul(head, z, out=t)
+        return {f"{library} hidden": hidden, f"{library} products": steps(False),
+                f"{library} products+tanh": steps(True)}
 
-    def np_activated() -> None:
-        np.matmul(first, x, out=y)
-        np.tanh(g, out=g)
-        np.matmul(w, g, out=z)
-        np.tanh(z, out=z)
-        np.matmul(head, z, out=t)
-
-    def torch_products() -> None:
-        torch.matmul(tf, tx, out=ty)
-        torch.matmul(tw, tg, out=tz)
-        torch.matmul(th, tz, out=tt)
-
-    def torch_activated() -> None:
-        torch.matmul(tf, tx, out=ty)
-        torch.tanh(tg, out=tg)
-        torch.matmul(tw, tg, out=tz)
-        torch.tanh(tz, out=tz)
-        torch.matmul(th, tz, out=tt)
-
-    parts = {"numpy hidden": loop(lambda: np.matmul(w, g, out=z)), "numpy products": loop(np_products),
-             "numpy products+tanh": loop(np_activated), "numpy rollout": lambda: r.rollout(state, controls)}
-    if with_torch:
-        parts.update({"torch hidden": loop(lambda: torch.matmul(tw, tg, out=tz)), "torch products": loop(torch_products),
-                      "torch products+tanh": loop(torch_activated)})
+    parts = {**parts_of("numpy", np.matmul, np.tanh, arrays), "numpy rollout": lambda: r.rollout(state, controls)}
+    if with_torch:  # the same memory (torch.from_numpy)
+        parts.update(parts_of("torch", torch.matmul, torch.tanh, tuple(torch.from_numpy(a) for a in arrays)))
     times: dict[str, list[float]] = {name: [] for name in parts}
     with torch.inference_mode():
         for name, run in parts.items():  # warm-up
