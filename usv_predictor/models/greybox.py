@@ -49,6 +49,7 @@ import math
 from dataclasses import asdict, fields, replace
 from typing import Any, Dict, List, Mapping, Optional, Tuple
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -560,16 +561,28 @@ class GreyBoxRollout(nn.Module):
 
 
 class GreyBoxPredictor:
-    """A GreyBoxRollout behind the artifact's predict/metadata interface (numpy in, numpy out)."""
+    """A GreyBoxRollout behind the artifact's predict/metadata interface (numpy in, numpy out), predicting with the
+    compiled kernel (models/kernel_rollout.KernelRollout, which re-reads the rollout's terms at every call), or with
+    the rollout itself where the kernel cannot run it (inference_note says which and why)."""
 
     def __init__(self, rollout: GreyBoxRollout, metadata: Dict[str, object], vessel: Vessel | None = None) -> None:
+        from usv_predictor.models.kernel_rollout import KERNEL_FORM, KernelRollout, KernelUnavailable
+
         self.rollout = rollout
         self.metadata = dict(metadata)
         self.embedded_vessel = vessel  # the vessel it was built from (models/loading.model_vessel)
+        try:
+            self.kernel: Optional[KernelRollout] = KernelRollout(rollout, live=True)
+            self.inference_note = KERNEL_FORM
+        except KernelUnavailable as err:
+            self.kernel, self.inference_note = None, f"the torch rollout ({err})"
 
     accepts_reference = True  # predict takes the reference state of rudder_only's engine speed (module docstring)
 
     def predict(self, state, controls, reference=None):  # (B, 4), (B, H, C), (B, 4) | None -> (1, B, H, 6)
+        if self.kernel is not None:
+            return self.kernel.rollout(np.asarray(state, dtype=np.float64), np.asarray(controls, dtype=np.float64),
+                                       None if reference is None else np.asarray(reference, dtype=np.float64))
         with torch.no_grad():
             return self.rollout(torch.as_tensor(state, dtype=torch.float64),
                                 torch.as_tensor(controls, dtype=torch.float64),
