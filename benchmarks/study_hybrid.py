@@ -133,7 +133,7 @@ def fit_named(training: list, training_05: list, causes: tuple[str, ...], member
 
     preset = load_vessel(VESSEL)
     started = time.perf_counter()
-    fit = dg.fit_hypothesis(dg.scripted_rollout(preset, training_05[0].dt), dg.make_segments(training_05, 20.0, 5.0),
+    fit = dg.fit_hypothesis(dg.compiled_rollout(preset, training_05[0].dt), dg.make_segments(training_05, 20.0, 5.0),
                             causes)
     terms = {k: [float(x) for x in v] for k, v in fit.terms.items()}
     log(f"  named {'+'.join(causes)}: {terms} ({time.perf_counter() - started:.0f} s)")

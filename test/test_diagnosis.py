@@ -16,7 +16,7 @@ from usv_predictor.analysis.diagnosis import (
     fit_hypothesis,
     make_segments,
     physical_parameters,
-    scripted_rollout,
+    compiled_rollout,
     withdraw_causes,
 )
 from usv_predictor.data.recording import Recording, recording_from_signals
@@ -75,7 +75,7 @@ def test_check_data_reads_turn_sides_through_the_layouts_steering_signal():
 def test_current_shows_as_a_steady_track_drift():
     recordings = trial(env=Environment(current_speed=0.3, current_to_deg=60.0))
     seg = make_segments(recordings)
-    found = discrepancy(scripted_rollout(VESSEL, 0.5), seg, recordings)
+    found = discrepancy(compiled_rollout(VESSEL, 0.5), seg, recordings)
     assert found["track_drift_speed_mps"] == pytest.approx(0.3, abs=0.05)
     assert found["track_drift_direction_to_deg"] == pytest.approx(60.0, abs=10.0)
 
@@ -110,7 +110,7 @@ def test_a_diagnosis_run_builds_its_segments_and_grey_box_once_and_shares_them(m
     from usv_predictor.analysis.diagnosis_run import run_diagnosis
 
     recordings = trial(env=Environment(current_speed=0.3, current_to_deg=60.0))
-    built = {"make_segments": 0, "scripted_rollout": 0}
+    built = {"make_segments": 0, "compiled_rollout": 0}
     for name in built:
         original = getattr(dg, name)
 
@@ -120,10 +120,10 @@ def test_a_diagnosis_run_builds_its_segments_and_grey_box_once_and_shares_them(m
         monkeypatch.setattr(dg, name, counted)
     out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5, hypotheses=["current", "rudder_offset"], max_causes=1,
                         gain=False)
-    assert built == {"make_segments": 1, "scripted_rollout": 1}
+    assert built == {"make_segments": 1, "compiled_rollout": 1}
     assert out["cause"] == "current" and out["calm_water_model"] == {"vessel": VESSEL.name, "source": "preset"}
     monkeypatch.undo()
-    fresh = discrepancy(scripted_rollout(VESSEL, 0.5), make_segments(recordings), recordings)
+    fresh = discrepancy(compiled_rollout(VESSEL, 0.5), make_segments(recordings), recordings)
 
     def flat(d: dict) -> dict:
         return {f"{k}.{kk}": vv for k, v in d.items() for kk, vv in (v.items() if isinstance(v, dict) else [("", v)])}
@@ -397,7 +397,7 @@ def test_a_fit_starts_where_it_is_told():
     them, select_causes); terms not given start at their record's start, a start beyond a bound at the bound."""
     recordings = trial(runs=diagnosis_runs()[:2])
     seg = make_segments(recordings)
-    model = scripted_rollout(VESSEL, 0.5)
+    model = compiled_rollout(VESSEL, 0.5)
     untouched = fit_hypothesis(model, seg, ["current", "rudder_offset"], max_iter=0)
     assert untouched.terms["current_ne"] == fx.EFFECTS["current"].terms[0].start
     told = fit_hypothesis(model, seg, ["current", "rudder_offset"], max_iter=0, start={"current_ne": (0.2, -9.0)})
@@ -428,7 +428,7 @@ def test_a_direction_is_probed_all_round_before_the_descent(monkeypatch):
         signals = measure(traj, scenario.environment, scenario.sensor_spec, scenario.faults, seed=19100 + k)
         recordings.append(recording_from_signals(signals, steps.dt, name=manoeuvre.name, layout=otter.actuator_layout))
     seg = make_segments(recordings, steps.horizon_s, steps.stride_s)
-    rollout = scripted_rollout(otter, steps.dt)
+    rollout = compiled_rollout(otter, steps.dt)
 
     def fitted() -> tuple[float, float, float]:
         fit = fit_hypothesis(rollout, seg, "wave_drift")

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from usv_predictor.analysis.diagnosis import loss, make_segments, scripted_rollout, set_terms
+from usv_predictor.analysis.diagnosis import loss, make_segments, compiled_rollout, set_terms
 from usv_predictor.data.recording import recording_from_signals
 from usv_predictor.physics.dynamics import ManoeuvringModel, SeaLoads, fourier, fourier_terms
 from usv_predictor.physics.empirical import (
@@ -184,7 +184,7 @@ def test_wave_drift_term_moves_the_prediction_of_an_init_vessel():
     seg = make_segments(recordings)
 
     def losses(v) -> tuple[float, float]:
-        rollout = scripted_rollout(v, 0.5)
+        rollout = compiled_rollout(v, 0.5)
         set_terms(rollout, {})
         calm = loss(rollout, seg)
         set_terms(rollout, {"wave_ne": (0.15, 0.15)})  # zeta_a^2 (m^2) from the north-east

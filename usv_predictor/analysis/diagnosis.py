@@ -54,7 +54,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-import warnings
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
@@ -66,6 +65,7 @@ from usv_predictor.data.segments import SIGMA, Segments, make_segments  # noqa: 
 from usv_predictor.errors import ConfigError, DiagnosisError
 from usv_predictor.frames import compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
+from usv_predictor.models.kernel_rollout import KernelRollout
 from usv_predictor.physics import effects as fx
 from usv_predictor.physics.effects import Term
 from usv_predictor.physics.vessel import Vessel
@@ -114,7 +114,7 @@ HYPOTHESES: Mapping[str, tuple[Term, ...]] = fx.RegistryView(
     lambda: {name: () if name == fx.NONE else fx.EFFECTS[name].terms for name in fx.hypothesis_names()})
 
 
-def residuals(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments) -> torch.Tensor:
+def residuals(model: GreyBoxRollout | KernelRollout, seg: Segments) -> torch.Tensor:
     """Weighted residuals (B, H, 6) of the rollout against the measurements."""
     with torch.no_grad():
         predicted = model(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
@@ -144,7 +144,7 @@ def segment_scores(model: GreyBoxRollout, seg: Segments) -> tuple[np.ndarray, np
     return losses, track
 
 
-def diverged_segments(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments) -> int:
+def diverged_segments(model: GreyBoxRollout | KernelRollout, seg: Segments) -> int:
     """How many segments the calm-water model (no hypothesis terms) cannot roll out (non-finite residuals) although
     their measured start and controls are finite: a model that diverges on the data (0: it rolls out everywhere)."""
     set_terms(model, {})
@@ -304,11 +304,10 @@ def _probes(terms: Sequence[Term], sizes: Sequence[int], theta: np.ndarray,
     return found
 
 
-def scripted_rollout(vessel: Vessel, dt: float, substeps: int = 1) -> torch.jit.ScriptModule:
-    """The grey box compiled by TorchScript (twice as fast; its parameters are set in place by set_terms)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)  # torch 2.13 steers towards torch.export
-        return torch.jit.script(GreyBoxRollout(vessel, dt=dt, substeps=substeps))
+def compiled_rollout(vessel: Vessel, dt: float, substeps: int = 1) -> KernelRollout:
+    """The grey box on the compiled kernel (models/kernel_rollout.py): called as the module is, its terms the
+    module's, set in place by set_terms and re-read at every call."""
+    return KernelRollout(GreyBoxRollout(vessel, dt=dt, substeps=substeps), live=True)
 
 
 # ---- from grey-box terms to the DESIGN.md vocabulary -------------------------------------------------
@@ -557,13 +556,13 @@ def select_causes(primary: str, candidates: Sequence[str], score: Callable[[tupl
 def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Sequence[str] | None = None,
              horizon_s: float = 20.0, stride_s: float = 5.0, substeps: int = 1, max_causes: int = 2,
              progress: Callable[[str], None] = lambda _: None, segments: Segments | None = None,
-             rollout: torch.jit.ScriptModule | None = None, fit_mismatch: str = "") -> Diagnosis:
+             rollout: KernelRollout | None = None, fit_mismatch: str = "") -> Diagnosis:
     """Name the cause of what the calm-water grey box gets wrong on these recordings.
 
     After the primary cause, up to max_causes - 1 further ones are added one at a time (forward selection)
     while each passes the same held-out evidence test against the model with the causes before it; after each
     addition a cause that no longer passes it given the others is dropped (backward elimination, select_causes).
-    segments / rollout: make_segments(recordings, horizon_s, stride_s) and scripted_rollout(vessel, dt, substeps)
+    segments / rollout: make_segments(recordings, horizon_s, stride_s) and compiled_rollout(vessel, dt, substeps)
     when the caller has them already (built here otherwise); the rollout's terms are left at the final fit.
     """
     started = time.perf_counter()
@@ -583,7 +582,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     dt = recordings[0].dt
     seg = segments if segments is not None else make_segments(recordings, horizon_s, stride_s)
     folds = _folds(recordings)
-    model = rollout if rollout is not None else scripted_rollout(vessel, dt, substeps)
+    model = rollout if rollout is not None else compiled_rollout(vessel, dt, substeps)
     diverged = diverged_segments(model, seg)
     if diverged:
         # the calm-water model itself cannot be rolled out over the data: it does not fit them (not an error of the
@@ -824,7 +823,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                      further_candidate_reason=further_reason if candidate is not None else "")
 
 
-def withdraw_causes(diagnosis: Diagnosis, reason: str, model: GreyBoxRollout | torch.jit.ScriptModule,
+def withdraw_causes(diagnosis: Diagnosis, reason: str, model: GreyBoxRollout | KernelRollout,
                     seg: Segments) -> Diagnosis:
     """The diagnosis with its named causes withdrawn for `reason` (their extension made the held-out prediction
     worse, measure_gain): `inconclusive` with the withdrawn causes as the candidate. A named cause passed the
@@ -840,7 +839,7 @@ def withdraw_causes(diagnosis: Diagnosis, reason: str, model: GreyBoxRollout | t
 
 
 def _inconclusive(diagnosis: Diagnosis, candidate: str, parameters: dict[str, float], reason: str,
-                  model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments) -> Diagnosis:
+                  model: GreyBoxRollout | KernelRollout, seg: Segments) -> Diagnosis:
     """`diagnosis` as the answer `inconclusive`: what was found (candidate, its parameters) and why it is not named."""
     calm = diagnosis.calm_water_fit
     before = (f" (calm-water model: held-out loss {calm.heldout_loss:.3g} noise units, track error "
@@ -868,7 +867,7 @@ def _physical_uncertainty(cause: str, fit: Fit) -> dict[str, float]:
 
 # ---- what the calm-water model gets wrong, in a naval architect's terms -------------------------------
 
-def discrepancy(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments,
+def discrepancy(model: GreyBoxRollout | KernelRollout, seg: Segments,
                 recordings: Sequence[Recording]) -> dict[str, object]:
     """Structure of the calm-water model's segment errors: track drift, asymmetry, dependence on heading.
 
@@ -925,11 +924,11 @@ def extended_rollout(vessel: Vessel, dt: float, terms: dict[str, Sequence[float]
 def measure_gain(recordings: Sequence[Recording], vessel: Vessel, diagnosis: Diagnosis, *,
                  horizons_s: Sequence[float] = (10.0, 30.0, 60.0), stride_s: float = 5.0,
                  horizon_s: float = 20.0, segment_stride_s: float = 5.0, segments: Segments | None = None,
-                 rollout: torch.jit.ScriptModule | None = None) -> dict[str, object]:
+                 rollout: KernelRollout | None = None) -> dict[str, object]:
     """Every evaluation metric of the calm-water and the extended model on manoeuvres held out from the fit.
 
     Each fold's manoeuvres are predicted by the extension fitted on the other fold only. segments / rollout:
-    make_segments(recordings, horizon_s, segment_stride_s) and scripted_rollout(vessel, dt) when the caller has
+    make_segments(recordings, horizon_s, segment_stride_s) and compiled_rollout(vessel, dt) when the caller has
     them already (built here otherwise).
     """
     from usv_predictor.analysis import evaluation
@@ -941,7 +940,7 @@ def measure_gain(recordings: Sequence[Recording], vessel: Vessel, diagnosis: Dia
     names = [r.name for r in recordings]
     before, after = [], []
     seg = segments if segments is not None else make_segments(recordings, horizon_s, segment_stride_s)
-    fitter = rollout if rollout is not None else scripted_rollout(vessel, dt)
+    fitter = rollout if rollout is not None else compiled_rollout(vessel, dt)
     for fit_fold, test_fold in ((0, 1), (1, 0)):
         fit_names, test_names = diagnosis.folds[fit_fold], diagnosis.folds[test_fold]
         fit_idx = [names.index(n) for n in fit_names]

@@ -110,7 +110,7 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     if fit_check:
         require_fit(fitted)
     segments = dg.make_segments(recordings, horizon_s, stride_s)  # built once: diagnose, discrepancy and gain share
-    rollout = dg.scripted_rollout(vessel, dt)  # ... the segments and the compiled grey box
+    rollout = dg.compiled_rollout(vessel, dt)  # ... the segments and the compiled grey box
     result = dg.diagnose(recordings, vessel, hypotheses=hypotheses, horizon_s=horizon_s, stride_s=stride_s,
                          max_causes=max_causes, progress=progress, segments=segments, rollout=rollout,
                          fit_mismatch="; ".join(fitted.reasons))

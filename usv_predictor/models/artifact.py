@@ -130,8 +130,8 @@ class ModelArtifact:
             with torch.inference_mode():
                 if reference is None:
                     out = self.runner(torch.from_numpy(state), torch.from_numpy(controls))
-                else:
-                    out = self.module(torch.from_numpy(state), torch.from_numpy(controls), torch.from_numpy(reference))
+                else:  # a grey box's (accepts_reference): its own module or the compiled kernel of it
+                    out = self.runner(torch.from_numpy(state), torch.from_numpy(controls), torch.from_numpy(reference))
             return out.double().numpy()
         except MODEL_RUN_ERRORS as err:
             raise ModelError(f"model {self.path} fails when run: {failure_reason(err)}") from err

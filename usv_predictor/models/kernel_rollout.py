@@ -99,9 +99,13 @@ class _Packer:
 class KernelRollout:
     """The compiled rollout of a grey-box module (module docstring)."""
 
+    accepts_reference = True  # forward's third argument: rudder_only's reference state (models/greybox.py)
+
     def __init__(self, module: Any, *, live: bool = False) -> None:
         self.module = module
         self.live = bool(live)
+        self._read: tuple = ()  # what _refresh read last: (data_ptr, version) per parameter, and the tensors
+        self._held: list = []
         try:
             self._pack(module)
         except (AttributeError, KeyError, TypeError, ValueError, IndexError, RuntimeError) as err:
@@ -219,24 +223,32 @@ class KernelRollout:
 
     def _refresh(self) -> None:
         """Read the module's parameters into p and the terms: hull coefficients, held engine speed, extension terms,
-        Abkowitz terms."""
+        Abkowitz terms. Skipped when none changed since the last read: the same tensors (kept here, so a replaced
+        parameter cannot take a freed one's memory) at the same version (torch counts every in-place change)."""
         m = self.module
-        hull = _floats(m.hull)
+        tensors = [m.hull, m.engine_speed_rpm, *(getattr(m, name) for name in dict.fromkeys(kn.T_NAMES))]
+        if self._poly_module is not None:
+            tensors.append(self._poly_module.coef)
+        key = tuple((t.data_ptr(), t._version) for t in tensors)
+        if key == self._read:
+            return
+        hull = _floats(tensors[0])
         if len(hull) != self.n_hull:
             raise ValueError(f"{len(hull)} hull coefficients, packed for {self.n_hull}")
         o = self.ki[kn.K_O_HULL]
         self.p[o:o + self.n_hull] = hull
-        self.p[kn.P_ENGINE_SPEED_RPM] = float(_floats(m.engine_speed_rpm)[0])
+        self.p[kn.P_ENGINE_SPEED_RPM] = float(_floats(tensors[1])[0])
         if self._poly_module is not None:
             o = self.ki[kn.K_O_COEF]
-            self.p[o:o + kn.N_POLY] = _floats(self._poly_module.coef)
+            self.p[o:o + kn.N_POLY] = _floats(tensors[-1])
         values = []  # (rows, size) per term: a term set per row is (size, B) in the module (fit_check's batches)
-        for name in dict.fromkeys(kn.T_NAMES):
-            value = getattr(m, name).detach().to(torch.float64).cpu().numpy()
+        for tensor in tensors[2:2 + len(dict.fromkeys(kn.T_NAMES))]:
+            value = tensor.detach().to(torch.float64).cpu().numpy()
             values.append(value[None, :] if value.ndim == 1 else value.T)
         rows = max(v.shape[0] for v in values)
         self.terms = np.ascontiguousarray(np.concatenate([np.broadcast_to(v, (rows, v.shape[1])) for v in values],
                                                          axis=1))  # (R, NT)
+        self._read, self._held = key, tensors
 
     # ---- running ---------------------------------------------------------------------------------------------
     def rollout(self, state: np.ndarray, controls: np.ndarray, reference: np.ndarray | None = None,
