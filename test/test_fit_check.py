@@ -333,7 +333,7 @@ def test_the_causes_of_a_rudder_only_window_hold_its_approach_engine_speed():
     assert dr[0, 0] == pytest.approx(float(windy[2] - calm[2]), abs=1e-12)
 
 
-def test_the_scripted_causes_are_the_eager_ones_bit_for_bit():
+def test_the_scripted_causes_are_the_eager_ones_bit_for_bit_and_the_compiled_ones_to_rounding():
     """cause_changes runs its steered grey box as TorchScript without the executor's optimisation (half eager's
     time) and reduced to u and r (fit_check._causes_rollout: the positions not integrated, the sea terms and hull
     coefficients once per rollout): the same numbers bit for bit as the steered grey box's whole rollout, eager, on
@@ -357,16 +357,25 @@ def test_the_scripted_causes_are_the_eager_ones_bit_for_bit():
             rolled.append(fc.Rolled(fc.SteadyWindow("r", kind, 0.0, 1.0, 0.0, 0.0, 4.0, 4.0, 0.0, 0.0), state,
                                     controls, min(steps, 12), reference))
         for substeps in (None, 3):
-            whole = fc.cause_changes(vessel, dt, rolled, causes, scripted=False, lean=False, substeps=substeps)
+            whole = fc.cause_changes(vessel, dt, rolled, causes, compiled=False, scripted=False, lean=False,
+                                     substeps=substeps)
             assert np.isfinite(whole[0]).all() and np.abs(whole[0]).max() > 0.01  # the causes change something
             assert np.abs(whole[1]).max() > 1e-3
             for scripted, lean in ((False, True), (True, True), (True, False)):
-                out = fc.cause_changes(vessel, dt, rolled, causes, scripted=scripted, lean=lean, substeps=substeps)
+                out = fc.cause_changes(vessel, dt, rolled, causes, compiled=False, scripted=scripted, lean=lean,
+                                       substeps=substeps)
                 np.testing.assert_array_equal(out[0], whole[0])
                 np.testing.assert_array_equal(out[1], whole[1])
-        fc.cause_changes(vessel, dt, rolled[:1], causes[:3])  # another batch through the kept scripted module
-        again = fc.cause_changes(vessel, dt, rolled, causes)
-        np.testing.assert_array_equal(again[0], fc.cause_changes(vessel, dt, rolled, causes, scripted=False)[0])
+            # the compiled kernel (the default) equals them to float rounding: du (m/s), dr (rad/s)
+            compiled = fc.cause_changes(vessel, dt, rolled, causes, substeps=substeps)
+            np.testing.assert_allclose(compiled[0], whole[0], rtol=0.0, atol=1e-10)
+            np.testing.assert_allclose(compiled[1], whole[1], rtol=0.0, atol=1e-12)
+        fc.cause_changes(vessel, dt, rolled[:1], causes[:3], compiled=False)  # another batch through the kept module
+        again = fc.cause_changes(vessel, dt, rolled, causes, compiled=False)
+        np.testing.assert_array_equal(again[0], fc.cause_changes(vessel, dt, rolled, causes, compiled=False,
+                                                                 scripted=False)[0])
+        fc.cause_changes(vessel, dt, rolled[:1], causes[:3])  # another batch through the kept kernel: its terms reset
+        np.testing.assert_allclose(fc.cause_changes(vessel, dt, rolled, causes)[0], again[0], rtol=0.0, atol=1e-10)
 
 
 @pytest.mark.slow

@@ -56,6 +56,7 @@ from torch import Tensor, nn
 from usv_predictor.data.recording import APPROACH_S
 from usv_predictor.physics import dynamics, effects
 from usv_predictor.physics.dynamics import SPEED_FLOOR, SeaConstants, constants_of
+from usv_predictor.physics.kernel import lag_factors, thrust_map_spec
 from usv_predictor.physics.vessel import RHO_WATER, Hull, Propeller, Rudder, Thrusters, ThrustMap, Vessel
 
 HULL_NAMES = tuple(f.name for f in fields(Hull))  # the MMG hull's coefficients, R0 ... N_rrr (vessel.Hull)
@@ -184,20 +185,6 @@ class CommandLag(nn.Module):
         return [y0, u1 - drift + start * self.e_half, u2 - drift + start * self.e_full]
 
 
-def lag_factors(time_constants: List[float], tau: float) -> List[float]:
-    """exp(-tau / T) per time constant T (s), 0 for an instantaneous motor (T = 0)."""
-    return [math.exp(-tau / t) if t > 0.0 else 0.0 for t in time_constants]
-
-
-def _thrust_constants(m: ThrustMap) -> Tuple[List[float], List[float], List[float]]:
-    """([forward_N, reverse_N, exponent, dead_band, has table], table commands, table thrusts) of a map for
-    TorchScript (a power-law map carries the placeholder table [-1, 1] -> [0, 0]: lists must not be empty)."""
-    if m.table_command:
-        return ([m.forward_N, m.reverse_N, m.exponent, m.dead_band, 1.0], [float(x) for x in m.table_command],
-                [float(y) for y in m.table_thrust_N])
-    return [m.forward_N, m.reverse_N, m.exponent, m.dead_band, 0.0], [-1.0, 1.0], [0.0, 0.0]
-
-
 def _thrust(level: Tensor, spec: List[float], table_x: List[float], table_y: List[float]) -> Tensor:
     """vessel.ThrustMap.thrust in torch: dead band, then the power law or the piecewise-linear table."""
     c = torch.clamp(level, min=-1.0, max=1.0)
@@ -272,7 +259,7 @@ class RudderThrottleModule(RudderPropellerModule):
         super().__init__(vessel, h)
         _set_constants(self, constants_of(vessel, (dynamics.ThrottleConstants,)))
         self.lag = CommandLag([vessel.throttle.time_constant_s], h)
-        self.map, self.table_x, self.table_y = _thrust_constants(vessel.throttle)
+        self.map, self.table_x, self.table_y = thrust_map_spec(vessel.throttle)
 
     def begin(self, u_r0: Tensor, controls: Tensor, resistance: List[Tensor], engine_speed_rpm: Tensor) -> Tensor:
         return controls[:, 0, 1:2]  # (B, 1) the motor at the first reported throttle
@@ -322,8 +309,8 @@ class TwinThrusterModule(nn.Module):
         _set_constants(self, constants_of(vessel, dynamics.TwinThrusterForces.constants))
         t = vessel.thrusters
         self.lag = CommandLag([t.port.time_constant_s, t.starboard.time_constant_s], h)
-        self.port, self.port_x, self.port_y = _thrust_constants(t.port)
-        self.starboard, self.starboard_x, self.starboard_y = _thrust_constants(t.starboard)
+        self.port, self.port_x, self.port_y = thrust_map_spec(t.port)
+        self.starboard, self.starboard_x, self.starboard_y = thrust_map_spec(t.starboard)
 
     def begin(self, u_r0: Tensor, controls: Tensor, resistance: List[Tensor], engine_speed_rpm: Tensor) -> Tensor:
         return controls[:, 0, :]  # (B, 2) the motors at the first reported commands

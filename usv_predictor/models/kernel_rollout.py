@@ -30,10 +30,8 @@ from usv_predictor.physics import kernel as kn
 HULL_KINDS = {"MmgHullModule": kn.MMG, "SmallCraftHullModule": kn.SMALL_CRAFT}  # the torch twin's class -> kind
 LAYOUT_KINDS = {"RudderPropellerModule": kn.RUDDER_PROPELLER, "RudderThrottleModule": kn.RUDDER_THROTTLE,
                 "RudderOnlyModule": kn.RUDDER_ONLY, "TwinThrusterModule": kn.TWIN_THRUSTERS}
-SMALL_CRAFT_INDICES = ("i_xud", "i_yvd", "i_nrd", "i_xu", "i_xuu", "i_yv", "i_yr", "i_nv", "i_nr", "i_nrr", "i_cd")
-RUDDER_CONSTANTS = ("rho", "x_P", "w_P0", "gear_ratio", "D_P", "k0", "k1", "k2", "t_P", "epsilon", "eta", "kappa",
-                    "l_R_m", "gamma_R_minus", "gamma_R_plus", "A_R", "f_alpha", "t_R", "a_H", "x_R_m", "x_H_m")
-MASS_CONSTANTS = ("L", "m", "x_G", "m11", "m22", "m23", "m32", "m33", "det_vr")
+# the small-craft hull module's indices of kernel.SMALL_CRAFT_INDICES' coefficients (models/greybox.SmallCraftHullModule)
+MODULE_INDICES = ("i_xud", "i_yvd", "i_nrd", "i_xu", "i_xuu", "i_yv", "i_yr", "i_nv", "i_nr", "i_nrr", "i_cd")
 KERNEL_FORM = "compiled kernel (physics/kernel.py, numba)"  # the inference_note of a model running it
 
 
@@ -50,50 +48,6 @@ def _floats(value: Any) -> np.ndarray:
     if isinstance(value, torch.Tensor):
         return value.detach().to(torch.float64).cpu().numpy().reshape(-1)
     return np.asarray(value, dtype=np.float64).reshape(-1)
-
-
-def _tables(tables: list[list[list[float]]]) -> np.ndarray:
-    """(K, N, 3) of K Fourier tables [[a0/2, 0, 0], [n, a_n, b_n], ...], zero rows padding the shorter ones."""
-    rows = max(len(t) for t in tables)
-    out = np.zeros((len(tables), rows, 3))
-    for k, table in enumerate(tables):
-        out[k, :len(table)] = np.asarray(table, dtype=np.float64).reshape(-1, 3)
-    return out
-
-
-def _maps(specs: list[tuple[list[float], list[float], list[float]]]) -> tuple[np.ndarray, int, list[int]]:
-    """(2 x [spec (5), table commands (T), table thrusts (T)] flat, T, the tables' lengths) of up to two thrust maps
-    (models/greybox._thrust_constants)."""
-    width = max([len(x) for _, x, _ in specs] + [2])
-    flat = np.zeros((2, 5 + 2 * width))
-    lengths = [0, 0]
-    for k, (spec, x, y) in enumerate(specs):
-        flat[k, :5] = spec
-        flat[k, 5:5 + len(x)], flat[k, 5 + width:5 + width + len(y)], lengths[k] = x, y, len(x)
-    return flat.reshape(-1), width, lengths
-
-
-class _Packer:
-    """The flat constants p after the fixed places (kernel.P_NAMES, the terms): each table appended, its offset and
-    sizes recorded in ki (kernel.K_*)."""
-
-    def __init__(self) -> None:
-        self.ki = np.zeros(len(kn.K_NAMES), dtype=np.int64)
-        self.fixed = np.zeros(kn.T_BASE + kn.N_TERMS)
-        self.parts: list[np.ndarray] = []
-        self.size = len(self.fixed)
-
-    def set(self, name: str, value: Any) -> None:
-        self.fixed[kn.P_NAMES.index(name)] = float(value)
-
-    def append(self, offset_key: int, values: Any) -> None:
-        values = np.asarray(values, dtype=np.float64).reshape(-1)
-        self.ki[offset_key] = self.size
-        self.parts.append(values)
-        self.size += len(values)
-
-    def constants(self) -> np.ndarray:
-        return np.ascontiguousarray(np.concatenate([self.fixed, *self.parts]))
 
 
 class KernelRollout:
@@ -122,7 +76,7 @@ class KernelRollout:
         expected = tuple(dict.fromkeys(kn.T_NAMES))
         if term_names != expected or tuple(effects.grey_box_terms()) != expected:
             raise ValueError(f"extension terms {term_names}, the kernel's are {expected}")
-        pk = _Packer()
+        pk = kn.Packer()
         ki = pk.ki
         ki[kn.K_HULL], ki[kn.K_LAYOUT], ki[kn.K_SUBSTEPS] = hull_kind, layout, int(m.substeps)
         if ki[kn.K_SUBSTEPS] < 1:
@@ -132,11 +86,11 @@ class KernelRollout:
         for name in ("wind_x", "wind_y", "wind_n", "q_wave"):
             pk.set(name, getattr(m, name))
         hf, af = m.hull_forces, m.actuator_forces
-        for name in MASS_CONSTANTS:
+        for name in kn.MASS_CONSTANTS:
             pk.set(name, getattr(hf, name))
         self.n_hull = int(m.hull.numel())
         pk.append(kn.K_O_HULL, np.zeros(self.n_hull))  # the hull coefficients: _refresh writes them
-        drift = _tables([m.drift_x, m.drift_y, m.drift_n])
+        drift = kn.fourier_tables([m.drift_x, m.drift_y, m.drift_n])
         ki[kn.K_DRIFT_ROWS] = drift.shape[1]
         pk.append(kn.K_O_DRIFT, drift)
         strips = np.zeros(0)
@@ -147,7 +101,7 @@ class KernelRollout:
             for name in ("m33_rigid", "half_rho_d", "strip_dx"):
                 pk.set(name, getattr(hf, name))
             strips = _floats(hf.strips)
-            for k, name in enumerate(SMALL_CRAFT_INDICES):
+            for k, name in enumerate(MODULE_INDICES):
                 ki[kn.K_XUD + k] = int(getattr(hf, name))
         ki[kn.K_N_STRIPS] = len(strips)
         pk.append(kn.K_O_STRIPS, strips)
@@ -158,7 +112,7 @@ class KernelRollout:
             maps = [(af.port, af.port_x, af.port_y), (af.starboard, af.starboard_x, af.starboard_y)]
             lags[:, :] = np.stack([_floats(af.lag.t), _floats(af.lag.e_half), _floats(af.lag.e_full)], axis=1)
         else:
-            for name in RUDDER_CONSTANTS:
+            for name in ("rho", *kn.RUDDER_CONSTANTS):
                 pk.set(name, getattr(af, name))
             pk.set("L_act", af.L)
             if layout == kn.RUDDER_THROTTLE:
@@ -166,7 +120,7 @@ class KernelRollout:
                 pk.set("rpm_per_rev_s", af.rpm_per_rev_s)
                 maps = [(af.map, af.table_x, af.table_y)]
                 lags[0] = [_floats(af.lag.t)[0], _floats(af.lag.e_half)[0], _floats(af.lag.e_full)[0]]
-        flat, ki[kn.K_MAP_WIDTH], (ki[kn.K_MAP_N0], ki[kn.K_MAP_N1]) = _maps(maps)
+        flat, ki[kn.K_MAP_WIDTH], (ki[kn.K_MAP_N0], ki[kn.K_MAP_N1]) = kn.thrust_maps(maps)
         pk.append(kn.K_O_MAPS, flat)
         pk.append(kn.K_O_LAG, lags)
         pk.append(kn.K_O_COEF, np.zeros(kn.N_POLY))  # the Abkowitz terms: _refresh writes them
@@ -182,7 +136,7 @@ class KernelRollout:
         self.n_controls = int(m.n_controls)
         self.ki, self.p = ki, pk.constants()
 
-    def _pack_residual(self, residual: Any, pk: _Packer) -> int:
+    def _pack_residual(self, residual: Any, pk: kn.Packer) -> int:
         """The residual's kind bits (kernel.RESIDUAL_*), its constants and weights packed."""
         name = _name(residual)
         if name == "ZeroResidual":
@@ -273,10 +227,11 @@ class KernelRollout:
             kn.rollout(state, controls, reference, use_reference, self.ki, self.p, self.terms, free, out)
         return out
 
-    def __call__(self, state: torch.Tensor, controls: torch.Tensor, reference: torch.Tensor | None = None
-                 ) -> torch.Tensor:
+    def __call__(self, state: torch.Tensor, controls: torch.Tensor, reference: torch.Tensor | None = None,
+                 free: torch.Tensor | None = None) -> torch.Tensor:
         as_numpy = (lambda t: None if t is None else t.detach().to(torch.float64).cpu().numpy())
-        return torch.from_numpy(self.rollout(as_numpy(state), as_numpy(controls), as_numpy(reference)))
+        return torch.from_numpy(self.rollout(as_numpy(state), as_numpy(controls), as_numpy(reference),
+                                             as_numpy(free)))
 
     def __getattr__(self, name: str) -> Any:  # the module's attributes (terms, hull, metadata helpers)
         if name == "module":

@@ -41,9 +41,40 @@ yaw are held (the fit check's steered rows).
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 
+import numba
 import numpy as np
 from numba import njit
+
+
+def _probe() -> int:
+    return 0
+
+
+def _cache_folder() -> bool:
+    """Whether numba can cache this module's machine code, finding it a place if it must: beside this file or in the
+    user's cache folder (numba's own choice; NUMBA_CACHE_DIR overrides both), else a folder of this user's in the
+    temporary directory. False (compiled in every process, no cache) when none is writable: a read-only install
+    under a user without a home (docs/kernel.md)."""
+    try:
+        njit(cache=True)(_probe)
+        return True
+    except RuntimeError:  # numba: "cannot cache function ...: no locator available for file ..."
+        pass
+    folder = os.path.join(tempfile.gettempdir(), f"usv_predictor-numba-{os.getuid()}")
+    try:
+        os.makedirs(folder, mode=0o700, exist_ok=True)
+        numba.config.CACHE_DIR = folder
+        njit(cache=True)(_probe)
+        return True
+    except (OSError, RuntimeError):
+        return False
+
+
+CACHED = _cache_folder()  # whether the compiled kernel is kept on disk between processes
+_compiled = njit(cache=CACHED)
 
 # ---- kinds ------------------------------------------------------------------------------------------------------
 MMG, SMALL_CRAFT = 0, 1  # hull models (physics/hulls.py)
@@ -103,9 +134,150 @@ N_FEATURES = 7  # models/hybrid.GENERALISING_FEATURES
 N_SEA = 7  # _sea_of's tuple
 
 
+# ---- packing ------------------------------------------------------------------------------------------------------
+
+SMALL_CRAFT_INDICES = ("X_udot", "Y_vdot", "N_rdot", "X_u", "X_uu", "Y_v", "Y_r", "N_v", "N_r", "N_rr", "cross_flow_cd")
+RUDDER_CONSTANTS = ("x_P", "w_P0", "gear_ratio", "D_P", "k0", "k1", "k2", "t_P", "epsilon", "eta", "kappa", "l_R_m",
+                    "gamma_R_minus", "gamma_R_plus", "A_R", "f_alpha", "t_R", "a_H", "x_R_m", "x_H_m")
+MASS_CONSTANTS = ("L", "m", "x_G", "m11", "m22", "m23", "m32", "m33", "det_vr")
+
+
+def fourier_tables(tables: list[list[list[float]]]) -> np.ndarray:
+    """(K, N, 3) of K Fourier tables [[a0/2, 0, 0], [n, a_n, b_n], ...], zero rows padding the shorter ones."""
+    rows = max(len(t) for t in tables)
+    out = np.zeros((len(tables), rows, 3))
+    for k, table in enumerate(tables):
+        out[k, :len(table)] = np.asarray(table, dtype=np.float64).reshape(-1, 3)
+    return out
+
+
+def thrust_maps(specs: list[tuple[list[float], list[float], list[float]]]) -> tuple[np.ndarray, int, list[int]]:
+    """(2 x [spec (5), table commands (T), table thrusts (T)] flat, T, the tables' lengths) of up to two thrust maps
+    (models/greybox._thrust_constants)."""
+    width = max([len(x) for _, x, _ in specs] + [2])
+    flat = np.zeros((2, 5 + 2 * width))
+    lengths = [0, 0]
+    for k, (spec, x, y) in enumerate(specs):
+        flat[k, :5] = spec
+        flat[k, 5:5 + len(x)], flat[k, 5 + width:5 + width + len(y)], lengths[k] = x, y, len(x)
+    return flat.reshape(-1), width, lengths
+
+
+class Packer:
+    """The flat constants p after the fixed places (P_NAMES, the terms): each table appended, its offset and sizes
+    recorded in ki (K_*). Two callers fill it: vessel_constants (a Vessel: the float model, physics/dynamics.py) and
+    models/kernel_rollout.py (a GreyBoxRollout or its TorchScript file's module)."""
+
+    def __init__(self) -> None:
+        self.ki = np.zeros(len(K_NAMES), dtype=np.int64)
+        self.fixed = np.zeros(T_BASE + N_TERMS)
+        self.parts: list[np.ndarray] = []
+        self.size = len(self.fixed)
+
+    def set(self, name: str, value: Any) -> None:
+        self.fixed[P_NAMES.index(name)] = float(value)
+
+    def append(self, offset_key: int, values: Any) -> None:
+        values = np.asarray(values, dtype=np.float64).reshape(-1)
+        self.ki[offset_key] = self.size
+        self.parts.append(values)
+        self.size += len(values)
+
+    def constants(self) -> np.ndarray:
+        return np.ascontiguousarray(np.concatenate([self.fixed, *self.parts]))
+
+
+def thrust_map_spec(m) -> tuple[list[float], list[float], list[float]]:
+    """([forward_N, reverse_N, exponent, dead_band, has table], table commands, table thrusts) of a vessel.ThrustMap
+    (a power-law map: the placeholder table [-1, 1] -> [0, 0]), as models/greybox.py holds it."""
+    if m.table_command:
+        return ([m.forward_N, m.reverse_N, m.exponent, m.dead_band, 1.0], [float(x) for x in m.table_command],
+                [float(y) for y in m.table_thrust_N])
+    return [m.forward_N, m.reverse_N, m.exponent, m.dead_band, 0.0], [-1.0, 1.0], [0.0, 0.0]
+
+
+def lag_factors(time_constants, tau: float) -> list[float]:
+    """exp(-tau / T) per time constant T (s), 0 for an instantaneous motor (T = 0)."""
+    return [math.exp(-tau / t) if t > 0.0 else 0.0 for t in time_constants]
+
+
+def vessel_constants(vessel, dt: float = 0.5, substeps: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(ki, p) of a Vessel's calm-water equations (the float model's, physics/dynamics.ManoeuvringModel; the torch
+    twin's module is packed from its attributes by models/kernel_rollout.py, which holds the same values: both come
+    from dynamics.constants_of), every term zero."""
+    from dataclasses import fields
+
+    from usv_predictor.physics import dynamics as dy
+    from usv_predictor.physics.vessel import RHO_WATER
+
+    pk = Packer()
+    ki = pk.ki
+    ki[K_HULL] = {"mmg": MMG, "small_craft": SMALL_CRAFT}[vessel.hull_model_name]
+    layout = {"rudder_propeller": RUDDER_PROPELLER, "rudder_throttle": RUDDER_THROTTLE, "rudder_only": RUDDER_ONLY,
+              "twin_thrusters": TWIN_THRUSTERS}[vessel.layout]
+    ki[K_LAYOUT], ki[K_SUBSTEPS] = layout, int(substeps)
+    sea = dy.SeaConstants.of(vessel)
+    pk.set("dt", dt)
+    pk.set("L_sea", vessel.geometry.L_pp)
+    for name in ("wind_x", "wind_y", "wind_n", "q_wave"):
+        pk.set(name, getattr(sea, name))
+    hull_record = dy.HullConstants if ki[K_HULL] == MMG else dy.SmallCraftConstants
+    hull = hull_record.of(vessel)
+    for name in MASS_CONSTANTS:
+        pk.set(name, getattr(hull, name))
+    section = getattr(vessel, vessel.hull_model.coefficients)
+    names = [f.name for f in fields(section)]
+    pk.append(K_O_HULL, [float(getattr(section, n)) for n in names])
+    tables = [[[half_a0, 0.0, 0.0]] + [[float(n), a, b] for n, a, b in terms]
+              for half_a0, terms in (sea.drift_x, sea.drift_y, sea.drift_n)]
+    drift = fourier_tables(tables)
+    ki[K_DRIFT_ROWS] = drift.shape[1]
+    pk.append(K_O_DRIFT, drift)
+    strips: list[float] = []
+    if ki[K_HULL] == MMG:
+        pk.set("q_force", hull.q_force)
+        pk.set("speed_floor", dy.SPEED_FLOOR)
+    else:
+        for name in ("m33_rigid", "half_rho_d", "strip_dx"):
+            pk.set(name, getattr(hull, name))
+        strips = list(hull.strip_x)
+        for k, name in enumerate(SMALL_CRAFT_INDICES):
+            ki[K_XUD + k] = names.index(name)
+    ki[K_N_STRIPS] = len(strips)
+    pk.append(K_O_STRIPS, strips)
+    h = dt / substeps
+    lags = np.zeros((2, 3))
+    maps = []
+    if layout == TWIN_THRUSTERS:
+        twin = dy.TwinThrusterConstants.of(vessel)
+        pk.set("half_spacing", twin.half_spacing)
+        maps = [thrust_map_spec(twin.port), thrust_map_spec(twin.starboard)]
+        times = [twin.port.time_constant_s, twin.starboard.time_constant_s]
+        lags[:, :] = np.stack([times, lag_factors(times, 0.5 * h), lag_factors(times, h)], axis=1)
+    else:
+        rudder = dy.constants_of(vessel, (dy.RudderPropellerConstants,))
+        for name in RUDDER_CONSTANTS:
+            pk.set(name, rudder[name])
+        pk.set("rho", RHO_WATER)
+        pk.set("L_act", vessel.geometry.L_pp)
+        if layout == RUDDER_THROTTLE:
+            throttle = dy.ThrottleConstants.of(vessel)
+            pk.set("static_thrust", throttle.static_thrust)
+            pk.set("rpm_per_rev_s", throttle.rpm_per_rev_s)
+            maps = [thrust_map_spec(throttle.throttle)]
+            t = throttle.throttle.time_constant_s
+            lags[0] = [t, *lag_factors([t], 0.5 * h), *lag_factors([t], h)]
+    flat, ki[K_MAP_WIDTH], (ki[K_MAP_N0], ki[K_MAP_N1]) = thrust_maps(maps)
+    pk.append(K_O_MAPS, flat)
+    pk.append(K_O_LAG, lags)
+    pk.append(K_O_COEF, np.zeros(N_POLY))
+    ki[K_MEMBERS] = 1
+    return ki, pk.constants()
+
+
 # ---- the sea --------------------------------------------------------------------------------------------------------
 
-@njit(cache=True)
+@_compiled
 def _fourier(ki, p, k, chi):
     """Table k's a0/2 + sum a_n cos(n chi) + b_n sin(n chi) (-) at chi (rad) (seed 000 eq. 19)."""
     o = ki[K_O_DRIFT] + 3 * k * ki[K_DRIFT_ROWS]
@@ -119,7 +291,7 @@ def _fourier(ki, p, k, chi):
     return value
 
 
-@njit(cache=True)
+@_compiled
 def _air_load(p, u_rw, v_rw):
     """(X, Y, N) of the apparent wind (u_rw, v_rw) in the body frame (seed 000 eq. 12-14)."""
     v2 = u_rw * u_rw + v_rw * v_rw
@@ -128,7 +300,7 @@ def _air_load(p, u_rw, v_rw):
             p[P_WIND_N] * v2 * math.sin(2.0 * gamma))
 
 
-@njit(cache=True)
+@_compiled
 def _sea_loads(ki, p, sea, c, s, psi, u_r, v_r):
     """(X, Y, N) of the wind over the still-air drag and the mean wave drift at heading psi (c, s its cosine and sine);
     sea = _sea_of's (current n, e, wind n, e (m/s), q_wave zeta_a^2 (N), wave direction from (rad), waves on (1/0)):
@@ -150,7 +322,7 @@ def _sea_loads(ki, p, sea, c, s, psi, u_r, v_r):
     return x, y, n
 
 
-@njit(cache=True)
+@_compiled
 def _sea_of(p):
     """The sea terms' values over a rollout (GreyBoxRollout._sea_terms): current, wind, q_wave zeta_a^2, wave from,
     and whether there are waves."""
@@ -162,7 +334,7 @@ def _sea_of(p):
 
 # ---- hull models ----------------------------------------------------------------------------------------------------
 
-@njit(cache=True)
+@_compiled
 def _hull_forces(ki, p, u_r, v_r, r):
     """(X_H, Y_H, N_H) at midship (N, N, N m), with the relative resistance change of the terms."""
     h = ki[K_O_HULL]
@@ -198,7 +370,7 @@ def _hull_forces(ki, p, u_r, v_r, r):
     return x_h, y_h, n_h
 
 
-@njit(cache=True)
+@_compiled
 def _solve(ki, p, x, y, n, u_r, v_r, r):
     """nu_r_dot = M^-1 (tau - C(nu_r) nu_r): MMG eq. 4 (the Munk moment in N_v), or the small-craft hull's with its
     fitted added mass and the Munk moment (Y_vdot - X_udot) u_r v_r."""
@@ -221,7 +393,7 @@ def _solve(ki, p, x, y, n, u_r, v_r, r):
     return rhs_x / m11, (m33 * rhs_y - m23 * rhs_n) / det, (m22 * rhs_n - m32 * rhs_y) / det
 
 
-@njit(cache=True)
+@_compiled
 def _resistance(ki, p):
     """(r1 (N s/m), r2 (N s^2/m^2)) of the straight-running resistance r1 u + r2 u^2."""
     h = ki[K_O_HULL]
@@ -233,7 +405,7 @@ def _resistance(ki, p):
 
 # ---- actuator force models ------------------------------------------------------------------------------------------
 
-@njit(cache=True)
+@_compiled
 def _thrust(ki, p, k, level):
     """Thrust map k's vessel.ThrustMap.thrust (N): dead band, then the power law or the piecewise-linear table."""
     width = ki[K_MAP_WIDTH]
@@ -253,7 +425,7 @@ def _thrust(ki, p, k, level):
     return -p[o + 1] * max(-e, 0.0) ** p[o + 2]
 
 
-@njit(cache=True)
+@_compiled
 def _rudder_propeller(p, u_r, v_r, r, delta, rpm):
     """(X_R, Y_R, N_R, X_P, Y_P, N_P): the MMG rudder with slipstream (eq. 13-16, 37-43) and propeller (eq. 10-12)."""
     L = p[P_L_ACT]
@@ -282,7 +454,7 @@ def _rudder_propeller(p, u_r, v_r, r, delta, rpm):
             -(p[P_X_R_M] + p[P_A_H] * p[P_X_H_M]) * f_n * cos_d, x_p, y_p, y_p * p[P_X_P] * L)
 
 
-@njit(cache=True)
+@_compiled
 def _actuator_forces(ki, p, u_r, v_r, r, a, b):
     """(X, Y, N) of steering then of propulsion at the levels (a, b) of the layout."""
     layout = ki[K_LAYOUT]
@@ -298,7 +470,7 @@ def _actuator_forces(ki, p, u_r, v_r, r, a, b):
     return _rudder_propeller(p, u_r, v_r, r, a, rpm)
 
 
-@njit(cache=True)
+@_compiled
 def _lagged(ki, p, k, y0, u0, u1, u2, h):
     """Exact first-order lag k over a substep for a linear command u0 -> u2: the levels at h/2 and h (CommandLag)."""
     o = ki[K_O_LAG] + 3 * k  # [T (s), exp(-h/2T), exp(-h/T)]
@@ -309,7 +481,7 @@ def _lagged(ki, p, k, y0, u0, u1, u2, h):
 
 # ---- residuals (models/hybrid.py) -----------------------------------------------------------------------------------
 
-@njit(cache=True)
+@_compiled
 def _polynomial_residual(ki, p, u, v, r):
     """The Abkowitz terms beyond the MMG hull as accelerations (PolynomialResidual)."""
     o = ki[K_O_COEF]
@@ -325,7 +497,7 @@ def _polynomial_residual(ki, p, u, v, r):
     return x / p[P_POLY_M11], (m33 * y - m23 * n) / det, (m22 * n - m32 * y) / det
 
 
-@njit(cache=True)
+@_compiled
 def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
     """Member e's bounded residual accelerations (GeneralisingResidual): features -> z -> tanh layers -> bound tanh,
     times the support envelope, scaled by U^2 / L (surge, sway) and U^2 / L^2 (yaw). Weights in p, member-major:
@@ -379,9 +551,52 @@ def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
             p[bound + 2] * math.tanh(out2) * envelope * q / L)
 
 
+# ---- the float model's entry points (physics/dynamics.ManoeuvringModel) -----------------------------------------
+
+@_compiled
+def loads(ki, p, sea, psi, u_r, v_r, r, a, b):
+    """(hull X, Y, N, steering X, Y, N, propulsion X, Y, N, wind X, Y, N, waves X, Y, N) at midship (N, N m) for the
+    water-relative velocities, the actuator levels (a, b) and sea = sea_tuple's."""
+    c, s = math.cos(psi), math.sin(psi)
+    hx, hy, hn = _hull_forces(ki, p, u_r, v_r, r)
+    ax, ay, an, px, py, pn = _actuator_forces(ki, p, u_r, v_r, r, a, b)
+    calm = (sea[0], sea[1], sea[2], sea[3], 0.0, 0.0, 0.0)
+    wx, wy, wn = _sea_loads(ki, p, calm, c, s, psi, u_r, v_r)
+    waves = (sea[0], sea[1], 0.0, 0.0, sea[4], sea[5], sea[6])
+    vx, vy, vn = _sea_loads(ki, p, waves, c, s, psi, u_r, v_r)
+    return hx, hy, hn, ax, ay, an, px, py, pn, wx, wy, wn, vx, vy, vn
+
+
+@_compiled
+def accelerations(ki, p, sea, psi, u_r, v_r, r, a, b, accel_n, accel_e):
+    """(u_r_dot, v_r_dot, r_dot) = M^-1 (tau - C(nu_r) nu_r - M_RB R^T dV_c/dt): a turning current accelerates the
+    water and the rigid body feels it (Fossen 2021 sec. 10.3); accel_n, accel_e the current's d/dt (m/s^2)."""
+    c, s = math.cos(psi), math.sin(psi)
+    hx, hy, hn = _hull_forces(ki, p, u_r, v_r, r)
+    ax, ay, an, px, py, pn = _actuator_forces(ki, p, u_r, v_r, r, a, b)
+    lx, ly, ln = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
+    x, y, n = hx + ax + px + lx, hy + ay + py + ly, hn + an + pn + ln
+    if accel_n != 0.0 or accel_e != 0.0:
+        m = p[P_M]
+        a_u = accel_n * c + accel_e * s
+        a_v = -accel_n * s + accel_e * c
+        x -= m * a_u
+        y -= m * a_v
+        n -= m * p[P_X_G] * a_v
+    return _solve(ki, p, x, y, n, u_r, v_r, r)
+
+
+def sea_tuple(q_wave: float, current_n: float, current_e: float, wind_speed: float, wind_from: float,
+              wave_amplitude: float, wave_from: float) -> tuple[float, ...]:
+    """The kernel's sea (_sea_of) from the float model's: the wind's velocity TOWARD (north, east) from its speed and
+    the direction it blows FROM, the wave drift's q_wave zeta_a^2 (N) and direction."""
+    return (current_n, current_e, -wind_speed * math.cos(wind_from), -wind_speed * math.sin(wind_from),
+            q_wave * wave_amplitude * wave_amplitude, wave_from, 1.0 if wave_amplitude > 0.0 else 0.0)
+
+
 # ---- the rollout ----------------------------------------------------------------------------------------------------
 
-@njit(cache=True)
+@_compiled
 def _derivative(ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b):
     """d/dt of [x_n, y_e, psi, u_r, v_r, r] at the actuator levels (a, b) (GreyBoxRollout._derivative)."""
     c, s = math.cos(psi), math.sin(psi)
@@ -403,7 +618,7 @@ def _derivative(ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b):
     return u * c - v * s, u * s + v * c, r, du, dv * free, dr * free
 
 
-@njit(cache=True)
+@_compiled
 def rollout(state, controls, reference, use_reference, ki, constants, terms, free, out):
     """The grey box's closed-loop rollout into out (E, B, H, 6) [u, v, r, x_n, y_e, psi] as measured, from state
     (B, 4) [u, v, r, psi] as measured and controls (B, H, C) as reported (models/greybox.py's interface); reference
