@@ -63,7 +63,7 @@ def test_the_walkthrough_runs_as_written_to_a_node_that_publishes_the_boats_mode
     config = your_boat.yaml.safe_load((tmp_path / "my_predictor.yaml").read_text())["predictor"]["ros__parameters"]
     assert config["model_path"] == str((tmp_path / "my_otter.pt").resolve())
     paths = re.search(r"^(\d+) paths of (\d+) poses in frame 'odom'", output, re.M)
-    assert paths and int(paths.group(1)) >= 10 and int(paths.group(2)) == 150, output[-2000:]  # 30 s / 0.2 s
+    assert paths and int(paths.group(1)) >= 10 and int(paths.group(2)) == 300, output[-2000:]  # 60 s / 0.2 s
     assert f"predictor: model: OK loaded {model.model_id}" in output
     fit = re.search(r"predictor: fit check: OK fits: speed ratio ([\d.]+) .*yaw-rate ratio ([\d.]+)", output)
     assert fit, output[-2000:]

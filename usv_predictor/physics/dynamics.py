@@ -489,6 +489,12 @@ class RudderThrottleForces(RudderPropellerForces):
 
     constants = (RudderPropellerConstants, ThrottleConstants)
 
+    def engine_speed(self, level: float) -> float:
+        """Engine speed (rpm) whose static thrust rho n^2 D^4 K_T(0) is the throttle map's at `level` (0 astern): the
+        conversion the kernel's rudder_throttle forces make (physics/kernel._actuator_forces)."""
+        thrust = self.throttle.thrust(level)
+        return math.sqrt(thrust / self.static_thrust) * self.rpm_per_rev_s if thrust > 0.0 else 0.0
+
     def actuator_rates(self, delta: float, level: float, delta_cmd: float, throttle_cmd: float) -> tuple[float, float]:
         delta_dot, _ = RudderPropellerForces.actuator_rates(self, delta, 0.0, delta_cmd, 0.0)
         lag = self.throttle.time_constant_s
