@@ -16,7 +16,7 @@ with numpy (OpenBLAS, the kernels this environment pins: OPENBLAS_CORETYPE is pr
 MKL in the CPU wheel) on the same memory (torch.from_numpy, out=), one thread each, in alternating rounds.
 --own-blas: the same numpy figures again in a child process without OPENBLAS_CORETYPE and OPENBLAS_L2_SIZE (OpenBLAS
 picks its kernels itself: AVX-512 on this Zen 5), printed beside them for comparison only: the package never
-overrides the environment's choice (docs/node.md, "Latency and CPU").
+overrides the environment's choice (docs/results/node_latency.md).
 """
 from __future__ import annotations
 

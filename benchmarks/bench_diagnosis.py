@@ -1,4 +1,4 @@
-"""Confusion matrix of `diagnose` over random hidden effects (the README's figures).
+"""Confusion matrix of `diagnose` over random hidden effects (the figures of docs/results/diagnosis_matrices.md).
 
 Each draw: one effect of the vessel's vocabulary (or none; the effects that apply to its actuator layout) with
 random parameters (usv_predictor.analysis.hidden_effects), the vessel's `diagnosis` trial programme (turning circles

@@ -1,4 +1,4 @@
-"""Confusion matrix of `diagnose` on boats the tool has never seen (issue 11 section 5; the README's figures).
+"""Confusion matrix of `diagnose` on boats the tool has never seen (the figures of docs/results/unknown_boats.md).
 
 Each boat: a random rudder-and-propeller hull around jari_usv (usv_predictor.analysis.unknown_boats.draw_boat: size
 class small 3-6 m or large 12-20 m, Froude-scaled, every hull derivative, added mass and interaction factor x

@@ -1,4 +1,4 @@
-"""The two real USV records: identify, predict, compare, diagnose (every figure of the README section on them).
+"""The two real USV records: identify, predict, compare, diagnose (every figure of docs/results/real_usv.md).
 
 Dalian twin-thruster USV (../shared/data/raw/usv_2345vor_dalian, closed-loop path following, ~4 and ~3 minutes):
   `replay convert` both runs; for each direction (identify on the circle, predict the sine; and the reverse)

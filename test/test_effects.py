@@ -114,7 +114,7 @@ def test_names_flags_and_terms_are_unique():
 
 
 def test_the_tolerances_and_draw_ranges_are_the_published_ones():
-    """The acceptance suite's contract (README) is unchanged by moving it into the records."""
+    """The acceptance suite's contract (docs/results/diagnosis_matrices.md) is unchanged by moving it into the records."""
     assert dict(hidden_effects.TOLERANCES) == {
         "current": {"speed_mps": 0.05, "direction_deg": 10.0}, "wind": {"speed_mps": 2.0, "direction_deg": 20.0},
         "wave_drift": {"significant_height_m": 0.4, "direction_deg": 30.0}, "rudder_offset": {"offset_deg": 0.5},

@@ -149,7 +149,7 @@ def test_no_hidden_effect_fails_the_check(tmp_path, flags):
     vessel = load_vessel("jari_usv")
     check = check_fit(physics_predictor(vessel, 0.5), load_recordings([bags], 0.5), vessel=vessel)
     assert check.verdict == "fits", check.summary()
-    if check.speed_ratio is not None:  # measured: within 5 % (README "Fit check")
+    if check.speed_ratio is not None:  # measured: within 5 % (docs/commands.md "The fit check")
         assert abs(check.speed_ratio - 1.0) < 0.1 < SPEED_RATIO_LIMIT - 1.0
     if check.yaw_rate_ratio is not None:
         assert abs(check.yaw_rate_ratio - 1.0) < 0.1

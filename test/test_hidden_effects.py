@@ -68,7 +68,7 @@ def test_diagnose_finds_the_hidden_effect(tmp_path, effect, draw_index):
 
 TWIN_VESSEL = "otter"
 TWIN_EFFECTS = effect_names("twin_thrusters")
-# Known limits on the 2 m boat (README, the otter's confusion matrix), found by this suite on 2026-11-23.
+# Known limits on the 2 m boat (docs/results/diagnosis_matrices.md, the otter's confusion matrix), found by this suite on 2026-11-23.
 # Strict: the day these cases pass, the marks must go.
 TWIN_NOT_FOUND = {
     # the preset's windage and wave-drift coefficients are estimates with similar heading dependence: the 10 m/s
@@ -83,7 +83,7 @@ TWIN_NOT_FOUND = {
 # within the calm-water allowance)
 # Not run in CI, to keep it near its 30 min budget (each case is a ~1.5 min diagnosis): the wind case, a known wrong
 # answer (above), and the sensor/actuator faults the jari_usv draws above already cover for the same hypotheses
-# (their otter results are the README's confusion matrix: benchmarks/bench_diagnosis.py --vessel otter). CI keeps
+# (their otter results are the confusion matrix of docs/results/diagnosis_matrices.md: benchmarks/bench_diagnosis.py --vessel otter). CI keeps
 # the clean control, the current, the waves and the twin's own thruster imbalance.
 TWIN_NOT_IN_CI = ("wind", "yaw_rate_bias", "heading_offset", "actuator_delay")
 TWIN_CASES = [pytest.param(e, marks=pytest.mark.xfail(reason=TWIN_NOT_FOUND[e], raises=AssertionError,

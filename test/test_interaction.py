@@ -67,7 +67,7 @@ def test_the_steady_check_names_what_is_implausible():
     # a rudder whose force points the wrong way (jari_usv itself is course-unstable: a turn is not proof enough)
     assert "turns the other way" in ia.steady_check(
         dataclasses.replace(preset, rudder=dataclasses.replace(preset.rudder, lift_factor=-1.0)), TRIAL_RPM, None)
-    # cubic terms that make the turn run away (what a wrong rudder split does to the hull regression: README boat 2)
+    # cubic terms that make the turn run away (what a wrong rudder split does to the hull regression: docs/results/unknown_boats.md, boat 2)
     runaway = dataclasses.replace(preset, hull=dataclasses.replace(preset.hull, N_r=0.3, N_rrr=0.5, Y_vvv=5.0))
     assert "diverges" in ia.steady_check(runaway, TRIAL_RPM, None)
 
@@ -131,7 +131,7 @@ def test_without_a_segment_long_enough_the_description_stays():
 
 @pytest.mark.parametrize("argv, expected", [([], "identify"), (["--interaction", "fix"], "fix")])
 def test_replay_identify_searches_the_interaction_factors_by_default(monkeypatch, tmp_path, argv, expected):
-    """Since 2026-11-26 (a whole 50-boat unknown-boat run without a confident wrong answer, README "Unknown boats")
+    """Since 2026-11-26 (a whole 50-boat unknown-boat run without a confident wrong answer, docs/results/unknown_boats.md)
     `replay identify` searches the interaction factors unless told `--interaction fix`; with `--base` nothing is
     identified and the option does not apply."""
     from usv_predictor.replay import cli

@@ -6,7 +6,7 @@ module keeps to itself, simulate a calm day and a blind effect day with the boat
 and give the tool only the bags and a `vessel init` description made from the owner's data
 (usv_predictor.replay.unknown_boats.run_unknown_boat). The tool must identify the boat, then name the cause (`none`
 on the clean day) with the tolerances of the hidden-effect suite. The confusion matrix over >= 50 boats is
-benchmarks/bench_unknown_boats.py (README).
+benchmarks/bench_unknown_boats.py (docs/results/unknown_boats.md).
 """
 from __future__ import annotations
 
@@ -143,7 +143,7 @@ def test_an_unknown_boat_is_identified_and_diagnosed(tmp_path, size_class, effec
 
 @pytest.mark.slow
 def test_the_interaction_factors_are_identified_with_the_hull(tmp_path):
-    """Benchmark boat 2 (seed 2026; README "Unknown boats"), calm day only. Holding its description's interaction
+    """Benchmark boat 2 (seed 2026; docs/results/unknown_boats.md), calm day only. Holding its description's interaction
     factors, identify made Y_vvv -16.1 and N_vvv +15.3 (truth -1.3, -0.04) and a grey box that diverged on its own
     calm day (held-out multi-step error 3e5 noise units). Searched with the hull (fitting/interaction.py), the
     cubic terms are sane, the rudder's force, gamma_R, eta and w_P0 move towards the truth's (the output-error

@@ -840,7 +840,7 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     actuator layout decides the levels and what is held (module docstring, "Actuator layouts").
     interaction "identify" (rudder_propeller only): the rudder lift gradient, gamma_R, eta, w_P0 and t_P are searched
     with the hull (fitting/interaction.py) and replace the description's when the held-out simulation says so;
-    "fix" (default): held at the description's values (README "Unknown boats": identify gives more right answers on
+    "fix" (default): held at the description's values (docs/results/unknown_boats.md: identify gives more right answers on
     unknown boats but also confident wrong ones, so it is not the default yet).
     """
     prior_vessel = vessel  # the vessel file as given (what the exported model embeds); `vessel` may take fitted gains

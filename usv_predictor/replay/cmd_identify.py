@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "hull on the multi-step simulation error, candidates with an implausible steady turn "
                              "left out, and keep them when the held-out simulation error drops (identify, default), or "
                              "hold the vessel file's (fix; with --base nothing is identified); "
-                             "usv_predictor/fitting/interaction.py, README 'Unknown boats'")
+                             "usv_predictor/fitting/interaction.py, docs/results/unknown_boats.md")
     parser.add_argument("--hybrid", action="store_true",
                         help="add a learned residual on the accelerations: an ensemble of 5 bounded MLPs on "
                              "non-dimensional features, trained by a multi-step loss with early stopping on held-out "
