@@ -839,7 +839,7 @@ def decode_joint_trajectory(raw: bytes | memoryview, max_joints: int = 1024, max
 
 def decode_joint_trajectory_walk(raw: bytes | memoryview, max_joints: int = 1024, max_points: int = 100_000
                                  ) -> JointTrajectoryData:
-    """decode_joint_trajectory walking every name and point field by field (as before 2026-11-26): the reference
+    """decode_joint_trajectory walking every name and point field by field (the former decoder): the reference
     its names loop and numpy reading of the later points are tested and benchmarked against."""
     reader, stamp_ns, frame_id, names, count = _trajectory_head(raw, max_joints, max_points, walk=True)
     times = np.empty(count, dtype=np.int64)
@@ -851,7 +851,7 @@ def decode_joint_trajectory_walk(raw: bytes | memoryview, max_joints: int = 1024
 def _trajectory_head(raw: bytes | memoryview, max_joints: int, max_points: int, walk: bool = False
                      ) -> tuple[_Reader, int, str, tuple[str, ...], int]:
     """The reader after the points' count, with the header, the joint names (walk: one string() call each, as
-    before 2026-11-26) and the count of points."""
+    the former decoder did) and the count of points."""
     what = JOINT_TRAJECTORY_TYPE
     if len(raw) < _HEADER_SIZE or bytes(raw[:2]) != bytes(_LITTLE_ENDIAN_HEADER):
         raise AdapterError(f"{what}: not a little-endian CDR message")

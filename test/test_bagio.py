@@ -273,7 +273,7 @@ def test_bulk_read_equals_message_by_message_read(small_bag, monkeypatch: pytest
         np.testing.assert_array_equal(bulk[spec.topic].values, one_by_one[spec.topic].values)  # NaN-aware
 
 
-SHARED_TOPICS = {  # both thrusters on one topic: the conventions of issue 10
+SHARED_TOPICS = {  # both thrusters on one topic: the common conventions
     "std_msgs/msg/Float64MultiArray": ({"index": 0, "units": "pwm"}, {"index": 1, "units": "pwm"}),
     "sensor_msgs/msg/JointState": ({"joint": "left", "units": "rpm", "full_scale": 2000.0},
                                    {"joint": "right", "units": "rpm", "full_scale": 2000.0}),

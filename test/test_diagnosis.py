@@ -251,7 +251,7 @@ class _TrackVsLossRollout(torch.nn.Module):
 
 
 def test_a_cause_that_lowers_the_loss_but_not_the_track_is_inconclusive_not_a_mismatch():
-    """Issue 11: such a cause was answered model_mismatch with the remedy 'identify this boat first', wrong when the
+    """Such a cause was once answered model_mismatch with the remedy 'identify this boat first', wrong when the
     model fits. It is `inconclusive`: the candidate, its parameters and why it is not named."""
     from usv_predictor.analysis.diagnosis import INCONCLUSIVE, MODEL_MISMATCH
 
@@ -328,7 +328,7 @@ class _PartlyExplainedRollout(torch.nn.Module):
 
 @pytest.mark.parametrize("after, expected", [(10.0, "current"), (20.0, "model_mismatch")])
 def test_a_cause_may_not_leave_a_loss_above_the_ceiling_whatever_share_it_removed(after, expected):
-    """Issue 11 (an unknown boat's 1.4 m waves named as a 28 m/s wind that left 1190 of 2432 noise units): the
+    """(An unknown boat's 1.4 m waves named as a 28 m/s wind that left 1190 of 2432 noise units): the
     calm-water model leaves 800 (40 sigma in u, v, r); a current that leaves 50 (10 sigma) is named (it removed more
     than MISMATCH_SHARE, and 50 <= FIT_CEILING_LOSS), one that leaves 200 (20 sigma, 75 % removed) is model_mismatch,
     with the current reported as the best environmental cause."""
@@ -371,7 +371,7 @@ def test_a_cause_whose_fitted_parameter_is_not_physical_is_model_mismatch():
 
 @pytest.mark.parametrize("after, expected", [(0.75, "inconclusive"), (0.9, "none")])
 def test_none_is_only_confident_without_a_strong_candidate(after, expected):
-    """Issue 11 (an unknown boat's 5.5 m/s wind answered `none`: its identified model showed the wind with evidence
+    """(An unknown boat's 5.5 m/s wind answered `none`: its identified model showed the wind with evidence
     3.8 and both folds fitted it within 1 m/s): a model within the noise (loss 0.5) that a current brings to
     0.75^2 / 2 (evidence ~3.7: between EVIDENCE_CANDIDATE and EVIDENCE_CAUSE) is `inconclusive` with the current as
     the candidate, not a confident `none`; one it brings to 0.9^2 / 2 (evidence ~1.4) stays `none`."""
@@ -451,7 +451,7 @@ def test_the_otter_sea_trials_current_is_reported_as_the_further_candidate(tmp_p
     39 % of the held-out loss and 65 % of the track error with evidence 4.9, short of the 5 a cause needs: not named,
     not in the extended model, but reported as the further candidate with why, in the JSON, the message and the report,
     its parameters (fitted beside the waves on all manoeuvres) within the acceptance suite's tolerances of the truth.
-    Until this change (2026-11-26) the answer did not mention it. (~40 s.)"""
+    (~40 s.)"""
     import json
 
     from usv_predictor.analysis.hidden_effects import Draw, within_tolerance

@@ -12,7 +12,7 @@ import pytest
 from usv_predictor.analysis.diagnosis import (EVIDENCE_CANDIDATE, EVIDENCE_CAUSE, MIN_GAIN, HeldOut, contribution,
                                               log_evidence, select_causes)
 
-# boat 20 of the unknown-boat benchmark of 2026-11-26 (seed 2026): a 5.4 m/s wind. The first round ranked wave_drift
+# boat 20 of the unknown-boat benchmark (seed 2026; docs/results/unknown_boats.md): a 5.4 m/s wind. The first round ranked wave_drift
 # first (held-out loss 2.94 of the calm-water model's 4.80) on a poor fit of the wind alone (3.20); wave_drift+wind
 # left 1.12, and the wind alone, fitted from that pair's wind, leaves about as little (the table's 1.15).
 N_EFF = 20.6  # effective segments of that diagnosis: 5.1 = n_eff / 2 * ln(4.80 / 2.94)
@@ -62,7 +62,7 @@ def test_a_first_cause_that_a_later_one_makes_redundant_is_dropped():
 
 
 def test_without_the_backward_step_the_first_cause_would_stay():
-    """What the backward step changes: the forward step alone keeps wave_drift (the answer of 2026-11-26's run)."""
+    """What the backward step changes: the forward step alone keeps wave_drift (the answer of the benchmark run before the backward step)."""
     forward = contribution("wind", ("wave_drift",), table(BOAT_20), N_EFF)
     assert forward.earns_place and forward.evidence == pytest.approx(log_evidence(N_EFF, 1.12, 2.94))
     selection = select_causes("wave_drift", CANDIDATES, table(BOAT_20), N_EFF, max_causes=1)
@@ -128,7 +128,7 @@ def test_a_diverged_fit_is_never_added():
 
 
 # the shipped Otter sea trial (bags/otter/sea_trial: current 0.2 m/s, wind 4.5 m/s and 0.25 m waves at once),
-# diagnosed against the preset on 2026-11-26 (`replay diagnose bags/otter/sea_trial --vessel otter`): 80 held-out
+# diagnosed against the preset (`replay diagnose bags/otter/sea_trial --vessel otter`): 80 held-out
 # segments of 10 s every 2.5 s; wave_drift named (the wind confounded with it, so not a further candidate)
 OTTER_N_EFF = 20.0  # 80 * 2.5 / 10
 OTTER_SEA_TRIAL = {

@@ -1,4 +1,4 @@
-"""`diagnose` answers `unexplained` (issue 15): when no physical hypothesis explains what the calm-water model gets
+"""`diagnose` answers `unexplained`: when no physical hypothesis explains what the calm-water model gets
 wrong, the learned residual of last resort, with its gain measured on held-out manoeuvres as a cause's is."""
 from __future__ import annotations
 

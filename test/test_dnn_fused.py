@@ -25,7 +25,7 @@ from usv_predictor.node import live
 
 SHIPPED = Path(__file__).resolve().parents[1] / "models" / "default.pt"
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from bench_node import row_form_batch  # noqa: E402 -- the candidates' row form as it ran before 2026-11-26, timed there
+from bench_node import row_form_batch  # noqa: E402 -- the candidates' former row form, timed there
 
 
 def _member(feature_set: str, seed: int, activation: str, depth: int, increment: bool = True) -> DnnModel:
@@ -330,7 +330,7 @@ def test_numpy_transposed_batch_form_of_the_shipped_model_is_the_row_forms_withi
 
 
 def _kinematics_as_before(dt: float, state: np.ndarray, path: np.ndarray) -> np.ndarray:
-    """NumpyDnnRollout._kinematics as it was before 2026-11-26: member-major (E, B, H + 1, ...) arrays."""
+    """NumpyDnnRollout._kinematics in its former member-major form: (E, B, H + 1, ...) arrays."""
     e, b, horizon = path.shape[:3]
     path = path.astype(np.float64)
     full = np.concatenate([np.broadcast_to(state[None, :, None, :], (e, b, 1, 4)), path], axis=2)

@@ -208,9 +208,9 @@ def test_the_kvlcc2_model_evaluated_on_full_scale_bags_is_refused(tmp_path, caps
 # ---- the limits follow the boat: what the strongest causes can do to it -----------------------------------------
 
 def test_waves_that_stop_a_two_metre_boat_do_not_fail_the_check(tmp_path):
-    """The Otter acceptance draw (issues #10/#11): 0.81 m waves from 119 deg stop its held turns. With the preset's
+    """The Otter acceptance draw: 0.81 m waves from 119 deg stop its held turns. With the preset's
     former wave-drift yaw (toward head seas, 2x the present one) its port turn made 0.21 m/s where the calm-water
-    preset makes 1.2 m/s (ratio 5.8); since the yaw turns toward beam seas (2026-11-26) the boat still does not turn
+    preset makes 1.2 m/s (ratio 5.8); since the yaw turns toward beam seas the boat still does not turn
     in any window but makes 0.81 m/s: ratio 1.48, within the calm-water allowance. The same draw with waves at the
     top of the suite's range (1.5 m) stops it to 0.28 m/s and beyond (port turn: pushed astern): far beyond the
     allowance, but a right model in some sea of the vocabulary, so no refusal."""
@@ -268,7 +268,7 @@ def _trial_at(vessel, dt: float) -> list:
 
 
 # each sea effect at the top of the suite's range on the two twin-thruster presets: the right model is never refused.
-# The WAM-V's waves were a strict expected failure until its preset had the floats' cross-flow drag (2026-11-26):
+# The WAM-V's waves were a strict expected failure until its preset had the floats' cross-flow drag:
 # VRX's 40 N s/m of linear sway damping alone let 1.5 m waves push the beam-on boat sideways at ~41 m/s, beyond
 # what the bag reader takes as plausible (15 m/s), so no recording was left to check.
 
@@ -376,7 +376,7 @@ def test_the_causes_substeps_scale_with_the_boat_and_keep_du_and_dr():
     rudder_throttle and rudder_only variants 4 -> 2, kvlcc2_model and wamv 4 -> 3), every strongest cause's du and
     dr of a straight window (steered, SETTLE_S) and two held turns at full and half propulsion stay within 1e-3 m/s
     and 2e-3 deg/s of 16 substeps, the accuracy the 2 m otter gets from the rule at 4 substeps (7.3e-4 m/s, 1.4e-3
-    deg/s, 2026-11-26); the otter keeps its substeps."""
+    deg/s); the otter keeps its substeps."""
     import numpy as np
 
     from usv_predictor.analysis import fit_check as fc

@@ -1,4 +1,4 @@
-"""Froude scaling of recordings (`--scale LAMBDA` of evaluate, identify and diagnose; issue 11): the scaled motion
+"""Froude scaling of recordings (`--scale LAMBDA` of evaluate, identify and diagnose): the scaled motion
 has the Froude number and the non-dimensional rates of the original; a model-scale vessel on full-scale bags is
 refused without the option and evaluated / identified with it (SIMMAN 2008 KVLCC2: MARIN's full-scale zig-zags
 scaled to HSVA's 1:45.714 model). Real-data tests use the `raw_data_dir` fixture (skip locally when absent, fail

@@ -1,5 +1,5 @@
 """Bad input, generated: every replay command against broken bags, numbers that are not numbers, outputs on top of
-inputs, foreign and failing model files, broken datasets and evaluation files, and interrupts (issue 12).
+inputs, foreign and failing model files, broken datasets and evaluation files, and interrupts.
 
 Deterministic: every case draws from numpy's generator seeded with SEED and the case's name, so a failure
 reproduces with `-k <case>`. Every run must end with exit 0 or 2 (130 when interrupted), never a traceback, an

@@ -1,4 +1,4 @@
-"""Issue 12, case by case: never a traceback, never touch an input, never leave half a file (the replay side).
+"""Bad input, case by case: never a traceback, never touch an input, never leave half a file (the replay side).
 
 Each test is one case of the issue, reproduced on the shipped bags or on short bags simulated here, and run the
 way a user runs it (in-process through usv_predictor.replay.cli.main, or as a process where a signal or a

@@ -1,4 +1,4 @@
-"""The generalising hybrid (issue 15): the identified grey box + a bounded, data-supported learned residual ensemble.
+"""The generalising hybrid: the identified grey box + a bounded, data-supported learned residual ensemble.
 
 What is proven here: the ensemble runs as one batched rollout and equals its members run one by one; an untrained
 residual is exactly the grey box; the learned term never exceeds its bound and vanishes away from the data it was

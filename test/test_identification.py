@@ -166,7 +166,7 @@ def test_hybrid_exports_and_predicts(noisy, vessel, tmp_path):
 
 @pytest.mark.parametrize("prior", ["fix", "ridge"])
 def test_json_flags_the_coefficients_the_manoeuvres_do_not_determine(noisy, vessel, prior):
-    """Issue 15: a coefficient the data cannot set says so ("not determined by these manoeuvres; prior used") in the
+    """A coefficient the data cannot set says so ("not determined by these manoeuvres; prior used") in the
     identify JSON; the others are flagged determined, and prior_used lists exactly the flagged ones."""
     recs, data = noisy
     result = idf.identify(vessel, recs, structure="mmg", prior=prior, data=data)

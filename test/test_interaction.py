@@ -131,9 +131,9 @@ def test_without_a_segment_long_enough_the_description_stays():
 
 @pytest.mark.parametrize("argv, expected", [([], "identify"), (["--interaction", "fix"], "fix")])
 def test_replay_identify_searches_the_interaction_factors_by_default(monkeypatch, tmp_path, argv, expected):
-    """Since 2026-11-26 (a whole 50-boat unknown-boat run without a confident wrong answer, docs/results/unknown_boats.md)
-    `replay identify` searches the interaction factors unless told `--interaction fix`; with `--base` nothing is
-    identified and the option does not apply."""
+    """`replay identify` searches the interaction factors unless told `--interaction fix`; with `--base` nothing is
+    identified and the option does not apply. (The default since a whole 50-boat unknown-boat run
+    without a confident wrong answer: docs/results/unknown_boats.md.)"""
     from usv_predictor.replay import cli
     from usv_predictor.replay import identify as replay_identify
 

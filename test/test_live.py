@@ -212,7 +212,7 @@ def test_rollout_refuses_more_members_than_the_model_has() -> None:
     assert live.Rollout(artifact, 120, ensemble_size=2)(np.array([5.0, 0, 0, 0]), np.array([0.0, 650.0])).shape == (2, 120, 6)
 
 
-# ----------------------------------------------------------------------------- redundant inputs (issue 12)
+# ----------------------------------------------------------------------------- redundant inputs
 
 
 def _bag_rows(bag: Path, heading: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -264,7 +264,7 @@ def test_the_shipped_bags_are_never_refused_as_inconsistent(bag: Path) -> None:
 
 
 def test_a_heading_in_radians_configured_as_degrees_is_refused_with_the_reason() -> None:
-    """Issue 12: the heading published in radians, read as degrees: it never leaves +-6.3 'deg' while the gyro
+    """The heading published in radians, read as degrees: it never leaves +-6.3 'deg' while the gyro
     turns circles. The adapter's decode of such a value is radians(mod(psi, 2 pi))."""
     seen = _replay_live(_bag_rows(BAG, heading=lambda psi: np.radians(np.mod(psi, 2 * math.pi))))
     refused = [(t, r) for t, r in seen if r]
@@ -316,7 +316,7 @@ def test_consistency_checks_need_evidence() -> None:
 
 
 def _state_as_before(inputs: live.InputSet, now_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(state, controls, position) computed as assemble computed them before 2026-11-26: every ring copied whole,
+    """(state, controls, position) computed as assemble's former form computed them: every ring copied whole,
     recording.window_resample over all of it, the heading unwrapped from the ring's first sample."""
     t_c = now_ns - inputs.settings.dt_ns // 2
     grid = np.array([t_c], dtype=np.int64)

@@ -96,7 +96,7 @@ def test_heading_in_degrees_configured_as_rad_is_refused(ros_context: Context) -
 
 
 def test_heading_in_radians_configured_as_degrees_is_refused_while_turning(harness: Harness) -> None:
-    """Issue 12: each value is a plausible heading in degrees, so only the gyro can tell. The boat turns at
+    """Each value is a plausible heading in degrees, so only the gyro can tell. The boat turns at
     0.4 rad/s (23 deg/s); its heading in radians read as degrees never leaves 6.3 deg. Refused with the reason on
     /diagnostics, and no Path is published from then on."""
     assert harness.node.config.input("heading").options.get("units", "deg") == "deg"

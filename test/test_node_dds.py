@@ -229,7 +229,7 @@ def test_with_the_online_estimator_the_node_predicts_as_replay_evaluate_adaptive
     assert outputs.decode_current(run.currents[0])[0] == recording.t0_ns  # the first sample is the Recording's first
 
 
-# ----------------------------------------------------------------------------- a twin-thruster boat (issue 10)
+# ----------------------------------------------------------------------------- a twin-thruster boat
 
 OTTER_BAG = REPO / "bags" / "otter" / "sea_trial" / "turning_circle_port_d0.4_p0.6"
 OTTER_HORIZON_S = 10.0  # a short horizon: the grey box's RK4 in TorchScript is ~3 ms per step on CI
@@ -430,7 +430,7 @@ def test_the_node_process_stops_on_a_signal(signal_name: str) -> None:
             process.kill()
 
 
-# ----------------------------------------------------------------------------- a rudder boat without rpm (issue 10)
+# ----------------------------------------------------------------------------- a rudder boat without rpm
 
 RUDDER_THROTTLE = "jari_rudder_throttle"  # jari_usv as rudder_throttle (test_norpm_pipeline.write_vessel)
 

@@ -179,7 +179,7 @@ def test_missing_config_file_exits_2_with_its_name(tmp_path: Path) -> None:
     assert str(missing) in done.stderr and "Traceback" not in done.stderr
 
 
-# ----------------------------------------------------------------------------- start-up and stop (issue 12)
+# ----------------------------------------------------------------------------- start-up and stop
 
 
 def _failing_model(path: Path) -> Path:
@@ -292,7 +292,7 @@ STOPS = 8  # before the fix the first fed stop already ended in the traceback; u
 
 @pytest.mark.slow
 def test_stop_signals_while_publishing_exit_0_every_time() -> None:
-    """Issue 12: SIGTERM (systemd, docker, launch) while the node publishes gave `RCLError: Failed to publish:
+    """SIGTERM (systemd, docker, launch) while the node publishes once gave `RCLError: Failed to publish:
     publisher's context is invalid` and exit 1 in 4 of 9 stops. Now 0 and no traceback, every time (SIGTERM and
     SIGINT alternate, fed and unfed runs alternate; the moment of the stop is random but seeded)."""
     offset = 45

@@ -326,7 +326,7 @@ def rudder_only(tmp_path_factory):
     """jari as a rudder_only boat (650 rpm, not reported): a 90 s turning circle in calm water and in a current, a
     90 s 20/20 zig-zag in calm water.
     The estimator and the rollouts hold the engine speed of the approach's speed (data.recording.held_reference):
-    before they did (2026-11-26), the filter took the engine speed of the present, slowing speed inside the turn
+    before they did, the filter took the engine speed of the present, slowing speed inside the turn
     and explained the missing speed by a 2 m/s current that is not there (docs/online.md)."""
     root = tmp_path_factory.mktemp("rudder_only")
     vessel_file = write_layout_variant(root, "rudder_only")
@@ -345,7 +345,7 @@ def rudder_only(tmp_path_factory):
 def test_a_rudder_only_boat_gets_no_current_in_calm_water_and_its_current_in_one(rudder_only):
     """In calm water (a turning circle, a zig-zag) no current beyond its noise; in a current, the current. The
     zig-zag needs the held engine speed's dependence on the current and k_R in the filter's Jacobian: without it
-    the filter invented 0.3 m/s and a 29 % resistance change there (measured 2026-11-26)."""
+    the filter invented 0.3 m/s and a 29 % resistance change there."""
     vessel, recordings = rudder_only
     for name in ("calm", "zigzag"):
         calm = [e for t, e in zip(recordings[name].t_s, estimate_recording(recordings[name], vessel))
@@ -374,7 +374,7 @@ def test_adaptive_open_loop_of_a_rudder_only_boat_holds_the_approach_as_open_loo
     plain = {name: evaluation.open_loop(model, rec, "gnss", (10.0, 30.0), 5.0) for name, rec in turns.items()}
     live = {name: adaptive.adaptive_open_loop(model, rec, "gnss", (10.0, 30.0), 5.0, vessel=vessel)
             for name, rec in turns.items()}
-    # calm: within 0.5 m of open_loop at 10 and 30 s (measured 2026-11-26: +0.07 / +0.21 m, the resistance change
+    # calm: within 0.5 m of open_loop at 10 and 30 s (measured: +0.07 / +0.21 m, the resistance change
     # estimated while the first circle separates it from the current; before the fix +18 / +44 m)
     for adapted, held in zip(live["calm"].open_loop.horizons, plain["calm"].horizons):
         assert adapted.mean_m < held.mean_m + 0.5, (adapted, held)

@@ -120,7 +120,7 @@ def test_a_twin_boat_turns_on_the_spot(otter, wamv):
 def test_a_twin_boat_follows_its_turn_without_skidding(otter, wamv, turn, throttle):
     """A held differential turn settles with the hull's lateral resistance balancing the centrifugal force m u r
     (Fossen 2021 eq. 6.5, C_RB), at a drift angle atan(-v / u) of a catamaran's 5-17 deg (otter 4.8, 4.5; wamv 15.3,
-    16.5 deg). Until 2026-11-26 the WAM-V preset had VRX's 40 N s/m of linear sway damping alone (yVV = 0: VRX also
+    16.5 deg). The WAM-V preset once had VRX's 40 N s/m of linear sway damping alone (yVV = 0: VRX also
     leaves out C_RB, so its own boat cannot skid): with the Coriolis force the boat slid at 60 and 62 deg (v -1.74 m/s
     for u 0.99 m/s), and 1.5 m beam seas pushed it at ~41 m/s. The floats' cross-flow drag holds it now."""
     for model in (otter, wamv):

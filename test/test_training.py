@@ -106,7 +106,7 @@ def test_without_validation_the_training_loss_is_monitored(splits: tuple[Samples
     result = train_dnn(TINY, splits[0], None, _recipe(epochs=3))
     assert result.monitor == "train" and result.val_loss is None and result.n_val == 0
     assert all(m.val_loss is None and all(v is None for _, v in m.history) for m in result.members)
-    assert result.summary()["val_loss"] == [None]  # JSON null, not NaN (issue 12: NaN crashed the JSON writer)
+    assert result.summary()["val_loss"] == [None]  # JSON null, not NaN (a NaN once crashed the JSON writer)
 
 
 def test_learning_rate_decays_stepwise() -> None:

@@ -1,4 +1,4 @@
-"""Boats the tool has never seen (issue 11 section 5): the random hulls, the owner's description, and the lean
+"""Boats the tool has never seen: the random hulls, the owner's description, and the lean
 acceptance part of the unknown-boat suite.
 
 The acceptance cases draw a boat (its size class fixed, everything else random) and a hidden effect from a seed this

@@ -1,6 +1,6 @@
-"""The artifact embeds its vessel description (issue 11): written with a digest, used where no vessel is given
+"""The artifact embeds its vessel description: written with a digest, used where no vessel is given
 (evaluate, diagnose --model, the fit check, the node), a given vessel that differs refused in one line naming the
-fields, and artifacts of before (name only, as the shipped models/default.pt was until 2026-11-26) still
+fields, and artifacts of before (name only, as the shipped models/default.pt was before its rebuild) still
 found by their name."""
 from __future__ import annotations
 
@@ -151,7 +151,7 @@ def test_a_model_like_another_carries_its_metadata_with_the_changes_and_its_vess
 
 
 def as_written_before(source: Path, path: Path) -> Path:
-    """`source` as artifacts were written before the description was embedded (the shipped model until 2026-11-26,
+    """`source` as artifacts were written before the description was embedded (the shipped model before its rebuild,
     81c5143c983762d4): its metadata without vessel_sha256, no vessel.json."""
     extra = {METADATA_FILE: "", VESSEL_FILE: ""}
     module = torch.jit.load(str(source), _extra_files=extra)
@@ -164,7 +164,7 @@ def as_written_before(source: Path, path: Path) -> Path:
 
 
 def test_artifacts_of_before_are_found_by_their_vessel_name(tmp_path):
-    shipped = loading.load_model("")  # models/default.pt, rebuilt 2026-11-26 by `replay train`: it embeds jari_usv
+    shipped = loading.load_model("")  # models/default.pt, rebuilt by `replay train`: it embeds jari_usv
     assert shipped.embedded_vessel == load_vessel("jari_usv")
     before = loading.load_model(str(as_written_before(package_share_path("models", "default.pt"), tmp_path / "b.pt")))
     _, meta = read_metadata(tmp_path / "b.pt")

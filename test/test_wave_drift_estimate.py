@@ -107,7 +107,7 @@ def test_jari_dimensions_give_the_signs_of_the_preset():
     assert _series(est, "y", 90.0) < 0.0 < _series(est, "y", -90.0)
     # yaw: with a pointed bow the lit bow flank outweighs the side, bow-quarter seas turn the bow away from the
     # waves and quarter seas the stern: toward beam seas (a drifting ship lies beam-on, docs/vessel.md). The preset
-    # agrees since 2026-11-26 (its generic b_n [0, 0.05] turned the bow toward head seas)
+    # agrees (its former generic b_n [0, 0.05] turned the bow toward head seas)
     assert _series(est, "n", 45.0) < 0.0 < _series(est, "n", -45.0)
     assert _series(est, "n", -135.0) < 0.0 < _series(est, "n", 135.0)
     chi = np.radians(np.arange(-180.0, 180.0, 1.0))
@@ -125,7 +125,7 @@ def test_jari_dimensions_give_the_signs_of_the_preset():
 @pytest.mark.parametrize("name", available_vessels())
 def test_every_preset_turns_toward_beam_seas(name):
     """docs/vessel.md, the sign of the yaw moment: bow-quarter seas turn the bow away from the waves, stern-quarter
-    seas the stern (the Otter's b_n [0, 0.01] and the WAM-V's [0, 0.02] of before 2026-11-26 turned them toward head
+    seas the stern (the Otter's former b_n [0, 0.01] and the WAM-V's [0, 0.02] turned them toward head
     seas). A preset without any wave drift force (kvlcc2_model) has no moment either."""
     w = load_vessel(name).wave_drift
 

@@ -23,7 +23,7 @@ import your_boat  # noqa: E402  (tools/ is not a package)
 # what docs/your_boat.md reports for the example (step 2 and step 3)
 IDENTIFIED = {"X_u": -109.0, "Y_v": -233.0, "N_v": 147.0, "thrusters.port.forward_N": 175.0}  # SI
 # fit check of evaluate and diagnose on the otter sea trial; 1.10 / 1.21 on the bags of before the otter preset's
-# wave-drift yaw correction (2026-11-26), which moved the sea days' tracks (docs/your_boat.md step 3)
+# wave-drift yaw correction, which moved the sea days' tracks (docs/your_boat.md step 3)
 RATIOS = {"speed_ratio": 1.11, "yaw_rate_ratio": 1.28}
 
 

@@ -96,7 +96,7 @@ FIT_CEILING_LOSS = 100.0  # held-out loss (noise units) no model that fits leave
 #                           2.9 deg/s in r, 10 m in position, 5.7 deg in heading), an order of magnitude above the
 #                           noise: a cause fitted to such a model absorbs the model's error (an unknown boat's 1.4 m
 #                           wave drift was named as a 28 m/s wind that left 1190 of 2432). The right causes of the 50
-#                           unknown boats of 2026-11-26 left at most 43 (a current, 94 before), waves of 1.1 m 27
+#                           unknown boats (docs/results/unknown_boats.md) left at most 43 (a current, 94 before), waves of 1.1 m 27
 NONE_LOSS = 5.0  # held-out loss (noise units) above which the calm-water model is not "within the noise": `none`
 #                 is then model_mismatch (clean presets leave 0.1, the right cause <= 0.5; an identified unknown
 #                 boat that fits 0.3; one that left 17 hid a 0.77 deg/s gyro bias behind a confident `none`)

@@ -324,7 +324,7 @@ def cause_substeps(vessel: Vessel, dt: float) -> int:
     waves, so a longer boat is spun less). Against 32 substeps on every preset and layout at dt 0.2 and 0.5 s, every
     cause's du and dr is as close as the 2 m boat's own rule gets (the 13.5 m jari_usv at dt 0.5 s: 2 substeps
     instead of 4, 4.7e-4 m/s and 1.2e-3 deg/s of changes up to 2.2 m/s and 7.2 deg/s; the otter at 4: 7.3e-4 m/s
-    and 1.4e-3 deg/s; 2026-11-26); test_fit_check.py holds every preset whose substeps it changes within 1e-3 m/s
+    and 1.4e-3 deg/s); test_fit_check.py holds every preset whose substeps it changes within 1e-3 m/s
     and 2e-3 deg/s of 16 substeps."""
     longest = CAUSE_SUBSTEP_S * math.sqrt(max(vessel.geometry.L_pp, CAUSE_SUBSTEP_L) / CAUSE_SUBSTEP_L)  # (s)
     return max(2, math.ceil(dt / longest - 1e-9))

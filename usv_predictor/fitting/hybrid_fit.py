@@ -5,7 +5,7 @@
                         the calm-water model extended with the diagnosed causes, e.g. current + wave drift), with its
                         extension terms, checked to roll out exactly as the file does
     train_hybrid        grey box + GeneralisingResidual (an ensemble), trained by a multi-step (rollout) loss with
-                        early stopping on manoeuvres held out whole, and pulled toward zero (issue 15)
+                        early stopping on manoeuvres held out whole, and pulled toward zero
     train_residual      the same on any grey box (train_hybrid's work): on an extended grey box the physics carries
                         the sea (the current moves the boat, the wave drift pushes it) and the residual only what the
                         extension leaves, its bound set from what the extension leaves (step 1)

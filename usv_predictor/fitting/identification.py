@@ -696,7 +696,7 @@ def determined_by_data(c: Coefficient, not_identifiable: Sequence[str]) -> bool:
 
 def coefficient_flags(c: Coefficient, not_identifiable: Sequence[str], prior_policy: str) -> dict:
     """JSON flags of one coefficient: determined_by_data, and for a coefficient the data do not determine the note
-    "not determined by these manoeuvres; prior used (how)" (issue 15: say which values are the prior's)."""
+    "not determined by these manoeuvres; prior used (how)" (so that a report says which values are the prior's)."""
     determined = determined_by_data(c, not_identifiable)
     how = PRIOR_HOW.get(c.status, f"prior policy {prior_policy}")
     if c.status == SEARCH_BOX:

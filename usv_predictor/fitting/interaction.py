@@ -1,4 +1,4 @@
-"""Identification of the rudder / propeller interaction factors together with the hull (issue 11 section 5).
+"""Identification of the rudder / propeller interaction factors together with the hull.
 
 A vessel description made from an owner's data (`replay vessel init`, physics/empirical.py) holds the MMG
 interaction factors at semi-empirical values: the rudder lift gradient of Fujii's formula, the flow straightening

@@ -27,12 +27,12 @@ The same check `replay evaluate` and `replay diagnose` run before they answer (a
               check did before by the window's identity) and windows found again with the same bytes (inputs that
               repeat bit for bit: a simulated or benchmark feed of constant values, in one process). The model's
               rollout of a window found by a check is made anew each time: live, a window found again is new content
-              (its grid moves with the buffers' first samples, its length with their span; over DDS the cache of
-              those rollouts served none of them, 2026-11-26, so it was removed).
+              (its grid moves with the buffers' first samples, its length with their span; over DDS a cache of
+              those rollouts served none of them, so there is none).
 
 Between cycles: the check's own Python (the model's rollouts of its windows, the verdict, compiling the causes'
 rollout) holds the GIL for a few ms at a time, and a cycle that starts meanwhile waits for it (up to the interpreter's
-5 ms switch interval: the node's cycle took 8.5-10 ms at its p99 with the check, 2.6 ms without it, 2026-11-26). So
+5 ms switch interval: the node's cycle took 8.5-10 ms at its p99 with the check, 2.6 ms without it: docs/results/node_latency.md). So
 the worker starts those parts in the gap after a cycle (CycleGap: within GAP_SHARE of a period after a cycle ended,
 never waiting longer than WAIT_PERIODS periods: without cycles it does not wait for them); the causes' TorchScript
 rollout itself releases the GIL and runs beside the cycles, in a worker thread that node.py makes FIT_NICE nicer

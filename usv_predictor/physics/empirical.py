@@ -3,7 +3,7 @@
     estimate_vessel(OwnerData(...)) -> Estimate    every section of a vessel YAML, each value with its provenance
     init_vessel(OwnerData(...), path, force)       the same, written (atomically) as a YAML the loader accepts
 
-The formulas are those recommended in the research note behind issue 11 (empirical_formulas.md, checked there
+The formulas are those recommended in the research note on empirical formulas (empirical_formulas.md, checked there
 against the published KVLCC2 values of Yasukawa & Yoshimura 2015); the MMG prime system is that of
 physics/vessel.py (X' = X / (0.5 rho L d U^2), N' = N / (0.5 rho L^2 d U^2), m' = m / (0.5 rho L^2 d),
 J' = J / (0.5 rho L^4 d)):

@@ -63,7 +63,7 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, str
     base: with hybrid, a grey-box artifact (`replay diagnose --export`'s extended model, or an earlier `replay
     identify`) whose hull and extension terms are kept, the residual trained on top of them (hybrid_on_base); the
     hull is then not identified again. interaction: identify / fix the rudder_propeller interaction factors
-    (fitting/interaction.py; None: identify, the default since 2026-11-26; with `base` it must stay None). The
+    (fitting/interaction.py; None: identify, the default; with `base` it must stay None). The
     result of `replay identify`."""
     from usv_predictor.analysis.evaluation import evaluate
     from usv_predictor.fitting import hybrid_fit, identification

@@ -1,4 +1,4 @@
-"""One boat the tool has never seen, through the public commands (issue 11 section 5): the acceptance pipeline that
+"""One boat the tool has never seen, through the public commands: the unknown-boat acceptance pipeline that
 test/test_unknown_boats.py and benchmarks/bench_unknown_boats.py share.
 
     truth (analysis.unknown_boats.draw_boat) --simulate--> a calm day (`training` programme) and an effect day
