@@ -399,7 +399,8 @@ def test_registry_covers_every_role() -> None:
         ({"units": "rad_per_s", "full_scale": 100.0}, 50.0, 0.5),
         ({"units": "newton", "full_scale": 250.0, "reverse_full_scale": 100.0}, -100.0, -1.0),  # VRX clamps
         ({"units": "newton", "full_scale": 119.682, "exponent": 2.0}, 119.682 / 4.0, 0.5),  # Otter: T ~ c|c|
-        ({"units": "newton", "full_scale": 119.682, "reverse_full_scale": 66.708, "exponent": 2.0}, -66.708 / 4.0, -0.5),
+        ({"units": "newton", "full_scale": 119.682, "reverse_full_scale": 66.708, "exponent": 2.0}, -66.708 / 4.0,
+         -0.5),
     ],
 )
 def test_command_units_by_hand(options: dict, raw: float, command: float) -> None:
@@ -446,7 +447,8 @@ def test_command_refusal_counts_samples_and_nan_passes() -> None:
 
 
 def test_command_option_errors() -> None:
-    with pytest.raises(AdapterError, match=r"units rpm need the option full_scale \(a shaft speed in rpm at full ahead\)"):
+    with pytest.raises(AdapterError,
+                       match=r"units rpm need the option full_scale \(a shaft speed in rpm at full ahead\)"):
         get_adapter("throttle", "std_msgs/msg/Float64", units="rpm")
     with pytest.raises(AdapterError, match=r"units='us'.*'pwm'"):
         get_adapter("throttle", "std_msgs/msg/Float64", units="us")
@@ -546,7 +548,8 @@ def test_check_shared_refuses_roles_that_cannot_share_a_topic() -> None:
         msg_adapters.check_shared("thrusters", _pair("std_msgs/msg/Float64MultiArray", {"index": 0}, {"index": 0}))
     with pytest.raises(AdapterError, match=r"different types"):
         msg_adapters.check_shared("thrusters", [get_adapter("thruster_port", "std_msgs/msg/Float64MultiArray", index=0),
-                                                get_adapter("thruster_starboard", "sensor_msgs/msg/JointState", joint="r")])
+                                                get_adapter("thruster_starboard", "sensor_msgs/msg/JointState",
+                                                            joint="r")])
     with pytest.raises(AdapterError, match=r"same message options.*surge_full_scale"):
         msg_adapters.check_shared("cmd", _pair("geometry_msgs/msg/Wrench", {}, {"yaw_full_scale": 2.0}))
     msg_adapters.check_shared("cmd", _pair("geometry_msgs/msg/Wrench", {}, {}))  # these can

@@ -92,7 +92,8 @@ def _export(path: Path, members: list[DnnModel], **kwargs) -> object:
 
 @pytest.mark.parametrize("feature_set", sorted(FEATURE_SETS))
 @pytest.mark.parametrize("activation, increment", [("tanh", True), ("clipped_relu", True), ("tanh", False)])
-def test_rollout_equals_step_by_step_reference(tmp_path: Path, feature_set: str, activation: str, increment: bool) -> None:
+def test_rollout_equals_step_by_step_reference(tmp_path: Path, feature_set: str, activation: str,
+                                               increment: bool) -> None:
     members = [_member(feature_set, seed, activation, increment) for seed in (1, 2)]
     artifact = _export(tmp_path / "m.pt", members, dtype="float64")
     state, controls = _inputs()
@@ -124,8 +125,10 @@ def _constant_motion_model(u: float, increment: bool) -> DnnModel:
 
 
 @pytest.mark.parametrize("increment", [True, False])
-@pytest.mark.parametrize("psi_deg, direction", [(0.0, (1.0, 0.0)), (90.0, (0.0, 1.0)), (-135.0, (-0.5 ** 0.5, -0.5 ** 0.5))])
-def test_straight_line_kinematics(tmp_path: Path, increment: bool, psi_deg: float, direction: tuple[float, float]) -> None:
+@pytest.mark.parametrize("psi_deg, direction",
+                         [(0.0, (1.0, 0.0)), (90.0, (0.0, 1.0)), (-135.0, (-0.5 ** 0.5, -0.5 ** 0.5))])
+def test_straight_line_kinematics(tmp_path: Path, increment: bool, psi_deg: float,
+                                  direction: tuple[float, float]) -> None:
     u = 4.0
     artifact = _export(tmp_path / "m.pt", [_constant_motion_model(u, increment)], dtype="float64")
     psi = math.radians(psi_deg)

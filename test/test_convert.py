@@ -203,7 +203,8 @@ def _turn(n: int, dt: float, speed: float, rate_deg_s: float):
     t = np.arange(n) * dt
     w = math.radians(rate_deg_s)
     psi = w * t
-    return t, speed / w * np.sin(psi), speed / w * (1.0 - np.cos(psi)), np.degrees(psi), speed * np.cos(psi), speed * np.sin(psi)
+    return (t, speed / w * np.sin(psi), speed / w * (1.0 - np.cos(psi)), np.degrees(psi), speed * np.cos(psi),
+            speed * np.sin(psi))
 
 
 def _hsva_text(n: int = 200) -> str:
@@ -211,7 +212,8 @@ def _hsva_text(n: int = 200) -> str:
     delta = np.where(t < 1.0, 0.0, -10.0)  # file convention: negative = starboard
     rows = [" ".join(f"{v:18.9f}" for v in (t[i], x[i], y[i], psi[i], ue[i], ve[i], 2.0, 0.05, delta[i], 10.2295,
                                             41.0, 1.02)) for i in range(n)]
-    return "\n".join([" HSVA, experimental data CPMC", " KVLCC2", " Z10°/5°", " Time series of motions", *rows]) + "\n"
+    head = [" HSVA, experimental data CPMC", " KVLCC2", " Z10°/5°", " Time series of motions"]
+    return "\n".join([*head, *rows]) + "\n"
 
 
 def _write(path: Path, text: str, encoding: str = "cp1252") -> Path:
@@ -266,7 +268,8 @@ def _marin_text(n: int = 600, first: float = 10.0, file_delta: float | None = No
     delta = np.where(t < 5.0, 0.0, first if file_delta is None else file_delta)
     cols = [t, x, y, 0.1 + 0 * t, psi, ue, ve, 0 * t, 0.3 + 0 * t, delta, 91.5 + 0 * t]
     rows = ["\t".join(f"{c[i]:.2E}" for c in cols) for i in range(n)]
-    head = ["MARIN(Maritime Research Institute Netherlands)", f"Zig-zag manoeuvring for KVLCC2 : {first:g} / {-first:g}", ""]
+    head = ["MARIN(Maritime Research Institute Netherlands)",
+            f"Zig-zag manoeuvring for KVLCC2 : {first:g} / {-first:g}", ""]
     return "\n".join([*head, *rows, "\t" * 10, "\t" * 10]) + "\n"
 
 
@@ -282,7 +285,8 @@ def test_synthetic_marin_reads_and_checks_the_time_column(tmp_path):
         convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat", "\n".join(lines)))
     lines = _marin_text().splitlines()
     with pytest.raises(DatasetError, match=r":204: empty row inside the data"):
-        convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat", "\n".join(lines[:203] + [""] + lines[203:])))
+        convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat",
+                                  "\n".join(lines[:203] + [""] + lines[203:])))
     with pytest.raises(DatasetError, match="title says first rudder 10 .* goes starboard first"):
         convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat",
                                   _marin_text(file_delta=-10.0)))
@@ -311,7 +315,8 @@ def _marin_turn_text(first: float = 35.0, pullout: bool = True, title: str | Non
     cols = [t, x, y, 0.1 + 0 * t, psi, ue, ve, 0 * t, r, file_delta - 0.5, 91.5 + 0 * t]
     rows = ["\t".join(f"{c[i]:.2E}" for c in cols) for i in range(n)]
     what = "Turning / Pull-out" if pullout else "Turning"
-    head = ["MARIN(Maritime Research Institute Netherlands)", title or f"{what} manoeuvring for KVLCC2 : {first:g} (deg)", ""]
+    head = ["MARIN(Maritime Research Institute Netherlands)",
+            title or f"{what} manoeuvring for KVLCC2 : {first:g} (deg)", ""]
     return "\n".join([*head, *rows, "\t" * 10, "\t" * 2]) + "\n"
 
 
@@ -545,8 +550,8 @@ def _dalian_xlsx(path: Path, *, swap: bool = False, pwm_l: dict[int, float] | No
                "t": 0.1 * k, "Longitude": float(lon[j]), "Latitude": float(lat[j]), "x": 1.1117 * float(x[j]),
                "y": 1.1117 * float(y[j]), "Heading": heading, "course": heading, "Speed": speed,
                "PWM_L": int(left[k]), "PWM_R": int(right[k])}
-        row.update({"PWM_L": v for i, v in (pwm_l or {}).items() if i == k})
-        row.update({"DateTime": v for i, v in (stamp or {}).items() if i == k})
+        row.update({"PWM_L": v for i, v in (pwm_l or {}).items() if i == k})  # noqa: B035
+        row.update({"DateTime": v for i, v in (stamp or {}).items() if i == k})  # noqa: B035
         sheet.append([row[c] for c in columns if c != drop])
     book.create_sheet("Sheet2").append(["LongitudeStart", "LatitudeStart"])
     book["Sheet2"].append(["121.5343", "38.8658"])

@@ -117,7 +117,8 @@ def test_npz_round_trip_keeps_arrays_metadata_and_recordings(recordings, tmp_pat
         assert loaded.arrays[name].dtype == dataset.arrays[name].dtype
     assert loaded.digest() == dataset.digest()
     for got, want in zip(loaded.recordings(), recordings, strict=True):
-        assert (got.name, got.source, got.t0_ns, got.dt, got.datum) == (want.name, want.source, want.t0_ns, want.dt, want.datum)
+        assert (got.name, got.source, got.t0_ns, got.dt, got.datum) == (want.name, want.source, want.t0_ns, want.dt,
+                                                                        want.datum)
         for field in ("t_s", "nu", "psi", "controls", "position"):
             assert np.array_equal(getattr(got, field), getattr(want, field), equal_nan=True)
         assert (got.truth is None) == (want.truth is None)
@@ -142,7 +143,8 @@ def test_split_selects_whole_recordings_with_their_samples(recordings):
 
 def test_building_refuses_mixed_steps_repeated_names_and_missing_splits(recordings):
     with pytest.raises(DatasetError, match=r"different steps \[0.25, 0.5\]"):
-        build_dataset([recordings[0], _recording("fast", 5, 9, dt=0.25)], "F0", splits={"zigzag_a": "train", "fast": "train"})
+        build_dataset([recordings[0], _recording("fast", 5, 9, dt=0.25)], "F0",
+                      splits={"zigzag_a": "train", "fast": "train"})
     with pytest.raises(DatasetError, match=r"repeated: \['zigzag_a'\]"):
         build_dataset([recordings[0], recordings[0]], "F0", splits={"zigzag_a": "train"})
     with pytest.raises(DatasetError, match=r"no split .* for recording\(s\) \['turn_b'\]"):
@@ -167,8 +169,10 @@ def test_wrong_old_or_corrupt_files_are_named(recordings, tmp_path):
     with np.load(good) as npz:
         arrays = {k: npz[k] for k in npz.files}
     meta = json.loads(str(arrays["metadata"]))
-    np.savez_compressed(old, **dict(arrays, metadata=np.array(json.dumps(dict(meta, format="usv_predictor.dataset/0")))))
-    with pytest.raises(DatasetError, match=r"old\.npz: dataset format 'usv_predictor.dataset/0', expected 'usv_predictor.dataset/1'"):
+    np.savez_compressed(old,
+                        **dict(arrays, metadata=np.array(json.dumps(dict(meta, format="usv_predictor.dataset/0")))))
+    with pytest.raises(DatasetError,
+                       match=r"old\.npz: dataset format 'usv_predictor.dataset/0', expected 'usv_predictor.dataset/1'"):
         load_dataset(old)
     foreign = tmp_path / "foreign.npz"
     np.savez_compressed(foreign, x=np.zeros(3))
@@ -180,7 +184,8 @@ def test_wrong_old_or_corrupt_files_are_named(recordings, tmp_path):
         load_dataset(pickled)  # never unpickles
     shapes = tmp_path / "shapes.npz"
     np.savez_compressed(shapes, **dict(arrays, Y=arrays["Y"][:-1]))
-    with pytest.raises(DatasetError, match=r"shapes\.npz: inconsistent dataset: Y has shape \(36, 3\), expected \(37, 3\)"):
+    with pytest.raises(DatasetError,
+                       match=r"shapes\.npz: inconsistent dataset: Y has shape \(36, 3\), expected \(37, 3\)"):
         load_dataset(shapes)
     assert zipfile.is_zipfile(good) and math.isfinite(load_dataset(good).dt)
 

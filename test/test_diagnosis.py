@@ -48,8 +48,10 @@ def test_vectors_become_the_design_vocabulary():
     assert wind["speed_mps"] == pytest.approx(8.0) and wind["direction_from_deg"] == pytest.approx(0.0)
     waves = physical_parameters("wave_drift", {"wave_ne": (0.0, 0.25)})  # zeta_a^2 = 0.25 -> H_s = 1 m from the east
     assert waves == pytest.approx({"significant_height_m": 1.0, "direction_from_deg": 90.0})
-    assert physical_parameters("rudder_offset", {"rudder_offset": (math.radians(2.0),)}) == pytest.approx({"offset_deg": 2.0})
-    assert physical_parameters("resistance", {"resistance_change": (0.2,)}) == pytest.approx({"resistance_change_pct": 20.0})
+    assert physical_parameters("rudder_offset",
+                               {"rudder_offset": (math.radians(2.0),)}) == pytest.approx({"offset_deg": 2.0})
+    assert physical_parameters("resistance",
+                               {"resistance_change": (0.2,)}) == pytest.approx({"resistance_change_pct": 20.0})
 
 
 def test_a_single_manoeuvre_is_refused():
@@ -92,7 +94,8 @@ def test_the_calm_water_model_can_come_from_an_identified_grey_box():
     from usv_predictor.models.greybox import hull_from_metadata
 
     identified = {"identification": {"structure": "mmg", "extra_terms": {},
-                                     "coefficients": [{"name": "R0", "estimate": 0.02}, {"name": "Y_v", "estimate": -0.3}]},
+                                     "coefficients": [{"name": "R0", "estimate": 0.02},
+                                                      {"name": "Y_v", "estimate": -0.3}]},
                   "architecture": {"residual": "ZeroResidual"}}
     assert hull_from_metadata(identified) == {"R0": 0.02, "Y_v": -0.3}
     exported = {"architecture": {"hull": {"R0": 0.03}}}  # `replay diagnose --export`
@@ -261,7 +264,8 @@ def test_a_cause_that_lowers_the_loss_but_not_the_track_is_inconclusive_not_a_mi
     assert result.cause == INCONCLUSIVE and result.parameters == {} and result.hypotheses == ()
     assert result.candidate == "current" and result.candidate_parameters["speed_mps"] > 0.1
     assert result.mismatch_reasons == () and "does not lower the held-out track error" in result.inconclusive_reasons[0]
-    assert result.message.startswith(f"{INCONCLUSIVE}: current (speed_mps") and "identify this boat" not in result.message
+    assert result.message.startswith(f"{INCONCLUSIVE}: "
+                                     f"current (speed_mps") and "identify this boat" not in result.message
     top = next(e for e in result.evidence if e.hypothesis == "current")
     assert top.evidence_vs_none >= 5.0 and top.track_gain_vs_none < 0.0  # what makes it a candidate, and not named
     # the same term that also lowers the track error is named; withdrawn after a worse 30 s gain it is inconclusive
@@ -466,7 +470,8 @@ def test_the_otter_sea_trials_current_is_reported_as_the_further_candidate(tmp_p
     further = found["further_candidate"]
     assert further["cause"] == "current" and 3.0 <= further["evidence"] < 5.0
     assert further["gain"] > 0.3 and further["track_gain"] > 0.5
-    ok, errors = within_tolerance(Draw("current", {"current_speed": 0.2, "current_to_deg": 215.0}), further["parameters"])
+    ok, errors = within_tolerance(Draw("current", {"current_speed": 0.2, "current_to_deg": 215.0}),
+                                  further["parameters"])
     assert ok, errors
     assert further["reason"].startswith("current not named as a further cause: given wave_drift it adds evidence 4.")
     assert further["reason"] in found["message"]

@@ -12,7 +12,8 @@ import pytest
 from usv_predictor.analysis.diagnosis import (EVIDENCE_CANDIDATE, EVIDENCE_CAUSE, MIN_GAIN, HeldOut, contribution,
                                               log_evidence, select_causes)
 
-# boat 20 of the unknown-boat benchmark (seed 2026; docs/results/unknown_boats.md): a 5.4 m/s wind. The first round ranked wave_drift
+# boat 20 of the unknown-boat benchmark (seed 2026; docs/results/unknown_boats.md): a 5.4 m/s wind. The first round
+# ranked wave_drift
 # first (held-out loss 2.94 of the calm-water model's 4.80) on a poor fit of the wind alone (3.20); wave_drift+wind
 # left 1.12, and the wind alone, fitted from that pair's wind, leaves about as little (the table's 1.15).
 N_EFF = 20.6  # effective segments of that diagnosis: 5.1 = n_eff / 2 * ln(4.80 / 2.94)
@@ -62,7 +63,8 @@ def test_a_first_cause_that_a_later_one_makes_redundant_is_dropped():
 
 
 def test_without_the_backward_step_the_first_cause_would_stay():
-    """What the backward step changes: the forward step alone keeps wave_drift (the answer of the benchmark run before the backward step)."""
+    """What the backward step changes: the forward step alone keeps wave_drift (the answer of the benchmark run before
+    the backward step)."""
     forward = contribution("wind", ("wave_drift",), table(BOAT_20), N_EFF)
     assert forward.earns_place and forward.evidence == pytest.approx(log_evidence(N_EFF, 1.12, 2.94))
     selection = select_causes("wave_drift", CANDIDATES, table(BOAT_20), N_EFF, max_causes=1)

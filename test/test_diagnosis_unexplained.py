@@ -21,7 +21,8 @@ LEAN = dataclasses.replace(dgu.UNEXPLAINED_TRAINING, members=2, epochs=15, patie
 
 def _mismatch() -> dg.Diagnosis:
     return dg.Diagnosis(dg.MODEL_MISMATCH, {}, {}, (), (), dg.Fit("none", {}, 19.0, {}, 0, 0.0), (("a",), ("b",)),
-                        f"{dg.MODEL_MISMATCH}: no hypothesis explains it", calm_water_fit=dg.CalmWaterFit(19.0, 2.9, 20.0),
+                        f"{dg.MODEL_MISMATCH}: no hypothesis explains it",
+                        calm_water_fit=dg.CalmWaterFit(19.0, 2.9, 20.0),
                         mismatch_reasons=("no hypothesis explains it",))
 
 
@@ -34,7 +35,8 @@ def _found(accepted: bool) -> dgu.UnexplainedGain:
 def test_the_answer_is_unexplained_only_when_the_residual_passes_every_test():
     accepted = dgu.unexplained_answer(_mismatch(), _found(True), 20.0)
     assert accepted.cause == dg.UNEXPLAINED and accepted.hypotheses == () and accepted.parameters == {}
-    assert accepted.message.startswith(f"{dg.UNEXPLAINED}: no physical hypothesis explains") and "93 %" in accepted.message
+    assert accepted.message.startswith(f"{dg.UNEXPLAINED}: no physical hypothesis explains")
+    assert "93 %" in accepted.message
     assert accepted.mismatch_reasons == ("no hypothesis explains it",)  # what it would have been stays on record
     kept = dgu.unexplained_answer(_mismatch(), _found(False), 20.0)
     assert kept.cause == dg.MODEL_MISMATCH and "the extension of last resort was tried" in kept.message
@@ -59,7 +61,8 @@ def test_run_diagnosis_tries_the_residual_only_without_a_physical_cause_and_unle
     monkeypatch.setattr("usv_predictor.analysis.diagnosis_run.measure_unexplained", lambda *a, **k: _found(True))
     out = json.loads(json_text(run_diagnosis(recordings, VESSEL, "preset", dt=0.5)))
     assert out["cause"] == dg.UNEXPLAINED and out["unexplained"]["accepted"] and out["parameters"] == {}
-    assert out["unexplained"]["gain"] == pytest.approx(1 - 1.4 / 19.0) and out["unexplained"]["replaced"] == dg.MODEL_MISMATCH
+    assert out["unexplained"]["gain"] == pytest.approx(1 - 1.4 / 19.0)
+    assert out["unexplained"]["replaced"] == dg.MODEL_MISMATCH
 
 
 @pytest.mark.slow

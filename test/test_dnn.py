@@ -129,14 +129,16 @@ def test_constant_feature_is_centred_not_divided_by_zero() -> None:
 def test_features_of_tensors_equal_features_of_arrays(feature_set: str) -> None:
     """One implementation, two array types: the training loss (torch) sees what the dataset (numpy) saw."""
     rng = np.random.default_rng(3)
-    state = np.column_stack([rng.normal(5, 1, 64), rng.normal(0, .3, 64), rng.normal(0, .1, 64), rng.uniform(-40, 40, 64)])
+    state = np.column_stack([rng.normal(5, 1, 64), rng.normal(0, .3, 64), rng.normal(0, .1, 64),
+                             rng.uniform(-40, 40, 64)])
     state[:6, 3] = [math.pi, -math.pi, 3 * math.pi, 0.0, -1e-12, 2 * math.pi]  # the wrap boundaries
     controls = np.column_stack([rng.normal(0, .3, 64), rng.normal(650, 30, 64)])
     expected = features(feature_set, state, controls)
     got = features(feature_set, torch.from_numpy(state), torch.from_numpy(controls)).numpy()
     assert got.shape == expected.shape
     np.testing.assert_array_max_ulp(got, expected, maxulp=2)
-    batched = features(feature_set, torch.from_numpy(state).reshape(8, 8, 4), torch.from_numpy(controls).reshape(8, 8, 2))
+    batched = features(feature_set, torch.from_numpy(state).reshape(8, 8, 4),
+                       torch.from_numpy(controls).reshape(8, 8, 2))
     assert batched.shape == (8, 8, len(FEATURE_SETS[feature_set]))
 
 

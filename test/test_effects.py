@@ -74,7 +74,8 @@ def test_every_record_is_complete_and_consistent(name):
     assert set(effect.readout.terms) <= term_names, "the readout reads a term the hypothesis does not fit"
     start = {t.name: t.start for t in effect.terms}
     assert tuple(effect.readout.read(start)) == effect.readout.keys
-    assert tuple(effect.readout.uncertainty(start, {t.name: (0.1,) * t.size for t in effect.terms})) == effect.readout.keys
+    std = {t.name: (0.1,) * t.size for t in effect.terms}
+    assert tuple(effect.readout.uncertainty(start, std)) == effect.readout.keys
     for t in effect.terms:
         assert t.low <= min(t.start) and max(t.start) <= t.high and 0.0 < t.scale < t.high - t.low, t
     # the acceptance suite compares exactly what it has tolerances for
@@ -114,7 +115,8 @@ def test_names_flags_and_terms_are_unique():
 
 
 def test_the_tolerances_and_draw_ranges_are_the_published_ones():
-    """The acceptance suite's contract (docs/results/diagnosis_matrices.md) is unchanged by moving it into the records."""
+    """The acceptance suite's contract (docs/results/diagnosis_matrices.md) is unchanged by moving it into the
+    records."""
     assert dict(hidden_effects.TOLERANCES) == {
         "current": {"speed_mps": 0.05, "direction_deg": 10.0}, "wind": {"speed_mps": 2.0, "direction_deg": 20.0},
         "wave_drift": {"significant_height_m": 0.4, "direction_deg": 30.0}, "rudder_offset": {"offset_deg": 0.5},
@@ -296,7 +298,8 @@ def test_every_parameter_reaches_its_simulator_field(name):
     built = {Environment: scenario.environment, ActuatorFaults: scenario.faults, SensorSpec: scenario.sensor_spec}
     for p in effect.parameters:
         assert getattr(built[p.sets.target], p.sets.name) == pytest.approx(p.sets.value(values[p.name])), p.name
-    assert SimulatorField(ActuatorFaults, "rudder_offset_rad", "rad", multiply=DEG_TO_RAD).value(2.0) == math.radians(2.0)
+    assert SimulatorField(ActuatorFaults, "rudder_offset_rad", "rad",
+                          multiply=DEG_TO_RAD).value(2.0) == math.radians(2.0)
 
 
 # ---- adding an effect touches one record -------------------------------------------------------------
@@ -325,7 +328,8 @@ def test_adding_an_effect_touches_one_record(monkeypatch, capsys):
         build_parser(["diagnose"]).parse_args(["diagnose", "--help"])
     assert "steering_offset" in " ".join(capsys.readouterr().out.split())
     # the simulator's flags and scenario
-    args = build_parser(["simulate"]).parse_args(["simulate", "--effect", "steering_offset", "--steering-offset", "1.5"])
+    args = build_parser(["simulate"]).parse_args(["simulate", "--effect", "steering_offset", "--steering-offset",
+                                                  "1.5"])
     chosen = cmd_simulate._effects(args)
     assert chosen == {"steering_offset": {"steering_offset_deg": 1.5}}
     assert make_scenario("jari_usv", chosen).faults.rudder_offset_rad == math.radians(1.5)
@@ -384,7 +388,8 @@ def test_effects_apply_to_their_layouts():
     assert "thruster_imbalance" in twin and not {"rudder_offset", "propeller_asymmetry"} & set(twin)
     assert set(effects.simulated("twin_thrusters")) == set(twin) - {"none", "resistance"}
     with pytest.raises(ConfigError, match=r"effect 'rudder_offset' does not apply to vessel otter \(actuator layout "
-                                          r"twin_thrusters\); it applies to rudder_propeller, rudder_throttle, rudder_only"):
+                                          r"twin_thrusters\); it applies to rudder_propeller, "
+                                          r"rudder_throttle, rudder_only"):
         make_scenario("otter", {"rudder_offset": {"rudder_offset_deg": 2.0}})
     with pytest.raises(ConfigError, match=r"hypotheses \['propeller_asymmetry'\] do not apply to vessel otter"):
         diagnosis.diagnose([], load_vessel("otter"), hypotheses=["current", "propeller_asymmetry"])

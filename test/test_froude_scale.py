@@ -74,7 +74,8 @@ def test_the_option_takes_a_plausible_scale_only(value, capsys):
 
 def _zigzags(path: Path) -> dict[str, dict]:
     data = json.loads(path.read_text())
-    return {r["name"]: r["zigzag"] for r in data["recordings"]} | {"_fit_check": data["fit_check"], "_data": data["data"]}
+    return {r["name"]: r["zigzag"] for r in data["recordings"]} | {"_fit_check": data["fit_check"],
+                                                                   "_data": data["data"]}
 
 
 @pytest.mark.slow

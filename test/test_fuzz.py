@@ -328,7 +328,8 @@ def _source_mutations() -> dict[str, Callable[[np.random.Generator, bytes], byte
 
 
 SOURCE_MUTATIONS = _source_mutations()
-SOURCES = ("kvlcc2_hsva_simman2008/HSVA_CPMC_KVLCC2_Z_10_10_S.dat", "usv_alexandersson2022_fuzhou/zigzag_30_inter_xy.csv")
+SOURCES = ("kvlcc2_hsva_simman2008/HSVA_CPMC_KVLCC2_Z_10_10_S.dat",
+           "usv_alexandersson2022_fuzhou/zigzag_30_inter_xy.csv")
 
 
 @pytest.mark.parametrize("mutation", sorted(SOURCE_MUTATIONS))
@@ -640,7 +641,8 @@ def test_interrupted_in_the_middle(command: str, base: dict[str, Path], tmp_path
 @pytest.mark.parametrize("command", ["dataset", "train"])
 def test_sigint_to_the_process_group(command: str, base: dict[str, Path], tmp_path: Path) -> None:
     """Ctrl-C in a terminal signals the whole process group (dataset's worker processes too)."""
-    argv = {"dataset": ["dataset", str(REPO / "bags" / "sea_trial"), str(REPO / "bags" / "training"), "--include-calm", "--jobs", "2", "--output",
+    argv = {"dataset": ["dataset", str(REPO / "bags" / "sea_trial"), str(REPO / "bags" / "training"), "--include-calm",
+                        "--jobs", "2", "--output",
                         str(tmp_path / "ds.npz")],
             "train": ["train", str(base["dataset"]), "--output", str(tmp_path / "m.pt"), "--epochs", "100000",
                       "--patience", "0"]}[command]

@@ -144,7 +144,8 @@ def test_huge_values_are_dropped_with_a_warning_naming_the_field() -> None:
     values[40:45, 0] = 1e30  # yaw rate (rad/s)
     warnings: list[str] = []
     signal_in = Signal(t, values, ROLE_FIELDS["imu"])
-    cleaned = clean_signal(signal_in, where="bag: topic 'imu/data'", role="imu", dt=0.5, t_ref_ns=0, warn=warnings.append)
+    cleaned = clean_signal(signal_in, where="bag: topic 'imu/data'", role="imu", dt=0.5, t_ref_ns=0,
+                           warn=warnings.append)
     assert len(cleaned) == 95 and np.abs(cleaned.values[:, 0]).max() == 0.0
     assert warnings == ["bag: topic 'imu/data': dropped 5 of 100 samples with implausible values (yaw_rate: 5, e.g. "
                         "1e+30 outside [-3, 3]): corrupt samples, or wrong units in the config?"]
@@ -309,7 +310,8 @@ def test_evaluate_with_a_model_whose_code_raises(tmp_path, capsys) -> None:
     model = _failing_model(tmp_path / "raises.pt")
     code, err = replay(capsys, "evaluate", ZIGZAG, "--model", model)
     assert_one_line(code, err, "evaluate", allowed=(2,))
-    assert err.strip().splitlines()[-1] == (f"replay evaluate: error: model {model} fails when run: RuntimeError: boom: "
+    assert err.strip().splitlines()[-1] == (f"replay evaluate: error: model {model} fails when run: "
+                                            f"RuntimeError: boom: "
                                             "this model always fails")
 
 
@@ -369,7 +371,8 @@ def test_a_full_disk_leaves_no_partial_file(one_bag_dataset, short_bags, tmp_pat
     out.mkdir()
     target = out / "model.pt"
     argv = {"train": ["train", str(one_bag_dataset), "--output", str(target), "--epochs", "2"],
-            "identify": ["identify", str(short_bags), "--vessel", "jari_usv", "--prior", "fix", "--output", str(target)],
+            "identify": ["identify", str(short_bags), "--vessel", "jari_usv", "--prior", "fix", "--output",
+                         str(target)],
             "diagnose_export": ["diagnose", str(short_bags), "--hypotheses", "current", "--no-gain",
                                 "--export", str(target)]}[command]
     before = digest([one_bag_dataset, short_bags])
@@ -413,7 +416,8 @@ INTERRUPTED = {
     "train": (["train", "{dataset}", "--output", "out/m.pt", "--epochs", "100000", "--patience", "0",
                "--progress-s", "0"], "epoch 3/"),
     "simulate": (["simulate", "--programme", "training", "--output", "out/bags"], "[1/4]"),
-    "dataset": (["dataset", str(BAGS / "sea_trial"), str(BAGS / "training"), "--include-calm", "--jobs", "2", "--output", "out/ds.npz"], "[1/20]"),
+    "dataset": (["dataset", str(BAGS / "sea_trial"), str(BAGS / "training"), "--include-calm", "--jobs", "2",
+                 "--output", "out/ds.npz"], "[1/20]"),
     "evaluate": (["evaluate", "--output", "out/eval"], "[1/6]"),
     "report": (["report", "--output", "out/report"], "[1/6]"),
     "identify": (["identify", str(BAGS / "training"), "--vessel", "jari_usv", "--prior", "fix", "--output",

@@ -127,7 +127,8 @@ def test_fuzhou_rudder_only_refuses_without_a_prior_and_runs_with_one(bags, tmp_
 @pytest.fixture(scope="module")
 def dalian_sine(raw_data_dir: Path, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("dalian")
-    assert cli.main(["convert", str(raw_data_dir / "usv_2345vor_dalian" / "boat1_2_sin.xlsx"), "--output", str(out)]) == 0
+    assert cli.main(["convert", str(raw_data_dir / "usv_2345vor_dalian" / "boat1_2_sin.xlsx"), "--output",
+                     str(out)]) == 0
     return out / "dalian_sine"
 
 

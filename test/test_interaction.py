@@ -67,7 +67,8 @@ def test_the_steady_check_names_what_is_implausible():
     # a rudder whose force points the wrong way (jari_usv itself is course-unstable: a turn is not proof enough)
     assert "turns the other way" in ia.steady_check(
         dataclasses.replace(preset, rudder=dataclasses.replace(preset.rudder, lift_factor=-1.0)), TRIAL_RPM, None)
-    # cubic terms that make the turn run away (what a wrong rudder split does to the hull regression: docs/results/unknown_boats.md, boat 2)
+    # cubic terms that make the turn run away (what a wrong rudder split does to the hull regression:
+    # docs/results/unknown_boats.md, boat 2)
     runaway = dataclasses.replace(preset, hull=dataclasses.replace(preset.hull, N_r=0.3, N_rrr=0.5, Y_vvv=5.0))
     assert "diverges" in ia.steady_check(runaway, TRIAL_RPM, None)
 

@@ -1,4 +1,5 @@
-"""usv_predictor.node.live without ROS: the online state equals the replay tool's Recording; every bad input is refused."""
+"""usv_predictor.node.live without ROS: the online state equals the replay tool's Recording; every bad input is
+refused."""
 from __future__ import annotations
 
 import math
@@ -209,7 +210,8 @@ def test_rollout_refuses_more_members_than_the_model_has() -> None:
     artifact = load_artifact(package_share_path("models", "default.pt"))
     with pytest.raises(ModelError, match="ensemble_size 9 requested"):
         live.Rollout(artifact, 120, ensemble_size=9)
-    assert live.Rollout(artifact, 120, ensemble_size=2)(np.array([5.0, 0, 0, 0]), np.array([0.0, 650.0])).shape == (2, 120, 6)
+    assert live.Rollout(artifact, 120, ensemble_size=2)(np.array([5.0, 0, 0, 0]),
+                                                        np.array([0.0, 650.0])).shape == (2, 120, 6)
 
 
 # ----------------------------------------------------------------------------- redundant inputs

@@ -280,7 +280,8 @@ def test_a_model_for_other_controls_is_refused_naming_the_layouts(ros_context: C
     export_like(path, shipped.module, shipped, control_layout=["port", "starboard"])
     with pytest.raises(ModelError, match=r"twin.pt does not match the configuration: control_layout: "
                                          r"model \['port', 'starboard'\], config \['delta', 'rpm'\]"):
-        predictor_node.PredictorNode(context=ros_context, parameter_overrides=[Parameter("model_path", value=str(path))])
+        predictor_node.PredictorNode(context=ros_context,
+                                     parameter_overrides=[Parameter("model_path", value=str(path))])
 
 
 @pytest.mark.parametrize("case", ["missing", "corrupt", "vessel"])

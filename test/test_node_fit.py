@@ -96,7 +96,8 @@ def small_boat(tmp_path_factory: pytest.TempPathFactory) -> tuple[LiveFitCheck, 
 def test_the_buffers_make_the_recording_the_replay_tool_makes() -> None:
     """buffered_recording is recording_from_signals of the buffered samples: the same grid, the same box means."""
     vessel = load_vessel("jari_usv")
-    fit = LiveFitCheck(physics_predictor(vessel, DT), vessel, vessel.actuator_layout, "x", FitCheckSettings(enabled=False))
+    fit = LiveFitCheck(physics_predictor(vessel, DT), vessel, vessel.actuator_layout, "x",
+                       FitCheckSettings(enabled=False))
     inputs, runs = stream(vessel, fit, capacity=100000)  # everything buffered
     assert runs == 0  # disabled: never due
     signals = trial_signals(vessel)
@@ -249,7 +250,8 @@ def spin_long(harness: Harness, condition: Any, feed: Any, seconds: float = 120.
 @pytest.mark.slow
 def test_the_node_flags_a_model_that_does_not_fit_and_refuses_on_request(harness: Harness) -> None:
     """Rudder amidships and 650 rpm held on a boat that runs straight at 1 m/s: the shipped jari_usv model (5.0 m/s
-    there, ratio 4.95) does not fit, beyond what waves of 1.5 m explain for its 13.5 m boat (limit 2.9). /diagnostics says so
+    there, ratio 4.95) does not fit, beyond what waves of 1.5 m explain for its 13.5 m boat (limit 2.9). /diagnostics
+    says so
     with the numbers and the remedy while the paths keep coming; fit_check.refuse stops them, naming the refusal;
     false again, they come back."""
     slow = {"velocity": (1.0, 0.0, 0.0), "rudder_angle": (0.0,), "imu": (0.0, 0.0, 0.0, -9.81, math.nan)}
@@ -441,7 +443,8 @@ FEED_HZ = {"imu": 200.0, "velocity": 20.0, "heading": 20.0, "rudder_angle": 10.0
 def constant_feed(u_mps: float, seconds: float, t0_ns: int = 10**18, checks_every_s: float = 5.0,
                   first_check_s: float = 12.0) -> list[tuple[int, Any]]:
     """The benchmark's feed (benchmarks/bench_node.py) from t0_ns on: every input at its rate with constant values
-    (surge u_mps, yaw rate 0.02 rad/s, rudder 0.1 rad at 650 rpm; heading 1.2 rad, the benchmark's 0.5), buffered as the node does (capacity 2048: 10 s of
+    (surge u_mps, yaw rate 0.02 rad/s, rudder 0.1 rad at 650 rpm; heading 1.2 rad, the benchmark's 0.5), buffered as the
+    node does (capacity 2048: 10 s of
     the 200 Hz gyro); [(clock ns, InputSet.buffered_recording)] every checks_every_s from first_check_s on."""
     jari = load_vessel("jari_usv")
     roles = (*required_roles(jari.actuator_layout), live.POSITION_ROLE)

@@ -53,8 +53,10 @@ def joint_trajectory(harness: Harness, names: list[str], positions: np.ndarray, 
     msg = harness.make("trajectory_msgs/msg/JointTrajectory")()
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), NS)
     msg.joint_names = names
-    point, duration = harness.make("trajectory_msgs/msg/JointTrajectoryPoint"), harness.make("builtin_interfaces/msg/Duration")
-    msg.points = [point(positions=[float(x) for x in row], time_from_start=duration(sec=int(t), nanosec=int(t % 1 * NS)))
+    point = harness.make("trajectory_msgs/msg/JointTrajectoryPoint")
+    duration = harness.make("builtin_interfaces/msg/Duration")
+    msg.points = [point(positions=[float(x) for x in row],
+                        time_from_start=duration(sec=int(t), nanosec=int(t % 1 * NS)))
                   for row, t in zip(np.atleast_2d(positions), times_s)]
     return msg
 
@@ -100,7 +102,8 @@ def test_a_plan_is_predicted_under_and_its_stamp_tags_the_outputs(harness: Harne
     assert turn(tagged) - turn(held) > 0.3
     t_ns, _ = decode_path(tagged)
     assert len(t_ns) == HORIZON_STEPS and np.all(np.diff(t_ns) == NS // 2)
-    found = harness.spin_until(lambda s: level(s["plan"]) == predictor_node.OK and "under the plan" in s["plan"].message)
+    found = harness.spin_until(lambda s: level(s["plan"]) == predictor_node.OK
+                               and "under the plan" in s["plan"].message)
     assert plans.describe_stamp(stamp) in found["plan"].message
     assert values_of(found["prediction"])["controls"] == f"plan stamped {plans.describe_stamp(stamp)}"
     assert values_of(found["plan"])["received"] == "1" and values_of(found["plan"])["refused"] == "0"
@@ -109,11 +112,13 @@ def test_a_plan_is_predicted_under_and_its_stamp_tags_the_outputs(harness: Harne
 def test_malformed_and_stale_plans_are_refused_and_the_commands_held(harness: Harness) -> None:
     harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, harness.feed)
     good = now_ns(harness)
-    publisher(harness, "plan").publish(joint_trajectory(harness, ["delta", "rpm"], np.array([[0.3, 650.0]]), [0.0], good))
+    publisher(harness,
+              "plan").publish(joint_trajectory(harness, ["delta", "rpm"], np.array([[0.3, 650.0]]), [0.0], good))
     wait_for(harness, lambda: any(stamp_of(p) == good for p in harness.paths), "the good plan followed")
     # a malformed plan replaces it: refused, and the node goes back to the held commands
     bad = now_ns(harness)
-    publisher(harness, "plan").publish(joint_trajectory(harness, ["rudder", "rpm"], np.array([[0.3, 650.0]]), [0.0], bad))
+    publisher(harness,
+              "plan").publish(joint_trajectory(harness, ["rudder", "rpm"], np.array([[0.3, 650.0]]), [0.0], bad))
     found = harness.spin_until(lambda s: "refused" in s["plan"].message, harness.feed)
     assert level(found["plan"]) == predictor_node.WARN
     assert "joint_names ['rudder', 'rpm']: expected the controls of the actuator layout" in found["plan"].message
@@ -124,12 +129,14 @@ def test_malformed_and_stale_plans_are_refused_and_the_commands_held(harness: Ha
     assert len(harness.paths) > count and all(stamp_of(p) not in (good, bad) for p in harness.paths[count:])
     # a plan stamped longer ago than plan_max_age_s (2 s) is refused as stale
     old = now_ns(harness) - 3 * NS
-    publisher(harness, "plan").publish(joint_trajectory(harness, ["delta", "rpm"], np.array([[0.3, 650.0]]), [0.0], old))
+    publisher(harness,
+              "plan").publish(joint_trajectory(harness, ["delta", "rpm"], np.array([[0.3, 650.0]]), [0.0], old))
     found = harness.spin_until(lambda s: values_of(s["plan"]).get("refused_stale") == "1", harness.feed)
     assert "s old (limit plan_max_age_s 2 s)" in values_of(found["plan"])["last_refused"]
     # a followed plan that ages past the limit is dropped for the held commands
     fresh = now_ns(harness)
-    publisher(harness, "plan").publish(joint_trajectory(harness, ["delta", "rpm"], np.array([[0.3, 650.0]]), [0.0], fresh))
+    publisher(harness,
+              "plan").publish(joint_trajectory(harness, ["delta", "rpm"], np.array([[0.3, 650.0]]), [0.0], fresh))
     wait_for(harness, lambda: any(stamp_of(p) == fresh for p in harness.paths), "the fresh plan followed")
     found = harness.spin_until(lambda s: "is stale" in s["plan"].message, harness.feed)
     assert level(found["plan"]) == predictor_node.WARN and plans.describe_stamp(fresh) in found["plan"].message
@@ -162,7 +169,8 @@ def test_candidate_plans_are_answered_in_one_batch_tagged_with_their_stamp(harne
     answer = answers[0]
     assert stamp_of(answer) == stamp and answer.header.frame_id == "odom"
     assert list(answer.joint_names) == ["hold", "stbd", "port"]
-    assert len(answer.points) == HORIZON_STEPS and all(len(p.transforms) == 3 == len(p.velocities) for p in answer.points)
+    assert len(answer.points) == HORIZON_STEPS and all(len(p.transforms) == 3 == len(p.velocities)
+                                                       for p in answer.points)
     t_ns = np.array([stamp + p.time_from_start.sec * NS + p.time_from_start.nanosec for p in answer.points])
     assert np.all(np.diff(t_ns) == NS // 2) and t_ns[0] > stamp - NS // 2
     headings = np.array([[enu_yaw_to_heading(quaternion_to_yaw(q.x, q.y, q.z, q.w)) for q in
@@ -179,7 +187,8 @@ def test_candidate_plans_are_answered_in_one_batch_tagged_with_their_stamp(harne
 
 def test_more_candidate_members_than_the_node_uses_are_refused(ros_context: Context) -> None:
     with pytest.raises(ConfigError, match="candidates_members = 6: expected at most the 5 member"):
-        predictor_node.PredictorNode(context=ros_context, parameter_overrides=[Parameter("candidates_members", value=6)])
+        predictor_node.PredictorNode(context=ros_context,
+                                     parameter_overrides=[Parameter("candidates_members", value=6)])
 
 
 def test_the_cycle_publishes_while_a_candidate_batch_is_computed(harness: Harness, monkeypatch) -> None:
@@ -277,7 +286,8 @@ def test_an_undecodable_message_is_counted_and_the_good_ones_kept(harness: Harne
         assert time.monotonic() < deadline, "the good IMU messages between the bad ones were not all decoded"
         harness.spin(0.1, feed)
     harness.spin(0.2, feed)  # a /diagnostics report after them
-    assert harness.node._failures["imu"].count > int(values["decode_errors"]) and not harness.node.inputs.tracks["imu"].rejected
+    assert harness.node._failures["imu"].count > int(values["decode_errors"])
+    assert not harness.node.inputs.tracks["imu"].rejected
     assert level(statuses(harness.latest)["prediction"]) == predictor_node.OK
 
 

@@ -68,7 +68,8 @@ def test_inputs_are_decoded_and_reported(harness: Harness) -> None:
     # subscribed, and one status says so (check_layout_inputs)
     used = [i.role for i in harness.node.config.inputs if i.role not in unused_roles(harness.node.layout)]
     assert "throttle" not in used and "thruster_port" not in used and "rudder_angle" in used
-    assert sorted(statuses) == sorted([*used, "model", "prediction", "plan", "candidate plans", "sea estimate", "fit check",
+    assert sorted(statuses) == sorted([*used, "model", "prediction", "plan", "candidate plans", "sea estimate",
+                                       "fit check",
                                        "ignored inputs"])
     ignored = statuses["ignored inputs"]
     assert ignored.level[0] == predictor_node.OK
@@ -305,7 +306,8 @@ def test_stop_signals_while_publishing_exit_0_every_time() -> None:
                 env=localhost_env(offset if stop % 4 < 2 else offset + 1),  # unfed: alone on its domain
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             lines: list[str] = []
-            reader = threading.Thread(target=lambda: lines.extend(process.stderr), daemon=True)  # type: ignore[arg-type]
+            reader = threading.Thread(target=lambda: lines.extend(process.stderr),
+                                      daemon=True)  # type: ignore[arg-type]
             reader.start()
             try:
                 deadline = time.monotonic() + 60.0

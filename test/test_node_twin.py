@@ -102,7 +102,8 @@ def test_both_thrusters_on_one_topic_give_predictions_and_the_other_controls_are
 @pytest.mark.parametrize(("pwm", "raw", "broken", "reason"), [
     (None, b"\x00\x01\x00\x00\x07\x00", ("thruster_port", "thruster_starboard"),
      "cannot decode std_msgs/msg/Float64MultiArray message"),
-    ([1800.0], None, ("thruster_starboard",), "data has 1 entries, expected entry 1"),  # one element: the starboard part is missing
+    # one element: the starboard part is missing
+    ([1800.0], None, ("thruster_starboard",), "data has 1 entries, expected entry 1"),
     ([1800.0, 2400.0], None, ("thruster_starboard",), "1.8 x full scale"),  # 900 us above neutral: refused
 ])
 def test_a_bad_shared_message_is_counted_for_the_roles_it_breaks(twin: TwinHarness, pwm: Any, raw: bytes | None,
@@ -126,7 +127,8 @@ def test_a_bad_shared_message_is_counted_for_the_roles_it_breaks(twin: TwinHarne
         if role in broken:
             assert reason in values_of(found[role])["last_decode_error"], values_of(found[role])
         else:
-            assert values_of(found[role])["decode_errors"] == "0" and twin.node.inputs.tracks[role].received > before[role]
+            assert values_of(found[role])["decode_errors"] == "0"
+            assert twin.node.inputs.tracks[role].received > before[role]
     # the good messages are decoded: once the bad ones stop, the broken roles turn OK and the predictions go on
     twin.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK
                     and all(level(s[role]) == predictor_node.OK for role in broken), twin.feed)

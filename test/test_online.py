@@ -243,7 +243,8 @@ def test_the_covariance_stays_bounded(turning):
         assert np.all(d <= config.covariance_ceiling * prior * (1 + 1e-9))
         assert np.all(d >= config.covariance_floor * prior * (1 - 1e-9))
         assert np.all(np.linalg.eigvalsh(est.P) > 0.0)
-    assert est.x[K_R] == pytest.approx(0.0, abs=0.02) and math.hypot(est.x[C_N], est.x[C_E]) == pytest.approx(0.4, abs=0.01)
+    assert est.x[K_R] == pytest.approx(0.0, abs=0.02) and math.hypot(est.x[C_N],
+                                                                     est.x[C_E]) == pytest.approx(0.4, abs=0.01)
 
 
 # ---- adaptive prediction --------------------------------------------------------------------------------

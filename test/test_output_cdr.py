@@ -221,7 +221,8 @@ def test_maximal_sizes_bytes_equal_rclpy(what: str) -> None:
     """600 s at dt 0.01 s: 60000 poses (~4.6 MB of Path)."""
     stamp, t_ns, eta, nu = prediction(MAX_STEPS, 99, special=True)
     if what == "path":
-        ours, msg = outputs.path_cdr(stamp, t_ns, eta, "odom_ab"), outputs.encode_path(stamp, t_ns, eta, "odom_ab", RCLPY)
+        ours, msg = outputs.path_cdr(stamp, t_ns, eta,
+                                     "odom_ab"), outputs.encode_path(stamp, t_ns, eta, "odom_ab", RCLPY)
     elif what == "velocities":
         ours = outputs.predicted_velocities_cdr(stamp, t_ns, eta, nu, "odom", "base")
         msg = outputs.encode_predicted_velocities(stamp, t_ns, eta, nu, "odom", "base", RCLPY)

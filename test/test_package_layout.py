@@ -242,7 +242,8 @@ def test_every_runtime_import_has_a_declared_source() -> None:
     for name in imports:
         kind, key = IMPORT_DEPENDENCIES[name]
         if kind == "rosdep":
-            assert key in declared, f"{name} (imported by {sorted(imports[name])}) needs <exec_depend>{key}</exec_depend>"
+            assert key in declared, (f"{name} (imported by {sorted(imports[name])}) needs "
+                                     f"<exec_depend>{key}</exec_depend>")
 
 
 def test_every_message_package_is_declared() -> None:

@@ -104,7 +104,7 @@ def random_trajectory(rng: np.random.Generator, joints: int, points: int, irregu
     point_type, duration = MAKE("trajectory_msgs/msg/JointTrajectoryPoint"), MAKE("builtin_interfaces/msg/Duration")
     lengths = rng.integers(0, 4, 3)
     out = []
-    for k in range(points):
+    for _k in range(points):
         own = rng.integers(0, 4, 3) if irregular and rng.random() < 0.3 else lengths
         out.append(point_type(positions=rng.normal(size=joints).tolist(),
                               velocities=rng.normal(size=int(own[0])).tolist(),

@@ -31,7 +31,8 @@ def test_window_resample_averages_fast_signals_and_interpolates_slow_ones():
 
 @pytest.fixture(scope="module")
 def signals():
-    traj = simulate(ManoeuvringModel(load_vessel("jari_usv")), TurningCircle(20.0, 650.0, duration_s=60.0), heading_deg=170.0)
+    traj = simulate(ManoeuvringModel(load_vessel("jari_usv")), TurningCircle(20.0, 650.0, duration_s=60.0),
+                    heading_deg=170.0)
     return traj, measure(traj, Environment(), SensorSpec().noiseless())
 
 

@@ -34,7 +34,8 @@ def _importable_commands() -> list[str]:
 def tiny_bag(tmp_path: Path) -> Path:
     t_ns = 1_700_000_000_000_000_000 + np.arange(20, dtype=np.int64) * 100_000_000  # 10 Hz, 1.9 s
     streams = [
-        (TopicSpec("heading", "heading", "std_msgs/msg/Float64"), Signal(t_ns, np.zeros((20, 1)), ROLE_FIELDS["heading"])),
+        (TopicSpec("heading", "heading", "std_msgs/msg/Float64"),
+         Signal(t_ns, np.zeros((20, 1)), ROLE_FIELDS["heading"])),
         (
             TopicSpec("velocity", "velocity", "geometry_msgs/msg/TwistStamped"),
             Signal(t_ns[::2], np.ones((10, 3)), ROLE_FIELDS["velocity"]),

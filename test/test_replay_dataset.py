@@ -194,7 +194,8 @@ def test_stamps_out_of_order_are_sorted_but_a_jump_back_is_an_error(warnings):
                         "(1 exact duplicates, 1 with other values (kept the first))"]
     jumped = sig.t_ns.copy()
     jumped[100:] -= 3 * NS  # the clock stepped back 3 s at t = 5 s
-    with pytest.raises(BagError, match=r"topic 'heading': time goes back 2.950 s at t=4.950 s .* more than the step 0.5 s"):
+    with pytest.raises(BagError,
+                       match=r"topic 'heading': time goes back 2.950 s at t=4.950 s .* more than the step 0.5 s"):
         clean_signal(Signal(jumped, sig.values, sig.fields), where="x: topic 'heading'", role="heading", dt=0.5,
                      t_ref_ns=T0, warn=warnings.append)
 
@@ -218,7 +219,8 @@ def test_gaps_cut_the_recording_into_pieces(tmp_path, warnings):
     first, second = load(bag, warnings)
     assert (first.name, second.name) == ("gappy#1", "gappy#2")
     assert [w for w in warnings if "gap" in w] == [
-        f"{bag}: topic 'velocity' has a 4.10 s gap at t=24.95 s (longer than the step 0.5 s); cutting the recording there"]
+        f"{bag}: topic 'velocity' has a 4.10 s gap at t=24.95 s (longer than the step 0.5 s); cutting the "
+        f"recording there"]
     assert first.duration_s == pytest.approx(24.0, abs=0.5) and second.duration_s == pytest.approx(30.5, abs=0.5)
     assert (second.t0_ns - first.t0_ns) / NS > 29.0  # nothing of the gap is interpolated over
     assert first.datum == second.datum  # one plane for both pieces
@@ -252,7 +254,8 @@ def test_steady_cuts_start_manoeuvres_after_settled_holds():
 
 def test_steady_segments_split_a_long_bag_into_manoeuvres(tmp_path, warnings):
     def rudder(t):
-        return np.where((t >= 40) & (t < 100), 20.0, np.where((t >= 140) & (t < 170), 10.0 * np.sign(np.sin(np.pi * t / 5)), 0.0))
+        return np.where((t >= 40) & (t < 100), 20.0,
+                        np.where((t >= 140) & (t < 170), 10.0 * np.sign(np.sin(np.pi * t / 5)), 0.0))
 
     bag = write(tmp_path / "day", crafted_signals(200.0, rudder))
     whole = load(bag, warnings)
@@ -279,7 +282,8 @@ def test_parallel_reading_gives_the_same_recordings_warnings_and_errors(tmp_path
     assert [r.name for r in parallel] == ["a_clean", "b_gappy#1", "b_gappy#2", "c_clean"]
     assert parallel_warnings == serial_warnings and len(serial_warnings) == 1
     for a, b in zip(serial, parallel, strict=True):
-        assert a.name == b.name and a.t0_ns == b.t0_ns and np.array_equal(a.nu, b.nu) and np.array_equal(a.truth, b.truth)
+        assert a.name == b.name and a.t0_ns == b.t0_ns and np.array_equal(a.nu,
+                                                                          b.nu) and np.array_equal(a.truth, b.truth)
     broken = crafted_signals(20.0)
     del broken["engine_rpm"]
     write(tmp_path / "bags" / "d_broken", broken)
@@ -316,7 +320,8 @@ def test_replay_dataset_end_to_end_on_simulated_bags(tmp_path, capsys):
     entries = {e["name"]: e for e in dataset.entries}
     zig = entries["zigzag_20_20_stbd_650rpm"]
     assert zig["bag_sha256"] == hashes[Path(zig["source"])] and zig["length"] == 80
-    assert dataset.metadata["provenance"].startswith("replay dataset ") and "--val 0.5" in dataset.metadata["provenance"]
+    assert dataset.metadata["provenance"].startswith("replay "
+                                                     "dataset ") and "--val 0.5" in dataset.metadata["provenance"]
     assert {b: bag_sha256(b) for b in bags} == hashes  # inputs untouched
     assert all(r.truth is not None and np.isfinite(r.position).all() for r in dataset.recordings())
     again = tmp_path / "again.npz"

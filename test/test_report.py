@@ -180,7 +180,8 @@ def test_model_whose_dt_differs_from_the_requested_one_is_refused(bags, tmp_path
 def test_bags_without_the_needed_topics_are_named(tmp_path, capsys):
     t_ns = 1_700_000_000_000_000_000 + np.arange(40, dtype=np.int64) * 100_000_000
     streams = [
-        (TopicSpec("heading", "heading", "std_msgs/msg/Float64"), Signal(t_ns, np.zeros((40, 1)), ROLE_FIELDS["heading"])),
+        (TopicSpec("heading", "heading", "std_msgs/msg/Float64"),
+         Signal(t_ns, np.zeros((40, 1)), ROLE_FIELDS["heading"])),
         (TopicSpec("velocity", "velocity", "geometry_msgs/msg/TwistStamped"),
          Signal(t_ns, np.ones((40, 3)), ROLE_FIELDS["velocity"])),
     ]
@@ -216,7 +217,8 @@ def test_shipped_artifact_format_is_evaluated(bags, tmp_path):
             return out.unsqueeze(0)  # (1, B, H, 6)
 
     meta = {"model_type": "constant-velocity test", "feature_set": "F0", "feature_names": [], "state_layout": [],
-            "control_layout": ["delta", "rpm"], "output_layout": [], "dt": 0.5, "horizon_steps": 120, "normalisation": {},
+            "control_layout": ["delta", "rpm"], "output_layout": [], "dt": 0.5, "horizon_steps": 120,
+            "normalisation": {},
             "vessel": "jari_usv", "training_data_sha256": "0" * 64, "ensemble_size": 1, "architecture": {},
             "training": {}, "units": {}}
     path = tmp_path / "cv.pt"
@@ -240,4 +242,5 @@ def test_the_evaluation_request_refuses_what_cannot_be_evaluated(capsys):
         EvaluationRequest(reference="radar")
     assert main(["evaluate", "--model", "physics", "--stride", "-5"]) == 2  # refused before any bag is read
     err = capsys.readouterr().err
-    assert err.startswith("replay evaluate: error: argument --stride: '-5' is not a finite number > 0") and "reading" not in err
+    assert err.startswith("replay evaluate: error: argument --stride: '-5' is not a "
+                          "finite number > 0") and "reading" not in err

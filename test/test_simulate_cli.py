@@ -34,7 +34,8 @@ EXPECTED_TYPES = {
 def specs(layout: ActuatorLayout = DEFAULT_LAYOUT) -> list[TopicSpec]:
     """The config's topics that a boat of this layout uses (the config lists every layout's controls)."""
     cfg = load_predictor_config()
-    return [TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id) for t in input_topics(cfg, include_ground_truth=True)
+    return [TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id)
+            for t in input_topics(cfg, include_ground_truth=True)
             if t.role not in unused_roles(layout)]
 
 
@@ -47,7 +48,8 @@ def simulate(tmp_path: Path, *extra: str) -> tuple[int, dict]:
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
 def test_simulated_bag_opens_with_anyreader_and_round_trips(tmp_path, storage):
     code, result = simulate(tmp_path, "--manoeuvre", "turning-circle", "--rudder", "25", "--duration", "40",
-                            "--storage", storage, "--effect", "current", "--current-speed", "0.4", "--current-to", "135")
+                            "--storage", storage, "--effect", "current", "--current-speed", "0.4", "--current-to",
+                            "135")
     assert code == 0
     bag = Path(result["bags"][0]["bag"])
     with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
@@ -72,7 +74,8 @@ def test_same_seed_same_bag_content(tmp_path):
     simulate(tmp_path / "a", *args)
     simulate(tmp_path / "b", *args)
     simulate(tmp_path / "c", *args[:-1], "4")
-    read = lambda d: read_bag(next((d / "bags").iterdir()), specs())
+    def read(d):
+        return read_bag(next((d / "bags").iterdir()), specs())
     a, b, c = read(tmp_path / "a"), read(tmp_path / "b"), read(tmp_path / "c")
     assert all(np.array_equal(a[t].values, b[t].values, equal_nan=True) for t in a)
     assert not np.array_equal(a["imu/data"].values, c["imu/data"].values, equal_nan=True)
@@ -97,7 +100,8 @@ def test_programme_with_calm_twins_and_blind_metadata(tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--effect", "current", "--current-speed", "-0.4"], "current_speed=-0.4 m/s is outside the allowed range [0.0, 3.0]"),
+        (["--effect", "current", "--current-speed", "-0.4"],
+         "current_speed=-0.4 m/s is outside the allowed range [0.0, 3.0]"),
         (["--rudder", "60"], "--rudder 60 deg is outside the preset's range [0, 35] deg"),
         (["--vessel", "titanic"], "unknown vessel preset 'titanic'"),
         (["--current-speed", "0.3"], "--current-speed belongs to effect 'current': add --effect current"),
@@ -163,7 +167,8 @@ def test_the_simulation_request_refuses_bad_values_with_the_commands_messages(tm
     from usv_predictor.replay.simulate import SimulationRequest, manoeuvres
 
     out = tmp_path / "bags"
-    for fields, message in (({"programme": "diagnosis", "manoeuvre": "zigzag"}, "give either --programme or --manoeuvre"),
+    for fields, message in (({"programme": "diagnosis", "manoeuvre": "zigzag"},
+                             "give either --programme or --manoeuvre"),
                             ({"duration_s": 0.5}, "--duration 0.5 s is outside [1, 3600] s"),
                             ({"manoeuvre": "zigzag", "check_deg": 95.0}, "--check 95 deg is outside (0, 90] deg"),
                             ({"manoeuvre": "barrel-roll"}, "--manoeuvre 'barrel-roll': expected one of"),

@@ -175,7 +175,8 @@ def test_cross_flow_drag_in_closed_form(otter):
     g, h = v.geometry, v.small_craft
     q = 0.5 * RHO_WATER * g.d * h.cross_flow_cd  # (kg/m^2)
     x, y, n = otter.hull_loads(0.0, 0.3, 0.0)
-    assert x == 0.0 and y == pytest.approx(h.Y_v * 0.3 - q * g.L_pp * 0.09, rel=1e-12) and n == pytest.approx(0.0, abs=1e-12)
+    assert x == 0.0 and y == pytest.approx(h.Y_v * 0.3 - q * g.L_pp * 0.09,
+                                           rel=1e-12) and n == pytest.approx(0.0, abs=1e-12)
     x, y, n = otter.hull_loads(0.0, 0.0, -0.5)
     assert y == pytest.approx(0.0, abs=1e-12)
     expected = h.N_r * -0.5 + h.N_rr * 0.25 * -1.0 + q * 0.25 * g.L_pp**4 / 32.0
@@ -254,9 +255,11 @@ def test_bad_thrust_maps_are_refused_naming_the_field(change, message):
 
 def test_sections_follow_the_hull_model_and_the_layout():
     jari = load_vessel("jari_usv")
-    assert (jari.layout, jari.hull_model_name, jari.small_craft, jari.thrusters) == ("rudder_propeller", "mmg", None, None)
+    assert (jari.layout, jari.hull_model_name, jari.small_craft,
+            jari.thrusters) == ("rudder_propeller", "mmg", None, None)
     otter = preset("otter")
-    with pytest.raises(ConfigError, match=r"boat.yaml: section\(s\) \['rudder'\] are not used by hull model small_craft "
+    with pytest.raises(ConfigError,
+                       match=r"boat.yaml: section\(s\) \['rudder'\] are not used by hull model small_craft "
                                           r"and actuator layout twin_thrusters"):
         vessel_from_dict({**otter, "rudder": preset("jari_usv")["rudder"]}, source="boat.yaml")
     with pytest.raises(ConfigError, match="missing section 'thrusters' .*actuator layout twin_thrusters need"):
@@ -308,6 +311,8 @@ def test_a_model_pickles_and_is_built_once_per_hull_model_and_layout(otter):
     copy = pickle.loads(pickle.dumps(ManoeuvringModel(otter.vessel, thrust_imbalance=0.05)))
     assert type(copy) is type(otter) and copy.thrust_imbalance == 0.05
     assert copy.derivative([0, 0, 0, 1.0, 0.1, 0.2, 0.5, 0.4], 0.6, 0.3, CALM) == \
-        ManoeuvringModel(otter.vessel, thrust_imbalance=0.05).derivative([0, 0, 0, 1.0, 0.1, 0.2, 0.5, 0.4], 0.6, 0.3, CALM)
+        ManoeuvringModel(otter.vessel, thrust_imbalance=0.05).derivative([0, 0, 0, 1.0, 0.1, 0.2, 0.5, 0.4], 0.6, 0.3,
+                                                                         CALM)
     assert type(ManoeuvringModel(load_vessel("wamv"))) is type(otter)  # the same hull model and layout
-    assert isinstance(otter, ManoeuvringModel) and type(otter).__name__ == "ManoeuvringModel[small_craft, twin_thrusters]"
+    assert isinstance(otter,
+                      ManoeuvringModel) and type(otter).__name__ == "ManoeuvringModel[small_craft, twin_thrusters]"

@@ -472,7 +472,8 @@ def _explain(ratio: float, predicted: np.ndarray, changes: np.ndarray, limit: fl
     continuously from 1 (no cause) to its value at the top of the range, so every ratio between 1 and 1/m is a
     right model in some strength of that cause; when m falls below floor / |predicted| (the cause stops the boat
     or its turn) every ratio beyond 1 is, and when it falls below -floor / |predicted| (reverses the turn) every
-    ratio below 1/m too; a cause that raises the value (m > 1) explains the ratios between 1/m and 1. The limits: the calm-water
+    ratio below 1/m too; a cause that raises the value (m > 1) explains the ratios between 1/m and 1. The limits: the
+    calm-water
     allowance [1/limit, limit] or, where wider, what the causes reach (no allowance on top: the allowance already
     covers a model's error with the smaller causes of the sea in which it was measured)."""
     with np.errstate(divide="ignore", invalid="ignore"):  # a model value of 0: no share, the cause is not tried

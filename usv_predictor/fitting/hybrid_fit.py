@@ -118,7 +118,8 @@ class HybridTraining:
     bound_window_s: float = 10.0  # (s) the bound is taken from the one-step residuals averaged over this window
     #                               (step 1: what persists, not the waves' first-order oscillation; 0: per sample)
     val_fraction: float = 0.25  # of the manoeuvres, held out whole for early stopping (none with one manoeuvre)
-    validation: tuple[str, ...] = ()  # glob patterns of manoeuvres held out for early stopping (instead of the fraction)
+    # glob patterns of manoeuvres held out for early stopping (instead of the fraction)
+    validation: tuple[str, ...] = ()
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -331,7 +332,8 @@ def export_identified(path: str, module: ResidualGreyBox, result: Identification
     names, values = hull_coefficients(vessel)
     metadata = {
         "model_type": model_type,
-        "feature_set": f"{vessel.hull_model.label} grey box" + (" + learned residual" if model_type == "hybrid" else ""),
+        "feature_set": f"{vessel.hull_model.label} grey box"
+                + (" + learned residual" if model_type == "hybrid" else ""),
         "feature_names": ["u", "v", "r", *layout.commands],  # the residual's inputs (the state and actuator levels)
         "state_layout": list(STATE_NAMES),
         "control_layout": list(layout.control_names),

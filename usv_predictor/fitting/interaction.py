@@ -30,7 +30,8 @@ hull regression is linear GIVEN them, and the factors are searched outside it (a
     error is what separates rudder from hull: a wrong split fits the forces and fails the motion. The search's
     criterion is in sample (the hull fitted on all manoeuvres, all segments in one rollout: insample_residuals);
     the lift gradient, eta and w_P0 lie along one curved valley of it (all three set the rudder's inflow), which a
-    coordinate search crawls along and Levenberg-Marquardt follows (docs/results/unknown_boats.md, boat 2: the truth's factors 1 (its
+    coordinate search crawls along and Levenberg-Marquardt follows (docs/results/unknown_boats.md, boat 2: the truth's
+    factors 1 (its
     epsilon 1.15 x), 0.68, 1.73, 0.50, 0.52 of the description's; found 1.19, 0.63, 1.92 (eta 1.0), 0.36, 0.73).
  3. plausibility: every candidate's grey box (hull fitted on all manoeuvres) must pass steady_check: its
     straight-running speed at the recorded engine speed within STRAIGHT_SPEED_RATIO of the measured one, and a

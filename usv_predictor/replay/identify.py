@@ -34,7 +34,8 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
     except BagError as err:
         if "engine_rpm" in str(err):
             raise DatasetError(f"identification needs the engine speed (engine_rpm): without it the propeller thrust "
-                               f"and the rudder inflow are unknown, so R0 and every speed-dependent hull term cannot be "
+                               f"and the rudder inflow are unknown, so R0 and every speed-dependent hull "
+                               f"term cannot be "
                                f"separated from them ({err}); a vessel file of layout rudder_only identifies what such "
                                "a record supports") from err
         raise

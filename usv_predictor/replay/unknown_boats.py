@@ -58,7 +58,8 @@ def run_unknown_boat(boat: UnknownBoat, truth: Draw, workdir: Path, seed: int, *
     """The pipeline of the module docstring for one boat and one hidden effect, in `workdir` (created).
 
     interaction: `identify --interaction` (identify: the interaction factors searched with the hull, identify's
-    and the benchmark's default; fix: the description's). Returns cause, parameters, within_tolerance, errors, the identification chosen, the fit check, timings and the
+    and the benchmark's default; fix: the description's). Returns cause, parameters, within_tolerance, errors, the
+    identification chosen, the fit check, timings and the
     commands' logs. A failing simulate or vessel init is a RuntimeError (a bug of the suite, not an answer).
     """
     workdir = Path(workdir)
