@@ -45,7 +45,8 @@ def recordings() -> list[Recording]:
 
 def test_samples_pair_each_step_with_the_next_and_never_cross_recordings(recordings):
     X, Y, rec, step = make_samples(recordings, "NTF")  # noqa: N806
-    assert X.shape == (11 + 6 + 19 + 1, 7) and Y.shape == (37, 3)
+    assert X.shape == (11 + 6 + 19 + 1, 7)
+    assert Y.shape == (37, 3)
     for i in range(len(X)):
         r, k = recordings[rec[i]], step[i]
         assert 0 <= k < len(r) - 1  # the target step k + 1 is inside the same recording
@@ -59,7 +60,8 @@ def test_samples_pair_each_step_with_the_next_and_never_cross_recordings(recordi
 def test_split_is_by_manoeuvre_deterministic_and_disjoint():
     names = [f"bag_{k:02d}" for k in range(20)] + ["gappy#1", "gappy#2", "gappy#3"]
     split = split_by_manoeuvre(names, val_fraction=0.2, test_fraction=0.1, seed=7)
-    assert set(split) == set(names) and set(split.values()) == {"train", "val", "test"}
+    assert set(split) == set(names)
+    assert set(split.values()) == {"train", "val", "test"}
     manoeuvres = {manoeuvre_of(n) for n in names}
     assert len(manoeuvres) == 21
     assert sum(1 for m in manoeuvres if split.get(m, split.get(f"{m}#1")) == "val") == 4  # round(0.2 * 21)
@@ -107,10 +109,14 @@ def test_npz_round_trip_keeps_arrays_metadata_and_recordings(recordings, tmp_pat
     loaded = load_dataset(path)
     assert loaded.metadata == json.loads(json.dumps(dataset.metadata))
     meta = loaded.metadata
-    assert meta["format"] == FORMAT and meta["dt"] == DT and meta["feature_set"] == "NAF"
+    assert meta["format"] == FORMAT
+    assert meta["dt"] == DT
+    assert meta["feature_set"] == "NAF"
     assert meta["feature_names"] == ["u", "v", "r", "delta", "rpm", "psi"]
-    assert meta["target_names"] == ["u", "v", "r"] and meta["state_names"] == ["u", "v", "r", "psi"]
-    assert meta["control_names"] == ["delta", "rpm"] and meta["provenance"].startswith("replay dataset")
+    assert meta["target_names"] == ["u", "v", "r"]
+    assert meta["state_names"] == ["u", "v", "r", "psi"]
+    assert meta["control_names"] == ["delta", "rpm"]
+    assert meta["provenance"].startswith("replay dataset")
     assert [e["bag_sha256"] for e in meta["recordings"]] == ["ab" * 32, "", "", ""]
     for name in ARRAYS:
         assert np.array_equal(loaded.arrays[name], dataset.arrays[name], equal_nan=name.startswith("seq_"))
@@ -132,8 +138,10 @@ def test_split_selects_whole_recordings_with_their_samples(recordings):
     assert [r.name for r in train.recordings()] == ["zigzag_a", "random_c"]
     assert np.array_equal(np.bincount(train.arrays["sample_recording"]), [11, 19])
     X, Y, rec, step = make_samples(train.recordings(), "NAF")  # noqa: N806
-    assert np.array_equal(train.X, X) and np.array_equal(train.Y, Y)
-    assert np.array_equal(train.arrays["sample_recording"], rec) and np.array_equal(train.arrays["sample_step"], step)
+    assert np.array_equal(train.X, X)
+    assert np.array_equal(train.Y, Y)
+    assert np.array_equal(train.arrays["sample_recording"], rec)
+    assert np.array_equal(train.arrays["sample_step"], step)
     assert dataset.split_sizes() == {"train": {"recordings": 2, "samples": 30}, "val": {"recordings": 1, "samples": 6},
                                      "test": {"recordings": 1, "samples": 1}}
     assert train.digest() != dataset.digest()
@@ -187,7 +195,8 @@ def test_wrong_old_or_corrupt_files_are_named(recordings, tmp_path):
     with pytest.raises(DatasetError,
                        match=r"shapes\.npz: inconsistent dataset: Y has shape \(36, 3\), expected \(37, 3\)"):
         load_dataset(shapes)
-    assert zipfile.is_zipfile(good) and math.isfinite(load_dataset(good).dt)
+    assert zipfile.is_zipfile(good)
+    assert math.isfinite(load_dataset(good).dt)
 
 
 def test_an_unwritable_target_is_a_dataset_error(recordings, tmp_path):

@@ -51,7 +51,8 @@ def test_paper_defaults() -> None:
     assert (config.width, config.depth, config.activation, config.batch_norm) == (100, 2, "tanh", True)
     model = DnnModel(config)
     assert [type(m).__name__ for m in model.hidden[0]] == ["Linear", "BatchNorm1d", "Tanh"]
-    assert len(model.hidden) == 2 and model.head.out_features == 3
+    assert len(model.hidden) == 2
+    assert model.head.out_features == 3
 
 
 def test_clipped_relu_clips_at_the_ceiling() -> None:
@@ -65,8 +66,10 @@ def test_clipped_relu_clips_at_the_ceiling() -> None:
         block[2].register_forward_hook(lambda _m, _i, out: seen.append(out.detach()))
     model(x * 10.0)
     values = torch.cat([s.flatten() for s in seen])
-    assert values.min() >= 0.0 and values.max() == pytest.approx(0.3)
-    assert (values == 0.3).any() and (values == 0.0).any()
+    assert values.min() >= 0.0
+    assert values.max() == pytest.approx(0.3)
+    assert (values == 0.3).any()
+    assert (values == 0.0).any()
 
 
 def test_tanh_hidden_activations_are_bounded_without_clipping() -> None:
@@ -74,7 +77,8 @@ def test_tanh_hidden_activations_are_bounded_without_clipping() -> None:
     seen = []
     model.hidden[0][2].register_forward_hook(lambda _m, _i, out: seen.append(out.detach()))
     model(x)
-    assert seen[0].abs().max() < 1.0 and (seen[0] < 0).any()
+    assert seen[0].abs().max() < 1.0
+    assert (seen[0] < 0).any()
 
 
 @pytest.mark.parametrize("activation", ["tanh", "clipped_relu"])
@@ -114,7 +118,8 @@ def test_normalisation_is_stored_as_buffers_and_survives_state_dict() -> None:
     clone = DnnModel(model.config)
     clone.load_state_dict(model.state_dict())
     norm = clone.normalisation()
-    assert np.allclose(norm.feature_mean, model.x_mean.numpy()) and np.all(norm.feature_std > 0)
+    assert np.allclose(norm.feature_mean, model.x_mean.numpy())
+    assert np.all(norm.feature_std > 0)
     assert {"x_mean", "x_std", "y_mean", "y_std"} <= set(dict(model.named_buffers()))
 
 
@@ -122,7 +127,8 @@ def test_constant_feature_is_centred_not_divided_by_zero() -> None:
     x, y = _data("F0")
     x[:, 4] = 650.0  # one engine speed in the whole data set
     norm = fit_normalisation(x, y, True)
-    assert norm.feature_std[4] == 1.0 and norm.feature_mean[4] == 650.0
+    assert norm.feature_std[4] == 1.0
+    assert norm.feature_mean[4] == 650.0
 
 
 @pytest.mark.parametrize("feature_set", sorted(FEATURE_SETS))

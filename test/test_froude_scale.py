@@ -38,7 +38,8 @@ def test_froude_scaling_keeps_the_froude_number_and_the_non_dimensional_motion()
     full = _recording("rudder_propeller", controls)
     model = froude_scaled(full, scale)
     root = math.sqrt(scale)
-    assert model.dt == pytest.approx(full.dt / root) and np.allclose(model.t_s, full.t_s / root)
+    assert model.dt == pytest.approx(full.dt / root)
+    assert np.allclose(model.t_s, full.t_s / root)
     speed_full, speed_model = np.hypot(full.nu[:, 0], full.nu[:, 1]), np.hypot(model.nu[:, 0], model.nu[:, 1])
     # Froude number U / sqrt(g L), non-dimensional yaw rate r L / U, advance ratio J = u / (n D): all kept
     assert np.allclose(speed_model / math.sqrt(G * length / scale), speed_full / math.sqrt(G * length))
@@ -109,8 +110,10 @@ def test_marin_full_scale_zigzags_froude_scaled_to_the_model_agree_with_hsva(raw
                  "--json", str(tmp_path / "hsva.json")]) == 0
     marin, hsva = _zigzags(tmp_path / "marin.json"), _zigzags(tmp_path / "hsva.json")
     check = marin["_fit_check"]
-    assert check["verdict"] == "fits" and marin["_data"]["froude_scale"] == KVLCC2_SCALE
-    assert 0.9 < check["speed_ratio"] < 1.1 and 0.8 < check["yaw_rate_ratio"] < 1.25
+    assert check["verdict"] == "fits"
+    assert marin["_data"]["froude_scale"] == KVLCC2_SCALE
+    assert 0.9 < check["speed_ratio"] < 1.1
+    assert 0.8 < check["yaw_rate_ratio"] < 1.25
     assert check["data_speed_mps"] == pytest.approx(hsva["_fit_check"]["data_speed_mps"], rel=0.02)  # 1.17 m/s
     for side in "ps":  # measured 9.24 / 7.91 deg (MARIN) against 9.07 / 7.81 deg (HSVA); the preset 6.96 / 4.33
         full, tank = marin[f"marin_zz_10_10_{side}"], hsva[f"hsva_z_10_10_{side}"]  # against 7.05 / 3.48

@@ -96,7 +96,8 @@ class Checked:
 
     def finish(self) -> None:
         assert digest(self.inputs) == self.before, "an input changed"
-        assert leftovers(self.out) == [] and all(leftovers(p) == [] for p in self.inputs if p.is_dir())
+        assert leftovers(self.out) == []
+        assert all(leftovers(p) == [] for p in self.inputs if p.is_dir())
 
 
 @pytest.fixture()
@@ -385,7 +386,8 @@ def test_numbers_that_are_not_numbers(command: str, option: str, base: dict[str,
         out = tmp_path / f"out_{VALUES.index(value)}"
         code, err = run(command, *_base_argv(command, base, out, option), option, value)
         if value in ("nan", "inf", "-inf", "abc", ""):
-            assert code == 2 and f"argument {option}" in err, err
+            assert code == 2, err
+            assert f"argument {option}" in err, err
 
 
 # ------------------------------------------------------------------ outputs on top of inputs, or nowhere to go
@@ -432,7 +434,8 @@ def test_outputs_on_top_of_inputs(command: str, base: dict[str, Path], tmp_path:
         for name, (target, words) in _targets(inputs, kind if flag == option else "file", base, tmp_path).items():
             other = [option, tmp_path / f"elsewhere_{name}"] if flag != option else []
             code, err = run(command, *args(base), *other, flag, target)
-            assert code == 2 and any(w in err for w in words.split("|")), f"{name} {flag}: {err}"
+            assert code == 2, f"{name} {flag}: {err}"
+            assert any(w in err for w in words.split("|")), f"{name} {flag}: {err}"
             assert "reading" not in err and "wrote" not in err  # before any work
 
 
@@ -492,7 +495,8 @@ def test_foreign_and_failing_models(base: dict[str, Path], tmp_path: Path, check
         code, err = run("diagnose", base["bags"], "--model", model, "--hypotheses", "current", "--no-gain")
         assert code == 2, f"{name}: {err}"
     code, err = run("diagnose", base["bags"], "--model", base["model"], "--hypotheses", "current", "--no-gain")
-    assert code == 2 and "diagnose needs a grey box" in err
+    assert code == 2
+    assert "diagnose needs a grey box" in err
 
 
 # ------------------------------------------------------------------ broken datasets and evaluation files
@@ -656,7 +660,8 @@ def test_sigint_to_the_process_group(command: str, base: dict[str, Path], tmp_pa
     TALLY[f"exit {process.returncode}"] += 1
     TALLY["group test_sigint_to_the_process_group"] += 1
     assert process.returncode in (0, cli.EXIT_INTERRUPTED), err[-3000:]
-    assert "Traceback" not in err and leftovers(tmp_path) == []
+    assert "Traceback" not in err
+    assert leftovers(tmp_path) == []
 
 
 @pytest.mark.slow
@@ -674,5 +679,7 @@ def test_file_size_limit(command: str, base: dict[str, Path], tmp_path: Path) ->
     TALLY[f"exit {done.returncode}"] += 1
     TALLY["group test_file_size_limit"] += 1
     assert done.returncode == 2, done.stderr[-3000:]
-    assert "Traceback" not in done.stderr and "no space left" in done.stderr.strip().splitlines()[-1]
-    assert leftovers(tmp_path) == [] and digest([base["bags"], base["evaluation"].parent]) == before
+    assert "Traceback" not in done.stderr
+    assert "no space left" in done.stderr.strip().splitlines()[-1]
+    assert leftovers(tmp_path) == []
+    assert digest([base["bags"], base["evaluation"].parent]) == before

@@ -352,7 +352,8 @@ def test_metadata_names_the_layout_and_the_hull_model():
         g = GreyBoxRollout(vessel, dt=0.5)
         meta = greybox_metadata(vessel, g)
         assert meta["control_layout"] == list(vessel.actuator_layout.control_names)
-        assert meta["actuator_layout"] == vessel.layout and meta["hull_model"] == vessel.hull_model_name
+        assert meta["actuator_layout"] == vessel.layout
+        assert meta["hull_model"] == vessel.hull_model_name
         assert list(meta["architecture"]["hull"]) == list(g.hull_names)
     assert greybox_metadata(VESSEL, GreyBoxRollout(VESSEL, dt=0.5))["control_layout"] == ["delta", "rpm"]
     with pytest.raises(ValueError, match=r"controls must be \(B, H, 2\)"):

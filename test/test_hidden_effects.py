@@ -59,7 +59,8 @@ def test_diagnose_finds_the_hidden_effect(tmp_path, effect, draw_index):
     ok, errors = within_tolerance(truth, result["parameters"])
     assert ok, f"{truth}: errors {errors} beyond the tolerances"
     if effect == "none":
-        assert result["parameters"] == {} and result["gain"] == {}
+        assert result["parameters"] == {}
+        assert result["gain"] == {}
     elif draw_index == 0:
         gain = result["gain"]
         assert gain["mean_position_error_after_30s_m"] > 0.05, gain  # the extension predicts held-out tracks better
@@ -107,7 +108,8 @@ def test_diagnose_finds_the_hidden_effect_of_a_twin_thruster_boat(tmp_path, effe
     ok, errors = within_tolerance(truth, result["parameters"])
     assert ok, f"{truth}: errors {errors} beyond the tolerances"
     if effect == "none":
-        assert result["parameters"] == {} and result["gain"] == {}
+        assert result["parameters"] == {}
+        assert result["gain"] == {}
     elif measure_gain:
         assert result["gain"]["mean_position_error_after_30s_m"] > 0.05, result["gain"]
         key = "mean_position_error_after_30s_m"
@@ -132,7 +134,8 @@ def test_rudder_offset_and_propeller_asymmetry_are_told_apart(tmp_path, effect, 
     (rudder inflow against thrust) and the tool names the right one decisively."""
     bags = simulate_trial(tmp_path, flags, 23)
     result = diagnose(tmp_path, bags, "--no-gain", "--hypotheses", "rudder_offset", "propeller_asymmetry")
-    assert result["cause"] == effect and result["confounded_with"] == []
+    assert result["cause"] == effect
+    assert result["confounded_with"] == []
     other = next(e for e in result["evidence"] if e["hypothesis"] not in (effect, "none"))
     assert other["evidence_of_best"] > 5.0
 
@@ -142,7 +145,8 @@ def test_one_manoeuvre_is_refused_with_what_to_add(tmp_path, capsys):
     run_cli("simulate", "--manoeuvre", "turning-circle", "--duration", "60", "--output", str(bags))
     assert main(["diagnose", str(bags)]) == 2
     err = capsys.readouterr().err
-    assert "a diagnosis needs at least two" in err and "turning circle each way" in err
+    assert "a diagnosis needs at least two" in err
+    assert "turning circle each way" in err
 
 
 def test_turns_one_way_only_are_flagged(tmp_path):

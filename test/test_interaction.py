@@ -78,7 +78,8 @@ def test_eta_is_searched_at_most_to_a_full_slipstream():
     assert ia.with_factors(preset, {"rudder.eta": 2.0}).rudder.eta == pytest.approx(ia.ETA_MAX)
     assert ia.with_factors(preset, {"rudder.eta": 0.5}).rudder.eta == pytest.approx(0.45)
     low, high = ia._bounds(preset, "rudder.eta")
-    assert low == 0.5 and high == pytest.approx(ia.ETA_MAX / 0.9)
+    assert low == 0.5
+    assert high == pytest.approx(ia.ETA_MAX / 0.9)
     scaled = ia.with_factors(preset, {"rudder.lift_factor": 1.25, "rudder.gamma_R": 0.75})
     assert scaled.rudder.f_alpha == pytest.approx(1.25 * preset.rudder.f_alpha)
     assert scaled.rudder.gamma_R_minus == pytest.approx(0.75 * preset.rudder.gamma_R_minus)
@@ -124,8 +125,10 @@ def test_without_a_segment_long_enough_the_description_stays():
     data = idf.prepare(description, recordings)
     u0 = float(np.median(np.concatenate([d.nu[:, 0] for d in data])))
     fit = ia.identify_interaction(description, data, recordings, "mmg", "fix", u0)
-    assert not fit.accepted and fit.scale == {n: 1.0 for n in ia.INTERACTION_BOUNDS}
-    assert fit.vessel.rudder == description.rudder and fit.simulation == {}
+    assert not fit.accepted
+    assert fit.scale == {n: 1.0 for n in ia.INTERACTION_BOUNDS}
+    assert fit.vessel.rudder == description.rudder
+    assert fit.simulation == {}
     assert "no candidate could be simulated (no manoeuvre longer than 20 s)" in fit.note()
     json.dumps(fit.to_json(), allow_nan=False)
 

@@ -87,10 +87,12 @@ def test_prediction_equals_the_artifact_on_the_recording_state(bag_samples, reco
     mean = reference.mean(axis=0)[0]  # (H, 6)
     np.testing.assert_allclose(prediction.eta[:, :2], mean[:, 3:5] + recording.position[n], atol=1e-3)
     np.testing.assert_allclose(prediction.nu, mean[:, :3], atol=1e-5)
-    assert prediction.anchored and prediction.eta_members.shape == (artifact.ensemble_size, 120, 3)
+    assert prediction.anchored
+    assert prediction.eta_members.shape == (artifact.ensemble_size, 120, 3)
     assert prediction.t_ns[0] == recording.t0_ns + (n + 1) * int(DT * NS)
     cov = live.enu_covariance(prediction.eta_members)
-    assert cov.shape == (120, 3, 3) and np.all(np.diagonal(cov, axis1=1, axis2=2) >= 0)
+    assert cov.shape == (120, 3, 3)
+    assert np.all(np.diagonal(cov, axis1=1, axis2=2) >= 0)
     assert cov[-1, 0, 0] > cov[0, 0, 0]  # the members drift apart with the horizon
 
 
@@ -165,7 +167,8 @@ def test_a_header_less_sample_at_the_same_clock_supersedes_the_previous_one() ->
     inputs.add("heading", 2 * NS, (0.2,), 2 * NS, at_arrival=True)
     track = inputs.tracks["heading"]
     t, values = track.buffer.samples()
-    assert t.tolist() == [2 * NS] and values[:, 0].tolist() == [0.2]
+    assert t.tolist() == [2 * NS]
+    assert values[:, 0].tolist() == [0.2]
     assert (track.received, track.superseded, track.rejected) == (2, 1, {})
     with pytest.raises(live.InputRejected, match="heading: stamp 1.000 s before"):  # backwards stays refused
         inputs.add("heading", NS, (0.3,), 2 * NS, at_arrival=True)
@@ -175,7 +178,8 @@ def test_a_header_less_sample_at_the_same_clock_supersedes_the_previous_one() ->
     with pytest.raises(live.InputRejected, match=r"velocity: header stamp 2\.000000000 s repeats") as refused:
         inputs.add("velocity", 2 * NS, (5.0, 0.0, 0.0), 2 * NS)
         inputs.add("velocity", 2 * NS, (5.0, 0.0, 0.0), 2 * NS)
-    assert refused.value.kind == "duplicate" and inputs.tracks["velocity"].superseded == 0
+    assert refused.value.kind == "duplicate"
+    assert inputs.tracks["velocity"].superseded == 0
 
 
 def test_clock_jump_back_clears_the_buffers() -> None:
@@ -194,7 +198,8 @@ def test_a_1khz_burst_keeps_memory_bounded_and_the_state_right() -> None:
     for k in range(3000):  # 3 s of IMU at 1 kHz, yaw rate 0.05 rad/s
         inputs.add("imu", t0 + k * 1_000_000, (0.05, 0.0, 0.0, -9.81, math.nan), t0 + k * 1_000_000)
     imu = inputs.tracks["imu"].buffer
-    assert len(imu) == 1024 and imu.overwritten == 60 + 3000 - 1024
+    assert len(imu) == 1024
+    assert imu.overwritten == 60 + 3000 - 1024
     assert {role: track.buffer.nbytes for role, track in inputs.tracks.items()} == nbytes  # nothing grew
     now = t0 + 2999 * 1_000_000
     assert imu.rate_hz(now) == pytest.approx(1000.0, rel=1e-3)
@@ -306,7 +311,8 @@ def test_consistency_checks_need_evidence() -> None:
     calm = live.heading_vs_gyro(t, np.full_like(t, 0.01), t, np.full_like(t, 0.3), 0.0, 20.0)
     assert calm == live.NOT_JUDGED  # 11 deg of turning: not enough to judge
     turning = live.heading_vs_gyro(t, np.full_like(t, 0.2), t, 0.2 * t, 0.0, 20.0)
-    assert turning.judged and turning.problem == ""
+    assert turning.judged
+    assert turning.problem == ""
     biased = live.heading_vs_gyro(t, np.full_like(t, 0.2 + math.radians(0.5)), t, 0.2 * t, 0.0, 20.0)
     assert biased.judged and biased.problem == ""  # a 0.5 deg/s gyro bias passes
     slow = live.track_vs_gnss(t, np.full_like(t, 1.0), np.zeros_like(t), t, np.zeros_like(t), t, 1.0 * t,
@@ -373,7 +379,8 @@ def test_state_from_the_window_equals_the_whole_ring_average_bit_for_bit() -> No
             values = {"velocity": (5.0 + values[0], *values[1:]), "engine_rpm": (650.0 + 100 * values[0],),
                       "imu": (values[0], 0.0, 0.0, -9.81, math.nan)}.get(role, values)
         inputs.add(role, stamp, values, now_ns=stamp)
-    assert compared > 80 and 0 < interpolated < compared
+    assert compared > 80
+    assert 0 < interpolated < compared
     assert all(inputs.tracks[role].buffer.overwritten > 0 for role in rates if role != "gnss")  # the rings wrapped
     heading = inputs.tracks["heading"].buffer.samples()[1][:, 0]
     assert np.abs(np.diff(heading)).max() > math.pi  # the ring itself crosses the branch cut
@@ -430,7 +437,8 @@ def test_add_many_equals_add_one_at_a_time(role: str, at_arrival: bool) -> None:
         assert _track_record(bulk, role) == _track_record(single, role)
         bulk_batches += not expected
         stamp = int(stamps.max())
-    assert bulk.tracks[role].buffer.overwritten > 0 and 10 < bulk_batches < 60
+    assert bulk.tracks[role].buffer.overwritten > 0
+    assert 10 < bulk_batches < 60
     value_refusal = "range" if role != "gnss" else "no_fix"
     assert set(bulk.tracks[role].rejected) >= {"backwards", "future", value_refusal}
     # arrival-stamped: equal stamps supersede, never a refused duplicate

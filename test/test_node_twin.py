@@ -153,8 +153,10 @@ def test_a_plan_names_the_thrusters(twin: TwinHarness) -> None:
                                   (["port", "starboard"], [[1800.0, 1700.0]], "port")):
         publisher(twin, "plan").publish(joint_trajectory(twin, names, np.array(positions), [0.0], now_ns(twin)))
         found = twin.spin_until(lambda s: why in values_of(s["plan"]).get("last_refused", ""), twin.feed)
-        assert level(found["plan"]) == predictor_node.WARN and twin.node.following is None
-    assert math.isfinite(GOOD["heading"][0]) and statuses(twin.latest)["prediction"].level[0] == predictor_node.OK
+        assert level(found["plan"]) == predictor_node.WARN
+        assert twin.node.following is None
+    assert math.isfinite(GOOD["heading"][0])
+    assert statuses(twin.latest)["prediction"].level[0] == predictor_node.OK
 
 
 def test_a_grey_box_s_candidates_take_turns_with_the_sea_estimate_and_are_answered(twin: TwinHarness) -> None:
@@ -186,9 +188,11 @@ def test_a_grey_box_s_candidates_take_turns_with_the_sea_estimate_and_are_answer
                                                                 stamp))
     wait_for(twin, lambda: answers, "candidate_predictions")
     answer = answers[0]
-    assert stamp_of(answer) == stamp and list(answer.joint_names) == ["port_turn", "stbd_turn"]
+    assert stamp_of(answer) == stamp
+    assert list(answer.joint_names) == ["port_turn", "stbd_turn"]
     yaw = np.array([[2.0 * math.atan2(tf.rotation.z, tf.rotation.w) for tf in p.transforms] for p in answer.points])
     turned = np.unwrap(yaw, axis=0)[-1] - np.unwrap(yaw, axis=0)[0]  # ENU yaw: + counter-clockwise (to port)
-    assert turned[0] > 0.2 and turned[1] < -0.2
+    assert turned[0] > 0.2
+    assert turned[1] < -0.2
     assert any(name.startswith("candidates") for name in holders)  # the worker's rollout under the lock
     assert any(name == threading.main_thread().name for name in holders)  # the estimate's writes (the executor)

@@ -185,7 +185,8 @@ def test_the_estimated_current_is_enu_with_the_unknown_components_marked() -> No
     msg = deserialize_message(outputs.current_cdr(5 * NS, (0.3, -0.2), (0.0004, -0.0001, 0.0009), "odom"),
                               RCLPY(outputs.CURRENT_TYPE))
     assert (msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.linear.z) == (-0.2, 0.3, 0.0)
-    assert msg.header.frame_id == "odom" and msg.header.stamp.sec == 5
+    assert msg.header.frame_id == "odom"
+    assert msg.header.stamp.sec == 5
     covariance = np.asarray(msg.twist.covariance).reshape(6, 6)
     np.testing.assert_array_equal(covariance[:2, :2], [[0.0009, -0.0001], [-0.0001, 0.0004]])
     np.testing.assert_array_equal(np.diag(covariance)[2:], [outputs.UNKNOWN_VARIANCE] * 4)

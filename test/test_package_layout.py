@@ -306,15 +306,18 @@ def run_raw_data_probe(tmp_path: Path, ci: str | None) -> subprocess.CompletedPr
 
 def test_raw_data_skip_outside_ci_and_failure_under_ci(tmp_path: Path) -> None:
     outside = run_raw_data_probe(tmp_path / "a", ci=None)
-    assert outside.returncode == 0 and "1 skipped" in outside.stdout, outside.stdout
+    assert outside.returncode == 0, outside.stdout
+    assert "1 skipped" in outside.stdout, outside.stdout
     assert "shared/data/raw is absent" in outside.stdout
     under_ci = run_raw_data_probe(tmp_path / "b", ci="true")
-    assert under_ci.returncode == 1 and "1 error" in under_ci.stdout, under_ci.stdout
+    assert under_ci.returncode == 1, under_ci.stdout
+    assert "1 error" in under_ci.stdout, under_ci.stdout
     assert "CI is set, so tests on real data must not be skipped" in under_ci.stdout
     (tmp_path / "c" / "shared" / "data" / "raw").mkdir(parents=True)
     (tmp_path / "c" / "shared" / "data" / "raw" / "some_set").mkdir()
     present = run_raw_data_probe(tmp_path / "c", ci="true")
-    assert present.returncode == 0 and "1 passed" in present.stdout, present.stdout
+    assert present.returncode == 0, present.stdout
+    assert "1 passed" in present.stdout, present.stdout
 
 
 def test_raw_data_dir_fixture_here(raw_data_dir: Path) -> None:

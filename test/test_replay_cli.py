@@ -67,7 +67,9 @@ def test_command_modules_follow_the_naming_convention() -> None:
         except ImportError:
             continue
         assert module.NAME == cli._command_name(module_name)
-        assert module.HELP and callable(module.add_arguments) and callable(module.run)
+        assert module.HELP
+        assert callable(module.add_arguments)
+        assert callable(module.run)
 
 
 def test_a_missing_command_module_does_not_break_help(
@@ -84,8 +86,10 @@ def test_info_prints_a_summary_and_writes_json(tiny_bag: Path, tmp_path: Path, c
     json_path = tmp_path / "out" / "info.json"
     assert cli.main(["info", str(tiny_bag), "--json", str(json_path)]) == 0
     captured = capsys.readouterr()
-    assert "velocity" in captured.out and "geometry_msgs/msg/TwistStamped" in captured.out
-    assert "10.00 Hz" in captured.out and "5.00 Hz" in captured.out
+    assert "velocity" in captured.out
+    assert "geometry_msgs/msg/TwistStamped" in captured.out
+    assert "10.00 Hz" in captured.out
+    assert "5.00 Hz" in captured.out
     assert "generator: test_replay_cli" in captured.out
     assert f"reading {tiny_bag}" in captured.err  # progress goes to stderr
     result = json.loads(json_path.read_text())

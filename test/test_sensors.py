@@ -130,7 +130,8 @@ def test_a_twin_thruster_boat_reports_its_commands():
     signals = measure(traj, Environment(), SensorSpec(), faults)
     assert set(signals) == {"imu", "velocity", "heading", "thruster_port", "thruster_starboard", "gnss", "odometry"}
     port = signals["thruster_port"]
-    assert port.fields == ("command",) and 1e9 / np.median(np.diff(port.t_ns)) == pytest.approx(10.0)
+    assert port.fields == ("command",)
+    assert 1e9 / np.median(np.diff(port.t_ns)) == pytest.approx(10.0)
     lsb = SensorSpec().command_lsb
     assert np.allclose(port.values / lsb, np.round(port.values / lsb))
     truth = traj.command("port")[np.searchsorted(traj.t_ns, port.t_ns)]

@@ -56,7 +56,9 @@ def test_simulated_bag_opens_with_anyreader_and_round_trips(tmp_path, storage):
         types = {c.topic: c.msgtype for c in reader.connections}
         counts = {c.topic: c.msgcount for c in reader.connections}
     assert types == EXPECTED_TYPES
-    assert counts["imu/data"] == 4001 and counts["gps/fix"] == 201 and counts["rudder_angle"] == 401
+    assert counts["imu/data"] == 4001
+    assert counts["gps/fix"] == 201
+    assert counts["rudder_angle"] == 401
     signals = read_bag(bag, specs())
     truth = signals["ground_truth/odometry"]
     # the recorded heading is the true heading plus noise, in the marine convention after the adapters
@@ -86,9 +88,11 @@ def test_programme_with_calm_twins_and_blind_metadata(tmp_path):
                             "--dt", "0.1")
     assert code == 0
     bags = [Path(b["bag"]) for b in result["bags"]]
-    assert len(bags) == 8 and sum(p.parent.name == "calm" for p in bags) == 4
+    assert len(bags) == 8
+    assert sum(p.parent.name == "calm" for p in bags) == 4
     meta = read_custom_data(bags[0])
-    assert "scenario" not in meta and len(meta["scenario_sha256"]) == 64
+    assert "scenario" not in meta
+    assert len(meta["scenario_sha256"]) == 64
     assert result["scenario"] is None
     sea, calm = read_bag(bags[0], specs()), read_bag(bags[4], specs())
     # the twin shares time, place, seed and manoeuvre, so only the sea makes the tracks differ
@@ -117,7 +121,8 @@ def test_bad_input_is_one_line_exit_2_and_no_bag(tmp_path, capsys, args, message
     code = main(["simulate", "--output", str(tmp_path / "bags"), "--duration", "5", *args])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
-    assert err[-1].startswith("replay simulate: error:") and message in err[-1]
+    assert err[-1].startswith("replay simulate: error:")
+    assert message in err[-1]
     assert not (tmp_path / "bags").exists() or not any((tmp_path / "bags").iterdir())
 
 
@@ -137,7 +142,9 @@ def test_existing_output_needs_overwrite_and_unwritable_output_fails(tmp_path, c
 def test_module_entry_point_help():
     done = subprocess.run([sys.executable, "-m", "usv_predictor.replay", "simulate", "--help"],
                           capture_output=True, text=True, timeout=60)
-    assert done.returncode == 0 and "--current-to" in done.stdout and "--calm-twin" in done.stdout
+    assert done.returncode == 0
+    assert "--current-to" in done.stdout
+    assert "--calm-twin" in done.stdout
 
 
 def test_shipped_bags_open_and_say_how_they_were_made():
@@ -245,7 +252,8 @@ def test_rudder_layouts_write_their_own_controls(tmp_path, layout, extra, topics
     controls = {"rudder_angle", "engine_rpm", "throttle", "thrusters/port", "thrusters/starboard"}
     assert written & controls == topics
     expected = {"rudder_throttle": "turning_circle_stbd_15deg_p0.7", "rudder_only": "turning_circle_stbd_15deg_600rpm"}
-    assert bag.name == expected[layout] and result["bags"][0]["final_speed_mps"] > 2.0
+    assert bag.name == expected[layout]
+    assert result["bags"][0]["final_speed_mps"] > 2.0
 
 
 @pytest.mark.parametrize("args, message", [
@@ -263,8 +271,10 @@ def test_rudder_layouts_write_their_own_controls(tmp_path, layout, extra, topics
 def test_options_and_effects_of_another_layout_are_refused(tmp_path, capsys, args, message):
     code = main(["simulate", "--output", str(tmp_path / "bags"), "--duration", "5", *args])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1
-    assert err[-1].startswith("replay simulate: error:") and message in err[-1]
+    assert code == 2
+    assert len(err) == 1
+    assert err[-1].startswith("replay simulate: error:")
+    assert message in err[-1]
     assert not (tmp_path / "bags").exists() or not any((tmp_path / "bags").iterdir())
 
 

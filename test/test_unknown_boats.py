@@ -78,7 +78,8 @@ def test_a_drawn_boat_is_a_froude_scaled_perturbed_preset(size_class):
 
 def test_the_draw_is_deterministic_and_the_classes_differ():
     a, b = (draw_boat(np.random.default_rng([3, 1])) for _ in range(2))
-    assert a.truth == b.truth and a.owner == b.owner
+    assert a.truth == b.truth
+    assert a.owner == b.owner
     sizes = {draw_boat(np.random.default_rng([3, k])).size_class for k in range(12)}
     assert sizes == set(SIZE_CLASSES)
     with pytest.raises(ValueError, match="unknown size class"):
@@ -133,7 +134,8 @@ def test_an_unknown_boat_is_identified_and_diagnosed(tmp_path, size_class, effec
     description = yaml.safe_load((tmp_path / f"{boat.owner.name}.yaml").read_text())
     assert description["hull"] != boat.truth["hull"]
     commands = [line.split()[2] for line in result["log"]]  # "$ replay COMMAND ..."
-    assert commands[:4] == ["simulate", "simulate", "vessel", "identify"] and commands[-1] == "diagnose"
+    assert commands[:4] == ["simulate", "simulate", "vessel", "identify"]
+    assert commands[-1] == "diagnose"
     assert set(commands[4:-1]) <= {"identify"}  # identified again at most once, as identify recommended
     assert result["cause"] == effect, (truth, result["message"])
     assert result["within_tolerance"], (truth, result["errors"])
@@ -192,7 +194,8 @@ def test_the_interaction_factors_are_identified_with_the_hull(tmp_path):
     assert "diverges" in result.interaction["excluded"]["description"]  # its 35 deg turn runs away
     assert result.vessel.rudder.gamma_R_minus == pytest.approx(gamma)  # the model carries the identified rudder
     hull = result.fit.values()
-    assert abs(hull["Y_vvv"]) < 5.0 and abs(hull["N_vvv"]) < 5.0, hull
+    assert abs(hull["Y_vvv"]) < 5.0, hull
+    assert abs(hull["N_vvv"]) < 5.0, hull
     seg = make_segments(recordings, 20.0, 5.0)
     with torch.no_grad():
         out = GreyBoxRollout(result.vessel, 0.2)(seg.state, seg.controls, seg.reference)[0]
