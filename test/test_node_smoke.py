@@ -315,8 +315,8 @@ def test_stop_signals_while_publishing_exit_0_every_time() -> None:
                 env=localhost_env(offset if stop % 4 < 2 else offset + 1),  # unfed: alone on its domain
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             lines: list[str] = []
-            reader = threading.Thread(target=lambda: lines.extend(process.stderr),
-                                      daemon=True)  # type: ignore[arg-type]
+            reader = threading.Thread(target=lambda: lines.extend(process.stderr),  # type: ignore[arg-type]
+                                      daemon=True)
             reader.start()
             try:
                 deadline = time.monotonic() + 60.0
