@@ -60,8 +60,8 @@ def test_froude_scaling_keeps_the_froude_number_and_the_non_dimensional_motion()
 def test_normalised_commands_are_kept_and_a_bad_factor_is_refused():
     commands = np.full((10, 2), 0.6)
     twin = froude_scaled(_recording("twin_thrusters", commands), 4.0)
-    assert np.array_equal(twin.controls, commands) and np.allclose(twin.nu[:, 2], 2 * _recording(
-        "twin_thrusters", commands).nu[:, 2])
+    assert np.array_equal(twin.controls, commands)
+    assert np.allclose(twin.nu[:, 2], 2 * _recording("twin_thrusters", commands).nu[:, 2])
     for bad in (0.0, -2.0, math.nan, math.inf):
         with pytest.raises(Exception, match="Froude scale"):
             froude_scaled(twin, bad)

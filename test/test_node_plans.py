@@ -176,8 +176,8 @@ def test_candidate_plans_are_answered_in_one_batch_tagged_with_their_stamp(harne
     assert stamp_of(answer) == stamp
     assert answer.header.frame_id == "odom"
     assert list(answer.joint_names) == ["hold", "stbd", "port"]
-    assert len(answer.points) == HORIZON_STEPS and all(len(p.transforms) == 3 == len(p.velocities)
-                                                       for p in answer.points)
+    assert len(answer.points) == HORIZON_STEPS
+    assert all(len(p.transforms) == 3 == len(p.velocities) for p in answer.points)
     t_ns = np.array([stamp + p.time_from_start.sec * NS + p.time_from_start.nanosec for p in answer.points])
     assert np.all(np.diff(t_ns) == NS // 2)
     assert t_ns[0] > stamp - NS // 2

@@ -257,8 +257,8 @@ def test_the_covariance_stays_bounded(turning):
         assert np.all(d <= config.covariance_ceiling * prior * (1 + 1e-9))
         assert np.all(d >= config.covariance_floor * prior * (1 - 1e-9))
         assert np.all(np.linalg.eigvalsh(est.P) > 0.0)
-    assert est.x[K_R] == pytest.approx(0.0, abs=0.02) and math.hypot(est.x[C_N],
-                                                                     est.x[C_E]) == pytest.approx(0.4, abs=0.01)
+    assert est.x[K_R] == pytest.approx(0.0, abs=0.02)
+    assert math.hypot(est.x[C_N], est.x[C_E]) == pytest.approx(0.4, abs=0.01)
 
 
 # ---- adaptive prediction --------------------------------------------------------------------------------
@@ -315,8 +315,8 @@ def test_adaptive_open_loop_adds_only_the_live_terms(bags, monkeypatch):
 def test_replay_evaluate_adaptive_reports_the_estimate(bags):
     data = evaluate(EvaluationRequest(bags=(bags["step"],), model="physics", adaptive=True, horizons_s=(30.0, 60.0)))
     section = data["adaptive"]
-    assert section["applied"] and section["summary"]["mean_position_error_after_60s_m"] < \
-        data["summary"]["mean_position_error_after_60s_m"]
+    assert section["applied"]
+    assert section["summary"]["mean_position_error_after_60s_m"] < data["summary"]["mean_position_error_after_60s_m"]
     final = section["recordings"][0]["final_estimate"]
     assert final["current_speed_mps"] == pytest.approx(0.5, abs=0.05)
     assert final["converged"] is True

@@ -294,8 +294,10 @@ def test_parallel_reading_gives_the_same_recordings_warnings_and_errors(tmp_path
     assert parallel_warnings == serial_warnings
     assert len(serial_warnings) == 1
     for a, b in zip(serial, parallel, strict=True):
-        assert a.name == b.name and a.t0_ns == b.t0_ns and np.array_equal(a.nu,
-                                                                          b.nu) and np.array_equal(a.truth, b.truth)
+        assert a.name == b.name
+        assert a.t0_ns == b.t0_ns
+        assert np.array_equal(a.nu, b.nu)
+        assert np.array_equal(a.truth, b.truth)
     broken = crafted_signals(20.0)
     del broken["engine_rpm"]
     write(tmp_path / "bags" / "d_broken", broken)
@@ -340,8 +342,8 @@ def test_replay_dataset_end_to_end_on_simulated_bags(tmp_path, capsys):
     zig = entries["zigzag_20_20_stbd_650rpm"]
     assert zig["bag_sha256"] == hashes[Path(zig["source"])]
     assert zig["length"] == 80
-    assert dataset.metadata["provenance"].startswith("replay "
-                                                     "dataset ") and "--val 0.5" in dataset.metadata["provenance"]
+    assert dataset.metadata["provenance"].startswith("replay dataset ")
+    assert "--val 0.5" in dataset.metadata["provenance"]
     assert {b: bag_sha256(b) for b in bags} == hashes  # inputs untouched
     assert all(r.truth is not None and np.isfinite(r.position).all() for r in dataset.recordings())
     again = tmp_path / "again.npz"

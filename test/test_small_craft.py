@@ -180,8 +180,9 @@ def test_cross_flow_drag_in_closed_form(otter):
     g, h = v.geometry, v.small_craft
     q = 0.5 * RHO_WATER * g.d * h.cross_flow_cd  # (kg/m^2)
     x, y, n = otter.hull_loads(0.0, 0.3, 0.0)
-    assert x == 0.0 and y == pytest.approx(h.Y_v * 0.3 - q * g.L_pp * 0.09,
-                                           rel=1e-12) and n == pytest.approx(0.0, abs=1e-12)
+    assert x == 0.0
+    assert y == pytest.approx(h.Y_v * 0.3 - q * g.L_pp * 0.09, rel=1e-12)
+    assert n == pytest.approx(0.0, abs=1e-12)
     x, y, n = otter.hull_loads(0.0, 0.0, -0.5)
     assert y == pytest.approx(0.0, abs=1e-12)
     expected = h.N_r * -0.5 + h.N_rr * 0.25 * -1.0 + q * 0.25 * g.L_pp**4 / 32.0
@@ -323,5 +324,5 @@ def test_a_model_pickles_and_is_built_once_per_hull_model_and_layout(otter):
         ManoeuvringModel(otter.vessel, thrust_imbalance=0.05).derivative([0, 0, 0, 1.0, 0.1, 0.2, 0.5, 0.4], 0.6, 0.3,
                                                                          CALM)
     assert type(ManoeuvringModel(load_vessel("wamv"))) is type(otter)  # the same hull model and layout
-    assert isinstance(otter,
-                      ManoeuvringModel) and type(otter).__name__ == "ManoeuvringModel[small_craft, twin_thrusters]"
+    assert isinstance(otter, ManoeuvringModel)
+    assert type(otter).__name__ == "ManoeuvringModel[small_craft, twin_thrusters]"
