@@ -31,8 +31,8 @@ the same rule to the measured 30 s open-loop gain and withdraws a cause whose ex
 
 Otherwise the answer is `none` — unless the calm-water model itself does not fit: then it is `model_mismatch`
 (identify the boat first), when nothing is named but the calm-water model leaves a held-out loss above NONE_LOSS
-noise units (not "within the noise"), when the fit check failed (analysis/fit_check.py, the caller passes its reasons), when
-its rollout diverges on the data (diverged_segments), when the best model (the calm-water one with the named
+noise units (not "within the noise"), when the fit check failed (analysis/fit_check.py, the caller passes its reasons),
+when its rollout diverges on the data (diverged_segments), when the best model (the calm-water one with the named
 causes; with a candidate that was not named, with that candidate) leaves a held-out loss above MISMATCH_LOSS noise
 units and more than MISMATCH_SHARE of the calm-water model's, or above FIT_CEILING_LOSS whatever share its causes
 removed, or when a named cause's parameter, fitted on all manoeuvres, lies outside its effect's physical range
@@ -96,7 +96,8 @@ FIT_CEILING_LOSS = 100.0  # held-out loss (noise units) no model that fits leave
 #                           2.9 deg/s in r, 10 m in position, 5.7 deg in heading), an order of magnitude above the
 #                           noise: a cause fitted to such a model absorbs the model's error (an unknown boat's 1.4 m
 #                           wave drift was named as a 28 m/s wind that left 1190 of 2432). The right causes of the 50
-#                           unknown boats of 2026-11-26 left at most 43 (a current, 94 before), waves of 1.1 m 27
+#                           unknown boats (docs/results/unknown_boats.md) left at most 43 (a current, 94 before), waves
+#                           of 1.1 m 27
 NONE_LOSS = 5.0  # held-out loss (noise units) above which the calm-water model is not "within the noise": `none`
 #                 is then model_mismatch (clean presets leave 0.1, the right cause <= 0.5; an identified unknown
 #                 boat that fits 0.3; one that left 17 hid a 0.77 deg/s gyro bias behind a confident `none`)
@@ -242,7 +243,7 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
             theta, r, cost = probe, r_probe, cost_probe
     lam, it = 1e-2, 0
     jac = np.zeros((len(r), len(theta)))
-    for it in range(1, max_iter + 1 if len(theta) else 1):
+    for it in range(1, max_iter + 1 if len(theta) else 1):  # noqa: B007 -- the count is returned
         eps = 1e-3
         for j in range(len(theta)):
             step = theta.copy()
@@ -456,7 +457,8 @@ class Contribution:
         """'given wind it adds evidence 0.8 (removes 3 % of the held-out loss, 1 % of the track error)'."""
         given = f"given {'+'.join(self.given)}" if self.given else "over the calm-water model"
         track = f", {self.track_gain * 100:.0f} % of the track error" if math.isfinite(self.track_gain) else ""
-        return f"{given} it adds evidence {self.evidence:.1f} (removes {self.gain * 100:.0f} % of the held-out loss{track})"
+        return (f"{given} it adds evidence {self.evidence:.1f} (removes {self.gain * 100:.0f} % of the held-out "
+                f"loss{track})")
 
 
 @dataclass(frozen=True)
@@ -539,7 +541,8 @@ def select_causes(primary: str, candidates: Sequence[str], score: Callable[[tupl
             break
         chosen.append(name)
         while chosen:
-            weak = [c for c in (contribution(cause, [o for o in chosen if o != cause], score, n_eff) for cause in chosen)
+            weak = [c for c in (contribution(cause, [o for o in chosen if o != cause], score, n_eff)
+                                for cause in chosen)
                     if not c.earns_place]
             if not weak:
                 break
@@ -570,7 +573,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     names = list(hypotheses or applicable)
     foreign = [name for name in names if name in HYPOTHESES and name not in applicable]
     if foreign:
-        raise ConfigError(f"hypotheses {foreign} do not apply to vessel {vessel.name} (actuator layout {vessel.layout}); "
+        raise ConfigError(f"hypotheses {foreign} do not apply to vessel {vessel.name} (actuator layout "
+                          f"{vessel.layout}); "
                           f"its hypotheses are {', '.join(applicable)}")
     notes = check_data(recordings)
     unknown = [name for name in dict.fromkeys(names) if name not in HYPOTHESES]
@@ -601,11 +605,12 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     # every set of causes fitted (the first round's single hypotheses, `none` as the empty set, the selection's
     # sets): its fit order and, per fold k (fitted on fold k, held out on the other), the held-out segment losses,
     # track errors, physical parameters and the fit
-    fitted: dict[frozenset[str], tuple[tuple[str, ...], list[tuple[np.ndarray, np.ndarray, dict[str, float], Fit]]]] = {}
+    FoldResult = tuple[np.ndarray, np.ndarray, dict[str, float], Fit]  # one fold: losses, track errors, parameters, fit
+    fitted: dict[frozenset[str], tuple[tuple[str, ...], list[FoldResult]]] = {}
     nested_checked: set[tuple[frozenset[str], frozenset[str]]] = set()
 
     def fold_fit(causes: tuple[str, ...], k: int,
-                 start: Mapping[str, Sequence[float]] | None = None) -> tuple[np.ndarray, np.ndarray, dict[str, float], Fit]:
+                 start: Mapping[str, Sequence[float]] | None = None) -> FoldResult:
         """The set of causes fitted on fold k, scored on the other: held-out losses, track errors, parameters, fit."""
         hypothesis = causes[0] if len(causes) == 1 else (causes or "none")
         fit = fit_hypothesis(model, fold_segments[k], hypothesis, start=start)
@@ -644,7 +649,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
             refit_nested(key)
         losses, tracks = held_out(key)
         if new and len(key) > 1:
-            progress(f"{'+'.join(causes):30s} held-out loss {losses.mean():9.3f}, track error {_mean_track(tracks):7.2f} m")
+            progress(f"{'+'.join(causes):30s} held-out loss {losses.mean():9.3f}, track error "
+                     f"{_mean_track(tracks):7.2f} m")
         return HeldOut(float(losses.mean()), _mean_track(tracks))
 
     def held_out(key: frozenset[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -709,7 +715,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     elif strong:
         rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error (evidence "
                     f"{top.evidence_vs_none:.1f}) but its extension does not lower the held-out track error after "
-                    f"{horizon_s:g} s ({calm.heldout_track_error_m:.3g} -> {top.heldout_track_error_m:.3g} m): not named")
+                    f"{horizon_s:g} s ({calm.heldout_track_error_m:.3g} -> "
+                    f"{top.heldout_track_error_m:.3g} m): not named")
         message = rejected
     elif (top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CANDIDATE and top.gain_vs_none >= MIN_GAIN
           and lowers_track(top.track_gain_vs_none) and base.mean() <= NONE_LOSS):
@@ -792,7 +799,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                         for reason in fx.EFFECTS[name].outside_range(physical_parameters(name, final.terms)))
     if mismatch:
         final = None
-        message = (f"{MODEL_MISMATCH}: the calm-water model does not fit these bags (held-out loss {calm.heldout_loss:.3g} "
+        message = (f"{MODEL_MISMATCH}: the calm-water model does not fit these bags (held-out loss "
+                   f"{calm.heldout_loss:.3g} "
                    f"noise units, track error {calm.heldout_track_error_m:.3g} m after {horizon_s:g} s before any "
                    f"hypothesis): {'; '.join(mismatch)}"
                    + (f"; the best environmental cause would be {best_environmental}" if best_environmental else "")
@@ -855,7 +863,8 @@ def _inconclusive(diagnosis: Diagnosis, candidate: str, parameters: dict[str, fl
 def _folds(recordings: Sequence[Recording]) -> tuple[list[int], list[int]]:
     """Two folds by manoeuvre, alternating in order of the mean turn command so both folds turn both ways."""
     order = sorted(range(len(recordings)),
-                   key=lambda i: float(np.nanmean(recordings[i].actuator_layout.steering_signal(recordings[i].controls))))
+                   key=lambda i: float(np.nanmean(
+                       recordings[i].actuator_layout.steering_signal(recordings[i].controls))))
     return order[0::2], order[1::2]
 
 
@@ -904,7 +913,8 @@ def discrepancy(model: GreyBoxRollout | KernelRollout, seg: Segments,
     return {
         "track_drift_speed_mps": float(math.hypot(*drift)),
         "track_drift_direction_to_deg": compass_deg(drift[0], drift[1]),
-        "yaw_rate_error_starboard_turns_deg_s": float(np.degrees(yaw_err[side > 0].mean())) if (side > 0).any() else None,
+        "yaw_rate_error_starboard_turns_deg_s": (float(np.degrees(yaw_err[side > 0].mean())) if (side > 0).any()
+                                                 else None),
         "yaw_rate_error_port_turns_deg_s": float(np.degrees(yaw_err[side < 0].mean())) if (side < 0).any() else None,
         "along_track_error_rate_vs_heading": harmonic(along),
         "cross_track_error_rate_vs_heading": harmonic(cross),
@@ -971,7 +981,8 @@ def export_extended(path, vessel: Vessel, diagnosis: Diagnosis, dt: float, *, da
 
     rollout = extended_rollout(vessel, dt, diagnosis.fit.terms)
     meta = greybox_metadata(vessel, rollout, model_type=f"greybox+{diagnosis.cause}", training_data_sha256=data_digest,
-                            training={"method": "diagnosis (usv_predictor.analysis.diagnosis)", "cause": diagnosis.cause,
+                            training={"method": "diagnosis (usv_predictor.analysis.diagnosis)",
+                                      "cause": diagnosis.cause,
                                       "parameters": diagnosis.parameters,
                                       "additional_causes": [a.cause for a in diagnosis.additional_causes]})
     return export_module(path, rollout, meta, vessel=description or vessel)

@@ -1,4 +1,4 @@
-"""The extension of last resort (issue 15): when no physical hypothesis explains what the calm-water model gets wrong,
+"""The extension of last resort: when no physical hypothesis explains what the calm-water model gets wrong,
 the learned residual, named as such (`unexplained`) and with its measured gain.
 
 `diagnose` names a physical cause when one lowers the held-out loss and track error (analysis/diagnosis.py). When none

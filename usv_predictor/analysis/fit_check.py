@@ -324,7 +324,7 @@ def cause_substeps(vessel: Vessel, dt: float) -> int:
     waves, so a longer boat is spun less). Against 32 substeps on every preset and layout at dt 0.2 and 0.5 s, every
     cause's du and dr is as close as the 2 m boat's own rule gets (the 13.5 m jari_usv at dt 0.5 s: 2 substeps
     instead of 4, 4.7e-4 m/s and 1.2e-3 deg/s of changes up to 2.2 m/s and 7.2 deg/s; the otter at 4: 7.3e-4 m/s
-    and 1.4e-3 deg/s; 2026-11-26); test_fit_check.py holds every preset whose substeps it changes within 1e-3 m/s
+    and 1.4e-3 deg/s); test_fit_check.py holds every preset whose substeps it changes within 1e-3 m/s
     and 2e-3 deg/s of 16 substeps."""
     longest = CAUSE_SUBSTEP_S * math.sqrt(max(vessel.geometry.L_pp, CAUSE_SUBSTEP_L) / CAUSE_SUBSTEP_L)  # (s)
     return max(2, math.ceil(dt / longest - 1e-9))
@@ -495,7 +495,8 @@ def _explain(ratio: float, predicted: np.ndarray, changes: np.ndarray, limit: fl
     continuously from 1 (no cause) to its value at the top of the range, so every ratio between 1 and 1/m is a
     right model in some strength of that cause; when m falls below floor / |predicted| (the cause stops the boat
     or its turn) every ratio beyond 1 is, and when it falls below -floor / |predicted| (reverses the turn) every
-    ratio below 1/m too; a cause that raises the value (m > 1) explains the ratios between 1/m and 1. The limits: the calm-water
+    ratio below 1/m too; a cause that raises the value (m > 1) explains the ratios between 1/m and 1. The limits: the
+    calm-water
     allowance [1/limit, limit] or, where wider, what the causes reach (no allowance on top: the allowance already
     covers a model's error with the smaller causes of the sea in which it was measured)."""
     with np.errstate(divide="ignore", invalid="ignore"):  # a model value of 0: no share, the cause is not tried

@@ -1,4 +1,4 @@
-"""Identification of the rudder / propeller interaction factors together with the hull (issue 11 section 5).
+"""Identification of the rudder / propeller interaction factors together with the hull.
 
 A vessel description made from an owner's data (`replay vessel init`, physics/empirical.py) holds the MMG
 interaction factors at semi-empirical values: the rudder lift gradient of Fujii's formula, the flow straightening
@@ -26,11 +26,12 @@ hull regression is linear GIVEN them, and the factors are searched outside it (a
     candidates), the hull refitted (linear) for each candidate: a variable-projection least squares. It starts from
     the best of the description, the stage-1 optimum, that optimum with the description's propeller and DESIGN_POINTS
     points of a Halton design over the box (where all of the first three diverge the residuals are clamped flat and
-    Levenberg-Marquardt cannot move: README boat 24). Simulation
+    Levenberg-Marquardt cannot move: docs/results/unknown_boats.md, boat 24). Simulation
     error is what separates rudder from hull: a wrong split fits the forces and fails the motion. The search's
     criterion is in sample (the hull fitted on all manoeuvres, all segments in one rollout: insample_residuals);
     the lift gradient, eta and w_P0 lie along one curved valley of it (all three set the rudder's inflow), which a
-    coordinate search crawls along and Levenberg-Marquardt follows (README boat 2: the truth's factors 1 (its
+    coordinate search crawls along and Levenberg-Marquardt follows (docs/results/unknown_boats.md, boat 2: the truth's
+    factors 1 (its
     epsilon 1.15 x), 0.68, 1.73, 0.50, 0.52 of the description's; found 1.19, 0.63, 1.92 (eta 1.0), 0.36, 0.73).
  3. plausibility: every candidate's grey box (hull fitted on all manoeuvres) must pass steady_check: its
     straight-running speed at the recorded engine speed within STRAIGHT_SPEED_RATIO of the measured one, and a

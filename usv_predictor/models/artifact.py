@@ -302,7 +302,8 @@ def read_files(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any]
             module = torch.jit.load(str(path), map_location="cpu", _extra_files=extra)
     except (RuntimeError, ValueError, OSError, EOFError) as err:
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        raise ModelError(f"model file {path} is not a readable TorchScript model (corrupt or truncated?): {first}") from err
+        raise ModelError(f"model file {path} is not a readable TorchScript model (corrupt or "
+                         f"truncated?): {first}") from err
     text = extra[METADATA_FILE]
     if not text:
         raise ModelError(f"model file {path} has no {METADATA_FILE} (not a usv_predictor model?)")

@@ -6,7 +6,7 @@ a, b are the actuator levels of the layout (delta rad and rpm for a rudder boat,
 of twins). g is one of
     PolynomialResidual    the Abkowitz-type terms beyond the MMG hull (identification.EXTRA_NAMES), as forces
                           turned into accelerations by M^-1 of the vessel (Yasukawa & Yoshimura 2015 eq. 4);
-    GeneralisingResidual  the hybrid of issue 15: an ensemble of E small MLPs on features that generalise
+    GeneralisingResidual  the generalising hybrid: an ensemble of E small MLPs on features that generalise
                           (GENERALISING_FEATURES: the non-dimensional drift and yaw rate v' = v_r / U, r' = r L / U,
                           the speed U / U_ref, the actuator levels, and sin / cos psi for the sea, as seed 000's NTF
                           features, eq. 25-26), whose output is a non-dimensional acceleration scaled back by U^2 / L

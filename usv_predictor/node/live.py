@@ -25,8 +25,8 @@ Samples are checked on arrival (reject reasons are counted per input and reporte
 a field the state uses, a stamp not after the previous one (backwards or a repeated header stamp; a header-less
 message arriving at the same clock reading as the previous one supersedes it, InputSet.add), a stamp more than
 max_future_s ahead of the clock, values outside data.recording.PLAUSIBLE or a control's plausible range (wrong units
-configuration, e.g. heading configured as rad but > 2 pi, rudder degrees read as radians, absurd rpm). Buffers are fixed-size rings:
-memory does not grow with the message rate.
+configuration, e.g. heading configured as rad but > 2 pi, rudder degrees read as radians, absurd rpm). Buffers are
+fixed-size rings: memory does not grow with the message rate.
 
 Redundant inputs are checked against each other (at most once per CONSISTENCY_PERIOD_S, over the latest
 CONSISTENCY_WINDOW_S), because a unit or sign mistake can give values that are each plausible:
@@ -495,11 +495,13 @@ class InputSet:
                 if stamp_ns == latest:
                     raise InputRejected("duplicate", f"{role}: header stamp {_stamp_text(stamp_ns)} repeats the "
                                                      f"previous message's")
-                raise InputRejected("backwards", f"{role}: stamp {(latest - stamp_ns) / NS_PER_S:.3f} s before the previous one")
+                raise InputRejected("backwards",
+                                    f"{role}: stamp {(latest - stamp_ns) / NS_PER_S:.3f} s before the previous one")
             ahead = (stamp_ns - now_ns) / NS_PER_S
             if ahead > self.settings.max_future_s:
                 raise InputRejected("future", f"{role}: stamp {ahead:.3f} s ahead of the clock "
-                                              f"(limit {self.settings.max_future_s:g} s; clock or use_sim_time mismatch?)")
+                                              f"(limit {self.settings.max_future_s:g} s; clock or "
+                                              f"use_sim_time mismatch?)")
         except InputRejected as err:
             track.reject(err.kind, str(err), now_ns)
             raise
@@ -800,7 +802,8 @@ class Rollout:
         batch's up to the float rounding of BLAS's blocking for a narrower product (test_dnn_fused.py)."""
         controls = np.asarray(controls, dtype=np.float64)
         if controls.ndim != 3 or controls.shape[1:] != (self.horizon_steps, self.n_controls):
-            raise ModelError(f"controls of shape {controls.shape}, expected (B, {self.horizon_steps}, {self.n_controls})")
+            raise ModelError(f"controls of shape {controls.shape}, expected (B, {self.horizon_steps}, "
+                             f"{self.n_controls})")
         count = controls.shape[0]
         try:
             if self._numpy is not None:
@@ -817,7 +820,8 @@ class Rollout:
             states = torch.from_numpy(np.asarray(state, dtype=np.float64)).to(self.dtype).expand(count, 4)  # (B, 4)
             with torch.inference_mode():
                 if reference is not None and self.accepts_reference:
-                    references = torch.from_numpy(np.asarray(reference, dtype=np.float64)).to(self.dtype).expand(count, 4)
+                    references = torch.from_numpy(np.asarray(reference, dtype=np.float64))
+                    references = references.to(self.dtype).expand(count, 4)
                     out = self.module(states, torch.from_numpy(controls).to(self.dtype), references)  # (E, B, H, 6)
                 else:
                     out = self.module(states, torch.from_numpy(controls).to(self.dtype))  # (E, B, H, 6)
