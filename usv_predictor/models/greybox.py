@@ -111,7 +111,8 @@ class MmgHullModule(nn.Module):
                        + h[16] * rp ** 3)
         return [x_h, y_h, n_h]
 
-    def solve(self, h: List[Tensor], x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor) -> List[Tensor]:
+    def solve(self, h: List[Tensor], x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor,
+              r: Tensor) -> List[Tensor]:
         """nu_r_dot = M^-1 (tau - C(nu_r) nu_r) with MMG's Coriolis terms (no Munk moment: it is in N_v)."""
         rhs_x = x + self.m22 * v_r * r + self.x_G * self.m * r * r
         rhs_y = y - self.m11 * u_r * r
@@ -148,7 +149,8 @@ class SmallCraftHullModule(nn.Module):
         n_h = h[self.i_nv] * v_r + h[self.i_nr] * r + h[self.i_nrr] * torch.abs(r) * r + n_cf
         return [x_h, y_h, n_h]
 
-    def solve(self, h: List[Tensor], x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor) -> List[Tensor]:
+    def solve(self, h: List[Tensor], x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor,
+              r: Tensor) -> List[Tensor]:
         """nu_r_dot = M^-1 (tau - C_RB(nu_r) nu_r - C_A(nu_r) nu_r), M with the fitted added mass; the yaw row has
         the Munk moment (Y_vdot - X_udot) u_r v_r."""
         m11 = self.m - h[self.i_xud]
@@ -518,7 +520,8 @@ class GreyBoxRollout(nn.Module):
         return self.actuator_forces.stage(c0 + a0 * dc, c0 + a1 * dc, c0 + a2 * dc, carry, self.rudder_offset)
 
     def _rollout(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
-        """(B, H, 6) [u, v, r, x_n, y_e, psi] as measured (the module docstring's interface without the ensemble axis)."""
+        """(B, H, 6) [u, v, r, x_n, y_e, psi] as measured (the module docstring's interface without the ensemble
+        axis)."""
         controls, x, carry = self._start(state, controls, reference)
         h = self.dt / self.substeps
         outputs: List[Tensor] = []
@@ -610,7 +613,8 @@ def greybox_metadata(vessel: Vessel, rollout: GreyBoxRollout, *, model_type: str
         "normalisation": {}, "vessel": vessel.name, "training_data_sha256": training_data_sha256,
         "ensemble_size": 1,
         "architecture": {"structure": vessel.hull_model.structure, "substeps": rollout.substeps,
-                         "hull": dict(zip(rollout.hull_names, rollout.hull.detach().tolist())), "terms": rollout.terms()},
+                         "hull": dict(zip(rollout.hull_names, rollout.hull.detach().tolist())),
+                         "terms": rollout.terms()},
         "training": dict(training or {}), "units": dict(UNITS), **engine_speed_metadata(vessel, rollout),
     }
 
@@ -618,8 +622,8 @@ def greybox_metadata(vessel: Vessel, rollout: GreyBoxRollout, *, model_type: str
 def greybox_predictor(vessel: Vessel, dt: float, substeps: int = 2) -> GreyBoxPredictor:
     """The calm-water grey box of a vessel as a predictor (the physics baseline of evaluations)."""
     rollout = GreyBoxRollout(vessel, dt=dt, substeps=substeps)
-    meta = greybox_metadata(vessel, rollout, model_type=f"physics (calm-water {vessel.hull_model.label} grey box of the "
-                                                        f"preset)")
+    label = f"physics (calm-water {vessel.hull_model.label} grey box of the preset)"
+    meta = greybox_metadata(vessel, rollout, model_type=label)
     meta["model_id"] = f"physics-{vessel.name}"
     return GreyBoxPredictor(rollout, meta, vessel)
 

@@ -30,7 +30,7 @@ from usv_predictor.physics import kernel as kn
 HULL_KINDS = {"MmgHullModule": kn.MMG, "SmallCraftHullModule": kn.SMALL_CRAFT}  # the torch twin's class -> kind
 LAYOUT_KINDS = {"RudderPropellerModule": kn.RUDDER_PROPELLER, "RudderThrottleModule": kn.RUDDER_THROTTLE,
                 "RudderOnlyModule": kn.RUDDER_ONLY, "TwinThrusterModule": kn.TWIN_THRUSTERS}
-# the small-craft hull module's indices of kernel.SMALL_CRAFT_INDICES' coefficients (models/greybox.SmallCraftHullModule)
+# the small-craft hull module's indices of kernel.SMALL_CRAFT_INDICES' coefficients (greybox.SmallCraftHullModule)
 MODULE_INDICES = ("i_xud", "i_yvd", "i_nrd", "i_xu", "i_xuu", "i_yv", "i_yr", "i_nv", "i_nr", "i_nrr", "i_cd")
 KERNEL_FORM = "compiled kernel (physics/kernel.py, numba)"  # the inference_note of a model running it
 
@@ -42,6 +42,10 @@ class KernelUnavailable(ModelError):
 def _name(module: Any) -> str:
     """The class name of an eager module or of a TorchScript module's original class."""
     return str(getattr(module, "original_name", type(module).__name__))
+
+
+def _array(tensor: torch.Tensor | None) -> np.ndarray | None:
+    return None if tensor is None else tensor.detach().to(torch.float64).cpu().numpy()
 
 
 def _floats(value: Any) -> np.ndarray:
@@ -63,7 +67,8 @@ class KernelRollout:
         try:
             self._pack(module)
         except (AttributeError, KeyError, TypeError, ValueError, IndexError, RuntimeError) as err:
-            raise KernelUnavailable(f"the kernel cannot read this {_name(module)} ({type(err).__name__}: {err})") from err
+            raise KernelUnavailable(f"the kernel cannot read this {_name(module)} ({type(err).__name__}: "
+                                    f"{err})") from err
         self._refresh()
 
     # ---- packing ---------------------------------------------------------------------------------------------
@@ -149,7 +154,7 @@ class KernelRollout:
                 pk.set(f"poly_{field}", getattr(residual, field))
             return kn.RESIDUAL_POLYNOMIAL
         if name == "GeneralisingResidual":
-            as64 = (lambda t: t.detach().to(torch.float64).cpu().numpy())
+            as64 = _array
             params = dict(residual.named_parameters())  # a scripted ParameterList cannot be iterated: by name
             layers = sum(1 for key in params if key.startswith("weights."))
             weights = [as64(params[f"weights.{k}"]) for k in range(layers)]  # (E, in, out) each
@@ -229,9 +234,7 @@ class KernelRollout:
 
     def __call__(self, state: torch.Tensor, controls: torch.Tensor, reference: torch.Tensor | None = None,
                  free: torch.Tensor | None = None) -> torch.Tensor:
-        as_numpy = (lambda t: None if t is None else t.detach().to(torch.float64).cpu().numpy())
-        return torch.from_numpy(self.rollout(as_numpy(state), as_numpy(controls), as_numpy(reference),
-                                             as_numpy(free)))
+        return torch.from_numpy(self.rollout(_array(state), _array(controls), _array(reference), _array(free)))
 
     def __getattr__(self, name: str) -> Any:  # the module's attributes (terms, hull, metadata helpers)
         if name == "module":

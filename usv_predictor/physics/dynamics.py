@@ -137,7 +137,8 @@ class SeaConstants:
         return cls(
             wind_x=0.5 * RHO_AIR * w.A_F * w.c_x, wind_y=0.5 * RHO_AIR * w.A_L * w.c_y,
             wind_n=0.5 * RHO_AIR * w.A_L * g.L_oa * w.c_n, q_wave=0.5 * RHO_WATER * GRAVITY * g.L_pp,
-            drift_x=fourier_terms(d.a_x, d.b_x), drift_y=fourier_terms(d.a_y, d.b_y), drift_n=fourier_terms(d.a_n, d.b_n),
+            drift_x=fourier_terms(d.a_x, d.b_x), drift_y=fourier_terms(d.a_y, d.b_y),
+            drift_n=fourier_terms(d.a_n, d.b_n),
         )
 
 
@@ -243,7 +244,8 @@ class ThrottleConstants:
     @classmethod
     def of(cls, vessel: Vessel) -> "ThrottleConstants":
         p = vessel.propeller
-        return cls(throttle=vessel.throttle, static_thrust=RHO_WATER * p.D_P**4 * p.k0, rpm_per_rev_s=60.0 * p.gear_ratio)
+        return cls(throttle=vessel.throttle, static_thrust=RHO_WATER * p.D_P**4 * p.k0,
+                   rpm_per_rev_s=60.0 * p.gear_ratio)
 
 
 @dataclass(frozen=True)

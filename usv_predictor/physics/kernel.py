@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 import os
 import tempfile
+from typing import Any
 
 import numba
 import numpy as np
