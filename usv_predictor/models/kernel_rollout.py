@@ -23,7 +23,7 @@ from typing import Any, Mapping
 import numpy as np
 import torch
 
-from usv_predictor.errors import ModelError
+from usv_predictor.errors import KernelUnavailable
 from usv_predictor.physics import effects
 from usv_predictor.physics import kernel as kn
 
@@ -33,10 +33,6 @@ LAYOUT_KINDS = {"RudderPropellerModule": kn.RUDDER_PROPELLER, "RudderThrottleMod
 # the small-craft hull module's indices of kernel.SMALL_CRAFT_INDICES' coefficients (greybox.SmallCraftHullModule)
 MODULE_INDICES = ("i_xud", "i_yvd", "i_nrd", "i_xu", "i_xuu", "i_yv", "i_yr", "i_nv", "i_nr", "i_nrr", "i_cd")
 KERNEL_FORM = "compiled kernel (physics/kernel.py, numba)"  # the inference_note of a model running it
-
-
-class KernelUnavailable(ModelError):
-    """The module is not one the kernel can run (the caller keeps the module's own rollout)."""
 
 
 def _name(module: Any) -> str:
