@@ -116,7 +116,12 @@ HYPOTHESES: Mapping[str, tuple[Term, ...]] = fx.RegistryView(
 
 
 def residuals(model: GreyBoxRollout | KernelRollout, seg: Segments) -> torch.Tensor:
-    """Weighted residuals (B, H, 6) of the rollout against the measurements."""
+    """Weighted residuals (B, H, 6) of the rollout against the measurements (the kernel's in numpy, on the segments'
+    own memory: no tensor operations on the way)."""
+    if isinstance(model, KernelRollout):
+        predicted = model.rollout(seg.state.numpy(), seg.controls.numpy(),
+                                  None if seg.reference is None else seg.reference.numpy())[0]  # (B, H, 6)
+        return torch.from_numpy((predicted - seg.target.numpy()) * seg.weight.numpy())
     with torch.no_grad():
         predicted = model(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
     return (predicted - seg.target) * seg.weight
