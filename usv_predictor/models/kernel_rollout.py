@@ -32,6 +32,7 @@ LAYOUT_KINDS = {"RudderPropellerModule": kn.RUDDER_PROPELLER, "RudderThrottleMod
                 "RudderOnlyModule": kn.RUDDER_ONLY, "TwinThrusterModule": kn.TWIN_THRUSTERS}
 # the small-craft hull module's indices of kernel.SMALL_CRAFT_INDICES' coefficients (greybox.SmallCraftHullModule)
 MODULE_INDICES = ("i_xud", "i_yvd", "i_nrd", "i_xu", "i_xuu", "i_yv", "i_yr", "i_nv", "i_nr", "i_nrr", "i_cd")
+PROBE_STEPS = 24  # steps of check_equal's probe: every constant acts within them (a wrong one moves the first step)
 KERNEL_FORM = "compiled kernel (physics/kernel.py, numba)"  # the inference_note of a model running it
 
 
@@ -247,10 +248,10 @@ def kernel_note(module: Any) -> tuple[KernelRollout | None, str]:
 
 
 def check_equal(kernel: KernelRollout, module: Any, metadata: Mapping[str, Any], rtol: float = 1e-6) -> float:
-    """The largest difference between the kernel's and the module's predictions on a probe (straight, turning and
-    astern starts at the model's horizon with the controls swept), relative to each output column's scale;
+    """The largest difference between the kernel's and the module's predictions on a probe (three starts, PROBE_STEPS
+    steps with the controls swept through the layout's range), relative to each output column's scale;
     KernelUnavailable beyond rtol."""
-    horizon = int(metadata.get("horizon_steps") or 20)
+    horizon = min(int(metadata.get("horizon_steps") or PROBE_STEPS), PROBE_STEPS)  # the file's rollout is the slow one
     width = kernel.n_controls
     state = np.array([[1.5, 0.0, 0.0, 0.3], [2.0, 0.1, 0.05, -2.0], [0.5, -0.05, -0.02, 3.0]])
     sweep = np.linspace(-1.0, 1.0, horizon)
