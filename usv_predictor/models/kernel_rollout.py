@@ -9,8 +9,10 @@ terms from its parameters. It is called like the module:
     kernel(state (B, 4), controls (B, H, C), reference (B, 4) | None) -> (E, B, H, 6) torch tensor
     kernel.rollout(the same as numpy arrays) -> (E, B, H, 6) numpy array
 
-`live=True` (diagnosis, identification: they set the module's terms and hull in place, diagnosis.set_terms) re-reads
-the parameters at every call (a few microseconds); `live=False` (an artifact's inference) reads them once. Attributes
+`live=True` re-reads at every call the parameters that changed (torch counts in-place changes: a few microseconds
+when none did): for diagnosis and identification, which set the module's terms in place (diagnosis.set_terms), the
+fit check, which replaces them, and the node, whose sea estimate writes them (node/sea.py). `live=False` reads them
+once. Attributes
 it does not have are the module's (model.current_ne is the module's tensor), so the callers' code does not change.
 A module it cannot read (another family, an artifact of a version whose attributes differ) is a KernelUnavailable
 naming what is missing; models/loading.py then keeps the file's module.
@@ -63,10 +65,10 @@ class KernelRollout:
         self._held: list = []
         try:
             self._pack(module)
+            self._refresh()
         except (AttributeError, KeyError, TypeError, ValueError, IndexError, RuntimeError) as err:
             raise KernelUnavailable(f"the kernel cannot read this {_name(module)} ({type(err).__name__}: "
                                     f"{err})") from err
-        self._refresh()
 
     # ---- packing ---------------------------------------------------------------------------------------------
     def _pack(self, m: Any) -> None:
@@ -151,11 +153,10 @@ class KernelRollout:
                 pk.set(f"poly_{field}", getattr(residual, field))
             return kn.RESIDUAL_POLYNOMIAL
         if name == "GeneralisingResidual":
-            as64 = _array
             params = dict(residual.named_parameters())  # a scripted ParameterList cannot be iterated: by name
             layers = sum(1 for key in params if key.startswith("weights."))
-            weights = [as64(params[f"weights.{k}"]) for k in range(layers)]  # (E, in, out) each
-            biases = [as64(params[f"biases.{k}"]) for k in range(layers)]  # (E, 1, out) each
+            weights = [_array(params[f"weights.{k}"]) for k in range(layers)]  # (E, in, out) each
+            biases = [_array(params[f"biases.{k}"]) for k in range(layers)]  # (E, 1, out) each
             members, width, hidden = weights[0].shape
             if width != kn.N_FEATURES or members != self.members or int(residual.members) != self.members:
                 raise ValueError(f"learned residual of {width} features and {members} members")
@@ -169,8 +170,8 @@ class KernelRollout:
                 norm[k] = _floats(getattr(residual, field))
             norm[4, :3] = _floats(residual.bound)
             for key, values in ((kn.K_O_W0, weights[0]), (kn.K_O_B0, biases[0][:, 0]), (kn.K_O_WH, hidden_w),
-                                (kn.K_O_BH, hidden_b), (kn.K_O_WO, as64(residual.head_weight)),
-                                (kn.K_O_BO, as64(residual.head_bias)[:, 0]), (kn.K_O_NORM, norm)):
+                                (kn.K_O_BH, hidden_b), (kn.K_O_WO, _array(residual.head_weight)),
+                                (kn.K_O_BO, _array(residual.head_bias)[:, 0]), (kn.K_O_NORM, norm)):
                 pk.append(key, values)
             for field in ("L", "u_ref", "speed_floor", "support_width"):
                 pk.set(f"mlp_{field}", getattr(residual, field))
