@@ -101,6 +101,7 @@ FIT_CEILING_LOSS = 100.0  # held-out loss (noise units) no model that fits leave
 NONE_LOSS = 5.0  # held-out loss (noise units) above which the calm-water model is not "within the noise": `none`
 #                 is then model_mismatch (clean presets leave 0.1, the right cause <= 0.5; an identified unknown
 #                 boat that fits 0.3; one that left 17 hid a 0.77 deg/s gyro bias behind a confident `none`)
+GAIN_METRIC = "mean_position_error_after_30s_m"  # the held-out error a named cause's extension must lower
 MODEL_MISMATCH = "model_mismatch"  # the answer when the calm-water model itself is wrong (identify it first)
 REMEDY = "identify this boat first (docs/your_boat.md)"
 INCONCLUSIVE = "inconclusive"  # a candidate explains the held-out loss but its extension does not predict tracks better

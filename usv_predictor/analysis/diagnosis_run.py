@@ -28,7 +28,6 @@ from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.models.greybox import hull_from_metadata, vessel_from_metadata
 from usv_predictor.physics.vessel import Vessel, load_vessel
 
-GAIN_METRIC = "mean_position_error_after_30s_m"  # the held-out error a named cause's extension must lower
 
 
 class CalmWater(NamedTuple):
@@ -125,8 +124,8 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         progress("measuring the gain on held-out manoeuvres")
         measured = dg.measure_gain(recordings, vessel, result, horizon_s=horizon_s, segment_stride_s=stride_s,
                                    segments=segments, rollout=rollout)
-        before = measured["baseline"].get(GAIN_METRIC)
-        after = measured["extended"].get(GAIN_METRIC)
+        before = measured["baseline"].get(dg.GAIN_METRIC)
+        after = measured["extended"].get(dg.GAIN_METRIC)
         if before is not None and after is not None and not after < before:
             rejected = {"causes": list(result.hypotheses), "baseline": measured["baseline"],
                         "extended": measured["extended"], "gain": measured["relative_improvement"]}

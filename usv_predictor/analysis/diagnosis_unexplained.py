@@ -14,7 +14,7 @@ is fitted on top of the calm-water model and measured exactly as a cause is:
     held-out track error at the segment end, with the thresholds a cause needs (EVIDENCE_CAUSE, MIN_GAIN,
     MIN_TRACK_GAIN of analysis/diagnosis.py);
   - and the open-loop position error after 30 s of analysis.evaluation on the held-out manoeuvres (the metric a named
-    cause's extension must lower, diagnosis_run.GAIN_METRIC), against the calm-water model's.
+    cause's extension must lower, diagnosis.GAIN_METRIC), against the calm-water model's.
 
 The answer becomes `unexplained` with these gains only when every test passes; otherwise the earlier answer stays
 (its message says what the residual achieved). A physical cause that is named is never replaced: the residual is not
@@ -128,7 +128,6 @@ def measure_unexplained(recordings: Sequence[Recording], vessel: Vessel, diagnos
     trained on these data (the reason is reported by progress). config: None = UNEXPLAINED_TRAINING (its horizon and
     stride replaced by the diagnosis')."""
     from usv_predictor.analysis import evaluation
-    from usv_predictor.analysis.diagnosis_run import GAIN_METRIC
     from usv_predictor.models.greybox import GreyBoxPredictor, GreyBoxRollout, greybox_metadata
 
     names = [r.name for r in recordings]
@@ -171,8 +170,8 @@ def measure_unexplained(recordings: Sequence[Recording], vessel: Vessel, diagnos
     gain = 1.0 - mean / calm_mean if calm_mean > 0 else float("nan")
     track_after, track_before = _finite_mean(track), _finite_mean(calm_track)
     track_gain = 1.0 - track_after / track_before if track_before > 0 else float("nan")
-    loop_before = evaluation.summarise(before, (30.0,)).get(GAIN_METRIC)
-    loop_after = evaluation.summarise(after, (30.0,)).get(GAIN_METRIC)
+    loop_before = evaluation.summarise(before, (30.0,)).get(dg.GAIN_METRIC)
+    loop_after = evaluation.summarise(after, (30.0,)).get(dg.GAIN_METRIC)
     reasons = []
     if not (evidence >= dg.EVIDENCE_CAUSE and gain >= dg.MIN_GAIN):
         reasons.append(f"it removes {gain * 100:.1f} % of the calm-water model's held-out loss with evidence "
