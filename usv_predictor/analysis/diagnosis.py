@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
@@ -313,8 +314,8 @@ def _probes(terms: Sequence[Term], sizes: Sequence[int], theta: np.ndarray,
 
 def compiled_rollout(vessel: Vessel, dt: float, substeps: int = 1) -> KernelRollout:
     """The grey box on the compiled kernel (models/kernel_rollout.py): called as the module is, its terms the
-    module's, set in place by set_terms and re-read at every call."""
-    return KernelRollout(GreyBoxRollout(vessel, dt=dt, substeps=substeps), live=True)
+    module's, set in place by set_terms and re-read at every call; the segments split over the machine's cores."""
+    return KernelRollout(GreyBoxRollout(vessel, dt=dt, substeps=substeps), live=True, threads=os.cpu_count() or 1)
 
 
 # ---- from grey-box terms to the DESIGN.md vocabulary -------------------------------------------------

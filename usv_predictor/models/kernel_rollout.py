@@ -20,6 +20,7 @@ naming what is missing; models/loading.py then keeps the file's module.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Mapping
 
 import numpy as np
@@ -58,9 +59,10 @@ class KernelRollout:
 
     accepts_reference = True  # forward's third argument: rudder_only's reference state (models/greybox.py)
 
-    def __init__(self, module: Any, *, live: bool = False) -> None:
+    def __init__(self, module: Any, *, live: bool = False, threads: int = 1) -> None:
         self.module = module
         self.live = bool(live)
+        self.threads = max(1, int(threads))  # a batch of at least SPLIT_ROWS rows a thread is split over this many
         self._read: tuple = ()  # what _refresh read last: (data_ptr, version) per parameter, and the tensors
         self._held: list = []
         try:
@@ -225,9 +227,23 @@ class KernelRollout:
         use_reference = reference is not None
         reference = state if reference is None else np.ascontiguousarray(reference, dtype=np.float64)
         free = np.ones(rows) if free is None else np.ascontiguousarray(free, dtype=np.float64)
-        out = np.empty((self.members, rows, steps, 6))
-        if rows and steps:
-            kn.rollout(state, controls, reference, use_reference, self.ki, self.p, self.terms, free, out)
+        parts = min(self.threads, rows // SPLIT_ROWS)
+        if parts > 1 and steps:  # the kernel runs without the GIL: each thread its share of the rows
+            bounds = np.linspace(0, rows, parts + 1).astype(int)
+            shares = [slice(lo, hi) for lo, hi in zip(bounds[:-1], bounds[1:])]
+            done = list(_pool(parts).map(lambda rows_: self._run(state[rows_], controls[rows_], reference[rows_],
+                                                                 use_reference, free[rows_], rows_), shares))
+            return np.concatenate(done, axis=1)
+        return self._run(state, controls, reference, use_reference, free, slice(0, rows))
+
+    def _run(self, state: np.ndarray, controls: np.ndarray, reference: np.ndarray, use_reference: bool,
+             free: np.ndarray, rows: slice) -> np.ndarray:
+        """(E, b, H, 6) of the rows `rows` of the batch (their inputs given; the terms cut to them when per row)."""
+        terms = self.terms if self.terms.shape[0] == 1 else np.ascontiguousarray(self.terms[rows])
+        out = np.empty((self.members, state.shape[0], controls.shape[1], 6))
+        if state.shape[0] and controls.shape[1]:
+            kn.rollout(np.ascontiguousarray(state), np.ascontiguousarray(controls), np.ascontiguousarray(reference),
+                       use_reference, self.ki, self.p, terms, np.ascontiguousarray(free), out)
         return out
 
     def __call__(self, state: torch.Tensor, controls: torch.Tensor, reference: torch.Tensor | None = None,
@@ -238,6 +254,17 @@ class KernelRollout:
         if name == "module":
             raise AttributeError(name)
         return getattr(self.module, name)
+
+
+SPLIT_ROWS = 32  # (-) rows a thread must have before a batch is split (below, a thread's start costs more)
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    """A process-wide pool of `threads` threads for split batches (made once per size)."""
+    if threads not in _POOLS:
+        _POOLS[threads] = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="usv-kernel")
+    return _POOLS[threads]
 
 
 def kernel_note(module: Any) -> tuple[KernelRollout | None, str]:

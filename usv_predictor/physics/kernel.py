@@ -619,7 +619,7 @@ def _derivative(ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b):
     return u * c - v * s, u * s + v * c, r, du, dv * free, dr * free
 
 
-@_compiled
+@njit(cache=CACHED, nogil=True)  # without the GIL: two threads roll out two halves of a batch at once
 def rollout(state, controls, reference, use_reference, ki, constants, terms, free, out):
     """The grey box's closed-loop rollout into out (E, B, H, 6) [u, v, r, x_n, y_e, psi] as measured, from state
     (B, 4) [u, v, r, psi] as measured and controls (B, H, C) as reported (models/greybox.py's interface); reference
