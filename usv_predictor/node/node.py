@@ -159,8 +159,9 @@ NODE_PARAMETERS: dict[str, NodeParameter] = {
     "plan_max_age_s": NodeParameter(1.0, "a plan (or candidate plans) stamped longer ago than this is refused, and a "
                                          "followed plan is dropped for the held commands (s)", 0.01, 60.0),
     "candidates_threads": NodeParameter(1, "threads the candidate plans' batched rollout runs on: 2 splits a batch "
-                                           "of a numpy DNN in halves, the second on a helper thread (a second core "
-                                           "when the machine has one free; docs/node.md)", 1, 2),
+                                           "of a numpy DNN or of the compiled grey-box kernel in halves, the first "
+                                           "on a helper thread (a second core when the machine has one free; "
+                                           "docs/node.md)", 1, 2),
     "candidates_members": NodeParameter(0, "ensemble members whose mean answers the candidate plans: 0 = the "
                                            "node's own (ensemble_size); fewer cost less in proportion and give a "
                                            "different mean, from fewer members (docs/node.md)", 0, 64),
