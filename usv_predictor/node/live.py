@@ -796,9 +796,9 @@ class Rollout:
     def batch(self, state: np.ndarray, controls: np.ndarray, reference: np.ndarray | None = None,
               helper: Executor | None = None) -> np.ndarray:
         """(E, B, H, 6) from one state (4,) under B control sequences (B, H, C): one call of the model; reference
-        (4,) as for __call__. helper: a NumpyDnnRollout's batch is split in two, the first half rolled out on this
-        executor's thread while the caller rolls out the second (numpy releases the GIL inside its products and
-        activations: two cores work on one answer); the columns are independent, so the halves are the whole
+        (4,) as for __call__. helper: a NumpyDnnRollout's or the kernel's batch is split in two, the first half rolled
+        out on this executor's thread while the caller rolls out the second (numpy releases the GIL inside its
+        products and activations, the kernel for its whole rollout: two cores work on one answer); the columns are independent, so the halves are the whole
         batch's up to the float rounding of BLAS's blocking for a narrower product (test_dnn_fused.py)."""
         controls = np.asarray(controls, dtype=np.float64)
         if controls.ndim != 3 or controls.shape[1:] != (self.horizon_steps, self.n_controls):
