@@ -798,8 +798,9 @@ class Rollout:
         """(E, B, H, 6) from one state (4,) under B control sequences (B, H, C): one call of the model; reference
         (4,) as for __call__. helper: a NumpyDnnRollout's or the kernel's batch is split in two, the first half rolled
         out on this executor's thread while the caller rolls out the second (numpy releases the GIL inside its
-        products and activations, the kernel for its whole rollout: two cores work on one answer); the columns are independent, so the halves are the whole
-        batch's up to the float rounding of BLAS's blocking for a narrower product (test_dnn_fused.py)."""
+        products and activations, the kernel for its whole rollout: two cores work on one answer); the columns are
+        independent, so the halves are the whole batch's up to the float rounding of BLAS's blocking for a narrower
+        product (test_dnn_fused.py), the kernel's bit for bit (test_kernel.py)."""
         controls = np.asarray(controls, dtype=np.float64)
         if controls.ndim != 3 or controls.shape[1:] != (self.horizon_steps, self.n_controls):
             raise ModelError(f"controls of shape {controls.shape}, expected (B, {self.horizon_steps}, "
