@@ -214,5 +214,6 @@ def test_report_names_what_the_prior_supplies(noisy, vessel, tmp_path):
     text = write_identification_report(tmp_path, result, out).read_text()
     used = result.prior_used()
     assert used and f"Not determined by these manoeuvres; prior used: {', '.join(used)}." in text
+    assert f"The trials that would determine them: {idf.trials_text(used)}." in text
     ex = result.excitation()
     assert f"|beta| {ex['beta_deg_p99']:.1f} deg" in text and f"|r'| {ex['r_prime_p99']:.3f}" in text

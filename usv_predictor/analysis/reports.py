@@ -446,6 +446,10 @@ def write_identification_report(directory: Path, result: IdentificationResult, o
         lines.append(f"| {c.name} | {c.estimate:+.5f} | [{c.ci95[0]:+.5f}, {c.ci95[1]:+.5f}] | {c.prior:+.5f} | {c.status} |")
     used = result.prior_used()
     lines += ["", "Not determined by these manoeuvres; prior used: " + (", ".join(used) if used else "none") + "."]
+    if used:
+        from usv_predictor.fitting.identification import trials_text
+
+        lines[-1] += f" The trials that would determine them: {trials_text(used, result.vessel.hull_model_name)}."
     ex = result.excitation()
     if ex["beta_deg_p99"] is not None:
         lines += ["", f"Excitation (99th percentiles): |beta| {ex['beta_deg_p99']:.1f} deg, |v'| {ex['v_prime_p99']:.3f}, "
