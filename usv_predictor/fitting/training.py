@@ -305,13 +305,14 @@ def _train_member(config: DnnConfig, recipe: TrainingConfig, norm: Normalisation
             total = 0.0
             for b in range(n_batches):
                 loss = train.loss(model, perm[b * batch:(b + 1) * batch])
-                if not math.isfinite(loss.item()):  # before the step: a NaN gradient would poison every weight
-                    raise TrainingDiverged(f"training diverged: the training loss of batch {b + 1} is {loss.item()} at "
+                value = loss.item()
+                if not math.isfinite(value):  # before the step: a NaN gradient would poison every weight
+                    raise TrainingDiverged(f"training diverged: the training loss of batch {b + 1} is {value} at "
                                            f"epoch {epoch + 1} of member {member}; {_likely_cause(recipe)}")
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 optimizer.step()
-                total += loss.item()
+                total += value
             train_loss = total / n_batches
             model.eval()
             with torch.no_grad():
