@@ -397,7 +397,8 @@ def test_a_diverging_model_is_reported_as_diverged_never_as_a_metric(turn, vesse
     assert record["diverged"] == {"at_s": rec.diverged_at_s, "duration_s": pytest.approx(turn.duration_s, abs=DT),
                                   "manoeuvre": rec.manoeuvre.label()}
     assert set(record["closed_loop_rmse"].values()) == {None}
-    assert set(record["turning"]["predicted"].values()) == {None} and set(record["turning"]["errors"].values()) == {None}
+    assert set(record["turning"]["predicted"].values()) == {None}
+    assert set(record["turning"]["errors"].values()) == {None}
     assert record["turning"]["measured"]["turning_radius_m"] > 0.0
     assert any(n.startswith(f"closed loop: the model's rollout diverged (NaN/inf) at {rec.diverged_at_s:.1f} s")
                for n in record["notes"])
@@ -421,4 +422,5 @@ def test_a_stable_model_reports_no_divergence(turn, vessel_model):
     assert record["open_loop"]["first_diverged"] is None
     assert all(h["diverged"] == 0 for h in record["open_loop"]["horizons"])
     assert result.summary["diverged_recordings"] == 0.0 and result.summary["open_loop_diverged_windows"] == 0.0
-    assert record["closed_loop_rmse"]["position_m"] is not None and record["turning"]["errors"]["turning_radius_rel_pct"] is not None
+    assert record["closed_loop_rmse"]["position_m"] is not None
+    assert record["turning"]["errors"]["turning_radius_rel_pct"] is not None
