@@ -362,7 +362,7 @@ def test_a_base_that_diverges_stops_the_residual_training_before_the_first_step(
     message = str(err.value)
     assert "\n" not in message
     assert message.startswith("hybrid: the training loss of member 0 is nan at epoch 0")
-    assert "the grey box alone diverges (NaN/inf) on" in message and "training segments" in message
+    assert "the grey box alone diverges (NaN/inf loss) on" in message and "training segments" in message
     module, info = hybrid_fit.train_residual(ResidualGreyBox(vessel, DT, ZeroResidual(), 2), vessel, data, recordings,
                                              DT, SHORT_TRAINING)
     assert all(math.isfinite(x) for x in info["loss_best"])

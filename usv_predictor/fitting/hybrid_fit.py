@@ -235,14 +235,16 @@ def _segment_losses(module: ResidualGreyBox, seg: Segments, weights: torch.Tenso
 
 
 def _diverging_segments(module: ResidualGreyBox, seg: Segments) -> int:
-    """How many segments the module's rollout leaves non-finite (NaN/inf in any member)."""
+    """How many segments the module's rollout leaves without a finite loss in some member (NaN/inf, or so large
+    that its square overflows)."""
     with torch.no_grad():
-        predicted = module(seg.state, seg.controls, seg.reference)  # (E, N, H, 6)
-    return int((~torch.isfinite(predicted).flatten(2).all(dim=2)).any(dim=0).sum())
+        r = (module(seg.state, seg.controls, seg.reference) - seg.target) * seg.weight  # (E, N, H, 6)
+        per_segment = (r * r).sum(dim=(2, 3))  # (E, N)
+    return int((~torch.isfinite(per_segment)).any(dim=0).sum())
 
 
-def _check_loss(losses: torch.Tensor, zero: torch.Tensor, epoch: int, what: str, module: ResidualGreyBox,
-                base: ResidualGreyBox, seg: Segments, config: HybridTraining) -> None:
+def _check_loss(losses: torch.Tensor, zero: torch.Tensor, epoch: int, what: str, base: ResidualGreyBox,
+                seg: Segments, config: HybridTraining) -> None:
     """TrainingDiverged naming the epoch, the member, the loss and its likely cause when a member's `losses` (E,) or
     pull toward zero `zero` (E,) is not finite (module docstring, step 4)."""
     bad = ~(torch.isfinite(losses) & torch.isfinite(zero))
@@ -256,8 +258,8 @@ def _check_loss(losses: torch.Tensor, zero: torch.Tensor, epoch: int, what: str,
                                "identification data)")
     diverging = _diverging_segments(base, seg)
     if diverging:
-        raise TrainingDiverged(f"{where}: the grey box alone diverges (NaN/inf) on {diverging} of {len(seg)} {what} "
-                               f"segments; a residual cannot be trained on a base that diverges (an unstable "
+        raise TrainingDiverged(f"{where}: the grey box alone diverges (NaN/inf loss) on {diverging} of {len(seg)} "
+                               f"{what} segments; a residual cannot be trained on a base that diverges (an unstable "
                                "identified hull: check its signs, e.g. N_r < 0, or identify on more manoeuvres)")
     raise TrainingDiverged(f"{where}: the learned residual drove the rollout unstable (the grey box alone rolls out "
                            f"every segment); lower the learning rate (now {config.learning_rate:g})")
@@ -306,11 +308,11 @@ def train_residual(base: ResidualGreyBox, vessel: Vessel, data: Sequence[ForceDa
         with torch.no_grad():  # epoch 0, the untrained residual (zero: the base itself) is a candidate too, so a
             #                    member keeps no learned term that does not beat its base on the held-out manoeuvres
             zero = ((learned.nondimensional(samples) / learned.bound) ** 2).sum(dim=-1).mean(dim=-1)  # (E,)
-            _check_loss(_segment_losses(module, train), zero, 0, "training", module, base, train, config)
+            _check_loss(_segment_losses(module, train), zero, 0, "training", base, train, config)
             monitor = (_segment_losses(module, val) if val is not None
                        else _segment_losses(module, train) + config.zero_weight * zero)  # (E,)
             if val is not None:
-                _check_loss(monitor, zero, 0, "validation", module, base, val, config)
+                _check_loss(monitor, zero, 0, "validation", base, val, config)
         best = [float(x) for x in monitor]
         best_epoch = [0] * config.members
         best_state = [p.detach().clone() for p in trainable]
@@ -320,14 +322,14 @@ def train_residual(base: ResidualGreyBox, vessel: Vessel, data: Sequence[ForceDa
             optimiser.zero_grad()
             fit = _segment_losses(module, train, bootstrap)  # (E,)
             zero = ((learned.nondimensional(samples) / learned.bound) ** 2).sum(dim=-1).mean(dim=-1)  # (E,)
-            _check_loss(fit.detach(), zero.detach(), epoch, "training", module, base, train, config)
+            _check_loss(fit.detach(), zero.detach(), epoch, "training", base, train, config)
             (fit + config.zero_weight * zero).sum().backward()
             optimiser.step()
             fit = fit.detach()
             with torch.no_grad():
                 monitor = (_segment_losses(module, val) if val is not None
                            else _segment_losses(module, train) + config.zero_weight * zero)  # (E,)
-            _check_loss(monitor, zero.detach(), epoch, "validation" if val is not None else "training", module, base,
+            _check_loss(monitor, zero.detach(), epoch, "validation" if val is not None else "training", base,
                         val if val is not None else train, config)
             history.append((fit.tolist(), monitor.tolist()))
             improved = False
