@@ -307,7 +307,7 @@ def test_a_calm_day_without_astern_commands_reports_the_astern_gains_held_with_t
     assert not {"thrusters.port.forward_N", "thrusters.starboard.forward_N", "N_r"} & set(held)  # determined
     message = result.held_message()
     assert "\n" not in message and "thrusters.port.reverse_N, thrusters.starboard.reverse_N: astern commands" in message
-    with pytest.raises(NotIdentifiableError, match=r"thrusters\.port\.reverse_N: no excitation in the data \(would be "
+    with pytest.raises(NotIdentifiableError, match=r"thrusters\.port\.reverse_N: no excitation in the data, would be "
                                                    r"determined by astern commands"):
         sc.fit_small_craft(vessel, forward_only, "diagonal", "none")
 

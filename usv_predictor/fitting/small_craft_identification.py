@@ -352,7 +352,7 @@ WOULD_DETERMINE: Mapping[str, str] = {
 
 def _message(found: Mapping[str, str], fit: JointFit, manoeuvres: Sequence[str]) -> str:
     pairs = [f"{a}~{b} (rho {rho:+.2f})" for e in fit.equations for a, b, rho in e.collinearity.pairs]
-    listed = "; ".join(f"{n}: {why} (would be determined by {would_determine(n, 'small_craft')})"
+    listed = "; ".join(f"{n}: {why}, would be determined by {would_determine(n, 'small_craft')}"
                        for n, why in found.items())
     return (f"small-craft coefficients not identifiable from {len(manoeuvres)} manoeuvre(s) ({', '.join(manoeuvres)}): "
             f"{listed} (a 95 % CI wider than {REL_CI_LIMIT:.0%} of their size, no excitation, or the wrong sign)"
