@@ -585,7 +585,7 @@ def _message(names: Sequence[str], fits: Sequence[EquationFit], data_names: Sequ
               "other coefficient from the data alone, so the description's errors stay in the terms the data cannot "
               "see; --prior ridge (prior='ridge') pulls EVERY coefficient towards the description, identifiable ones "
               "included, and is better only when the whole description is trusted (compare the cross-validation "
-              f"scores). Or record the trials that would determine them ({trials_text(names)})")
+              f"scores). Or record the trials that would determine them: {trials_text(names)}")
 
 
 def _ridge_by_cv(designs: Sequence[Design], prior: Mapping[str, float], fixed: Sequence[str] = ()) -> float:
