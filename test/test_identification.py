@@ -80,8 +80,12 @@ def test_noise_free_recovers_the_preset(clean, vessel):
 
 def test_noisy_sensors_recover_the_linear_derivatives(noisy, vessel):
     recs, data = noisy
-    with pytest.raises(idf.NotIdentifiableError, match="not identifiable.*Y_vvv.*--prior fix"):
+    with pytest.raises(idf.NotIdentifiableError, match="not identifiable.*Y_vvv.*--prior fix") as err:
         idf.fit_hull(vessel, data, "mmg", "none")
+    # per coefficient, the trial that would determine it (issue 29): "names: trial; names: trial"
+    groups = [g.split(": ", 1) for g in str(err.value).split("Or record the trials that would determine them: ")[1]
+              .split("; ")]
+    assert any("Y_vvv" in names.split(", ") and trial == idf.WOULD_DETERMINE["Y_vvv"] for names, trial in groups)
     fit = idf.fit_hull(vessel, data, "mmg", "fix")
     _check_identified(fit, vessel, 0.10, 0.30)
     fixed = [c for c in fit.coefficients() if c.status == "fixed to prior"]
