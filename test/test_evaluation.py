@@ -379,3 +379,54 @@ def test_the_command_line_offers_the_references_the_evaluation_knows():
     from usv_predictor.replay import evaluate as replay_evaluate
 
     assert replay_evaluate.REFERENCES == ev.REFERENCES
+
+
+def _unstable(vessel_model: ManoeuvringModel, N_r: float = 1.0):
+    """The boat's grey box with a yaw damping of the wrong sign (N_r > 0): the yaw rate grows until the rollout is
+    NaN within seconds of the turning circle."""
+    import dataclasses
+
+    vessel = vessel_model.vessel
+    return ev.physics_predictor(dataclasses.replace(vessel, hull=dataclasses.replace(vessel.hull, N_r=N_r)), DT)
+
+
+def test_a_diverging_model_is_reported_as_diverged_never_as_a_metric(turn, vessel_model):
+    """Closed loop: the recording says when and in which manoeuvre the rollout went NaN, its RMSEs and predicted
+    turning metrics are undefined (null, not computed over the part before), the measured ones stay; open loop: the
+    diverged windows are counted per horizon and the first named; the JSON is strict (no NaN)."""
+    model = _unstable(vessel_model)
+    result = ev.evaluate(model, [turn], horizons_s=(10.0, 30.0))
+    rec = result.recordings[0]
+    assert rec.diverged_at_s is not None and 0.0 < rec.diverged_at_s < 40.0
+    out = json.loads(json.dumps(_jsonable(result.to_json()), allow_nan=False))
+    record = out["recordings"][0]
+    assert record["diverged"] == {"at_s": rec.diverged_at_s, "duration_s": pytest.approx(turn.duration_s, abs=DT),
+                                  "manoeuvre": rec.manoeuvre.label()}
+    assert set(record["closed_loop_rmse"].values()) == {None}
+    assert set(record["turning"]["predicted"].values()) == {None}
+    assert set(record["turning"]["errors"].values()) == {None}
+    assert record["turning"]["measured"]["turning_radius_m"] > 0.0
+    assert any(n.startswith(f"closed loop: the model's rollout diverged (NaN/inf) at {rec.diverged_at_s:.1f} s")
+               for n in record["notes"])
+    loop = record["open_loop"]
+    assert 0 < loop["diverged_start_points"] <= loop["start_points"]
+    by_h = {h["horizon_s"]: h for h in loop["horizons"]}
+    assert 0 < by_h[30.0]["diverged"] and by_h[10.0]["diverged"] <= by_h[30.0]["diverged"]
+    assert by_h[30.0]["count"] + by_h[30.0]["diverged"] <= loop["start_points"]
+    assert loop["first_diverged"]["after_s"] <= 30.0
+    assert any(n.startswith(f"open loop: {loop['diverged_start_points']} of {loop['start_points']} rollouts diverged")
+               for n in record["notes"])
+    assert out["summary"]["diverged_recordings"] == 1.0
+    assert out["summary"]["open_loop_diverged_windows"] == float(loop["diverged_start_points"])
+    assert out["summary"]["max_abs_turning_radius_rel_error_pct"] is None  # no radius error from the part before
+
+
+def test_a_stable_model_reports_no_divergence(turn, vessel_model):
+    result = ev.evaluate(ev.physics_predictor(vessel_model.vessel, DT), [turn], horizons_s=(10.0, 30.0))
+    record = result.to_json()["recordings"][0]
+    assert record["diverged"] is None and record["open_loop"]["diverged_start_points"] == 0
+    assert record["open_loop"]["first_diverged"] is None
+    assert all(h["diverged"] == 0 for h in record["open_loop"]["horizons"])
+    assert result.summary["diverged_recordings"] == 0.0 and result.summary["open_loop_diverged_windows"] == 0.0
+    assert record["closed_loop_rmse"]["position_m"] is not None
+    assert record["turning"]["errors"]["turning_radius_rel_pct"] is not None

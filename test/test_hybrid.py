@@ -351,3 +351,64 @@ def test_replay_identify_hybrid_on_an_extended_base(vessel, tmp_path, capsys):
     assert code == 2
     assert "--interaction do not apply" in err
     assert not (tmp_path / "x.pt").exists()
+
+
+@pytest.fixture(scope="module")
+def short_day(vessel):
+    """Two 30 s manoeuvres of the calm-water boat and their inverse dynamics (what a residual is trained on)."""
+    model, env = ManoeuvringModel(vessel), Environment()
+    runs = (ZigZag(20.0, 20.0, 650.0, duration_s=30.0), TurningCircle(25.0, 650.0, duration_s=30.0))
+    recordings = [recording_from_signals(measure(simulate(model, m, env, seed=i), env, SensorSpec(), seed=i), DT,
+                                         name=f"{m.name}_{i}") for i, m in enumerate(runs)]
+    return recordings, idf.prepare(vessel, recordings)
+
+
+SHORT_TRAINING = hybrid_fit.HybridTraining(members=2, hidden=8, epochs=4, patience=4, horizon_s=10.0, stride_s=5.0)
+
+
+def test_a_base_that_diverges_stops_the_residual_training_before_the_first_step(vessel, short_day):
+    """A grey box whose yaw damping has the wrong sign (N_r, N_rrr > 0: the yaw rate grows without bound) leaves its
+    10 s rollouts NaN: the residual's training loss would be NaN from epoch 0 (as on a catamaran identified with its
+    yaw equation held). It stops there, saying the base diverges on how many segments; the same training on the true
+    hull runs."""
+    import dataclasses
+
+    from usv_predictor.errors import TrainingDiverged
+
+    recordings, data = short_day
+    unstable = dataclasses.replace(vessel, hull=dataclasses.replace(vessel.hull, N_r=2.0, N_rrr=20.0))
+    base = ResidualGreyBox(unstable, DT, ZeroResidual(), 2)
+    with pytest.raises(TrainingDiverged) as err:
+        hybrid_fit.train_residual(base, unstable, data, recordings, DT, SHORT_TRAINING)
+    message = str(err.value)
+    assert "\n" not in message
+    assert message.startswith("hybrid: the training loss of member 0 is nan at epoch 0")
+    assert "the grey box alone diverges (NaN/inf loss) on" in message and "training segments" in message
+    module, info = hybrid_fit.train_residual(ResidualGreyBox(vessel, DT, ZeroResidual(), 2), vessel, data, recordings,
+                                             DT, SHORT_TRAINING)
+    assert all(math.isfinite(x) for x in info["loss_best"])
+
+
+def test_a_residual_that_turns_the_loss_nan_stops_training_at_that_epoch(vessel, short_day, monkeypatch):
+    """On a stable base, a training loss that becomes NaN at the second step stops training there, naming the epoch
+    and the cause (the learned term, so the learning rate) instead of carrying NaN through Adam."""
+    from usv_predictor.errors import TrainingDiverged
+
+    recordings, data = short_day
+    original, calls = hybrid_fit._segment_losses, {"n": 0}
+
+    def losses(module, seg, weights=None):
+        value = original(module, seg, weights)
+        if weights is not None:  # the training step's loss (the bootstrap-weighted one)
+            calls["n"] += 1
+            if calls["n"] >= 2:
+                return value * float("nan")
+        return value
+
+    monkeypatch.setattr(hybrid_fit, "_segment_losses", losses)
+    with pytest.raises(TrainingDiverged, match=r"hybrid: the training loss of member 0 is nan at epoch 2: the learned "
+                                               r"residual drove the rollout unstable .*lower the learning rate \(now "
+                                               r"0\.003\)"):
+        hybrid_fit.train_residual(ResidualGreyBox(vessel, DT, ZeroResidual(), 2), vessel, data, recordings, DT,
+                                  SHORT_TRAINING)
+    assert calls["n"] == 2

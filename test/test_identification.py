@@ -80,8 +80,12 @@ def test_noise_free_recovers_the_preset(clean, vessel):
 
 def test_noisy_sensors_recover_the_linear_derivatives(noisy, vessel):
     recs, data = noisy
-    with pytest.raises(idf.NotIdentifiableError, match="not identifiable.*Y_vvv.*--prior fix"):
+    with pytest.raises(idf.NotIdentifiableError, match="not identifiable.*Y_vvv.*--prior fix") as err:
         idf.fit_hull(vessel, data, "mmg", "none")
+    # per coefficient, the trial that would determine it: "names: trial; names: trial"
+    groups = [g.split(": ", 1) for g in str(err.value).split("Or record the trials that would determine them: ")[1]
+              .split("; ")]
+    assert any("Y_vvv" in names.split(", ") and trial == idf.WOULD_DETERMINE["Y_vvv"] for names, trial in groups)
     fit = idf.fit_hull(vessel, data, "mmg", "fix")
     _check_identified(fit, vessel, 0.10, 0.30)
     fixed = [c for c in fit.coefficients() if c.status == "fixed to prior"]
@@ -223,6 +227,7 @@ def test_report_names_what_the_prior_supplies(noisy, vessel, tmp_path):
     used = result.prior_used()
     assert used
     assert f"Not determined by these manoeuvres; prior used: {', '.join(used)}." in text
+    assert f"The trials that would determine them: {idf.trials_text(used)}." in text
     ex = result.excitation()
     assert f"|beta| {ex['beta_deg_p99']:.1f} deg" in text
     assert f"|r'| {ex['r_prime_p99']:.3f}" in text

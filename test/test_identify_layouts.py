@@ -299,3 +299,40 @@ def test_the_cv_candidates_of_a_small_craft_are_its_own_structures(otter):
     assert chosen[0].score == pytest.approx(result.cross_validation[0].score)
     coupled_fix = next(c for c in candidates if (c.structure, c.prior) == ("coupled", "fix"))
     assert coupled_fix.score is not None and 0.0 < coupled_fix.score < 1.0  # the otter's forces are predicted
+
+
+def test_a_calm_day_without_astern_commands_reports_the_astern_gains_held_with_the_trial(otter):
+    """identify holds what the day does not excite and says which trial would determine it: without astern commands
+    the reverse gains are held at the description's values with "astern commands", in the one-line message, in
+    `held[].would_determine` of the JSON and in the refusal of --prior none; what the day excites is not listed."""
+    vessel, recordings, data = otter
+    ahead = [d for d in data if not d.name.startswith("turning_circle")]
+    forward_only = [dataclasses.replace(d, controls=np.clip(d.controls, 0.0, None)) for d in ahead]
+    result = sc.identify_small_craft(vessel, recordings, structure="diagonal", prior="fix", data=forward_only)
+    held = {h["name"]: h for h in result.to_json()["held"]}
+    for side in sc.SIDES:
+        entry = held[f"thrusters.{side}.reverse_N"]
+        assert entry["would_determine"].startswith("astern commands")
+        assert entry["value"] == entry["prior"] == getattr(vessel.thrusters, side).reverse_N
+        assert entry["how"] == "held at the vessel file's value"
+    assert set(held) == set(result.prior_used())
+    assert not {"thrusters.port.forward_N", "thrusters.starboard.forward_N", "N_r"} & set(held)  # determined
+    message = result.held_message()
+    assert "\n" not in message and "thrusters.port.reverse_N, thrusters.starboard.reverse_N: astern commands" in message
+    with pytest.raises(NotIdentifiableError, match=r"thrusters\.port\.reverse_N: no excitation in the data, would be "
+                                                   r"determined by astern commands"):
+        sc.fit_small_craft(vessel, forward_only, "diagonal", "none")
+
+
+def test_every_coefficient_identify_can_hold_has_the_trial_that_would_determine_it():
+    """One record per coefficient: the MMG table covers both structures and the throttle gain, the small-craft table
+    both structures and the four thrust gains; nothing falls through to the generic text."""
+    mmg = {n for s in idf.STRUCTURES for n in idf.coefficient_names(s)} | {"throttle.forward_N"}
+    assert mmg <= set(idf.WOULD_DETERMINE)
+    small = {n for s in sc.STRUCTURES for n in sc.coefficient_names(s)}
+    assert small <= set(sc.WOULD_DETERMINE)
+    assert idf.would_determine("N_rr", "small_craft") == "a turn at differential 0.8 both ways"
+    assert idf.would_determine("N_r", "small_craft") == "turns at two differentials both ways"
+    assert idf.would_determine("Y_r") == idf.would_determine("N_v") == "zig-zags both ways"
+    assert idf.trials_text(["Y_r", "N_rrr", "N_v"]) == ("Y_r, N_v: zig-zags both ways; N_rrr: hard-over turning "
+                                                        "circles both ways (large yaw rates)")

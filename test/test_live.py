@@ -456,3 +456,50 @@ def test_raw_headings_within_a_turn_is_check_raw_heading_on_every_sample() -> No
             except live.InputRejected:
                 passes = False
         assert live.raw_headings_within_a_turn(np.array(raws), units) is passes
+
+
+# ----------------------------------------------------------------------------- a model that diverges
+
+
+def _diverging_rollout(horizon: int = 120) -> Callable[..., np.ndarray]:
+    """The jari_usv grey box with a yaw damping of the wrong sign (N_r, N_rrr > 0): its yaw rate grows without
+    bound, so a 60 s rollout from a turning state ends NaN/inf."""
+    import dataclasses
+
+    from usv_predictor.models.loading import physics_predictor
+
+    vessel = load_vessel("jari_usv")
+    model = physics_predictor(dataclasses.replace(vessel, hull=dataclasses.replace(vessel.hull, N_r=1.0, N_rrr=5.0)),
+                              DT)
+
+    def rollout(state: np.ndarray, controls: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
+        held = np.repeat(np.asarray(controls, dtype=float)[None, None, :], horizon, axis=1)  # (1, H, C)
+        with np.errstate(all="ignore"):
+            return model.predict(np.asarray(state, dtype=float)[None, :], held)[:, 0]  # (E, H, 6)
+
+    return rollout
+
+
+def test_a_model_whose_rollout_diverges_skips_the_cycle_and_says_why() -> None:
+    """No Path with NaN poses: a rollout that leaves the numbers skips the cycle with the reason (what the node puts
+    on /diagnostics as `skipped: ...`); the same inputs with the true hull predict a finite path."""
+    inputs = make_inputs()
+    last = feed_all(inputs, 10 * NS, 2.0)
+    rollout = _diverging_rollout()
+    out = rollout(inputs.assemble(last).state, inputs.assemble(last).controls)
+    assert not np.isfinite(out).all()  # the model really diverges on this state
+    with pytest.raises(live.CycleSkipped, match=r"model output is not finite \(NaN/inf\): nothing published"):
+        live.predict(inputs, rollout, last)
+    from usv_predictor.models.loading import physics_predictor
+
+    stable = physics_predictor("jari_usv", DT)
+    prediction = live.predict(inputs, lambda s, c, r=None: stable.predict(
+        s[None, :], np.repeat(np.asarray(c)[None, None, :], 120, axis=1))[:, 0], last)
+    assert np.isfinite(prediction.eta).all() and prediction.eta.shape == (120, 3)
+
+
+def test_a_non_finite_position_never_anchors_a_path() -> None:
+    out = np.zeros((1, 5, 6))
+    with pytest.raises(live.CycleSkipped, match="the anchored path is not finite"):
+        live._anchored(out, np.array([np.nan, 1.0]))
+    assert np.array_equal(live._anchored(out, np.array([2.0, 1.0]))[0, :, :2], np.tile([2.0, 1.0], (5, 1)))

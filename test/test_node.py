@@ -381,3 +381,30 @@ def test_the_sea_estimate_survives_bad_input_resets_on_a_clock_jump_and_follows_
     count = len(currents)
     harness.spin(0.3, harness.feed)
     assert len(currents) == count and harness.paths  # predictions go on without the estimator
+
+
+def test_a_model_whose_rollout_diverges_publishes_no_path_and_says_why(ros_context: Context, tmp_path: Path) -> None:
+    """A grey box with a yaw damping of the wrong sign (N_r, N_rrr > 0) goes NaN within the horizon: the node
+    publishes no Path with NaN poses, it skips each cycle and /diagnostics says why."""
+    import dataclasses
+
+    from usv_predictor.models.artifact import export_module
+    from usv_predictor.models.greybox import GreyBoxRollout, greybox_metadata
+    from usv_predictor.physics.vessel import load_vessel
+
+    vessel = load_vessel("jari_usv")
+    unstable = dataclasses.replace(vessel, hull=dataclasses.replace(vessel.hull, N_r=5.0, N_rrr=50.0))
+    module = GreyBoxRollout(unstable, dt=0.5, substeps=2)
+    path = tmp_path / "diverging.pt"
+    export_module(path, module, greybox_metadata(unstable, module), vessel=vessel)  # an identified hull, its file
+    fixture = Harness(ros_context, [Parameter("rate_hz", value=20.0), Parameter("dt", value=0.5),
+                                    Parameter("horizon_s", value=10.0), Parameter("model_path", value=str(path)),
+                                    Parameter("ensemble_size", value=1)])
+    try:
+        found = fixture.spin_until(lambda s: "not finite" in s["prediction"].message, fixture.feed)
+        assert level(found["prediction"]) == predictor_node.WARN
+        assert "model output is not finite (NaN/inf): nothing published" in values_of(found["prediction"])["reason"]
+        fixture.spin(0.5, fixture.feed)
+        assert fixture.paths == [] and fixture.node.published == 0 and fixture.node.skipped > 0
+    finally:
+        fixture.close()

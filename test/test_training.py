@@ -225,3 +225,48 @@ def test_replay_train_empty_training_split(recordings: list[Recording], tmp_path
     assert "train split has no samples" in err
     assert str(path) in err
     assert not (tmp_path / "m.pt").exists()
+
+
+def test_a_training_set_holding_nan_is_refused_before_the_first_epoch(splits: tuple[Samples, Samples]) -> None:
+    """A NaN in one training sample would make its batch's loss NaN and, through Adam, every weight: refused up front,
+    naming the split, the array and the count."""
+    train, val = splits
+    x = train.x.copy()
+    x[7, 2] = np.nan
+    with pytest.raises(DatasetError, match=r"the training split's features hold NaN or inf in 1 of \d+ samples "
+                                           r"\(first: sample 7\)"):
+        train_dnn(TINY, Samples(x, train.y), val, _recipe(epochs=2))
+    y = val.y.copy()
+    y[3] = np.inf
+    with pytest.raises(DatasetError, match="the validation split's targets hold NaN or inf in 1 of"):
+        train_dnn(TINY, train, Samples(val.x, y), _recipe(epochs=2))
+
+
+def test_a_non_finite_loss_stops_training_naming_the_epoch_the_loss_and_the_cause(
+        splits: tuple[Samples, Samples], monkeypatch: pytest.MonkeyPatch) -> None:
+    """A loss that turns NaN in the third epoch (every batch from then on) stops training there with one line: no
+    NaN step is taken, no NaN history or model comes back."""
+    from usv_predictor.errors import TrainingDiverged
+    from usv_predictor.fitting import training
+
+    train, val = splits
+    batches = max(len(train) // 32, 1)
+    calls = {"n": 0}
+    original = training._Objective.loss
+
+    def loss(self, model, index=None):
+        value = original(self, model, index)
+        if index is not None:
+            calls["n"] += 1
+            if calls["n"] > 2 * batches:  # the training batches of epochs 1 and 2 pass
+                return value * float("nan")
+        return value
+
+    monkeypatch.setattr(training._Objective, "loss", loss)
+    with pytest.raises(TrainingDiverged) as err:
+        train_dnn(TINY, train, val, _recipe(epochs=5, learning_rate=0.01))
+    message = str(err.value)
+    assert "\n" not in message
+    assert "training loss of batch 1 is nan at epoch 3 of member 0" in message
+    assert "lower the learning rate (now 0.01)" in message
+    assert calls["n"] == 2 * batches + 1  # it stopped at the first NaN batch

@@ -42,6 +42,11 @@ class NotIdentifiableError(ModelError):
     """The data cannot determine some coefficients; the message names them and the options."""
 
 
+class TrainingDiverged(ModelError):
+    """Training stopped at a non-finite loss (NaN/inf): the message names the epoch, the loss and the likely cause
+    (non-finite training data, a base model whose rollout diverges, a learning rate too large)."""
+
+
 class EvaluationError(UsvPredictorError):
     """A recording cannot be evaluated as asked (no reference track, no truth, too short); says which."""
 

@@ -972,7 +972,7 @@ def measure_gain(recordings: Sequence[Recording], vessel: Vessel, diagnosis: Dia
     gain = {}
     for key, b in base_summary.items():
         a = ext_summary.get(key)
-        if key in ("recordings", "turning_circles", "zigzags") or a is None or b is None or not b:
+        if key in evaluation.COUNT_KEYS or a is None or b is None or not b:
             continue
         gain[key] = (b - a) / abs(b)  # relative improvement: + is better (every summary metric is an error)
     return {"baseline": base_summary, "extended": ext_summary, "relative_improvement": gain,

@@ -173,6 +173,10 @@ def measure_unexplained(recordings: Sequence[Recording], vessel: Vessel, diagnos
     loop_before = evaluation.summarise(before, (30.0,)).get(dg.GAIN_METRIC)
     loop_after = evaluation.summarise(after, (30.0,)).get(dg.GAIN_METRIC)
     reasons = []
+    went = [e for e in after if e.diverged_at_s is not None]
+    if went:  # its closed loop has no metric left to compare: that is the answer
+        reasons.append(f"its rollout diverges (NaN/inf) on {len(went)} held-out manoeuvre(s), the first "
+                       f"{went[0].name} at {went[0].diverged_at_s:.1f} s")
     if not (evidence >= dg.EVIDENCE_CAUSE and gain >= dg.MIN_GAIN):
         reasons.append(f"it removes {gain * 100:.1f} % of the calm-water model's held-out loss with evidence "
                        f"{evidence:.1f} (an extension needs >= {dg.MIN_GAIN * 100:.0f} % and >= {dg.EVIDENCE_CAUSE:g})")

@@ -30,6 +30,12 @@ Manoeuvre metrics on measured vs predicted tracks (metrics.py for the definition
                      eq. 28 (compass, toward), IMO advance, transfer and tactical diameter;
     zig-zags         first and second overshoot angles (ITTC);
     every recording  RMSE of u, v, r, psi and of the position along the closed-loop rollout.
+Divergence: a model whose rollout leaves the numbers (NaN/inf: an unstable identified hull, a residual out of its
+range) is reported as diverged, never as a metric over what is left. Closed loop: the recording's `diverged` record
+says at what time of which manoeuvre, and its RMSEs and the predicted manoeuvre metrics and their errors are undefined
+(JSON null) with a note; open loop: the windows that diverged are counted per horizon (`diverged`), the first named
+(its start and how long after it), and the horizon's statistics are over the others, said in a note; the summary
+counts the diverged recordings and windows (DIVERGENCE_KEYS).
 Errors follow seed 000 Tables 7-8: relative (%) for lengths, absolute (deg) for angles, always
 predicted - measured (the paper's tables mix both signs; one sign here so a bias reads one way).
 """
@@ -58,6 +64,8 @@ COLUMNS = ("u_mps", "v_mps", "r_rad_s", "x_n_m", "y_e_m", "psi_rad")
 REFERENCES = ("gnss", "smoothed", "truth")
 DEFAULT_HORIZONS_S = (10.0, 30.0, 60.0)
 DRIFT_DIRECTION_MIN_M = 1.0  # below this drift distance (m) its direction is noise
+DIVERGENCE_KEYS = ("diverged_recordings", "open_loop_diverged_windows")  # summary counts, not errors
+COUNT_KEYS = ("recordings", "turning_circles", "zigzags", *DIVERGENCE_KEYS)  # the summary's counts
 
 
 class Predictor(Protocol):
@@ -165,19 +173,27 @@ class OpenLoop:
     starts: int
     horizons: tuple[metrics.HorizonError, ...]
     mean_error_by_step_m: np.ndarray  # (H,) mean over starts of the error (k + 1) dt after the start
+    diverged_by_horizon: tuple[int, ...] = ()  # per horizon: windows whose rollout is NaN/inf by then (left out)
+    diverged: int = 0  # windows whose rollout went NaN/inf within the longest horizon
+    first_diverged: tuple[float, float] | None = None  # (start s, after s) of the earliest window that diverged
 
     def to_json(self, dt: float) -> dict:
+        diverged = self.diverged_by_horizon or (0,) * len(self.horizons)
         out: dict[str, Any] = {
             "start_stride_s": self.stride_s,
             "horizon_s": self.horizon_s,
             "start_points": self.starts,
             "horizons": [
                 {"horizon_s": h.horizon_s, "mean_m": finite_or_none(h.mean_m), "p50_m": finite_or_none(h.p50_m),
-                 "p95_m": finite_or_none(h.p95_m), "max_m": finite_or_none(h.max_m), "count": h.count}
-                for h in self.horizons
+                 "p95_m": finite_or_none(h.p95_m), "max_m": finite_or_none(h.max_m), "count": h.count,
+                 "diverged": int(n)}
+                for h, n in zip(self.horizons, diverged)
             ],  # null where no start point has a finite error at that horizon
             "step_s": dt,
             "mean_error_by_step_m": [finite_or_none(x) for x in self.mean_error_by_step_m],
+            "diverged_start_points": self.diverged,
+            "first_diverged": None if self.first_diverged is None else
+            {"start_s": self.first_diverged[0], "after_s": self.first_diverged[1]},
         }
         for h in self.horizons:
             out[f"position_error_after_{h.horizon_s:g}s_m"] = finite_or_none(h.mean_m)
@@ -211,6 +227,14 @@ class RecordingEvaluation:
     zigzag: Comparison | None
     open_loop: OpenLoop | None
     notes: tuple[str, ...] = ()
+    diverged_at_s: float | None = None  # the closed loop's first NaN/inf sample (s from its start); None: it did not
+
+    def diverged_json(self) -> dict | None:
+        """Where the closed-loop rollout diverged: time, duration and manoeuvre; None when it did not."""
+        if self.diverged_at_s is None:
+            return None
+        return {"at_s": self.diverged_at_s, "duration_s": float(self.prediction.t_s[-1]),
+                "manoeuvre": self.manoeuvre.label()}
 
     def to_json(self) -> dict:
         return {
@@ -224,6 +248,7 @@ class RecordingEvaluation:
             "turning": None if self.turning is None else self.turning.to_json(),
             "zigzag": None if self.zigzag is None else self.zigzag.to_json(),
             "open_loop": None if self.open_loop is None else self.open_loop.to_json(self.dt),
+            "diverged": self.diverged_json(),
             "notes": list(self.notes),
         }
 
@@ -395,9 +420,23 @@ def windowed_open_loop(recording: Recording, tracks: ReferenceTracks, horizons_s
     known = np.isfinite(errors)
     counts = known.sum(axis=0)
     by_step = np.where(counts > 0, np.where(known, errors, 0.0).sum(axis=0) / np.maximum(counts, 1), np.nan)
+    first_bad = first_non_finite(out)  # (B,) step of each window's first NaN/inf, steps when none
+    went = np.flatnonzero(first_bad < steps)
+    earliest = None
+    if len(went):
+        k = int(went[np.argmin(recording.t_s[starts[went]] + first_bad[went] * dt)])
+        earliest = (float(recording.t_s[starts[k]] - recording.t_s[0]), float((first_bad[k] + 1) * dt))
     return OpenLoop(stride_s=stride * dt, horizon_s=steps * dt, starts=int(len(starts)),
                     horizons=metrics.open_loop_errors(predicted_xy, measured_xy, fitting, dt),
-                    mean_error_by_step_m=by_step)
+                    mean_error_by_step_m=by_step,
+                    diverged_by_horizon=tuple(int((first_bad < round(h / dt)).sum()) for h in fitting),
+                    diverged=int(len(went)), first_diverged=earliest)
+
+
+def first_non_finite(out: np.ndarray) -> np.ndarray:
+    """(B,) the first step at which a rollout (E, B, H, 6) holds NaN/inf in any member or column; H where none."""
+    bad = ~np.isfinite(out).all(axis=(0, 3))  # (B, H)
+    return np.where(bad.any(axis=1), bad.argmax(axis=1), out.shape[2])
 
 
 # --------------------------------------------------------------------------------------------
@@ -619,17 +658,45 @@ def evaluate_recording(model: Predictor, recording: Recording, reference: str = 
     execute = kind.execute_time_s - float(recording.t_s[first])
     turning = compare_turning(prediction, execute) if kind.kind == "turning_circle" else None
     zigzag = compare_zigzag(prediction) if kind.kind == "zigzag" else None
+    rmse = state_rmse(prediction)
+    diverged_at = closed_loop_divergence(prediction)
+    if diverged_at is not None:  # metrics of the part before it would read as a model that fits
+        why = (f"closed loop: the model's rollout diverged (NaN/inf) at {diverged_at:.1f} s of "
+               f"{float(prediction.t_s[-1]):.1f} s ({kind.label()}): its RMSEs and predicted manoeuvre metrics are "
+               "undefined")
+        notes.append(why)
+        rmse = {key: math.nan for key in rmse}
+        turning = None if turning is None else undefined_prediction(turning, why)
+        zigzag = None if zigzag is None else undefined_prediction(zigzag, why)
     loop = open_loop(model, recording, reference, horizons_s, stride_s, tracks)
     if loop is None:
         notes.append(f"open loop: recording of {recording.duration_s:.1f} s is shorter than the shortest horizon "
                      f"{min(horizons_s):g} s")
     elif len(loop.horizons) < len(horizons_s):
         notes.append(f"open loop: horizons beyond {loop.horizon_s:g} s do not fit in {recording.duration_s:.1f} s")
+    if loop is not None and loop.first_diverged is not None:
+        start_s, after_s = loop.first_diverged
+        notes.append(f"open loop: {loop.diverged} of {loop.starts} rollouts diverged (NaN/inf), the first from "
+                     f"{start_s:.1f} s after {after_s:.1f} s ({kind.label()}); each horizon's errors are over the "
+                     "others (its `diverged` count)")
     return RecordingEvaluation(
         name=recording.name, source=recording.source, dt=recording.dt, duration_s=recording.duration_s,
-        manoeuvre=kind, prediction=prediction, state_rmse=state_rmse(prediction),
-        turning=turning, zigzag=zigzag, open_loop=loop, notes=tuple(notes),
+        manoeuvre=kind, prediction=prediction, state_rmse=rmse,
+        turning=turning, zigzag=zigzag, open_loop=loop, notes=tuple(notes), diverged_at_s=diverged_at,
     )
+
+
+def closed_loop_divergence(prediction: Prediction) -> float | None:
+    """The time (s from the start) of the closed-loop rollout's first NaN/inf sample; None when it stays finite."""
+    bad = ~np.isfinite(prediction.predicted).all(axis=1)  # (T,)
+    return float(prediction.t_s[int(bad.argmax())]) if bad.any() else None
+
+
+def undefined_prediction(comparison: Comparison, why: str) -> Comparison:
+    """The comparison with the predicted values and the errors undefined (None) and `why` noted: the measured
+    values stay (they do not depend on the model)."""
+    return Comparison(comparison.measured, {key: None for key in comparison.predicted},
+                      {key: None for key in comparison.errors}, (*comparison.notes, why))
 
 
 def _max_abs(values: Sequence[float | None]) -> float | None:
@@ -654,6 +721,8 @@ def summarise(evaluations: Sequence[RecordingEvaluation], horizons_s: Sequence[f
         "mean_rmse_u_mps": _mean([e.state_rmse["u_mps"] for e in evaluations]),
         "mean_rmse_v_mps": _mean([e.state_rmse["v_mps"] for e in evaluations]),
         "mean_rmse_r_deg_s": _mean([e.state_rmse["r_deg_s"] for e in evaluations]),
+        "diverged_recordings": float(sum(e.diverged_at_s is not None for e in evaluations)),
+        "open_loop_diverged_windows": float(sum(e.open_loop.diverged for e in evaluations if e.open_loop is not None)),
     }
     summary.update(pooled_open_loop([e.open_loop for e in evaluations], horizons_s))
     return summary

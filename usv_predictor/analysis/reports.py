@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from usv_predictor.analysis.evaluation import Prediction, predictions_from_arrays
+from usv_predictor.analysis.evaluation import COUNT_KEYS, Prediction, predictions_from_arrays
 from usv_predictor.atomic import jsonable, write_json_atomic, write_text_atomic
 from usv_predictor.errors import EvaluationError
 
@@ -84,11 +84,15 @@ def _data_section(data: dict, letters: dict[str, str]) -> list[str]:
 
 def _summary_section(data: dict) -> list[str]:
     s = data["summary"]
-    rows = [[key, num(value, 3)] for key, value in s.items() if key not in ("recordings", "turning_circles", "zigzags")]
+    rows = [[key, num(value, 3)] for key, value in s.items() if key not in COUNT_KEYS]
+    diverged = int(s.get("diverged_recordings") or 0), int(s.get("open_loop_diverged_windows") or 0)
+    said = (f" The model's rollout diverged (NaN/inf) on {diverged[0]} recording(s) and in {diverged[1]} open-loop "
+            "window(s): their metrics are undefined or left out (the recordings' notes say where)." if any(diverged)
+            else "")
     return ["## Summary", "",
             f"{int(s.get('recordings') or 0)} recordings: {int(s.get('turning_circles') or 0)} turning circles, "
             f"{int(s.get('zigzags') or 0)} zig-zags. Errors are predicted - measured: relative (%) for lengths, "
-            "absolute (deg) for angles.", ""] + table(["metric", "value"], rows)
+            f"absolute (deg) for angles.{said}", ""] + table(["metric", "value"], rows)
 
 
 def _turning_tables(turning: list[dict], letters: dict[str, str]) -> list[str]:
@@ -227,6 +231,15 @@ def evaluation_table(result: dict) -> str:
                  f"max |rel. error| drift distance {num(s.get('max_abs_drift_distance_rel_error_pct'), 2, '%')}")
     lines.append("mean open-loop position error: " + ", ".join(
         f"{h:g} s {num(s.get(f'mean_position_error_after_{h:g}s_m'), 2, ' m')}" for h in horizons))
+    for rec in result["recordings"]:  # a diverged rollout has no metric to show: say where it went
+        went = rec.get("diverged")
+        windows = (rec.get("open_loop") or {}).get("diverged_start_points") or 0
+        if went or windows:
+            closed = (f"closed loop at {went['at_s']:.1f} s of {went['duration_s']:.1f} s" if went
+                      else "closed loop finite")
+            lines.append(f"diverged (NaN/inf): {rec['name']} ({rec.get('manoeuvre_label', rec['manoeuvre']['kind'])}): "
+                         f"{closed}; open loop {windows} of {(rec.get('open_loop') or {}).get('start_points', 0)} "
+                         "windows")
     return "\n".join(lines)
 
 
@@ -436,6 +449,10 @@ def write_identification_report(directory: Path, result: IdentificationResult, o
                      f"| {c.status} |")
     used = result.prior_used()
     lines += ["", "Not determined by these manoeuvres; prior used: " + (", ".join(used) if used else "none") + "."]
+    if used:
+        from usv_predictor.fitting.identification import trials_text
+
+        lines[-1] += f" The trials that would determine them: {trials_text(used, result.vessel.hull_model_name)}."
     ex = result.excitation()
     if ex["beta_deg_p99"] is not None:
         lines += ["",

@@ -30,9 +30,14 @@ The hybrid's training (train_hybrid):
      the weights of the epoch with the lowest validation loss are kept, the untrained residual (epoch 0: the base
      alone) among them, so a member whose learned term never predicts the held-out manoeuvres better than its base
      keeps none (best_epoch 0).
+  4. a non-finite loss stops the training (errors.TrainingDiverged naming the epoch, the member, the loss and the
+     likely cause): before the first step, a base whose rollouts diverge on some segments (a residual bounded by what
+     the data showed cannot make an unstable grey box stable, and a NaN gradient would poison every weight) or one-
+     step samples that are not finite; after it, the learned term driving the rollout unstable (the learning rate).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
@@ -44,7 +49,7 @@ from usv_predictor.data.dataset import split_by_manoeuvre
 from usv_predictor.data.features import STATE_NAMES
 from usv_predictor.data.recording import Recording
 from usv_predictor.data.segments import Segments, make_segments
-from usv_predictor.errors import DiagnosisError, ModelError
+from usv_predictor.errors import DiagnosisError, ModelError, TrainingDiverged
 from usv_predictor.fitting.identification import ForceData, IdentificationResult
 from usv_predictor.fitting.training import reproducible
 from usv_predictor.models.artifact import OUTPUT_LAYOUT, UNITS, ModelArtifact, export_module
@@ -230,6 +235,37 @@ def _segment_losses(module: ResidualGreyBox, seg: Segments, weights: torch.Tenso
     return (per_segment * weights).sum(dim=1) / weights.sum(dim=1)
 
 
+def _diverging_segments(module: ResidualGreyBox, seg: Segments) -> int:
+    """How many segments the module's rollout leaves without a finite loss in some member (NaN/inf, or so large
+    that its square overflows)."""
+    with torch.no_grad():
+        r = (module(seg.state, seg.controls, seg.reference) - seg.target) * seg.weight  # (E, N, H, 6)
+        per_segment = (r * r).sum(dim=(2, 3))  # (E, N)
+    return int((~torch.isfinite(per_segment)).any(dim=0).sum())
+
+
+def _check_loss(losses: torch.Tensor, zero: torch.Tensor, epoch: int, what: str, base: ResidualGreyBox,
+                seg: Segments, config: HybridTraining) -> None:
+    """TrainingDiverged naming the epoch, the member, the loss and its likely cause when a member's `losses` (E,) or
+    pull toward zero `zero` (E,) is not finite (module docstring, step 4)."""
+    bad = ~(torch.isfinite(losses) & torch.isfinite(zero))
+    if not bool(bad.any()):
+        return
+    member = int(torch.nonzero(bad)[0, 0])
+    value = float(losses[member]) if not math.isfinite(float(losses[member])) else float(zero[member])
+    where = f"hybrid: the {what} loss of member {member} is {value} at epoch {epoch}"
+    if not math.isfinite(float(zero[member])):
+        raise TrainingDiverged(f"{where}: the one-step samples' residual features are not finite (NaN/inf in the "
+                               "identification data)")
+    diverging = _diverging_segments(base, seg)
+    if diverging:
+        raise TrainingDiverged(f"{where}: the grey box alone diverges (NaN/inf loss) on {diverging} of {len(seg)} "
+                               f"{what} segments; a residual cannot be trained on a base that diverges (an unstable "
+                               "identified hull: check its signs, e.g. N_r < 0, or identify on more manoeuvres)")
+    raise TrainingDiverged(f"{where}: the learned residual drove the rollout unstable (the grey box alone rolls out "
+                           f"every segment); lower the learning rate (now {config.learning_rate:g})")
+
+
 def train_hybrid(result: IdentificationResult, recordings: Sequence[Recording], dt: float,
                  config: HybridTraining = HybridTraining(), substeps: int = 2,
                  progress: Callable[[str], None] = lambda _: None) -> tuple[ResidualGreyBox, dict[str, Any]]:
@@ -273,8 +309,11 @@ def train_residual(base: ResidualGreyBox, vessel: Vessel, data: Sequence[ForceDa
         with torch.no_grad():  # epoch 0, the untrained residual (zero: the base itself) is a candidate too, so a
             #                    member keeps no learned term that does not beat its base on the held-out manoeuvres
             zero = ((learned.nondimensional(samples) / learned.bound) ** 2).sum(dim=-1).mean(dim=-1)  # (E,)
+            _check_loss(_segment_losses(module, train), zero, 0, "training", base, train, config)
             monitor = (_segment_losses(module, val) if val is not None
                        else _segment_losses(module, train) + config.zero_weight * zero)  # (E,)
+            if val is not None:
+                _check_loss(monitor, zero, 0, "validation", base, val, config)
         best = [float(x) for x in monitor]
         best_epoch = [0] * config.members
         best_state = [p.detach().clone() for p in trainable]
@@ -284,12 +323,15 @@ def train_residual(base: ResidualGreyBox, vessel: Vessel, data: Sequence[ForceDa
             optimiser.zero_grad()
             fit = _segment_losses(module, train, bootstrap)  # (E,)
             zero = ((learned.nondimensional(samples) / learned.bound) ** 2).sum(dim=-1).mean(dim=-1)  # (E,)
+            _check_loss(fit.detach(), zero.detach(), epoch, "training", base, train, config)
             (fit + config.zero_weight * zero).sum().backward()
             optimiser.step()
             fit = fit.detach()
             with torch.no_grad():
                 monitor = (_segment_losses(module, val) if val is not None
                            else _segment_losses(module, train) + config.zero_weight * zero)  # (E,)
+            _check_loss(monitor, zero.detach(), epoch, "validation" if val is not None else "training", base,
+                        val if val is not None else train, config)
             history.append((fit.tolist(), monitor.tolist()))
             improved = False
             for e in range(config.members):

@@ -520,6 +520,62 @@ def prior_values(vessel: Vessel, structure: str) -> dict[str, float]:
     return values
 
 
+# The trial that would determine each coefficient these manoeuvres may leave undetermined (refused, held at or pulled
+# to the description's value): one record per coefficient, said in identify's message and JSON (`held[]
+# .would_determine`) and in the refusal. MMG hull (rudder boats; v' = v/U, r' = r L/U): the linear terms need both
+# signs of v' and r' (zig-zags both ways), a term of r' alone two yaw rates (two rudder angles), the cubic and cross
+# terms large drift and yaw rate (hard-over turns), the speed terms two speeds. The small-craft hull's table is
+# small_craft_identification.WOULD_DETERMINE.
+WOULD_DETERMINE: Mapping[str, str] = {
+    "R0": "straight runs at two engine speeds with the engine speed recorded (engine_rpm)",
+    "X_vv": "turning circles both ways (the speed lost in a steady turn)",
+    "X_vr": "turning circles both ways (the speed lost in a steady turn)",
+    "X_rr": "turning circles both ways (the speed lost in a steady turn)",
+    "X_vvvv": "hard-over turning circles both ways (large drift angles)",
+    "Y_v": "zig-zags both ways",
+    "Y_r": "zig-zags both ways",
+    "Y_vvv": "hard-over turning circles both ways (large drift angles)",
+    "Y_vvr": "turning circles at two rudder angles both ways",
+    "Y_vrr": "turning circles at two rudder angles both ways",
+    "Y_rrr": "hard-over turning circles both ways (large yaw rates)",
+    "N_v": "zig-zags both ways",
+    "N_r": "turning circles at two rudder angles both ways",
+    "N_vvv": "hard-over turning circles both ways (large drift angles)",
+    "N_vvr": "turning circles at two rudder angles both ways",
+    "N_vrr": "turning circles at two rudder angles both ways",
+    "N_rrr": "hard-over turning circles both ways (large yaw rates)",
+    "X_du": "straight runs at two speeds",
+    "Y_0": "turns both ways (a bias shows as a port-starboard difference)",
+    "N_0": "turns both ways (a bias shows as a port-starboard difference)",
+    "Y_duv": "zig-zags at two speeds",
+    "Y_dur": "zig-zags at two speeds",
+    "N_duv": "zig-zags at two speeds",
+    "N_dur": "zig-zags at two speeds",
+    "throttle.forward_N": "throttle steps (straight runs at two throttle settings)",
+}
+
+
+def would_determine(name: str, hull_model: str = "mmg") -> str:
+    """The trial that would determine coefficient `name` of a hull model (WOULD_DETERMINE, or the small-craft
+    table), for the message and JSON of a coefficient the data leave undetermined."""
+    if hull_model == "small_craft":
+        from usv_predictor.fitting.small_craft_identification import WOULD_DETERMINE as SMALL_CRAFT
+
+        table = SMALL_CRAFT
+    else:
+        table = WOULD_DETERMINE
+    return table.get(name, "manoeuvres that excite it")
+
+
+def trials_text(names: Sequence[str], hull_model: str = "mmg") -> str:
+    """'N_r: turns ...; Y_r, N_v: zig-zags both ways': the coefficients grouped by the trial that would determine
+    them, in the order first named."""
+    groups: dict[str, list[str]] = {}
+    for name in names:
+        groups.setdefault(would_determine(name, hull_model), []).append(name)
+    return "; ".join(f"{', '.join(held)}: {trial}" for trial, held in groups.items())
+
+
 def _message(names: Sequence[str], fits: Sequence[EquationFit], data_names: Sequence[str]) -> str:
     pairs = [f"{a}~{b} (rho {rho:+.2f})" for f in fits for a, b, rho in f.collinearity.pairs]
     conds = ", ".join(f"{f.equation}: {f.collinearity.condition_number:.3g}" for f in fits)
@@ -531,8 +587,7 @@ def _message(names: Sequence[str], fits: Sequence[EquationFit], data_names: Sequ
               "other coefficient from the data alone, so the description's errors stay in the terms the data cannot "
               "see; --prior ridge (prior='ridge') pulls EVERY coefficient towards the description, identifiable ones "
               "included, and is better only when the whole description is trusted (compare the cross-validation "
-              "scores). Or record more informative manoeuvres (turning circles both ways, larger zig-zags, straight "
-              "runs at two speeds, random rudder and rpm)")
+              f"scores). Or record the trials that would determine them: {trials_text(names)}")
 
 
 def _ridge_by_cv(designs: Sequence[Design], prior: Mapping[str, float], fixed: Sequence[str] = ()) -> float:
@@ -648,6 +703,24 @@ class IdentificationResult:
         """The coefficients these manoeuvres do not determine (held at, or pulled to, the prior)."""
         return [c.name for c in self.coefficients() if not determined_by_data(c, self.fit.not_identifiable)]
 
+    def held(self) -> list[dict]:
+        """Per coefficient these manoeuvres do not determine (prior_used): its name, value, the description's value,
+        how the prior set it and the trial that would determine it (WOULD_DETERMINE)."""
+        return [{"name": c.name, "value": finite_or_none(c.estimate), "prior": finite_or_none(c.prior),
+                 "how": PRIOR_HOW.get(c.status, f"prior policy {self.fit.prior_policy}"),
+                 "would_determine": would_determine(c.name, self.vessel.hull_model_name)}
+                for c in self.coefficients() if not determined_by_data(c, self.fit.not_identifiable)]
+
+    def held_message(self) -> str:
+        """One line: the coefficients held at (or pulled to) the description's values and the trials that would
+        determine them; "" when the data determine every coefficient."""
+        names = self.prior_used()
+        if not names:
+            return ""
+        return (f"not determined by these manoeuvres, so the vessel file's values ({self.fit.prior_policy}): "
+                f"{', '.join(names)}; the trials that would determine them: "
+                f"{trials_text(names, self.vessel.hull_model_name)}")
+
     def excitation(self) -> dict:
         """The range of drift angle and non-dimensional yaw rate the data cover (what the identified terms are fitted
         on); a manoeuvre beyond it extrapolates the nonlinear terms."""
@@ -663,6 +736,7 @@ class IdentificationResult:
             "coefficients": [c.to_json() | coefficient_flags(c, self.fit.not_identifiable, self.fit.prior_policy)
                              for c in self.coefficients()],
             "prior_used": self.prior_used(),
+            "held": self.held(),
             "excitation": self.excitation(),
             "actuators": {d.name: dict(d.actuator) for d in self.data if d.actuator},
             "not_identifiable_without_prior": list(self.fit.not_identifiable),
@@ -891,7 +965,7 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
                     f"({', '.join(names)}): 95 % CI [{gain.ci95[0]:.4g}, {gain.ci95[1]:.4g}] N around "
                     f"{gain.estimate:.4g} "
                     "N. Options: prior='fix' (--prior fix) or 'ridge' holds it at the vessel file's value; or record "
-                    "throttle steps (the accelerations separate thrust from resistance)")
+                    f"{WOULD_DETERMINE['throttle.forward_N']} (the accelerations separate thrust from resistance)")
             gain = replace(gain, estimate=gain.prior, status="fixed to prior")
             notes.append("throttle.forward_N not identifiable: held at the vessel file's value (a profiled gain is "
                          "held, not ridged)")

@@ -74,6 +74,7 @@ from usv_predictor.fitting.identification import (
     known_forces,
     prepare,
     scaled_thrust_map,
+    would_determine,
 )
 from usv_predictor.physics.dynamics import ManoeuvringModel
 from usv_predictor.physics.vessel import RHO_WATER, SmallCraftHull, ThrustMap, Vessel, table_value
@@ -328,15 +329,36 @@ def problems(fit: JointFit, rel_ci_limit: float = REL_CI_LIMIT) -> dict[str, str
     return out
 
 
+# The trial that would determine each small-craft coefficient the data may leave undetermined (refused, held at or
+# pulled to the vessel file's value): one record per coefficient, beside the hold decision (fit_small_craft), said in
+# identify's message and JSON (`held[].would_determine`, identification.would_determine). The surge damping and the
+# ahead gains need two speeds (thrust and damping balance at each), the reverse gains commands astern, the linear
+# sway and yaw terms both signs of v and r (zig-zags both ways), N_r apart from N_rr two yaw rates (two
+# differentials), N_rr and the cross-flow drag high yaw rates (a hard turn).
+WOULD_DETERMINE: Mapping[str, str] = {
+    "X_u": "straight runs at two speeds",
+    "X_uu": "straight runs at two speeds",
+    "Y_v": "zig-zags both ways",
+    "Y_r": "zig-zags both ways",
+    "N_v": "zig-zags both ways",
+    "N_r": "turns at two differentials both ways",
+    "N_rr": "a turn at differential 0.8 both ways",
+    "cross_flow_cd": "a turn at differential 0.8 both ways (drift in a hard turn)",
+    **{f"thrusters.{side}.forward_N": "straight runs at two speeds" for side in SIDES},
+    **{f"thrusters.{side}.reverse_N": "astern commands (each thruster astern: spins both ways, a stop)"
+       for side in SIDES},
+}
+
+
 def _message(found: Mapping[str, str], fit: JointFit, manoeuvres: Sequence[str]) -> str:
     pairs = [f"{a}~{b} (rho {rho:+.2f})" for e in fit.equations for a, b, rho in e.collinearity.pairs]
-    listed = "; ".join(f"{n}: {why}" for n, why in found.items())
+    listed = "; ".join(f"{n}: {why}, would be determined by {would_determine(n, 'small_craft')}"
+                       for n, why in found.items())
     return (f"small-craft coefficients not identifiable from {len(manoeuvres)} manoeuvre(s) ({', '.join(manoeuvres)}): "
             f"{listed} (a 95 % CI wider than {REL_CI_LIMIT:.0%} of their size, no excitation, or the wrong sign)"
             + (f"; multicollinear regressors: {', '.join(pairs)}" if pairs else "")
             + ". Options: prior='fix' (--prior fix) holds them at the vessel file's values, prior='ridge' "
-              "(--prior ridge) pulls every coefficient towards them; or record more informative runs (speed steps "
-              "for X_u/X_uu and the gains, astern commands for the reverse gains, hard turns for N_rr and C_d)")
+              "(--prior ridge) pulls every coefficient towards them; or record the trials named")
 
 
 def _cv_errors(d: JointDesign, priors: Mapping[str, float], fixed: Sequence[str], ridge: float,

@@ -20,6 +20,11 @@ the mean normalised MSE over the k predicted [u, v, r].
 Ensembles (`ensemble=E`): E members trained alike from seeds seed, seed+1, ... (different
 initialisation and batch order); their spread is the prediction uncertainty.
 
+Divergence: training data holding NaN or inf are refused before the first epoch (DatasetError naming the split and
+how many samples), and a non-finite loss (a batch's, the epoch's training or validation loss) stops training at once
+(errors.TrainingDiverged naming the member, the epoch, the loss and the likely cause): a NaN never reaches the
+weights that are kept, the history or the artifact.
+
 Reproducibility: the torch RNG is forked (the caller's global state is untouched) and seeded per
 member, batch order comes from a seeded Generator, intra-op threads are fixed (`threads`, default 1:
 on these tiny matrices threads cost more than they give) and restored afterwards, and deterministic
@@ -39,7 +44,7 @@ from torch import nn
 
 from usv_predictor.data.features import feature_names, features
 from usv_predictor.data.recording import Recording, recording_layout
-from usv_predictor.errors import ConfigError, DatasetError
+from usv_predictor.errors import ConfigError, DatasetError, TrainingDiverged
 from usv_predictor.models.dnn import DnnConfig, DnnModel, Normalisation, fit_normalisation
 
 LR_SCHEDULES = ("step", "cosine", "constant")
@@ -303,10 +308,14 @@ def _train_member(config: DnnConfig, recipe: TrainingConfig, norm: Normalisation
             total = 0.0
             for b in range(n_batches):
                 loss = train.loss(model, perm[b * batch:(b + 1) * batch])
+                value = loss.item()
+                if not math.isfinite(value):  # before the step: a NaN gradient would poison every weight
+                    raise TrainingDiverged(f"training diverged: the training loss of batch {b + 1} is {value} at "
+                                           f"epoch {epoch + 1} of member {member}; {_likely_cause(recipe)}")
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 optimizer.step()
-                total += loss.item()
+                total += value
             train_loss = total / n_batches
             model.eval()
             with torch.no_grad():
@@ -314,9 +323,9 @@ def _train_member(config: DnnConfig, recipe: TrainingConfig, norm: Normalisation
             history.append((train_loss, val_loss))
             monitored = val_loss if val_loss is not None else train_loss
             if not math.isfinite(monitored):
-                raise ConfigError(f"training diverged: the {'validation' if val_loss is not None else 'training'} loss "
-                                  f"is {monitored} at epoch {epoch + 1} of member {member}; lower the learning rate "
-                                  f"(now {recipe.learning_rate:g})")
+                raise TrainingDiverged(f"training diverged: the {'validation' if val_loss is not None else 'training'} "
+                                       f"loss is {monitored} at epoch {epoch + 1} of member {member}; "
+                                       f"{_likely_cause(recipe)}")
             if monitored < best[0]:
                 best = (monitored, epoch + 1, train_loss, val_loss)
                 best_state = {k: v.clone() for k, v in model.state_dict().items()}
@@ -327,6 +336,22 @@ def _train_member(config: DnnConfig, recipe: TrainingConfig, norm: Normalisation
         model.load_state_dict(best_state)
         model.eval()
     return model, MemberResult(seed, best[1], len(history), best[2], best[3], tuple(history))
+
+
+def _likely_cause(recipe: TrainingConfig) -> str:
+    """The likely cause of a non-finite loss on finite data (train_dnn refuses non-finite data first)."""
+    return (f"the steps grew the weights without bound: lower the learning rate (now {recipe.learning_rate:g})"
+            + (f" or the rollout length multi_step (now {recipe.multi_step})" if recipe.multi_step > 1 else ""))
+
+
+def _check_finite(whose: str, arrays: Sequence[tuple[str, np.ndarray]]) -> None:
+    """DatasetError naming the split (`whose`: "the training split's"), the array and how many samples hold NaN/inf."""
+    for what, array in arrays:
+        bad = ~np.isfinite(np.asarray(array, dtype=float)).reshape(len(array), -1).all(axis=1)
+        if bad.any():
+            raise DatasetError(f"{whose} {what} hold NaN or inf in {int(bad.sum())} of {len(array)} "
+                               f"samples (first: sample {int(np.flatnonzero(bad)[0])}): training on them gives a NaN "
+                               "loss; rebuild the dataset from finite recordings")
 
 
 def train_dnn(config: DnnConfig, train: Samples, val: Samples | None = None, recipe: TrainingConfig = TrainingConfig(),
@@ -350,6 +375,13 @@ def train_dnn(config: DnnConfig, train: Samples, val: Samples | None = None, rec
         for name, w in (("train", train_windows), ("val", val_windows)):
             if w is not None and w.controls.shape[1] != recipe.multi_step:
                 raise ConfigError(f"{name} windows have {w.controls.shape[1]} steps, multi_step is {recipe.multi_step}")
+    _check_finite("the training split's", (("features", train.x), ("targets", train.y)))
+    if val is not None and len(val):
+        _check_finite("the validation split's", (("features", val.x), ("targets", val.y)))
+    for name, w in (("training", train_windows), ("validation", val_windows)):
+        if recipe.multi_step > 1 and w is not None and len(w):
+            _check_finite(f"the {name} windows'", (("start states", w.state0), ("controls", w.controls),
+                                              ("targets", w.targets)))
     norm = fit_normalisation(train.x, train.y, config.predict_increment)
     train_obj = _Objective(config, recipe, train, train_windows)
     val_data = val_windows if recipe.multi_step > 1 else val  # validation uses the training objective

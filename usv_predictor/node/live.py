@@ -844,9 +844,13 @@ def _check_output(out: np.ndarray) -> None:
 
 
 def _anchored(out: np.ndarray, position: np.ndarray | None) -> np.ndarray:
-    """(..., H, 3) [x_n, y_e, psi] of the model's (..., H, 6), moved to the measured position (or (0, 0))."""
+    """(..., H, 3) [x_n, y_e, psi] of the model's (..., H, 6), moved to the measured position (or (0, 0));
+    CycleSkipped when the position makes it non-finite (a Path never carries a NaN pose)."""
     origin = position if position is not None else np.zeros(2)
-    return np.concatenate([out[..., 3:5] + origin, out[..., 5:6]], axis=-1)
+    eta = np.concatenate([out[..., 3:5] + origin, out[..., 5:6]], axis=-1)
+    if not np.isfinite(eta).all():
+        raise CycleSkipped(f"the anchored path is not finite (position {origin.tolist()}): nothing published")
+    return eta
 
 
 def step_times(live: LiveState, settings: LiveSettings, first: int = 0) -> np.ndarray:

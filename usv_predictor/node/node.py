@@ -640,7 +640,7 @@ class PredictorNode(Node):
             try:
                 with self._terms_guard():
                     result = live.predict_prepared(rollout, prepared, now_ns, self._candidates_helper)
-            except (ModelError, AdapterError, RuntimeError) as err:
+            except (live.CycleSkipped, ModelError, AdapterError, RuntimeError) as err:  # CycleSkipped: NaN output
                 self._no_candidates_answer(err)
                 return
             if not self.context.ok():  # shutting down: publishing would fail

@@ -7,7 +7,8 @@ with the
 coefficients, their 95 % CIs, the structure and the data digest in the metadata. See
 usv_predictor.fitting.identification
 and docs/identification.md. Coefficients the data cannot determine are an error naming them unless --prior says
-what to do (fix: hold at the preset's value; ridge: pull towards it). --val GLOB: bags (or directories) whose
+what to do (fix: hold at the preset's value; ridge: pull towards it); each one the data leave so is printed with the
+trial that would determine it (JSON: identification.held[].would_determine). --val GLOB: bags (or directories) whose
 manoeuvres are only evaluated, never fitted. --report DIR: summary.md and force-decomposition plots
 (seed 001 Fig. 13) per manoeuvre. The bags are read with the vessel's actuator layout: a small-craft twin-thruster
 boat identifies its damping and each side's thrust gain (structures diagonal / coupled), a throttle boat its thrust

@@ -121,6 +121,8 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, str
     for c in result.coefficients():
         progress(f"  {c.name:7s} {c.estimate:+.5g}  [{c.ci95[0]:+.5g}, {c.ci95[1]:+.5g}]  prior {c.prior:+.5g}  "
                  f"{c.status}")
+    if result.held_message():  # JSON: identification.held[] (name, value, how, would_determine)
+        progress(result.held_message())
     if report is not None:
         from usv_predictor.analysis.reports import write_identification_report
 
