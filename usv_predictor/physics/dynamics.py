@@ -35,7 +35,7 @@ drift of seed 000 eq. 19, for every hull model. N > 0 turns the bow to starboard
 and more port thrust do.
 
 The forces and accelerations are the compiled kernel's (physics/kernel.py: loads, accelerations, with the constants
-of physics/kernel.vessel_constants), the equations the grey box's rollout integrates too, so the simulator, the grey
+of kernel_constants), the equations the grey box's rollout integrates too, so the simulator, the grey
 box and its torch twin (models/greybox.py, for autograd and the file format) are one model written twice, not three
 times; what stays here is the state-level model of the simulator: the actuators' rate limits and lags, straight
 running, the turning current's acceleration. ManoeuvringModel(vessel) builds the class of the vessel's hull model and
@@ -282,6 +282,79 @@ def constants_of(vessel: Vessel, records: tuple[type, ...] | None = None) -> dic
     return out
 
 
+def kernel_constants(vessel: Vessel, dt: float = 0.5, substeps: int = 1) -> tuple[Any, Any]:
+    """(ki, p) of a Vessel's calm-water equations (the float model's, physics/dynamics.ManoeuvringModel; the torch
+    twin's module is packed from its attributes by models/kernel_rollout.py, which holds the same values: both come
+    from dynamics.constants_of), every term zero."""
+    import numpy as np
+
+    from usv_predictor.physics import kernel as kn
+
+    pk = kn.Packer()
+    ki = pk.ki
+    ki[kn.K_HULL] = {"mmg": kn.MMG, "small_craft": kn.SMALL_CRAFT}[vessel.hull_model_name]
+    layout = {"rudder_propeller": kn.RUDDER_PROPELLER, "rudder_throttle": kn.RUDDER_THROTTLE,
+              "rudder_only": kn.RUDDER_ONLY, "twin_thrusters": kn.TWIN_THRUSTERS}[vessel.layout]
+    ki[kn.K_LAYOUT], ki[kn.K_SUBSTEPS] = layout, int(substeps)
+    sea = SeaConstants.of(vessel)
+    pk.set("dt", dt)
+    pk.set("L_sea", vessel.geometry.L_pp)
+    for name in ("wind_x", "wind_y", "wind_n", "q_wave"):
+        pk.set(name, getattr(sea, name))
+    hull_record = HullConstants if ki[kn.K_HULL] == kn.MMG else SmallCraftConstants
+    hull = hull_record.of(vessel)
+    for name in kn.MASS_CONSTANTS:
+        pk.set(name, getattr(hull, name))
+    section = getattr(vessel, vessel.hull_model.coefficients)
+    names = [f.name for f in fields(section)]
+    pk.append(kn.K_O_HULL, [float(getattr(section, n)) for n in names])
+    tables = [[[half_a0, 0.0, 0.0]] + [[float(n), a, b] for n, a, b in terms]
+              for half_a0, terms in (sea.drift_x, sea.drift_y, sea.drift_n)]
+    drift = kn.fourier_tables(tables)
+    ki[kn.K_DRIFT_ROWS] = drift.shape[1]
+    pk.append(kn.K_O_DRIFT, drift)
+    strips: list[float] = []
+    if ki[kn.K_HULL] == kn.MMG:
+        pk.set("q_force", hull.q_force)
+        pk.set("speed_floor", SPEED_FLOOR)
+    else:
+        for name in ("m33_rigid", "half_rho_d", "strip_dx"):
+            pk.set(name, getattr(hull, name))
+        strips = list(hull.strip_x)
+        for k, name in enumerate(kn.SMALL_CRAFT_INDICES):
+            ki[kn.K_XUD + k] = names.index(name)
+    ki[kn.K_N_STRIPS] = len(strips)
+    pk.append(kn.K_O_STRIPS, strips)
+    h = dt / substeps
+    lags = np.zeros((2, 3))
+    maps = []
+    if layout == kn.TWIN_THRUSTERS:
+        twin = TwinThrusterConstants.of(vessel)
+        pk.set("half_spacing", twin.half_spacing)
+        maps = [kn.thrust_map_spec(twin.port), kn.thrust_map_spec(twin.starboard)]
+        times = [twin.port.time_constant_s, twin.starboard.time_constant_s]
+        lags[:, :] = np.stack([times, kn.lag_factors(times, 0.5 * h), kn.lag_factors(times, h)], axis=1)
+    else:
+        rudder = constants_of(vessel, (RudderPropellerConstants,))
+        for name in kn.RUDDER_CONSTANTS:
+            pk.set(name, rudder[name])
+        pk.set("rho", RHO_WATER)
+        pk.set("L_act", vessel.geometry.L_pp)
+        if layout == kn.RUDDER_THROTTLE:
+            throttle = ThrottleConstants.of(vessel)
+            pk.set("static_thrust", throttle.static_thrust)
+            pk.set("rpm_per_rev_s", throttle.rpm_per_rev_s)
+            maps = [kn.thrust_map_spec(throttle.throttle)]
+            t = throttle.throttle.time_constant_s
+            lags[0] = [t, *kn.lag_factors([t], 0.5 * h), *kn.lag_factors([t], h)]
+    flat, ki[kn.K_MAP_WIDTH], (ki[kn.K_MAP_N0], ki[kn.K_MAP_N1]) = kn.thrust_maps(maps)
+    pk.append(kn.K_O_MAPS, flat)
+    pk.append(kn.K_O_LAG, lags)
+    pk.append(kn.K_O_COEF, np.zeros(kn.N_POLY))
+    ki[kn.K_MEMBERS] = 1
+    return ki, pk.constants()
+
+
 # ---- the float model ------------------------------------------------------------------------------------
 
 class ManoeuvringModel(metaclass=ABCMeta):
@@ -317,7 +390,7 @@ class ManoeuvringModel(metaclass=ABCMeta):
         if self._packed is None:
             from usv_predictor.physics import kernel
 
-            ki, p = kernel.vessel_constants(self.vessel)
+            ki, p = kernel_constants(self.vessel)
             p[kernel.T_SIDE_FORCE] = self.propeller_side_force
             p[kernel.T_THRUST_IMBALANCE] = self.thrust_imbalance
             self._packed = (kernel, ki, p)

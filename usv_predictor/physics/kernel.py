@@ -166,7 +166,7 @@ def thrust_maps(specs: list[tuple[list[float], list[float], list[float]]]) -> tu
 
 class Packer:
     """The flat constants p after the fixed places (P_NAMES, the terms): each table appended, its offset and sizes
-    recorded in ki (K_*). Two callers fill it: vessel_constants (a Vessel: the float model, physics/dynamics.py) and
+    recorded in ki (K_*). Two callers fill it: physics/dynamics.kernel_constants (a Vessel: the float model) and
     models/kernel_rollout.py (a GreyBoxRollout or its TorchScript file's module)."""
 
     def __init__(self) -> None:
@@ -200,80 +200,6 @@ def thrust_map_spec(m) -> tuple[list[float], list[float], list[float]]:
 def lag_factors(time_constants, tau: float) -> list[float]:
     """exp(-tau / T) per time constant T (s), 0 for an instantaneous motor (T = 0)."""
     return [math.exp(-tau / t) if t > 0.0 else 0.0 for t in time_constants]
-
-
-def vessel_constants(vessel, dt: float = 0.5, substeps: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """(ki, p) of a Vessel's calm-water equations (the float model's, physics/dynamics.ManoeuvringModel; the torch
-    twin's module is packed from its attributes by models/kernel_rollout.py, which holds the same values: both come
-    from dynamics.constants_of), every term zero."""
-    from dataclasses import fields
-
-    from usv_predictor.physics import dynamics as dy
-    from usv_predictor.physics.vessel import RHO_WATER
-
-    pk = Packer()
-    ki = pk.ki
-    ki[K_HULL] = {"mmg": MMG, "small_craft": SMALL_CRAFT}[vessel.hull_model_name]
-    layout = {"rudder_propeller": RUDDER_PROPELLER, "rudder_throttle": RUDDER_THROTTLE, "rudder_only": RUDDER_ONLY,
-              "twin_thrusters": TWIN_THRUSTERS}[vessel.layout]
-    ki[K_LAYOUT], ki[K_SUBSTEPS] = layout, int(substeps)
-    sea = dy.SeaConstants.of(vessel)
-    pk.set("dt", dt)
-    pk.set("L_sea", vessel.geometry.L_pp)
-    for name in ("wind_x", "wind_y", "wind_n", "q_wave"):
-        pk.set(name, getattr(sea, name))
-    hull_record = dy.HullConstants if ki[K_HULL] == MMG else dy.SmallCraftConstants
-    hull = hull_record.of(vessel)
-    for name in MASS_CONSTANTS:
-        pk.set(name, getattr(hull, name))
-    section = getattr(vessel, vessel.hull_model.coefficients)
-    names = [f.name for f in fields(section)]
-    pk.append(K_O_HULL, [float(getattr(section, n)) for n in names])
-    tables = [[[half_a0, 0.0, 0.0]] + [[float(n), a, b] for n, a, b in terms]
-              for half_a0, terms in (sea.drift_x, sea.drift_y, sea.drift_n)]
-    drift = fourier_tables(tables)
-    ki[K_DRIFT_ROWS] = drift.shape[1]
-    pk.append(K_O_DRIFT, drift)
-    strips: list[float] = []
-    if ki[K_HULL] == MMG:
-        pk.set("q_force", hull.q_force)
-        pk.set("speed_floor", dy.SPEED_FLOOR)
-    else:
-        for name in ("m33_rigid", "half_rho_d", "strip_dx"):
-            pk.set(name, getattr(hull, name))
-        strips = list(hull.strip_x)
-        for k, name in enumerate(SMALL_CRAFT_INDICES):
-            ki[K_XUD + k] = names.index(name)
-    ki[K_N_STRIPS] = len(strips)
-    pk.append(K_O_STRIPS, strips)
-    h = dt / substeps
-    lags = np.zeros((2, 3))
-    maps = []
-    if layout == TWIN_THRUSTERS:
-        twin = dy.TwinThrusterConstants.of(vessel)
-        pk.set("half_spacing", twin.half_spacing)
-        maps = [thrust_map_spec(twin.port), thrust_map_spec(twin.starboard)]
-        times = [twin.port.time_constant_s, twin.starboard.time_constant_s]
-        lags[:, :] = np.stack([times, lag_factors(times, 0.5 * h), lag_factors(times, h)], axis=1)
-    else:
-        rudder = dy.constants_of(vessel, (dy.RudderPropellerConstants,))
-        for name in RUDDER_CONSTANTS:
-            pk.set(name, rudder[name])
-        pk.set("rho", RHO_WATER)
-        pk.set("L_act", vessel.geometry.L_pp)
-        if layout == RUDDER_THROTTLE:
-            throttle = dy.ThrottleConstants.of(vessel)
-            pk.set("static_thrust", throttle.static_thrust)
-            pk.set("rpm_per_rev_s", throttle.rpm_per_rev_s)
-            maps = [thrust_map_spec(throttle.throttle)]
-            t = throttle.throttle.time_constant_s
-            lags[0] = [t, *lag_factors([t], 0.5 * h), *lag_factors([t], h)]
-    flat, ki[K_MAP_WIDTH], (ki[K_MAP_N0], ki[K_MAP_N1]) = thrust_maps(maps)
-    pk.append(K_O_MAPS, flat)
-    pk.append(K_O_LAG, lags)
-    pk.append(K_O_COEF, np.zeros(N_POLY))
-    ki[K_MEMBERS] = 1
-    return ki, pk.constants()
 
 
 # ---- the sea --------------------------------------------------------------------------------------------------------
