@@ -236,3 +236,16 @@ def test_a_batch_split_over_threads_is_the_same_batch():
     split = KernelRollout(module, live=True, threads=2)
     np.testing.assert_array_equal(split.rollout(state, controls, reference, free=free), one)
     assert np.abs(one[0, :, -1, 3:5] - one[0, :1, -1, 3:5]).max() > 1.0  # the rows differ: a mix-up would show
+
+
+@pytest.mark.parametrize("name", sorted(ALL))
+def test_the_float_models_constants_are_the_torch_modules(name):
+    """The kernel's two packers, from a Vessel (dynamics.kernel_constants: the float model) and from the torch
+    module's attributes (KernelRollout: an artifact), give the same ki and p: one set of constants."""
+    from usv_predictor.physics.dynamics import kernel_constants
+
+    vessel = ALL[name]
+    kernel = KernelRollout(GreyBoxRollout(vessel, dt=0.2, substeps=3))
+    ki, p = kernel_constants(vessel, dt=0.2, substeps=3)
+    np.testing.assert_array_equal(ki, kernel.ki)
+    np.testing.assert_allclose(p, kernel.p, rtol=1e-15, atol=0.0)
