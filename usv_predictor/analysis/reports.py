@@ -12,7 +12,6 @@ Numbers come in as JSON (None for undefined) and are printed through `num`.
 from __future__ import annotations
 
 import datetime
-import json
 import math
 import re
 import zipfile
@@ -24,6 +23,7 @@ import numpy as np
 
 from usv_predictor.analysis.evaluation import Prediction, predictions_from_arrays
 from usv_predictor.atomic import jsonable, write_json_atomic, write_text_atomic
+from usv_predictor.bounded import load_json
 from usv_predictor.errors import EvaluationError
 
 if TYPE_CHECKING:
@@ -309,10 +309,7 @@ def load_evaluation_file(path: Path, warn: Callable[[str], None] = lambda _: Non
 
     The file is checked against EVALUATION_SCHEMA first (what the report reads): a null section, a string where a
     number belongs, a missing field is an EvaluationError naming the file and the field."""
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"), parse_constant=_no_constant)
-    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:  # ValueError: JSONDecodeError, NaN
-        raise EvaluationError(f"{path}: cannot read the evaluation file ({err})") from err
+    data = load_json(path, "evaluation file", EvaluationError, parse_constant=_no_constant)
     if not isinstance(data, dict) or not isinstance(data.get("recordings"), list) or "summary" not in data:
         raise EvaluationError(f"{path}: not an evaluation file of `replay evaluate` (no 'recordings' and 'summary')")
     try:

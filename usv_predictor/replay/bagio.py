@@ -33,7 +33,7 @@ import tempfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePath
 from types import MappingProxyType
 from typing import Any
 
@@ -48,6 +48,7 @@ from rosbags.typesys import Stores, get_typestore
 from msg_adapters import check_shared, columnar_factory, encode_shared, get_adapter, rosbags_factory
 from msg_adapters.cdr import decode_many, has_fast_layout
 from usv_predictor.atomic import NO_SPACE_ERRNOS, write_failure
+from usv_predictor.bounded import load_yaml, regular_file
 from usv_predictor.config import PredictorConfig, input_topics
 from usv_predictor.errors import AdapterError, BagError, one_line
 from usv_predictor.records import Signal
@@ -352,11 +353,41 @@ def write_bag(
 # ------------------------------------------------------------------ reading
 
 
+STORAGE_FILE_BYTES = 1 << 50  # a storage file is bounded by the disk, not by us (bytes)
+
+
+def _check_bag_files(path: Path) -> None:
+    """Before any reader opens them: the bag's metadata.yaml read within bounds (bounded.load_yaml) and every
+    storage file it lists, or a single-file bag, a regular file (a FIFO would block sqlite's open for ever, a
+    device never ends); BagError naming the file otherwise."""
+    if not path.is_dir():
+        regular_file(path, "bag file", BagError, STORAGE_FILE_BYTES)
+        return
+    metadata = path / "metadata.yaml"
+    if not os.path.lexists(metadata):
+        return  # the reader names what is missing
+    try:
+        info = load_yaml(metadata, "rosbag2 metadata", BagError)["rosbag2_bagfile_information"]
+        names = [PurePath(str(name)).name for name in info.get("relative_file_paths") or []]
+    except BagError as err:
+        raise BagError(f"{path}: {err}") from err
+    except (KeyError, TypeError, AttributeError) as err:
+        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata}: not a rosbag2 metadata file "
+                       f"({type(err).__name__}: {one_line(err)})") from err
+    for name in names:
+        if os.path.lexists(path / name):  # a missing one: the reader names it
+            try:
+                regular_file(path / name, "storage file", BagError, STORAGE_FILE_BYTES)
+            except BagError as err:
+                raise BagError(f"{path}: {err}") from err
+
+
 @contextmanager
 def _open_reader(path: Path) -> Iterator[AnyReader]:
     """AnyReader over one bag; unreadable bags become BagError naming the path."""
     if not path.exists():
         raise BagError(f"{path}: no such bag")
+    _check_bag_files(path)
     try:
         with AnyReader([path], default_typestore=jazzy_typestore()) as reader:
             yield reader
@@ -366,6 +397,9 @@ def _open_reader(path: Path) -> Iterator[AnyReader]:
         raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {one_line(err)})") from err
     except _READ_ERRORS as err:
         raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {one_line(err)})") from err
+    except RecursionError as err:  # what rosbags raises on a message definition that contains itself
+        raise BagError(f"{path}: cannot read bag: a message definition it carries refers to itself (a type that "
+                       "contains itself has no end)") from err
 
 
 def absolute_topic(name: str) -> str:
@@ -514,11 +548,13 @@ def read_custom_data(path: Path) -> dict[str, str]:
     """The bag's custom_data (metadata.yaml), e.g. how it was made; {} when it has none."""
     metadata_path = Path(path) / "metadata.yaml"
     try:
-        info = yaml.safe_load(metadata_path.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        info = load_yaml(metadata_path, "rosbag2 metadata", BagError)["rosbag2_bagfile_information"]
         custom = info.get("custom_data") or {}
         if not isinstance(custom, dict):
             raise TypeError(f"custom_data is a {type(custom).__name__}, expected a mapping")
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, AttributeError) as err:
+    except BagError as err:
+        raise BagError(f"{path}: {err}") from err
+    except (KeyError, TypeError, AttributeError) as err:
         raise BagError(f"{path}: cannot read rosbag2 metadata {metadata_path}: {one_line(err)}") from err
     return {str(k): str(v) for k, v in custom.items()}
 

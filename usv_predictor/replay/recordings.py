@@ -44,8 +44,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from usv_predictor.bounded import load_yaml
 from usv_predictor.config import FLOAT_RANGES, input_topics, load_predictor_config
 from usv_predictor.data.recording import (
     Recording,
@@ -109,12 +109,19 @@ def _is_bag(path: Path) -> bool:
     return path.is_file() or (path / "metadata.yaml").is_file()
 
 
-def _bags_under(root: Path, include_calm: bool) -> list[Path]:
+def _bags_under(root: Path, include_calm: bool, seen: set[tuple[int, int]] | None = None) -> list[Path]:
+    """The bags below `root`, each directory searched once (by device and inode): a link back to `.` or to a
+    parent directory, which would make the search endless, is skipped."""
+    seen = set() if seen is None else seen
+    info = root.stat()
+    if (info.st_dev, info.st_ino) in seen:
+        return []
+    seen.add((info.st_dev, info.st_ino))
     found: list[Path] = []
     for child in sorted(root.iterdir()):
         if not child.is_dir() or (child.name == CALM_DIR and not include_calm):
             continue
-        found += [child] if _is_bag(child) else _bags_under(child, include_calm)
+        found += [child] if _is_bag(child) else _bags_under(child, include_calm, seen)
     return found
 
 
@@ -161,20 +168,19 @@ def bag_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml when present: 10x faster on metadata
-
-
 def bag_metadata(path: Path) -> tuple[dict[str, tuple[str, int]], dict[str, str]] | None:
     """(topic -> (type, message count), custom_data) of a rosbag2 metadata.yaml; None for a bag without one."""
     metadata = Path(path) / "metadata.yaml"
     if not metadata.is_file():
         return None
     try:
-        info = yaml.load(metadata.read_text(encoding="utf-8"), Loader=_YAML_LOADER)["rosbag2_bagfile_information"]
+        info = load_yaml(metadata, "rosbag2 metadata", BagError)["rosbag2_bagfile_information"]
         topics = {t["topic_metadata"]["name"]: (t["topic_metadata"]["type"], int(t.get("message_count", 0)))
                   for t in info.get("topics_with_message_count") or []}
         custom = {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError) as err:
+    except BagError as err:
+        raise BagError(f"{path}: {err}") from err
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise BagError(f"{path}: cannot read rosbag2 metadata {metadata} ({type(err).__name__}: {one_line(err)})") from err
     return topics, custom
 
