@@ -22,6 +22,7 @@ from usv_predictor.config import package_share_path
 from usv_predictor.errors import ModelError
 from usv_predictor.node import node as predictor_node
 
+from replay_helpers import write_model_with_metadata
 from ros_helpers import GOOD, Harness, level, localhost_env, statuses, values_of
 
 DEFAULT_MODEL = package_share_path("models", "default.pt")
@@ -246,10 +247,19 @@ def test_invalid_parameter_values_are_rejected_with_the_range(harness: Harness) 
     assert "0 <= state_delay_s <= 5" in descriptor.additional_constraints
 
 
+MALFORMED_METADATA = {  # issue 28: each was a TypeError traceback at start-up, and killed the node on a swap
+    "ensemble_five": {"ensemble_size": "five"},
+    "control_layout_int": {"control_layout": 3},
+    "control_layout_null": {"control_layout": None},
+}
+
+
 def write_bad_models(tmp_path: Path) -> dict[str, Path]:
     corrupt = tmp_path / "corrupt.pt"
     corrupt.write_bytes(DEFAULT_MODEL.read_bytes()[:5000])  # truncated
-    return {"missing": tmp_path / "absent.pt", "corrupt": corrupt}
+    malformed = {name: write_model_with_metadata(tmp_path / f"{name}.pt", DEFAULT_MODEL, **changes)
+                 for name, changes in MALFORMED_METADATA.items()}
+    return {"missing": tmp_path / "absent.pt", "corrupt": corrupt, **malformed}
 
 
 def test_model_swap_validates_first_and_keeps_the_old_model(harness: Harness, tmp_path: Path) -> None:
@@ -258,6 +268,11 @@ def test_model_swap_validates_first_and_keeps_the_old_model(harness: Harness, tm
         result = harness.node.set_parameters([Parameter("model_path", value=str(path))])[0]
         assert not result.successful and str(path) in result.reason, name
         assert harness.node.rollout is old
+    # the last refusal is on /diagnostics while the old model keeps predicting
+    found = harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK
+                               and level(s["model"]) == predictor_node.WARN, harness.feed)
+    assert values_of(found["model"])["refused_model_path"] == str(path)
+    assert "control_layout = None must be a non-empty list" in found["model"].message
     result = harness.node.set_parameters([Parameter("model_path", value=str(DEFAULT_MODEL))])[0]
     assert result.successful and harness.node.rollout is not old
     harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, harness.feed)
@@ -283,7 +298,7 @@ def test_a_model_for_other_controls_is_refused_naming_the_layouts(ros_context: C
         predictor_node.PredictorNode(context=ros_context, parameter_overrides=[Parameter("model_path", value=str(path))])
 
 
-@pytest.mark.parametrize("case", ["missing", "corrupt", "vessel"])
+@pytest.mark.parametrize("case", ["missing", "corrupt", "vessel", "ensemble_five", "control_layout_null"])
 def test_a_bad_model_at_start_exits_2_naming_the_file(tmp_path: Path, case: str) -> None:
     models = write_bad_models(tmp_path)
     args = ["-p", f"model_path:={models[case]}"] if case in models else ["-p", "vessel:=kvlcc2_model"]

@@ -93,7 +93,7 @@ from usv_predictor.config import (
     unflatten_ros_parameters,
 )
 from usv_predictor.data.recording import PLAUSIBLE
-from usv_predictor.errors import AdapterError, ConfigError, ModelError, RecordingError, UsvPredictorError
+from usv_predictor.errors import AdapterError, ConfigError, ModelError, RecordingError, UsvPredictorError, one_line
 from usv_predictor.fitting.online import OnlineConfig
 from usv_predictor.models import loading
 from usv_predictor.models.artifact import metadata_differences
@@ -396,6 +396,7 @@ class PredictorNode(Node):
         self._cycle_times: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.published = 0
         self.skipped = 0
+        self.model_refused: tuple[str, str] | None = None  # (model_path, why) of the last refused swap
         self.last_skip = ""
         self.last_prediction: live.Prediction | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -468,10 +469,16 @@ class PredictorNode(Node):
                 try:
                     swap, _ = load_model(str(parameter.value), self.config, self.vessel)
                     candidates = self._candidates_of(swap)
-                except (ModelError, ConfigError) as err:
-                    self.get_logger().error(f"model_path not changed, keeping {self.rollout.artifact.path}: {err}")
-                    return SetParametersResult(successful=False, reason=str(err))
+                except Exception as err:  # noqa: BLE001 - the callback boundary: any file, however made, is refused
+                    # (a ModelError or ConfigError names the culprit; anything else is what the model's own code or
+                    # metadata raised past the checks) and the old model keeps predicting
+                    why = one_line(err) if isinstance(err, (ModelError, ConfigError)) else \
+                        f"model {parameter.value} cannot be used: {type(err).__name__}: {one_line(err)}"
+                    self.model_refused = (str(parameter.value), why)
+                    self.get_logger().error(f"model_path not changed, keeping {self.rollout.artifact.path}: {why}")
+                    return SetParametersResult(successful=False, reason=why)
         if swap is not None:
+            self.model_refused = None
             self.rollout = swap
             self.candidate_rollout = candidates
             self.get_logger().info(f"model swapped to {swap.artifact.path} ({swap.artifact.model_id})")
@@ -898,6 +905,10 @@ class PredictorNode(Node):
             "training_data_sha256": meta.get("training_data_sha256"), "created_utc": meta.get("created_utc"),
             "horizon_s": f"{self.config.horizon_s:g}", "version": __version__,
         }
+        if self.model_refused is not None:  # still predicting with the model above
+            path, why = self.model_refused
+            values.update(refused_model_path=path, refused_because=why)
+            return self._status(WARN, "model", f"loaded {artifact.model_id}; model_path {path} refused: {why}", values)
         return self._status(OK, "model", f"loaded {artifact.model_id}", values)
 
     def _prediction_status(self) -> Status:
@@ -1116,7 +1127,7 @@ def main(args: Sequence[str] | None = None) -> int:
         print(f"predictor: error: invalid ROS arguments: {_first_line(err)}", file=sys.stderr)
         return EXIT_ERROR
     except UsvPredictorError as err:
-        print(f"predictor: error: {err}", file=sys.stderr)
+        print(f"predictor: error: {one_line(err)}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:  # a SIGINT before our handler was installed
         pass
