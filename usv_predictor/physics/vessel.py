@@ -377,12 +377,13 @@ PRESET_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")  # a preset's file na
 
 
 def check_vessel_name(name: Any, where: str) -> str:
-    """`name` when it is a text that cannot be read as a path (no separator, no leading dot, printable); ConfigError
-    naming `where` otherwise. A vessel's name travels in model files: it must never lead outside the presets."""
+    """`name` when it is a text that cannot be read as a path (no separator, no leading dot, not ending in .yaml,
+    printable); ConfigError naming `where` otherwise. A vessel's name travels in model files: it must never lead
+    outside the presets."""
     if not isinstance(name, str) or not name or name.startswith(".") or any(c in name for c in "/\\\0") \
-            or not name.isprintable():
+            or Path(name).suffix in (".yaml", ".yml") or not name.isprintable():
         raise ConfigError(f"{where} = {_repr(name)} is not a vessel name (text without path separators, not "
-                          "starting with a dot)")
+                          "starting with a dot, not a .yaml file name)")
     return name
 
 
