@@ -20,6 +20,7 @@ import json
 import math
 import os
 import sqlite3
+import stat
 import tempfile
 from collections.abc import Collection, Iterable, Mapping
 from contextlib import contextmanager
@@ -52,14 +53,36 @@ def write_failure(err: BaseException) -> str:
     return str(err) or type(err).__name__
 
 
+def special_file(path: str | os.PathLike[str]) -> str | None:
+    """What `path` is when it exists and is neither a regular file nor a directory (the link itself is looked at,
+    not what it points to): "a symbolic link to /dev/stdout", "a character device", ...; None otherwise. An output
+    never replaces such a file: renaming a new file onto /dev/null (a copy of it, a link to the terminal) would
+    turn a device into a regular file, and a link into a file that no longer points anywhere."""
+    try:
+        info = os.lstat(path)
+    except OSError:
+        return None
+    if stat.S_ISREG(info.st_mode) or stat.S_ISDIR(info.st_mode):
+        return None
+    if stat.S_ISLNK(info.st_mode):
+        return f"a symbolic link to {os.readlink(path)}"
+    kinds = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+             (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+    return next((name for test, name in kinds if test(info.st_mode)), "not a regular file")
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike[str], error: type[Exception] = UsvPredictorError,
                 what: str = "output") -> Iterator[Path]:
     """Yield a temporary path beside `path`; rename it onto `path` on success, remove it on any failure.
 
-    OSError (directory not creatable, disk full, ...) becomes `error` naming the path: "cannot write X: why".
+    OSError (directory not creatable, disk full, ...) becomes `error` naming the path: "cannot write X: why"; a
+    `path` that is a special file (special_file: a device, a FIFO, a link) is refused and left as it is.
     """
     path = Path(path)
+    special = special_file(path)
+    if special is not None:
+        raise error(f"cannot write {what} {path}: it is {special}, and an output replaces only a regular file")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
@@ -187,6 +210,7 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike[str] | None],
     - is a file output where a directory holding an input is (it would replace that directory);
     - is, or lies inside, a rosbag2 bag (a directory holding metadata.yaml), an input or not;
     - is the same path as another output;
+    - is a special file (a device, a FIFO, a link, but a link to a directory for a directory output);
     - cannot be created (its nearest existing ancestor is not a directory, or no file can be made there).
 
     outputs: option -> path (None: not asked for); inputs: paths (those that do not exist are skipped: reading
@@ -198,6 +222,10 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike[str] | None],
         if path is None:
             continue
         given, target = Path(path), _resolved(path)
+        special = special_file(given)
+        if special is not None and not (option in directories and given.is_dir()):  # a link to a directory is fine
+            raise OutputError(f"{option} {given} is {special}: an output replaces only a regular file (give a new "
+                              "file name)")
         for source_given, source in existing:
             if target == source:
                 raise OutputError(f"{option} {given} is the input {source_given}: an input is never replaced")

@@ -338,9 +338,9 @@ METADATA_FIELDS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "model_id": (lambda v: isinstance(v, str) and bool(v), "a non-empty text"),
     "feature_set": (lambda v: isinstance(v, str), "a text"),
     "feature_names": (_texts, "a list of distinct texts"),
-    "state_layout": (lambda v: _texts(v, non_empty=True), "a non-empty list of distinct texts"),
+    "state_layout": (_texts, "a list of distinct texts"),  # descriptive: the forward contract fixes both layouts
+    "output_layout": (_texts, "a list of distinct texts"),
     "control_layout": (lambda v: _texts(v, non_empty=True), "a non-empty list of distinct control names"),
-    "output_layout": (lambda v: v == list(OUTPUT_LAYOUT), f"the list {list(OUTPUT_LAYOUT)}"),
     "dt": (_positive, "a finite number of seconds > 0"),
     "horizon_steps": (lambda v: _whole(v, 1), "an integer >= 1"),
     "ensemble_size": (lambda v: _whole(v, 1), "an integer >= 1"),

@@ -300,6 +300,35 @@ def prepare_outputs(directory: Path, bags: Sequence[Path], overwrite: bool) -> N
         raise BagError(f"{existing[0]} exists already; use --overwrite to replace it")
 
 
+URI_SPECIAL = frozenset("#?%")  # what a sqlite `file:` URI reads as a fragment, a query or an escape
+
+
+@contextmanager
+def _plain_sqlite_path(path: Path) -> Iterator[Path]:
+    """`path`, or, when its absolute form holds a character a sqlite URI gives a meaning to (URI_SPECIAL), the same
+    directory entry reached through a link in a fresh temporary directory whose path holds none of them.
+
+    rosbags opens sqlite storage as `file:<path>` URIs (the writer) and `file:<path>?immutable=1` (the reader), so a
+    `#` in `--output out#1` cut the path there: the database went to a file `out` beside the intended folder and
+    the bag had none. Through the link, sqlite sees a plain path that leads to the intended place."""
+    absolute = Path(os.path.abspath(path))
+    if not URI_SPECIAL & set(str(absolute)):
+        yield path
+        return
+    if URI_SPECIAL & set(absolute.name):  # its storage files are named after it: no link avoids that
+        raise BagError(f"{path}: a bag's name may not hold {' or '.join(sorted(URI_SPECIAL))} (sqlite would read "
+                       "its storage file's path as a URI); rename it")
+    links = Path(tempfile.mkdtemp(prefix="usv_predictor_sqlite."))
+    try:
+        if URI_SPECIAL & set(str(links)):
+            raise BagError(f"{path}: its path holds one of {''.join(sorted(URI_SPECIAL))}, which sqlite reads as a URI, "
+                           f"and so does the temporary directory {links}")
+        os.symlink(absolute.parent, links / "parent")
+        yield links / "parent" / absolute.name
+    finally:
+        shutil.rmtree(links, ignore_errors=True)
+
+
 def write_bag(
     path: Path,
     streams: Sequence[tuple[TopicSpec, Signal]],
@@ -332,15 +361,18 @@ def write_bag(
     workdir = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
     try:
         built = workdir / path.name
-        writer = Writer(built, version=BAG_VERSION, storage_plugin=STORAGES[storage])
-        if compress:
-            writer.set_compression(COMPRESSION_MODES[storage], CompressionFormat.ZSTD)
-        for key, value in (metadata or {}).items():
-            writer.set_custom_data(str(key), str(value))
-        with writer:
-            connections = [writer.add_connection(spec.topic, spec.ros_type, typestore=typestore) for spec, _ in firsts]
-            for stamp, topic, row in zip(stamps[order].tolist(), topic_index[order].tolist(), row_index[order].tolist()):
-                writer.write(connections[topic], stamp, encoded[topic][row])
+        with _plain_sqlite_path(built) as plain:
+            writer = Writer(plain, version=BAG_VERSION, storage_plugin=STORAGES[storage])
+            if compress:
+                writer.set_compression(COMPRESSION_MODES[storage], CompressionFormat.ZSTD)
+            for key, value in (metadata or {}).items():
+                writer.set_custom_data(str(key), str(value))
+            with writer:
+                connections = [writer.add_connection(spec.topic, spec.ros_type, typestore=typestore)
+                               for spec, _ in firsts]
+                for stamp, topic, row in zip(stamps[order].tolist(), topic_index[order].tolist(),
+                                             row_index[order].tolist()):
+                    writer.write(connections[topic], stamp, encoded[topic][row])
         _install(built, path)
     except (WriterError, OSError, sqlite3.Error) as err:
         cause = err.__cause__ if isinstance(err, WriterError) and err.__cause__ is not None else err
@@ -389,7 +421,7 @@ def _open_reader(path: Path) -> Iterator[AnyReader]:
         raise BagError(f"{path}: no such bag")
     _check_bag_files(path)
     try:
-        with AnyReader([path], default_typestore=jazzy_typestore()) as reader:
+        with _plain_sqlite_path(path) as plain, AnyReader([plain], default_typestore=jazzy_typestore()) as reader:
             yield reader
     except OSError as err:
         if err.errno in NO_SPACE_ERRNOS:  # a compressed bag is decompressed into a temporary file first

@@ -3,8 +3,8 @@
     load_recordings(["bags/training"], dt=0.5) -> [Recording, ...]
 
 Bag arguments: a directory holding metadata.yaml (or a single bag file) is one bag; any other directory is
-searched recursively for bags, in sorted order, skipping sub-directories named `calm` (the calm-water twins of
-`replay simulate --calm-twin`) unless include_calm=True. A calm directory named explicitly is read in full.
+searched recursively for bags, in sorted order, skipping hidden sub-directories and those named `calm` (the
+calm-water twins of `replay simulate --calm-twin`) unless include_calm=True. A calm directory named explicitly is read in full.
 Recording names are the shortest trailing part of the bag path that is unique among the bags read
 (`zigzag_10_10_stbd_650rpm`, or `training/zigzag_...` next to `calm/zigzag_...`).
 
@@ -111,7 +111,8 @@ def _is_bag(path: Path) -> bool:
 
 def _bags_under(root: Path, include_calm: bool, seen: set[tuple[int, int]] | None = None) -> list[Path]:
     """The bags below `root`, each directory searched once (by device and inode): a link back to `.` or to a
-    parent directory, which would make the search endless, is skipped."""
+    parent directory, which would make the search endless, is skipped. Hidden directories are not searched: a
+    writer's work in progress (`.<bag>.<random>.partial`, write_bag) is never read as a bag."""
     seen = set() if seen is None else seen
     info = root.stat()
     if (info.st_dev, info.st_ino) in seen:
@@ -119,7 +120,7 @@ def _bags_under(root: Path, include_calm: bool, seen: set[tuple[int, int]] | Non
     seen.add((info.st_dev, info.st_ino))
     found: list[Path] = []
     for child in sorted(root.iterdir()):
-        if not child.is_dir() or (child.name == CALM_DIR and not include_calm):
+        if not child.is_dir() or child.name.startswith(".") or (child.name == CALM_DIR and not include_calm):
             continue
         found += [child] if _is_bag(child) else _bags_under(child, include_calm, seen)
     return found
