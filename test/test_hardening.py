@@ -664,3 +664,86 @@ def test_model_metadata_is_checked_field_by_field(tmp_path, capsys, case) -> Non
     assert_one_line(code, err, "evaluate", allowed=(2,))
     assert expected in err and str(model) in err, err
     assert not (tmp_path / "eval").exists()
+
+
+def _device_copy(path: Path) -> Path:
+    """A copy of /dev/null (a character device, made with mknod: root only, skipped otherwise)."""
+    try:
+        os.mknod(path, 0o666 | __import__("stat").S_IFCHR, os.stat("/dev/null").st_rdev)
+    except PermissionError:
+        pytest.skip("mknod needs root")
+    return path
+
+
+SPECIAL_OUTPUTS: dict[str, Callable[[Path], Path]] = {
+    "a_copy_of_dev_null": _device_copy,
+    "a_link_to_stdout": lambda p: (os.symlink("/dev/stdout", p), p)[1],
+    "a_fifo": lambda p: (os.mkfifo(p), p)[1],
+    "a_link_to_a_file": lambda p: (p.with_name("target.json").write_text("{}"), os.symlink("target.json", p), p)[2],
+}
+
+
+@pytest.mark.parametrize("case", sorted(SPECIAL_OUTPUTS))
+def test_an_output_that_is_a_special_file_is_refused_never_replaced(tmp_path, capsys, case) -> None:
+    """Was: `--json /dev/null-copy` (or a link to stdout) replaced by a regular file. Now refused before any work,
+    the special file left as it was; the same for a file written inside an output directory."""
+    target = SPECIAL_OUTPUTS[case](tmp_path / "result.json")
+    before = os.lstat(target)
+    code, err = replay(capsys, "info", ZIGZAG, "--json", target)
+    assert_one_line(code, err, "info", allowed=(2,))
+    assert f"--json {target} is a" in err and "an output replaces only a regular file" in err, err
+    after = os.lstat(target)
+    assert (after.st_mode, after.st_ino, after.st_rdev) == (before.st_mode, before.st_ino, before.st_rdev)
+    out = tmp_path / "eval"
+    out.mkdir()
+    inner = SPECIAL_OUTPUTS[case](out / "evaluation.json")  # what evaluate writes into its output directory
+    code, err = replay(capsys, "evaluate", ZIGZAG, "--output", out)
+    assert_one_line(code, err, "evaluate", allowed=(2,))
+    assert f"{inner} is a" in err and "replaces only a regular file" in err and os.lstat(inner).st_mode == before.st_mode
+    assert leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_a_hash_in_an_output_path_writes_where_it_says(tmp_path, capsys, storage) -> None:
+    """Was: sqlite read `out#1/...` as the URI `out` with a fragment: its database landed in a file `out` beside the
+    folder, and the bag had none. Now the bag is where the path says, readable; nothing is written beside it."""
+    out = tmp_path / "out#1?x%41"
+    code, err = replay(capsys, "simulate", "--manoeuvre", "zigzag", "--duration", "5", "--storage", storage,
+                       "--no-compress", "--output", out)
+    assert_one_line(code, err, "simulate", allowed=(0,))
+    assert sorted(p.name for p in tmp_path.iterdir()) == [out.name]
+    bag = next(out.iterdir())
+    code, err = replay(capsys, "info", bag, "--json", tmp_path / "info.json")
+    assert_one_line(code, err, "info", allowed=(0,))
+    assert json.loads((tmp_path / "info.json").read_text())["bags"][0]["message_count"] > 900  # 5 s of every topic
+
+
+def test_a_bag_left_half_written_is_never_read_as_a_bag(plain_bag, tmp_path, capsys) -> None:
+    """What a run killed with SIGKILL while installing a bag leaves: the writer's hidden work directory, a complete
+    bag inside. A search of the output folder does not read it (it is hidden), so no half-made run is trained on."""
+    out = tmp_path / "bags"
+    shutil.copytree(plain_bag, out / plain_bag.name)
+    shutil.copytree(plain_bag, out / f".{plain_bag.name}.k2j4x.partial" / plain_bag.name)
+    from usv_predictor.replay.recordings import find_bags
+
+    assert [b.path for b in find_bags([out])] == [out / plain_bag.name]
+
+
+@pytest.mark.slow
+def test_simulate_killed_leaves_no_bag(tmp_path) -> None:
+    """SIGKILL at any moment of `simulate`: what is left is either a whole bag or a hidden work directory that no
+    search reads (every bag is written under a hidden temporary name and renamed when complete)."""
+    out = tmp_path / "bags"
+    argv = [sys.executable, "-m", "usv_predictor.replay", "simulate", "--programme", "training", "--duration", "30",
+            "--no-compress", "--output", str(out)]
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    for line in proc.stderr:  # the first bag is complete: kill during the second
+        if line.startswith("[1/"):
+            break
+    proc.kill()
+    proc.wait(timeout=30)
+    from usv_predictor.replay.recordings import find_bags
+
+    for bag in find_bags([out]) if out.exists() else []:
+        code = cli.main(["info", str(bag.path)])
+        assert code == 0, bag.path  # every bag a search finds is whole
