@@ -20,6 +20,7 @@ from rosgraph_msgs.msg import Clock
 import msg_adapters
 from usv_predictor.config import package_share_path
 from usv_predictor.errors import ModelError
+from usv_predictor.node import live
 from usv_predictor.node import node as predictor_node
 
 from replay_helpers import write_model_with_metadata
@@ -237,6 +238,22 @@ def test_a_1khz_imu_burst_keeps_buffers_bounded(harness: Harness) -> None:
     assert sent > capacity and len(imu) <= capacity and imu.nbytes == nbytes
     assert all(len(t.buffer) <= t.buffer.capacity for t in harness.node.inputs.tracks.values())
     assert harness.paths  # it kept predicting through the burst
+
+
+def test_one_bad_gnss_message_never_stops_predictions(harness: Harness) -> None:
+    """Issue 28: one fix of null island entered the heading-vs-GNSS-track check, which refused the (right) heading
+    and stopped the predictions for 20 s. Now it is refused as a jump, counted, and the predictions go on."""
+    harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, harness.feed)
+    harness.spin(live.MIN_CHECK_SPAN_S, harness.feed)  # the track check has the span it needs to judge
+    harness.publish("gnss", (0.0, 0.0, 0.0))  # alone for a moment: fed at every spin, a queue of depth 10 drops it
+    harness.spin_until(lambda s: values_of(s["gnss"]).get("rejected_jump") == "1",
+                       lambda: harness.feed(skip=("gnss",)))
+    count = len(harness.paths)
+    harness.spin(2.5, harness.feed)  # two consistency checks at least (one a second)
+    found = statuses(harness.latest)
+    assert len(harness.paths) > count and level(found["prediction"]) == predictor_node.OK, found["prediction"].message
+    assert "refused" not in found["heading"].message and "refused" not in found["velocity"].message
+    assert values_of(found["prediction"])["check track_vs_gnss"].startswith("cannot judge: slower than")
 
 
 def test_invalid_parameter_values_are_rejected_with_the_range(harness: Harness) -> None:

@@ -918,6 +918,8 @@ class PredictorNode(Node):
         values.update(_percentiles("cycle_ms", self._cycle_times))  # decode, state, rollout, encode, publish
         values["controls"] = ("held" if self.following is None
                               else f"plan stamped {plans.describe_stamp(self.following.stamp_ns)}")
+        for check, why in sorted(self.inputs.unjudged.items()):  # a check that cannot judge refuses nothing
+            values[f"check {check}"] = f"cannot judge: {why}"
         last = self.last_prediction
         if last is not None:
             values["anchored"] = "gnss" if last.anchored else "relative to (0, 0): no GNSS"
