@@ -355,6 +355,7 @@ class PredictorNode(Node):
         by_topic: dict[str, list[str]] = {}
         for entry in used:
             by_topic.setdefault(self.resolve_topic_name(entry.topic), []).append(entry.role)
+        self._check_topics(by_topic)
         for topic, roles in by_topic.items():
             try:
                 msg_adapters.check_shared(topic, [self._adapters[role] for role in roles])
@@ -410,6 +411,25 @@ class PredictorNode(Node):
             f"{self.rollout.members} member(s)), {len(self._entries)} inputs ({', '.join(self._entries)}), "
             f"{self.config.rate_hz:g} Hz, horizon {self.config.horizon_s:g} s, parameters from {defaults_path}"
         )
+
+    def _check_topics(self, inputs: dict[str, list[str]]) -> None:
+        """Every topic the node publishes or subscribes to, as remapped, is its own: an input or an output remapped
+        onto another (`-r imu/data:=/diagnostics`, `-r predicted_path:=/diagnostics`) is a ConfigError naming both,
+        before DDS refuses the second endpoint with an RCLError (or, of one type, the node hears itself)."""
+        seen = {topic: f"input {', '.join(roles)}" for topic, roles in inputs.items()}
+        outputs = self.config.outputs
+        endpoints = [("output predicted_path", outputs["predicted_path"].topic),
+                     ("output predicted_velocities", outputs["predicted_velocities"].topic),
+                     ("output estimated_current", outputs["estimated_current"].topic),
+                     ("output predicted_path_covariance", COVARIANCE_TOPIC), ("output /diagnostics", DIAGNOSTICS_TOPIC),
+                     ("output candidate_predictions", CANDIDATE_PREDICTIONS_TOPIC), ("input plan", PLAN_TOPIC),
+                     ("input candidate_plans", CANDIDATE_PLANS_TOPIC)]
+        for what, name in endpoints:
+            resolved = self.resolve_topic_name(name)
+            if resolved in seen:
+                raise ConfigError(f"node {self.get_name()}: {what} resolves to {resolved}, the topic of its "
+                                  f"{seen[resolved]} too: remap one of them to a topic of its own")
+            seen[resolved] = what
 
     def destroy_node(self) -> None:
         """The workers end first (a candidate batch or a fit check running finishes: at most a few seconds)."""
@@ -1051,12 +1071,12 @@ def parse_arguments(argv: Sequence[str]) -> argparse.Namespace:
 EXIT_OK = 0  # stopped by SIGINT or SIGTERM (Ctrl-C, systemd, docker stop, launch): a normal end
 EXIT_ERROR = 2  # a start-up error (parameter, parameter file, ROS arguments, model, vessel): one line on stderr,
                 # the same code as the replay tool's bad input
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # SIGHUP: the terminal went away, a clean stop too
 SPIN_PERIOD_S = 0.1  # longest wait between two looks at the stop flag (s)
 
 
 class _StopRequest:
-    """SIGINT / SIGTERM set a flag the spin loop reads between callbacks: a callback is never interrupted half-way
+    """SIGINT / SIGTERM / SIGHUP set a flag the spin loop reads between callbacks: a callback is never interrupted half-way
     (no publish on a context that is shutting down), and the context is shut down only after the loop ends."""
 
     def __init__(self) -> None:
@@ -1107,8 +1127,8 @@ def _first_line(err: BaseException) -> str:
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of `ros2 run usv_predictor predictor`; args is a full argv (program name first).
 
-    Exit codes: 0 after SIGINT or SIGTERM (also while publishing: the signal only sets a flag the spin loop reads
-    between callbacks), 2 for a start-up error (one line `predictor: error: ...` on stderr: a parameter, the
+    Exit codes: 0 after SIGINT, SIGTERM or SIGHUP (also while publishing: the signal only sets a flag the spin loop
+    reads between callbacks), 2 for a start-up error (one line `predictor: error: ...` on stderr: a parameter, the
     parameter file, the ROS arguments, the model, the vessel or an input adapter).
     """
     argv = list(sys.argv if args is None else args)
@@ -1127,6 +1147,12 @@ def main(args: Sequence[str] | None = None) -> int:
             spin(node, make_executor(node.context), stop)
     except RCLInvalidROSArgsError as err:  # a broken --params-file, a malformed -p or -r
         print(f"predictor: error: invalid ROS arguments: {_first_line(err)}", file=sys.stderr)
+        return EXIT_ERROR
+    except ParameterException as err:  # a ROS parameter of the wrong type (-p use_sim_time:=maybe)
+        print(f"predictor: error: invalid parameter: {_first_line(err)}", file=sys.stderr)
+        return EXIT_ERROR
+    except RCLError as err:  # an endpoint DDS refuses at start-up (a spin ends on its own RCLError: spin())
+        print(f"predictor: error: ROS refused the node: {_first_line(err)}", file=sys.stderr)
         return EXIT_ERROR
     except UsvPredictorError as err:
         print(f"predictor: error: {one_line(err)}", file=sys.stderr)
