@@ -222,10 +222,6 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike[str] | None],
         if path is None:
             continue
         given, target = Path(path), _resolved(path)
-        special = special_file(given)
-        if special is not None and not (option in directories and given.is_dir()):  # a link to a directory is fine
-            raise OutputError(f"{option} {given} is {special}: an output replaces only a regular file (give a new "
-                              "file name)")
         for source_given, source in existing:
             if target == source:
                 raise OutputError(f"{option} {given} is the input {source_given}: an input is never replaced")
@@ -233,6 +229,10 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike[str] | None],
                 raise OutputError(f"{option} {given} is inside the input {source_given}: inputs are only read")
             if option not in directories and _within(source, target):
                 raise OutputError(f"{option} {given} would replace the directory holding the input {source_given}")
+        special = special_file(given)
+        if special is not None and not (option in directories and given.is_dir()):  # a link to a directory is fine
+            raise OutputError(f"{option} {given} is {special}: an output replaces only a regular file (give a new "
+                              "file name)")
         bag = next((d for d in (target, *target.parents) if (d / BAG_METADATA).is_file()), None)
         if bag is not None:
             raise OutputError(f"{option} {given} is {'the' if bag == target else 'inside the'} rosbag2 bag {bag}: "
