@@ -458,6 +458,18 @@ def test_sigterm_during_a_long_command(one_bag_dataset, tmp_path) -> None:
     assert leftovers(tmp_path) == []
 
 
+@pytest.mark.slow
+def test_sighup_during_a_long_command(one_bag_dataset, tmp_path) -> None:
+    """Issue 28: SIGHUP (the terminal closed) killed the process as signal 1, leaving the atomic writer's temporary
+    file. Now it unwinds like SIGTERM: `hung up`, exit 129, nothing written."""
+    argv, marker = INTERRUPTED["train"]
+    done = _interrupt_after([a.format(dataset=one_bag_dataset) for a in argv], marker, tmp_path, sig=signal.SIGHUP)
+    assert done.returncode == cli.EXIT_HUNG_UP == 129, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr and done.stderr.strip().splitlines()[-1] == "replay train: hung up"
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*"))
+    assert leftovers(tmp_path) == []
+
+
 # ------------------------------------------------------------------ issue 28: bounded reading, typed fields, metadata
 
 def _alias_bomb(levels: int = 9, width: int = 9) -> str:

@@ -11,8 +11,8 @@ Before any work, every output (and --json) is checked against every input (usv_p
 never an input, never inside one, never replacing one) and for being writable. Errors (UsvPredictorError, bad
 arguments, an OS error reading or writing a file) print one line `replay <command>: error: <message>` on
 stderr and exit with code 2 (EXIT_ERROR); Ctrl-C (SIGINT) prints `replay <command>: interrupted` and exits with
-130 (EXIT_INTERRUPTED), SIGTERM `replay <command>: terminated` and 143 (EXIT_TERMINATED), leaving no partial
-output (every writer is atomic and removes its temporary file as the exception unwinds).
+130 (EXIT_INTERRUPTED), SIGTERM `replay <command>: terminated` and 143 (EXIT_TERMINATED), SIGHUP `replay
+<command>: hung up` and 129 (EXIT_HUNG_UP), leaving no partial output (every writer is atomic and removes its temporary file as the exception unwinds).
 """
 from __future__ import annotations
 
@@ -44,6 +44,7 @@ COMMANDS: tuple[str, ...] = (
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
 EXIT_TERMINATED = 143  # 128 + SIGTERM
+EXIT_HUNG_UP = 129  # 128 + SIGHUP
 
 
 class _UsageError(Exception):
@@ -92,11 +93,16 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
 
 
 class _Terminated(BaseException):
-    """SIGTERM arrived: unwinds like KeyboardInterrupt, so every atomic writer removes its temporary file."""
+    """SIGTERM (or SIGHUP) arrived: unwinds like KeyboardInterrupt, so every atomic writer removes its temporary
+    file."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__(signum)
+        self.signum = signum
 
 
 def _on_sigterm(signum: int, frame: Any) -> None:
-    raise _Terminated()
+    raise _Terminated(signum)
 
 
 def _path_values(args: argparse.Namespace, name: str) -> list[Path]:
@@ -128,7 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     prog = PROG
     handles_sigterm = threading.current_thread() is threading.main_thread()  # only there can Python set handlers
-    previous = signal.signal(signal.SIGTERM, _on_sigterm) if handles_sigterm else None
+    stops = (signal.SIGTERM, signal.SIGHUP)  # SIGHUP: the terminal went away; unwound like SIGTERM
+    previous = {sig: signal.signal(sig, _on_sigterm) for sig in stops} if handles_sigterm else {}
     try:
         try:
             args = build_parser(argv).parse_args(argv)
@@ -154,10 +161,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except _Terminated:
+    except _Terminated as stop:
+        if stop.signum == signal.SIGHUP:
+            print(f"{prog}: hung up", file=sys.stderr)
+            return EXIT_HUNG_UP
         print(f"{prog}: terminated", file=sys.stderr)
         return EXIT_TERMINATED
     finally:
-        if handles_sigterm:
-            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
     return 0
