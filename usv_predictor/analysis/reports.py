@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import datetime
 import math
+import os
 import re
 import zipfile
 from collections.abc import Callable, Mapping, Sequence
@@ -23,7 +24,7 @@ import numpy as np
 
 from usv_predictor.analysis.evaluation import Prediction, predictions_from_arrays
 from usv_predictor.atomic import jsonable, write_json_atomic, write_text_atomic
-from usv_predictor.bounded import load_json
+from usv_predictor.bounded import load_json, regular_file
 from usv_predictor.errors import EvaluationError
 
 if TYPE_CHECKING:
@@ -300,6 +301,9 @@ def _check_shape(value: Any, spec: Any, where: str) -> None:
             _check_shape(value[key], item_spec, f"{where}.{key}" if where else key)
 
 
+SERIES_FILE_BYTES = 1 << 40  # bounded by the disk, not by us (bytes)
+
+
 def _no_constant(name: str) -> Any:
     raise ValueError(f"{name} is not a JSON number")
 
@@ -321,6 +325,8 @@ def load_evaluation_file(path: Path, warn: Callable[[str], None] = lambda _: Non
         warn(f"warning: {path} names no series file (written by `replay evaluate --output DIR`); no track figures")
         return data, None
     series_path = path.parent / series
+    if os.path.lexists(series_path):  # a FIFO or a device would block np.load or never end
+        regular_file(series_path, f"the time series of {path}", EvaluationError, SERIES_FILE_BYTES)
     try:
         with np.load(series_path) as arrays:
             loaded = {k: arrays[k] for k in arrays.files}

@@ -25,6 +25,7 @@ import hashlib
 import io
 import json
 import math
+import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,12 +37,13 @@ from torch import nn
 
 import usv_predictor
 from usv_predictor.atomic import json_text, write_bytes_atomic
-from usv_predictor.bounded import parse_json
+from usv_predictor.bounded import parse_json, regular_file
 from usv_predictor.errors import ConfigError, ModelError, OutputError
 from usv_predictor.physics.vessel import (Vessel, check_vessel_name, description_sha256, description_text,
                                           vessel_from_dict, vessel_to_dict)
 
 FORMAT = "usv_predictor.model/1"
+MODEL_FILE_BYTES = 1 << 40  # bounded by the disk, not by us (bytes)
 METADATA_FILE = "metadata.json"
 VESSEL_FILE = "vessel.json"  # the embedded vessel description
 VESSEL_DIGEST_KEY = "vessel_sha256"  # metadata key: sha256 of VESSEL_FILE's text
@@ -297,6 +299,8 @@ def read_files(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any]
     of before); ModelError naming the file otherwise."""
     path = Path(path)
     if not path.is_file():
+        if os.path.lexists(path) or path.exists():  # a FIFO (torch would block on it), a device, a link loop
+            regular_file(path, "model file", ModelError, MODEL_FILE_BYTES)
         raise ModelError(f"model file {path} does not exist")
     extra = {METADATA_FILE: "", VESSEL_FILE: ""}
     try:
