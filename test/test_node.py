@@ -240,6 +240,16 @@ def test_a_1khz_imu_burst_keeps_buffers_bounded(harness: Harness) -> None:
     assert harness.paths  # it kept predicting through the burst
 
 
+def test_use_sim_time_cannot_be_switched_by_a_peer(harness: Harness) -> None:
+    """Issue 28: any participant could set use_sim_time and then own the node's clock through /clock. Refused now,
+    the clock left as it was (the wall clock here)."""
+    before = harness.node.get_clock().now().nanoseconds
+    result = harness.node.set_parameters([Parameter("use_sim_time", value=True)])[0]
+    assert not result.successful and "fixed at start-up" in result.reason
+    assert harness.node.get_parameter("use_sim_time").value is False
+    assert harness.node.get_clock().now().nanoseconds >= before  # still the wall clock, not /clock's 0
+
+
 def test_one_bad_gnss_message_never_stops_predictions(harness: Harness) -> None:
     """Issue 28: one fix of null island entered the heading-vs-GNSS-track check, which refused the (right) heading
     and stopped the predictions for 20 s. Now it is refused as a jump, counted, and the predictions go on."""

@@ -106,6 +106,7 @@ from usv_predictor.physics.vessel import Vessel, load_vessel, vessel_preset_exis
 from usv_predictor.records import NS_PER_S
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
+USE_SIM_TIME = "use_sim_time"  # rclpy's parameter: fixed once the node runs (_on_set_parameters)
 COVARIANCE_TOPIC = "predicted_path_covariance"
 PLAN_TOPIC = "plan"  # trajectory_msgs/JointTrajectory: controls to predict under (plans.py)
 CANDIDATE_PLANS_TOPIC = "candidate_plans"  # trajectory_msgs/JointTrajectory: N candidates "<name>/<control>"
@@ -475,7 +476,13 @@ class PredictorNode(Node):
                                    f"{self.config.source}, vessel {self.config.vessel}")
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        """Swap the model (validated first; the old one stays on failure) and apply new staleness limits."""
+        """Swap the model (validated first; the old one stays on failure) and apply new staleness limits.
+
+        use_sim_time is fixed once the node runs: switched on by a peer, the clock would be whoever publishes /clock
+        (this callback runs before rclpy's TimeSource's, which is why refusing here keeps the clock)."""
+        if any(p.name == USE_SIM_TIME for p in parameters):
+            return SetParametersResult(successful=False, reason=f"{USE_SIM_TIME} is fixed at start-up (-p "
+                                       f"{USE_SIM_TIME}:=true): switched by a peer, /clock would own the node's clock")
         swap: live.Rollout | None = None
         online = {p.name: p.value for p in parameters if p.name.startswith(ONLINE_PREFIX)}
         fit_changes = {p.name: p.value for p in parameters if p.name.startswith(FIT_PREFIX)}
