@@ -711,7 +711,8 @@ def test_an_output_that_is_a_special_file_is_refused_never_replaced(tmp_path, ca
     inner = SPECIAL_OUTPUTS[case](out / "evaluation.json")  # what evaluate writes into its output directory
     code, err = replay(capsys, "evaluate", ZIGZAG, "--output", out)
     assert_one_line(code, err, "evaluate", allowed=(2,))
-    assert f"{inner} is a" in err and "replaces only a regular file" in err and os.lstat(inner).st_mode == before.st_mode
+    assert f"{inner} is a" in err and "replaces only a regular file" in err
+    assert os.lstat(inner).st_mode == before.st_mode
     assert leftovers(tmp_path) == []
 
 

@@ -223,8 +223,8 @@ STARTUP_CASES = {
     # issue 28
     "use_sim_time not a bool": (["-p", "use_sim_time:=maybe"],
                                 "invalid parameter: Trying to set parameter 'use_sim_time' to 'maybe'"),
-    "input remapped onto /diagnostics": (["-r", "imu/data:=/diagnostics"],
-                                         "output /diagnostics resolves to /diagnostics, the topic of its input imu too"),
+    "input remapped onto /diagnostics": (["-r", "imu/data:=/diagnostics"], "output /diagnostics resolves to "
+                                         "/diagnostics, the topic of its input imu too"),
     "output remapped onto /diagnostics": (["-r", "predicted_path:=/diagnostics"],
                                           "output /diagnostics resolves to /diagnostics, the topic of its output "
                                           "predicted_path too"),

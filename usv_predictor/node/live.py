@@ -26,8 +26,8 @@ a field the state uses, a stamp not after the previous one (backwards or a repea
 message arriving at the same clock reading as the previous one supersedes it, InputSet.add), a stamp more than
 max_future_s ahead of the clock, values outside data.recording.PLAUSIBLE or a control's plausible range (wrong units
 configuration, e.g. heading configured as rad but > 2 pi, rudder degrees read as radians, absurd rpm), a GNSS fix
-farther from the one before than GNSS_MAX_SPEED allows ("jump": one fix of null island, InputSet._check_jump). Buffers are fixed-size rings:
-memory does not grow with the message rate.
+farther from the one before than GNSS_MAX_SPEED allows ("jump": one fix of null island, InputSet._check_jump).
+Buffers are fixed-size rings: memory does not grow with the message rate.
 
 Redundant inputs are checked against each other (at most once per CONSISTENCY_PERIOD_S, over the latest
 CONSISTENCY_WINDOW_S), because a unit or sign mistake can give values that are each plausible:

@@ -1083,8 +1083,8 @@ SPIN_PERIOD_S = 0.1  # longest wait between two looks at the stop flag (s)
 
 
 class _StopRequest:
-    """SIGINT / SIGTERM / SIGHUP set a flag the spin loop reads between callbacks: a callback is never interrupted half-way
-    (no publish on a context that is shutting down), and the context is shut down only after the loop ends."""
+    """SIGINT / SIGTERM / SIGHUP set a flag the spin loop reads between callbacks: a callback is never interrupted
+    half-way (no publish on a context that is shutting down), and the context is shut down only after the loop ends."""
 
     def __init__(self) -> None:
         self.requested: int | None = None

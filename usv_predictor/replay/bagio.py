@@ -321,8 +321,8 @@ def _plain_sqlite_path(path: Path) -> Iterator[Path]:
     links = Path(tempfile.mkdtemp(prefix="usv_predictor_sqlite."))
     try:
         if URI_SPECIAL & set(str(links)):
-            raise BagError(f"{path}: its path holds one of {''.join(sorted(URI_SPECIAL))}, which sqlite reads as a URI, "
-                           f"and so does the temporary directory {links}")
+            raise BagError(f"{path}: its path holds one of {''.join(sorted(URI_SPECIAL))}, which sqlite reads as a "
+                           f"URI, and so does the temporary directory {links}")
         os.symlink(absolute.parent, links / "parent")
         yield links / "parent" / absolute.name
     finally:

@@ -12,7 +12,8 @@ never an input, never inside one, never replacing one) and for being writable. E
 arguments, an OS error reading or writing a file) print one line `replay <command>: error: <message>` on
 stderr and exit with code 2 (EXIT_ERROR); Ctrl-C (SIGINT) prints `replay <command>: interrupted` and exits with
 130 (EXIT_INTERRUPTED), SIGTERM `replay <command>: terminated` and 143 (EXIT_TERMINATED), SIGHUP `replay
-<command>: hung up` and 129 (EXIT_HUNG_UP), leaving no partial output (every writer is atomic and removes its temporary file as the exception unwinds).
+<command>: hung up` and 129 (EXIT_HUNG_UP), leaving no partial output (every writer is atomic and removes its
+temporary file as the exception unwinds).
 """
 from __future__ import annotations
 

@@ -4,7 +4,8 @@
 
 Bag arguments: a directory holding metadata.yaml (or a single bag file) is one bag; any other directory is
 searched recursively for bags, in sorted order, skipping hidden sub-directories and those named `calm` (the
-calm-water twins of `replay simulate --calm-twin`) unless include_calm=True. A calm directory named explicitly is read in full.
+calm-water twins of `replay simulate --calm-twin`) unless include_calm=True. A calm directory named explicitly is
+read in full.
 Recording names are the shortest trailing part of the bag path that is unique among the bags read
 (`zigzag_10_10_stbd_650rpm`, or `training/zigzag_...` next to `calm/zigzag_...`).
 
