@@ -760,3 +760,16 @@ def test_simulate_killed_leaves_no_bag(tmp_path) -> None:
     for bag in find_bags([out]) if out.exists() else []:
         code = cli.main(["info", str(bag.path)])
         assert code == 0, bag.path  # every bag a search finds is whole
+
+
+def test_train_on_a_dataset_holding_an_object_array(one_bag_dataset, tmp_path, capsys) -> None:
+    """Issue 28 saw a leftover file: an object array (pickled, never loaded) is one line, exit 2, nothing written."""
+    with np.load(one_bag_dataset, allow_pickle=False) as npz:
+        arrays = {name: npz[name] for name in npz.files}
+    arrays["X"] = np.array([object(), 1], dtype=object)
+    spoiled = tmp_path / "object.npz"
+    np.savez(spoiled, **arrays)
+    out = tmp_path / "out"
+    code, err = replay(capsys, "train", spoiled, "--epochs", "1", "--output", out / "model.pt")
+    assert_one_line(code, err, "train", allowed=(2,))
+    assert "Object arrays cannot be loaded" in err and not out.exists() and leftovers(tmp_path) == []
