@@ -773,3 +773,26 @@ def test_train_on_a_dataset_holding_an_object_array(one_bag_dataset, tmp_path, c
     code, err = replay(capsys, "train", spoiled, "--epochs", "1", "--output", out / "model.pt")
     assert_one_line(code, err, "train", allowed=(2,))
     assert "Object arrays cannot be loaded" in err and not out.exists() and leftovers(tmp_path) == []
+
+
+def test_two_runs_onto_one_output_at_once(tmp_path, capsys) -> None:
+    """Issue 28: two `evaluate` into one folder at once left files of both. Now the second is refused before any work
+    while the first holds the output; the first ends normally."""
+    out = tmp_path / "eval"
+    first = subprocess.Popen([sys.executable, "-m", "usv_predictor.replay", "evaluate", str(ZIGZAG), "--output",
+                              str(out)], stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        for line in first.stderr:  # it holds the output's lock from before it reads
+            if "reading" in line:
+                break
+        code, err = replay(capsys, "evaluate", ZIGZAG, "--output", out)
+        assert_one_line(code, err, "evaluate", allowed=(2,))
+        assert f"--output {out} is being written by another run" in err
+        first.stderr.read()
+        assert first.wait(timeout=300) == 0
+    finally:
+        if first.poll() is None:
+            first.kill()
+    assert (out / "evaluation.json").is_file() and leftovers(tmp_path) == []
+    code, err = replay(capsys, "evaluate", ZIGZAG, "--output", out, "--json", tmp_path / "again.json")
+    assert_one_line(code, err, "evaluate", allowed=(0,))  # the lock went with the first process

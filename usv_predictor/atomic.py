@@ -241,3 +241,42 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike[str] | None],
             raise OutputError(f"{option} {given} is also {seen[target]}: give each output its own path")
         seen[target] = option
         _probe_writable(option, given, target, option in directories)
+
+
+# ----------------------------------------------------------------------------- one writer per output
+
+LOCK_DIR_NAME = "usv_predictor_output_locks"  # in the system's temporary directory: never inside an output
+
+
+@contextmanager
+def output_locks(outputs: Mapping[str, str | os.PathLike[str] | None]) -> Iterator[None]:
+    """Hold an exclusive lock on every output (option -> path, None: not asked for) while the command runs; an
+    output another process holds is an OutputError naming it, before any work: two `evaluate` into one folder at once
+    mixed their files. The locks are flock()s on files named by the sha256 of each resolved path, in the system's
+    temporary directory (never beside the output: nothing is left there); the kernel drops them when the process
+    ends, however it ends."""
+    import fcntl
+    import hashlib
+
+    held: list[int] = []
+    try:
+        directory = Path(tempfile.gettempdir()) / LOCK_DIR_NAME
+        directory.mkdir(mode=0o1777, exist_ok=True)
+        for option, path in outputs.items():
+            if path is None:
+                continue
+            key = hashlib.sha256(str(_resolved(path)).encode()).hexdigest()[:32]
+            try:
+                fd = os.open(directory / f"{key}.lock", os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o666)
+            except OSError:
+                continue  # no lock to be had (a read-only /tmp): the outputs are still atomic, only not exclusive
+            held.append(fd)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError as err:
+                raise OutputError(f"{option} {path} is being written by another run of this tool right now: wait for "
+                                  "it to end, or give another path") from err
+        yield
+    finally:
+        for fd in held:
+            os.close(fd)  # closing drops the flock

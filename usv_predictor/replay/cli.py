@@ -26,7 +26,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any, NoReturn
 
-from usv_predictor.atomic import check_outputs, write_json_atomic
+from usv_predictor.atomic import check_outputs, output_locks, write_json_atomic
 from usv_predictor.errors import UsvPredictorError, one_line
 
 PROG = "replay"
@@ -113,14 +113,16 @@ def _path_values(args: argparse.Namespace, name: str) -> list[Path]:
     return [Path(v) for v in values if v is not None and (isinstance(v, Path) or Path(str(v)).exists())]
 
 
-def check_paths(command: ModuleType, args: argparse.Namespace) -> None:
-    """Outputs (the command's OUTPUTS and --json) apart from its INPUTS and writable (OutputError otherwise)."""
+def check_paths(command: ModuleType, args: argparse.Namespace) -> dict[str, Any]:
+    """Outputs (the command's OUTPUTS and --json) apart from its INPUTS and writable (OutputError otherwise); returns
+    them (option -> path or None)."""
     inputs = [path for name in getattr(command, "INPUTS", ()) for path in _path_values(args, name)]
     kinds: dict[str, str] = dict(getattr(command, "OUTPUTS", {}))
     outputs = {f"--{name.replace('_', '-')}": getattr(args, name, None) for name in kinds}
     outputs["--json"] = args.json
     directories = {f"--{name.replace('_', '-')}" for name, kind in kinds.items() if kind == "dir"}
     check_outputs(outputs, inputs, directories)
+    return outputs
 
 
 def _error_line(err: BaseException) -> str:
@@ -146,10 +148,10 @@ def main(argv: list[str] | None = None) -> int:
         if command is None:
             raise _UsageError(PROG, "a command is required (see --help)")
         prog = f"{PROG} {command.NAME}"
-        check_paths(command, args)
-        result = command.run(args)
-        if args.json is not None:
-            write_json_atomic(args.json, result)
+        with output_locks(check_paths(command, args)):  # one writer per output
+            result = command.run(args)
+            if args.json is not None:
+                write_json_atomic(args.json, result)
     except _UsageError as err:
         print(f"{err.prog}: error: {err}", file=sys.stderr)
         return EXIT_ERROR
