@@ -419,7 +419,7 @@ def _targets(inputs: list[Path], kind: str, base: dict[str, Path], tmp_path: Pat
         os.symlink("/dev/null", special / "a_link_to_dev_null")
         os.mkfifo(special / "a_fifo")
     targets["a_link_to_dev_null"] = (special / "a_link_to_dev_null", "is a symbolic link to /dev/null")  # never
-    targets["a_fifo"] = (special / "a_fifo", "is a FIFO")                                      # replaced (issue 28)
+    targets["a_fifo"] = (special / "a_fifo", "is a FIFO")                                      # replaced
     for k, source in enumerate(inputs):
         targets[f"input_{k}"] = (source, "is the input")
         targets[f"inside_input_{k}"] = (source / "metadata.yaml" if source.is_dir() else source / "x",
@@ -684,7 +684,7 @@ def test_file_size_limit(command: str, base: dict[str, Path], tmp_path: Path) ->
     assert leftovers(tmp_path) == [] and digest([base["bags"], base["evaluation"].parent]) == before
 
 
-# ------------------------------------------------------------------ documents beyond bounds (issue 28)
+# ------------------------------------------------------------------ documents beyond bounds
 
 
 def _documents() -> dict[str, Callable[[np.random.Generator, str], str | None]]:

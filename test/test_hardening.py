@@ -460,7 +460,7 @@ def test_sigterm_during_a_long_command(one_bag_dataset, tmp_path) -> None:
 
 @pytest.mark.slow
 def test_sighup_during_a_long_command(one_bag_dataset, tmp_path) -> None:
-    """Issue 28: SIGHUP (the terminal closed) killed the process as signal 1, leaving the atomic writer's temporary
+    """Was: SIGHUP (the terminal closed) killed the process as signal 1, leaving the atomic writer's temporary
     file. Now it unwinds like SIGTERM: `hung up`, exit 129, nothing written."""
     argv, marker = INTERRUPTED["train"]
     done = _interrupt_after([a.format(dataset=one_bag_dataset) for a in argv], marker, tmp_path, sig=signal.SIGHUP)
@@ -470,7 +470,7 @@ def test_sighup_during_a_long_command(one_bag_dataset, tmp_path) -> None:
     assert leftovers(tmp_path) == []
 
 
-# ------------------------------------------------------------------ issue 28: bounded reading, typed fields, metadata
+# ------------------------------------------------------------------ bounded reading, typed fields, model metadata
 
 def _alias_bomb(levels: int = 9, width: int = 9) -> str:
     """The "billion laughs": `levels` anchors of `width` aliases of the one before, width**levels nodes expanded."""
@@ -763,7 +763,7 @@ def test_simulate_killed_leaves_no_bag(tmp_path) -> None:
 
 
 def test_train_on_a_dataset_holding_an_object_array(one_bag_dataset, tmp_path, capsys) -> None:
-    """Issue 28 saw a leftover file: an object array (pickled, never loaded) is one line, exit 2, nothing written."""
+    """Once seen to leave a file: an object array (pickled, never loaded) is one line, exit 2, nothing written."""
     with np.load(one_bag_dataset, allow_pickle=False) as npz:
         arrays = {name: npz[name] for name in npz.files}
     arrays["X"] = np.array([object(), 1], dtype=object)
@@ -776,7 +776,7 @@ def test_train_on_a_dataset_holding_an_object_array(one_bag_dataset, tmp_path, c
 
 
 def test_two_runs_onto_one_output_at_once(tmp_path, capsys) -> None:
-    """Issue 28: two `evaluate` into one folder at once left files of both. Now the second is refused before any work
+    """Was: two `evaluate` into one folder at once left files of both. Now the second is refused before any work
     while the first holds the output; the first ends normally."""
     out = tmp_path / "eval"
     first = subprocess.Popen([sys.executable, "-m", "usv_predictor.replay", "evaluate", str(ZIGZAG), "--output",

@@ -485,7 +485,7 @@ def _straight_run(inputs: live.InputSet, seconds: float, bad_fix_at: dict[int, t
 
 
 def test_one_bad_gnss_fix_never_refuses_the_right_heading() -> None:
-    """Issue 28: one fix of null island among right ones entered the track check, which then refused the (right)
+    """Was: one fix of null island among right ones entered the track check, which then refused the (right)
     heading for 20 s ("GNSS 3925324 m toward 180 deg"). Now it is refused as a jump before any check."""
     inputs = make_inputs()
     assert _straight_run(inputs, 60.0, bad_fix_at={150: (0.0, 0.0)}) == []
@@ -504,7 +504,7 @@ def test_a_wrong_first_fix_is_outvoted() -> None:
 
 
 def test_a_node_behind_its_inputs_does_not_judge_a_headerless_heading() -> None:
-    """Issue 28: on a loaded machine the heading-vs-gyro check refused the Otter bag's right heading ("it turned 133
+    """Was: on a loaded machine the heading-vs-gyro check refused the Otter bag's right heading ("it turned 133
     deg while the imu yaw rate integrates to 234 deg"): the heading has no header, so the node stamps it when it takes
     it, late. Now a check over an input stamped on arrival does not judge while stamped messages arrive more than
     CONSISTENCY_LAG_LIMIT_S late; it says so and refuses nothing. On time, the same run is judged and passes."""

@@ -241,7 +241,7 @@ def test_a_1khz_imu_burst_keeps_buffers_bounded(harness: Harness) -> None:
 
 
 def test_use_sim_time_cannot_be_switched_by_a_peer(harness: Harness) -> None:
-    """Issue 28: any participant could set use_sim_time and then own the node's clock through /clock. Refused now,
+    """Was: any participant could set use_sim_time and then own the node's clock through /clock. Refused now,
     the clock left as it was (the wall clock here)."""
     before = harness.node.get_clock().now().nanoseconds
     result = harness.node.set_parameters([Parameter("use_sim_time", value=True)])[0]
@@ -251,7 +251,7 @@ def test_use_sim_time_cannot_be_switched_by_a_peer(harness: Harness) -> None:
 
 
 def test_one_bad_gnss_message_never_stops_predictions(harness: Harness) -> None:
-    """Issue 28: one fix of null island entered the heading-vs-GNSS-track check, which refused the (right) heading
+    """Was: one fix of null island entered the heading-vs-GNSS-track check, which refused the (right) heading
     and stopped the predictions for 20 s. Now it is refused as a jump, counted, and the predictions go on."""
     harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, harness.feed)
     harness.spin(live.MIN_CHECK_SPAN_S, harness.feed)  # the track check has the span it needs to judge
@@ -274,7 +274,7 @@ def test_invalid_parameter_values_are_rejected_with_the_range(harness: Harness) 
     assert "0 <= state_delay_s <= 5" in descriptor.additional_constraints
 
 
-MALFORMED_METADATA = {  # issue 28: each was a TypeError traceback at start-up, and killed the node on a swap
+MALFORMED_METADATA = {  # each was a TypeError traceback at start-up, and killed the node on a swap
     "ensemble_five": {"ensemble_size": "five"},
     "control_layout_int": {"control_layout": 3},
     "control_layout_null": {"control_layout": None},

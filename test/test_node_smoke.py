@@ -220,7 +220,7 @@ STARTUP_CASES = {
     "message type": (["-p", "inputs.heading.type:=std_msgs/msg/String"], "no adapter for role 'heading'"),
     "ensemble": (["-p", "ensemble_size:=8"], "ensemble_size 8 requested"),
     "failing model": (["-p", "model_path:={failing}"], "fails when run: RuntimeError: boom at start-up"),
-    # issue 28
+    # a parameter of the wrong type, endpoints remapped onto each other, params files past the bounds
     "use_sim_time not a bool": (["-p", "use_sim_time:=maybe"],
                                 "invalid parameter: Trying to set parameter 'use_sim_time' to 'maybe'"),
     "input remapped onto /diagnostics": (["-r", "imu/data:=/diagnostics"], "output /diagnostics resolves to "
@@ -258,7 +258,7 @@ def test_a_wrong_start_up_parameter_is_one_line_and_exit_2(case: str, tmp_path: 
     assert len(lines) == 1 and lines[0].startswith("predictor: error: ") and message in lines[0], err
 
 
-CONFIG_CASES = {  # issue 28: --config files beyond bounds (usv_predictor.bounded), read before ROS starts
+CONFIG_CASES = {  # --config files beyond bounds (usv_predictor.bounded), read before ROS starts
     "dev_zero": (None, "cannot read predictor config /dev/zero: it is a character device, expected a regular file"),
     "alias_bomb": ("predictor:\n  ros__parameters:\n" + ALIAS_BOMB, "expands to more than"),
     "python_tag": ("predictor:\n  ros__parameters: !!python/object/new:dict {}\n", "constructor for the tag"),
@@ -408,7 +408,7 @@ START_STOPS = 9  # 3 signals x 3 moments (importing, starting up, running), draw
 
 @pytest.mark.slow
 def test_every_stop_signal_at_any_moment_of_start_up_exits_0() -> None:
-    """Issue 28: SIGINT at some moments of start-up hung the node, SIGTERM during the imports killed it as signal 15,
+    """Was: SIGINT at some moments of start-up hung the node, SIGTERM during the imports killed it as signal 15,
     SIGHUP ended it with 129. Now SIGINT, SIGTERM and SIGHUP at any moment end it with exit 0, no traceback, within
     a few seconds of the signal (SIGHUP: the terminal went away; a clean stop, as SIGTERM)."""
     rng = random.Random(28)
