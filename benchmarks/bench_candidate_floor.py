@@ -16,7 +16,7 @@ with numpy (OpenBLAS, the kernels this environment pins: OPENBLAS_CORETYPE is pr
 MKL in the CPU wheel) on the same memory (torch.from_numpy, out=), one thread each, in alternating rounds.
 --own-blas: the same numpy figures again in a child process without OPENBLAS_CORETYPE and OPENBLAS_L2_SIZE (OpenBLAS
 picks its kernels itself: AVX-512 on this Zen 5), printed beside them for comparison only: the package never
-overrides the environment's choice (docs/node.md, "Latency and CPU").
+overrides the environment's choice (docs/results/node_latency.md).
 """
 from __future__ import annotations
 
@@ -44,7 +44,8 @@ def floors(candidates: int, rounds: int, with_torch: bool) -> dict[str, dict[str
     model = loading.load_model(str(package_share_path("models", "default.pt")), physics=False)
     r = model.inference
     if not isinstance(r, NumpyDnnRollout) or len(r.hidden_t) != 1 or r.clipped:
-        raise SystemExit(f"the shipped model is not the usual numpy network (NTF, tanh, depth 2): {model.inference_note}")
+        raise SystemExit(f"the shipped model is not the usual numpy network (NTF, tanh, depth 2): "
+                         f"{model.inference_note}")
     rng = np.random.default_rng(0)
     e, n_s, c = r.ensemble_size, r.n_state, r.n_controls
     first, w, head = r.first_t, r.hidden_t[0], r.head_t  # (E, S + W + 1, S + C + 1), (E, W, W + 1), (E, S, W)
@@ -89,7 +90,7 @@ def floors(candidates: int, rounds: int, with_torch: bool) -> dict[str, dict[str
         parts.update(parts_of("torch", torch.matmul, torch.tanh, tuple(torch.from_numpy(a) for a in arrays)))
     times: dict[str, list[float]] = {name: [] for name in parts}
     with torch.inference_mode():
-        for name, run in parts.items():  # warm-up
+        for _name, run in parts.items():  # warm-up
             run()
         for _ in range(rounds):
             for name, run in parts.items():
@@ -104,7 +105,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--rounds", type=int, default=40)
     parser.add_argument("--candidates", type=int, default=64)
-    parser.add_argument("--own-blas", action="store_true", help="numpy again with OpenBLAS's own kernels (a child process)")
+    parser.add_argument("--own-blas", action="store_true",
+                        help="numpy again with OpenBLAS's own kernels (a child process)")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)  # the --own-blas child: JSON out
     args = parser.parse_args()
     if args.child:

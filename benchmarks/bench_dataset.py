@@ -57,7 +57,8 @@ def bulk(bags: list[Path], specs: list) -> int:
 
 def phases(bags: list[Path], specs: list) -> dict[str, float]:
     """(b) taken apart: seconds to open the bags, to iterate the raw messages, and to decode them in bulk."""
-    spent = {"open (AnyReader: metadata + zstd + sqlite)": 0.0, "iterate raw messages": 0.0, "decode_many + adapters": 0.0}
+    spent = {"open (AnyReader: metadata + zstd + sqlite)": 0.0, "iterate raw messages": 0.0,
+             "decode_many + adapters": 0.0}
     keys = list(spent)
     by_topic = {s.topic: s for s in specs}
     for bag in bags:
@@ -92,7 +93,8 @@ def whole_dataset(args: list[str]) -> float:
 def fresh_process(args: list[str]) -> float:
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "usv_predictor.replay", "dataset", *args, "--output", str(Path(tmp) / "ds.npz")],
+        subprocess.run([sys.executable, "-m", "usv_predictor.replay", "dataset", *args, "--output",
+                        str(Path(tmp) / "ds.npz")],
                        check=True, capture_output=True, cwd=ROOT)
         return time.perf_counter() - start
 
@@ -113,7 +115,8 @@ def main() -> None:
     print(f"\n{'bag -> Signals':42s} {'seconds':>8s} {'msg/s':>10s}")
     print(f"{'(a) rosbags deserialize_cdr + adapters':42s} {slow:8.2f} {count / slow:10,.0f}")
     print(f"{'(b) bagio.read_bag (cdr, bulk)':42s} {fast:8.2f} {count / fast:10,.0f}   "
-          f"{slow / fast:.1f}x faster; target {TARGET_MSG_S:,} msg/s: {'met' if count / fast >= TARGET_MSG_S else 'MISSED'}")
+          f"{slow / fast:.1f}x faster; target {TARGET_MSG_S:,} msg/s: "
+          f"{'met' if count / fast >= TARGET_MSG_S else 'MISSED'}")
     runs = [phases(bags, specs) for _ in range(args.repeats)]
     spent = {phase: min(run[phase] for run in runs) for phase in runs[0]}
     total = sum(spent.values())
@@ -128,7 +131,8 @@ def main() -> None:
         seconds = best_seconds(lambda: whole_dataset(dataset_args + extra), args.repeats)
         print(f"  {label:44s} {seconds:6.2f} s ({messages / seconds:10,.0f} msg/s end to end)")
     cold = fresh_process(dataset_args)
-    print(f"  {'default --jobs, fresh process (start+imports)':44s} {cold:6.2f} s ({messages / cold:10,.0f} msg/s end to end)")
+    print(f"  {'default --jobs, fresh process (start+imports)':44s} {cold:6.2f} s ({messages / cold:10,.0f} "
+          f"msg/s end to end)")
 
 if __name__ == "__main__":
     main()

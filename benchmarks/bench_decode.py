@@ -161,7 +161,8 @@ def bench_small(typestore: Typestore, repeats: int) -> None:
             small, vectorised = (1e6 * float(np.median(t)) for t in times.values())
             cdr.SMALL_BATCH = max(times)
             print(f"{ros_type:36s} {n:3d} {small:11.1f} {vectorised:11.1f}" + ("" if n <= max(times) else
-                                                                              "   (above SMALL_BATCH: both vectorised)"))
+                                                                              "   (above SMALL_BATCH: "
+                                                                              "both vectorised)"))
 
 
 NODE_BAG = Path(__file__).resolve().parents[1] / "bags" / "sea_trial" / "turning_circle_stbd_20deg_700rpm"
@@ -298,7 +299,8 @@ def bench_node_codec(typestore: Typestore, repeats: int) -> None:
                      lambda: decode_joint_trajectory(plan), cold)
         side_by_side("answer to 64 candidates x 120 steps (800 kB)", lambda: old_candidate_predictions_cdr(*answer),
                      lambda: outputs.candidate_predictions_cdr(*answer), cold)
-        side_by_side("answer, each way in its own run, after malloc_trim", lambda: old_candidate_predictions_cdr(*answer),
+        side_by_side("answer, each way in its own run, after malloc_trim",
+                     lambda: old_candidate_predictions_cdr(*answer),
                      lambda: outputs.candidate_predictions_cdr(*answer), cold, alternate=False)
         side_by_side("Path of 120 poses", old_path, lambda: outputs.path_cdr(*path), cold)
     cdr.LEAN_BATCH = 256

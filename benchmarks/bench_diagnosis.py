@@ -1,9 +1,10 @@
-"""Confusion matrix of `diagnose` over random hidden effects (the README's figures).
+"""Confusion matrix of `diagnose` over random hidden effects (the figures of docs/results/diagnosis_matrices.md).
 
 Each draw: one effect of the vessel's vocabulary (or none; the effects that apply to its actuator layout) with
 random parameters (usv_predictor.analysis.hidden_effects), the vessel's `diagnosis` trial programme (turning circles
 and zig-zags both ways, in its layout's units) simulated with sensor noise, resampled like the replay tool does at
-the model step that suits the vessel (analysis.diagnosis_steps), and diagnosed with its segment horizon and stride. Prints the confusion matrix (rows: truth, columns: named
+the model step that suits the vessel (analysis.diagnosis_steps), and diagnosed with its segment horizon and stride.
+Prints the confusion matrix (rows: truth, columns: named
 cause; `?` marks answers that name the truth only as confounded), the parameter errors per effect, how many
 draws met the acceptance tolerances, and the time per diagnosis. Deterministic for --seed.
 Run: .venv/bin/python benchmarks/bench_diagnosis.py --draws 100 [--vessel otter] [--jobs 2] [--json out.json]
@@ -47,7 +48,8 @@ def one_draw(index: int, seed: int, vessel_name: str = "jari_usv") -> dict:
     for k, manoeuvre in enumerate(programme("diagnosis", layout)):
         traj = simulate(model, manoeuvre, scenario.environment, heading_deg=heading0 + 37.0 * k,
                         faults=scenario.faults, seed=1000 * index + k)
-        signals = measure(traj, scenario.environment, scenario.sensor_spec, scenario.faults, seed=1000 * index + 100 + k)
+        signals = measure(traj, scenario.environment, scenario.sensor_spec, scenario.faults, seed=1000 * index + 100
+                          + k)
         recordings.append(recording_from_signals(signals, steps.dt, name=manoeuvre.name, layout=layout))
     started = time.perf_counter()
     try:

@@ -77,7 +77,8 @@ OWN_BLAS = "events-own-blas"  # variant: this node (EventsExecutor) without OPEN
 # variants: this node (EventsExecutor) with node parameters of its own (on top of --param), their label
 TUNED = {"events-2threads": (("candidates_threads:=2",), "new, candidates on 2 threads"),
          "events-3members": (("candidates_members:=3",), "new, candidates by 3 members"),
-         "events-2threads-3members": (("candidates_threads:=2", "candidates_members:=3"), "new, candidates 2 thr x 3 mem")}
+         "events-2threads-3members": (("candidates_threads:=2", "candidates_members:=3"),
+                                      "new, candidates 2 thr x 3 mem")}
 
 
 def percentiles(seconds: list[float] | np.ndarray) -> dict[str, float]:
@@ -260,7 +261,8 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
         file_batch = rollout.batch(state, candidates)
         eager = eager_rollout(params, t_state, t_controls)[:, 0, 1:].double().numpy()
         variants = {name: module(t_state, t_controls)[:, 0].double().numpy()
-                    for name, module in (("freeze", frozen), ("optimize_for_inference", optimised), ("sigmoid", sigmoid))}
+                    for name, module in (("freeze", frozen), ("optimize_for_inference", optimised),
+                                         ("sigmoid", sigmoid))}
     numpy_loop = numpy_rollout(np_params, state, np_controls)[:, 1:]
     agreement = {"numpy_vs_torchscript_max_abs": float(np.abs(numpy_out - reference).max()),
                  "numpy_vs_torchscript_64_candidates_max_abs": float(np.abs(numpy_batch - file_batch).max()),
@@ -269,7 +271,8 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
                  "numpy_vs_fused_64_candidates_max_abs": float(np.abs(numpy_batch - fused_batch).max()),
                  "eager_vs_torchscript_max_abs": float(np.abs(eager - reference[..., [0, 1, 2, 5]]).max()),
                  "numpy_loop_vs_torchscript_max_abs": float(np.abs(numpy_loop - reference[..., [0, 1, 2, 5]]).max()),
-                 **{f"{name}_vs_torchscript_max_abs": float(np.abs(out - reference).max()) for name, out in variants.items()}}
+                 **{f"{name}_vs_torchscript_max_abs": float(np.abs(out - reference).max()) for name,
+                    out in variants.items()}}
 
     def call(module, s, c):
         def run() -> None:
@@ -305,7 +308,8 @@ def bench_compute(repeats: int, tmp: Path) -> dict:
                                  lambda: three.batch(state, candidates),
                                  "batch 64 candidates numpy row form (before)":
                                  lambda: row_form_batch(row_form, state[None].repeat(64, 0), candidates),
-                                 "batch 64 candidates fused TorchScript (before)": lambda: fused.batch(state, candidates),
+                                 "batch 64 candidates fused "
+                                 "TorchScript (before)": lambda: fused.batch(state, candidates),
                                  "batch 64 candidates torchscript_5 (the file's)":
                                  lambda: rollout.batch(state, candidates)}, few)
     results = {
@@ -552,7 +556,8 @@ def figures(run: dict, received: dict, pauses: list | None = None) -> dict:
     if sent:
         answered = {stamp: at for at, stamp in received["answers"]}
         latency = [answered[s] - s for s in sent if s in answered]
-        run["candidates"] = {"sent": len(sent), "answered": len(latency), "answer": percentiles(np.array(latency) / 1e9),
+        run["candidates"] = {"sent": len(sent), "answered": len(latency),
+                             "answer": percentiles(np.array(latency) / 1e9),
                              "node": reports[-1].get("candidate plans", {}) if reports else {}}
     return run
 
@@ -702,9 +707,11 @@ def main() -> int:
                         help="a node parameter for every variant (repeatable), e.g. fit_check.period_s:=600.0: the "
                              "node without its fit check's rollouts")
     parser.add_argument("--gc-stats", action="store_true",
-                        help="count the garbage collections of this node's variants per phase, with their longest pause")
+                        help="count the garbage collections of this node's variants per phase, with "
+                             "their longest pause")
     parser.add_argument("--noisy-feed", action="store_true",
-                        help="the inputs with sensor-like noise (NOISE): no two fit checks see the same window content, "
+                        help="the inputs with sensor-like noise (NOISE): no two fit checks see the same "
+                             "window content, "
                              "so none is served from the fit check's cache (the default feed is constant)")
     parser.add_argument("--candidates-thread", action="store_true",
                         help="only: a cycle due during a 64-candidate answer, inline or on a worker (in one process)")
@@ -740,12 +747,13 @@ def main() -> int:
                                         tuple(args.param), args.noisy_feed, args.gc_stats)
                           for v in variants}
     print("\nnode at 10 Hz over DDS; e2e = cycle start -> Path received        p50 / p99 ms      CPU % of one core"
-          + (f"; parameters {', '.join(args.param)}" if args.param else "") + ("; noisy feed" if args.noisy_feed else ""))
+          + (f"; parameters {', '.join(args.param)}" if args.param else "")
+          + ("; noisy feed" if args.noisy_feed else ""))
     for variant, runs in result["node"].items():
         label = {"old": f"old ({args.baseline})", "events": "new, EventsExecutor",
                  "single": "new, SingleThreadedExecutor", OWN_BLAS: "new, OpenBLAS's own kernels",
                  **{name: label for name, (_, label) in TUNED.items()}}[variant]
-        for name, run in runs.items():
+        for _name, run in runs.items():
             print(f"  {label:38s} IMU {run['imu_hz']:6.0f} Hz  e2e {run['end_to_end']['p50_ms']:6.2f} / "
                   f"{run['end_to_end']['p99_ms']:6.2f}  input->path {run['input_to_path']['p50_ms']:6.2f} / "
                   f"{run['input_to_path']['p99_ms']:6.2f}  CPU {run['node_cpu_percent_of_one_core']:5.1f}  "

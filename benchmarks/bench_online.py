@@ -101,7 +101,8 @@ def node_share(cycles: int) -> None:
         fed_us = np.sort(observe_us)[-fed:]  # the cycles that fed (the others only compare two integers)
         print(f"\nin the node (10 Hz cycles, dt 0.5 s, {len(observe)} cycles, {fed} fed; load "
               f"{' '.join(f'{x:.1f}' for x in os.getloadavg())})")
-        print(f"  LiveSea.observe per cycle: mean {observe_us.mean():.0f} us, p50 {np.percentile(observe_us, 50):.1f} us; "
+        print(f"  LiveSea.observe per cycle: mean {observe_us.mean():.0f} us, p50 "
+              f"{np.percentile(observe_us, 50):.1f} us; "
               f"per fed cycle p50 {np.percentile(fed_us, 50):.0f} us, p99 {np.percentile(fed_us, 99):.0f} us")
         state, controls = np.array([5.0, 0.1, 0.05, 0.0]), np.array([0.2, 650.0])
         for name, rollout in rollouts.items():
@@ -111,7 +112,8 @@ def node_share(cycles: int) -> None:
                 rollout(state, controls)
                 times.append(time.perf_counter() - start)
             p50 = np.percentile(times, 50) * 1e6
-            print(f"  the cycle's rollout, {name}: p50 {p50:.0f} us; the estimator adds {observe_us.mean() / p50 * 100:.1f} % "
+            print(f"  the cycle's rollout, {name}: p50 {p50:.0f} us; the estimator adds "
+                  f"{observe_us.mean() / p50 * 100:.1f} % "
                   f"on average, {np.percentile(fed_us, 50) / p50 * 100:.1f} % in a cycle that feeds")
 
 

@@ -96,9 +96,11 @@ def main() -> None:
 
     ours("ours, all epochs", config, None)
     ours("ours, early stopping (patience 50)", config, 50)
-    ours("ours, absolute target (paper), all epochs", DnnConfig.for_features(dataset.feature_set, predict_increment=False), None)
+    ours("ours, absolute target (paper), all epochs",
+         DnnConfig.for_features(dataset.feature_set, predict_increment=False), None)
     model, seconds = reference_loop(config, train, val, args.epochs)
-    rows.append(("reference: DataLoader, default threads", seconds, args.epochs, args.epochs, rmse(model, val.x, val.y)))
+    rows.append(("reference: DataLoader, default threads", seconds, args.epochs, args.epochs,
+                 rmse(model, val.x, val.y)))
 
     print(f"\n{'run':44s} {'time s':>8s} {'epochs':>7s} {'best':>5s}   val RMSE u, v (m/s), r (deg/s)")
     for name, seconds, run, best, err in rows:

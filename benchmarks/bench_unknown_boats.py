@@ -1,12 +1,14 @@
-"""Confusion matrix of `diagnose` on boats the tool has never seen (issue 11 section 5; the README's figures).
+"""Confusion matrix of `diagnose` on boats the tool has never seen (the figures of docs/results/unknown_boats.md).
 
 Each boat: a random rudder-and-propeller hull around jari_usv (usv_predictor.analysis.unknown_boats.draw_boat: size
 class small 3-6 m or large 12-20 m, Froude-scaled, every hull derivative, added mass and interaction factor x
 U(0.7, 1.3)), one hidden effect of the vocabulary (or none) with random parameters (analysis.hidden_effects.draw),
 then the public pipeline (usv_predictor.replay.unknown_boats.run_unknown_boat): simulate a calm `training` day and a
-blind `diagnosis` effect day, delete the truth, `vessel init` from the owner's data, `identify --prior fix --interaction identify` (--interaction fix: as before the search) (or what
+blind `diagnosis` effect day, delete the truth, `vessel init` from the owner's data, `identify --prior fix --interaction
+identify` (--interaction fix: as before the search) (or what
 its cv_warning recommends), `diagnose --model`. Effects are balanced (boat i hides effect i mod the number of effects,
-nine for this layout), size classes alternate per round of them. Prints the confusion matrix (rows: truth, columns: named cause; `model_mismatch` and
+nine for this layout), size classes alternate per round of them. Prints the confusion matrix (rows: truth, columns:
+named cause; `model_mismatch` and
 a fit-check refusal are columns of their own), the parameter hit rate, the confident wrong answers and the time per
 boat. Deterministic for --seed. One JSON line per boat goes to --jsonl as it finishes (a run stopped early keeps
 what it did; --summarise FILE prints the tables of such a file).
@@ -81,14 +83,17 @@ def summarise(results: list[dict]) -> str:
     lines += ["", f"right cause: {len(right)}/{len(results)}; right cause and parameters within tolerance: "
                   f"{len(hits)}/{len(results)} (effects only: "
                   f"{sum(r['truth'] != 'none' for r in hits)}/{sum(r['truth'] != 'none' for r in results)})",
-              f"confident wrong answers (a cause or `none` that is not the truth): {len(confident_wrong)}/{len(results)}"
+              f"confident wrong answers (a cause or `none` that is not the truth): "
+              f"{len(confident_wrong)}/{len(results)}"
               + "".join(f"\n  {r['boat']} ({r['size_class']}, {r['L_pp_m']:.1f} m): {r['truth']} "
                         f"{r['truth_parameters']} -> {r['cause']} {r['parameters']}" for r in confident_wrong),
               f"right cause, parameters beyond the tolerances: {len(wrong_parameters)}"
-              + "".join(f"\n  {r['boat']} ({r['size_class']}, {r['L_pp_m']:.1f} m): {r['truth']} {r['truth_parameters']} "
+              + "".join(f"\n  {r['boat']} ({r['size_class']}, {r['L_pp_m']:.1f} m): {r['truth']} "
+                        f"{r['truth_parameters']} "
                         f"-> {r['parameters']}" for r in wrong_parameters),
               f"model_mismatch: {len(mismatch)} (of which refused by the fit check: {len(refused)}; the rollout of the "
-              f"identified model diverges: {sum(any('diverges' in m for m in r['mismatch_reasons']) for r in mismatch)})"]
+              f"identified model diverges: "
+              f"{sum(any('diverges' in m for m in r['mismatch_reasons']) for r in mismatch)})"]
     for size in ("small", "large"):
         rows = [r for r in results if r["size_class"] == size]
         if rows:
@@ -151,7 +156,8 @@ def main() -> None:
                   f"{r['truth']:20s} -> {r['cause']:20s} {ok} {r['errors']} ({r['wall_s']:.0f} s)", flush=True)
     print()
     print(summarise(results))
-    print(f"seed {args.seed}, boats {args.first}..{args.first + args.boats - 1}, interaction {args.interaction}, whole run "
+    print(f"seed {args.seed}, boats {args.first}..{args.first + args.boats - 1}, interaction "
+          f"{args.interaction}, whole run "
           f"{time.perf_counter() - started:.0f} s, one process")
 
 

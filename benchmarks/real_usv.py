@@ -1,4 +1,4 @@
-"""The two real USV records: identify, predict, compare, diagnose (every figure of the README section on them).
+"""The two real USV records: identify, predict, compare, diagnose (every figure of docs/results/real_usv.md).
 
 Dalian twin-thruster USV (../shared/data/raw/usv_2345vor_dalian, closed-loop path following, ~4 and ~3 minutes):
   `replay convert` both runs; for each direction (identify on the circle, predict the sine; and the reverse)
@@ -185,7 +185,8 @@ def dalian(bags: Path, work: Path) -> dict:
         }
         direction = {"identification": {c["name"]: {k: c[k] for k in ("estimate", "ci95", "prior", "status")}
                                         for c in ident["identification"]["coefficients"]},
-                     "notes": ident["identification"]["notes"], "cross_validation": ident["identification"]["cross_validation"],
+                     "notes": ident["identification"]["notes"],
+                     "cross_validation": ident["identification"]["cross_validation"],
                      "open_loop": {}, "circle_radius_m": {}}
         for label, model in models.items():
             direction["open_loop"][label] = open_loop(model, runs[test])
@@ -361,7 +362,8 @@ def fuzhou(bags: Path, work: Path) -> dict:
     }
     log(f"Fuzhou: Nomoto of the whole record K {everything['K_per_s']:.3f} 1/s, T {everything['T_s']:.2f} s")
     log(f"Fuzhou: turning radius at 22 deg (Nomoto, {speed:.2f} m/s): starboard {radii['starboard']['radius_m']:.2f} m "
-        f"({radii['starboard']['p2_5_m']:.2f}-{radii['starboard']['p97_5_m']:.2f}), port {radii['port']['radius_m']:.2f} "
+        f"({radii['starboard']['p2_5_m']:.2f}-{radii['starboard']['p97_5_m']:.2f}), port "
+        f"{radii['port']['radius_m']:.2f} "
         f"m ({radii['port']['p2_5_m']:.2f}-{radii['port']['p97_5_m']:.2f}); MMG identified "
         f"{out['turning_circle_22deg_mmg']['identified_radius_m']:.2f} m, vessel file "
         f"{out['turning_circle_22deg_mmg']['vessel_file_radius_m']:.2f} m")

@@ -18,7 +18,8 @@ Models, per protocol and test:
     calm-water preset   the vessel file jari_usv itself (the calm-water model `replay diagnose` starts from)
     extended grey box   what `replay diagnose bags/sea_trial bags/training --export` writes, made from the same
                training manoeuvres: analysis.diagnosis.diagnose against the preset at its suited steps (0.5 s, 20 s
-               segments, every hypothesis, up to 2 causes: the README's diagnosis names current + wave drift), the
+               segments, every hypothesis, up to 2 causes: docs/results/diagnosis_examples.md's diagnosis names current
+               + wave drift), the
                named causes refitted on all of them and exported at the study's step 0.2 s (export_extended)
     hybrid on extended `replay identify --hybrid --base extended.pt`: the same residual training (members, epochs,
                validation run) on top of that file's grey box (fitting.hybrid_fit.base_from_artifact,
@@ -133,7 +134,7 @@ def fit_named(training: list, training_05: list, causes: tuple[str, ...], member
 
     preset = load_vessel(VESSEL)
     started = time.perf_counter()
-    fit = dg.fit_hypothesis(dg.scripted_rollout(preset, training_05[0].dt), dg.make_segments(training_05, 20.0, 5.0),
+    fit = dg.fit_hypothesis(dg.compiled_rollout(preset, training_05[0].dt), dg.make_segments(training_05, 20.0, 5.0),
                             causes)
     terms = {k: [float(x) for x in v] for k, v in fit.terms.items()}
     log(f"  named {'+'.join(causes)}: {terms} ({time.perf_counter() - started:.0f} s)")
@@ -268,7 +269,8 @@ def fit_models(args: argparse.Namespace, training: list, training_05: list, exte
     return models, info
 
 
-TITLES = {"paper": "paper protocol (every turn in the training data)", "held_out": "held-out protocol (leave one turn out)"}
+TITLES = {"paper": "paper protocol (every turn in the training data)",
+          "held_out": "held-out protocol (leave one turn out)"}
 
 
 def main(argv: list[str] | None = None) -> int:

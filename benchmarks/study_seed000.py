@@ -118,7 +118,8 @@ def turning_row(evaluation: Any) -> dict[str, Any]:
                      "drift_angle_deg": m["drift_angle_seed_eq28_deg"], "drift_direction_deg": m["drift_direction_deg"],
                      "drift_distance_m": m["drift_distance_m"]},
         "predicted": {"radius_m": p["turning_radius_m"], "steady_radius_m": p["steady_turning_radius_m"],
-                      "drift_angle_deg": p["drift_angle_seed_eq28_deg"], "drift_direction_deg": p["drift_direction_deg"],
+                      "drift_angle_deg": p["drift_angle_seed_eq28_deg"],
+                      "drift_direction_deg": p["drift_direction_deg"],
                       "drift_distance_m": p["drift_distance_m"]},
         "errors": {"radius_pct": e["turning_radius_rel_pct"], "steady_radius_pct": e["steady_turning_radius_rel_pct"],
                    "angle_deg": angle_error(p["drift_angle_seed_eq28_deg"], m["drift_angle_seed_eq28_deg"]),
@@ -214,7 +215,7 @@ def tables(study: dict) -> str:
 
         lines += [f"### Table 6, {title}: activation, NTF, test (a), {n} seeds (mean ± sd)", "",
                   "| | measured | NTF clippedReLU (f1) | NTF tanh (f2) |", "|---|---|---|---|"]
-        for key, label, unit in (("drift_angle_deg", "drift angle eq. 28 (deg)", ""),
+        for key, label, _unit in (("drift_angle_deg", "drift angle eq. 28 (deg)", ""),
                                  ("drift_distance_m", "drift distance eq. 27 (m)", ""),
                                  ("radius_m", "turning radius eq. 29 (m)", "")):
             lines.append(f"| {label} | {fmt(meas['a'][key])} | {pm(pred('NTF clippedReLU', 'a', key))} | "
@@ -225,19 +226,23 @@ def tables(study: dict) -> str:
                          f"{pm(pred('NTF tanh', 'a', key, 'errors'))} |")
         lines += ["", f"### Table 7, {title}: turning radius eq. 29 (m), tanh, {n} seeds (mean ± sd)", "", head,
                   "| measured radius (m) | " + " | ".join(fmt(meas[t]["radius_m"]) for t in letters) + " |",
-                  "| measured, steady circle fit (m) | " + " | ".join(fmt(meas[t]["steady_radius_m"]) for t in letters) + " |"]
+                  "| measured, steady circle fit (m) | " + " | ".join(fmt(meas[t]["steady_radius_m"]) for t in letters)
+                  + " |"]
         for cfg in ("F0 tanh", "NAF tanh", "NTF tanh"):
             short = cfg.split()[0]
-            lines.append(f"| predicted radius by {short} (m) | " + " | ".join(pm(pred(cfg, t, "radius_m")) for t in letters) + " |")
+            lines.append(f"| predicted radius by {short} (m) | "
+                         + " | ".join(pm(pred(cfg, t, "radius_m")) for t in letters) + " |")
             lines.append(f"| relative error of radius by {short} | " + " | ".join(
                 pm(pred(cfg, t, "radius_pct", "errors"), 2, "%") for t in letters) + " |")
         lines.append("| physics (calm-water MMG) radius (m) | " + " | ".join(
             fmt(physics["rows"][t][0]["predicted"]["radius_m"]) for t in letters) + " |")
         lines.append("| relative error of radius by physics | " + " | ".join(
             fmt(physics["rows"][t][0]["errors"]["radius_pct"], 2, "%") for t in letters) + " |")
-        lines += ["", f"### Table 8, {title}: drift angle eq. 28 and drift distance eq. 27, tanh, {n} seeds (mean ± sd)",
+        lines += ["",
+                  f"### Table 8, {title}: drift angle eq. 28 and drift distance eq. 27, tanh, {n} seeds (mean ± sd)",
                   "", head,
-                  "| measured drift angle (deg) | " + " | ".join(fmt(meas[t]["drift_angle_deg"]) for t in letters) + " |"]
+                  "| measured drift angle (deg) | " + " | ".join(fmt(meas[t]["drift_angle_deg"]) for t in letters)
+                  + " |"]
         for cfg in ("F0 tanh", "NAF tanh", "NTF tanh"):
             short = cfg.split()[0]
             lines.append(f"| predicted drift angle by {short} (deg) | " + " | ".join(
@@ -246,7 +251,8 @@ def tables(study: dict) -> str:
                 pm(pred(cfg, t, "angle_deg", "errors")) for t in letters) + " |")
         lines.append("| physics drift angle (deg) | " + " | ".join(
             fmt(physics["rows"][t][0]["predicted"]["drift_angle_deg"]) for t in letters) + " |")
-        lines.append("| measured drift distance (m) | " + " | ".join(fmt(meas[t]["drift_distance_m"]) for t in letters) + " |")
+        lines.append("| measured drift distance (m) | " + " | ".join(fmt(meas[t]["drift_distance_m"]) for t in letters)
+                     + " |")
         for cfg in ("F0 tanh", "NAF tanh", "NTF tanh"):
             short = cfg.split()[0]
             lines.append(f"| predicted drift distance by {short} (m) | " + " | ".join(
@@ -256,8 +262,10 @@ def tables(study: dict) -> str:
         lines.append("| physics drift distance (m) | " + " | ".join(
             fmt(physics["rows"][t][0]["predicted"]["drift_distance_m"]) for t in letters) + " |")
         lines += ["", f"### Summary, {title}: max |error| over the six tests "
-                      f"(target {TARGET['radius_pct']:g} % / {TARGET['angle_deg']:g} deg / {TARGET['distance_pct']:g} %; "
-                      f"seed 000: {SEED000['radius_pct']} % / {SEED000['angle_deg']} deg / {SEED000['distance_pct']} %)", "",
+                      f"(target {TARGET['radius_pct']:g} % / {TARGET['angle_deg']:g} deg / "
+                      f"{TARGET['distance_pct']:g} %; "
+                      f"seed 000: {SEED000['radius_pct']} % / {SEED000['angle_deg']} deg / "
+                      f"{SEED000['distance_pct']} %)", "",
                   "| model | radius eq. 29 (%) | radius, circle fit (%) | drift angle (deg) | drift distance (%) "
                   "| meets target (seeds) | mean RMSE u / v (m/s), r (deg/s) | open-loop error at 30 s (m) |",
                   "|---|---|---|---|---|---|---|---|"]
@@ -270,7 +278,8 @@ def tables(study: dict) -> str:
                 v = s[key]
                 if cfg == PHYSICS or n == 1:
                     return fmt(v["worst_seed"], digits)
-                return f"{fmt(v['mean_of_max_abs'], digits)} ({fmt(v['best_seed'], digits)}-{fmt(v['worst_seed'], digits)})"
+                return (f"{fmt(v['mean_of_max_abs'], digits)} "
+                        f"({fmt(v['best_seed'], digits)}-{fmt(v['worst_seed'], digits)})")
 
             rmse = " / ".join(fmt(stats([r["closed_loop_rmse"][k] for r in rows])["mean"], d)
                               for k, d in (("u_mps", 3), ("v_mps", 3), ("r_deg_s", 2)))
@@ -279,7 +288,8 @@ def tables(study: dict) -> str:
             lines.append(f"| {label} | {cell('radius_pct')} | {cell('steady_radius_pct')} | {cell('angle_deg')} | "
                          f"{cell('distance_pct', 1)} | {sum(met)}/{len(met)} | {rmse} | "
                          f"{fmt(stats([r['open_loop_30s_m'] for r in rows])['mean'])} |")
-        lines += ["", f"Cells: mean over {n} seeds of the per-seed maximum (best seed - worst seed)." if n > 1 else "", ""]
+        lines += ["", f"Cells: mean over {n} seeds of the per-seed maximum (best seed - worst seed)." if n > 1 else "",
+                  ""]
     return "\n".join(lines)
 
 
@@ -300,10 +310,12 @@ def figures(study: dict, recordings: dict, paths: dict, directory: Path) -> list
         model = Member(load_artifact(paths[("held_out", cfg, "a")]), 0)
         p = evaluation.closed_loop(model, rec, "gnss")
         if first:
-            mx, my = rotate_to_drift(p.measured[:, 3] - p.measured[0, 3], p.measured[:, 4] - p.measured[0, 4], measured_dir)
+            mx, my = rotate_to_drift(p.measured[:, 3] - p.measured[0, 3], p.measured[:, 4] - p.measured[0, 4],
+                                     measured_dir)
             ax.plot(mx, my, color="black", linewidth=1.0, label="measured (GNSS)")
             first = False
-        px, py = rotate_to_drift(p.predicted[:, 3] - p.measured[0, 3], p.predicted[:, 4] - p.measured[0, 4], measured_dir)
+        px, py = rotate_to_drift(p.predicted[:, 3] - p.measured[0, 3], p.predicted[:, 4] - p.measured[0, 4],
+                                 measured_dir)
         ax.plot(px, py, color=color, linewidth=1.1, label=f"{cfg.split()[0]} (held out, seed 0)")
     ax.set_aspect("equal")
     ax.set_xlabel("along the measured drift (m)")
@@ -316,9 +328,12 @@ def figures(study: dict, recordings: dict, paths: dict, directory: Path) -> list
     fig = new_figure(7.0, 3.0)
     letters = list(TESTS)
     x = np.arange(len(letters))
-    for i, (key, label) in enumerate((("angle_deg", "drift angle error (deg)"), ("distance_pct", "drift distance error (%)"))):
+    for i, (key, label) in enumerate((("angle_deg", "drift angle error (deg)"), ("distance_pct", "drift "
+                                                                                                 "distance "
+                                                                                                 "error (%)"))):
         ax = fig.add_subplot(1, 2, i + 1)
-        for j, (cfg, color) in enumerate((("F0 tanh", "tab:orange"), ("NAF tanh", "tab:green"), ("NTF tanh", "tab:blue"))):
+        for j, (cfg,
+                color) in enumerate((("F0 tanh", "tab:orange"), ("NAF tanh", "tab:green"), ("NTF tanh", "tab:blue"))):
             rows = study["protocols"]["held_out"][cfg]["rows"]
             vals = [stats([r["errors"][key] for r in rows[t]]) for t in letters]
             mean = [v["mean"] if v["mean"] is not None else np.nan for v in vals]

@@ -195,7 +195,8 @@ def identify_variants(preset: Vessel, recordings: list, data: list, interaction:
         found = ident.identify(preset, recordings, structure="mmg", prior="fix", data=data, interaction="identify",
                                progress=log)
         log(f"  --interaction identify: {time.perf_counter() - t0:.0f} s; {found.notes[0] if found.notes else ''}")
-        out["fix_interaction"] = replace(found, vessel=replace(found.vessel, name=f"{preset.name}_identified_interaction"))
+        out["fix_interaction"] = replace(found,
+                                         vessel=replace(found.vessel, name=f"{preset.name}_identified_interaction"))
     return out
 
 
@@ -297,7 +298,8 @@ def residual_activity(module, t: np.ndarray, track: np.ndarray, controls: np.nda
     transient = change <= 90.0
     steady = change >= 360.0
     return {"envelope_transient": float(env[transient].mean()), "envelope_steady": float(env[steady].mean()),
-            "output_share_transient": float(share[transient].mean()), "output_share_steady": float(share[steady].mean())}
+            "output_share_transient": float(share[transient].mean()),
+            "output_share_steady": float(share[steady].mean())}
 
 
 def hybrid_turns(module, grey_vessel: Vessel, data_rpm: float, grey_rpm: float) -> dict:
@@ -482,7 +484,8 @@ def kvlcc2_tables(k: dict | None) -> str:
              "ridge": "identified, --prior ridge", "fix_empirical": "identified, fix + semi-empirical priors",
              "fix_kijima": "identified, fix + Kijima 1990 priors",
              "fix_interaction": "identified, fix, --interaction identify",
-             "fix_symmetric_rudder": f"diagnostic: identified (fix) with gamma_R+ = gamma_R- = {k['symmetric_gamma_R']:.3f}"}
+             "fix_symmetric_rudder": f"diagnostic: identified (fix) with gamma_R+ = gamma_R- = "
+                                     f"{k['symmetric_gamma_R']:.3f}"}
     lines = ["### KVLCC2: 13 HSVA zig-zags -> 35 deg turning circles (in L)", "",
              f"Approach speed {k['approach_mps']:.3f} m/s (model scale). Advance and tactical diameter: error against "
              f"SIMMAN 2008's published {k['published']['advance']:g} L and {k['published']['tactical_diameter']:g} L; "
@@ -535,34 +538,41 @@ def kvlcc2_tables(k: dict | None) -> str:
         cells = []
         for c in CRITERIA:
             lo, hi = by["0.5"], by["1.5"]
-            cells.append(f"{lo['starboard'][c]:+.1f}/{lo['port'][c]:+.1f} ; {hi['starboard'][c]:+.1f}/{hi['port'][c]:+.1f}")
+            cells.append(f"{lo['starboard'][c]:+.1f}/{lo['port'][c]:+.1f} ; "
+                         f"{hi['starboard'][c]:+.1f}/{hi['port'][c]:+.1f}")
         lines.append(f"| {name} | {'yes' if r['determined_by_data'] else '**no: prior used**'} | {r['estimate']:+.4f} "
                      f"({r['prior']:+.4f}) | " + " | ".join(cells) + " |")
     hy = k.get("hybrid")
     if hy:
         t = hy["training"]
-        twin = {side: max(abs(v) for v in hy["turns"][side]["twin_vs_numpy_pct"].values()) for side in ("starboard", "port")}
-        lines += ["", f"Hybrid training: {t['members']} members (seeds), validation on {', '.join(t['val_manoeuvres'])} "
+        twin = {side: max(abs(v) for v in hy["turns"][side]["twin_vs_numpy_pct"].values())
+                for side in ("starboard", "port")}
+        lines += ["",
+                  f"Hybrid training: {t['members']} members (seeds), validation on {', '.join(t['val_manoeuvres'])} "
                       f"held out whole; best epochs {t['best_epoch']} of {t['epochs_run']}; validation loss "
                       f"{np.mean(t['loss_best']):.3f} against the grey box's {t['loss_grey_box']:.3f} (noise units); "
                       f"{t['seconds']:.0f} s. The hybrid turns at the zig-zags' {hy['turns']['rpm']:.1f} rpm (the only "
                       f"one in its residual's support): straight-running speed per seed "
                       f"{', '.join(f'{v:.3f}' for v in hy['turns']['approach_mps_members'])} m/s (the grey box "
-                      f"{hy['turns']['grey_box_approach_mps_at_rpm']:.3f} m/s at that rpm, {k['turns']['fix']['rpm']:.1f} "
+                      f"{hy['turns']['grey_box_approach_mps_at_rpm']:.3f} m/s at that rpm, "
+                      f"{k['turns']['fix']['rpm']:.1f} "
                       f"rpm for {k['approach_mps']:.3f} m/s). The grey box rolled out by the same torch rollout "
                       f"matches the numpy simulation within {max(twin.values()):.3f} % on every criterion."]
         act = {side: hy["turns"][side]["residual_activity"] for side in ("starboard", "port")}
-        lines += ["", "Where the learned residual acts along the ensemble mean's turn (starboard / port): support envelope "
+        lines += ["",
+                  "Where the learned residual acts along the ensemble mean's turn (starboard / port): support envelope "
                       "(1 inside the zig-zags' feature range, 0 far beyond) " + " / ".join(
                           f"{a['envelope_transient']:.2f}" for a in act.values()) + " over the approach and the first "
                       "90 deg, " + " / ".join(f"{a['envelope_steady']:.2f}" for a in act.values()) + " after 360 deg; "
                       "mean |output| / bound " + " / ".join(f"{a['output_share_transient']:.3f}" for a in act.values())
                   + " and " + " / ".join(f"{a['output_share_steady']:.3f}" for a in act.values()) + "."]
     lines += ["", "Semi-empirical priors used for the held coefficients (preset -> empirical):", ""]
-    lines += [f"- {n}: {v['preset']:+.4f} -> {v['empirical']:+.4f} ({v['source']})" for n, v in k["empirical_priors"].items()]
+    lines += [f"- {n}: {v['preset']:+.4f} -> {v['empirical']:+.4f} ({v['source']})" for n,
+              v in k["empirical_priors"].items()]
     lines += ["", "Kijima 1990 priors used for the held coefficients it gives (preset -> Kijima; the others stay the "
                   "preset's):", ""]
-    lines += [f"- {n}: {v['preset']:+.4f} -> {v['empirical']:+.4f} ({v['source']})" for n, v in k["kijima_priors"].items()]
+    lines += [f"- {n}: {v['preset']:+.4f} -> {v['empirical']:+.4f} ({v['source']})" for n,
+              v in k["kijima_priors"].items()]
     ia = k.get("interaction")
     if ia:
         lines += ["", f"--interaction identify: accepted {ia['accepted']}, scale "
@@ -578,7 +588,8 @@ def jari_table(j: dict | None) -> str:
     lines: list[str] = []
     if j:
         lines += ["### jari_usv: training zig-zags -> the six sea-trial turning circles (error %, mean / worst)", "",
-                  "| zig-zags identified in | priors | not determined (held) | advance | transfer | tactical | steady radius |",
+                  "| zig-zags identified in | priors | not determined (held) | advance | transfer | tactical | "
+                  "steady radius |",
                   "|---|---|---|---|---|---|---|"]
         for sea, s in j["sets"].items():
             for label in ("fix", "fix_empirical", "fix_kijima", "ridge"):
@@ -590,7 +601,8 @@ def jari_table(j: dict | None) -> str:
                     cells.append(f"{np.mean(v):+.1f} / {worst:+.1f}")
                 prior = {"fix": "preset (fix)", "fix_empirical": "semi-empirical (fix)",
                          "fix_kijima": "Kijima 1990 (fix)", "ridge": "preset (ridge)"}[label]
-                lines.append(f"| {sea} | {prior} | {', '.join(s['prior_used'][label]) or 'none'} | " + " | ".join(cells) + " |")
+                lines.append(f"| {sea} | {prior} | {', '.join(s['prior_used'][label]) or 'none'} | "
+                             + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -616,7 +628,8 @@ def main() -> None:
                         help="KVLCC2 hybrid ensemble members = seeds (0: no hybrid)")
     parser.add_argument("--epochs", type=int, default=HYBRID_EPOCHS, help="KVLCC2 hybrid epochs at most")
     parser.add_argument("--interaction", choices=("identify", "fix"), default="identify",
-                        help="KVLCC2: also identify with the interaction factors searched (identify, the default) or not")
+                        help="KVLCC2: also identify with the interaction factors searched (identify, the "
+                             "default) or not")
     parser.add_argument("--tables", type=Path, default=None, help="only print the tables of an earlier run's --json")
     args = parser.parse_args()
     if args.tables is not None:

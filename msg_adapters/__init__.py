@@ -67,7 +67,8 @@ def check_shared(topic: str, adapters: Sequence[Adapter]) -> None:
     roles = [a.role for a in adapters]
     types = sorted({a.ros_type for a in adapters})
     if len(types) > 1:
-        raise AdapterError(f"topic {topic!r} carries roles {roles} with different types {types}; one topic has one type")
+        raise AdapterError(f"topic {topic!r} carries roles {roles} with different types {types}; one "
+                           f"topic has one type")
     if not all(getattr(a, "SHARES_TOPIC", False) for a in adapters):
         raise AdapterError(f"topic {topic!r}: roles {roles} cannot share a {types[0]} topic (it carries one value); "
                            "give each role its own topic, or use a Float64MultiArray, JointState or Wrench")

@@ -331,7 +331,8 @@ def _string_lengths(
     return found
 
 
-def _decode_small(ros_type: str, leaves: tuple[_Leaf, ...], raws: Sequence[bytes | memoryview]) -> SimpleNamespace | None:
+def _decode_small(ros_type: str, leaves: tuple[_Leaf, ...],
+                  raws: Sequence[bytes | memoryview]) -> SimpleNamespace | None:
     """decode_many of a few messages of a fixed-layout type: each message's strings walked in Python with the checks
     and messages of _string_lengths, its layout group found in a dict; then the same _layout, _check_size and
     _read_records as the vectorised path. None when a message is not little-endian CDR (decode_many's general path
@@ -588,7 +589,8 @@ def decode_values(
     if not raws:
         return DecodedBatch(np.zeros(0, dtype=np.int64), None, np.zeros((0, width)), None, [])
     if not has_fast_layout(ros_type, typestore):
-        return _decode_one_by_one(adapter, raws, deserialize or functools.partial(_rosbags_message, typestore, ros_type))
+        return _decode_one_by_one(adapter, raws, deserialize
+                                  or functools.partial(_rosbags_message, typestore, ros_type))
     try:
         return _decode_values_in_bulk(adapter, raws, typestore, np.arange(len(raws)))
     except (AdapterError, BagError, ValueError, ArithmeticError):
@@ -812,7 +814,8 @@ class _Reader:
         return np.frombuffer(self.data, dtype="<f8", count=count, offset=start)
 
 
-def decode_joint_trajectory(raw: bytes | memoryview, max_joints: int = 1024, max_points: int = 100_000) -> JointTrajectoryData:
+def decode_joint_trajectory(raw: bytes | memoryview, max_joints: int = 1024,
+                            max_points: int = 100_000) -> JointTrajectoryData:
     """One CDR trajectory_msgs/JointTrajectory -> stamp, joints and (P, J) positions (AdapterError says what is wrong).
 
     Every point must carry exactly one position per joint; velocities, accelerations and effort are
@@ -839,7 +842,7 @@ def decode_joint_trajectory(raw: bytes | memoryview, max_joints: int = 1024, max
 
 def decode_joint_trajectory_walk(raw: bytes | memoryview, max_joints: int = 1024, max_points: int = 100_000
                                  ) -> JointTrajectoryData:
-    """decode_joint_trajectory walking every name and point field by field (as before 2026-11-26): the reference
+    """decode_joint_trajectory walking every name and point field by field (the former decoder): the reference
     its names loop and numpy reading of the later points are tested and benchmarked against."""
     reader, stamp_ns, frame_id, names, count = _trajectory_head(raw, max_joints, max_points, walk=True)
     times = np.empty(count, dtype=np.int64)
@@ -851,7 +854,7 @@ def decode_joint_trajectory_walk(raw: bytes | memoryview, max_joints: int = 1024
 def _trajectory_head(raw: bytes | memoryview, max_joints: int, max_points: int, walk: bool = False
                      ) -> tuple[_Reader, int, str, tuple[str, ...], int]:
     """The reader after the points' count, with the header, the joint names (walk: one string() call each, as
-    before 2026-11-26) and the count of points."""
+    the former decoder did) and the count of points."""
     what = JOINT_TRAJECTORY_TYPE
     if len(raw) < _HEADER_SIZE or bytes(raw[:2]) != bytes(_LITTLE_ENDIAN_HEADER):
         raise AdapterError(f"{what}: not a little-endian CDR message")

@@ -114,7 +114,8 @@ def encode_candidate_predictions(stamp_ns: int, t_ns: np.ndarray, eta: np.ndarra
     for k, t_k in enumerate(np.asarray(t_ns, dtype=np.int64)):
         transforms = [make("geometry_msgs/msg/Transform")(translation=c.vector3(make, *row[:3]),
                                                           rotation=c.quaternion(make, *row[3:])) for row in poses[:, k]]
-        velocities = [make("geometry_msgs/msg/Twist")(linear=c.vector3(make, *row[:3]), angular=c.vector3(make, *row[3:]))
+        velocities = [make("geometry_msgs/msg/Twist")(linear=c.vector3(make, *row[:3]),
+                                                      angular=c.vector3(make, *row[3:]))
                       for row in twists[:, k]]
         points.append(make("trajectory_msgs/msg/MultiDOFJointTrajectoryPoint")(
             transforms=transforms, velocities=velocities, accelerations=[],
@@ -122,7 +123,8 @@ def encode_candidate_predictions(stamp_ns: int, t_ns: np.ndarray, eta: np.ndarra
     return make(TRAJECTORY_TYPE)(header=c.header(make, int(stamp_ns), frame_id), joint_names=list(names), points=points)
 
 
-def _check_batch(t_ns: np.ndarray, eta: np.ndarray, nu: np.ndarray, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+def _check_batch(t_ns: np.ndarray, eta: np.ndarray, nu: np.ndarray,
+                 names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
     """(N, H, 7) poses and (N, H, 6) twists, or AdapterError naming the mismatched shape."""
     eta, nu = np.asarray(eta, dtype=np.float64), np.asarray(nu, dtype=np.float64)
     expected = (len(names), len(t_ns), 3)

@@ -218,7 +218,8 @@ class TwistStampedAdapter(_Base):
         return c.stamp_ns(msg, self.ros_type), c.values_out(*_decode_twist(twist, self.ros_type))
 
     def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
-        return make(self.ros_type)(header=c.header(make, t_ns, frame_id), twist=_encode_twist(make, *self._values(values)))
+        return make(self.ros_type)(header=c.header(make, t_ns, frame_id),
+                                   twist=_encode_twist(make, *self._values(values)))
 
 
 @dataclass(frozen=True)
@@ -262,7 +263,8 @@ class OdometryVelocityAdapter(_Base):
 
     def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
         nu = self._values(values)
-        return _encode_odometry(make, t_ns, frame_id, self.child_frame_id, (0.0, 0.0, 0.0), nu, -1.0, self.twist_variance)
+        return _encode_odometry(make, t_ns, frame_id, self.child_frame_id, (0.0, 0.0, 0.0), nu, -1.0,
+                                self.twist_variance)
 
 
 # ---------------------------------------------------------------- odometry
@@ -295,7 +297,8 @@ class OdometryAdapter(_Base):
     def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
         x_n, y_e, psi, u, v, r = self._values(values)
         return _encode_odometry(
-            make, t_ns, frame_id, self.child_frame_id, (x_n, y_e, psi), (u, v, r), self.pose_variance, self.twist_variance
+            make, t_ns, frame_id, self.child_frame_id, (x_n, y_e, psi), (u, v, r), self.pose_variance,
+                                self.twist_variance
         )
 
 
@@ -342,7 +345,8 @@ class QuaternionHeadingAdapter(_Base):
 
     def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:
         (psi,) = self._values(values)
-        return make(self.ros_type)(header=c.header(make, t_ns, frame_id), quaternion=_quaternion_from_heading(make, psi))
+        return make(self.ros_type)(header=c.header(make, t_ns, frame_id),
+                                   quaternion=_quaternion_from_heading(make, psi))
 
 
 # ---------------------------------------------------------------- actuators
@@ -452,7 +456,8 @@ class CommandScale:
         return text + (" sign -1" if self.sign == -1 else "")
 
 
-def check_command(role: str, source: str, raw: Any, command: Any, ratio: Any, setting: str, hint: Callable[[float], str],
+def check_command(role: str, source: str, raw: Any, command: Any, ratio: Any, setting: str,
+                  hint: Callable[[float], str],
                   limit: float = COMMAND_LIMIT) -> None:
     """AdapterError when a decoded |command| exceeds `limit` (NaN passes): names the role, the field, the setting
     and the likely mistake (a PWM configured as thrust, ...)."""
@@ -692,7 +697,8 @@ class WrenchCommandAdapter(_Base):
         surge = force_x / self.surge_full_scale
         yaw = -self.sign * torque_z / self.yaw_full_scale
         setting = f"surge_full_scale {self.surge_full_scale:g} yaw_full_scale {self.yaw_full_scale:g}"
-        hint = lambda value: "is the full scale the message's value at full command (N or N m for a wrench in SI)?"  # noqa: E731
+        hint = lambda value: ("is the full scale the message's value at full command "  # noqa: E731
+                              "(N or N m for a wrench in SI)?")
         check_command(self.role, "force.x, the surge", force_x, surge, surge, setting, hint)
         check_command(self.role, "torque.z, the yaw", torque_z, yaw, yaw, setting, hint)
         command = surge + self.SIDE[self.role] * yaw
@@ -819,7 +825,8 @@ class NavSatFixAdapter(_Base):
     def decode(self, msg: Any) -> tuple[Any, tuple[Any, ...]]:
         t = self.ros_type
         no_fix = np.asarray(c.field(msg, "status.status", t)) < 0
-        position = [np.asarray(c.field(msg, name, t), dtype=np.float64) for name in ("latitude", "longitude", "altitude")]
+        position = [np.asarray(c.field(msg, name, t), dtype=np.float64)
+                    for name in ("latitude", "longitude", "altitude")]
         return c.stamp_ns(msg, t), c.values_out(*(np.where(no_fix, np.nan, p) for p in position))
 
     def encode(self, t_ns: Any, values: Sequence[Any], make: c.MakeFn, frame_id: str = "") -> Any:

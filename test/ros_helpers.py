@@ -1,8 +1,8 @@
 """Shared helpers of the node tests: domain ids, the node harness, /diagnostics lookups (the isolated rclpy
 context `ros_context` is a fixture of conftest.py).
 
-Every test process talks on its own ROS_DOMAIN_ID (derived from the xdist worker or the pid, an offset per use) with discovery
-on this host only, so parallel runs on one machine do not hear each other.
+Every test process talks on its own ROS_DOMAIN_ID (derived from the xdist worker or the pid, an offset per use) with
+discovery on this host only, so parallel runs on one machine do not hear each other.
 """
 from __future__ import annotations
 
@@ -68,7 +68,8 @@ class Harness:
                  config_path: Any = None) -> None:
         if not any(p.name == "diagnostics_rate_hz" for p in overrides):
             overrides = [*overrides, Parameter("diagnostics_rate_hz", value=DIAGNOSTICS_RATE_HZ)]
-        self.node = predictor_node.PredictorNode(config_path=config_path, context=context, parameter_overrides=overrides)
+        self.node = predictor_node.PredictorNode(config_path=config_path, context=context,
+                                                 parameter_overrides=overrides)
         self.peer = Node(peer_name, context=context)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)

@@ -37,13 +37,16 @@ def test_every_control_is_measured_by_a_known_role_and_field(layout):
         assert control.role in msg_adapters.ROLE_FIELDS, f"{layout.name}.{control.name}: unknown role {control.role}"
         assert control.field in msg_adapters.ROLE_FIELDS[control.role]
         low, high = control.plausible
-        assert low < high and control.unit
+        assert low < high
+        assert control.unit
 
 
 def test_the_default_layout_is_todays_rudder_and_rpm():
-    assert DEFAULT_LAYOUT.control_names == ("delta", "rpm") and DEFAULT_LAYOUT.control_units == ("rad", "rpm")
+    assert DEFAULT_LAYOUT.control_names == ("delta", "rpm")
+    assert DEFAULT_LAYOUT.control_units == ("rad", "rpm")
     assert REQUIRED_ROLES == ("imu", "velocity", "heading", "rudder_angle", "engine_rpm")
-    assert state_fields()["rudder_angle"] == ("delta",) and state_fields()["engine_rpm"] == ("rpm",)
+    assert state_fields()["rudder_angle"] == ("delta",)
+    assert state_fields()["engine_rpm"] == ("rpm",)
     assert load_vessel("jari_usv").actuator_layout is DEFAULT_LAYOUT
 
 
@@ -74,10 +77,12 @@ def test_a_layout_with_three_controls_flows_through_features_and_the_learned_rol
     state = np.column_stack([rng.normal(5, 1, n), rng.normal(0, .3, n), rng.normal(0, .1, n), rng.uniform(-9, 9, n)])
     controls = np.column_stack([rng.normal(0, .3, n), rng.normal(650, 30, n), rng.normal(0, 100, n)])
     x = features("NTF", state, controls, THREE)
-    assert x.shape == (n, 8) and np.array_equal(x[:, 5], controls[:, 2])
+    assert x.shape == (n, 8)
+    assert np.array_equal(x[:, 5], controls[:, 2])
     y = state[:, :3] + rng.normal(0, .05, (n, 3))
     config = DnnConfig.for_features("NTF", THREE, width=8)
-    assert config.layout == "test_three" and config.n_features == 8
+    assert config.layout == "test_three"
+    assert config.n_features == 8
     torch.manual_seed(0)
     model = DnnModel(config, fit_normalisation(x, y, True)).double().eval()
     # the folded rollout of this layout reproduces the eager network step by step
@@ -100,25 +105,32 @@ def test_twin_thrusters_turn_with_the_thrust_difference():
     """port = p + d/2, starboard = p - d/2 (clipped to [-1, 1]); the steering signal is port - starboard (+ turns
     to starboard, the port thruster sits at y = -b/2), the propulsion the mean."""
     twin = actuator_layout("twin_thrusters")
-    assert twin.control_names == ("port", "starboard") and twin.roles == ("thruster_port", "thruster_starboard")
+    assert twin.control_names == ("port", "starboard")
+    assert twin.roles == ("thruster_port", "thruster_starboard")
     assert twin.to_commands(0.4, 0.6) == pytest.approx((0.8, 0.4))
-    assert twin.to_commands(2.0, 0.0) == (1.0, -1.0) and twin.to_commands(0.6, 0.9) == pytest.approx((1.0, 0.6))
+    assert twin.to_commands(2.0, 0.0) == (1.0, -1.0)
+    assert twin.to_commands(0.6, 0.9) == pytest.approx((1.0, 0.6))
     commands = np.array([twin.to_commands(0.4, 0.6), twin.to_commands(-0.3, 0.5)])
     assert twin.steering_signal(commands) == pytest.approx([0.4, -0.3])
     assert twin.propulsion_signal(commands) == pytest.approx([0.6, 0.5])
-    assert twin.reported_commands == ("port", "starboard") and DEFAULT_LAYOUT.reported_commands == ()
+    assert twin.reported_commands == ("port", "starboard")
+    assert DEFAULT_LAYOUT.reported_commands == ()
 
 
 def test_rudder_only_reports_no_propulsion_and_every_layout_can_be_simulated():
     only = actuator_layout("rudder_only")
-    assert only.control_names == ("delta",) and only.commands == ("delta", "rpm")
+    assert only.control_names == ("delta",)
+    assert only.commands == ("delta", "rpm")
     assert only.propulsion_signal(np.zeros((5, 1))).tolist() == [0.0] * 5  # nothing reported: a constant level
     assert required_roles(only) == ("imu", "velocity", "heading", "rudder_angle")
     assert actuator_layout("rudder_throttle").control_names == ("delta", "throttle")
     for layout in ACTUATOR_LAYOUTS.values():
         assert len(layout.to_commands(0.1, 0.5)) == len(layout.commands) == 2
-        assert set(layout.control_names) <= set(layout.commands) and layout.sections and layout.supports
-        assert layout.turn_input is not None and layout.propulsion_input is not None
+        assert set(layout.control_names) <= set(layout.commands)
+        assert layout.sections
+        assert layout.supports
+        assert layout.turn_input is not None
+        assert layout.propulsion_input is not None
 
 
 def test_a_vessel_leaves_the_control_roles_of_other_layouts_alone():

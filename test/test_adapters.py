@@ -231,7 +231,8 @@ def test_navsatfix_without_fix_is_nan() -> None:
 def test_nan_passes_through_decode() -> None:
     adapter = get_adapter("velocity", "geometry_msgs/msg/TwistStamped")
     _, (u, v, r) = adapter.decode(adapter.encode(0, (math.nan, 1.0, 0.0), FACTORIES["rclpy"]))
-    assert math.isnan(u) and v == pytest.approx(1.0)
+    assert math.isnan(u)
+    assert v == pytest.approx(1.0)
 
 
 def test_wrong_message_type_names_type_and_field() -> None:
@@ -331,7 +332,8 @@ def test_output_messages_round_trip_and_conventions(factory: str) -> None:
     first = path.poses[0].pose
     assert (first.position.x, first.position.y) == pytest.approx((2.0, 1.0))  # ENU = (east, north)
     assert (first.orientation.z, first.orientation.w) == pytest.approx((0.0, 1.0))  # heading east = yaw 0
-    assert path.header.frame_id == "odom" and path.poses[2].header.frame_id == "odom"
+    assert path.header.frame_id == "odom"
+    assert path.poses[2].header.frame_id == "odom"
     decoded_t, decoded_eta = decode_path(path)
     np.testing.assert_array_equal(decoded_t, t_ns)
     np.testing.assert_allclose(decoded_eta, eta, atol=1e-12)
@@ -399,7 +401,8 @@ def test_registry_covers_every_role() -> None:
         ({"units": "rad_per_s", "full_scale": 100.0}, 50.0, 0.5),
         ({"units": "newton", "full_scale": 250.0, "reverse_full_scale": 100.0}, -100.0, -1.0),  # VRX clamps
         ({"units": "newton", "full_scale": 119.682, "exponent": 2.0}, 119.682 / 4.0, 0.5),  # Otter: T ~ c|c|
-        ({"units": "newton", "full_scale": 119.682, "reverse_full_scale": 66.708, "exponent": 2.0}, -66.708 / 4.0, -0.5),
+        ({"units": "newton", "full_scale": 119.682, "reverse_full_scale": 66.708, "exponent": 2.0}, -66.708 / 4.0,
+         -0.5),
     ],
 )
 def test_command_units_by_hand(options: dict, raw: float, command: float) -> None:
@@ -439,14 +442,17 @@ def test_command_refusals_name_the_likely_mistake(role: str, ros_type: str, opti
 def test_command_refusal_counts_samples_and_nan_passes() -> None:
     adapter = get_adapter("thruster_port", "std_msgs/msg/Float64", units="pwm")
     _, (c,) = adapter.decode(SimpleNamespace(data=np.array([1500.0, np.nan, 2000.0])))
-    assert c[0] == 0.0 and math.isnan(c[1]) and c[2] == 1.0
+    assert c[0] == 0.0
+    assert math.isnan(c[1])
+    assert c[2] == 1.0
     assert adapter.decode(SimpleNamespace(data=2100.0))[1] == (pytest.approx(1.2),)  # at the limit: accepted
     with pytest.raises(AdapterError, match=r"= 2200 .*\(2 of 4 samples\)"):
         adapter.decode(SimpleNamespace(data=np.array([1500.0, 2200.0, 800.0, 1600.0])))
 
 
 def test_command_option_errors() -> None:
-    with pytest.raises(AdapterError, match=r"units rpm need the option full_scale \(a shaft speed in rpm at full ahead\)"):
+    with pytest.raises(AdapterError,
+                       match=r"units rpm need the option full_scale \(a shaft speed in rpm at full ahead\)"):
         get_adapter("throttle", "std_msgs/msg/Float64", units="rpm")
     with pytest.raises(AdapterError, match=r"units='us'.*'pwm'"):
         get_adapter("throttle", "std_msgs/msg/Float64", units="us")
@@ -494,7 +500,9 @@ def test_joint_state_thrusters_fields_and_units(factory: str) -> None:
                  {"joint": "right_prop", "units": "rad_per_s", "full_scale": 150.0, "reverse_full_scale": 100.0})
     msg = msg_adapters.encode_shared(pair, T_NS, [(0.4,), (-0.5,)], make, "base_link")
     assert list(msg.name) == ["left_prop", "right_prop"]
-    assert list(msg.velocity) == pytest.approx([60.0, -50.0]) and len(msg.position) == 0 and len(msg.effort) == 0
+    assert list(msg.velocity) == pytest.approx([60.0, -50.0])
+    assert len(msg.position) == 0
+    assert len(msg.effort) == 0
     assert [a.decode(msg) for a in pair] == [(T_NS, (pytest.approx(0.4),)), (T_NS, (pytest.approx(-0.5),))]
     effort = get_adapter("throttle", ros_type, joint="engine", field="effort", units="percent")
     header = make("std_msgs/msg/Header")(stamp=make("builtin_interfaces/msg/Time")(sec=1, nanosec=0), frame_id="")
@@ -513,7 +521,8 @@ def test_wrench_mixing_by_hand(ros_type: str) -> None:
         wrench=wrench)
     # torque.z -0.2 (FLU: clockwise from above) asks to turn to starboard: yaw y = +0.2, port = s + y
     port, starboard = _pair(ros_type, {}, {})
-    assert port.decode(msg)[1] == (pytest.approx(0.7),) and starboard.decode(msg)[1] == (pytest.approx(0.3),)
+    assert port.decode(msg)[1] == (pytest.approx(0.7),)
+    assert starboard.decode(msg)[1] == (pytest.approx(0.3),)
     flipped = _pair(ros_type, {"sign": -1}, {"sign": -1})  # a driver whose torque.z + turns to starboard
     assert [a.decode(msg)[1][0] for a in flipped] == pytest.approx([0.3, 0.7])
     scaled = _pair(ros_type, {"surge_full_scale": 200.0, "yaw_full_scale": 50.0},
@@ -546,7 +555,8 @@ def test_check_shared_refuses_roles_that_cannot_share_a_topic() -> None:
         msg_adapters.check_shared("thrusters", _pair("std_msgs/msg/Float64MultiArray", {"index": 0}, {"index": 0}))
     with pytest.raises(AdapterError, match=r"different types"):
         msg_adapters.check_shared("thrusters", [get_adapter("thruster_port", "std_msgs/msg/Float64MultiArray", index=0),
-                                                get_adapter("thruster_starboard", "sensor_msgs/msg/JointState", joint="r")])
+                                                get_adapter("thruster_starboard", "sensor_msgs/msg/JointState",
+                                                            joint="r")])
     with pytest.raises(AdapterError, match=r"same message options.*surge_full_scale"):
         msg_adapters.check_shared("cmd", _pair("geometry_msgs/msg/Wrench", {}, {"yaw_full_scale": 2.0}))
     msg_adapters.check_shared("cmd", _pair("geometry_msgs/msg/Wrench", {}, {}))  # these can

@@ -92,7 +92,8 @@ def _export(path: Path, members: list[DnnModel], **kwargs) -> object:
 
 @pytest.mark.parametrize("feature_set", sorted(FEATURE_SETS))
 @pytest.mark.parametrize("activation, increment", [("tanh", True), ("clipped_relu", True), ("tanh", False)])
-def test_rollout_equals_step_by_step_reference(tmp_path: Path, feature_set: str, activation: str, increment: bool) -> None:
+def test_rollout_equals_step_by_step_reference(tmp_path: Path, feature_set: str, activation: str,
+                                               increment: bool) -> None:
     members = [_member(feature_set, seed, activation, increment) for seed in (1, 2)]
     artifact = _export(tmp_path / "m.pt", members, dtype="float64")
     state, controls = _inputs()
@@ -124,8 +125,10 @@ def _constant_motion_model(u: float, increment: bool) -> DnnModel:
 
 
 @pytest.mark.parametrize("increment", [True, False])
-@pytest.mark.parametrize("psi_deg, direction", [(0.0, (1.0, 0.0)), (90.0, (0.0, 1.0)), (-135.0, (-0.5 ** 0.5, -0.5 ** 0.5))])
-def test_straight_line_kinematics(tmp_path: Path, increment: bool, psi_deg: float, direction: tuple[float, float]) -> None:
+@pytest.mark.parametrize("psi_deg, direction",
+                         [(0.0, (1.0, 0.0)), (90.0, (0.0, 1.0)), (-135.0, (-0.5 ** 0.5, -0.5 ** 0.5))])
+def test_straight_line_kinematics(tmp_path: Path, increment: bool, psi_deg: float,
+                                  direction: tuple[float, float]) -> None:
     u = 4.0
     artifact = _export(tmp_path / "m.pt", [_constant_motion_model(u, increment)], dtype="float64")
     psi = math.radians(psi_deg)
@@ -154,17 +157,26 @@ def test_metadata_round_trip(tmp_path: Path) -> None:
                        horizon_steps=60)
     meta = load_artifact(tmp_path / "m.pt").metadata
     assert set(REQUIRED_KEYS) <= set(meta)
-    assert meta["format"] == FORMAT and meta["model_type"] == "dnn"
-    assert meta["feature_set"] == "NAF" and meta["feature_names"] == list(FEATURE_SETS["NAF"])
-    assert meta["state_layout"] == ["u", "v", "r", "psi"] and meta["control_layout"] == ["delta", "rpm"]
+    assert meta["format"] == FORMAT
+    assert meta["model_type"] == "dnn"
+    assert meta["feature_set"] == "NAF"
+    assert meta["feature_names"] == list(FEATURE_SETS["NAF"])
+    assert meta["state_layout"] == ["u", "v", "r", "psi"]
+    assert meta["control_layout"] == ["delta", "rpm"]
     assert meta["output_layout"] == ["u", "v", "r", "x_n", "y_e", "psi"]
-    assert meta["dt"] == DT and meta["horizon_steps"] == 60 and meta["vessel"] == "jari_usv"
-    assert meta["ensemble_size"] == 2 and meta["software_version"] == usv_predictor.__version__
-    assert meta["training_data_sha256"] == "ab" * 32 and meta["training"]["best_epoch"] == [7, 9]
+    assert meta["dt"] == DT
+    assert meta["horizon_steps"] == 60
+    assert meta["vessel"] == "jari_usv"
+    assert meta["ensemble_size"] == 2
+    assert meta["software_version"] == usv_predictor.__version__
+    assert meta["training_data_sha256"] == "ab" * 32
+    assert meta["training"]["best_epoch"] == [7, 9]
     assert DnnConfig.from_dict(meta["architecture"]) == members[0].config
     np.testing.assert_allclose(meta["normalisation"]["feature_std"], members[0].x_std.numpy(), rtol=1e-6)
-    assert meta["normalisation"]["target"] == "increment" and meta["units"]["dt"] == "s"
-    assert len(meta["model_id"]) == 16 and meta["model_id"] == artifact.model_id
+    assert meta["normalisation"]["target"] == "increment"
+    assert meta["units"]["dt"] == "s"
+    assert len(meta["model_id"]) == 16
+    assert meta["model_id"] == artifact.model_id
     again = _export(tmp_path / "again.pt", members, training={"best_epoch": [7, 9], "val_loss": [0.1, 0.2]},
                     horizon_steps=60)
     assert again.model_id == artifact.model_id  # same weights and metadata: same id (created_utc left out)
@@ -261,5 +273,7 @@ def test_loads_with_torch_only_in_a_subprocess(tmp_path: Path) -> None:
                           timeout=120, check=False)
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
-    assert result["imported"] == [] and result["format"] == FORMAT and result["dt"] == DT
+    assert result["imported"] == []
+    assert result["format"] == FORMAT
+    assert result["dt"] == DT
     np.testing.assert_allclose(np.array(result["out"]), expected, rtol=1e-6, atol=1e-6)

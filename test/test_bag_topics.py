@@ -17,7 +17,8 @@ from usv_predictor.replay.recordings import bag_metadata, load_recordings
 
 
 def test_names_resolve_in_the_root_namespace() -> None:
-    assert absolute_topic("imu/data") == "/imu/data" and absolute_topic("/imu/data") == "/imu/data"
+    assert absolute_topic("imu/data") == "/imu/data"
+    assert absolute_topic("/imu/data") == "/imu/data"
     assert resolve_topic("imu/data", ["/imu/data", "/velocity"]) == "/imu/data"
     assert resolve_topic("/imu/data", ["imu/data"]) == "imu/data"
     assert resolve_topic("imu/data", ["imu/data", "/imu/data"]) == "imu/data"  # the exact name first
@@ -45,8 +46,10 @@ def test_a_bag_with_fully_qualified_topics_reads_like_the_relative_one(bags) -> 
     [a] = load_recordings([absolute], 0.5, warn=warnings.append)
     [r] = load_recordings([relative], 0.5)
     assert warnings == []  # nothing missing: not even the optional GNSS and ground truth
-    assert np.array_equal(a.nu, r.nu) and np.array_equal(a.controls, r.controls)
-    assert a.truth is not None and np.array_equal(a.position, r.position, equal_nan=True)
+    assert np.array_equal(a.nu, r.nu)
+    assert np.array_equal(a.controls, r.controls)
+    assert a.truth is not None
+    assert np.array_equal(a.position, r.position, equal_nan=True)
 
 
 def test_replay_dataset_reads_qualified_topics(bags, tmp_path: Path, capsys) -> None:
@@ -91,4 +94,6 @@ def test_identify_reads_the_topics_of_its_config(bags, tmp_path: Path, capsys) -
     code = cli.main(["identify", str(absolute), "--vessel", "jari_usv", "--prior", "fix", "--config", str(path),
                      "--output", str(tmp_path / "m.pt")])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and "'propulsion/rpm'" in err[-1] and "/engine_rpm" in err[-1], err[-1]
+    assert code == 2, err[-1]
+    assert "'propulsion/rpm'" in err[-1], err[-1]
+    assert "/engine_rpm" in err[-1], err[-1]

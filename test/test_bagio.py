@@ -114,7 +114,8 @@ def test_round_trip_all_roles(tmp_path: Path, storage: str, compress: bool) -> N
         expected = written.values.copy()
         if spec.role == "gnss":
             expected[~np.isfinite(expected).all(axis=1)] = np.nan  # a NaN anywhere means "no fix"
-        np.testing.assert_allclose(read.values, expected, rtol=1e-6 if atol > 1e-9 else 0, atol=atol, err_msg=spec.topic)
+        np.testing.assert_allclose(read.values, expected, rtol=1e-6 if atol > 1e-9 else 0, atol=atol,
+                                   err_msg=spec.topic)
 
 
 def test_anyreader_sees_types_counts_and_global_time_order(small_bag) -> None:
@@ -214,7 +215,8 @@ def test_wrong_type_names_topic_expected_and_found(small_bag) -> None:
 def test_adapter_problems_name_the_topic(small_bag) -> None:
     path, _ = small_bag
     with pytest.raises(BagError, match=r"'joint_states/rudder'.*no joint 'steer'.*\['rudder_joint'\]"):
-        read_bag(path, [TopicSpec("joint_states/rudder", "rudder_angle", "sensor_msgs/msg/JointState", {"joint": "steer"})])
+        read_bag(path,
+                 [TopicSpec("joint_states/rudder", "rudder_angle", "sensor_msgs/msg/JointState", {"joint": "steer"})])
     with pytest.raises(BagError, match=r"topic 'heading'.*unknown option"):
         read_bag(path, [TopicSpec("heading", "heading", "std_msgs/msg/Float64", {"unit": "deg"})])
 
@@ -273,7 +275,7 @@ def test_bulk_read_equals_message_by_message_read(small_bag, monkeypatch: pytest
         np.testing.assert_array_equal(bulk[spec.topic].values, one_by_one[spec.topic].values)  # NaN-aware
 
 
-SHARED_TOPICS = {  # both thrusters on one topic: the conventions of issue 10
+SHARED_TOPICS = {  # both thrusters on one topic: the common conventions
     "std_msgs/msg/Float64MultiArray": ({"index": 0, "units": "pwm"}, {"index": 1, "units": "pwm"}),
     "sensor_msgs/msg/JointState": ({"joint": "left", "units": "rpm", "full_scale": 2000.0},
                                    {"joint": "right", "units": "rpm", "full_scale": 2000.0}),

@@ -125,7 +125,8 @@ def assert_matches(
             assert column.tolist() == values, where
         elif node == Nodetype.BASE:
             expected = np.array(values, dtype=PRIMITIVE_DTYPES[detail[0]])
-            assert column.dtype == expected.dtype and column.shape == (len(messages),), where
+            assert column.dtype == expected.dtype, where
+            assert column.shape == (len(messages),), where
             np.testing.assert_array_equal(rosbags_view(column), bits(expected), err_msg=where)
         else:
             expected = np.stack(values) if values else np.empty((0, detail[1]))

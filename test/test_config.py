@@ -128,7 +128,8 @@ def test_custom_file_with_frame_and_extra_input(tmp_path: Path) -> None:
     params["rate_hz"] = 20
     cfg = load_predictor_config(write_params(tmp_path, params))
     assert cfg.input("odometry").frame_id == "gps_antenna"
-    assert cfg.rate_hz == 20.0 and isinstance(cfg.rate_hz, float)
+    assert cfg.rate_hz == 20.0
+    assert isinstance(cfg.rate_hz, float)
     with pytest.raises(ConfigError, match="no input with role 'wind'"):
         cfg.input("wind")
 
@@ -232,14 +233,16 @@ def test_the_online_section_is_onlineconfigs_defaults_and_is_checked() -> None:
     from usv_predictor.fitting.online import OnlineConfig
 
     shipped = load_predictor_config()
-    assert shipped.online_enabled and set(shipped.online) == set(ONLINE_RANGES)
+    assert shipped.online_enabled
+    assert set(shipped.online) == set(ONLINE_RANGES)
     assert OnlineConfig(**shipped.online) == OnlineConfig()
     assert shipped.outputs["estimated_current"].ros_type == "geometry_msgs/msg/TwistWithCovarianceStamped"
     params = read_ros_parameters(default_config_path())
     without = {k: v for k, v in params.items() if k != "online"}
     without["outputs"] = {k: v for k, v in params["outputs"].items() if k != "estimated_current"}
     older = parse_predictor_config(without, "older.yaml")
-    assert older.online_enabled and dict(older.online) == {}
+    assert older.online_enabled
+    assert dict(older.online) == {}
     assert older.outputs["estimated_current"].topic == "estimated_current"
     for online, message in (({"enabled": "yes"}, r"online.enabled = 'yes' must be true or false"),
                             ({"current_noise": -1.0}, r"online.current_noise = -1.0 is out of range"),

@@ -53,26 +53,32 @@ def test_every_file_is_read_with_consistent_shapes(manoeuvres):
         assert n > 400, m.name
         for name in ("x_n", "y_e", "psi", "u", "v", "r", "delta"):
             values = getattr(m, name)
-            assert values.shape == (n,) and np.all(np.isfinite(values)), (m.name, name)
-        assert (m.t_s[0] == 0.0) != (m.kind == "pullout") and np.all(np.diff(m.t_s) > 0), m.name
+            assert values.shape == (n,), (m.name, name)
+            assert np.all(np.isfinite(values)), (m.name, name)
+        assert (m.t_s[0] == 0.0) != (m.kind == "pullout"), m.name
+        assert np.all(np.diff(m.t_s) > 0), m.name
         assert np.all(np.diff(convert.time_ns(m)) > 0), m.name
         assert np.all(np.abs(m.psi) <= math.pi), m.name
 
 
 def test_hsva_model_scale_units(manoeuvres):
     for m in (m for m in manoeuvres.values() if m.source == "hsva"):
-        assert m.scale.scale == "model" and m.scale.scale_factor == pytest.approx(45.714) and m.scale.L_pp_m == 7.0
+        assert m.scale.scale == "model"
+        assert m.scale.scale_factor == pytest.approx(45.714)
+        assert m.scale.L_pp_m == 7.0
         assert m.rate_hz == pytest.approx(20.0)
         speed = np.hypot(m.u, m.v)
         assert speed[0] == pytest.approx(1.18, abs=0.02)  # approach speed ~1.18 m/s (SOURCE.txt)
-        assert 0.6 < speed.min() and speed.max() < 1.25
+        assert 0.6 < speed.min()
+        assert speed.max() < 1.25
         assert np.allclose(m.rpm, 10.2295 * 60.0)  # propeller 10.23 rps
         assert np.max(np.abs(m.v)) < 0.25 * speed.max()  # body sway, not the earth-fixed dy/dt (up to 0.35 m/s)
 
 
 def test_marin_full_scale_units_and_rebuilt_time(manoeuvres):
     for m in (m for m in manoeuvres.values() if m.source == "marin"):
-        assert m.scale.scale == "full" and m.scale.L_pp_m == 320.0
+        assert m.scale.scale == "full"
+        assert m.scale.L_pp_m == 320.0
         np.testing.assert_allclose(m.t_s, np.arange(len(m.t_s)) * 0.13535)
         speed = np.hypot(m.u, m.v)
         assert np.median(speed[:50]) == pytest.approx(7.97, abs=0.2)
@@ -82,8 +88,10 @@ def test_marin_full_scale_units_and_rebuilt_time(manoeuvres):
 
 def test_fuzhou_speed_is_knots_and_no_rpm(manoeuvres):
     m = manoeuvres["fuzhou_zigzag_30"]
-    assert m.rpm is None and m.lat_deg is not None
-    assert m.rate_hz == pytest.approx(2.0) and m.duration_s == pytest.approx(209.5)
+    assert m.rpm is None
+    assert m.lat_deg is not None
+    assert m.rate_hz == pytest.approx(2.0)
+    assert m.duration_s == pytest.approx(209.5)
     assert "kn" in m.notes["speed_unit"]
     assert 0.4 < np.median(np.hypot(m.u, m.v)) < 0.8  # 1.0-1.3 knots over ground
 
@@ -173,9 +181,12 @@ def test_bag_round_trip(manoeuvres, tmp_path, name):
     np.testing.assert_allclose(y, m.y_e, atol=1e-3)
     assert ("engine_rpm" in signals) == (m.rpm is not None)
     meta = read_custom_data(bag)
-    assert meta["source"] == m.source and meta["scale"] == m.scale.scale
-    assert meta["conversion_version"] == convert.CONVERSION_VERSION and meta["source_file"] == m.path.name
-    assert float(meta["scale_factor"]) == m.scale.scale_factor and "licence" in meta
+    assert meta["source"] == m.source
+    assert meta["scale"] == m.scale.scale
+    assert meta["conversion_version"] == convert.CONVERSION_VERSION
+    assert meta["source_file"] == m.path.name
+    assert float(meta["scale_factor"]) == m.scale.scale_factor
+    assert "licence" in meta
 
 
 def test_cli_converts_and_refuses_overwrite(raw_data_dir, tmp_path, capsys):
@@ -186,7 +197,8 @@ def test_cli_converts_and_refuses_overwrite(raw_data_dir, tmp_path, capsys):
     summary = json.loads(result.read_text())
     assert [b["manoeuvre"] for b in summary["bags"]] == ["fuzhou_zigzag_30", "hsva_z_10_10_p"]
     hsva = summary["bags"][1]
-    assert hsva["rate_hz"] == pytest.approx(20.0) and hsva["rpm"] == [pytest.approx(613.77)] * 2
+    assert hsva["rate_hz"] == pytest.approx(20.0)
+    assert hsva["rpm"] == [pytest.approx(613.77)] * 2
     assert summary["bags"][0]["rpm"] is None
     assert (out / "hsva_z_10_10_p" / "metadata.yaml").is_file()
     assert "[2/2]" in capsys.readouterr().err
@@ -203,7 +215,8 @@ def _turn(n: int, dt: float, speed: float, rate_deg_s: float):
     t = np.arange(n) * dt
     w = math.radians(rate_deg_s)
     psi = w * t
-    return t, speed / w * np.sin(psi), speed / w * (1.0 - np.cos(psi)), np.degrees(psi), speed * np.cos(psi), speed * np.sin(psi)
+    return (t, speed / w * np.sin(psi), speed / w * (1.0 - np.cos(psi)), np.degrees(psi), speed * np.cos(psi),
+            speed * np.sin(psi))
 
 
 def _hsva_text(n: int = 200) -> str:
@@ -211,7 +224,8 @@ def _hsva_text(n: int = 200) -> str:
     delta = np.where(t < 1.0, 0.0, -10.0)  # file convention: negative = starboard
     rows = [" ".join(f"{v:18.9f}" for v in (t[i], x[i], y[i], psi[i], ue[i], ve[i], 2.0, 0.05, delta[i], 10.2295,
                                             41.0, 1.02)) for i in range(n)]
-    return "\n".join([" HSVA, experimental data CPMC", " KVLCC2", " Z10°/5°", " Time series of motions", *rows]) + "\n"
+    head = [" HSVA, experimental data CPMC", " KVLCC2", " Z10°/5°", " Time series of motions"]
+    return "\n".join([*head, *rows]) + "\n"
 
 
 def _write(path: Path, text: str, encoding: str = "cp1252") -> Path:
@@ -221,7 +235,8 @@ def _write(path: Path, text: str, encoding: str = "cp1252") -> Path:
 
 def test_synthetic_hsva_reads(tmp_path):
     m = convert.read_hsva(_write(tmp_path / "HSVA_CPMC_KVLCC2_Z_10_05.dat", _hsva_text()))
-    assert m.name == "hsva_z_10_05" and m.first_side == "starboard"
+    assert m.name == "hsva_z_10_05"
+    assert m.first_side == "starboard"
     np.testing.assert_allclose(m.r, math.radians(2.0))
     np.testing.assert_allclose(m.u, 1.18, atol=1e-6)
     np.testing.assert_allclose(m.v, 0.0, atol=1e-6)
@@ -266,13 +281,16 @@ def _marin_text(n: int = 600, first: float = 10.0, file_delta: float | None = No
     delta = np.where(t < 5.0, 0.0, first if file_delta is None else file_delta)
     cols = [t, x, y, 0.1 + 0 * t, psi, ue, ve, 0 * t, 0.3 + 0 * t, delta, 91.5 + 0 * t]
     rows = ["\t".join(f"{c[i]:.2E}" for c in cols) for i in range(n)]
-    head = ["MARIN(Maritime Research Institute Netherlands)", f"Zig-zag manoeuvring for KVLCC2 : {first:g} / {-first:g}", ""]
+    head = ["MARIN(Maritime Research Institute Netherlands)",
+            f"Zig-zag manoeuvring for KVLCC2 : {first:g} / {-first:g}", ""]
     return "\n".join([*head, *rows, "\t" * 10, "\t" * 10]) + "\n"
 
 
 def test_synthetic_marin_reads_and_checks_the_time_column(tmp_path):
     [m] = convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat", _marin_text()))
-    assert m.name == "marin_zz_10_10_p" and m.first_side == "port" and m.kind == "zigzag"
+    assert m.name == "marin_zz_10_10_p"
+    assert m.first_side == "port"
+    assert m.kind == "zigzag"
     np.testing.assert_allclose(m.u, 7.97, atol=0.02)
     lines = _marin_text().splitlines()
     cells = lines[103].split("\t")
@@ -282,7 +300,8 @@ def test_synthetic_marin_reads_and_checks_the_time_column(tmp_path):
         convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat", "\n".join(lines)))
     lines = _marin_text().splitlines()
     with pytest.raises(DatasetError, match=r":204: empty row inside the data"):
-        convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat", "\n".join(lines[:203] + [""] + lines[203:])))
+        convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat",
+                                  "\n".join(lines[:203] + [""] + lines[203:])))
     with pytest.raises(DatasetError, match="title says first rudder 10 .* goes starboard first"):
         convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_zz_10_m.dat",
                                   _marin_text(file_delta=-10.0)))
@@ -311,7 +330,8 @@ def _marin_turn_text(first: float = 35.0, pullout: bool = True, title: str | Non
     cols = [t, x, y, 0.1 + 0 * t, psi, ue, ve, 0 * t, r, file_delta - 0.5, 91.5 + 0 * t]
     rows = ["\t".join(f"{c[i]:.2E}" for c in cols) for i in range(n)]
     what = "Turning / Pull-out" if pullout else "Turning"
-    head = ["MARIN(Maritime Research Institute Netherlands)", title or f"{what} manoeuvring for KVLCC2 : {first:g} (deg)", ""]
+    head = ["MARIN(Maritime Research Institute Netherlands)",
+            title or f"{what} manoeuvring for KVLCC2 : {first:g} (deg)", ""]
     return "\n".join([*head, *rows, "\t" * 10, "\t" * 2]) + "\n"
 
 
@@ -320,10 +340,13 @@ def test_marin_turning_pullout_is_split_into_a_turning_circle_and_a_pullout(tmp_
     turn, pullout = convert.read_marin(path)
     assert (turn.name, turn.kind, pullout.name, pullout.kind) == (
         "marin_tc_35_p", "turning_circle", "marin_tc_35_p_pullout", "pullout")
-    assert turn.first_side == "port" and turn.rudder_amplitude_deg == 35.0
+    assert turn.first_side == "port"
+    assert turn.rudder_amplitude_deg == 35.0
     # the split is the last row of the hold: the turn ends on it, the pull-out starts on it (one shared row)
-    assert len(turn.t_s) + len(pullout.t_s) - 1 == 2900 and pullout.t_s[0] == turn.t_s[-1]
-    assert turn.t_s[0] == 0.0 and 329.0 < pullout.t_s[0] < 331.0
+    assert len(turn.t_s) + len(pullout.t_s) - 1 == 2900
+    assert pullout.t_s[0] == turn.t_s[-1]
+    assert turn.t_s[0] == 0.0
+    assert 329.0 < pullout.t_s[0] < 331.0
     hold = np.degrees(turn.delta[-1])
     assert hold == pytest.approx(-34.5, abs=0.35)  # file +35 to port about its -0.5 deg neutral; 1 ramp step: 0.32 deg
     assert np.degrees(pullout.delta[0]) == pytest.approx(hold, abs=1.0)
@@ -332,9 +355,11 @@ def test_marin_turning_pullout_is_split_into_a_turning_circle_and_a_pullout(tmp_
     psi = np.degrees(np.unwrap(turn.psi))
     assert -360.0 < psi[-1] - psi[0] < -340.0
     meta = convert.custom_data(turn)
-    assert meta["manoeuvre_type"] == "turning_circle" and "zigzag" not in meta
+    assert meta["manoeuvre_type"] == "turning_circle"
+    assert "zigzag" not in meta
     info = json.loads(meta["turning_circle"])
-    assert info["side"] == "port" and info["execute_s"] == pytest.approx(20.0, abs=0.3)
+    assert info["side"] == "port"
+    assert info["execute_s"] == pytest.approx(20.0, abs=0.3)
     assert json.loads(convert.custom_data(pullout)["pullout"])["execute_s"] == pytest.approx(pullout.t_s[0])
     assert convert.custom_data(pullout)["manoeuvre_type"] == "pullout"
 
@@ -376,7 +401,8 @@ def test_marin_turn_bad_input(tmp_path, title, pullout, name, message):
 
 def test_marin_turning_without_pullout_is_one_turning_circle(tmp_path):
     [turn] = convert.read_marin(_write(tmp_path / "MARIN_FREE_KVLCC2_tc_35_m.dat", _marin_turn_text(pullout=False)))
-    assert turn.kind == "turning_circle" and len(turn.t_s) == 2900
+    assert turn.kind == "turning_circle"
+    assert len(turn.t_s) == 2900
 
 
 FUZHOU_HEADER = "time,lon,lat,speed,heading,rudder,delta,psi,x0,y0"
@@ -395,7 +421,8 @@ def _fuzhou_text(speed_factor: float = 1.0 / convert.KNOT, n: int = 120, drop: s
 def test_fuzhou_speed_unit_detection_and_bad_input(tmp_path):
     path = tmp_path / "zigzag_30_inter_xy.csv"
     m = convert.read_fuzhou(_write(path, _fuzhou_text(), "utf-8"))
-    assert m.name == "fuzhou_zigzag_30" and "kn" in m.notes["speed_unit"]
+    assert m.name == "fuzhou_zigzag_30"
+    assert "kn" in m.notes["speed_unit"]
     np.testing.assert_allclose(np.median(m.u), 0.6, atol=0.01)
     np.testing.assert_allclose(m.r[2:-2], math.radians(3.0), rtol=1e-3)
     assert "m/s" in convert.read_fuzhou(_write(path, _fuzhou_text(speed_factor=1.0), "utf-8")).notes["speed_unit"]
@@ -449,20 +476,25 @@ def test_dalian_positions_time_and_the_circle(dalian):
     """x/y are not metres and t is not time (twin_thruster_research.md sec. 3.6): from lon/lat and DateTime the
     circle's radius is the 22.5 m the path implies (25 logged units / 1.1117), at the Speed column's speed."""
     circle, sine = dalian["dalian_circle"], dalian["dalian_sine"]
-    assert circle.duration_s == pytest.approx(257.764, abs=0.05) and sine.duration_s == pytest.approx(167.974, abs=0.05)
+    assert circle.duration_s == pytest.approx(257.764, abs=0.05)
+    assert sine.duration_s == pytest.approx(167.974, abs=0.05)
     for m in (circle, sine):
-        assert "1.1117" in m.notes["positions"] and "not time" in m.notes["time"]
+        assert "1.1117" in m.notes["positions"]
+        assert "not time" in m.notes["time"]
         assert 0.2 < m.fix.mean() < 0.27  # a fix every ~0.22 s on the 0.05 s grid
         assert 0.5 < int(m.notes["fixes"].split(" of ")[0]) / int(m.notes["fixes"].split(" of ")[1].split()[0]) < 0.6
-        assert np.all(np.isfinite(m.x_n[m.fix])) and np.all(np.isnan(m.x_n[~m.fix]))
+        assert np.all(np.isfinite(m.x_n[m.fix]))
+        assert np.all(np.isnan(m.x_n[~m.fix]))
         assert np.all(np.isfinite(np.column_stack([m.u, m.v, m.r])))
         for c in m.thrusters:
-            assert -1.0 <= c.min() and c.max() <= 1.0
+            assert -1.0 <= c.min()
+            assert c.max() <= 1.0
     steady = circle.fix & (circle.t_s > 40.0)
     fit = metrics.steady_turning_radius(circle.t_s[steady], circle.x_n[steady], circle.y_e[steady],
                                         np.unwrap(circle.psi[steady]), start_change_deg=0.0,
                                         drift_velocity_mps=(0.0, 0.0), refine_drift=False)
-    assert fit.radius_m == pytest.approx(22.5, abs=0.5) and fit.rms_residual_m < 0.2
+    assert fit.radius_m == pytest.approx(22.5, abs=0.5)
+    assert fit.rms_residual_m < 0.2
     u, r = np.median(circle.u[circle.t_s > 40.0]), np.median(circle.r[circle.t_s > 40.0])
     assert u == pytest.approx(0.678, abs=0.02)  # m/s, the Speed column's steady value
     # the smoothed u and r describe the same circle within 10 %: the heading turns ~5 % faster than the track
@@ -480,7 +512,8 @@ def test_dalian_port_is_pwm_l_and_turns_to_starboard(dalian):
     assert psi[-1] - psi[0] > math.radians(500.0)  # +556 deg in 258 s: a turn to starboard
     late = circle.t_s > 40.0
     port, starboard = circle.thrusters
-    assert np.median(port[late] - starboard[late]) > 0.0 and np.median(circle.r[late]) > 0.0
+    assert np.median(port[late] - starboard[late]) > 0.0
+    assert np.median(circle.r[late]) > 0.0
     for m in dalian.values():
         difference = m.thrusters[0] - m.thrusters[1]
         assert np.corrcoef(m.r, difference)[0, 1] > 0.5, m.name
@@ -498,17 +531,22 @@ def test_dalian_bag_round_trip(dalian, tmp_path):
     signals = convert.to_signals(m)
     assert set(signals) == {"imu", "velocity", "heading", "gnss", "thruster_port", "thruster_starboard"}
     back = read_bag(bag, [specs[role] for role in signals])
-    assert len(back[specs["gnss"].topic]) == int(m.fix.sum()) and len(back[specs["heading"].topic]) == len(m.t_s)
+    assert len(back[specs["gnss"].topic]) == int(m.fix.sum())
+    assert len(back[specs["heading"].topic]) == len(m.t_s)
     np.testing.assert_allclose(back[specs["thruster_port"].topic].values[:, 0], m.thrusters[0], atol=1e-12)
     np.testing.assert_allclose(back[specs["velocity"].topic].values, np.column_stack([m.u, m.v, m.r]), atol=1e-9)
     meta = read_custom_data(bag)
-    assert meta["source"] == "dalian" and "MIT" in meta["licence"] and "zigzag" not in meta
+    assert meta["source"] == "dalian"
+    assert "MIT" in meta["licence"]
+    assert "zigzag" not in meta
     assert json.loads(meta["path_following"])["x(w)"] == "25*sin(0.05*w)"
     assert int(meta["epoch_ns"]) == convert.time_ns(m)[0]
     warnings = []
     recs = load_recordings([bag], 0.2, layout=actuator_layout("twin_thrusters"), warn=warnings.append)
     assert not [w for w in warnings if "gap" in w], warnings
-    assert len(recs) == 1 and recs[0].controls.shape[1] == 2 and recs[0].layout == "twin_thrusters"
+    assert len(recs) == 1
+    assert recs[0].controls.shape[1] == 2
+    assert recs[0].layout == "twin_thrusters"
     assert recs[0].duration_s == pytest.approx(m.duration_s, abs=0.5)
 
 
@@ -545,8 +583,8 @@ def _dalian_xlsx(path: Path, *, swap: bool = False, pwm_l: dict[int, float] | No
                "t": 0.1 * k, "Longitude": float(lon[j]), "Latitude": float(lat[j]), "x": 1.1117 * float(x[j]),
                "y": 1.1117 * float(y[j]), "Heading": heading, "course": heading, "Speed": speed,
                "PWM_L": int(left[k]), "PWM_R": int(right[k])}
-        row.update({"PWM_L": v for i, v in (pwm_l or {}).items() if i == k})
-        row.update({"DateTime": v for i, v in (stamp or {}).items() if i == k})
+        row.update({"PWM_L": v for i, v in (pwm_l or {}).items() if i == k})  # noqa: B035
+        row.update({"DateTime": v for i, v in (stamp or {}).items() if i == k})  # noqa: B035
         sheet.append([row[c] for c in columns if c != drop])
     book.create_sheet("Sheet2").append(["LongitudeStart", "LatitudeStart"])
     book["Sheet2"].append(["121.5343", "38.8658"])
@@ -557,7 +595,9 @@ def _dalian_xlsx(path: Path, *, swap: bool = False, pwm_l: dict[int, float] | No
 def test_synthetic_dalian_reads_and_refuses_bad_input(tmp_path):
     path = tmp_path / "boat1_2_circle.xlsx"
     m = convert.read_dalian(_dalian_xlsx(path))
-    assert m.name == "dalian_circle" and m.fix.sum() == 275 and "275 of 550 rows" in m.notes["fixes"]
+    assert m.name == "dalian_circle"
+    assert m.fix.sum() == 275
+    assert "275 of 550 rows" in m.notes["fixes"]
     late = m.t_s > 5.0
     np.testing.assert_allclose(np.hypot(m.u, m.v)[late], 0.7, atol=0.03)
     assert np.sqrt(np.mean((m.r - np.radians(2.0 + 1.5 * np.sin(2 * np.pi * m.t_s / 20.0)))[late] ** 2)) < 0.005

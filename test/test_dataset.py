@@ -45,7 +45,8 @@ def recordings() -> list[Recording]:
 
 def test_samples_pair_each_step_with_the_next_and_never_cross_recordings(recordings):
     X, Y, rec, step = make_samples(recordings, "NTF")  # noqa: N806
-    assert X.shape == (11 + 6 + 19 + 1, 7) and Y.shape == (37, 3)
+    assert X.shape == (11 + 6 + 19 + 1, 7)
+    assert Y.shape == (37, 3)
     for i in range(len(X)):
         r, k = recordings[rec[i]], step[i]
         assert 0 <= k < len(r) - 1  # the target step k + 1 is inside the same recording
@@ -59,7 +60,8 @@ def test_samples_pair_each_step_with_the_next_and_never_cross_recordings(recordi
 def test_split_is_by_manoeuvre_deterministic_and_disjoint():
     names = [f"bag_{k:02d}" for k in range(20)] + ["gappy#1", "gappy#2", "gappy#3"]
     split = split_by_manoeuvre(names, val_fraction=0.2, test_fraction=0.1, seed=7)
-    assert set(split) == set(names) and set(split.values()) == {"train", "val", "test"}
+    assert set(split) == set(names)
+    assert set(split.values()) == {"train", "val", "test"}
     manoeuvres = {manoeuvre_of(n) for n in names}
     assert len(manoeuvres) == 21
     assert sum(1 for m in manoeuvres if split.get(m, split.get(f"{m}#1")) == "val") == 4  # round(0.2 * 21)
@@ -107,17 +109,22 @@ def test_npz_round_trip_keeps_arrays_metadata_and_recordings(recordings, tmp_pat
     loaded = load_dataset(path)
     assert loaded.metadata == json.loads(json.dumps(dataset.metadata))
     meta = loaded.metadata
-    assert meta["format"] == FORMAT and meta["dt"] == DT and meta["feature_set"] == "NAF"
+    assert meta["format"] == FORMAT
+    assert meta["dt"] == DT
+    assert meta["feature_set"] == "NAF"
     assert meta["feature_names"] == ["u", "v", "r", "delta", "rpm", "psi"]
-    assert meta["target_names"] == ["u", "v", "r"] and meta["state_names"] == ["u", "v", "r", "psi"]
-    assert meta["control_names"] == ["delta", "rpm"] and meta["provenance"].startswith("replay dataset")
+    assert meta["target_names"] == ["u", "v", "r"]
+    assert meta["state_names"] == ["u", "v", "r", "psi"]
+    assert meta["control_names"] == ["delta", "rpm"]
+    assert meta["provenance"].startswith("replay dataset")
     assert [e["bag_sha256"] for e in meta["recordings"]] == ["ab" * 32, "", "", ""]
     for name in ARRAYS:
         assert np.array_equal(loaded.arrays[name], dataset.arrays[name], equal_nan=name.startswith("seq_"))
         assert loaded.arrays[name].dtype == dataset.arrays[name].dtype
     assert loaded.digest() == dataset.digest()
     for got, want in zip(loaded.recordings(), recordings, strict=True):
-        assert (got.name, got.source, got.t0_ns, got.dt, got.datum) == (want.name, want.source, want.t0_ns, want.dt, want.datum)
+        assert (got.name, got.source, got.t0_ns, got.dt, got.datum) == (want.name, want.source, want.t0_ns, want.dt,
+                                                                        want.datum)
         for field in ("t_s", "nu", "psi", "controls", "position"):
             assert np.array_equal(getattr(got, field), getattr(want, field), equal_nan=True)
         assert (got.truth is None) == (want.truth is None)
@@ -131,8 +138,10 @@ def test_split_selects_whole_recordings_with_their_samples(recordings):
     assert [r.name for r in train.recordings()] == ["zigzag_a", "random_c"]
     assert np.array_equal(np.bincount(train.arrays["sample_recording"]), [11, 19])
     X, Y, rec, step = make_samples(train.recordings(), "NAF")  # noqa: N806
-    assert np.array_equal(train.X, X) and np.array_equal(train.Y, Y)
-    assert np.array_equal(train.arrays["sample_recording"], rec) and np.array_equal(train.arrays["sample_step"], step)
+    assert np.array_equal(train.X, X)
+    assert np.array_equal(train.Y, Y)
+    assert np.array_equal(train.arrays["sample_recording"], rec)
+    assert np.array_equal(train.arrays["sample_step"], step)
     assert dataset.split_sizes() == {"train": {"recordings": 2, "samples": 30}, "val": {"recordings": 1, "samples": 6},
                                      "test": {"recordings": 1, "samples": 1}}
     assert train.digest() != dataset.digest()
@@ -142,7 +151,8 @@ def test_split_selects_whole_recordings_with_their_samples(recordings):
 
 def test_building_refuses_mixed_steps_repeated_names_and_missing_splits(recordings):
     with pytest.raises(DatasetError, match=r"different steps \[0.25, 0.5\]"):
-        build_dataset([recordings[0], _recording("fast", 5, 9, dt=0.25)], "F0", splits={"zigzag_a": "train", "fast": "train"})
+        build_dataset([recordings[0], _recording("fast", 5, 9, dt=0.25)], "F0",
+                      splits={"zigzag_a": "train", "fast": "train"})
     with pytest.raises(DatasetError, match=r"repeated: \['zigzag_a'\]"):
         build_dataset([recordings[0], recordings[0]], "F0", splits={"zigzag_a": "train"})
     with pytest.raises(DatasetError, match=r"no split .* for recording\(s\) \['turn_b'\]"):
@@ -167,8 +177,10 @@ def test_wrong_old_or_corrupt_files_are_named(recordings, tmp_path):
     with np.load(good) as npz:
         arrays = {k: npz[k] for k in npz.files}
     meta = json.loads(str(arrays["metadata"]))
-    np.savez_compressed(old, **dict(arrays, metadata=np.array(json.dumps(dict(meta, format="usv_predictor.dataset/0")))))
-    with pytest.raises(DatasetError, match=r"old\.npz: dataset format 'usv_predictor.dataset/0', expected 'usv_predictor.dataset/1'"):
+    np.savez_compressed(old,
+                        **dict(arrays, metadata=np.array(json.dumps(dict(meta, format="usv_predictor.dataset/0")))))
+    with pytest.raises(DatasetError,
+                       match=r"old\.npz: dataset format 'usv_predictor.dataset/0', expected 'usv_predictor.dataset/1'"):
         load_dataset(old)
     foreign = tmp_path / "foreign.npz"
     np.savez_compressed(foreign, x=np.zeros(3))
@@ -180,9 +192,11 @@ def test_wrong_old_or_corrupt_files_are_named(recordings, tmp_path):
         load_dataset(pickled)  # never unpickles
     shapes = tmp_path / "shapes.npz"
     np.savez_compressed(shapes, **dict(arrays, Y=arrays["Y"][:-1]))
-    with pytest.raises(DatasetError, match=r"shapes\.npz: inconsistent dataset: Y has shape \(36, 3\), expected \(37, 3\)"):
+    with pytest.raises(DatasetError,
+                       match=r"shapes\.npz: inconsistent dataset: Y has shape \(36, 3\), expected \(37, 3\)"):
         load_dataset(shapes)
-    assert zipfile.is_zipfile(good) and math.isfinite(load_dataset(good).dt)
+    assert zipfile.is_zipfile(good)
+    assert math.isfinite(load_dataset(good).dt)
 
 
 def test_an_unwritable_target_is_a_dataset_error(recordings, tmp_path):

@@ -16,7 +16,7 @@ from usv_predictor.analysis.diagnosis import (
     fit_hypothesis,
     make_segments,
     physical_parameters,
-    scripted_rollout,
+    compiled_rollout,
     withdraw_causes,
 )
 from usv_predictor.data.recording import Recording, recording_from_signals
@@ -45,11 +45,14 @@ def test_vectors_become_the_design_vocabulary():
     assert physical_parameters("current", {"current_ne": (0.0, 0.3)}) == pytest.approx(
         {"speed_mps": 0.3, "direction_to_deg": 90.0})
     wind = physical_parameters("wind", {"wind_ne": (-8.0, 0.0)})
-    assert wind["speed_mps"] == pytest.approx(8.0) and wind["direction_from_deg"] == pytest.approx(0.0)
+    assert wind["speed_mps"] == pytest.approx(8.0)
+    assert wind["direction_from_deg"] == pytest.approx(0.0)
     waves = physical_parameters("wave_drift", {"wave_ne": (0.0, 0.25)})  # zeta_a^2 = 0.25 -> H_s = 1 m from the east
     assert waves == pytest.approx({"significant_height_m": 1.0, "direction_from_deg": 90.0})
-    assert physical_parameters("rudder_offset", {"rudder_offset": (math.radians(2.0),)}) == pytest.approx({"offset_deg": 2.0})
-    assert physical_parameters("resistance", {"resistance_change": (0.2,)}) == pytest.approx({"resistance_change_pct": 20.0})
+    assert physical_parameters("rudder_offset",
+                               {"rudder_offset": (math.radians(2.0),)}) == pytest.approx({"offset_deg": 2.0})
+    assert physical_parameters("resistance",
+                               {"resistance_change": (0.2,)}) == pytest.approx({"resistance_change_pct": 20.0})
 
 
 def test_a_single_manoeuvre_is_refused():
@@ -75,7 +78,7 @@ def test_check_data_reads_turn_sides_through_the_layouts_steering_signal():
 def test_current_shows_as_a_steady_track_drift():
     recordings = trial(env=Environment(current_speed=0.3, current_to_deg=60.0))
     seg = make_segments(recordings)
-    found = discrepancy(scripted_rollout(VESSEL, 0.5), seg, recordings)
+    found = discrepancy(compiled_rollout(VESSEL, 0.5), seg, recordings)
     assert found["track_drift_speed_mps"] == pytest.approx(0.3, abs=0.05)
     assert found["track_drift_direction_to_deg"] == pytest.approx(60.0, abs=10.0)
 
@@ -92,7 +95,8 @@ def test_the_calm_water_model_can_come_from_an_identified_grey_box():
     from usv_predictor.models.greybox import hull_from_metadata
 
     identified = {"identification": {"structure": "mmg", "extra_terms": {},
-                                     "coefficients": [{"name": "R0", "estimate": 0.02}, {"name": "Y_v", "estimate": -0.3}]},
+                                     "coefficients": [{"name": "R0", "estimate": 0.02},
+                                                      {"name": "Y_v", "estimate": -0.3}]},
                   "architecture": {"residual": "ZeroResidual"}}
     assert hull_from_metadata(identified) == {"R0": 0.02, "Y_v": -0.3}
     exported = {"architecture": {"hull": {"R0": 0.03}}}  # `replay diagnose --export`
@@ -110,7 +114,7 @@ def test_a_diagnosis_run_builds_its_segments_and_grey_box_once_and_shares_them(m
     from usv_predictor.analysis.diagnosis_run import run_diagnosis
 
     recordings = trial(env=Environment(current_speed=0.3, current_to_deg=60.0))
-    built = {"make_segments": 0, "scripted_rollout": 0}
+    built = {"make_segments": 0, "compiled_rollout": 0}
     for name in built:
         original = getattr(dg, name)
 
@@ -120,10 +124,11 @@ def test_a_diagnosis_run_builds_its_segments_and_grey_box_once_and_shares_them(m
         monkeypatch.setattr(dg, name, counted)
     out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5, hypotheses=["current", "rudder_offset"], max_causes=1,
                         gain=False)
-    assert built == {"make_segments": 1, "scripted_rollout": 1}
-    assert out["cause"] == "current" and out["calm_water_model"] == {"vessel": VESSEL.name, "source": "preset"}
+    assert built == {"make_segments": 1, "compiled_rollout": 1}
+    assert out["cause"] == "current"
+    assert out["calm_water_model"] == {"vessel": VESSEL.name, "source": "preset"}
     monkeypatch.undo()
-    fresh = discrepancy(scripted_rollout(VESSEL, 0.5), make_segments(recordings), recordings)
+    fresh = discrepancy(compiled_rollout(VESSEL, 0.5), make_segments(recordings), recordings)
 
     def flat(d: dict) -> dict:
         return {f"{k}.{kk}": vv for k, v in d.items() for kk, vv in (v.items() if isinstance(v, dict) else [("", v)])}
@@ -184,7 +189,8 @@ def test_an_undefined_uncertainty_of_a_named_cause_is_written_as_null(monkeypatc
                          at_bound, ((recordings[0].name,), (recordings[1].name,)), "resistance named")
     monkeypatch.setattr(dg, "diagnose", lambda *args, **kwargs: named)
     written = json.loads(json_text(run_diagnosis(recordings, VESSEL, "preset", dt=0.5, gain=False)))
-    assert written["cause"] == "resistance" and written["parameters"] == {"resistance_change_pct": 300.0}
+    assert written["cause"] == "resistance"
+    assert written["parameters"] == {"resistance_change_pct": 300.0}
     assert written["uncertainty"] == {"resistance_change_pct": None}
 
 
@@ -203,8 +209,11 @@ def test_a_diverged_hypothesis_is_written_as_null_and_reported() -> None:
     with pytest.raises(OutputError, match="heldout_loss"):
         json_text({"evidence": [record]})  # the writer stays strict
     written = json.loads(json_text({"evidence": [_undefined_as_null(record)]}))["evidence"][0]
-    assert written["heldout_loss"] is None and written["gain_vs_none"] is None and written["evidence_of_best"] is None
-    assert written["evidence_vs_none"] == 1.5 and written["hypothesis"] == "wave_drift"
+    assert written["heldout_loss"] is None
+    assert written["gain_vs_none"] is None
+    assert written["evidence_of_best"] is None
+    assert written["evidence_vs_none"] == 1.5
+    assert written["hypothesis"] == "wave_drift"
     assert written["fold_parameters"] == [{"wave_height_m": None}, {"wave_height_m": 0.4}]
 
 
@@ -219,7 +228,9 @@ def test_a_calm_water_model_that_diverges_on_the_data_is_a_model_mismatch_not_an
     assert diverged_segments(_FakeRollout(seg.target, broken=True), seg) == len(seg)
     result = diagnose(recordings, VESSEL, segments=seg, rollout=_FakeRollout(seg.target, broken=True),
                       hypotheses=["current"])
-    assert result.cause == MODEL_MISMATCH and result.parameters == {} and result.hypotheses == ()
+    assert result.cause == MODEL_MISMATCH
+    assert result.parameters == {}
+    assert result.hypotheses == ()
     assert f"diverges (NaN/inf) on {len(seg)} of {len(seg)} segments" in result.mismatch_reasons[0]
     assert result.calm_water_fit.heldout_loss == math.inf
 
@@ -251,17 +262,22 @@ class _TrackVsLossRollout(torch.nn.Module):
 
 
 def test_a_cause_that_lowers_the_loss_but_not_the_track_is_inconclusive_not_a_mismatch():
-    """Issue 11: such a cause was answered model_mismatch with the remedy 'identify this boat first', wrong when the
+    """Such a cause was once answered model_mismatch with the remedy 'identify this boat first', wrong when the
     model fits. It is `inconclusive`: the candidate, its parameters and why it is not named."""
     from usv_predictor.analysis.diagnosis import INCONCLUSIVE, MODEL_MISMATCH
 
     recordings = trial(runs=diagnosis_runs()[:2])
     seg = make_segments(recordings)
     result = diagnose(recordings, VESSEL, segments=seg, rollout=_TrackVsLossRollout(seg, True), hypotheses=["current"])
-    assert result.cause == INCONCLUSIVE and result.parameters == {} and result.hypotheses == ()
-    assert result.candidate == "current" and result.candidate_parameters["speed_mps"] > 0.1
-    assert result.mismatch_reasons == () and "does not lower the held-out track error" in result.inconclusive_reasons[0]
-    assert result.message.startswith(f"{INCONCLUSIVE}: current (speed_mps") and "identify this boat" not in result.message
+    assert result.cause == INCONCLUSIVE
+    assert result.parameters == {}
+    assert result.hypotheses == ()
+    assert result.candidate == "current"
+    assert result.candidate_parameters["speed_mps"] > 0.1
+    assert result.mismatch_reasons == ()
+    assert "does not lower the held-out track error" in result.inconclusive_reasons[0]
+    assert result.message.startswith(f"{INCONCLUSIVE}: current (speed_mps")
+    assert "identify this boat" not in result.message
     top = next(e for e in result.evidence if e.hypothesis == "current")
     assert top.evidence_vs_none >= 5.0 and top.track_gain_vs_none < 0.0  # what makes it a candidate, and not named
     # the same term that also lowers the track error is named; withdrawn after a worse 30 s gain it is inconclusive
@@ -269,8 +285,11 @@ def test_a_cause_that_lowers_the_loss_but_not_the_track_is_inconclusive_not_a_mi
     assert named.cause == "current"
     rollout = _TrackVsLossRollout(seg, False)
     withdrawn = withdraw_causes(named, "the extension does not lower the 30 s error (1 -> 2 m)", rollout, seg)
-    assert withdrawn.cause == INCONCLUSIVE and withdrawn.cause != MODEL_MISMATCH and withdrawn.candidate == "current"
-    assert withdrawn.candidate_parameters == named.parameters and withdrawn.parameters == {}
+    assert withdrawn.cause == INCONCLUSIVE
+    assert withdrawn.cause != MODEL_MISMATCH
+    assert withdrawn.candidate == "current"
+    assert withdrawn.candidate_parameters == named.parameters
+    assert withdrawn.parameters == {}
     assert withdrawn.inconclusive_reasons == ("the extension does not lower the 30 s error (1 -> 2 m)",)
 
 
@@ -300,7 +319,8 @@ def test_none_needs_a_model_within_the_noise(sigmas, expected):
     seg = make_segments(recordings)
     result = diagnose(recordings, VESSEL, segments=seg, rollout=_BiasedRollout(seg, sigmas), hypotheses=["current"])
     assert result.calm_water_fit.heldout_loss == pytest.approx(sigmas**2 / 2, rel=0.01)
-    assert result.cause == expected and result.parameters == {}
+    assert result.cause == expected
+    assert result.parameters == {}
     if expected == "model_mismatch":
         assert result.calm_water_fit.heldout_loss > NONE_LOSS
         assert "no hypothesis explains the calm-water model's held-out loss of 8" in result.mismatch_reasons[0]
@@ -328,7 +348,7 @@ class _PartlyExplainedRollout(torch.nn.Module):
 
 @pytest.mark.parametrize("after, expected", [(10.0, "current"), (20.0, "model_mismatch")])
 def test_a_cause_may_not_leave_a_loss_above_the_ceiling_whatever_share_it_removed(after, expected):
-    """Issue 11 (an unknown boat's 1.4 m waves named as a 28 m/s wind that left 1190 of 2432 noise units): the
+    """(An unknown boat's 1.4 m waves named as a 28 m/s wind that left 1190 of 2432 noise units): the
     calm-water model leaves 800 (40 sigma in u, v, r); a current that leaves 50 (10 sigma) is named (it removed more
     than MISMATCH_SHARE, and 50 <= FIT_CEILING_LOSS), one that leaves 200 (20 sigma, 75 % removed) is model_mismatch,
     with the current reported as the best environmental cause."""
@@ -344,11 +364,15 @@ def test_a_cause_may_not_leave_a_loss_above_the_ceiling_whatever_share_it_remove
     assert MISMATCH_LOSS < left < MISMATCH_SHARE * result.calm_water_fit.heldout_loss  # the share rule alone lets it by
     assert result.cause == expected
     if expected == MODEL_MISMATCH:
-        assert left > FIT_CEILING_LOSS and result.best_environmental_cause == "current" and result.parameters == {}
+        assert left > FIT_CEILING_LOSS
+        assert result.best_environmental_cause == "current"
+        assert result.parameters == {}
         assert "current leaves a held-out loss of 200 noise units" in result.mismatch_reasons[0]
         assert "the best environmental cause would be current" in result.message
     else:
-        assert left <= FIT_CEILING_LOSS and result.mismatch_reasons == () and result.parameters["speed_mps"] >= 0.3
+        assert left <= FIT_CEILING_LOSS
+        assert result.mismatch_reasons == ()
+        assert result.parameters["speed_mps"] >= 0.3
 
 
 def test_a_cause_whose_fitted_parameter_is_not_physical_is_model_mismatch():
@@ -361,17 +385,22 @@ def test_a_cause_whose_fitted_parameter_is_not_physical_is_model_mismatch():
     seg = make_segments(recordings)
     far = diagnose(recordings, VESSEL, segments=seg, rollout=_PartlyExplainedRollout(seg, 4.0, 0.0, full=4.0),
                    hypotheses=["current"])
-    assert far.cause == MODEL_MISMATCH and far.best_environmental_cause == "current" and far.parameters == {}
-    assert len(far.mismatch_reasons) == 1 and "current speed_mps 4" in far.mismatch_reasons[0]
+    assert far.cause == MODEL_MISMATCH
+    assert far.best_environmental_cause == "current"
+    assert far.parameters == {}
+    assert len(far.mismatch_reasons) == 1
+    assert "current speed_mps 4" in far.mismatch_reasons[0]
     assert "0..3 m/s" in far.mismatch_reasons[0]
     near = diagnose(recordings, VESSEL, segments=seg, rollout=_PartlyExplainedRollout(seg, 4.0, 0.0),
                     hypotheses=["current"])
-    assert near.cause == "current" and 0.3 <= near.parameters["speed_mps"] <= 3.0 and near.mismatch_reasons == ()
+    assert near.cause == "current"
+    assert 0.3 <= near.parameters["speed_mps"] <= 3.0
+    assert near.mismatch_reasons == ()
 
 
 @pytest.mark.parametrize("after, expected", [(0.75, "inconclusive"), (0.9, "none")])
 def test_none_is_only_confident_without_a_strong_candidate(after, expected):
-    """Issue 11 (an unknown boat's 5.5 m/s wind answered `none`: its identified model showed the wind with evidence
+    """(An unknown boat's 5.5 m/s wind answered `none`: its identified model showed the wind with evidence
     3.8 and both folds fitted it within 1 m/s): a model within the noise (loss 0.5) that a current brings to
     0.75^2 / 2 (evidence ~3.7: between EVIDENCE_CANDIDATE and EVIDENCE_CAUSE) is `inconclusive` with the current as
     the candidate, not a confident `none`; one it brings to 0.9^2 / 2 (evidence ~1.4) stays `none`."""
@@ -383,13 +412,17 @@ def test_none_is_only_confident_without_a_strong_candidate(after, expected):
                       hypotheses=["current"])
     top = next(e for e in result.evidence if e.hypothesis == "current")
     assert top.heldout_loss == pytest.approx(after**2 / 2, rel=0.01)
-    assert result.cause == expected and result.parameters == {} and result.mismatch_reasons == ()
+    assert result.cause == expected
+    assert result.parameters == {}
+    assert result.mismatch_reasons == ()
     if expected == INCONCLUSIVE:
         assert EVIDENCE_CANDIDATE <= top.evidence_vs_none < EVIDENCE_CAUSE
-        assert result.candidate == "current" and result.candidate_parameters["speed_mps"] >= 0.3
+        assert result.candidate == "current"
+        assert result.candidate_parameters["speed_mps"] >= 0.3
         assert f"evidence {top.evidence_vs_none:.1f}: more than a `none` allows" in result.inconclusive_reasons[0]
     else:
-        assert top.evidence_vs_none < EVIDENCE_CANDIDATE and result.candidate == ""
+        assert top.evidence_vs_none < EVIDENCE_CANDIDATE
+        assert result.candidate == ""
 
 
 def test_a_fit_starts_where_it_is_told():
@@ -397,7 +430,7 @@ def test_a_fit_starts_where_it_is_told():
     them, select_causes); terms not given start at their record's start, a start beyond a bound at the bound."""
     recordings = trial(runs=diagnosis_runs()[:2])
     seg = make_segments(recordings)
-    model = scripted_rollout(VESSEL, 0.5)
+    model = compiled_rollout(VESSEL, 0.5)
     untouched = fit_hypothesis(model, seg, ["current", "rudder_offset"], max_iter=0)
     assert untouched.terms["current_ne"] == fx.EFFECTS["current"].terms[0].start
     told = fit_hypothesis(model, seg, ["current", "rudder_offset"], max_iter=0, start={"current_ne": (0.2, -9.0)})
@@ -428,7 +461,7 @@ def test_a_direction_is_probed_all_round_before_the_descent(monkeypatch):
         signals = measure(traj, scenario.environment, scenario.sensor_spec, scenario.faults, seed=19100 + k)
         recordings.append(recording_from_signals(signals, steps.dt, name=manoeuvre.name, layout=otter.actuator_layout))
     seg = make_segments(recordings, steps.horizon_s, steps.stride_s)
-    rollout = scripted_rollout(otter, steps.dt)
+    rollout = compiled_rollout(otter, steps.dt)
 
     def fitted() -> tuple[float, float, float]:
         fit = fit_hypothesis(rollout, seg, "wave_drift")
@@ -451,7 +484,7 @@ def test_the_otter_sea_trials_current_is_reported_as_the_further_candidate(tmp_p
     39 % of the held-out loss and 65 % of the track error with evidence 4.9, short of the 5 a cause needs: not named,
     not in the extended model, but reported as the further candidate with why, in the JSON, the message and the report,
     its parameters (fitted beside the waves on all manoeuvres) within the acceptance suite's tolerances of the truth.
-    Until this change (2026-11-26) the answer did not mention it. (~40 s.)"""
+    (~40 s.)"""
     import json
 
     from usv_predictor.analysis.hidden_effects import Draw, within_tolerance
@@ -462,11 +495,16 @@ def test_the_otter_sea_trials_current_is_reported_as_the_further_candidate(tmp_p
     assert main(["diagnose", str(package_share_path("bags", "otter", "sea_trial")), "--vessel", "otter",
                  "--json", str(out), "--report", str(report)]) == 0
     found = json.loads(out.read_text())
-    assert found["cause"] == "wave_drift" and found["additional_causes"] == [] and found["rejected_extension"] is None
+    assert found["cause"] == "wave_drift"
+    assert found["additional_causes"] == []
+    assert found["rejected_extension"] is None
     further = found["further_candidate"]
-    assert further["cause"] == "current" and 3.0 <= further["evidence"] < 5.0
-    assert further["gain"] > 0.3 and further["track_gain"] > 0.5
-    ok, errors = within_tolerance(Draw("current", {"current_speed": 0.2, "current_to_deg": 215.0}), further["parameters"])
+    assert further["cause"] == "current"
+    assert 3.0 <= further["evidence"] < 5.0
+    assert further["gain"] > 0.3
+    assert further["track_gain"] > 0.5
+    ok, errors = within_tolerance(Draw("current", {"current_speed": 0.2, "current_to_deg": 215.0}),
+                                  further["parameters"])
     assert ok, errors
     assert further["reason"].startswith("current not named as a further cause: given wave_drift it adds evidence 4.")
     assert further["reason"] in found["message"]

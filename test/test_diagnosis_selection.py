@@ -12,7 +12,8 @@ import pytest
 from usv_predictor.analysis.diagnosis import (EVIDENCE_CANDIDATE, EVIDENCE_CAUSE, MIN_GAIN, HeldOut, contribution,
                                               log_evidence, select_causes)
 
-# boat 20 of the unknown-boat benchmark of 2026-11-26 (seed 2026): a 5.4 m/s wind. The first round ranked wave_drift
+# boat 20 of the unknown-boat benchmark (seed 2026; docs/results/unknown_boats.md): a 5.4 m/s wind. The first round
+# ranked wave_drift
 # first (held-out loss 2.94 of the calm-water model's 4.80) on a poor fit of the wind alone (3.20); wave_drift+wind
 # left 1.12, and the wind alone, fitted from that pair's wind, leaves about as little (the table's 1.15).
 N_EFF = 20.6  # effective segments of that diagnosis: 5.1 = n_eff / 2 * ln(4.80 / 2.94)
@@ -52,21 +53,29 @@ def test_a_first_cause_that_a_later_one_makes_redundant_is_dropped():
     assert selection.causes == ("wind",)
     assert [d.cause for d in selection.dropped] == ["wave_drift"]
     drop = selection.dropped[0]
-    assert drop.given == ("wind",) and drop.evidence == pytest.approx(log_evidence(N_EFF, 1.12, 1.15))
-    assert drop.evidence < EVIDENCE_CAUSE and not drop.earns_place
+    assert drop.given == ("wind",)
+    assert drop.evidence == pytest.approx(log_evidence(N_EFF, 1.12, 1.15))
+    assert drop.evidence < EVIDENCE_CAUSE
+    assert not drop.earns_place
     assert selection.drop_reasons()[0].startswith("wave_drift dropped: given wind it adds evidence 0.3 (removes 3 % ")
     (wind,) = selection.contributions  # the wind over the calm-water model
-    assert wind.given == () and wind.earns_place and wind.evidence == pytest.approx(log_evidence(N_EFF, 1.15, 4.80))
+    assert wind.given == ()
+    assert wind.earns_place
+    assert wind.evidence == pytest.approx(log_evidence(N_EFF, 1.15, 4.80))
     # after the drop the wind may take another partner, but none earns its place (and wave_drift is not tried again)
-    assert frozenset({"current", "wind"}) in asked and frozenset({"rudder_offset", "wind"}) in asked
+    assert frozenset({"current", "wind"}) in asked
+    assert frozenset({"rudder_offset", "wind"}) in asked
 
 
 def test_without_the_backward_step_the_first_cause_would_stay():
-    """What the backward step changes: the forward step alone keeps wave_drift (the answer of 2026-11-26's run)."""
+    """What the backward step changes: the forward step alone keeps wave_drift (the answer of the benchmark run before
+    the backward step)."""
     forward = contribution("wind", ("wave_drift",), table(BOAT_20), N_EFF)
-    assert forward.earns_place and forward.evidence == pytest.approx(log_evidence(N_EFF, 1.12, 2.94))
+    assert forward.earns_place
+    assert forward.evidence == pytest.approx(log_evidence(N_EFF, 1.12, 2.94))
     selection = select_causes("wave_drift", CANDIDATES, table(BOAT_20), N_EFF, max_causes=1)
-    assert selection.causes == ("wave_drift",) and selection.dropped == ()
+    assert selection.causes == ("wave_drift",)
+    assert selection.dropped == ()
 
 
 def test_two_causes_that_each_earn_their_place_are_both_named_the_stronger_first():
@@ -76,9 +85,11 @@ def test_two_causes_that_each_earn_their_place_are_both_named_the_stronger_first
               ("wind",): HeldOut(9.0, 19.0), ("current", "rudder_offset"): HeldOut(1.0, 2.0),
               ("current", "wind"): HeldOut(5.9, 7.9)}
     selection = select_causes("current", ("current", "rudder_offset", "wind"), table(scores), 20.0)
-    assert selection.causes == ("rudder_offset", "current") and selection.dropped == ()
+    assert selection.causes == ("rudder_offset", "current")
+    assert selection.dropped == ()
     kept = {c.cause: c for c in selection.contributions}
-    assert kept["rudder_offset"].given == ("current",) and kept["current"].given == ("rudder_offset",)
+    assert kept["rudder_offset"].given == ("current",)
+    assert kept["current"].given == ("rudder_offset",)
     assert kept["current"].evidence == pytest.approx(10.0 * math.log(5.0))
     assert all(c.earns_place for c in selection.contributions)
 
@@ -112,23 +123,29 @@ def test_a_cause_whose_share_is_too_small_or_that_worsens_the_track_does_not_ear
     scores = {(): HeldOut(10.0, 5.0), ("current",): HeldOut(10.0 * (1 - MIN_GAIN / 2), 4.0),
               ("wind",): HeldOut(5.0, 6.0), ("rudder_offset",): HeldOut(5.0, float("nan"))}
     small = contribution("current", (), table(scores), n_eff)
-    assert small.evidence >= EVIDENCE_CAUSE and small.gain < MIN_GAIN and not small.earns_place
+    assert small.evidence >= EVIDENCE_CAUSE
+    assert small.gain < MIN_GAIN
+    assert not small.earns_place
     worse_track = contribution("wind", (), table(scores), n_eff)
-    assert worse_track.evidence >= EVIDENCE_CAUSE and worse_track.track_gain < 0 and not worse_track.earns_place
+    assert worse_track.evidence >= EVIDENCE_CAUSE
+    assert worse_track.track_gain < 0
+    assert not worse_track.earns_place
     no_gnss = contribution("rudder_offset", (), table(scores), n_eff)  # no track to judge by: loss and evidence decide
-    assert math.isnan(no_gnss.track_gain) and no_gnss.earns_place
+    assert math.isnan(no_gnss.track_gain)
+    assert no_gnss.earns_place
 
 
 def test_a_diverged_fit_is_never_added():
     scores = {(): HeldOut(10.0), ("current",): HeldOut(2.0), ("wind",): HeldOut(9.0),
               ("current", "wind"): HeldOut(math.inf)}
     selection = select_causes("current", ("current", "wind"), table(scores), 20.0)
-    assert selection.causes == ("current",) and selection.dropped == ()
+    assert selection.causes == ("current",)
+    assert selection.dropped == ()
     assert not contribution("wind", ("current",), table(scores), 20.0).earns_place
 
 
 # the shipped Otter sea trial (bags/otter/sea_trial: current 0.2 m/s, wind 4.5 m/s and 0.25 m waves at once),
-# diagnosed against the preset on 2026-11-26 (`replay diagnose bags/otter/sea_trial --vessel otter`): 80 held-out
+# diagnosed against the preset (`replay diagnose bags/otter/sea_trial --vessel otter`): 80 held-out
 # segments of 10 s every 2.5 s; wave_drift named (the wind confounded with it, so not a further candidate)
 OTTER_N_EFF = 20.0  # 80 * 2.5 / 10
 OTTER_SEA_TRIAL = {
@@ -145,20 +162,28 @@ def test_a_further_cause_short_of_evidence_alone_is_reported_not_named():
     (evidence 2.5 < EVIDENCE_CANDIDATE) it is not reported, and with one cause allowed it is never tried."""
     candidates = ("wave_drift", "current", "yaw_rate_bias", "resistance")
     selection = select_causes("wave_drift", candidates, table(OTTER_SEA_TRIAL), OTTER_N_EFF)
-    assert selection.causes == ("wave_drift",) and selection.dropped == ()
+    assert selection.causes == ("wave_drift",)
+    assert selection.dropped == ()
     further = selection.further_candidate
-    assert further is selection.not_added and further.cause == "current" and further.given == ("wave_drift",)
+    assert further is selection.not_added
+    assert further.cause == "current"
+    assert further.given == ("wave_drift",)
     assert further.evidence == pytest.approx(log_evidence(OTTER_N_EFF, 19.375, 31.767))
-    assert EVIDENCE_CANDIDATE <= further.evidence < EVIDENCE_CAUSE and not further.earns_place
-    assert further.gain == pytest.approx(1 - 19.375 / 31.767) and further.track_gain == pytest.approx(1 - 0.76 / 2.21)
+    assert EVIDENCE_CANDIDATE <= further.evidence < EVIDENCE_CAUSE
+    assert not further.earns_place
+    assert further.gain == pytest.approx(1 - 19.375 / 31.767)
+    assert further.track_gain == pytest.approx(1 - 0.76 / 2.21)
     assert selection.further_candidate_reason() == (
         "current not named as a further cause: given wave_drift it adds evidence 4.9 (removes 39 % of the held-out "
         "loss, 66 % of the track error); a cause needs evidence >= 5, >= 5 % and a lower track error")
     few = select_causes("wave_drift", candidates, table(OTTER_SEA_TRIAL), OTTER_N_EFF / 2)
-    assert few.not_added.cause == "current" and few.not_added.evidence < EVIDENCE_CANDIDATE
-    assert few.further_candidate is None and few.further_candidate_reason() == ""
+    assert few.not_added.cause == "current"
+    assert few.not_added.evidence < EVIDENCE_CANDIDATE
+    assert few.further_candidate is None
+    assert few.further_candidate_reason() == ""
     one = select_causes("wave_drift", candidates, table(OTTER_SEA_TRIAL), OTTER_N_EFF, max_causes=1)
-    assert one.not_added is None and one.further_candidate is None
+    assert one.not_added is None
+    assert one.further_candidate is None
     # short of the share or of the track, evidence alone is not what is missing: no further candidate either
     worse_track = {**OTTER_SEA_TRIAL, ("current", "wave_drift"): HeldOut(19.375, 2.30)}
     assert select_causes("wave_drift", candidates, table(worse_track), OTTER_N_EFF).further_candidate is None
@@ -169,4 +194,5 @@ def test_a_further_cause_that_is_named_is_no_candidate():
     and no further candidate is reported beside the named further cause."""
     candidates = ("wave_drift", "current")
     selection = select_causes("wave_drift", candidates, table(OTTER_SEA_TRIAL), 25.0)
-    assert selection.causes == ("wave_drift", "current") and selection.further_candidate is None
+    assert selection.causes == ("wave_drift", "current")
+    assert selection.further_candidate is None

@@ -1,4 +1,4 @@
-"""`diagnose` answers `unexplained` (issue 15): when no physical hypothesis explains what the calm-water model gets
+"""`diagnose` answers `unexplained`: when no physical hypothesis explains what the calm-water model gets
 wrong, the learned residual of last resort, with its gain measured on held-out manoeuvres as a cause's is."""
 from __future__ import annotations
 
@@ -21,7 +21,8 @@ LEAN = dataclasses.replace(dgu.UNEXPLAINED_TRAINING, members=2, epochs=15, patie
 
 def _mismatch() -> dg.Diagnosis:
     return dg.Diagnosis(dg.MODEL_MISMATCH, {}, {}, (), (), dg.Fit("none", {}, 19.0, {}, 0, 0.0), (("a",), ("b",)),
-                        f"{dg.MODEL_MISMATCH}: no hypothesis explains it", calm_water_fit=dg.CalmWaterFit(19.0, 2.9, 20.0),
+                        f"{dg.MODEL_MISMATCH}: no hypothesis explains it",
+                        calm_water_fit=dg.CalmWaterFit(19.0, 2.9, 20.0),
                         mismatch_reasons=("no hypothesis explains it",))
 
 
@@ -33,11 +34,15 @@ def _found(accepted: bool) -> dgu.UnexplainedGain:
 
 def test_the_answer_is_unexplained_only_when_the_residual_passes_every_test():
     accepted = dgu.unexplained_answer(_mismatch(), _found(True), 20.0)
-    assert accepted.cause == dg.UNEXPLAINED and accepted.hypotheses == () and accepted.parameters == {}
-    assert accepted.message.startswith(f"{dg.UNEXPLAINED}: no physical hypothesis explains") and "93 %" in accepted.message
+    assert accepted.cause == dg.UNEXPLAINED
+    assert accepted.hypotheses == ()
+    assert accepted.parameters == {}
+    assert accepted.message.startswith(f"{dg.UNEXPLAINED}: no physical hypothesis explains")
+    assert "93 %" in accepted.message
     assert accepted.mismatch_reasons == ("no hypothesis explains it",)  # what it would have been stays on record
     kept = dgu.unexplained_answer(_mismatch(), _found(False), 20.0)
-    assert kept.cause == dg.MODEL_MISMATCH and "the extension of last resort was tried" in kept.message
+    assert kept.cause == dg.MODEL_MISMATCH
+    assert "the extension of last resort was tried" in kept.message
     assert "5.3 %" in kept.message
     assert _found(True).open_loop_gain == pytest.approx(1.0 - 1.0 / 3.5)
 
@@ -55,11 +60,15 @@ def test_run_diagnosis_tries_the_residual_only_without_a_physical_cause_and_unle
     monkeypatch.setattr(dg, "diagnose", lambda *args, **kwargs: mismatch)
     monkeypatch.setattr("usv_predictor.analysis.diagnosis_run.measure_unexplained", _never)
     out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5, unexplained=False)
-    assert out["cause"] == dg.MODEL_MISMATCH and out["unexplained"] is None
+    assert out["cause"] == dg.MODEL_MISMATCH
+    assert out["unexplained"] is None
     monkeypatch.setattr("usv_predictor.analysis.diagnosis_run.measure_unexplained", lambda *a, **k: _found(True))
     out = json.loads(json_text(run_diagnosis(recordings, VESSEL, "preset", dt=0.5)))
-    assert out["cause"] == dg.UNEXPLAINED and out["unexplained"]["accepted"] and out["parameters"] == {}
-    assert out["unexplained"]["gain"] == pytest.approx(1 - 1.4 / 19.0) and out["unexplained"]["replaced"] == dg.MODEL_MISMATCH
+    assert out["cause"] == dg.UNEXPLAINED
+    assert out["unexplained"]["accepted"]
+    assert out["parameters"] == {}
+    assert out["unexplained"]["gain"] == pytest.approx(1 - 1.4 / 19.0)
+    assert out["unexplained"]["replaced"] == dg.MODEL_MISMATCH
 
 
 @pytest.mark.slow
@@ -68,7 +77,8 @@ def test_a_hidden_physical_cause_is_named_and_the_residual_is_not_tried(monkeypa
     monkeypatch.setattr("usv_predictor.analysis.diagnosis_run.measure_unexplained", _never)
     recordings = trial(env=Environment(current_speed=0.3, current_to_deg=60.0))
     out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5, hypotheses=["current", "rudder_offset"], max_causes=1)
-    assert out["cause"] == "current" and out["unexplained"] is None
+    assert out["cause"] == "current"
+    assert out["unexplained"] is None
     assert out["gain"]["mean_position_error_after_30s_m"] > 0.0
 
 
@@ -83,19 +93,27 @@ def test_an_effect_outside_the_vocabulary_is_unexplained_with_a_positive_gain(mo
     recordings = trial(vessel=weak)
     out = json.loads(json_text(run_diagnosis(recordings, VESSEL, "preset", dt=0.5, export=tmp_path / "hybrid.pt",
                                              report=tmp_path / "report")))
-    assert out["cause"] == dg.UNEXPLAINED and out["parameters"] == {}
+    assert out["cause"] == dg.UNEXPLAINED
+    assert out["parameters"] == {}
     found = out["unexplained"]
-    assert found["accepted"] and found["replaced"] == dg.MODEL_MISMATCH and found["reasons"] == []
-    assert found["gain"] >= 0.5 and found["evidence"] >= dg.EVIDENCE_CAUSE
+    assert found["accepted"]
+    assert found["replaced"] == dg.MODEL_MISMATCH
+    assert found["reasons"] == []
+    assert found["gain"] >= 0.5
+    assert found["evidence"] >= dg.EVIDENCE_CAUSE
     assert found["heldout_loss"] < found["calm_water_loss"] == pytest.approx(out["calm_water_fit"]["heldout_loss"])
-    assert found["track_gain"] > 0.2 and found["open_loop_gain"] > 0.2
-    assert out["mismatch_reasons"] and "no hypothesis explains" in out["mismatch_reasons"][0]
-    assert [t["members"] for t in found["training"]] == [2, 2] and all(t["val_manoeuvres"] for t in found["training"])
+    assert found["track_gain"] > 0.2
+    assert found["open_loop_gain"] > 0.2
+    assert out["mismatch_reasons"]
+    assert "no hypothesis explains" in out["mismatch_reasons"][0]
+    assert [t["members"] for t in found["training"]] == [2, 2]
+    assert all(t["val_manoeuvres"] for t in found["training"])
     from usv_predictor.models.artifact import load_artifact
 
     artifact = load_artifact(tmp_path / "hybrid.pt")
     assert out["exported_model"]["model_id"] == artifact.model_id
-    assert artifact.metadata["model_type"] == "hybrid" and artifact.metadata["ensemble_size"] == 2
+    assert artifact.metadata["model_type"] == "hybrid"
+    assert artifact.metadata["ensemble_size"] == 2
     assert artifact.metadata["architecture"]["diagnosis"] == dg.UNEXPLAINED
     report = (tmp_path / "report" / "report.md").read_text()
     assert report.startswith(f"# Diagnosis: {dg.UNEXPLAINED}") and "Accepted: the answer is `unexplained`" in report

@@ -51,7 +51,8 @@ def test_paper_defaults() -> None:
     assert (config.width, config.depth, config.activation, config.batch_norm) == (100, 2, "tanh", True)
     model = DnnModel(config)
     assert [type(m).__name__ for m in model.hidden[0]] == ["Linear", "BatchNorm1d", "Tanh"]
-    assert len(model.hidden) == 2 and model.head.out_features == 3
+    assert len(model.hidden) == 2
+    assert model.head.out_features == 3
 
 
 def test_clipped_relu_clips_at_the_ceiling() -> None:
@@ -65,8 +66,10 @@ def test_clipped_relu_clips_at_the_ceiling() -> None:
         block[2].register_forward_hook(lambda _m, _i, out: seen.append(out.detach()))
     model(x * 10.0)
     values = torch.cat([s.flatten() for s in seen])
-    assert values.min() >= 0.0 and values.max() == pytest.approx(0.3)
-    assert (values == 0.3).any() and (values == 0.0).any()
+    assert values.min() >= 0.0
+    assert values.max() == pytest.approx(0.3)
+    assert (values == 0.3).any()
+    assert (values == 0.0).any()
 
 
 def test_tanh_hidden_activations_are_bounded_without_clipping() -> None:
@@ -74,7 +77,8 @@ def test_tanh_hidden_activations_are_bounded_without_clipping() -> None:
     seen = []
     model.hidden[0][2].register_forward_hook(lambda _m, _i, out: seen.append(out.detach()))
     model(x)
-    assert seen[0].abs().max() < 1.0 and (seen[0] < 0).any()
+    assert seen[0].abs().max() < 1.0
+    assert (seen[0] < 0).any()
 
 
 @pytest.mark.parametrize("activation", ["tanh", "clipped_relu"])
@@ -114,7 +118,8 @@ def test_normalisation_is_stored_as_buffers_and_survives_state_dict() -> None:
     clone = DnnModel(model.config)
     clone.load_state_dict(model.state_dict())
     norm = clone.normalisation()
-    assert np.allclose(norm.feature_mean, model.x_mean.numpy()) and np.all(norm.feature_std > 0)
+    assert np.allclose(norm.feature_mean, model.x_mean.numpy())
+    assert np.all(norm.feature_std > 0)
     assert {"x_mean", "x_std", "y_mean", "y_std"} <= set(dict(model.named_buffers()))
 
 
@@ -122,21 +127,24 @@ def test_constant_feature_is_centred_not_divided_by_zero() -> None:
     x, y = _data("F0")
     x[:, 4] = 650.0  # one engine speed in the whole data set
     norm = fit_normalisation(x, y, True)
-    assert norm.feature_std[4] == 1.0 and norm.feature_mean[4] == 650.0
+    assert norm.feature_std[4] == 1.0
+    assert norm.feature_mean[4] == 650.0
 
 
 @pytest.mark.parametrize("feature_set", sorted(FEATURE_SETS))
 def test_features_of_tensors_equal_features_of_arrays(feature_set: str) -> None:
     """One implementation, two array types: the training loss (torch) sees what the dataset (numpy) saw."""
     rng = np.random.default_rng(3)
-    state = np.column_stack([rng.normal(5, 1, 64), rng.normal(0, .3, 64), rng.normal(0, .1, 64), rng.uniform(-40, 40, 64)])
+    state = np.column_stack([rng.normal(5, 1, 64), rng.normal(0, .3, 64), rng.normal(0, .1, 64),
+                             rng.uniform(-40, 40, 64)])
     state[:6, 3] = [math.pi, -math.pi, 3 * math.pi, 0.0, -1e-12, 2 * math.pi]  # the wrap boundaries
     controls = np.column_stack([rng.normal(0, .3, 64), rng.normal(650, 30, 64)])
     expected = features(feature_set, state, controls)
     got = features(feature_set, torch.from_numpy(state), torch.from_numpy(controls)).numpy()
     assert got.shape == expected.shape
     np.testing.assert_array_max_ulp(got, expected, maxulp=2)
-    batched = features(feature_set, torch.from_numpy(state).reshape(8, 8, 4), torch.from_numpy(controls).reshape(8, 8, 2))
+    batched = features(feature_set, torch.from_numpy(state).reshape(8, 8, 4),
+                       torch.from_numpy(controls).reshape(8, 8, 2))
     assert batched.shape == (8, 8, len(FEATURE_SETS[feature_set]))
 
 

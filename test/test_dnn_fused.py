@@ -25,7 +25,7 @@ from usv_predictor.node import live
 
 SHIPPED = Path(__file__).resolve().parents[1] / "models" / "default.pt"
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from bench_node import row_form_batch  # noqa: E402 -- the candidates' row form as it ran before 2026-11-26, timed there
+from bench_node import row_form_batch  # noqa: E402 -- the candidates' former row form, timed there
 
 
 def _member(feature_set: str, seed: int, activation: str, depth: int, increment: bool = True) -> DnnModel:
@@ -49,11 +49,13 @@ def test_fused_rollout_equals_the_members_stepped_one_by_one(tmp_path: Path, fea
     members = [_member(feature_set, seed, activation, depth, increment) for seed in (1, 2, 3)]
     _export(tmp_path / "m.pt", members, dtype="float64")
     model = _loaded(tmp_path / "m.pt")
-    assert model.inference is not None and model.inference_note.startswith("fused")
+    assert model.inference is not None
+    assert model.inference_note.startswith("fused")
     state, controls = _inputs(batch=4, horizon=40)
     got = model.predict(state, controls)  # (E, B, H, 6) through the fused rollout
     one = model.predict(state[:1], controls[:1])  # one state: NumpyDnnRollout's one-state form
-    assert got.shape == (3, 4, 40, 6) and one.shape == (3, 1, 40, 6)
+    assert got.shape == (3, 4, 40, 6)
+    assert one.shape == (3, 1, 40, 6)
     for e, member in enumerate(members):
         reference = _reference(member, feature_set, state, controls, DT)
         np.testing.assert_allclose(got[e], reference, rtol=0, atol=1e-9)
@@ -70,7 +72,8 @@ def test_float32_fused_rollout_is_as_close_to_the_members_as_the_files(tmp_path:
     members = [_member("NTF", seed, "tanh", 2) for seed in (4, 5)]
     _export(tmp_path / "m.pt", members)
     model = _loaded(tmp_path / "m.pt")
-    assert model.metadata["dtype"] == "float32" and model.inference is not None
+    assert model.metadata["dtype"] == "float32"
+    assert model.inference is not None
     state, controls = _inputs(horizon=120)
     got = model.predict(state, controls)
     with torch.inference_mode():
@@ -152,7 +155,8 @@ def test_the_node_rollout_runs_the_fused_module() -> None:
     """live.Rollout (the node) and artifact.predict (`replay evaluate`) run the same fused module."""
     model = _loaded(SHIPPED)
     rollout = live.Rollout(model, 120)
-    assert rollout.artifact.runner is model.inference and rollout.module is model.inference
+    assert rollout.artifact.runner is model.inference
+    assert rollout.module is model.inference
     state, held = np.array([5.0, 0.1, 0.02, 0.3]), np.array([0.2, 650.0])
     controls = np.tile(held, (1, 120, 1))
     np.testing.assert_array_equal(rollout(state, held), model.predict(state[None], controls)[:, 0])
@@ -174,7 +178,9 @@ def test_a_dnn_file_that_cannot_be_fused_keeps_its_own_rollout(tmp_path: Path) -
     path = tmp_path / "halved.pt"
     export_module(path, _HalvedRollout(members, DT, torch.float64), good.metadata)
     model = _loaded(path)
-    assert model.inference is None and "not fused" in model.inference_note and "differs" in model.inference_note
+    assert model.inference is None
+    assert "not fused" in model.inference_note
+    assert "differs" in model.inference_note
     state, controls = _inputs()
     got = model.predict(state, controls)
     with torch.inference_mode():
@@ -230,11 +236,13 @@ def test_a_fused_rollout_that_cannot_be_built_leaves_the_next_form_running(tmp_p
     monkeypatch.setattr(dnn, "numpy_rollout", numpy_broken)
     model = _loaded(tmp_path / "m.pt")
     assert isinstance(model.inference, torch.jit.ScriptModule)
-    assert model.inference_note.startswith("fused (models/dnn.FusedDnnRollout") and "(a test)" in model.inference_note
+    assert model.inference_note.startswith("fused (models/dnn.FusedDnnRollout")
+    assert "(a test)" in model.inference_note
     np.testing.assert_allclose(model.predict(state, controls), own, rtol=0, atol=1e-10)
     monkeypatch.setattr(torch.jit, "script", broken)
     model = _loaded(tmp_path / "m.pt")
-    assert model.inference is None and "cannot be built or run: some TorchScript detail" in model.inference_note
+    assert model.inference is None
+    assert "cannot be built or run: some TorchScript detail" in model.inference_note
     assert "(a test)" in model.inference_note
     np.testing.assert_array_equal(model.predict(state, controls), own)
 
@@ -246,7 +254,8 @@ def test_numpy_rollout_equals_the_torchscript_fused_rollout(batch: int) -> None:
     is of the same size (numpy's within 3x the larger of the other two's), and numpy's and TorchScript's forms agree
     within float32 rounding amplified by 120 closed-loop steps (the tolerance below, ~1e-4 of each column's scale)."""
     model = _loaded(SHIPPED)
-    assert isinstance(model.inference, NumpyDnnRollout) and model.inference_note == NUMPY_FORM
+    assert isinstance(model.inference, NumpyDnnRollout)
+    assert model.inference_note == NUMPY_FORM
     state, controls = _shipped_inputs(batch, seed=10 + batch)
     got = model.predict(state, controls)  # (5, B, 120, 6)
     scripted = fused_rollout(load_artifact(SHIPPED))
@@ -287,7 +296,8 @@ def test_numpy_bias_unit_is_exactly_one() -> None:
     with pytest.raises(ModelError, match="no exact bias unit"):
         NumpyDnnRollout(params, feature_set="NTF", activation="clipped_relu", ceiling=0.5, dt=DT)
     built = NumpyDnnRollout(params, feature_set="NTF", activation="clipped_relu", ceiling=1.5, dt=DT)
-    assert built.first[0, -1, -1] == 1.0 and built.first.dtype == np.float32
+    assert built.first[0, -1, -1] == 1.0
+    assert built.first.dtype == np.float32
 
 
 def test_numpy_rollout_refuses_inputs_of_other_shapes() -> None:
@@ -330,7 +340,7 @@ def test_numpy_transposed_batch_form_of_the_shipped_model_is_the_row_forms_withi
 
 
 def _kinematics_as_before(dt: float, state: np.ndarray, path: np.ndarray) -> np.ndarray:
-    """NumpyDnnRollout._kinematics as it was before 2026-11-26: member-major (E, B, H + 1, ...) arrays."""
+    """NumpyDnnRollout._kinematics in its former member-major form: (E, B, H + 1, ...) arrays."""
     e, b, horizon = path.shape[:3]
     path = path.astype(np.float64)
     full = np.concatenate([np.broadcast_to(state[None, :, None, :], (e, b, 1, 4)), path], axis=2)
@@ -356,7 +366,8 @@ def test_numpy_kinematics_step_major_equals_the_member_major_form(batch: int) ->
     got = rollout._kinematics(state, path)
     np.testing.assert_array_equal(got, _kinematics_as_before(rollout.dt, state, path))
     np.testing.assert_array_equal(got, rollout._kinematics(state, np.ascontiguousarray(path)))
-    assert got.shape == (5, batch, 120, 6) and np.abs(got[..., 3:5]).max() > 1.0
+    assert got.shape == (5, batch, 120, 6)
+    assert np.abs(got[..., 3:5]).max() > 1.0
 
 
 @pytest.mark.parametrize("count", [64, 7])

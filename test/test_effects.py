@@ -69,25 +69,34 @@ def rollout_inputs(vessel) -> tuple[torch.Tensor, torch.Tensor]:
 @pytest.mark.parametrize("name", tuple(EFFECTS))
 def test_every_record_is_complete_and_consistent(name):
     effect = EFFECTS[name]
-    assert effect.name == name and effect.help and effect.terms
+    assert effect.name == name
+    assert effect.help
+    assert effect.terms
     term_names = {t.name for t in effect.terms}
     assert set(effect.readout.terms) <= term_names, "the readout reads a term the hypothesis does not fit"
     start = {t.name: t.start for t in effect.terms}
     assert tuple(effect.readout.read(start)) == effect.readout.keys
-    assert tuple(effect.readout.uncertainty(start, {t.name: (0.1,) * t.size for t in effect.terms})) == effect.readout.keys
+    std = {t.name: (0.1,) * t.size for t in effect.terms}
+    assert tuple(effect.readout.uncertainty(start, std)) == effect.readout.keys
     for t in effect.terms:
-        assert t.low <= min(t.start) and max(t.start) <= t.high and 0.0 < t.scale < t.high - t.low, t
+        assert t.low <= min(t.start), t
+        assert max(t.start) <= t.high, t
+        assert 0.0 < t.scale < t.high - t.low, t
     # the acceptance suite compares exactly what it has tolerances for
     assert set(effect.readout.error_keys) == set(effect.tolerance)
     assert all(tol > 0.0 for tol in effect.tolerance.values())
     if not effect.simulated:
-        assert effect.not_simulated and not effect.tolerance and not effect.readout.comparisons
+        assert effect.not_simulated
+        assert not effect.tolerance
+        assert not effect.readout.comparisons
         return
     names = {p.name for p in effect.parameters}
     assert {c.parameter for c in effect.readout.comparisons} <= names
     assert {c.key for c in effect.readout.comparisons} <= set(effect.readout.keys)
     for p in effect.parameters:
-        assert p.low <= p.default <= p.high and p.unit and p.help, p
+        assert p.low <= p.default <= p.high, p
+        assert p.unit, p
+        assert p.help, p
         assert p.sets.target in effects.SIMULATOR_TARGETS
         assert p.sets.name in {f.name for f in dataclasses.fields(p.sets.target)}, \
             f"{p.name} sets {p.sets.target.__name__}.{p.sets.name}, which does not exist"
@@ -114,7 +123,8 @@ def test_names_flags_and_terms_are_unique():
 
 
 def test_the_tolerances_and_draw_ranges_are_the_published_ones():
-    """The acceptance suite's contract (README) is unchanged by moving it into the records."""
+    """The acceptance suite's contract (docs/results/diagnosis_matrices.md) is unchanged by moving it into the
+    records."""
     assert dict(hidden_effects.TOLERANCES) == {
         "current": {"speed_mps": 0.05, "direction_deg": 10.0}, "wind": {"speed_mps": 2.0, "direction_deg": 20.0},
         "wave_drift": {"significant_height_m": 0.4, "direction_deg": 30.0}, "rudder_offset": {"offset_deg": 0.5},
@@ -209,7 +219,9 @@ def test_a_fitted_value_beyond_its_parameters_range_is_not_physical(name):
         p = ranges[c.parameter]
         beyond[c.key] = 1.5 * p.high if p.high > 0 else 1.5 * p.low
         (reason,) = effect.outside_range(beyond)
-        assert c.key in reason and f"{p.low:g}..{p.high:g} {p.unit}" in reason and p.name in reason
+        assert c.key in reason
+        assert f"{p.low:g}..{p.high:g} {p.unit}" in reason
+        assert p.name in reason
 
 
 def test_scalar_terms_are_what_the_simulator_is_given():
@@ -280,12 +292,15 @@ def test_the_scenario_applies_effects_generically():
     assert scenario.faults.rudder_offset_rad == math.radians(2.0)
     assert scenario.faults.propeller_side_force == pytest.approx(0.04)
     assert scenario.sensor_spec.heading_offset == math.radians(-3.0)
-    assert scenario.environment.current_speed == 0.4 and scenario.environment.current_to_deg == 135.0
-    assert scenario.sensor_spec.gyro_bias == 0.0 and scenario.environment.wind_speed == 0.0
+    assert scenario.environment.current_speed == 0.4
+    assert scenario.environment.current_to_deg == 135.0
+    assert scenario.sensor_spec.gyro_bias == 0.0
+    assert scenario.environment.wind_speed == 0.0
     assert set(scenario.calm_twin().effects) == {"rudder_offset", "heading_offset", "propeller_asymmetry"}
     # a field an effect governs is the effect's value or the field's default, whatever the given sensors say
     biased = make_scenario("jari_usv", {}, SensorSpec(gyro_bias=0.01, gyro_noise_std=0.1))
-    assert biased.sensor_spec.gyro_bias == 0.0 and biased.sensor_spec.gyro_noise_std == 0.1
+    assert biased.sensor_spec.gyro_bias == 0.0
+    assert biased.sensor_spec.gyro_noise_std == 0.1
 
 
 @pytest.mark.parametrize("name", SIMULATED)
@@ -296,7 +311,8 @@ def test_every_parameter_reaches_its_simulator_field(name):
     built = {Environment: scenario.environment, ActuatorFaults: scenario.faults, SensorSpec: scenario.sensor_spec}
     for p in effect.parameters:
         assert getattr(built[p.sets.target], p.sets.name) == pytest.approx(p.sets.value(values[p.name])), p.name
-    assert SimulatorField(ActuatorFaults, "rudder_offset_rad", "rad", multiply=DEG_TO_RAD).value(2.0) == math.radians(2.0)
+    assert SimulatorField(ActuatorFaults, "rudder_offset_rad", "rad",
+                          multiply=DEG_TO_RAD).value(2.0) == math.radians(2.0)
 
 
 # ---- adding an effect touches one record -------------------------------------------------------------
@@ -325,7 +341,8 @@ def test_adding_an_effect_touches_one_record(monkeypatch, capsys):
         build_parser(["diagnose"]).parse_args(["diagnose", "--help"])
     assert "steering_offset" in " ".join(capsys.readouterr().out.split())
     # the simulator's flags and scenario
-    args = build_parser(["simulate"]).parse_args(["simulate", "--effect", "steering_offset", "--steering-offset", "1.5"])
+    args = build_parser(["simulate"]).parse_args(["simulate", "--effect", "steering_offset", "--steering-offset",
+                                                  "1.5"])
     chosen = cmd_simulate._effects(args)
     assert chosen == {"steering_offset": {"steering_offset_deg": 1.5}}
     assert make_scenario("jari_usv", chosen).faults.rudder_offset_rad == math.radians(1.5)
@@ -342,7 +359,8 @@ def test_adding_an_effect_touches_one_record(monkeypatch, capsys):
     # a shared grey-box term is one attribute
     assert GreyBoxRollout(VESSEL, dt=0.5).term_names == tuple(effects.grey_box_terms())
     monkeypatch.undo()
-    assert "steering_offset" not in diagnosis.HYPOTHESES and "steering_offset" not in hidden_effects.TOLERANCES
+    assert "steering_offset" not in diagnosis.HYPOTHESES
+    assert "steering_offset" not in hidden_effects.TOLERANCES
 
 
 # ---- one home for the per-effect logic and the angle helpers ---------------------------------------------
@@ -368,10 +386,13 @@ def test_the_effects_module_needs_no_torch_and_no_model():
 
 
 def test_angle_helpers():
-    assert angle_difference_deg(350.0, 10.0) == -20.0 and angle_difference_deg(10.0, 350.0) == 20.0
-    assert angle_difference_deg(180.0, 0.0) == -180.0 and angle_difference_deg(0.0, 180.0) == -180.0
+    assert angle_difference_deg(350.0, 10.0) == -20.0
+    assert angle_difference_deg(10.0, 350.0) == 20.0
+    assert angle_difference_deg(180.0, 0.0) == -180.0
+    assert angle_difference_deg(0.0, 180.0) == -180.0
     assert angle_difference_deg(725.0, -5.0) == pytest.approx(10.0)
-    assert angle_error_deg(350.0, 10.0) == -20.0 and angle_error_deg(None, 10.0) is None
+    assert angle_error_deg(350.0, 10.0) == -20.0
+    assert angle_error_deg(None, 10.0) is None
     assert [compass_deg(n, e) for n, e in ((1, 0), (0, 1), (-1, 0), (0, -1))] == [0.0, 90.0, 180.0, 270.0]
 
 
@@ -381,10 +402,12 @@ def test_effects_apply_to_their_layouts():
     assert effects.hypothesis_names("rudder_propeller") == ("none", *[n for n in EFFECTS if n != "thruster_imbalance"])
     assert effects.hypothesis_names() == ("none", *EFFECTS)
     twin = effects.hypothesis_names("twin_thrusters")
-    assert "thruster_imbalance" in twin and not {"rudder_offset", "propeller_asymmetry"} & set(twin)
+    assert "thruster_imbalance" in twin
+    assert not {"rudder_offset", "propeller_asymmetry"} & set(twin)
     assert set(effects.simulated("twin_thrusters")) == set(twin) - {"none", "resistance"}
     with pytest.raises(ConfigError, match=r"effect 'rudder_offset' does not apply to vessel otter \(actuator layout "
-                                          r"twin_thrusters\); it applies to rudder_propeller, rudder_throttle, rudder_only"):
+                                          r"twin_thrusters\); it applies to rudder_propeller, "
+                                          r"rudder_throttle, rudder_only"):
         make_scenario("otter", {"rudder_offset": {"rudder_offset_deg": 2.0}})
     with pytest.raises(ConfigError, match=r"hypotheses \['propeller_asymmetry'\] do not apply to vessel otter"):
         diagnosis.diagnose([], load_vessel("otter"), hypotheses=["current", "propeller_asymmetry"])

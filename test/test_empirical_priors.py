@@ -30,7 +30,8 @@ def test_kvlcc2_sway_terms_reproduce_the_published_captive_values() -> None:
 
 
 def test_kvlcc2_yaw_terms_have_the_captive_signs_and_the_documented_errors() -> None:
-    """N_vvr, N_vrr, N_rrr: the captive tests' signs, and the errors the function's docstring states (-53, +73, +86 %)."""
+    """N_vvr, N_vrr, N_rrr: the captive tests' signs, and the errors the function's docstring states (-53, +73, +86
+    %)."""
     k = kijima_1990_nonlinear(*KVLCC2)
     stated = {"N_vvr": -53.0, "N_vrr": 73.0, "N_rrr": 86.0}
     for name, error_pct in stated.items():

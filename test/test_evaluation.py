@@ -176,9 +176,11 @@ def test_classify_twin_thrusters_reports_the_normalised_differential():
     found = ev.classify(_twin_recording(held, 0.6))
     assert (found.kind, found.side) == ("turning_circle", "starboard")
     assert found.turn_command == pytest.approx(0.4, abs=0.01) and found.turn_unit == "-"  # not degrees of 0.4 rad
-    assert found.propulsion == pytest.approx(0.6, abs=0.01) and found.propulsion_unit == "-"
+    assert found.propulsion == pytest.approx(0.6, abs=0.01)
+    assert found.propulsion_unit == "-"
     assert found.execute_time_s == pytest.approx(10.0, abs=DT)
-    assert math.isnan(found.rudder_deg) and math.isnan(found.rpm)
+    assert math.isnan(found.rudder_deg)
+    assert math.isnan(found.rpm)
     record = found.to_json()
     assert record["rudder_deg"] is None and record["rpm"] is None  # the rudder keys stay, null: there is no rudder
     assert (record["turn_command"], record["turn_unit"]) == (pytest.approx(0.4, abs=0.01), "-")
@@ -193,9 +195,11 @@ def test_classify_twin_thrusters_reports_the_normalised_differential():
 def test_classify_rudder_boat_keeps_degrees_and_rpm():
     found = ev.classify(_controls_recording(np.concatenate([np.zeros(20), np.full(180, 15.0)]), np.full(200, 650.0)))
     assert (found.kind, found.turn_unit, found.propulsion_unit) == ("turning_circle", "deg", "rpm")
-    assert found.rudder_deg == pytest.approx(15.0, abs=0.1) and found.rpm == pytest.approx(650.0)
+    assert found.rudder_deg == pytest.approx(15.0, abs=0.1)
+    assert found.rpm == pytest.approx(650.0)
     record = found.to_json()
-    assert record["rudder_deg"] == pytest.approx(record["turn_command"]) and record["rpm"] == record["propulsion"]
+    assert record["rudder_deg"] == pytest.approx(record["turn_command"])
+    assert record["rpm"] == record["propulsion"]
     assert found.label() == "turning circle, starboard, 15 deg, 650 rpm"
 
 
@@ -234,7 +238,8 @@ def test_physics_baseline_misses_the_current_drift(turn, vessel_model):
 def test_zigzag_overshoots_are_compared(vessel_model):
     rec = simulated(vessel_model, ZigZag(20.0, 20.0, 650.0, duration_s=80.0))
     perfect = ev.evaluate_recording(TruthReplay(rec), rec, reference="truth")
-    assert perfect.zigzag is not None and perfect.turning is None
+    assert perfect.zigzag is not None
+    assert perfect.turning is None
     assert perfect.zigzag.measured["first_overshoot_deg"] > 1.0
     assert perfect.zigzag.errors == {"first_overshoot_abs_deg": 0.0, "second_overshoot_abs_deg": 0.0}
 
@@ -246,7 +251,8 @@ def test_open_loop_shapes_horizons_and_start_points(turn):
     loop = ev.open_loop(TruthReplay(turn), turn, reference="truth", horizons_s=(10.0, 30.0, 60.0), stride_s=5.0)
     steps = int(60.0 / DT)
     expected_starts = len(range(0, len(turn) - steps, int(5.0 / DT)))
-    assert loop.starts == expected_starts and loop.horizon_s == 60.0
+    assert loop.starts == expected_starts
+    assert loop.horizon_s == 60.0
     assert [h.horizon_s for h in loop.horizons] == [10.0, 30.0, 60.0]
     assert all(h.count == expected_starts and h.mean_m == pytest.approx(0.0, abs=1e-9) for h in loop.horizons)
     assert loop.mean_error_by_step_m.shape == (steps,)

@@ -21,7 +21,8 @@ def test_a_model_type_names_its_family(model_type, family):
 def test_the_shipped_model_and_the_physics_baseline_are_known_families():
     assert family_of(load_artifact(package_share_path("models", "default.pt")).metadata).name == "dnn"
     baseline = family_of(physics_predictor("jari_usv", 0.5).metadata)
-    assert baseline.name == "physics" and baseline.physics
+    assert baseline.name == "physics"
+    assert baseline.physics
 
 
 def test_only_the_grey_box_families_carry_the_physics():

@@ -31,7 +31,8 @@ def test_ntf_carries_sine_and_cosine_of_known_headings(psi_deg, sin_psi, cos_psi
     state[3] = math.radians(psi_deg)
     x = features("NTF", state, CONTROLS)
     assert np.allclose(x[:5], [5.0, -0.3, 0.02, math.radians(20.0), 650.0], rtol=0, atol=0)
-    assert x[5] == pytest.approx(sin_psi, abs=1e-12) and x[6] == pytest.approx(cos_psi, abs=1e-12)
+    assert x[5] == pytest.approx(sin_psi, abs=1e-12)
+    assert x[6] == pytest.approx(cos_psi, abs=1e-12)
 
 
 @pytest.mark.parametrize("psi, wrapped", [
@@ -51,8 +52,10 @@ def test_leading_dimensions_broadcast_row_by_row():
     x = features("NTF", state, controls)
     assert x.shape == (2, 7, 7)
     assert np.array_equal(x[1, 4], features("NTF", state[1, 4], controls[1, 4]))
-    assert np.array_equal(x[..., :3], state[..., :3]) and np.array_equal(x[..., 3:5], controls)
-    assert np.array_equal(x[..., 5], np.sin(state[..., 3])) and np.array_equal(x[..., 6], np.cos(state[..., 3]))
+    assert np.array_equal(x[..., :3], state[..., :3])
+    assert np.array_equal(x[..., 3:5], controls)
+    assert np.array_equal(x[..., 5], np.sin(state[..., 3]))
+    assert np.array_equal(x[..., 6], np.cos(state[..., 3]))
     assert np.array_equal(features("F0", state, controls), x[..., :5])
 
 

@@ -85,7 +85,8 @@ def test_the_shipped_bags_fit_their_own_preset():
     for bags in ("sea_trial", "training"):  # simulated with current, wind and waves: they still fit
         check = check_fit(physics_predictor(vessel, 0.5), load_recordings([ROOT / "bags" / bags], 0.5), vessel=vessel)
         assert check.verdict == "fits", check.summary()
-        assert check.speed_windows == "straight" and abs(check.speed_ratio - 1.0) < 0.1
+        assert check.speed_windows == "straight"
+        assert abs(check.speed_ratio - 1.0) < 0.1
         assert abs(check.yaw_rate_ratio - 1.0) < 0.1
         assert check.froude_measured == pytest.approx(check.froude_model, rel=0.1)
         assert check.froude_scale == pytest.approx(1.0, abs=0.2)
@@ -130,7 +131,8 @@ def test_every_layout_fits_its_own_bags_and_a_slower_turner_is_refused(layout):
         stiff = dataclasses.replace(vessel, thrusters=dataclasses.replace(vessel.thrusters,
                                                                           spacing=vessel.thrusters.spacing / 10.0))
     wrong = check_fit(physics_predictor(stiff, 0.5), recordings, vessel=stiff)
-    assert wrong.verdict == "mismatch" and wrong.yaw_rate_ratio < 1.0 / YAW_RATE_RATIO_LIMIT, wrong.summary()
+    assert wrong.verdict == "mismatch", wrong.summary()
+    assert wrong.yaw_rate_ratio < 1.0 / YAW_RATE_RATIO_LIMIT, wrong.summary()
     assert "deg/s for a held turn command" in wrong.refusal()
 
 
@@ -149,7 +151,7 @@ def test_no_hidden_effect_fails_the_check(tmp_path, flags):
     vessel = load_vessel("jari_usv")
     check = check_fit(physics_predictor(vessel, 0.5), load_recordings([bags], 0.5), vessel=vessel)
     assert check.verdict == "fits", check.summary()
-    if check.speed_ratio is not None:  # measured: within 5 % (README "Fit check")
+    if check.speed_ratio is not None:  # measured: within 5 % (docs/commands.md "The fit check")
         assert abs(check.speed_ratio - 1.0) < 0.1 < SPEED_RATIO_LIMIT - 1.0
     if check.yaw_rate_ratio is not None:
         assert abs(check.yaw_rate_ratio - 1.0) < 0.1
@@ -172,14 +174,17 @@ def test_a_small_boat_diagnosed_with_the_default_preset_is_refused_in_one_line(t
     # the limit is the 13.5 m boat's: what the strongest cause of the vocabulary does to it, below the ratio
     limit = float(err.split("limit ")[1].split(" for the 13.5 m boat it describes: the most any one cause")[0])
     assert SPEED_RATIO_LIMIT < limit < float(err.split("(ratio ")[1].split(",")[0]), err
-    assert "identify this boat first (docs/your_boat.md)" in err and "--no-fit-check" in err
+    assert "identify this boat first (docs/your_boat.md)" in err
+    assert "--no-fit-check" in err
     # the expert proceeds: the answer is model_mismatch, never a confident environmental cause or `none`
     out = tmp_path / "d.json"
     assert run("diagnose", bags, "--no-fit-check", "--no-gain", "--hypotheses", "current", "resistance",
                "--max-causes", "1", "--json", out) == 0
     result = json.loads(out.read_text())
-    assert result["cause"] == "model_mismatch" and result["parameters"] == {}
-    assert result["fit_check"]["verdict"] == "mismatch" and result["fit_check"]["speed_ratio"] > SPEED_RATIO_LIMIT
+    assert result["cause"] == "model_mismatch"
+    assert result["parameters"] == {}
+    assert result["fit_check"]["verdict"] == "mismatch"
+    assert result["fit_check"]["speed_ratio"] > SPEED_RATIO_LIMIT
     assert any("fit check failed" in r for r in result["mismatch_reasons"])
     assert result["calm_water_fit"]["heldout_loss"] > 1.0
     assert "identify this boat first" in result["message"]
@@ -196,7 +201,9 @@ def test_the_kvlcc2_model_evaluated_on_full_scale_bags_is_refused(tmp_path, caps
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.startswith("replay evaluate: error: the preset kvlcc2_model does not fit these bags: it runs at 0.69 "
                           "m/s at 76 rpm, these bags at 5.8 m/s"), err
-    assert "times its top speed" in err and "Froude-similar to a hull" in err and "docs/your_boat.md" in err
+    assert "times its top speed" in err
+    assert "Froude-similar to a hull" in err
+    assert "docs/your_boat.md" in err
     out = tmp_path / "e.json"
     assert run("evaluate", bags, "--model", "physics:kvlcc2_model", "--no-fit-check", "--json", out) == 0
     assert json.loads(out.read_text())["fit_check"]["verdict"] == "mismatch"
@@ -208,9 +215,9 @@ def test_the_kvlcc2_model_evaluated_on_full_scale_bags_is_refused(tmp_path, caps
 # ---- the limits follow the boat: what the strongest causes can do to it -----------------------------------------
 
 def test_waves_that_stop_a_two_metre_boat_do_not_fail_the_check(tmp_path):
-    """The Otter acceptance draw (issues #10/#11): 0.81 m waves from 119 deg stop its held turns. With the preset's
+    """The Otter acceptance draw: 0.81 m waves from 119 deg stop its held turns. With the preset's
     former wave-drift yaw (toward head seas, 2x the present one) its port turn made 0.21 m/s where the calm-water
-    preset makes 1.2 m/s (ratio 5.8); since the yaw turns toward beam seas (2026-11-26) the boat still does not turn
+    preset makes 1.2 m/s (ratio 5.8); since the yaw turns toward beam seas the boat still does not turn
     in any window but makes 0.81 m/s: ratio 1.48, within the calm-water allowance. The same draw with waves at the
     top of the suite's range (1.5 m) stops it to 0.28 m/s and beyond (port turn: pushed astern): far beyond the
     allowance, but a right model in some sea of the vocabulary, so no refusal."""
@@ -233,7 +240,9 @@ def test_waves_that_stop_a_two_metre_boat_do_not_fail_the_check(tmp_path):
     assert check.speed_ratio > 2.5 * SPEED_RATIO_LIMIT, check.summary()  # far beyond the allowance ...
     assert check.verdict == "fits", check.summary()  # ... and still a right model
     explained = check.speed_explanation
-    assert explained.explained and explained.cause.effect == "wave_drift" and explained.limits[1] == math.inf
+    assert explained.explained
+    assert explained.cause.effect == "wave_drift"
+    assert explained.limits[1] == math.inf
     assert explained.cause.parameters["wave_height"] == 1.5  # the top of the suite's range
 
 
@@ -250,11 +259,13 @@ def test_the_limits_follow_the_size_of_the_boat():
         dt = diagnosis_steps(vessel).dt  # (s) 0.5 for the jari_usv, 0.25 for the small boats
         check = check_fit(physics_predictor(vessel, dt), _trial_at(vessel, dt), vessel=vessel, explain_always=True)
         assert check.verdict == "fits", (name, check.summary())
-        assert check.speed_explanation.explained and check.yaw_rate_explanation.explained
+        assert check.speed_explanation.explained
+        assert check.yaw_rate_explanation.explained
         limits[name] = check.speed_explanation.limits
     assert SPEED_RATIO_LIMIT < limits["jari_usv"][1] < 2.5, limits
     assert limits["wamv"][1] == limits["otter"][1] == math.inf, limits
-    assert limits["otter"][0] < limits["jari_usv"][0] and limits["wamv"][0] < limits["jari_usv"][0], limits
+    assert limits["otter"][0] < limits["jari_usv"][0], limits
+    assert limits["wamv"][0] < limits["jari_usv"][0], limits
 
 
 def _trial_at(vessel, dt: float) -> list:
@@ -268,7 +279,7 @@ def _trial_at(vessel, dt: float) -> list:
 
 
 # each sea effect at the top of the suite's range on the two twin-thruster presets: the right model is never refused.
-# The WAM-V's waves were a strict expected failure until its preset had the floats' cross-flow drag (2026-11-26):
+# The WAM-V's waves were a strict expected failure until its preset had the floats' cross-flow drag:
 # VRX's 40 N s/m of linear sway damping alone let 1.5 m waves push the beam-on boat sideways at ~41 m/s, beyond
 # what the bag reader takes as plausible (15 m/s), so no recording was left to check.
 
@@ -291,7 +302,8 @@ def test_no_sea_at_the_top_of_its_range_fails_a_small_boat(tmp_path, vessel_name
     for ratio, limit, explained in ((check.speed_ratio, SPEED_RATIO_LIMIT, check.speed_explanation),
                                     (check.yaw_rate_ratio, YAW_RATE_RATIO_LIMIT, check.yaw_rate_explanation)):
         if ratio is not None and not (1.0 / limit <= ratio <= limit):  # beyond the allowance: a cause explains it
-            assert explained.explained and explained.cause is not None, check.summary()
+            assert explained.explained, check.summary()
+            assert explained.cause is not None, check.summary()
 
 
 def test_the_causes_of_a_rudder_only_window_hold_its_approach_engine_speed():
@@ -319,7 +331,8 @@ def test_the_causes_of_a_rudder_only_window_hold_its_approach_engine_speed():
                          averaged, reference)
 
     du, _ = fc.cause_changes(vessel, dt, [window("straight", 0.0, approach), window("straight", 0.0, None)], [wind])
-    assert du[0, 0] > 0.3 and abs(du[0, 1]) < 0.1, du
+    assert du[0, 0] > 0.3, du
+    assert abs(du[0, 1]) < 0.1, du
     # a turn (sway and yaw free) is exactly the vessel's grey box with that reference
     turn = window("turn", math.radians(15.0), approach)
     du, dr = fc.cause_changes(vessel, dt, [turn], [wind])
@@ -333,7 +346,7 @@ def test_the_causes_of_a_rudder_only_window_hold_its_approach_engine_speed():
     assert dr[0, 0] == pytest.approx(float(windy[2] - calm[2]), abs=1e-12)
 
 
-def test_the_scripted_causes_are_the_eager_ones_bit_for_bit():
+def test_the_scripted_causes_are_the_eager_ones_bit_for_bit_and_the_compiled_ones_to_rounding():
     """cause_changes runs its steered grey box as TorchScript without the executor's optimisation (half eager's
     time) and reduced to u and r (fit_check._causes_rollout: the positions not integrated, the sea terms and hull
     coefficients once per rollout): the same numbers bit for bit as the steered grey box's whole rollout, eager, on
@@ -357,16 +370,25 @@ def test_the_scripted_causes_are_the_eager_ones_bit_for_bit():
             rolled.append(fc.Rolled(fc.SteadyWindow("r", kind, 0.0, 1.0, 0.0, 0.0, 4.0, 4.0, 0.0, 0.0), state,
                                     controls, min(steps, 12), reference))
         for substeps in (None, 3):
-            whole = fc.cause_changes(vessel, dt, rolled, causes, scripted=False, lean=False, substeps=substeps)
+            whole = fc.cause_changes(vessel, dt, rolled, causes, compiled=False, scripted=False, lean=False,
+                                     substeps=substeps)
             assert np.isfinite(whole[0]).all() and np.abs(whole[0]).max() > 0.01  # the causes change something
             assert np.abs(whole[1]).max() > 1e-3
             for scripted, lean in ((False, True), (True, True), (True, False)):
-                out = fc.cause_changes(vessel, dt, rolled, causes, scripted=scripted, lean=lean, substeps=substeps)
+                out = fc.cause_changes(vessel, dt, rolled, causes, compiled=False, scripted=scripted, lean=lean,
+                                       substeps=substeps)
                 np.testing.assert_array_equal(out[0], whole[0])
                 np.testing.assert_array_equal(out[1], whole[1])
-        fc.cause_changes(vessel, dt, rolled[:1], causes[:3])  # another batch through the kept scripted module
-        again = fc.cause_changes(vessel, dt, rolled, causes)
-        np.testing.assert_array_equal(again[0], fc.cause_changes(vessel, dt, rolled, causes, scripted=False)[0])
+            # the compiled kernel (the default) equals them to float rounding: du (m/s), dr (rad/s)
+            compiled = fc.cause_changes(vessel, dt, rolled, causes, substeps=substeps)
+            np.testing.assert_allclose(compiled[0], whole[0], rtol=0.0, atol=1e-10)
+            np.testing.assert_allclose(compiled[1], whole[1], rtol=0.0, atol=1e-12)
+        fc.cause_changes(vessel, dt, rolled[:1], causes[:3], compiled=False)  # another batch through the kept module
+        again = fc.cause_changes(vessel, dt, rolled, causes, compiled=False)
+        np.testing.assert_array_equal(again[0], fc.cause_changes(vessel, dt, rolled, causes, compiled=False,
+                                                                 scripted=False)[0])
+        fc.cause_changes(vessel, dt, rolled[:1], causes[:3])  # another batch through the kept kernel: its terms reset
+        np.testing.assert_allclose(fc.cause_changes(vessel, dt, rolled, causes)[0], again[0], rtol=0.0, atol=1e-10)
 
 
 @pytest.mark.slow
@@ -376,14 +398,15 @@ def test_the_causes_substeps_scale_with_the_boat_and_keep_du_and_dr():
     rudder_throttle and rudder_only variants 4 -> 2, kvlcc2_model and wamv 4 -> 3), every strongest cause's du and
     dr of a straight window (steered, SETTLE_S) and two held turns at full and half propulsion stay within 1e-3 m/s
     and 2e-3 deg/s of 16 substeps, the accuracy the 2 m otter gets from the rule at 4 substeps (7.3e-4 m/s, 1.4e-3
-    deg/s, 2026-11-26); the otter keeps its substeps."""
+    deg/s); the otter keeps its substeps."""
     import numpy as np
 
     from usv_predictor.analysis import fit_check as fc
     from usv_predictor.physics.dynamics import ManoeuvringModel
 
     dt = 0.5
-    assert fc.cause_substeps(load_vessel("otter"), dt) == 4 and fc.cause_substeps(load_vessel("otter"), 0.2) == 2
+    assert fc.cause_substeps(load_vessel("otter"), dt) == 4
+    assert fc.cause_substeps(load_vessel("otter"), 0.2) == 2
     variants = layout_variants()
     vessels = {"jari_usv": (variants["rudder_propeller"], 2), "rudder_throttle": (variants["rudder_throttle"], 2),
                "rudder_only": (variants["rudder_only"], 2), "kvlcc2_model": (load_vessel("kvlcc2_model"), 3),
@@ -407,7 +430,9 @@ def test_the_causes_substeps_scale_with_the_boat_and_keep_du_and_dr():
         causes = fc.strongest_causes(layout.name)
         du, dr = fc.cause_changes(vessel, dt, rolled, causes)
         fine_du, fine_dr = fc.cause_changes(vessel, dt, rolled, causes, substeps=16)
-        assert np.isfinite(fine_du).all() and np.abs(fine_du).max() > 0.5 and np.abs(fine_dr).max() > 0.03, name
+        assert np.isfinite(fine_du).all(), name
+        assert np.abs(fine_du).max() > 0.5, name
+        assert np.abs(fine_dr).max() > 0.03, name
         assert np.abs(du - fine_du).max() < 1e-3, (name, np.abs(du - fine_du).max())
         assert np.degrees(np.abs(dr - fine_dr).max()) < 2e-3, (name, np.degrees(np.abs(dr - fine_dr).max()))
 
@@ -436,8 +461,11 @@ def test_the_causes_are_rolled_out_for_the_windows_of_a_ratio_beyond_its_allowan
 
     layout = vessel.actuator_layout
     check = fc.judge_windows("m", layout, [straight, turn], np.array([5.0]), dt, vessel=vessel, changes_of=changes_of)
-    assert calls == [["turn"]] and check.speed_ratio == 1.0 and check.speed_explanation is None
-    assert check.yaw_rate_ratio == pytest.approx(6.0) and check.yaw_rate_explanation is not None
+    assert calls == [["turn"]]
+    assert check.speed_ratio == 1.0
+    assert check.speed_explanation is None
+    assert check.yaw_rate_ratio == pytest.approx(6.0)
+    assert check.yaw_rate_explanation is not None
     causes = fc.strongest_causes(layout.name)
     _, dr = fc.cause_changes(vessel, dt, [straight, turn], causes)  # every window in one batch
     assert check.yaw_rate_explanation == fc._explain(check.yaw_rate_ratio, np.array([math.radians(6.0)]), dr[:, 1:],
@@ -446,4 +474,5 @@ def test_the_causes_are_rolled_out_for_the_windows_of_a_ratio_beyond_its_allowan
                      straight.controls, 20)  # speed ratio 2.5: beyond
     calls.clear()
     check = fc.judge_windows("m", layout, [slow, turn], np.array([2.0]), dt, vessel=vessel, changes_of=changes_of)
-    assert calls == [["straight", "turn"]] and check.speed_explanation is not None
+    assert calls == [["straight", "turn"]]
+    assert check.speed_explanation is not None

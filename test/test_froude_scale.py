@@ -1,4 +1,4 @@
-"""Froude scaling of recordings (`--scale LAMBDA` of evaluate, identify and diagnose; issue 11): the scaled motion
+"""Froude scaling of recordings (`--scale LAMBDA` of evaluate, identify and diagnose): the scaled motion
 has the Froude number and the non-dimensional rates of the original; a model-scale vessel on full-scale bags is
 refused without the option and evaluated / identified with it (SIMMAN 2008 KVLCC2: MARIN's full-scale zig-zags
 scaled to HSVA's 1:45.714 model). Real-data tests use the `raw_data_dir` fixture (skip locally when absent, fail
@@ -38,7 +38,8 @@ def test_froude_scaling_keeps_the_froude_number_and_the_non_dimensional_motion()
     full = _recording("rudder_propeller", controls)
     model = froude_scaled(full, scale)
     root = math.sqrt(scale)
-    assert model.dt == pytest.approx(full.dt / root) and np.allclose(model.t_s, full.t_s / root)
+    assert model.dt == pytest.approx(full.dt / root)
+    assert np.allclose(model.t_s, full.t_s / root)
     speed_full, speed_model = np.hypot(full.nu[:, 0], full.nu[:, 1]), np.hypot(model.nu[:, 0], model.nu[:, 1])
     # Froude number U / sqrt(g L), non-dimensional yaw rate r L / U, advance ratio J = u / (n D): all kept
     assert np.allclose(speed_model / math.sqrt(G * length / scale), speed_full / math.sqrt(G * length))
@@ -59,8 +60,8 @@ def test_froude_scaling_keeps_the_froude_number_and_the_non_dimensional_motion()
 def test_normalised_commands_are_kept_and_a_bad_factor_is_refused():
     commands = np.full((10, 2), 0.6)
     twin = froude_scaled(_recording("twin_thrusters", commands), 4.0)
-    assert np.array_equal(twin.controls, commands) and np.allclose(twin.nu[:, 2], 2 * _recording(
-        "twin_thrusters", commands).nu[:, 2])
+    assert np.array_equal(twin.controls, commands)
+    assert np.allclose(twin.nu[:, 2], 2 * _recording("twin_thrusters", commands).nu[:, 2])
     for bad in (0.0, -2.0, math.nan, math.inf):
         with pytest.raises(Exception, match="Froude scale"):
             froude_scaled(twin, bad)
@@ -74,7 +75,8 @@ def test_the_option_takes_a_plausible_scale_only(value, capsys):
 
 def _zigzags(path: Path) -> dict[str, dict]:
     data = json.loads(path.read_text())
-    return {r["name"]: r["zigzag"] for r in data["recordings"]} | {"_fit_check": data["fit_check"], "_data": data["data"]}
+    return {r["name"]: r["zigzag"] for r in data["recordings"]} | {"_fit_check": data["fit_check"],
+                                                                   "_data": data["data"]}
 
 
 @pytest.mark.slow
@@ -108,8 +110,10 @@ def test_marin_full_scale_zigzags_froude_scaled_to_the_model_agree_with_hsva(raw
                  "--json", str(tmp_path / "hsva.json")]) == 0
     marin, hsva = _zigzags(tmp_path / "marin.json"), _zigzags(tmp_path / "hsva.json")
     check = marin["_fit_check"]
-    assert check["verdict"] == "fits" and marin["_data"]["froude_scale"] == KVLCC2_SCALE
-    assert 0.9 < check["speed_ratio"] < 1.1 and 0.8 < check["yaw_rate_ratio"] < 1.25
+    assert check["verdict"] == "fits"
+    assert marin["_data"]["froude_scale"] == KVLCC2_SCALE
+    assert 0.9 < check["speed_ratio"] < 1.1
+    assert 0.8 < check["yaw_rate_ratio"] < 1.25
     assert check["data_speed_mps"] == pytest.approx(hsva["_fit_check"]["data_speed_mps"], rel=0.02)  # 1.17 m/s
     for side in "ps":  # measured 9.24 / 7.91 deg (MARIN) against 9.07 / 7.81 deg (HSVA); the preset 6.96 / 4.33
         full, tank = marin[f"marin_zz_10_10_{side}"], hsva[f"hsva_z_10_10_{side}"]  # against 7.05 / 3.48

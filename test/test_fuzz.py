@@ -1,12 +1,12 @@
 """Bad input, generated: every replay command against broken bags, numbers that are not numbers, outputs on top of
-inputs, foreign and failing model files, broken datasets and evaluation files, and interrupts (issue 12).
+inputs, foreign and failing model files, broken datasets and evaluation files, and interrupts.
 
 Deterministic: every case draws from numpy's generator seeded with SEED and the case's name, so a failure
 reproduces with `-k <case>`. Every run must end with exit 0 or 2 (130 when interrupted), never a traceback, an
 error in one line naming the command, the inputs byte-identical (sha256 before and after) and no temporary file
 of an atomic writer left anywhere. Commands run in this process (usv_predictor.replay.cli.main) except where a
 signal or a file-size limit is the point; those cases, and the slower identify/diagnose runs, are marked slow.
-Each test counts its runs (Checked.runs); README_bad_input_section.md quotes the totals.
+Each test counts its runs (Checked.runs); README.md "What happens on bad input" quotes the totals.
 """
 from __future__ import annotations
 
@@ -96,7 +96,8 @@ class Checked:
 
     def finish(self) -> None:
         assert digest(self.inputs) == self.before, "an input changed"
-        assert leftovers(self.out) == [] and all(leftovers(p) == [] for p in self.inputs if p.is_dir())
+        assert leftovers(self.out) == []
+        assert all(leftovers(p) == [] for p in self.inputs if p.is_dir())
 
 
 @pytest.fixture()
@@ -328,7 +329,8 @@ def _source_mutations() -> dict[str, Callable[[np.random.Generator, bytes], byte
 
 
 SOURCE_MUTATIONS = _source_mutations()
-SOURCES = ("kvlcc2_hsva_simman2008/HSVA_CPMC_KVLCC2_Z_10_10_S.dat", "usv_alexandersson2022_fuzhou/zigzag_30_inter_xy.csv")
+SOURCES = ("kvlcc2_hsva_simman2008/HSVA_CPMC_KVLCC2_Z_10_10_S.dat",
+           "usv_alexandersson2022_fuzhou/zigzag_30_inter_xy.csv")
 
 
 @pytest.mark.parametrize("mutation", sorted(SOURCE_MUTATIONS))
@@ -384,7 +386,8 @@ def test_numbers_that_are_not_numbers(command: str, option: str, base: dict[str,
         out = tmp_path / f"out_{VALUES.index(value)}"
         code, err = run(command, *_base_argv(command, base, out, option), option, value)
         if value in ("nan", "inf", "-inf", "abc", ""):
-            assert code == 2 and f"argument {option}" in err, err
+            assert code == 2, err
+            assert f"argument {option}" in err, err
 
 
 # ------------------------------------------------------------------ outputs on top of inputs, or nowhere to go
@@ -439,7 +442,8 @@ def test_outputs_on_top_of_inputs(command: str, base: dict[str, Path], tmp_path:
         for name, (target, words) in _targets(inputs, kind if flag == option else "file", base, tmp_path).items():
             other = [option, tmp_path / f"elsewhere_{name}"] if flag != option else []
             code, err = run(command, *args(base), *other, flag, target)
-            assert code == 2 and any(w in err for w in words.split("|")), f"{name} {flag}: {err}"
+            assert code == 2, f"{name} {flag}: {err}"
+            assert any(w in err for w in words.split("|")), f"{name} {flag}: {err}"
             assert "reading" not in err and "wrote" not in err  # before any work
 
 
@@ -499,7 +503,8 @@ def test_foreign_and_failing_models(base: dict[str, Path], tmp_path: Path, check
         code, err = run("diagnose", base["bags"], "--model", model, "--hypotheses", "current", "--no-gain")
         assert code == 2, f"{name}: {err}"
     code, err = run("diagnose", base["bags"], "--model", base["model"], "--hypotheses", "current", "--no-gain")
-    assert code == 2 and "diagnose needs a grey box" in err
+    assert code == 2
+    assert "diagnose needs a grey box" in err
 
 
 # ------------------------------------------------------------------ broken datasets and evaluation files
@@ -648,7 +653,8 @@ def test_interrupted_in_the_middle(command: str, base: dict[str, Path], tmp_path
 @pytest.mark.parametrize("command", ["dataset", "train"])
 def test_sigint_to_the_process_group(command: str, base: dict[str, Path], tmp_path: Path) -> None:
     """Ctrl-C in a terminal signals the whole process group (dataset's worker processes too)."""
-    argv = {"dataset": ["dataset", str(REPO / "bags" / "sea_trial"), str(REPO / "bags" / "training"), "--include-calm", "--jobs", "2", "--output",
+    argv = {"dataset": ["dataset", str(REPO / "bags" / "sea_trial"), str(REPO / "bags" / "training"), "--include-calm",
+                        "--jobs", "2", "--output",
                         str(tmp_path / "ds.npz")],
             "train": ["train", str(base["dataset"]), "--output", str(tmp_path / "m.pt"), "--epochs", "100000",
                       "--patience", "0"]}[command]
@@ -662,7 +668,8 @@ def test_sigint_to_the_process_group(command: str, base: dict[str, Path], tmp_pa
     TALLY[f"exit {process.returncode}"] += 1
     TALLY["group test_sigint_to_the_process_group"] += 1
     assert process.returncode in (0, cli.EXIT_INTERRUPTED), err[-3000:]
-    assert "Traceback" not in err and leftovers(tmp_path) == []
+    assert "Traceback" not in err
+    assert leftovers(tmp_path) == []
 
 
 @pytest.mark.slow
@@ -680,8 +687,10 @@ def test_file_size_limit(command: str, base: dict[str, Path], tmp_path: Path) ->
     TALLY[f"exit {done.returncode}"] += 1
     TALLY["group test_file_size_limit"] += 1
     assert done.returncode == 2, done.stderr[-3000:]
-    assert "Traceback" not in done.stderr and "no space left" in done.stderr.strip().splitlines()[-1]
-    assert leftovers(tmp_path) == [] and digest([base["bags"], base["evaluation"].parent]) == before
+    assert "Traceback" not in done.stderr
+    assert "no space left" in done.stderr.strip().splitlines()[-1]
+    assert leftovers(tmp_path) == []
+    assert digest([base["bags"], base["evaluation"].parent]) == before
 
 
 # ------------------------------------------------------------------ documents beyond bounds

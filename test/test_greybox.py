@@ -212,7 +212,8 @@ def test_accelerations_match_for_every_hull_model_and_layout(name):
         set_terms(g, current_ne=current, wind_ne=wind, wave_ne=wave, propeller_side_force=[side],
                   thrust_imbalance=[k])
         model = ManoeuvringModel(vessel, propeller_side_force=side, thrust_imbalance=k)
-        psi, u, v, r = rng.uniform(-3, 3), rng.uniform(-0.2, 1.0) * speed, rng.normal(0, 0.2) * speed, rng.normal(0, 0.3)
+        psi, u, v, r = rng.uniform(-3, 3), rng.uniform(-0.2,
+                                                       1.0) * speed, rng.normal(0, 0.2) * speed, rng.normal(0, 0.3)
         a, b = random_levels(vessel, rng)
         expected = model.accelerations(psi, u, v, r, a, b, sea_of(current, wind, wave))
         got = g._accelerations(*(torch.tensor([x], **T64) for x in (psi, u, v, r, a, b)))
@@ -232,7 +233,8 @@ def lagged(y0: float, u0: float, u1: float, u2: float, t: float, h: float) -> tu
     if t == 0.0:
         return u0, u1, u2
     drift = t * (u2 - u0) / h
-    return y0, u1 - drift + (y0 - u0 + drift) * math.exp(-0.5 * h / t), u2 - drift + (y0 - u0 + drift) * math.exp(-h / t)
+    return y0, u1 - drift + (y0 - u0 + drift) * math.exp(-0.5
+                                                         * h / t), u2 - drift + (y0 - u0 + drift) * math.exp(-h / t)
 
 
 def float_rollout_of(vessel, model: ManoeuvringModel, sea: SeaLoads, state, controls, dt: float, substeps: int,
@@ -350,7 +352,8 @@ def test_metadata_names_the_layout_and_the_hull_model():
         g = GreyBoxRollout(vessel, dt=0.5)
         meta = greybox_metadata(vessel, g)
         assert meta["control_layout"] == list(vessel.actuator_layout.control_names)
-        assert meta["actuator_layout"] == vessel.layout and meta["hull_model"] == vessel.hull_model_name
+        assert meta["actuator_layout"] == vessel.layout
+        assert meta["hull_model"] == vessel.hull_model_name
         assert list(meta["architecture"]["hull"]) == list(g.hull_names)
     assert greybox_metadata(VESSEL, GreyBoxRollout(VESSEL, dt=0.5))["control_layout"] == ["delta", "rpm"]
     with pytest.raises(ValueError, match=r"controls must be \(B, H, 2\)"):

@@ -1,4 +1,4 @@
-"""Issue 12, case by case: never a traceback, never touch an input, never leave half a file (the replay side).
+"""Bad input, case by case: never a traceback, never touch an input, never leave half a file (the replay side).
 
 Each test is one case of the issue, reproduced on the shipped bags or on short bags simulated here, and run the
 way a user runs it (in-process through usv_predictor.replay.cli.main, or as a process where a signal or a
@@ -85,7 +85,9 @@ def test_train_without_a_validation_split_writes_json(one_bag_dataset, tmp_path,
     code, err = replay(capsys, "train", one_bag_dataset, "--output", model, "--epochs", "3", "--json", result)
     assert_one_line(code, err, "train", allowed=(0,))
     summary = json.loads(result.read_text())
-    assert summary["n_val"] == 0 and summary["monitor"] == "train" and summary["val_loss"] is None
+    assert summary["n_val"] == 0
+    assert summary["monitor"] == "train"
+    assert summary["val_loss"] is None
     assert load_artifact(model).metadata["training"]["val_loss"] == [None]
 
 
@@ -98,7 +100,8 @@ def test_train_refuses_a_dataset_holding_nan_naming_the_array(one_bag_dataset, t
     np.savez_compressed(broken, **arrays)
     code, err = replay(capsys, "train", broken, "--output", tmp_path / "m.pt", "--epochs", "2")
     assert_one_line(code, err, "train", allowed=(2,))
-    assert "X holds 1 non-finite value(s) (first at row 7, column" in err and str(broken) in err
+    assert "X holds 1 non-finite value(s) (first at row 7, column" in err
+    assert str(broken) in err
     assert not (tmp_path / "m.pt").exists()
 
 
@@ -115,7 +118,8 @@ def test_identify_writes_json_without_nan(tmp_path, capsys, storage) -> None:
     collinearity = {c["equation"]: c for c in json.loads(result.read_text())["identification"]["collinearity"]}
     for equation, bias in (("Y", "Y_0"), ("N", "N_0")):
         entry = next(c for name, c in collinearity.items() if name.startswith(equation))
-        assert entry["constant_regressors"] == [bias] and bias not in entry["vif"]
+        assert entry["constant_regressors"] == [bias]
+        assert bias not in entry["vif"]
         assert all(v is not None and v >= 1.0 for v in entry["vif"].values())
     assert load_artifact(tmp_path / "id.pt").metadata["identification"]["collinearity"]
 
@@ -147,8 +151,10 @@ def test_huge_values_are_dropped_with_a_warning_naming_the_field() -> None:
     values[40:45, 0] = 1e30  # yaw rate (rad/s)
     warnings: list[str] = []
     signal_in = Signal(t, values, ROLE_FIELDS["imu"])
-    cleaned = clean_signal(signal_in, where="bag: topic 'imu/data'", role="imu", dt=0.5, t_ref_ns=0, warn=warnings.append)
-    assert len(cleaned) == 95 and np.abs(cleaned.values[:, 0]).max() == 0.0
+    cleaned = clean_signal(signal_in, where="bag: topic 'imu/data'", role="imu", dt=0.5, t_ref_ns=0,
+                           warn=warnings.append)
+    assert len(cleaned) == 95
+    assert np.abs(cleaned.values[:, 0]).max() == 0.0
     assert warnings == ["bag: topic 'imu/data': dropped 5 of 100 samples with implausible values (yaw_rate: 5, e.g. "
                         "1e+30 outside [-3, 3]): corrupt samples, or wrong units in the config?"]
 
@@ -165,7 +171,8 @@ def test_diagnose_on_huge_values(short_bags, tmp_path, capsys, role, field) -> N
         write_variant(bags / bag.name, streams, custom)
     code, err = replay(capsys, "diagnose", bags, "--hypotheses", "actuator_delay", "--no-gain")
     assert_one_line(code, err, "diagnose", allowed=(0,))
-    assert "dropped 5 of" in err and f"{field}: 5, e.g. 1e+30" in err
+    assert "dropped 5 of" in err
+    assert f"{field}: 5, e.g. 1e+30" in err
 
 
 OPTION_CASES = [
@@ -186,7 +193,8 @@ def test_numbers_that_are_not_numbers_are_usage_errors(tmp_path, capsys, monkeyp
     monkeypatch.chdir(tmp_path)
     code, err = replay(capsys, command, *REQUIRED[command], option, value)
     assert_one_line(code, err, command, allowed=(2,))
-    assert f"argument {option}" in err and value in err
+    assert f"argument {option}" in err
+    assert value in err
     assert list(tmp_path.iterdir()) == []  # refused before any work
 
 
@@ -312,7 +320,8 @@ def test_evaluate_with_a_model_whose_code_raises(tmp_path, capsys) -> None:
     model = _failing_model(tmp_path / "raises.pt")
     code, err = replay(capsys, "evaluate", ZIGZAG, "--model", model)
     assert_one_line(code, err, "evaluate", allowed=(2,))
-    assert err.strip().splitlines()[-1] == (f"replay evaluate: error: model {model} fails when run: RuntimeError: boom: "
+    assert err.strip().splitlines()[-1] == (f"replay evaluate: error: model {model} fails when run: "
+                                            f"RuntimeError: boom: "
                                             "this model always fails")
 
 
@@ -372,7 +381,8 @@ def test_a_full_disk_leaves_no_partial_file(one_bag_dataset, short_bags, tmp_pat
     out.mkdir()
     target = out / "model.pt"
     argv = {"train": ["train", str(one_bag_dataset), "--output", str(target), "--epochs", "2"],
-            "identify": ["identify", str(short_bags), "--vessel", "jari_usv", "--prior", "fix", "--output", str(target)],
+            "identify": ["identify", str(short_bags), "--vessel", "jari_usv", "--prior", "fix", "--output",
+                         str(target)],
             "diagnose_export": ["diagnose", str(short_bags), "--hypotheses", "current", "--no-gain",
                                 "--export", str(target)]}[command]
     before = digest([one_bag_dataset, short_bags])
@@ -383,7 +393,8 @@ def test_a_full_disk_leaves_no_partial_file(one_bag_dataset, short_bags, tmp_pat
     assert "Traceback" not in done.stderr
     assert done.stderr.strip().splitlines()[-1] == (f"replay {name}: error: cannot write model {target}: "
                                                     "no space left (File too large)")
-    assert list(out.iterdir()) == [] and leftovers(tmp_path) == []
+    assert list(out.iterdir()) == []
+    assert leftovers(tmp_path) == []
     assert digest([one_bag_dataset, short_bags]) == before
 
 
@@ -416,7 +427,8 @@ INTERRUPTED = {
     "train": (["train", "{dataset}", "--output", "out/m.pt", "--epochs", "100000", "--patience", "0",
                "--progress-s", "0"], "epoch 3/"),
     "simulate": (["simulate", "--programme", "training", "--output", "out/bags"], "[1/4]"),
-    "dataset": (["dataset", str(BAGS / "sea_trial"), str(BAGS / "training"), "--include-calm", "--jobs", "2", "--output", "out/ds.npz"], "[1/20]"),
+    "dataset": (["dataset", str(BAGS / "sea_trial"), str(BAGS / "training"), "--include-calm", "--jobs", "2",
+                 "--output", "out/ds.npz"], "[1/20]"),
     "evaluate": (["evaluate", "--output", "out/eval"], "[1/6]"),
     "report": (["report", "--output", "out/report"], "[1/6]"),
     "identify": (["identify", str(BAGS / "training"), "--vessel", "jari_usv", "--prior", "fix", "--output",
@@ -453,7 +465,8 @@ def test_sigterm_during_a_long_command(one_bag_dataset, tmp_path) -> None:
     argv, marker = INTERRUPTED["train"]
     done = _interrupt_after([a.format(dataset=one_bag_dataset) for a in argv], marker, tmp_path, sig=signal.SIGTERM)
     assert done.returncode == cli.EXIT_TERMINATED == 143, done.stderr[-3000:]
-    assert "Traceback" not in done.stderr and done.stderr.strip().splitlines()[-1] == "replay train: terminated"
+    assert "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines()[-1] == "replay train: terminated"
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*"))
     assert leftovers(tmp_path) == []
 

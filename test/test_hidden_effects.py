@@ -59,31 +59,33 @@ def test_diagnose_finds_the_hidden_effect(tmp_path, effect, draw_index):
     ok, errors = within_tolerance(truth, result["parameters"])
     assert ok, f"{truth}: errors {errors} beyond the tolerances"
     if effect == "none":
-        assert result["parameters"] == {} and result["gain"] == {}
+        assert result["parameters"] == {}
+        assert result["gain"] == {}
     elif draw_index == 0:
         gain = result["gain"]
         assert gain["mean_position_error_after_30s_m"] > 0.05, gain  # the extension predicts held-out tracks better
-        assert result["extended"]["mean_position_error_after_30s_m"] < result["baseline"]["mean_position_error_after_30s_m"]
+        key = "mean_position_error_after_30s_m"
+        assert result["extended"][key] < result["baseline"][key]
 
 
 TWIN_VESSEL = "otter"
 TWIN_EFFECTS = effect_names("twin_thrusters")
-# Known limits on the 2 m boat (README, the otter's confusion matrix), found by this suite on 2026-11-23.
+# Known limits on the 2 m boat, found by this suite (docs/results/diagnosis_matrices.md, the otter's matrix).
 # Strict: the day these cases pass, the marks must go.
 TWIN_NOT_FOUND = {
     # the preset's windage and wave-drift coefficients are estimates with similar heading dependence: the 10 m/s
     # wind of this draw is named wave_drift (0.45 m from 47 deg, evidence 16): confounded, a wrong cause (re-run
-    # 2026-11-26: refused by the fit check instead, yaw-rate ratio -11.8, with the former wave coefficients too)
+    # since: refused by the fit check instead, yaw-rate ratio -11.8, with the former wave coefficients too)
     "wind": "wind on the Otter preset is taken for wave drift (similar estimated coefficients)",
 }
 # (the wave_drift draw was refused by the fit check while its limits were the 15 m jari_usv's: its 0.81 m waves stopped
 # the 2 m boat's port turn, 0.21 m/s where the calm-water preset makes 1.2 m/s; the limits now follow what the
 # strongest causes do to the boat, analysis/fit_check.py, and test_fit_check.py keeps this draw's bags fitting; since
-# the preset's wave-drift yaw turns toward beam seas, 2026-11-26, the boat still does not turn but makes 0.81 m/s,
+# the preset's wave-drift yaw turns toward beam seas, the boat still does not turn but makes 0.81 m/s,
 # within the calm-water allowance)
 # Not run in CI, to keep it near its 30 min budget (each case is a ~1.5 min diagnosis): the wind case, a known wrong
 # answer (above), and the sensor/actuator faults the jari_usv draws above already cover for the same hypotheses
-# (their otter results are the README's confusion matrix: benchmarks/bench_diagnosis.py --vessel otter). CI keeps
+# (their otter results: docs/results/diagnosis_matrices.md, benchmarks/bench_diagnosis.py --vessel otter). CI keeps
 # the clean control, the current, the waves and the twin's own thruster imbalance.
 TWIN_NOT_IN_CI = ("wind", "yaw_rate_bias", "heading_offset", "actuator_delay")
 TWIN_CASES = [pytest.param(e, marks=pytest.mark.xfail(reason=TWIN_NOT_FOUND[e], raises=AssertionError,
@@ -106,10 +108,12 @@ def test_diagnose_finds_the_hidden_effect_of_a_twin_thruster_boat(tmp_path, effe
     ok, errors = within_tolerance(truth, result["parameters"])
     assert ok, f"{truth}: errors {errors} beyond the tolerances"
     if effect == "none":
-        assert result["parameters"] == {} and result["gain"] == {}
+        assert result["parameters"] == {}
+        assert result["gain"] == {}
     elif measure_gain:
         assert result["gain"]["mean_position_error_after_30s_m"] > 0.05, result["gain"]
-        assert result["extended"]["mean_position_error_after_30s_m"] < result["baseline"]["mean_position_error_after_30s_m"]
+        key = "mean_position_error_after_30s_m"
+        assert result["extended"][key] < result["baseline"][key]
 
 
 def test_heading_offset_and_current_are_told_apart(tmp_path):
@@ -130,7 +134,8 @@ def test_rudder_offset_and_propeller_asymmetry_are_told_apart(tmp_path, effect, 
     (rudder inflow against thrust) and the tool names the right one decisively."""
     bags = simulate_trial(tmp_path, flags, 23)
     result = diagnose(tmp_path, bags, "--no-gain", "--hypotheses", "rudder_offset", "propeller_asymmetry")
-    assert result["cause"] == effect and result["confounded_with"] == []
+    assert result["cause"] == effect
+    assert result["confounded_with"] == []
     other = next(e for e in result["evidence"] if e["hypothesis"] not in (effect, "none"))
     assert other["evidence_of_best"] > 5.0
 
@@ -140,7 +145,8 @@ def test_one_manoeuvre_is_refused_with_what_to_add(tmp_path, capsys):
     run_cli("simulate", "--manoeuvre", "turning-circle", "--duration", "60", "--output", str(bags))
     assert main(["diagnose", str(bags)]) == 2
     err = capsys.readouterr().err
-    assert "a diagnosis needs at least two" in err and "turning circle each way" in err
+    assert "a diagnosis needs at least two" in err
+    assert "turning circle each way" in err
 
 
 def test_turns_one_way_only_are_flagged(tmp_path):

@@ -1,4 +1,4 @@
-"""The generalising hybrid (issue 15): the identified grey box + a bounded, data-supported learned residual ensemble.
+"""The generalising hybrid: the identified grey box + a bounded, data-supported learned residual ensemble.
 
 What is proven here: the ensemble runs as one batched rollout and equals its members run one by one; an untrained
 residual is exactly the grey box; the learned term never exceeds its bound and vanishes away from the data it was
@@ -119,8 +119,10 @@ def test_learned_term_vanishes_away_from_the_data(vessel):
         z = (residual.features(psi, u, v, r, a, b) - residual.in_mean) / residual.in_std
         envelope = residual.envelope(z)[:, 0]
         extra = residual(psi, u, v, r, a, b)  # (2, 3)
-    assert float(envelope[0]) == 1.0 and float(extra[0].abs().max()) > 1e-4
-    assert float(envelope[1]) < 1e-20 and float(extra[1].abs().max()) < 1e-20
+    assert float(envelope[0]) == 1.0
+    assert float(extra[0].abs().max()) > 1e-4
+    assert float(envelope[1]) < 1e-20
+    assert float(extra[1].abs().max()) < 1e-20
 
 
 @pytest.fixture(scope="module")
@@ -147,7 +149,8 @@ def test_hybrid_predicts_held_out_manoeuvres_better_than_the_grey_box(vessel, wi
     hybrid_fit.export_identified(str(art_path), module, result, dt=DT, training_data_sha256="0" * 64,
                                  model_type="hybrid", hybrid=info)
     art = load_artifact(art_path, expect={"model_type": "hybrid"})
-    assert art.ensemble_size == 3 and info["bound"] == pytest.approx(art.metadata["architecture"]["bound"])
+    assert art.ensemble_size == 3
+    assert info["bound"] == pytest.approx(art.metadata["architecture"]["bound"])
     grey = hybrid_fit.greybox_module(result, DT)
     held_out = [rec for rec in windy_day if rec.name in info["val_manoeuvres"]]
     errors = {"grey": [], "hybrid": []}  # 30 s open-loop track errors (m) every 5 s of the held-out manoeuvres
@@ -173,7 +176,8 @@ def test_bad_training_settings_are_refused():
 
 def test_zero_residual_keeps_the_residual_interface():
     z = ZeroResidual()(*(torch.ones(3, dtype=torch.float64) for _ in range(6)))
-    assert z.shape == (3, 3) and float(z.abs().sum()) == 0.0
+    assert z.shape == (3, 3)
+    assert float(z.abs().sum()) == 0.0
 
 
 def test_replay_identify_hybrid_writes_an_ensemble(tmp_path, capsys):
@@ -191,13 +195,19 @@ def test_replay_identify_hybrid_writes_an_ensemble(tmp_path, capsys):
                        "--output", out, "--json", js)
     assert code == 0, err
     info = json.loads(js.read_text())["hybrid"]
-    assert info["members"] == 2 and info["epochs_run"] == 2 and info["segments_train"] > 0
-    assert info["monitor"] == "val" and len(info["val_manoeuvres"]) == 1
+    assert info["members"] == 2
+    assert info["epochs_run"] == 2
+    assert info["segments_train"] > 0
+    assert info["monitor"] == "val"
+    assert len(info["val_manoeuvres"]) == 1
     art = load_artifact(out, expect={"model_type": "hybrid"})
-    assert art.ensemble_size == 2 and art.metadata["architecture"]["residual"] == "GeneralisingResidual"
+    assert art.ensemble_size == 2
+    assert art.metadata["architecture"]["residual"] == "GeneralisingResidual"
     code, err = replay(capsys, "identify", training, "--vessel", "jari_usv", "--hybrid",
                        "--hybrid-members", "0", "--output", tmp_path / "x.pt")
-    assert code == 2 and "--hybrid-members" in err and not (tmp_path / "x.pt").exists()
+    assert code == 2
+    assert "--hybrid-members" in err
+    assert not (tmp_path / "x.pt").exists()
 
 
 # ---- the hybrid on an extended grey box (`replay identify --hybrid --base`: the physics carries the sea) ----------
@@ -310,11 +320,15 @@ def test_replay_identify_hybrid_on_an_extended_base(vessel, tmp_path, capsys):
                        "--hybrid-members", "2", "--hybrid-epochs", "2", "--output", out, "--json", js)
     assert code == 0, err
     result = json.loads(js.read_text())
-    assert result["model_type"] == "hybrid+current" and result["base"]["model_type"] == "greybox+current"
+    assert result["model_type"] == "hybrid+current"
+    assert result["base"]["model_type"] == "greybox+current"
     info = result["hybrid"]
-    assert info["members"] == 2 and info["epochs_run"] == 2 and info["monitor"] == "val"
+    assert info["members"] == 2
+    assert info["epochs_run"] == 2
+    assert info["monitor"] == "val"
     art = load_model(str(out), dt=DT)  # as the node loads it (the check that it runs included)
-    assert art.ensemble_size == 2 and art.metadata["model_type"] == "hybrid+current"
+    assert art.ensemble_size == 2
+    assert art.metadata["model_type"] == "hybrid+current"
     assert model_terms(art)["current_ne"] == pytest.approx(CURRENT_NE, abs=1e-12)
     assert art.metadata["training"]["base"]["model_type"] == "greybox+current"
     # the bound: what the extended base leaves against what the calm-water model leaves, on the same data
@@ -325,9 +339,15 @@ def test_replay_identify_hybrid_on_an_extended_base(vessel, tmp_path, capsys):
                                     hybrid_fit.HybridTraining().bound_window_s)
     assert np.all(np.array(info["bound"])[1:] < 0.8 * calm.bound.numpy()[1:]), (info["bound"], calm.bound)
     code, err = replay(capsys, "identify", *training, "--base", tmp_path / "extended.pt", "--output", tmp_path / "x.pt")
-    assert code == 2 and "--hybrid" in err and not (tmp_path / "x.pt").exists()
+    assert code == 2
+    assert "--hybrid" in err
+    assert not (tmp_path / "x.pt").exists()
     code, err = replay(capsys, "identify", *training, "--hybrid", "--base", out, "--output", tmp_path / "x.pt")
-    assert code == 2 and "must be a grey box" in err and not (tmp_path / "x.pt").exists()
+    assert code == 2
+    assert "must be a grey box" in err
+    assert not (tmp_path / "x.pt").exists()
     code, err = replay(capsys, "identify", *training, "--hybrid", "--base", tmp_path / "extended.pt",
                        "--interaction", "identify", "--output", tmp_path / "x.pt")
-    assert code == 2 and "--interaction do not apply" in err and not (tmp_path / "x.pt").exists()
+    assert code == 2
+    assert "--interaction do not apply" in err
+    assert not (tmp_path / "x.pt").exists()

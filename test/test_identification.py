@@ -85,7 +85,8 @@ def test_noisy_sensors_recover_the_linear_derivatives(noisy, vessel):
     fit = idf.fit_hull(vessel, data, "mmg", "fix")
     _check_identified(fit, vessel, 0.10, 0.30)
     fixed = [c for c in fit.coefficients() if c.status == "fixed to prior"]
-    assert fixed and all(c.estimate == getattr(vessel.hull, c.name) for c in fixed)
+    assert fixed
+    assert all(c.estimate == getattr(vessel.hull, c.name) for c in fixed)
     ridge = idf.fit_hull(vessel, data, "mmg", "ridge")
     for name in LINEAR:
         assert ridge.values()[name] == pytest.approx(getattr(vessel.hull, name), rel=0.10)
@@ -105,7 +106,8 @@ def test_identify_cross_validates_and_returns_a_usable_vessel(noisy, vessel, tmp
                                    training_data_sha256=idf.data_digest(recs))
     loaded = load_artifact(tmp_path / "gb.pt", expect={"model_type": "greybox", "dt": DT})
     meta = loaded.metadata["identification"]
-    assert meta["structure"] == result.structure and len(meta["coefficients"]) >= 17
+    assert meta["structure"] == result.structure
+    assert len(meta["coefficients"]) >= 17
     assert all(len(c["ci95"]) == 2 for c in meta["coefficients"])
     rec = recs[0]
     pred = art.predict(rec.state()[:1], rec.controls[None, :-1])
@@ -118,12 +120,15 @@ def test_single_zigzag_is_multicollinear_and_refused(clean, vessel):
     zigzag = [data[0]]
     design = idf.design(vessel, zigzag, "mmg", "N", u0=float(np.median(zigzag[0].nu[:, 0])))
     col = idf.collinearity(design)
-    assert col.pairs and col.condition_number > 100.0
+    assert col.pairs
+    assert col.condition_number > 100.0
     assert all(a.startswith("N_") and abs(rho) > 0.9 for a, b, rho in col.pairs)
     with pytest.raises(idf.NotIdentifiableError) as err:
         idf.fit_hull(vessel, zigzag, "mmg", "none")
     message = str(err.value)
-    assert "N_" in message and "multicollinear" in message and "--prior ridge" in message
+    assert "N_" in message
+    assert "multicollinear" in message
+    assert "--prior ridge" in message
     with pytest.raises(DatasetError, match="at least 2 manoeuvres"):
         idf.identify(vessel, recs[:1], prior="fix")
 
@@ -152,7 +157,9 @@ def test_hybrid_exports_and_predicts(noisy, vessel, tmp_path):
     with pytest.raises(ModelError, match="not among the recordings given"):  # never a heading made up as 0
         hybrid.train_hybrid(result, renamed, DT, hybrid.HybridTraining(members=2, epochs=1, hidden=8))
     module, info = hybrid.train_hybrid(result, recs, DT, hybrid.HybridTraining(members=2, epochs=15, hidden=8))
-    assert info["monitor"] == "val" and info["val_manoeuvres"] and info["members"] == 2
+    assert info["monitor"] == "val"
+    assert info["val_manoeuvres"]
+    assert info["members"] == 2
     hybrid.export_identified(str(tmp_path / "hy.pt"), module, result, dt=DT, training_data_sha256="0" * 64,
                              model_type="hybrid", hybrid=info)
     art = load_artifact(tmp_path / "hy.pt", expect={"model_type": "hybrid"})
@@ -160,13 +167,14 @@ def test_hybrid_exports_and_predicts(noisy, vessel, tmp_path):
     state = torch.tensor([[6.0, 0.0, 0.0, 0.0]], dtype=torch.float64)
     controls = torch.tensor([[[0.2, 650.0]] * 10], dtype=torch.float64)
     out = art.module(state, controls)
-    assert out.shape == (2, 1, 10, 6) and torch.all(torch.isfinite(out))
+    assert out.shape == (2, 1, 10, 6)
+    assert torch.all(torch.isfinite(out))
     assert float(out[0, 0, -1, 2].detach()) > 0.0  # positive rudder turns to starboard
 
 
 @pytest.mark.parametrize("prior", ["fix", "ridge"])
 def test_json_flags_the_coefficients_the_manoeuvres_do_not_determine(noisy, vessel, prior):
-    """Issue 15: a coefficient the data cannot set says so ("not determined by these manoeuvres; prior used") in the
+    """A coefficient the data cannot set says so ("not determined by these manoeuvres; prior used") in the
     identify JSON; the others are flagged determined, and prior_used lists exactly the flagged ones."""
     recs, data = noisy
     result = idf.identify(vessel, recs, structure="mmg", prior=prior, data=data)
@@ -213,6 +221,8 @@ def test_report_names_what_the_prior_supplies(noisy, vessel, tmp_path):
     out = {"model": "m.pt", "model_type": "greybox", "model_id": "x", "training_data_sha256": "0" * 64}
     text = write_identification_report(tmp_path, result, out).read_text()
     used = result.prior_used()
-    assert used and f"Not determined by these manoeuvres; prior used: {', '.join(used)}." in text
+    assert used
+    assert f"Not determined by these manoeuvres; prior used: {', '.join(used)}." in text
     ex = result.excitation()
-    assert f"|beta| {ex['beta_deg_p99']:.1f} deg" in text and f"|r'| {ex['r_prime_p99']:.3f}" in text
+    assert f"|beta| {ex['beta_deg_p99']:.1f} deg" in text
+    assert f"|r'| {ex['r_prime_p99']:.3f}" in text

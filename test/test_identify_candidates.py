@@ -20,8 +20,10 @@ def test_the_warning_names_the_better_choice_only_when_it_is_far_better():
     better = Candidate("mmg", "fix", 0.012, False)
     refused = Candidate("mmg", "none", None, False)
     warning = cv_warning([chosen, better, refused, Candidate("abkowitz", "fix", 0.05, False)])
-    assert warning is not None and "10.0 times worse than --structure mmg --prior fix" in warning
-    assert "--prior ridge" in warning and "0.12 vs 0.012" in warning
+    assert warning is not None
+    assert "10.0 times worse than --structure mmg --prior fix" in warning
+    assert "--prior ridge" in warning
+    assert "0.12 vs 0.012" in warning
     close = Candidate("mmg", "fix", 0.12 / FAR_WORSE * 1.01, False)  # just inside the limit
     assert cv_warning([chosen, close]) is None
     assert cv_warning([chosen, refused]) is None  # nothing else scored: nothing to compare with
@@ -42,6 +44,7 @@ def test_every_structure_and_prior_is_scored_on_the_same_forces():
     assert [(c.structure, c.prior) for c in chosen] == [("mmg", "fix")]
     assert chosen[0].score == pytest.approx(result.cross_validation[0].score)
     ridge = next(c for c in candidates if (c.structure, c.prior) == ("mmg", "ridge"))
-    assert ridge.score is not None and ridge.score > 0.0
+    assert ridge.score is not None
+    assert ridge.score > 0.0
     if result.fit.not_identifiable:  # prior none refuses what the data cannot determine: no score
         assert next(c for c in candidates if (c.structure, c.prior) == ("mmg", "none")).score is None

@@ -23,7 +23,9 @@ def test_a_singular_design_has_null_vifs_with_a_note(scale: float) -> None:
     a, c = rng.normal(size=200), rng.normal(size=200)
     col = idf.collinearity(_design([a, scale * 2.0 * a, c, np.ones(200)]))
     data = json.loads(json_text(col.to_json()))  # strict: raises on NaN / inf
-    assert data["vif"]["N_0"] is None and data["vif"]["N_1"] is None and data["singular"] is True
+    assert data["vif"]["N_0"] is None
+    assert data["vif"]["N_1"] is None
+    assert data["singular"] is True
     assert "singular" in data["vif_note"]
     assert data["constant_regressors"] == ["N_3"]
     assert data["vif"]["N_2"] is None or data["vif"]["N_2"] >= 1.0
@@ -33,13 +35,17 @@ def test_a_regular_design_has_finite_vifs_and_no_note() -> None:
     rng = np.random.default_rng(1)
     col = idf.collinearity(_design([rng.normal(size=200), rng.normal(size=200)]))
     data = col.to_json()
-    assert all(1.0 <= v < 1.2 for v in data["vif"].values()) and "vif_note" not in data and not data["singular"]
+    assert all(1.0 <= v < 1.2 for v in data["vif"].values())
+    assert "vif_note" not in data
+    assert not data["singular"]
 
 
 def test_undefined_coefficient_numbers_are_null() -> None:
     c = idf.Coefficient("N_r", float("nan"), (float("-inf"), float("nan")), -0.05, "identified", float("nan"))
     data = json.loads(json_text(c.to_json()))
-    assert data["estimate"] is None and data["ci95"] == [None, None] and data["rel_ci"] is None
+    assert data["estimate"] is None
+    assert data["ci95"] == [None, None]
+    assert data["rel_ci"] is None
     cv = idf.CrossValidation("abkowitz", {"X": 0.1, "N": float("nan")}, float("nan"))
     assert json.loads(json_text(cv.to_json())) == {"structure": "abkowitz", "per_equation_nmse": {"X": 0.1, "N": None},
                                                    "score": None}
@@ -50,7 +56,8 @@ def test_prior_none_refusal_names_the_prior_to_use_and_why() -> None:
     col = idf.collinearity(_design([rng.normal(size=50), rng.normal(size=50)]))
     fit = idf.EquationFit("N", (), col, 0.1, 50.0)
     message = idf._message(["N_vvr", "N_rrr"], [fit], ["zigzag_a", "zigzag_b"])
-    assert "Use --prior fix" in message and "N_vvr, N_rrr" in message
+    assert "Use --prior fix" in message
+    assert "N_vvr, N_rrr" in message
     assert "--prior ridge" in message and "EVERY coefficient" in message  # why not ridge
     assert "turning circles both ways" in message
     assert "\n" not in message

@@ -111,7 +111,8 @@ def test_reverse_gains_need_astern_commands(otter):
     held = {c.name: c for c in fit.coefficients()}
     for side in sc.SIDES:
         c = held[f"thrusters.{side}.reverse_N"]
-        assert c.status == "fixed to prior" and c.estimate == getattr(vessel.thrusters, side).reverse_N
+        assert c.status == "fixed to prior"
+        assert c.estimate == getattr(vessel.thrusters, side).reverse_N
 
 
 def test_a_wrong_sign_is_not_physical():
@@ -123,7 +124,8 @@ def test_a_wrong_sign_is_not_physical():
     d = sc.JointDesign(("X_u",), matrix, target, np.repeat([0, 1, 2], 4), np.zeros(12, int))
     fit = sc.fit_joint(d, {"X_u": -1.0}, weights=np.ones(3))
     assert fit.values()["X_u"] == pytest.approx(1.0, abs=0.01)
-    assert sc.problems(fit)["X_u"].startswith("wrong sign: +0.99") and "(must be <= 0)" in sc.problems(fit)["X_u"]
+    assert sc.problems(fit)["X_u"].startswith("wrong sign: +0.99")
+    assert "(must be <= 0)" in sc.problems(fit)["X_u"]
     assert sc.problems(sc.fit_joint(dataclasses.replace(d, target=-target), {"X_u": -1.0}, weights=np.ones(3))) == {}
 
 
@@ -151,15 +153,19 @@ def test_identify_exports_a_small_craft_grey_box_that_predicts(otter, tmp_path):
                                  training_data_sha256=idf.data_digest(recordings))
     art = load_artifact(tmp_path / "otter.pt", expect={"model_type": "greybox", "dt": DT})
     meta = art.metadata
-    assert meta["hull_model"] == "small_craft" and meta["actuator_layout"] == "twin_thrusters"
-    assert meta["control_layout"] == ["port", "starboard"] and meta["identification"]["hull_model"] == "small_craft"
+    assert meta["hull_model"] == "small_craft"
+    assert meta["actuator_layout"] == "twin_thrusters"
+    assert meta["control_layout"] == ["port", "starboard"]
+    assert meta["identification"]["hull_model"] == "small_craft"
     names = {c["name"] for c in meta["identification"]["coefficients"]}
-    assert set(sc.GAIN_NAMES) <= names and {"X_u", "N_rr", "cross_flow_cd"} <= names
+    assert set(sc.GAIN_NAMES) <= names
+    assert {"X_u", "N_rr", "cross_flow_cd"} <= names
     assert meta["architecture"]["hull"]["X_u"] == result.vessel.small_craft.X_u
     assert art.embedded_vessel == vessel  # the vessel file identified, whole, not the identified hull
     assert loading.model_vessel(art) == vessel  # what evaluate, diagnose and the node take without --vessel
     rebuilt = vessel_from_metadata(meta, vessel)  # what `replay diagnose --model` uses
-    assert rebuilt.small_craft == result.vessel.small_craft and rebuilt.thrusters == result.vessel.thrusters
+    assert rebuilt.small_craft == result.vessel.small_craft
+    assert rebuilt.thrusters == result.vessel.thrusters
     with pytest.raises(ValueError, match="hull_model is 'small_craft', the vessel jari_usv's is 'mmg'"):
         vessel_from_metadata(meta, load_vessel("jari_usv"))
     assert hull_from_metadata(meta)["thrusters.starboard.forward_N"] == result.vessel.thrusters.starboard.forward_N
@@ -222,9 +228,12 @@ def test_throttle_gain_is_profiled_from_a_wrong_vessel_file():
     halved = dataclasses.replace(vessel, throttle=dataclasses.replace(vessel.throttle, forward_N=4500.0))
     result = idf.identify(halved, recordings, structure="mmg", prior="fix")
     (gain,) = result.actuator_coefficients
-    assert gain.name == "throttle.forward_N" and gain.status == "identified" and gain.prior == 4500.0
+    assert gain.name == "throttle.forward_N"
+    assert gain.status == "identified"
+    assert gain.prior == 4500.0
     assert gain.estimate == pytest.approx(9000.0, rel=0.05)
-    assert gain.ci95[0] < gain.estimate < gain.ci95[1] and gain.rel_ci < 0.1
+    assert gain.ci95[0] < gain.estimate < gain.ci95[1]
+    assert gain.rel_ci < 0.1
     assert result.vessel.throttle.forward_N == gain.estimate
     for name in ("R0", "Y_v", "N_r"):
         assert result.fit.values()[name] == pytest.approx(getattr(vessel.hull, name), rel=0.10), name
@@ -242,7 +251,8 @@ def test_rudder_only_estimates_the_engine_speed_of_each_manoeuvre(tmp_path):
     for run in runs:
         assert engines[run.name]["engine_speed_rpm"] == pytest.approx(run.rpm, rel=0.01), run.name
     found = {c.name: c for c in result.fit.coefficients()}
-    assert found["R0"].status == "fixed to prior" and "R0" not in result.fit.not_identifiable
+    assert found["R0"].status == "fixed to prior"
+    assert "R0" not in result.fit.not_identifiable
     for name in ("Y_v", "Y_r", "N_v", "N_r"):
         assert found[name].estimate == pytest.approx(getattr(vessel.hull, name), rel=0.10), name
     assert any("constant engine setting" in note for note in result.notes)
@@ -250,7 +260,8 @@ def test_rudder_only_estimates_the_engine_speed_of_each_manoeuvre(tmp_path):
     hybrid_fit.export_identified(str(tmp_path / "rudder_only.pt"), hybrid_fit.greybox_module(result, DT), result,
                                  dt=DT, training_data_sha256="0" * 64)
     art = load_artifact(tmp_path / "rudder_only.pt")
-    assert art.metadata["control_layout"] == ["delta"] and art.metadata["actuator_layout"] == "rudder_only"
+    assert art.metadata["control_layout"] == ["delta"]
+    assert art.metadata["actuator_layout"] == "rudder_only"
     rec = recordings[2]  # the starboard turning circle, closed loop from its first state
     pred = art.predict(rec.state()[:1], rec.controls[None, :-1])
     assert pred.shape == (1, 1, len(rec) - 1, 6) and pred[0, 0, -1, 2] > 0.0  # turns to starboard
@@ -259,7 +270,8 @@ def test_rudder_only_estimates_the_engine_speed_of_each_manoeuvre(tmp_path):
         art.predict(rec.state()[:1], np.zeros((1, 5, 2)))
     # it says how it holds its engine speed, and holds the one identify estimated for the manoeuvre when given the
     # manoeuvre's approach as the reference state (what evaluate and diagnose pass): from a start deep in the turn
-    assert art.accepts_reference and art.metadata["engine_speed"]["held_rpm"] is None
+    assert art.accepts_reference
+    assert art.metadata["engine_speed"]["held_rpm"] is None
     assert art.metadata["engine_speed"]["approach_s"] == APPROACH_S
     late = len(rec) // 2  # (sample) well inside the turn, the boat slowed down
     approach = approach_state(rec.nu, rec.psi, rec.dt, straight_samples(rec.controls, rec.actuator_layout))[None, :]

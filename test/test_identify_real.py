@@ -67,7 +67,9 @@ def test_without_a_prior_the_zigzags_are_refused_naming_the_coefficients(bags, t
             "--output", str(tmp_path / "m.pt")]
     assert cli.main(args) == 2
     err = capsys.readouterr().err
-    assert "not identifiable" in err and "N_rrr" in err and "--prior fix" in err
+    assert "not identifiable" in err
+    assert "N_rrr" in err
+    assert "--prior fix" in err
     assert not (tmp_path / "m.pt").exists()
 
 
@@ -99,7 +101,8 @@ def test_fuzhou_sea_trial_is_refused_for_lack_of_rpm(bags, tmp_path, capsys):
             "--output", str(tmp_path / "f.pt")]
     assert cli.main(args) == 2
     err = capsys.readouterr().err
-    assert "engine_rpm" in err and "cannot be" in err
+    assert "engine_rpm" in err
+    assert "cannot be" in err
 
 
 def test_fuzhou_rudder_only_refuses_without_a_prior_and_runs_with_one(bags, tmp_path, capsys):
@@ -107,19 +110,25 @@ def test_fuzhou_rudder_only_refuses_without_a_prior_and_runs_with_one(bags, tmp_
             "--blocks", "2", "--structure", "mmg"]
     assert cli.main([*base, "--output", str(tmp_path / "none.pt")]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]  # progress goes to stderr too
-    assert len(err) == 1 and "not identifiable" in err[0] and "--prior fix" in err[0] and "N_rrr" in err[0]
+    assert len(err) == 1
+    assert "not identifiable" in err[0]
+    assert "--prior fix" in err[0]
+    assert "N_rrr" in err[0]
     assert not (tmp_path / "none.pt").exists()
     result = tmp_path / "fix.json"
     assert cli.main([*base, "--prior", "fix", "--output", str(tmp_path / "fix.pt"), "--json", str(result)]) == 0
     ident = json.loads(result.read_text())["identification"]
-    assert ident["actuator_layout"] == "rudder_only" and ident["hull_model"] == "mmg"
+    assert ident["actuator_layout"] == "rudder_only"
+    assert ident["hull_model"] == "mmg"
     found = {c["name"]: c for c in ident["coefficients"]}
-    assert found["R0"]["status"] == "fixed to prior" and found["R0"]["estimate"] == found["R0"]["prior"]
+    assert found["R0"]["status"] == "fixed to prior"
+    assert found["R0"]["estimate"] == found["R0"]["prior"]
     assert found["Y_vvv"]["estimate"] <= 0.0  # the zig-zag alone drives it positive: a sign no ship has, held
     engines = ident["actuators"]
     assert set(engines) == {"fuzhou_zigzag_30~1", "fuzhou_zigzag_30~2"}
     for piece in engines.values():  # the engine speed that holds 0.5-0.7 m/s with the vessel file's resistance
-        assert 0.5 < piece["approach_speed_mps"] < 0.8 and piece["engine_speed_rpm"] > 0.0
+        assert 0.5 < piece["approach_speed_mps"] < 0.8
+        assert piece["engine_speed_rpm"] > 0.0
     assert any("constant engine setting" in note for note in ident["notes"])
     assert (tmp_path / "fix.pt").is_file()
 
@@ -127,7 +136,8 @@ def test_fuzhou_rudder_only_refuses_without_a_prior_and_runs_with_one(bags, tmp_
 @pytest.fixture(scope="module")
 def dalian_sine(raw_data_dir: Path, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("dalian")
-    assert cli.main(["convert", str(raw_data_dir / "usv_2345vor_dalian" / "boat1_2_sin.xlsx"), "--output", str(out)]) == 0
+    assert cli.main(["convert", str(raw_data_dir / "usv_2345vor_dalian" / "boat1_2_sin.xlsx"), "--output",
+                     str(out)]) == 0
     return out / "dalian_sine"
 
 
@@ -135,13 +145,16 @@ def test_dalian_twin_thrusters_name_what_one_run_cannot_determine(dalian_sine, t
     base = ["identify", str(dalian_sine), "--vessel", str(DALIAN_VESSEL), "--blocks", "4", "--structure", "diagonal"]
     assert cli.main([*base, "--output", str(tmp_path / "none.pt")]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]  # progress goes to stderr too
-    assert len(err) == 1 and "thrusters.port.reverse_N: no excitation in the data" in err[0] and "--prior fix" in err[0]
+    assert len(err) == 1
+    assert "thrusters.port.reverse_N: no excitation in the data" in err[0]
+    assert "--prior fix" in err[0]
     result = tmp_path / "fix.json"
     assert cli.main([*base, "--prior", "fix", "--output", str(tmp_path / "fix.pt"), "--json", str(result)]) == 0
     out = json.loads(result.read_text())
     coefficients = {c["name"]: c for c in out["identification"]["coefficients"]}
     for side in ("port", "starboard"):
         reverse = coefficients[f"thrusters.{side}.reverse_N"]
-        assert reverse["status"] == "fixed to prior" and reverse["estimate"] == 6.0
+        assert reverse["status"] == "fixed to prior"
+        assert reverse["estimate"] == 6.0
         assert coefficients[f"thrusters.{side}.forward_N"]["estimate"] > 0.0
     assert out["identification"]["actuator_layout"] == "twin_thrusters"

@@ -67,7 +67,8 @@ def test_the_steady_check_names_what_is_implausible():
     # a rudder whose force points the wrong way (jari_usv itself is course-unstable: a turn is not proof enough)
     assert "turns the other way" in ia.steady_check(
         dataclasses.replace(preset, rudder=dataclasses.replace(preset.rudder, lift_factor=-1.0)), TRIAL_RPM, None)
-    # cubic terms that make the turn run away (what a wrong rudder split does to the hull regression: README boat 2)
+    # cubic terms that make the turn run away (what a wrong rudder split does to the hull regression:
+    # docs/results/unknown_boats.md, boat 2)
     runaway = dataclasses.replace(preset, hull=dataclasses.replace(preset.hull, N_r=0.3, N_rrr=0.5, Y_vvv=5.0))
     assert "diverges" in ia.steady_check(runaway, TRIAL_RPM, None)
 
@@ -77,7 +78,8 @@ def test_eta_is_searched_at_most_to_a_full_slipstream():
     assert ia.with_factors(preset, {"rudder.eta": 2.0}).rudder.eta == pytest.approx(ia.ETA_MAX)
     assert ia.with_factors(preset, {"rudder.eta": 0.5}).rudder.eta == pytest.approx(0.45)
     low, high = ia._bounds(preset, "rudder.eta")
-    assert low == 0.5 and high == pytest.approx(ia.ETA_MAX / 0.9)
+    assert low == 0.5
+    assert high == pytest.approx(ia.ETA_MAX / 0.9)
     scaled = ia.with_factors(preset, {"rudder.lift_factor": 1.25, "rudder.gamma_R": 0.75})
     assert scaled.rudder.f_alpha == pytest.approx(1.25 * preset.rudder.f_alpha)
     assert scaled.rudder.gamma_R_minus == pytest.approx(0.75 * preset.rudder.gamma_R_minus)
@@ -123,17 +125,19 @@ def test_without_a_segment_long_enough_the_description_stays():
     data = idf.prepare(description, recordings)
     u0 = float(np.median(np.concatenate([d.nu[:, 0] for d in data])))
     fit = ia.identify_interaction(description, data, recordings, "mmg", "fix", u0)
-    assert not fit.accepted and fit.scale == {n: 1.0 for n in ia.INTERACTION_BOUNDS}
-    assert fit.vessel.rudder == description.rudder and fit.simulation == {}
+    assert not fit.accepted
+    assert fit.scale == {n: 1.0 for n in ia.INTERACTION_BOUNDS}
+    assert fit.vessel.rudder == description.rudder
+    assert fit.simulation == {}
     assert "no candidate could be simulated (no manoeuvre longer than 20 s)" in fit.note()
     json.dumps(fit.to_json(), allow_nan=False)
 
 
 @pytest.mark.parametrize("argv, expected", [([], "identify"), (["--interaction", "fix"], "fix")])
 def test_replay_identify_searches_the_interaction_factors_by_default(monkeypatch, tmp_path, argv, expected):
-    """Since 2026-11-26 (a whole 50-boat unknown-boat run without a confident wrong answer, README "Unknown boats")
-    `replay identify` searches the interaction factors unless told `--interaction fix`; with `--base` nothing is
-    identified and the option does not apply."""
+    """`replay identify` searches the interaction factors unless told `--interaction fix`; with `--base` nothing is
+    identified and the option does not apply. (The default since a whole 50-boat unknown-boat run
+    without a confident wrong answer: docs/results/unknown_boats.md.)"""
     from usv_predictor.replay import cli
     from usv_predictor.replay import identify as replay_identify
 

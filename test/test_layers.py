@@ -141,9 +141,12 @@ def test_the_exceptions_keep_their_old_homes():
     from usv_predictor.fitting import identification
     from usv_predictor.node import live
 
-    assert live.InputRejected is errors.InputRejected and live.CycleSkipped is errors.CycleSkipped
-    assert recording.RecordingError is errors.RecordingError and evaluation.EvaluationError is errors.EvaluationError
-    assert plots.PlotError is errors.PlotError and diagnosis.DiagnosisError is errors.DiagnosisError
+    assert live.InputRejected is errors.InputRejected
+    assert live.CycleSkipped is errors.CycleSkipped
+    assert recording.RecordingError is errors.RecordingError
+    assert evaluation.EvaluationError is errors.EvaluationError
+    assert plots.PlotError is errors.PlotError
+    assert diagnosis.DiagnosisError is errors.DiagnosisError
     assert identification.NotIdentifiableError is errors.NotIdentifiableError
     assert issubclass(errors.NotIdentifiableError, errors.ModelError)
     assert errors.InputRejected("range", "too big").kind == "range"

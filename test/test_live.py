@@ -1,4 +1,5 @@
-"""usv_predictor.node.live without ROS: the online state equals the replay tool's Recording; every bad input is refused."""
+"""usv_predictor.node.live without ROS: the online state equals the replay tool's Recording; every bad input is
+refused."""
 from __future__ import annotations
 
 import math
@@ -86,10 +87,12 @@ def test_prediction_equals_the_artifact_on_the_recording_state(bag_samples, reco
     mean = reference.mean(axis=0)[0]  # (H, 6)
     np.testing.assert_allclose(prediction.eta[:, :2], mean[:, 3:5] + recording.position[n], atol=1e-3)
     np.testing.assert_allclose(prediction.nu, mean[:, :3], atol=1e-5)
-    assert prediction.anchored and prediction.eta_members.shape == (artifact.ensemble_size, 120, 3)
+    assert prediction.anchored
+    assert prediction.eta_members.shape == (artifact.ensemble_size, 120, 3)
     assert prediction.t_ns[0] == recording.t0_ns + (n + 1) * int(DT * NS)
     cov = live.enu_covariance(prediction.eta_members)
-    assert cov.shape == (120, 3, 3) and np.all(np.diagonal(cov, axis1=1, axis2=2) >= 0)
+    assert cov.shape == (120, 3, 3)
+    assert np.all(np.diagonal(cov, axis1=1, axis2=2) >= 0)
     assert cov[-1, 0, 0] > cov[0, 0, 0]  # the members drift apart with the horizon
 
 
@@ -164,7 +167,8 @@ def test_a_header_less_sample_at_the_same_clock_supersedes_the_previous_one() ->
     inputs.add("heading", 2 * NS, (0.2,), 2 * NS, at_arrival=True)
     track = inputs.tracks["heading"]
     t, values = track.buffer.samples()
-    assert t.tolist() == [2 * NS] and values[:, 0].tolist() == [0.2]
+    assert t.tolist() == [2 * NS]
+    assert values[:, 0].tolist() == [0.2]
     assert (track.received, track.superseded, track.rejected) == (2, 1, {})
     with pytest.raises(live.InputRejected, match="heading: stamp 1.000 s before"):  # backwards stays refused
         inputs.add("heading", NS, (0.3,), 2 * NS, at_arrival=True)
@@ -174,7 +178,8 @@ def test_a_header_less_sample_at_the_same_clock_supersedes_the_previous_one() ->
     with pytest.raises(live.InputRejected, match=r"velocity: header stamp 2\.000000000 s repeats") as refused:
         inputs.add("velocity", 2 * NS, (5.0, 0.0, 0.0), 2 * NS)
         inputs.add("velocity", 2 * NS, (5.0, 0.0, 0.0), 2 * NS)
-    assert refused.value.kind == "duplicate" and inputs.tracks["velocity"].superseded == 0
+    assert refused.value.kind == "duplicate"
+    assert inputs.tracks["velocity"].superseded == 0
 
 
 def test_clock_jump_back_clears_the_buffers() -> None:
@@ -193,7 +198,8 @@ def test_a_1khz_burst_keeps_memory_bounded_and_the_state_right() -> None:
     for k in range(3000):  # 3 s of IMU at 1 kHz, yaw rate 0.05 rad/s
         inputs.add("imu", t0 + k * 1_000_000, (0.05, 0.0, 0.0, -9.81, math.nan), t0 + k * 1_000_000)
     imu = inputs.tracks["imu"].buffer
-    assert len(imu) == 1024 and imu.overwritten == 60 + 3000 - 1024
+    assert len(imu) == 1024
+    assert imu.overwritten == 60 + 3000 - 1024
     assert {role: track.buffer.nbytes for role, track in inputs.tracks.items()} == nbytes  # nothing grew
     now = t0 + 2999 * 1_000_000
     assert imu.rate_hz(now) == pytest.approx(1000.0, rel=1e-3)
@@ -209,10 +215,11 @@ def test_rollout_refuses_more_members_than_the_model_has() -> None:
     artifact = load_artifact(package_share_path("models", "default.pt"))
     with pytest.raises(ModelError, match="ensemble_size 9 requested"):
         live.Rollout(artifact, 120, ensemble_size=9)
-    assert live.Rollout(artifact, 120, ensemble_size=2)(np.array([5.0, 0, 0, 0]), np.array([0.0, 650.0])).shape == (2, 120, 6)
+    assert live.Rollout(artifact, 120, ensemble_size=2)(np.array([5.0, 0, 0, 0]),
+                                                        np.array([0.0, 650.0])).shape == (2, 120, 6)
 
 
-# ----------------------------------------------------------------------------- redundant inputs (issue 12)
+# ----------------------------------------------------------------------------- redundant inputs
 
 
 def _bag_rows(bag: Path, heading: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -264,7 +271,7 @@ def test_the_shipped_bags_are_never_refused_as_inconsistent(bag: Path) -> None:
 
 
 def test_a_heading_in_radians_configured_as_degrees_is_refused_with_the_reason() -> None:
-    """Issue 12: the heading published in radians, read as degrees: it never leaves +-6.3 'deg' while the gyro
+    """The heading published in radians, read as degrees: it never leaves +-6.3 'deg' while the gyro
     turns circles. The adapter's decode of such a value is radians(mod(psi, 2 pi))."""
     seen = _replay_live(_bag_rows(BAG, heading=lambda psi: np.radians(np.mod(psi, 2 * math.pi))))
     refused = [(t, r) for t, r in seen if r]
@@ -305,7 +312,8 @@ def test_consistency_checks_need_evidence() -> None:
     assert not calm.judged and not calm.problem  # 11 deg of turning: not enough to judge, and it says so
     assert calm.why_not == "the gyro turned 11 deg, less than the 60 deg that tell a heading's units"
     turning = live.heading_vs_gyro(t, np.full_like(t, 0.2), t, 0.2 * t, 0.0, 20.0)
-    assert turning.judged and turning.problem == ""
+    assert turning.judged
+    assert turning.problem == ""
     biased = live.heading_vs_gyro(t, np.full_like(t, 0.2 + math.radians(0.5)), t, 0.2 * t, 0.0, 20.0)
     assert biased.judged and biased.problem == ""  # a 0.5 deg/s gyro bias passes
     slow = live.track_vs_gnss(t, np.full_like(t, 1.0), np.zeros_like(t), t, np.zeros_like(t), t, 1.0 * t,
@@ -318,7 +326,7 @@ def test_consistency_checks_need_evidence() -> None:
 
 
 def _state_as_before(inputs: live.InputSet, now_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(state, controls, position) computed as assemble computed them before 2026-11-26: every ring copied whole,
+    """(state, controls, position) computed as assemble's former form computed them: every ring copied whole,
     recording.window_resample over all of it, the heading unwrapped from the ring's first sample."""
     t_c = now_ns - inputs.settings.dt_ns // 2
     grid = np.array([t_c], dtype=np.int64)
@@ -373,7 +381,8 @@ def test_state_from_the_window_equals_the_whole_ring_average_bit_for_bit() -> No
             values = {"velocity": (5.0 + values[0], *values[1:]), "engine_rpm": (650.0 + 100 * values[0],),
                       "imu": (values[0], 0.0, 0.0, -9.81, math.nan)}.get(role, values)
         inputs.add(role, stamp, values, now_ns=stamp)
-    assert compared > 80 and 0 < interpolated < compared
+    assert compared > 80
+    assert 0 < interpolated < compared
     assert all(inputs.tracks[role].buffer.overwritten > 0 for role in rates if role != "gnss")  # the rings wrapped
     heading = inputs.tracks["heading"].buffer.samples()[1][:, 0]
     assert np.abs(np.diff(heading)).max() > math.pi  # the ring itself crosses the branch cut
@@ -431,7 +440,8 @@ def test_add_many_equals_add_one_at_a_time(role: str, at_arrival: bool) -> None:
         assert _track_record(bulk, role) == _track_record(single, role)
         bulk_batches += not expected
         stamp = int(stamps.max())
-    assert bulk.tracks[role].buffer.overwritten > 0 and 10 < bulk_batches < 60
+    assert bulk.tracks[role].buffer.overwritten > 0
+    assert 10 < bulk_batches < 60
     value_refusal = "range" if role != "gnss" else "no_fix"
     assert set(bulk.tracks[role].rejected) >= {"backwards", "future", value_refusal}
     # arrival-stamped: equal stamps supersede, never a refused duplicate

@@ -18,7 +18,8 @@ SHIPPED = Path(__file__).resolve().parents[1] / "models" / "default.pt"
 def test_physics_with_a_vessel_is_the_calm_water_grey_box_of_that_preset():
     model = loading.load_model("physics:kvlcc2_model", dt=0.25)
     assert isinstance(model, GreyBoxPredictor)
-    assert model.metadata["model_id"] == "physics-kvlcc2_model" and model.metadata["dt"] == pytest.approx(0.25)
+    assert model.metadata["model_id"] == "physics-kvlcc2_model"
+    assert model.metadata["dt"] == pytest.approx(0.25)
     out = model.predict(np.array([[1.0, 0.0, 0.0, 0.0]]), np.tile([0.0, 80.0], (1, 4, 1)))
     assert out.shape == (1, 1, 4, 6)
 
@@ -26,7 +27,8 @@ def test_physics_with_a_vessel_is_the_calm_water_grey_box_of_that_preset():
 def test_bare_physics_takes_the_configs_vessel_and_step_unless_told():
     cfg = config.load_predictor_config()
     model = loading.load_model("physics")
-    assert model.metadata["model_id"] == f"physics-{cfg.vessel}" and model.metadata["dt"] == pytest.approx(cfg.dt)
+    assert model.metadata["model_id"] == f"physics-{cfg.vessel}"
+    assert model.metadata["dt"] == pytest.approx(cfg.dt)
     assert loading.load_model("physics", vessel="kvlcc2_model").metadata["model_id"] == "physics-kvlcc2_model"
 
 
@@ -34,7 +36,8 @@ def test_an_empty_spec_is_the_shipped_model():
     assert loading.default_model_path().resolve() == SHIPPED.resolve()
     for spec in (None, ""):
         model = loading.load_model(spec)
-        assert model.path.resolve() == SHIPPED.resolve() and model.metadata["format"] == "usv_predictor.model/1"
+        assert model.path.resolve() == SHIPPED.resolve()
+        assert model.metadata["format"] == "usv_predictor.model/1"
 
 
 def test_a_missing_file_is_named_with_the_callers_option(tmp_path):
@@ -54,7 +57,8 @@ def test_a_missing_shipped_model_says_where_it_looked_and_what_to_pass(tmp_path,
     monkeypatch.setattr(config, "share_roots", lambda: (tmp_path,))
     with pytest.raises(ModelError, match="no shipped model: models/default.pt does not exist") as err:
         loading.load_model(None)
-    assert str(tmp_path / "models" / "default.pt") in str(err.value) and "--model physics" in str(err.value)
+    assert str(tmp_path / "models" / "default.pt") in str(err.value)
+    assert "--model physics" in str(err.value)
     with pytest.raises(ModelError, match="or set model_path to a model file$"):
         loading.load_model("", option="model_path", physics=False)
 

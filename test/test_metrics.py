@@ -221,7 +221,8 @@ def test_turning_radius_of_one_to_two_turns_uses_the_first_circle_with_a_note(du
     result = turning_radius(*calm.track())  # no axis given, too short for the eq. 27 drift
     assert len(result.per_circle_m) == 1
     assert result.radius_m == pytest.approx(calm.radius, abs=calm.chord_error + 1e-6)
-    assert "first full circle" in result.note and "< 720" in result.note
+    assert "first full circle" in result.note
+    assert "< 720" in result.note
     drifting = Circle(duration_s=duration_s)  # 0.25 m/s of current: the half-extent is off by <= drift / 2
     off = turning_radius(*drifting.track()).radius_m - drifting.radius
     assert abs(off) <= 0.5 * math.hypot(drifting.current_n, drifting.current_e) * drifting.period + 1e-6
@@ -465,7 +466,8 @@ def test_zigzag_leaves_out_an_unfinished_swing() -> None:
     assert len(result.overshoot_angles_deg) == len(zigzag.amplitudes_deg)  # aligned with the reversals
     np.testing.assert_allclose(result.overshoot_angles_deg[:-1], zigzag.expected_overshoots()[:-1], atol=0.05)
     assert math.isnan(result.overshoot_angles_deg[-1])
-    assert math.isnan(result.peak_times_s[-1]) and math.isnan(result.time_to_check_yaw_s[-1])
+    assert math.isnan(result.peak_times_s[-1])
+    assert math.isnan(result.time_to_check_yaw_s[-1])
 
 
 def test_zigzag_needs_a_reversal() -> None:
@@ -543,4 +545,5 @@ def test_evaluation_turning_metrics_of_one_and_a_half_turns() -> None:
     assert values["drift_distance_m"] is None
     assert values["turning_radius_m"] == pytest.approx(calm.radius, abs=calm.chord_error + 1e-6)
     assert values["transfer_m"] == pytest.approx(calm.radius, rel=1e-3)
-    assert any("first full circle" in n for n in notes) and any("drift (eq. 27" in n for n in notes)
+    assert any("first full circle" in n for n in notes)
+    assert any("drift (eq. 27" in n for n in notes)

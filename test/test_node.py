@@ -41,8 +41,10 @@ def harness(ros_context: Context) -> Iterator[Harness]:
 
 def test_no_input_yet_reports_why_and_publishes_nothing(harness: Harness) -> None:
     found = harness.spin_until(lambda s: "prediction" in s)
-    assert level(found["prediction"]) == predictor_node.WARN and "no message yet" in found["prediction"].message
-    assert level(found["model"]) == predictor_node.OK and values_of(found["model"])["model_id"]
+    assert level(found["prediction"]) == predictor_node.WARN
+    assert "no message yet" in found["prediction"].message
+    assert level(found["model"]) == predictor_node.OK
+    assert values_of(found["model"])["model_id"]
     assert values_of(found["model"])["rollout"].startswith("fused")  # the shipped DNN, fused when loaded
     assert harness.paths == []
 
@@ -98,7 +100,7 @@ def test_heading_in_degrees_configured_as_rad_is_refused(ros_context: Context) -
 
 
 def test_heading_in_radians_configured_as_degrees_is_refused_while_turning(harness: Harness) -> None:
-    """Issue 12: each value is a plausible heading in degrees, so only the gyro can tell. The boat turns at
+    """Each value is a plausible heading in degrees, so only the gyro can tell. The boat turns at
     0.4 rad/s (23 deg/s); its heading in radians read as degrees never leaves 6.3 deg. Refused with the reason on
     /diagnostics, and no Path is published from then on."""
     assert harness.node.config.input("heading").options.get("units", "deg") == "deg"
@@ -118,7 +120,8 @@ def test_heading_in_radians_configured_as_degrees_is_refused_while_turning(harne
     found = harness.spin_until(lambda s: level(s["heading"]) == predictor_node.ERROR, feed)
     assert found["heading"].message.startswith("refused: the heading disagrees with the gyro")
     assert "radians with units deg" in found["heading"].message
-    assert "input heading refused" in found["prediction"].message and level(found["prediction"]) == predictor_node.WARN
+    assert "input heading refused" in found["prediction"].message
+    assert level(found["prediction"]) == predictor_node.WARN
     count = len(harness.paths)
     harness.spin(0.5, feed)
     assert len(harness.paths) == count  # nothing is published from a refused input
@@ -174,14 +177,17 @@ def test_header_less_messages_at_one_sim_clock_reading_supersede_and_are_not_ref
             assert time.monotonic() < deadline, f"{node.arrived['heading'] - arrived} of 3 headings arrived"
             fixture.executor.spin_once(timeout_sec=0.02)
         fixture.spin(0.1)
-        assert node.arrived["heading"] == arrived + 3 and node.get_clock().now().nanoseconds == t_ns
+        assert node.arrived["heading"] == arrived + 3
+        assert node.get_clock().now().nanoseconds == t_ns
         received = track.received + sum(track.rejected.values())
         while track.received + sum(track.rejected.values()) < received + 3:  # the next cycle decodes them
             assert time.monotonic() < deadline, "the node's cycle never decoded the headings"
             tick(t_ns + 200_000_000)
             fixture.executor.spin_once(timeout_sec=0.02)
-        assert track.rejected == {} and track.superseded >= 2
-        assert track.buffer.latest_ns == t_ns and track.buffer.samples()[1][-1, 0] == pytest.approx(0.3)
+        assert track.rejected == {}
+        assert track.superseded >= 2
+        assert track.buffer.latest_ns == t_ns
+        assert track.buffer.samples()[1][-1, 0] == pytest.approx(0.3)
     finally:
         fixture.close()
 
@@ -214,7 +220,8 @@ def test_messages_before_the_first_sim_clock_are_taken_at_its_first_reading(ros_
             msg.clock.sec = t_ns // 1_000_000_000
             clock.publish(msg)
             fixture.executor.spin_once(timeout_sec=0.02)
-        assert tracks["velocity"].rejected == {} and tracks["heading"].rejected == {}
+        assert tracks["velocity"].rejected == {}
+        assert tracks["heading"].rejected == {}
         assert t_ns - 400_000_000 <= tracks["velocity"].buffer.latest_ns < t_ns  # its header stamp
         assert tracks["heading"].buffer.latest_ns == t_ns  # header-less: the first clock reading
     finally:
@@ -235,7 +242,9 @@ def test_a_1khz_imu_burst_keeps_buffers_bounded(harness: Harness) -> None:
             harness.feed(skip=("imu",))
     harness.spin(0.2, harness.feed)
     imu = harness.node.inputs.tracks["imu"].buffer
-    assert sent > capacity and len(imu) <= capacity and imu.nbytes == nbytes
+    assert sent > capacity
+    assert len(imu) <= capacity
+    assert imu.nbytes == nbytes
     assert all(len(t.buffer) <= t.buffer.capacity for t in harness.node.inputs.tracks.values())
     assert harness.paths  # it kept predicting through the burst
 
@@ -270,7 +279,8 @@ def test_invalid_parameter_values_are_rejected_with_the_range(harness: Harness) 
     result = harness.node.set_parameters([Parameter("inputs.imu.max_age_s", value=-1.0)])[0]
     assert not result.successful
     descriptor = harness.node.describe_parameter("state_delay_s")
-    assert descriptor.read_only and descriptor.floating_point_range[0].to_value == 5.0
+    assert descriptor.read_only
+    assert descriptor.floating_point_range[0].to_value == 5.0
     assert "0 <= state_delay_s <= 5" in descriptor.additional_constraints
 
 
@@ -293,7 +303,8 @@ def test_model_swap_validates_first_and_keeps_the_old_model(harness: Harness, tm
     old = harness.node.rollout
     for name, path in write_bad_models(tmp_path).items():
         result = harness.node.set_parameters([Parameter("model_path", value=str(path))])[0]
-        assert not result.successful and str(path) in result.reason, name
+        assert not result.successful, name
+        assert str(path) in result.reason, name
         assert harness.node.rollout is old
     # the last refusal is on /diagnostics while the old model keeps predicting
     found = harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK
@@ -301,7 +312,8 @@ def test_model_swap_validates_first_and_keeps_the_old_model(harness: Harness, tm
     assert values_of(found["model"])["refused_model_path"] == str(path)
     assert "control_layout = None must be a non-empty list" in found["model"].message
     result = harness.node.set_parameters([Parameter("model_path", value=str(DEFAULT_MODEL))])[0]
-    assert result.successful and harness.node.rollout is not old
+    assert result.successful
+    assert harness.node.rollout is not old
     harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, harness.feed)
 
 
@@ -322,7 +334,8 @@ def test_a_model_for_other_controls_is_refused_naming_the_layouts(ros_context: C
     export_like(path, shipped.module, shipped, control_layout=["port", "starboard"])
     with pytest.raises(ModelError, match=r"twin.pt does not match the configuration: control_layout: "
                                          r"model \['port', 'starboard'\], config \['delta', 'rpm'\]"):
-        predictor_node.PredictorNode(context=ros_context, parameter_overrides=[Parameter("model_path", value=str(path))])
+        predictor_node.PredictorNode(context=ros_context,
+                                     parameter_overrides=[Parameter("model_path", value=str(path))])
 
 
 @pytest.mark.parametrize("case", ["missing", "corrupt", "vessel", "ensemble_five", "control_layout_null"])
@@ -333,7 +346,8 @@ def test_a_bad_model_at_start_exits_2_naming_the_file(tmp_path: Path, case: str)
     done = subprocess.run([sys.executable, "-m", "usv_predictor.node", "--ros-args", *args],
                           capture_output=True, text=True, timeout=60, env=env)
     assert done.returncode == predictor_node.EXIT_ERROR == 2, done.stderr[-2000:]
-    assert "predictor: error: " in done.stderr and "Traceback" not in done.stderr
+    assert "predictor: error: " in done.stderr
+    assert "Traceback" not in done.stderr
     expected = (str(models[case]) if case in models else  # the shipped model embeds its vessel's description
                 "was made for vessel 'jari_usv' (the description it embeds), vessel kvlcc2_model differs: ")
     assert expected in done.stderr
@@ -356,8 +370,10 @@ def test_the_sea_estimate_of_a_dnn_is_fed_after_the_cycle_publishes(harness: Har
 
     node._publish, node.sea.observe = publishing, observing
     found = harness.spin_until(lambda s: int(values_of(s["sea estimate"]).get("samples_fed", 0)) >= 3, harness.feed)
-    assert values_of(found["sea estimate"])["applied"] == "no" and not node.sea.applied
-    assert len(events) >= 6 and len(events) % 2 == 0
+    assert values_of(found["sea estimate"])["applied"] == "no"
+    assert not node.sea.applied
+    assert len(events) >= 6
+    assert len(events) % 2 == 0
     assert [kind for kind, _ in events] == ["publish", "observe"] * (len(events) // 2)
     assert all(events[i][1] == events[i + 1][1] for i in range(0, len(events), 2))  # the cycle's own state
 
@@ -373,28 +389,35 @@ def test_the_sea_estimate_survives_bad_input_resets_on_a_clock_jump_and_follows_
                                      "estimated_current", currents.append, 10)
     found = harness.spin_until(lambda s: int(values_of(s["sea estimate"]).get("samples_fed", 0)) >= 3, harness.feed)
     sea = values_of(found["sea estimate"])
-    assert sea["applied"] == "no" and "learned" in sea["why"] and sea["enabled"] == "true"
+    assert sea["applied"] == "no"
+    assert "learned" in sea["why"]
+    assert sea["enabled"] == "true"
     # the constant GOOD inputs are no boat the grey box knows (rpm against speed): innovations may be gated (WARN)
     assert found["sea estimate"].message.split(":")[0] in ("converged", "not converged", "rejected")
-    assert sea["status"] and math.isfinite(float(sea["current_speed_mps"]))
+    assert sea["status"]
+    assert math.isfinite(float(sea["current_speed_mps"]))
     harness.spin(0.2, harness.feed)
-    assert currents and all(math.isfinite(c.twist.twist.linear.x) for c in currents)
+    assert currents
+    assert all(math.isfinite(c.twist.twist.linear.x) for c in currents)
     assert currents[-1].header.frame_id == "odom" and currents[-1].twist.covariance[14] == 1e6  # z: unknown
     # NaN velocity: refused by the input, the prediction stops, nothing reaches the filter
     found = harness.spin_until(lambda s: "velocity: stale" in s["prediction"].message,
                                lambda: harness.feed(velocity=(math.nan, 0.0, 0.0)))
     fed = harness.node.sea.fed
     harness.spin(0.3, lambda: harness.feed(velocity=(math.nan, 0.0, 0.0)))
-    assert harness.node.sea.fed == fed and all(math.isfinite(x) for x in harness.node.sea.estimator.x)
+    assert harness.node.sea.fed == fed
+    assert all(math.isfinite(x) for x in harness.node.sea.estimator.x)
     # the clock jumps back: input buffers cleared and the estimate back to its prior
     harness.node._catch_up(harness.node.get_clock().now().nanoseconds - 10**10)
-    assert harness.node.sea.estimator.x is None and harness.node.sea.latest is None
+    assert harness.node.sea.estimator.x is None
+    assert harness.node.sea.latest is None
     found = harness.spin_until(lambda s: values_of(s["sea estimate"]).get("last_reset") == "the clock jumped back")
     # parameters: out of range refused, a valid change restarts, enabled false switches it off
     assert not harness.node.set_parameters([Parameter("online.current_noise", value=-1.0)])[0].successful
     old = harness.node.sea
     assert harness.node.set_parameters([Parameter("online.current_noise", value=0.004)])[0].successful
-    assert harness.node.sea is not old and harness.node.sea.config.current_noise == 0.004
+    assert harness.node.sea is not old
+    assert harness.node.sea.config.current_noise == 0.004
     assert harness.node.set_parameters([Parameter("online.enabled", value=False)])[0].successful
     found = harness.spin_until(lambda s: s["sea estimate"].message == "off", harness.feed)
     count = len(currents)

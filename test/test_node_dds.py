@@ -143,7 +143,8 @@ def recording_step(recording: Recording, stamp: int) -> int:
 def check_every_message_taken(node: predictor_node.PredictorNode, paths: list, *, received: int,
                               min_paths: int) -> None:
     """A Path per prediction (at least min_paths), every message sent received by an input, none refused."""
-    assert node.published >= min_paths and len(paths) == node.published
+    assert node.published >= min_paths
+    assert len(paths) == node.published
     assert sum(track.received for track in node.inputs.tracks.values()) == received
     assert all(not track.rejected for track in node.inputs.tracks.values())
 
@@ -166,7 +167,8 @@ def check_equal_to_replay(node: predictor_node.PredictorNode, recording, paths: 
         t_v, nu = decode_predicted_velocities(trajectory)
         np.testing.assert_allclose(nu, reference[:, :3], rtol=0, atol=nu_atol)
         expected_t = recording.t0_ns + (n + 1 + np.arange(horizon_steps)) * dt_ns
-        assert np.array_equal(t_ns, expected_t) and np.array_equal(t_v, expected_t)
+        assert np.array_equal(t_ns, expected_t)
+        assert np.array_equal(t_v, expected_t)
         assert frame == "odom"
     assert first_n[0] == 0  # the first whole window, as the Recording's first step
 
@@ -178,7 +180,9 @@ def test_node_predictions_equal_replay_evaluate_on_the_recording(ros_context: Co
     run = lockstep(ros_context, BAG, recording, seconds=10.0)
     node = run.node
     check_every_message_taken(node, run.paths, received=run.sent, min_paths=16)
-    assert not node.sea.applied and node.sea.enabled and len(run.currents) == node.sea.fed >= 16
+    assert not node.sea.applied
+    assert node.sea.enabled
+    assert len(run.currents) == node.sea.fed >= 16
     check_equal_to_replay(node, recording, run.paths, run.velocities, horizon_steps=120)
 
 
@@ -199,8 +203,10 @@ def test_with_the_online_estimator_the_node_predicts_as_replay_evaluate_adaptive
     recording = load_recordings([BAG], DT, jobs=1, warn=lambda _: None)[0]
     run = lockstep(ros_context, BAG, recording, seconds=10.0, overrides=(
         Parameter("model_path", value=str(greybox_model)), Parameter("ensemble_size", value=1)))
-    assert run.node.published >= 16 and len(run.paths) == run.node.published
-    assert run.node.sea.applied and run.node.sea.fed == len(run.currents) >= 16
+    assert run.node.published >= 16
+    assert len(run.paths) == run.node.published
+    assert run.node.sea.applied
+    assert run.node.sea.fed == len(run.currents) >= 16
     model = loading.load_model(str(greybox_model), dt=DT)  # as evaluate_bags loads it
     config = OnlineConfig(**load_predictor_config().online)  # as adaptive_section configures it
     evaluated = adaptive.adaptive_open_loop(model, recording, "gnss", (30.0,), 5.0, config)
@@ -229,7 +235,7 @@ def test_with_the_online_estimator_the_node_predicts_as_replay_evaluate_adaptive
     assert outputs.decode_current(run.currents[0])[0] == recording.t0_ns  # the first sample is the Recording's first
 
 
-# ----------------------------------------------------------------------------- a twin-thruster boat (issue 10)
+# ----------------------------------------------------------------------------- a twin-thruster boat
 
 OTTER_BAG = REPO / "bags" / "otter" / "sea_trial" / "turning_circle_port_d0.4_p0.6"
 OTTER_HORIZON_S = 10.0  # a short horizon: the grey box's RK4 in TorchScript is ~3 ms per step on CI
@@ -364,7 +370,9 @@ def check_paths(listener: play_bag.PathListener, rate_hz: float, seconds: float)
     spacing = np.diff(stamps) / NS
     assert np.median(spacing) == pytest.approx(1.0 / rate_hz, abs=0.011)  # at rate_hz in sim time (10 ms clock)
     for stamp, t_ns, eta, frame in paths:
-        assert frame == "odom" and len(t_ns) == 120 and eta.shape == (120, 3)
+        assert frame == "odom"
+        assert len(t_ns) == 120
+        assert eta.shape == (120, 3)
         assert np.all(np.diff(t_ns) == int(DT * NS)) and t_ns[0] > stamp - int(DT * NS)  # future poses
         assert t_ns[-1] - stamp >= 59 * NS
         assert np.all(np.isfinite(eta))
@@ -422,7 +430,8 @@ def test_the_node_process_stops_on_a_signal(signal_name: str) -> None:
             pytest.fail(f"the node ignored {signal_name} for 10 s")
         err = process.communicate()[1]
         assert process.returncode == predictor_node.EXIT_OK == 0, err[-2000:]
-        assert "Traceback" not in err and "RCLError" not in err, err[-2000:]
+        assert "Traceback" not in err, err[-2000:]
+        assert "RCLError" not in err, err[-2000:]
     finally:
         peer.destroy_node()
         rclpy.try_shutdown(context=context)
@@ -430,7 +439,7 @@ def test_the_node_process_stops_on_a_signal(signal_name: str) -> None:
             process.kill()
 
 
-# ----------------------------------------------------------------------------- a rudder boat without rpm (issue 10)
+# ----------------------------------------------------------------------------- a rudder boat without rpm
 
 RUDDER_THROTTLE = "jari_rudder_throttle"  # jari_usv as rudder_throttle (test_norpm_pipeline.write_vessel)
 

@@ -96,13 +96,15 @@ def small_boat(tmp_path_factory: pytest.TempPathFactory) -> tuple[LiveFitCheck, 
 def test_the_buffers_make_the_recording_the_replay_tool_makes() -> None:
     """buffered_recording is recording_from_signals of the buffered samples: the same grid, the same box means."""
     vessel = load_vessel("jari_usv")
-    fit = LiveFitCheck(physics_predictor(vessel, DT), vessel, vessel.actuator_layout, "x", FitCheckSettings(enabled=False))
+    fit = LiveFitCheck(physics_predictor(vessel, DT), vessel, vessel.actuator_layout, "x",
+                       FitCheckSettings(enabled=False))
     inputs, runs = stream(vessel, fit, capacity=100000)  # everything buffered
     assert runs == 0  # disabled: never due
     signals = trial_signals(vessel)
     offline = recording_from_signals(signals, DT, name="trial", layout=vessel.actuator_layout)
     online = inputs.buffered_recording(DT)  # the replay tool's cut: every gap longer than dt
-    assert online.t0_ns == offline.t0_ns and len(online) == len(offline)
+    assert online.t0_ns == offline.t0_ns
+    assert len(online) == len(offline)
     np.testing.assert_allclose(online.nu, offline.nu, atol=1e-12)
     np.testing.assert_allclose(online.controls, offline.controls, atol=1e-12)
     np.testing.assert_allclose(online.position, offline.position, atol=1e-9)
@@ -146,13 +148,18 @@ def buffered_span(inputs: live.InputSet, max_gap_s: float) -> float:
 def test_the_preset_on_its_own_boat_fits_with_its_ratios(own_boat: LiveFitCheck) -> None:
     fit = own_boat
     check = fit.check
-    assert fit.test_runs >= 5 and check is not None and check.verdict == "fits"
-    assert abs(check.speed_ratio - 1.0) < 0.05 and check.speed_windows == "straight"
+    assert fit.test_runs >= 5
+    assert check is not None
+    assert check.verdict == "fits"
+    assert abs(check.speed_ratio - 1.0) < 0.05
+    assert check.speed_windows == "straight"
     kinds = [w.kind for w in check.windows]
     assert kinds.count("straight") == 1  # the 25 s approach, seen by several checks, is one window
     level, message, values = fit.report(int(60 * NS_PER_S))
-    assert level == "ok" and message.startswith("fits: speed ratio")
-    assert values["verdict"] == "fits" and abs(float(values["speed_ratio"]) - 1.0) < 0.05
+    assert level == "ok"
+    assert message.startswith("fits: speed ratio")
+    assert values["verdict"] == "fits"
+    assert abs(float(values["speed_ratio"]) - 1.0) < 0.05
     assert fit.refusing == ""
 
 
@@ -164,14 +171,19 @@ def test_the_preset_on_a_small_boat_is_an_error_naming_the_speeds_and_the_remedy
     fit, _ = small_boat
     fit.settings = FitCheckSettings(period_s=PERIOD_S, refuse=refuse)
     check = fit.check
-    assert check is not None and check.verdict == "mismatch" and check.speed_ratio > SPEED_RATIO_LIMIT
+    assert check is not None
+    assert check.verdict == "mismatch"
+    assert check.speed_ratio > SPEED_RATIO_LIMIT
     level, message, values = fit.report(int(60 * NS_PER_S))
     assert level == "error"
     runs = re.search(r"it runs at ([\d.]+) m/s at 700 rpm, the node's inputs at ([\d.]+) m/s \(ratio ([\d.]+)", message)
     assert runs, message
     model_speed, data_speed, ratio = (float(x) for x in runs.groups())
-    assert 5.5 < model_speed < 6.3 and 1.0 < data_speed < 3.0 and ratio == pytest.approx(check.speed_ratio, abs=0.01)
-    assert REMEDY in message and values["remedy"] == REMEDY
+    assert 5.5 < model_speed < 6.3
+    assert 1.0 < data_speed < 3.0
+    assert ratio == pytest.approx(check.speed_ratio, abs=0.01)
+    assert REMEDY in message
+    assert values["remedy"] == REMEDY
     assert ("predictions suppressed" in message) == refuse
     # what the node does with its predictions (node.py skips the cycle with this line)
     assert bool(fit.refusing) == refuse
@@ -186,21 +198,26 @@ def test_the_live_check_and_the_replay_tools_agree(small_boat: tuple[LiveFitChec
     jari = load_vessel("jari_usv")
     recording = recording_from_signals(trial_signals(small), DT, name="trial", layout=small.actuator_layout)
     offline = check_fit(physics_predictor(jari, DT), [recording], vessel=jari)
-    assert offline.verdict == "mismatch" and offline.speed_ratio == pytest.approx(fit.check.speed_ratio, rel=0.05)
+    assert offline.verdict == "mismatch"
+    assert offline.speed_ratio == pytest.approx(fit.check.speed_ratio, rel=0.05)
 
 
 def test_no_steady_window_yet_is_ok_a_reset_forgets_the_verdict(small_boat: tuple[LiveFitCheck, Vessel]) -> None:
     fit = preset_check()
     level, message, _ = fit.report(0)
-    assert level == "ok" and message.startswith("no steady window yet")
+    assert level == "ok"
+    assert message.startswith("no steady window yet")
     fit.check = small_boat[0].check  # a mismatch, then the clock jumps back
     assert fit.report(0)[0] == "error"
     fit.reset("the clock jumped back")
     level, _, values = fit.report(0)
-    assert level == "ok" and fit.check is None and values["last_reset"] == "the clock jumped back"
+    assert level == "ok"
+    assert fit.check is None
+    assert values["last_reset"] == "the clock jumped back"
     fit.skip("input imu: no sample buffered", 0)
     level, message, _ = fit.report(0)
-    assert level == "warn" and message == "not run: input imu: no sample buffered"
+    assert level == "warn"
+    assert message == "not run: input imu: no sample buffered"
 
 
 @pytest.mark.parametrize("period", [0.1, 1e4, float("nan")])
@@ -249,7 +266,8 @@ def spin_long(harness: Harness, condition: Any, feed: Any, seconds: float = 120.
 @pytest.mark.slow
 def test_the_node_flags_a_model_that_does_not_fit_and_refuses_on_request(harness: Harness) -> None:
     """Rudder amidships and 650 rpm held on a boat that runs straight at 1 m/s: the shipped jari_usv model (5.0 m/s
-    there, ratio 4.95) does not fit, beyond what waves of 1.5 m explain for its 13.5 m boat (limit 2.9). /diagnostics says so
+    there, ratio 4.95) does not fit, beyond what waves of 1.5 m explain for its 13.5 m boat (limit 2.9). /diagnostics
+    says so
     with the numbers and the remedy while the paths keep coming; fit_check.refuse stops them, naming the refusal;
     false again, they come back."""
     slow = {"velocity": (1.0, 0.0, 0.0), "rudder_angle": (0.0,), "imu": (0.0, 0.0, 0.0, -9.81, math.nan)}
@@ -259,15 +277,20 @@ def test_the_node_flags_a_model_that_does_not_fit_and_refuses_on_request(harness
     assert message.startswith(f"model {harness.node.rollout.artifact.model_id} (dnn, vessel jari_usv) does not fit "
                               "the node's inputs: it runs at")
     runs = re.search(r"it runs at ([\d.]+) m/s at 650 rpm, the node's inputs at 1 m/s \(ratio ([\d.]+)", message)
-    assert runs and 4.0 < float(runs.group(1)) < 6.3 and REMEDY in message, message
+    assert runs, message
+    assert 4.0 < float(runs.group(1)) < 6.3, message
+    assert REMEDY in message, message
     assert "predictions still published" in message
     values = values_of(found["fit check"])
-    assert float(values["speed_ratio"]) > SPEED_RATIO_LIMIT and values["verdict"] == "mismatch"
-    assert level(found["prediction"]) == predictor_node.OK and harness.paths
+    assert float(values["speed_ratio"]) > SPEED_RATIO_LIMIT
+    assert values["verdict"] == "mismatch"
+    assert level(found["prediction"]) == predictor_node.OK
+    assert harness.paths
     # refuse: no more paths, the prediction status names the refusal
     assert harness.node.set_parameters([Parameter("fit_check.refuse", value=True)])[0].successful
     found = harness.spin_until(lambda s: "does not fit" in s["prediction"].message, lambda: harness.feed(**slow))
-    assert level(found["prediction"]) == predictor_node.WARN and "predictions suppressed" in found["fit check"].message
+    assert level(found["prediction"]) == predictor_node.WARN
+    assert "predictions suppressed" in found["fit check"].message
     count = len(harness.paths)
     harness.spin(0.5, lambda: harness.feed(**slow))
     assert len(harness.paths) == count
@@ -279,9 +302,11 @@ def test_the_node_flags_a_model_that_does_not_fit_and_refuses_on_request(harness
 
 def test_the_fit_check_parameters_are_validated(harness: Harness) -> None:
     result = harness.node.set_parameters([Parameter("fit_check.period_s", value=0.1)])[0]
-    assert not result.successful and harness.node.fit.settings.period_s == 1.0
+    assert not result.successful
+    assert harness.node.fit.settings.period_s == 1.0
     descriptor = harness.node.describe_parameter("fit_check.period_s")
-    assert not descriptor.read_only and descriptor.floating_point_range[0].to_value == 600.0
+    assert not descriptor.read_only
+    assert descriptor.floating_point_range[0].to_value == 600.0
     assert harness.node.set_parameters([Parameter("fit_check.enabled", value=False)])[0].successful
     found = harness.spin_until(lambda s: "fit check" in s and "disabled" in s["fit check"].message)
     assert level(found["fit check"]) == predictor_node.OK
@@ -299,7 +324,8 @@ def test_buffers_too_short_for_a_window_are_a_warning_naming_buffer_capacity(ros
         found = spin_long(fixture, lambda s: "fit check" in s and level(s["fit check"]) == predictor_node.WARN
                           and "buffer_capacity" in s["fit check"].message, fixture.feed, seconds=30.0)
         message = found["fit check"].message
-        assert "raise buffer_capacity" in message and "64 samples, full" in message, message
+        assert "raise buffer_capacity" in message, message
+        assert "64 samples, full" in message, message
     finally:
         fixture.close()
 
@@ -429,9 +455,11 @@ def test_the_live_check_of_a_rudder_only_boat_holds_the_approach_its_buffers_no_
     for label, reference in (("buffer", None), ("node", inputs.approach.reference)):
         fit = LiveFitCheck(physics_predictor(vessel, DT), vessel, layout, "own", FitCheckSettings(period_s=PERIOD_S))
         check = fit.run(recording, events[-1][0], reference)
-        assert check is not None and [w.kind for w in check.windows] == ["turn"]
+        assert check is not None
+        assert [w.kind for w in check.windows] == ["turn"]
         ratios[label] = check.yaw_rate_ratio
-    assert abs(ratios["node"] - 1.0) < 0.05 and ratios["buffer"] < 0.6, ratios
+    assert abs(ratios["node"] - 1.0) < 0.05, ratios
+    assert ratios["buffer"] < 0.6, ratios
 
 
 # ------------------------------------------------------------------ the cache (fit.py): same content, same numbers
@@ -441,7 +469,8 @@ FEED_HZ = {"imu": 200.0, "velocity": 20.0, "heading": 20.0, "rudder_angle": 10.0
 def constant_feed(u_mps: float, seconds: float, t0_ns: int = 10**18, checks_every_s: float = 5.0,
                   first_check_s: float = 12.0) -> list[tuple[int, Any]]:
     """The benchmark's feed (benchmarks/bench_node.py) from t0_ns on: every input at its rate with constant values
-    (surge u_mps, yaw rate 0.02 rad/s, rudder 0.1 rad at 650 rpm; heading 1.2 rad, the benchmark's 0.5), buffered as the node does (capacity 2048: 10 s of
+    (surge u_mps, yaw rate 0.02 rad/s, rudder 0.1 rad at 650 rpm; heading 1.2 rad, the benchmark's 0.5), buffered as the
+    node does (capacity 2048: 10 s of
     the 200 Hz gyro); [(clock ns, InputSet.buffered_recording)] every checks_every_s from first_check_s on."""
     jari = load_vessel("jari_usv")
     roles = (*required_roles(jari.actuator_layout), live.POSITION_ROLE)
@@ -492,8 +521,11 @@ def test_the_cache_serves_repeated_windows_with_the_same_verdict_and_numbers() -
         assert comparable(cached, now_ns) == comparable(uncached, now_ns)
     # beyond the calm-water allowance: causes rolled out (the verdict, "mismatch" or a WARN "fits only with a strong sea
     # or fault", depends on the model's yaw rate against the strongest cause's: 5.5 deg/s here is a WARN)
-    assert cached.check.yaw_rate_ratio > YAW_RATE_RATIO_LIMIT and cached.check.yaw_rate_explanation is not None
-    assert len(feed) == 5 and uncached.causes_rolled_out == 7 and uncached.causes_served == 0
+    assert cached.check.yaw_rate_ratio > YAW_RATE_RATIO_LIMIT
+    assert cached.check.yaw_rate_explanation is not None
+    assert len(feed) == 5
+    assert uncached.causes_rolled_out == 7
+    assert uncached.causes_served == 0
     # 5 checks, one window found in each: the first of each feed rolls its causes out, the others are served; the
     # 5.0 m/s window is kept beside the 5.3 one (no overlap in time), its causes served from then on
     assert len(cached.windows) == 2
@@ -506,7 +538,9 @@ def test_the_cache_is_not_served_when_a_window_changed_at_the_same_stamps() -> N
     rolls its window out (a cache keyed on the stamps would serve the first one's numbers)."""
     (now_ns, first), = constant_feed(5.0, 13.0)
     (same_ns, second), = constant_feed(5.1, 13.0)
-    assert same_ns == now_ns and np.array_equal(first.t_s, second.t_s) and first.t0_ns == second.t0_ns
+    assert same_ns == now_ns
+    assert np.array_equal(first.t_s, second.t_s)
+    assert first.t0_ns == second.t0_ns
     fit = shipped_check(True)
     before = fit.run(first, now_ns)
     after = fit.run(second, now_ns + 5 * NS_PER_S)
@@ -514,7 +548,8 @@ def test_the_cache_is_not_served_when_a_window_changed_at_the_same_stamps() -> N
     fresh = shipped_check(False)
     fresh.run(first, now_ns)
     fresh.run(second, now_ns + 5 * NS_PER_S)
-    assert after == fresh.check and after.windows[0].start_s == before.windows[0].start_s
+    assert after == fresh.check
+    assert after.windows[0].start_s == before.windows[0].start_s
     assert after.windows[0].measured_speed_mps != before.windows[0].measured_speed_mps
     assert after.yaw_rate_explanation != before.yaw_rate_explanation  # the causes' limits of the new window
 
@@ -552,6 +587,7 @@ def test_the_fit_check_worker_runs_nicer_than_the_node(ros_context: Any) -> None
     try:
         own = os.getpriority(os.PRIO_PROCESS, 0)  # this thread's
         worker = node._fit_worker.submit(os.getpriority, os.PRIO_PROCESS, 0).result()
-        assert worker == min(19, own + predictor_node.FIT_NICE) and worker > own
+        assert worker == min(19, own + predictor_node.FIT_NICE)
+        assert worker > own
     finally:
         node.destroy_node()

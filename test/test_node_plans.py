@@ -53,8 +53,10 @@ def joint_trajectory(harness: Harness, names: list[str], positions: np.ndarray, 
     msg = harness.make("trajectory_msgs/msg/JointTrajectory")()
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), NS)
     msg.joint_names = names
-    point, duration = harness.make("trajectory_msgs/msg/JointTrajectoryPoint"), harness.make("builtin_interfaces/msg/Duration")
-    msg.points = [point(positions=[float(x) for x in row], time_from_start=duration(sec=int(t), nanosec=int(t % 1 * NS)))
+    point = harness.make("trajectory_msgs/msg/JointTrajectoryPoint")
+    duration = harness.make("builtin_interfaces/msg/Duration")
+    msg.points = [point(positions=[float(x) for x in row],
+                        time_from_start=duration(sec=int(t), nanosec=int(t % 1 * NS)))
                   for row, t in zip(np.atleast_2d(positions), times_s)]
     return msg
 
@@ -99,45 +101,56 @@ def test_a_plan_is_predicted_under_and_its_stamp_tags_the_outputs(harness: Harne
     # GOOD holds 0.1 rad of starboard rudder; the plan 0.45 rad from its stamp on: a tighter turn to starboard
     assert turn(tagged) - turn(held) > 0.3
     t_ns, _ = decode_path(tagged)
-    assert len(t_ns) == HORIZON_STEPS and np.all(np.diff(t_ns) == NS // 2)
-    found = harness.spin_until(lambda s: level(s["plan"]) == predictor_node.OK and "under the plan" in s["plan"].message)
+    assert len(t_ns) == HORIZON_STEPS
+    assert np.all(np.diff(t_ns) == NS // 2)
+    found = harness.spin_until(lambda s: level(s["plan"]) == predictor_node.OK
+                               and "under the plan" in s["plan"].message)
     assert plans.describe_stamp(stamp) in found["plan"].message
     assert values_of(found["prediction"])["controls"] == f"plan stamped {plans.describe_stamp(stamp)}"
-    assert values_of(found["plan"])["received"] == "1" and values_of(found["plan"])["refused"] == "0"
+    assert values_of(found["plan"])["received"] == "1"
+    assert values_of(found["plan"])["refused"] == "0"
 
 
 def test_malformed_and_stale_plans_are_refused_and_the_commands_held(harness: Harness) -> None:
     harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, harness.feed)
     good = now_ns(harness)
-    publisher(harness, "plan").publish(joint_trajectory(harness, ["delta", "rpm"], np.array([[0.3, 650.0]]), [0.0], good))
+    publisher(harness,
+              "plan").publish(joint_trajectory(harness, ["delta", "rpm"], np.array([[0.3, 650.0]]), [0.0], good))
     wait_for(harness, lambda: any(stamp_of(p) == good for p in harness.paths), "the good plan followed")
     # a malformed plan replaces it: refused, and the node goes back to the held commands
     bad = now_ns(harness)
-    publisher(harness, "plan").publish(joint_trajectory(harness, ["rudder", "rpm"], np.array([[0.3, 650.0]]), [0.0], bad))
+    publisher(harness,
+              "plan").publish(joint_trajectory(harness, ["rudder", "rpm"], np.array([[0.3, 650.0]]), [0.0], bad))
     found = harness.spin_until(lambda s: "refused" in s["plan"].message, harness.feed)
     assert level(found["plan"]) == predictor_node.WARN
     assert "joint_names ['rudder', 'rpm']: expected the controls of the actuator layout" in found["plan"].message
-    assert "current commands held" in found["plan"].message and values_of(found["plan"])["refused_joints"] == "1"
+    assert "current commands held" in found["plan"].message
+    assert values_of(found["plan"])["refused_joints"] == "1"
     assert harness.node.following is None
     count = len(harness.paths)
     harness.spin(0.3, harness.feed)
-    assert len(harness.paths) > count and all(stamp_of(p) not in (good, bad) for p in harness.paths[count:])
+    assert len(harness.paths) > count
+    assert all(stamp_of(p) not in (good, bad) for p in harness.paths[count:])
     # a plan stamped longer ago than plan_max_age_s (2 s) is refused as stale
     old = now_ns(harness) - 3 * NS
-    publisher(harness, "plan").publish(joint_trajectory(harness, ["delta", "rpm"], np.array([[0.3, 650.0]]), [0.0], old))
+    publisher(harness,
+              "plan").publish(joint_trajectory(harness, ["delta", "rpm"], np.array([[0.3, 650.0]]), [0.0], old))
     found = harness.spin_until(lambda s: values_of(s["plan"]).get("refused_stale") == "1", harness.feed)
     assert "s old (limit plan_max_age_s 2 s)" in values_of(found["plan"])["last_refused"]
     # a followed plan that ages past the limit is dropped for the held commands
     fresh = now_ns(harness)
-    publisher(harness, "plan").publish(joint_trajectory(harness, ["delta", "rpm"], np.array([[0.3, 650.0]]), [0.0], fresh))
+    publisher(harness,
+              "plan").publish(joint_trajectory(harness, ["delta", "rpm"], np.array([[0.3, 650.0]]), [0.0], fresh))
     wait_for(harness, lambda: any(stamp_of(p) == fresh for p in harness.paths), "the fresh plan followed")
     found = harness.spin_until(lambda s: "is stale" in s["plan"].message, harness.feed)
-    assert level(found["plan"]) == predictor_node.WARN and plans.describe_stamp(fresh) in found["plan"].message
+    assert level(found["plan"]) == predictor_node.WARN
+    assert plans.describe_stamp(fresh) in found["plan"].message
     assert values_of(found["prediction"])["controls"] == "held"
     harness.spin(0.2, harness.feed)  # what was in flight arrives
     count = len(harness.paths)
     harness.spin(0.3, harness.feed)
-    assert len(harness.paths) > count and all(stamp_of(p) != fresh for p in harness.paths[count:])
+    assert len(harness.paths) > count
+    assert all(stamp_of(p) != fresh for p in harness.paths[count:])
 
 
 def candidates_message(harness: Harness, rudders: dict[str, float], stamp_ns: int) -> Any:
@@ -160,26 +173,33 @@ def test_candidate_plans_are_answered_in_one_batch_tagged_with_their_stamp(harne
         candidates_message(harness, {"hold": 0.1, "stbd": 0.5, "port": -0.5}, stamp))
     wait_for(harness, lambda: answers, "candidate_predictions")
     answer = answers[0]
-    assert stamp_of(answer) == stamp and answer.header.frame_id == "odom"
+    assert stamp_of(answer) == stamp
+    assert answer.header.frame_id == "odom"
     assert list(answer.joint_names) == ["hold", "stbd", "port"]
-    assert len(answer.points) == HORIZON_STEPS and all(len(p.transforms) == 3 == len(p.velocities) for p in answer.points)
+    assert len(answer.points) == HORIZON_STEPS
+    assert all(len(p.transforms) == 3 == len(p.velocities) for p in answer.points)
     t_ns = np.array([stamp + p.time_from_start.sec * NS + p.time_from_start.nanosec for p in answer.points])
-    assert np.all(np.diff(t_ns) == NS // 2) and t_ns[0] > stamp - NS // 2
+    assert np.all(np.diff(t_ns) == NS // 2)
+    assert t_ns[0] > stamp - NS // 2
     headings = np.array([[enu_yaw_to_heading(quaternion_to_yaw(q.x, q.y, q.z, q.w)) for q in
                           (tf.rotation for tf in p.transforms)] for p in answer.points])  # (H, 3)
     turn = np.unwrap(headings, axis=0)[-1] - np.unwrap(headings, axis=0)[0]
     assert turn[1] > turn[0] > turn[2]  # more starboard rudder turns the vessel further clockwise
     found = harness.spin_until(lambda s: values_of(s["candidate plans"]).get("answered") == "1")
     values = values_of(found["candidate plans"])
-    assert level(found["candidate plans"]) == predictor_node.OK and values["last_batch"] == "3"
-    assert float(values["answer_ms_p50"]) > 0 and float(values["compute_ms_p50"]) > 0
+    assert level(found["candidate plans"]) == predictor_node.OK
+    assert values["last_batch"] == "3"
+    assert float(values["answer_ms_p50"]) > 0
+    assert float(values["compute_ms_p50"]) > 0
     split = harness.node.get_parameter("candidates_threads").value == 2
-    assert values["threads"] == ("2" if split else "1") and values["members"] == ("3/5" if split else "5/5")
+    assert values["threads"] == ("2" if split else "1")
+    assert values["members"] == ("3/5" if split else "5/5")
 
 
 def test_more_candidate_members_than_the_node_uses_are_refused(ros_context: Context) -> None:
     with pytest.raises(ConfigError, match="candidates_members = 6: expected at most the 5 member"):
-        predictor_node.PredictorNode(context=ros_context, parameter_overrides=[Parameter("candidates_members", value=6)])
+        predictor_node.PredictorNode(context=ros_context,
+                                     parameter_overrides=[Parameter("candidates_members", value=6)])
 
 
 def test_the_cycle_publishes_while_a_candidate_batch_is_computed(harness: Harness, monkeypatch) -> None:
@@ -211,8 +231,10 @@ def test_the_cycle_publishes_while_a_candidate_batch_is_computed(harness: Harnes
     wait_for(harness, lambda: len(harness.paths) >= count + 3 or during, "Paths while the rollout is held")
     release.set()
     wait_for(harness, lambda: answers, "candidate_predictions")
-    assert during and during[0] >= 3, during
-    assert stamp_of(answers[0]) == stamp and list(answers[0].joint_names) == ["a", "b"]
+    assert during, during
+    assert during[0] >= 3, during
+    assert stamp_of(answers[0]) == stamp
+    assert list(answers[0].joint_names) == ["a", "b"]
 
 
 def test_too_many_candidates_are_refused_and_nothing_is_answered(harness: Harness) -> None:
@@ -225,7 +247,8 @@ def test_too_many_candidates_are_refused_and_nothing_is_answered(harness: Harnes
     found = harness.spin_until(lambda s: "refused" in s["candidate plans"].message, harness.feed)
     assert level(found["candidate plans"]) == predictor_node.WARN
     assert "65 candidates, at most 64" in found["candidate plans"].message
-    assert values_of(found["candidate plans"])["refused_too_many"] == "1" and answers == []
+    assert values_of(found["candidate plans"])["refused_too_many"] == "1"
+    assert answers == []
 
 
 def test_diagnostics_run_at_their_own_rate_of_1_hz_by_default(ros_context: Context) -> None:
@@ -270,14 +293,16 @@ def test_an_undecodable_message_is_counted_and_the_good_ones_kept(harness: Harne
 
     found = harness.spin_until(lambda s: int(values_of(s["imu"])["decode_errors"]) >= 3, feed)
     values = values_of(found["imu"])
-    assert "truncated" in values["last_decode_error"] and "sensor_msgs/msg/Imu" in values["last_decode_error"]
+    assert "truncated" in values["last_decode_error"]
+    assert "sensor_msgs/msg/Imu" in values["last_decode_error"]
     received, errors = harness.node.inputs.tracks["imu"].received, harness.node._failures["imu"].count
     deadline = time.monotonic() + WAIT_S  # the good ones between the bad ones: a count, not a rate (busy machine)
     while harness.node.inputs.tracks["imu"].received <= received + 10 or harness.node._failures["imu"].count <= errors:
         assert time.monotonic() < deadline, "the good IMU messages between the bad ones were not all decoded"
         harness.spin(0.1, feed)
     harness.spin(0.2, feed)  # a /diagnostics report after them
-    assert harness.node._failures["imu"].count > int(values["decode_errors"]) and not harness.node.inputs.tracks["imu"].rejected
+    assert harness.node._failures["imu"].count > int(values["decode_errors"])
+    assert not harness.node.inputs.tracks["imu"].rejected
     assert level(statuses(harness.latest)["prediction"]) == predictor_node.OK
 
 
@@ -299,6 +324,7 @@ def test_a_joint_state_input_is_decoded_message_by_message(ros_context: Context,
         found = fixture.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK,
                                    lambda: fixture.feed(rudder_angle=(-0.2,)))
         assert float(values_of(found["rudder_angle"])["delta"]) == pytest.approx(-0.2)
-        assert values_of(found["rudder_angle"])["decode_errors"] == "0" and math.isfinite(GOOD["velocity"][0])
+        assert values_of(found["rudder_angle"])["decode_errors"] == "0"
+        assert math.isfinite(GOOD["velocity"][0])
     finally:
         fixture.close()

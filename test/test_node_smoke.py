@@ -67,8 +67,11 @@ def test_inputs_are_decoded_and_reported(harness: Harness) -> None:
     # every configured input the vessel's actuator layout uses is reported; the controls of other layouts are not
     # subscribed, and one status says so (check_layout_inputs)
     used = [i.role for i in harness.node.config.inputs if i.role not in unused_roles(harness.node.layout)]
-    assert "throttle" not in used and "thruster_port" not in used and "rudder_angle" in used
-    assert sorted(statuses) == sorted([*used, "model", "prediction", "plan", "candidate plans", "sea estimate", "fit check",
+    assert "throttle" not in used
+    assert "thruster_port" not in used
+    assert "rudder_angle" in used
+    assert sorted(statuses) == sorted([*used, "model", "prediction", "plan", "candidate plans", "sea estimate",
+                                       "fit check",
                                        "ignored inputs"])
     ignored = statuses["ignored inputs"]
     assert ignored.level[0] == predictor_node.OK
@@ -124,7 +127,8 @@ def test_config_option_file_becomes_the_defaults(ros_context: Context, tmp_path:
         assert node.get_parameter("rate_hz").value == 4.0
         assert node.describe_parameter("rate_hz").floating_point_range[0].to_value == 100.0
         assert [i.role for i in node.config.inputs] == ["engine_rpm", "rudder_angle"]
-        assert not node.has_parameter("inputs.imu.topic") and node.ignored == {}
+        assert not node.has_parameter("inputs.imu.topic")
+        assert node.ignored == {}
     finally:
         node.destroy_node()
 
@@ -153,8 +157,10 @@ def test_a_missing_control_input_is_one_line_and_exit_2(tmp_path: Path, monkeypa
     err = capsys.readouterr().err
     assert code == predictor_node.EXIT_ERROR == 2, err
     lines = [line for line in err.strip().splitlines() if not line.startswith("[")]  # rcl's own log lines
-    assert len(lines) == 1 and lines[0].startswith(f"predictor: error: {path} (with the node's parameter overrides), ")
-    assert message in lines[0] and "Traceback" not in err
+    assert len(lines) == 1
+    assert lines[0].startswith(f"predictor: error: {path} (with the node's parameter overrides), ")
+    assert message in lines[0]
+    assert "Traceback" not in err
 
 
 def test_help_exits_before_ros_starts(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
@@ -176,10 +182,11 @@ def test_missing_config_file_exits_2_with_its_name(tmp_path: Path) -> None:
         capture_output=True, text=True, timeout=60, env=env,
     )
     assert done.returncode == predictor_node.EXIT_ERROR == 2  # a start-up error, like the replay tool's bad input
-    assert str(missing) in done.stderr and "Traceback" not in done.stderr
+    assert str(missing) in done.stderr
+    assert "Traceback" not in done.stderr
 
 
-# ----------------------------------------------------------------------------- start-up and stop (issue 12)
+# ----------------------------------------------------------------------------- start-up and stop
 
 
 def _failing_model(path: Path) -> Path:
@@ -255,7 +262,9 @@ def test_a_wrong_start_up_parameter_is_one_line_and_exit_2(case: str, tmp_path: 
     assert code == predictor_node.EXIT_ERROR == 2, err
     assert "Traceback" not in err
     lines = [line for line in err.strip().splitlines() if not line.startswith("[")]  # rcl's own log lines
-    assert len(lines) == 1 and lines[0].startswith("predictor: error: ") and message in lines[0], err
+    assert len(lines) == 1, err
+    assert lines[0].startswith("predictor: error: "), err
+    assert message in lines[0], err
 
 
 CONFIG_CASES = {  # --config files beyond bounds (usv_predictor.bounded), read before ROS starts
@@ -290,7 +299,8 @@ def test_a_broken_params_file_in_a_process(tmp_path: Path) -> None:
     broken.write_text("predictor:\n  ros__parameters:\n    rate_hz: [1,\n", encoding="utf-8")
     done = subprocess.run([sys.executable, "-m", "usv_predictor.node", "--ros-args", "--params-file", str(broken)],
                           capture_output=True, text=True, timeout=60, env=localhost_env(44))
-    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.returncode == 2
+    assert "Traceback" not in done.stderr
     assert done.stderr.strip().splitlines()[-1].startswith("predictor: error: invalid ROS arguments: ")
 
 
@@ -337,7 +347,7 @@ STOPS = 8  # before the fix the first fed stop already ended in the traceback; u
 
 @pytest.mark.slow
 def test_stop_signals_while_publishing_exit_0_every_time() -> None:
-    """Issue 12: SIGTERM (systemd, docker, launch) while the node publishes gave `RCLError: Failed to publish:
+    """SIGTERM (systemd, docker, launch) while the node publishes once gave `RCLError: Failed to publish:
     publisher's context is invalid` and exit 1 in 4 of 9 stops. Now 0 and no traceback, every time (SIGTERM and
     SIGINT alternate, fed and unfed runs alternate; the moment of the stop is random but seeded)."""
     offset = 45
@@ -350,17 +360,20 @@ def test_stop_signals_while_publishing_exit_0_every_time() -> None:
                 env=localhost_env(offset if stop % 4 < 2 else offset + 1),  # unfed: alone on its domain
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             lines: list[str] = []
-            reader = threading.Thread(target=lambda: lines.extend(process.stderr), daemon=True)  # type: ignore[arg-type]
+            reader = threading.Thread(target=lambda: lines.extend(process.stderr),  # type: ignore[arg-type]
+                                      daemon=True)
             reader.start()
             try:
                 deadline = time.monotonic() + 60.0
                 while not any("usv_predictor" in line and "model" in line for line in lines):  # its start-up log
-                    assert time.monotonic() < deadline and process.poll() is None, "the node did not start"
+                    assert time.monotonic() < deadline, "the node did not start"
+                    assert process.poll() is None, "the node did not start"
                     feeder.spin(0.1)
                 if stop % 4 < 2:  # fed: it publishes Paths (60 s horizon) and /diagnostics at up to 100 Hz
                     feeder.paths = 0
                     while feeder.paths < 3:  # Paths of this node (the start-up line came before its first)
-                        assert time.monotonic() < deadline and process.poll() is None, "the node never published"
+                        assert time.monotonic() < deadline, "the node never published"
+                        assert process.poll() is None, "the node never published"
                         feeder.spin(0.05)
                     feeder.spin(rng.uniform(0.0, 0.3))
                 else:  # not fed: /diagnostics at 100 Hz only (how the race showed in 3 of 12 stops before the fix)
@@ -373,7 +386,8 @@ def test_stop_signals_while_publishing_exit_0_every_time() -> None:
                 if process.poll() is None:
                     process.kill()
             assert process.returncode == 0, f"stop {stop}: exit {process.returncode}\n{err[-3000:]}"
-            assert "Traceback" not in err and "RCLError" not in err, err[-3000:]
+            assert "Traceback" not in err, err[-3000:]
+            assert "RCLError" not in err, err[-3000:]
     finally:
         feeder.close()
 
@@ -398,7 +412,9 @@ def test_a_stop_signal_inside_a_publishing_callback_is_clean(monkeypatch: pytest
     monkeypatch.setattr(predictor_node.PredictorNode, "_publish_diagnostics", publish_after_a_signal)
     started = time.monotonic()
     assert predictor_node.main(["predictor", "--ros-args", "-p", "rate_hz:=20.0"]) == 0
-    assert seen and all(seen) and time.monotonic() - started < 30.0
+    assert seen
+    assert all(seen)
+    assert time.monotonic() - started < 30.0
     assert "Traceback" not in capsys.readouterr().err
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the node's handlers are gone with it
 

@@ -102,7 +102,8 @@ def test_both_thrusters_on_one_topic_give_predictions_and_the_other_controls_are
 @pytest.mark.parametrize(("pwm", "raw", "broken", "reason"), [
     (None, b"\x00\x01\x00\x00\x07\x00", ("thruster_port", "thruster_starboard"),
      "cannot decode std_msgs/msg/Float64MultiArray message"),
-    ([1800.0], None, ("thruster_starboard",), "data has 1 entries, expected entry 1"),  # one element: the starboard part is missing
+    # one element: the starboard part is missing
+    ([1800.0], None, ("thruster_starboard",), "data has 1 entries, expected entry 1"),
     ([1800.0, 2400.0], None, ("thruster_starboard",), "1.8 x full scale"),  # 900 us above neutral: refused
 ])
 def test_a_bad_shared_message_is_counted_for_the_roles_it_breaks(twin: TwinHarness, pwm: Any, raw: bytes | None,
@@ -126,7 +127,8 @@ def test_a_bad_shared_message_is_counted_for_the_roles_it_breaks(twin: TwinHarne
         if role in broken:
             assert reason in values_of(found[role])["last_decode_error"], values_of(found[role])
         else:
-            assert values_of(found[role])["decode_errors"] == "0" and twin.node.inputs.tracks[role].received > before[role]
+            assert values_of(found[role])["decode_errors"] == "0"
+            assert twin.node.inputs.tracks[role].received > before[role]
     # the good messages are decoded: once the bad ones stop, the broken roles turn OK and the predictions go on
     twin.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK
                     and all(level(s[role]) == predictor_node.OK for role in broken), twin.feed)
@@ -151,8 +153,10 @@ def test_a_plan_names_the_thrusters(twin: TwinHarness) -> None:
                                   (["port", "starboard"], [[1800.0, 1700.0]], "port")):
         publisher(twin, "plan").publish(joint_trajectory(twin, names, np.array(positions), [0.0], now_ns(twin)))
         found = twin.spin_until(lambda s: why in values_of(s["plan"]).get("last_refused", ""), twin.feed)
-        assert level(found["plan"]) == predictor_node.WARN and twin.node.following is None
-    assert math.isfinite(GOOD["heading"][0]) and statuses(twin.latest)["prediction"].level[0] == predictor_node.OK
+        assert level(found["plan"]) == predictor_node.WARN
+        assert twin.node.following is None
+    assert math.isfinite(GOOD["heading"][0])
+    assert statuses(twin.latest)["prediction"].level[0] == predictor_node.OK
 
 
 def test_a_grey_box_s_candidates_take_turns_with_the_sea_estimate_and_are_answered(twin: TwinHarness) -> None:
@@ -184,9 +188,11 @@ def test_a_grey_box_s_candidates_take_turns_with_the_sea_estimate_and_are_answer
                                                                 stamp))
     wait_for(twin, lambda: answers, "candidate_predictions")
     answer = answers[0]
-    assert stamp_of(answer) == stamp and list(answer.joint_names) == ["port_turn", "stbd_turn"]
+    assert stamp_of(answer) == stamp
+    assert list(answer.joint_names) == ["port_turn", "stbd_turn"]
     yaw = np.array([[2.0 * math.atan2(tf.rotation.z, tf.rotation.w) for tf in p.transforms] for p in answer.points])
     turned = np.unwrap(yaw, axis=0)[-1] - np.unwrap(yaw, axis=0)[0]  # ENU yaw: + counter-clockwise (to port)
-    assert turned[0] > 0.2 and turned[1] < -0.2
+    assert turned[0] > 0.2
+    assert turned[1] < -0.2
     assert any(name.startswith("candidates") for name in holders)  # the worker's rollout under the lock
     assert any(name == threading.main_thread().name for name in holders)  # the estimate's writes (the executor)

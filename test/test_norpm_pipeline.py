@@ -57,11 +57,13 @@ def _check_turns(layout: str, manoeuvres: dict) -> None:
     """evaluate's classification: two turning circles, one each way, at the held rudder in degrees."""
     assert len(manoeuvres) == 2
     for found in manoeuvres.values():
-        assert found["kind"] == "turning_circle" and found["turn_unit"] == "deg"
+        assert found["kind"] == "turning_circle"
+        assert found["turn_unit"] == "deg"
         assert found["turn_command"] == pytest.approx(RUDDER_DEG, abs=0.5) == found["rudder_deg"]
         assert found["rpm"] is None  # neither layout logs an engine speed
         if layout == "rudder_throttle":
-            assert found["propulsion_unit"] == "-" and found["propulsion"] == pytest.approx(THROTTLE, abs=0.01)
+            assert found["propulsion_unit"] == "-"
+            assert found["propulsion"] == pytest.approx(THROTTLE, abs=0.01)
         else:
             assert found["propulsion"] is None  # propulsion not logged
     assert {found["side"] for found in manoeuvres.values()} == {"starboard", "port"}
@@ -82,7 +84,8 @@ def test_dataset_train_evaluate(norpm: tuple[str, Path, Path], tmp_path: Path, c
     assert {round(math.degrees(float(np.median(r.controls[-20:, 0])))) for r in recordings} == {20, -20}
     if layout == "rudder_throttle":
         throttle = np.concatenate([r.controls[:, 1] for r in recordings])
-        assert np.median(throttle) == pytest.approx(THROTTLE, abs=0.01) and np.abs(throttle).max() <= 1.0
+        assert np.median(throttle) == pytest.approx(THROTTLE, abs=0.01)
+        assert np.abs(throttle).max() <= 1.0
 
     model = tmp_path / "m.pt"
     code, err = replay(capsys, "train", dataset, "--output", model, "--vessel", vessel, "--epochs", "2",
@@ -94,7 +97,8 @@ def test_dataset_train_evaluate(norpm: tuple[str, Path, Path], tmp_path: Path, c
     code, err = replay(capsys, "evaluate", bags, "--model", model, "--vessel", vessel, "--reference", "truth",
                        "--horizons", "10", "--output", tmp_path / "refused")
     assert_one_line(code, err, "evaluate", (2,))
-    assert "does not fit these bags" in err and not (tmp_path / "refused").exists()
+    assert "does not fit these bags" in err
+    assert not (tmp_path / "refused").exists()
     code, err = replay(capsys, "evaluate", bags, "--model", model, "--vessel", vessel, "--reference", "truth",
                        "--horizons", "10", "--no-fit-check", "--output", tmp_path / "eval")
     assert code == 0, err
@@ -119,14 +123,16 @@ def test_identify_then_evaluate(norpm: tuple[str, Path, Path], tmp_path: Path, c
         assert len(engines) == 2
         for manoeuvre in engines.values():
             assert manoeuvre["engine_speed_rpm"] == pytest.approx(RPM, rel=0.01)
-        assert "throttle.forward_N" not in coefficients and coefficients["R0"]["status"] == "fixed to prior"
+        assert "throttle.forward_N" not in coefficients
+        assert coefficients["R0"]["status"] == "fixed to prior"
     else:
         gain = coefficients["throttle.forward_N"]
         assert gain["status"] == "identified"
         assert gain["ci95"][0] < THROTTLE_MAP["forward_N"] < gain["ci95"][1]
         assert found["actuators"] == {}
     meta = load_artifact(model).metadata
-    assert meta["control_layout"] == LAYOUTS[layout][2] and meta["actuator_layout"] == layout
+    assert meta["control_layout"] == LAYOUTS[layout][2]
+    assert meta["actuator_layout"] == layout
 
     code, err = replay(capsys, "evaluate", bags, "--model", model, "--vessel", vessel, "--reference", "truth",
                        "--horizons", "10", "--output", tmp_path / "eval")

@@ -185,7 +185,8 @@ def test_the_estimated_current_is_enu_with_the_unknown_components_marked() -> No
     msg = deserialize_message(outputs.current_cdr(5 * NS, (0.3, -0.2), (0.0004, -0.0001, 0.0009), "odom"),
                               RCLPY(outputs.CURRENT_TYPE))
     assert (msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.linear.z) == (-0.2, 0.3, 0.0)
-    assert msg.header.frame_id == "odom" and msg.header.stamp.sec == 5
+    assert msg.header.frame_id == "odom"
+    assert msg.header.stamp.sec == 5
     covariance = np.asarray(msg.twist.covariance).reshape(6, 6)
     np.testing.assert_array_equal(covariance[:2, :2], [[0.0009, -0.0001], [-0.0001, 0.0004]])
     np.testing.assert_array_equal(np.diag(covariance)[2:], [outputs.UNKNOWN_VARIANCE] * 4)
@@ -221,7 +222,8 @@ def test_maximal_sizes_bytes_equal_rclpy(what: str) -> None:
     """600 s at dt 0.01 s: 60000 poses (~4.6 MB of Path)."""
     stamp, t_ns, eta, nu = prediction(MAX_STEPS, 99, special=True)
     if what == "path":
-        ours, msg = outputs.path_cdr(stamp, t_ns, eta, "odom_ab"), outputs.encode_path(stamp, t_ns, eta, "odom_ab", RCLPY)
+        ours, msg = outputs.path_cdr(stamp, t_ns, eta,
+                                     "odom_ab"), outputs.encode_path(stamp, t_ns, eta, "odom_ab", RCLPY)
     elif what == "velocities":
         ours = outputs.predicted_velocities_cdr(stamp, t_ns, eta, nu, "odom", "base")
         msg = outputs.encode_predicted_velocities(stamp, t_ns, eta, nu, "odom", "base", RCLPY)

@@ -6,6 +6,7 @@ Also checks the CI guard of conftest.raw_data_dir in a throw-away pytest run.
 """
 from __future__ import annotations
 
+import ast
 import os
 import re
 import shutil
@@ -154,6 +155,137 @@ def test_setup_cfg_puts_scripts_where_ros2_run_looks() -> None:
     assert f"install_scripts=$base/lib/{PACKAGE}" in text
 
 
+# ----------------------------------------------------------------------------- declared dependencies
+
+# Every third-party import of the installed packages -> how a colcon user gets it. "rosdep": an exec_depend key of
+# package.xml (ROS packages of ros/rosdistro's jazzy distribution; python3-* keys of its rosdep/python.yaml, where
+# python3-numpy, python3-yaml, python3-matplotlib and python3-pytest resolve on Debian and Ubuntu). "pip": no usable
+# rosdep key, installed by the README's pip line with the pin of requirements.txt (python.yaml has no torch key but
+# the end-of-life alias python3-pytorch-pip, no rosbags or openpyxl key, and python3-numba for Ubuntu bionic and
+# focal only). "stdlib": in the standard library of a newer Python than 3.11.
+IMPORT_DEPENDENCIES: dict[str, tuple[str, str]] = {
+    "numpy": ("rosdep", "python3-numpy"),
+    "yaml": ("rosdep", "python3-yaml"),
+    "matplotlib": ("rosdep", "python3-matplotlib"),
+    "rclpy": ("rosdep", "rclpy"),
+    "rcl_interfaces": ("rosdep", "rcl_interfaces"),
+    "ament_index_python": ("rosdep", "ament_index_python"),
+    "diagnostic_msgs": ("rosdep", "diagnostic_msgs"),
+    "torch": ("pip", "torch"),
+    "rosbags": ("pip", "rosbags"),
+    "backports": ("pip", "rosbags"),  # backports.zstd, rosbags' own dependency before Python 3.14
+    "openpyxl": ("pip", "openpyxl"),
+    "numba": ("pip", "numba"),
+    "compression": ("stdlib", "Python 3.14"),
+}
+# Message packages named in type strings ("sensor_msgs/msg/Imu") of the code and of config/predictor.yaml.
+MESSAGE_PACKAGE = re.compile(r"\b([a-z][a-z0-9_]*(?:_msgs|_interfaces))/(?:msg/)?[A-Z]")
+OWN_PACKAGES = {PACKAGE, "msg_adapters"}
+
+
+def package_xml_depends(tag: str) -> set[str]:
+    root = ElementTree.parse(REPO_ROOT / "package.xml").getroot()
+    return {element.text.strip() for element in root.findall(tag)}
+
+
+def runtime_imports() -> dict[str, set[str]]:
+    """Top-level names imported anywhere in the installed packages (function-local imports too) -> the files."""
+    found: dict[str, set[str]] = {}
+    for folder in OWN_PACKAGES:
+        for path in sorted((REPO_ROOT / folder).rglob("*.py")):
+            tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Import):
+                    names = [alias.name for alias in node.names]
+                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                    names = [node.module]
+                else:
+                    continue
+                for name in names:
+                    top = name.split(".")[0]
+                    if top not in sys.stdlib_module_names and top not in OWN_PACKAGES and top != "__future__":
+                        found.setdefault(top, set()).add(str(path.relative_to(REPO_ROOT)))
+    return found
+
+
+def message_packages() -> set[str]:
+    texts = [(REPO_ROOT / "config" / "predictor.yaml").read_text(encoding="utf-8")]
+    for folder in OWN_PACKAGES:
+        texts += [path.read_text(encoding="utf-8") for path in (REPO_ROOT / folder).rglob("*.py")]
+    return {match.group(1) for text in texts for match in MESSAGE_PACKAGE.finditer(text)}
+
+
+def requirement_pins() -> dict[str, str]:
+    pins = {}
+    for line in (REPO_ROOT / "requirements.txt").read_text(encoding="utf-8").splitlines():
+        match = re.match(r"^([A-Za-z0-9_.-]+)==(\S+)", line.strip())
+        if match:
+            pins[match.group(1).lower()] = match.group(2)
+    return pins
+
+
+def readme_pip_pins() -> dict[str, str]:
+    """name -> version of the README's pip line(s) for the colcon path."""
+    lines = [line for line in (REPO_ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+             if line.startswith("python3 -m pip install")]
+    assert lines, "README.md has no `python3 -m pip install` line for what rosdep cannot install"
+    pairs = [pair for line in lines for pair in re.findall(r"([A-Za-z0-9_.-]+)==(\S+)", line)]
+    return {name.lower(): version for name, version in pairs}
+
+
+def test_every_runtime_import_has_a_declared_source() -> None:
+    imports = runtime_imports()
+    unknown = {name: sorted(files) for name, files in imports.items() if name not in IMPORT_DEPENDENCIES}
+    assert not unknown, ("imports with no entry in IMPORT_DEPENDENCIES (declare each in package.xml or the pip line): "
+                         f"{unknown}")
+    declared = package_xml_depends("exec_depend")
+    for name in imports:
+        kind, key = IMPORT_DEPENDENCIES[name]
+        if kind == "rosdep":
+            assert key in declared, (f"{name} (imported by {sorted(imports[name])}) needs "
+                                     f"<exec_depend>{key}</exec_depend>")
+
+
+def test_every_message_package_is_declared() -> None:
+    missing = message_packages() - package_xml_depends("exec_depend")
+    assert not missing, f"message packages used but not in package.xml: {sorted(missing)}"
+
+
+def test_what_rosdep_cannot_install_has_the_readme_pip_line_with_the_pins() -> None:
+    pins, readme = requirement_pins(), readme_pip_pins()
+    for kind, name in sorted(set(IMPORT_DEPENDENCIES.values())):
+        if kind != "pip":
+            continue
+        assert name in readme, f"{name}: not in the README's pip line"
+        if name in pins:
+            assert readme[name] == pins[name], f"{name}: README pins {readme[name]}, requirements.txt {pins[name]}"
+    assert "--index-url https://download.pytorch.org/whl/cpu torch==" in (REPO_ROOT / "README.md").read_text(
+        encoding="utf-8"), "torch must come from the CPU index (the default index pulls the CUDA build)"
+
+
+def test_package_xml_declares_only_known_keys() -> None:
+    """No exec_depend that no import or message type asks for (a key rosdep lacks would stop `rosdep install`)."""
+    wanted = {key for kind, key in IMPORT_DEPENDENCIES.values() if kind == "rosdep"} | message_packages()
+    assert package_xml_depends("exec_depend") <= wanted
+
+
+def test_installed_modules_import_from_the_install(installed: Path) -> None:
+    """Every module of the install (but the __main__ entry points, which run) imports with what the environment
+    provides: a missing runtime dependency fails here, where `--help` alone would not reach the import."""
+    probe = ("import importlib, pkgutil, sys; import usv_predictor, msg_adapters\n"
+             "names = [m.name for p in (usv_predictor, msg_adapters)\n"
+             "         for m in pkgutil.walk_packages(p.__path__, p.__name__ + '.')\n"
+             "         if not m.name.endswith('.__main__')]\n"
+             "for name in names: importlib.import_module(name)\n"
+             "print(len(names)); print(usv_predictor.__file__); print(msg_adapters.__file__)")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60,
+                          env=installed_env(installed), cwd=installed)
+    assert done.returncode == 0, done.stderr[-4000:]
+    count, *files = done.stdout.split()
+    assert int(count) > 50
+    assert all(Path(file).is_relative_to(installed) for file in files)
+
+
 # ----------------------------------------------------------------------------- the CI guard
 
 
@@ -174,15 +306,18 @@ def run_raw_data_probe(tmp_path: Path, ci: str | None) -> subprocess.CompletedPr
 
 def test_raw_data_skip_outside_ci_and_failure_under_ci(tmp_path: Path) -> None:
     outside = run_raw_data_probe(tmp_path / "a", ci=None)
-    assert outside.returncode == 0 and "1 skipped" in outside.stdout, outside.stdout
+    assert outside.returncode == 0, outside.stdout
+    assert "1 skipped" in outside.stdout, outside.stdout
     assert "shared/data/raw is absent" in outside.stdout
     under_ci = run_raw_data_probe(tmp_path / "b", ci="true")
-    assert under_ci.returncode == 1 and "1 error" in under_ci.stdout, under_ci.stdout
+    assert under_ci.returncode == 1, under_ci.stdout
+    assert "1 error" in under_ci.stdout, under_ci.stdout
     assert "CI is set, so tests on real data must not be skipped" in under_ci.stdout
     (tmp_path / "c" / "shared" / "data" / "raw").mkdir(parents=True)
     (tmp_path / "c" / "shared" / "data" / "raw" / "some_set").mkdir()
     present = run_raw_data_probe(tmp_path / "c", ci="true")
-    assert present.returncode == 0 and "1 passed" in present.stdout, present.stdout
+    assert present.returncode == 0, present.stdout
+    assert "1 passed" in present.stdout, present.stdout
 
 
 def test_raw_data_dir_fixture_here(raw_data_dir: Path) -> None:

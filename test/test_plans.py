@@ -55,7 +55,9 @@ def test_joint_trajectory_decodes_like_rclpy_serialised_it(frame: str, velocitie
     positions = rng.normal(size=(7, 3))
     times = [0.0, 0.25, 0.5, 1.0, 2.0, 3.5, 61.0]
     data = decode_joint_trajectory(trajectory(names, positions, times, NOW + 17, frame, velocities))
-    assert data.stamp_ns == NOW + 17 and data.frame_id == frame and data.joint_names == tuple(names)
+    assert data.stamp_ns == NOW + 17
+    assert data.frame_id == frame
+    assert data.joint_names == tuple(names)
     np.testing.assert_array_equal(data.positions, positions)
     np.testing.assert_array_equal(data.time_from_start_ns, np.round(np.array(times) * NS).astype(np.int64))
 
@@ -104,7 +106,7 @@ def random_trajectory(rng: np.random.Generator, joints: int, points: int, irregu
     point_type, duration = MAKE("trajectory_msgs/msg/JointTrajectoryPoint"), MAKE("builtin_interfaces/msg/Duration")
     lengths = rng.integers(0, 4, 3)
     out = []
-    for k in range(points):
+    for _k in range(points):
         own = rng.integers(0, 4, 3) if irregular and rng.random() < 0.3 else lengths
         out.append(point_type(positions=rng.normal(size=joints).tolist(),
                               velocities=rng.normal(size=int(own[0])).tolist(),
@@ -138,7 +140,8 @@ def test_the_numpy_reading_of_the_points_equals_rclpy_and_the_walk(joints: int, 
         data = decode_joint_trajectory(raw)
         assert decoded_or_error(decode_joint_trajectory, raw) == decoded_or_error(decode_joint_trajectory_walk, raw)
         assert data.stamp_ns == msg.header.stamp.sec * NS + msg.header.stamp.nanosec
-        assert data.frame_id == msg.header.frame_id and data.joint_names == tuple(msg.joint_names)
+        assert data.frame_id == msg.header.frame_id
+        assert data.joint_names == tuple(msg.joint_names)
         expected = np.array([p.positions for p in msg.points], dtype=np.float64).reshape(len(msg.points), joints)
         np.testing.assert_array_equal(data.positions, expected)
         assert data.time_from_start_ns.tolist() == [p.time_from_start.sec * NS + p.time_from_start.nanosec
@@ -191,7 +194,8 @@ def test_malformed_plans_are_refused_by_the_numpy_reading_as_by_the_walk() -> No
 
 def test_joint_names_in_any_order_map_to_the_layout_columns() -> None:
     plan = parse(trajectory(["rpm", "delta"], np.array([[700.0, 0.1], [800.0, 0.2]]), [0.0, 1.0]))
-    assert plan.names == ("",) and plan.stamp_ns == NOW
+    assert plan.names == ("",)
+    assert plan.stamp_ns == NOW
     np.testing.assert_array_equal(plan.controls[0], [[0.1, 700.0], [0.2, 800.0]])  # (P, C) in [delta, rpm]
     np.testing.assert_array_equal(plan.t_ns, [NOW, NOW + NS])
 
@@ -303,7 +307,8 @@ def test_one_batched_call_equals_the_candidates_one_by_one(rollout: live.Rollout
     positions = np.array([[value for rudder in rudders for value in (rudder, 650.0)]])
     batch = parse(trajectory(names, positions, [0.0], NOW - NS), candidates=True)
     result = live.predict_batch(inputs, rollout, NOW, batch.schedule)
-    assert result.eta.shape == (4, 120, 3) and result.nu.shape == (4, 120, 3)
+    assert result.eta.shape == (4, 120, 3)
+    assert result.nu.shape == (4, 120, 3)
     # float32 model: a batch of 4 sums in another order than a batch of 1 (~1e-4 m after 60 s of ~300 m)
     held = live.predict(inputs, rollout, NOW)
     np.testing.assert_allclose(result.eta[0], held.eta, atol=1e-3)  # "hold" is the held commands

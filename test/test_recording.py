@@ -31,7 +31,8 @@ def test_window_resample_averages_fast_signals_and_interpolates_slow_ones():
 
 @pytest.fixture(scope="module")
 def signals():
-    traj = simulate(ManoeuvringModel(load_vessel("jari_usv")), TurningCircle(20.0, 650.0, duration_s=60.0), heading_deg=170.0)
+    traj = simulate(ManoeuvringModel(load_vessel("jari_usv")), TurningCircle(20.0, 650.0, duration_s=60.0),
+                    heading_deg=170.0)
     return traj, measure(traj, Environment(), SensorSpec().noiseless())
 
 
@@ -46,7 +47,8 @@ def test_recording_matches_the_truth_it_was_measured_from(signals):
     assert np.max(np.abs(rec.psi - np.interp(t, traj.t_s, traj.psi_unwrapped))) < 5e-3
     assert np.ptp(rec.psi) > math.pi / 2
     assert np.hypot(*rec.position[0]) < 3.0  # datum = first fix, 0.25 s earlier at ~5.5 m/s
-    assert rec.truth is not None and rec.truth.shape == (120, 6)
+    assert rec.truth is not None
+    assert rec.truth.shape == (120, 6)
     assert np.allclose(rec.controls[-1], [math.radians(20.0), 650.0], atol=1e-6)
 
 

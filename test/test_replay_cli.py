@@ -34,7 +34,8 @@ def _importable_commands() -> list[str]:
 def tiny_bag(tmp_path: Path) -> Path:
     t_ns = 1_700_000_000_000_000_000 + np.arange(20, dtype=np.int64) * 100_000_000  # 10 Hz, 1.9 s
     streams = [
-        (TopicSpec("heading", "heading", "std_msgs/msg/Float64"), Signal(t_ns, np.zeros((20, 1)), ROLE_FIELDS["heading"])),
+        (TopicSpec("heading", "heading", "std_msgs/msg/Float64"),
+         Signal(t_ns, np.zeros((20, 1)), ROLE_FIELDS["heading"])),
         (
             TopicSpec("velocity", "velocity", "geometry_msgs/msg/TwistStamped"),
             Signal(t_ns[::2], np.ones((10, 3)), ROLE_FIELDS["velocity"]),
@@ -66,7 +67,9 @@ def test_command_modules_follow_the_naming_convention() -> None:
         except ImportError:
             continue
         assert module.NAME == cli._command_name(module_name)
-        assert module.HELP and callable(module.add_arguments) and callable(module.run)
+        assert module.HELP
+        assert callable(module.add_arguments)
+        assert callable(module.run)
 
 
 def test_a_missing_command_module_does_not_break_help(
@@ -83,8 +86,10 @@ def test_info_prints_a_summary_and_writes_json(tiny_bag: Path, tmp_path: Path, c
     json_path = tmp_path / "out" / "info.json"
     assert cli.main(["info", str(tiny_bag), "--json", str(json_path)]) == 0
     captured = capsys.readouterr()
-    assert "velocity" in captured.out and "geometry_msgs/msg/TwistStamped" in captured.out
-    assert "10.00 Hz" in captured.out and "5.00 Hz" in captured.out
+    assert "velocity" in captured.out
+    assert "geometry_msgs/msg/TwistStamped" in captured.out
+    assert "10.00 Hz" in captured.out
+    assert "5.00 Hz" in captured.out
     assert "generator: test_replay_cli" in captured.out
     assert f"reading {tiny_bag}" in captured.err  # progress goes to stderr
     result = json.loads(json_path.read_text())

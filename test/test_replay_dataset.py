@@ -87,10 +87,14 @@ def test_a_clean_bag_becomes_one_recording_and_is_not_modified(tmp_path, warning
     files_before = {p.name: p.read_bytes() for p in bag.iterdir()}
     [rec] = load(bag, warnings)
     assert warnings == []
-    assert rec.name == "weave" and rec.source == str(bag) and rec.dt == 0.5
+    assert rec.name == "weave"
+    assert rec.source == str(bag)
+    assert rec.dt == 0.5
     assert len(rec) == 80 and rec.duration_s == pytest.approx(39.5)  # whole 0.5 s windows within 40 s
-    assert np.allclose(rec.nu[:, 0], 5.0) and np.allclose(rec.controls[:, 1], 650.0)
-    assert rec.truth is not None and np.all(np.isfinite(rec.position))
+    assert np.allclose(rec.nu[:, 0], 5.0)
+    assert np.allclose(rec.controls[:, 1], 650.0)
+    assert rec.truth is not None
+    assert np.all(np.isfinite(rec.position))
     assert bag_sha256(bag) == before
     assert {p.name: p.read_bytes() for p in bag.iterdir()} == files_before
 
@@ -149,7 +153,8 @@ def test_a_missing_optional_topic_is_a_warning(tmp_path, warnings, capsys):
     del signals["gnss"]
     bag = write(tmp_path / "nofix", signals)
     [rec] = load_recordings([bag], 0.5)  # the default warn prints to stderr
-    assert np.all(np.isnan(rec.position)) and rec.truth is not None
+    assert np.all(np.isnan(rec.position))
+    assert rec.truth is not None
     assert f"warning: {bag}: optional topic 'gps/fix' (role gnss) is absent" in capsys.readouterr().err
     assert warnings == []
 
@@ -172,7 +177,8 @@ def test_duplicate_stamps_are_dropped_with_a_count(tmp_path, warnings):
     [rec] = load(bag, warnings)
     assert len(rec) == 40
     [message] = warnings
-    assert "topic 'heading'" in message and "dropped 4 samples with a repeated stamp (4 exact duplicates)" in message
+    assert "topic 'heading'" in message
+    assert "dropped 4 samples with a repeated stamp (4 exact duplicates)" in message
 
 
 def test_stamps_out_of_order_are_sorted_but_a_jump_back_is_an_error(warnings):
@@ -181,7 +187,8 @@ def test_stamps_out_of_order_are_sorted_but_a_jump_back_is_an_error(warnings):
     order[[20, 21]] = order[[21, 20]]  # 50 ms disorder, e.g. two messages swapped in transport
     swapped = clean_signal(Signal(sig.t_ns[order], sig.values[order], sig.fields), where="x: topic 'heading'",
                            role="heading", dt=0.5, t_ref_ns=T0, warn=warnings.append)
-    assert np.array_equal(swapped.t_ns, sig.t_ns) and np.array_equal(swapped.values, sig.values)
+    assert np.array_equal(swapped.t_ns, sig.t_ns)
+    assert np.array_equal(swapped.values, sig.values)
     assert warnings == ["x: topic 'heading': 1 samples out of order (at most 0.050 s); sorted"]
     warnings.clear()
     rows = np.array([0, 1, 1, 2, 3, 3, 4])
@@ -189,12 +196,14 @@ def test_stamps_out_of_order_are_sorted_but_a_jump_back_is_an_error(warnings):
     values[5] += 0.1  # same stamp as row 4, another heading: ambiguous, the first is kept
     deduped = clean_signal(Signal(sig.t_ns[rows], values, sig.fields), where="x: topic 'heading'", role="heading",
                            dt=0.5, t_ref_ns=T0, warn=warnings.append)
-    assert np.array_equal(deduped.t_ns, sig.t_ns[:5]) and np.array_equal(deduped.values, sig.values[:5])
+    assert np.array_equal(deduped.t_ns, sig.t_ns[:5])
+    assert np.array_equal(deduped.values, sig.values[:5])
     assert warnings == ["x: topic 'heading': dropped 2 samples with a repeated stamp "
                         "(1 exact duplicates, 1 with other values (kept the first))"]
     jumped = sig.t_ns.copy()
     jumped[100:] -= 3 * NS  # the clock stepped back 3 s at t = 5 s
-    with pytest.raises(BagError, match=r"topic 'heading': time goes back 2.950 s at t=4.950 s .* more than the step 0.5 s"):
+    with pytest.raises(BagError,
+                       match=r"topic 'heading': time goes back 2.950 s at t=4.950 s .* more than the step 0.5 s"):
         clean_signal(Signal(jumped, sig.values, sig.fields), where="x: topic 'heading'", role="heading", dt=0.5,
                      t_ref_ns=T0, warn=warnings.append)
 
@@ -207,7 +216,8 @@ def test_nan_fields_are_dropped_with_topic_field_and_count(tmp_path, warnings):
     signals["velocity"] = Signal(signals["velocity"].t_ns, v, signals["velocity"].fields)
     bag = write(tmp_path / "nans", signals)
     [rec] = load(bag, warnings)
-    assert np.all(np.isfinite(rec.nu)) and len(rec) == 40
+    assert np.all(np.isfinite(rec.nu))
+    assert len(rec) == 40
     assert warnings == [f"{bag}: topic 'velocity': dropped 6 of 401 samples with NaN/inf (u: 5, v: 2)"]
 
 
@@ -218,8 +228,10 @@ def test_gaps_cut_the_recording_into_pieces(tmp_path, warnings):
     first, second = load(bag, warnings)
     assert (first.name, second.name) == ("gappy#1", "gappy#2")
     assert [w for w in warnings if "gap" in w] == [
-        f"{bag}: topic 'velocity' has a 4.10 s gap at t=24.95 s (longer than the step 0.5 s); cutting the recording there"]
-    assert first.duration_s == pytest.approx(24.0, abs=0.5) and second.duration_s == pytest.approx(30.5, abs=0.5)
+        f"{bag}: topic 'velocity' has a 4.10 s gap at t=24.95 s (longer than the step 0.5 s); cutting the "
+        f"recording there"]
+    assert first.duration_s == pytest.approx(24.0, abs=0.5)
+    assert second.duration_s == pytest.approx(30.5, abs=0.5)
     assert (second.t0_ns - first.t0_ns) / NS > 29.0  # nothing of the gap is interpolated over
     assert first.datum == second.datum  # one plane for both pieces
 
@@ -252,7 +264,8 @@ def test_steady_cuts_start_manoeuvres_after_settled_holds():
 
 def test_steady_segments_split_a_long_bag_into_manoeuvres(tmp_path, warnings):
     def rudder(t):
-        return np.where((t >= 40) & (t < 100), 20.0, np.where((t >= 140) & (t < 170), 10.0 * np.sign(np.sin(np.pi * t / 5)), 0.0))
+        return np.where((t >= 40) & (t < 100), 20.0,
+                        np.where((t >= 140) & (t < 170), 10.0 * np.sign(np.sin(np.pi * t / 5)), 0.0))
 
     bag = write(tmp_path / "day", crafted_signals(200.0, rudder))
     whole = load(bag, warnings)
@@ -262,7 +275,8 @@ def test_steady_segments_split_a_long_bag_into_manoeuvres(tmp_path, warnings):
     assert [p.duration_s for p in parts] == pytest.approx([29.0, 59.5, 39.5, 70.0])
     assert sum(len(p) for p in parts) == len(whole[0])
     assert np.array_equal(np.concatenate([p.nu for p in parts]), whole[0].nu)  # a partition, nothing lost
-    assert parts[1].t0_ns == whole[0].t0_ns + 59 * NS // 2 and parts[1].t_s[0] == 0.0
+    assert parts[1].t0_ns == whole[0].t0_ns + 59 * NS // 2
+    assert parts[1].t_s[0] == 0.0
     rudder_deg = np.degrees(parts[1].controls[:, 0])
     assert np.abs(rudder_deg[:20]).max() < 1e-9 and rudder_deg[21:].min() > 19.9  # 10 s straight, then the turn
 
@@ -277,9 +291,13 @@ def test_parallel_reading_gives_the_same_recordings_warnings_and_errors(tmp_path
     serial = load_recordings([tmp_path / "bags"], 0.5, jobs=1, warn=serial_warnings.append)
     parallel = load_recordings([tmp_path / "bags"], 0.5, jobs=3, warn=parallel_warnings.append)
     assert [r.name for r in parallel] == ["a_clean", "b_gappy#1", "b_gappy#2", "c_clean"]
-    assert parallel_warnings == serial_warnings and len(serial_warnings) == 1
+    assert parallel_warnings == serial_warnings
+    assert len(serial_warnings) == 1
     for a, b in zip(serial, parallel, strict=True):
-        assert a.name == b.name and a.t0_ns == b.t0_ns and np.array_equal(a.nu, b.nu) and np.array_equal(a.truth, b.truth)
+        assert a.name == b.name
+        assert a.t0_ns == b.t0_ns
+        assert np.array_equal(a.nu, b.nu)
+        assert np.array_equal(a.truth, b.truth)
     broken = crafted_signals(20.0)
     del broken["engine_rpm"]
     write(tmp_path / "bags" / "d_broken", broken)
@@ -308,15 +326,24 @@ def test_replay_dataset_end_to_end_on_simulated_bags(tmp_path, capsys):
     names = sorted(r["name"] for r in result["recordings"])
     assert names == ["turning_circle_stbd_25deg_650rpm", "zigzag_20_20_stbd_650rpm"]  # calm twin skipped
     assert sorted(r["split"] for r in result["recordings"]) == ["train", "val"]
-    assert result["samples"] == 2 * 79 and result["feature_set"] == "NTF" and result["dt"] == 0.5
-    assert result["splits"]["train"]["recordings"] == 1 and result["warnings"] == []
-    assert "[1/2]" in streams.err and "wrote " in streams.out and "train: 1 recording(s)" in streams.out
+    assert result["samples"] == 2 * 79
+    assert result["feature_set"] == "NTF"
+    assert result["dt"] == 0.5
+    assert result["splits"]["train"]["recordings"] == 1
+    assert result["warnings"] == []
+    assert "[1/2]" in streams.err
+    assert "wrote " in streams.out
+    assert "train: 1 recording(s)" in streams.out
     dataset = load_dataset(out)
-    assert dataset.digest() == result["digest"] and len(dataset.X) == 158 and dataset.X.shape[1] == 7
+    assert dataset.digest() == result["digest"]
+    assert len(dataset.X) == 158
+    assert dataset.X.shape[1] == 7
     entries = {e["name"]: e for e in dataset.entries}
     zig = entries["zigzag_20_20_stbd_650rpm"]
-    assert zig["bag_sha256"] == hashes[Path(zig["source"])] and zig["length"] == 80
-    assert dataset.metadata["provenance"].startswith("replay dataset ") and "--val 0.5" in dataset.metadata["provenance"]
+    assert zig["bag_sha256"] == hashes[Path(zig["source"])]
+    assert zig["length"] == 80
+    assert dataset.metadata["provenance"].startswith("replay dataset ")
+    assert "--val 0.5" in dataset.metadata["provenance"]
     assert {b: bag_sha256(b) for b in bags} == hashes  # inputs untouched
     assert all(r.truth is not None and np.isfinite(r.position).all() for r in dataset.recordings())
     again = tmp_path / "again.npz"
@@ -344,6 +371,8 @@ def test_replay_dataset_errors_are_one_line(tmp_path, capsys):
     assert "--test pattern 'spiral*' matches no manoeuvre" in capsys.readouterr().err
     assert main(["dataset", str(tmp_path / "bags"), "--horizon", "60", "--output", str(tmp_path / "x.npz")]) == 2
     err = capsys.readouterr().err
-    assert "warning:" in err and "no usable recording" in err and not (tmp_path / "x.npz").exists()
+    assert "warning:" in err
+    assert "no usable recording" in err
+    assert not (tmp_path / "x.npz").exists()
     assert main(["dataset", str(tmp_path / "bags"), "--topic", "speed", "--output", str(tmp_path / "x.npz")]) == 2
     assert "expected ROLE=TOPIC" in capsys.readouterr().err

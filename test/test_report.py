@@ -47,17 +47,20 @@ def test_evaluate_writes_json_series_and_prints_the_table(bags, capsys):
     out = bags.parent / "evaluate_table"
     assert main(["evaluate", str(bags), "--model", "physics", "--reference", "truth", "--output", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "turning_circle_stbd_25deg_650rpm" in printed and "zigzag_20_20_stbd_650rpm" in printed
+    assert "turning_circle_stbd_25deg_650rpm" in printed
+    assert "zigzag_20_20_stbd_650rpm" in printed
     assert "max |rel. error| radius" in printed
     data = json.loads((out / "evaluation.json").read_text())
-    assert data["series_file"] == "evaluation_series.npz" and (out / "evaluation_series.npz").is_file()
+    assert data["series_file"] == "evaluation_series.npz"
+    assert (out / "evaluation_series.npz").is_file()
     kinds = {r["name"]: r["manoeuvre"]["kind"] for r in data["recordings"]}
     assert kinds == {"turning_circle_stbd_25deg_650rpm": "turning_circle", "zigzag_20_20_stbd_650rpm": "zigzag"}
     turn = next(r for r in data["recordings"] if r["turning"])
     assert turn["turning"]["measured"]["drift_direction_deg"] == pytest.approx(215.0, abs=2.0)
     radius = turn["turning"]["measured"]["turning_radius_m"]
     assert f"{radius:.2f}" in printed  # the table shows the JSON's numbers
-    assert data["model"]["model_id"] == "physics-jari_usv" and data["data"]["dt_s"] == 0.5
+    assert data["model"]["model_id"] == "physics-jari_usv"
+    assert data["data"]["dt_s"] == 0.5
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary files left
 
 
@@ -77,7 +80,8 @@ def test_report_from_an_evaluation_file_agrees_with_its_json(evaluated, tmp_path
     markdown = (out / "report.md").read_text()
     data = json.loads((out / "report.json").read_text())
     # model, data and date are named
-    assert "physics-jari_usv" in markdown and "calm-water MMG" in markdown
+    assert "physics-jari_usv" in markdown
+    assert "calm-water MMG" in markdown
     assert re.search(r"Generated \d{4}-\d\d-\d\dT", markdown)
     assert all(r["source"] in markdown for r in data["recordings"])
     # the same numbers in Markdown and JSON (seed 000 Table 7 and 8 layouts)
@@ -105,7 +109,8 @@ def test_report_evaluates_bags_itself(bags, tmp_path):
     out = tmp_path / "direct"
     result = tmp_path / "r.json"
     assert main(["report", str(bags), "--model", "physics", "--output", str(out), "--json", str(result)]) == 0
-    assert (out / "report.md").is_file() and (out / "report.json").is_file()
+    assert (out / "report.md").is_file()
+    assert (out / "report.json").is_file()
     assert json.loads(result.read_text())["report"] == str(out / "report.md")
     assert json.loads((out / "report.json").read_text())["reference"] == "gnss"
 
@@ -136,7 +141,8 @@ def test_report_without_series_has_tables_but_no_track_figures(evaluated, tmp_pa
     out = tmp_path / "tables_only"
     assert main(["report", str(lonely), "--output", str(out)]) == 0
     markdown = (out / "report.md").read_text()
-    assert "No track figures" in markdown and "Relative error of radius" in markdown
+    assert "No track figures" in markdown
+    assert "Relative error of radius" in markdown
     assert sorted(p.name for p in out.glob("*.png")) == ["open_loop.png", "turning_summary.png"]
 
 
@@ -146,7 +152,8 @@ def test_report_without_series_has_tables_but_no_track_figures(evaluated, tmp_pa
 def test_missing_model_file_is_named(bags, tmp_path, capsys):
     assert main(["evaluate", str(bags), "--model", str(tmp_path / "nope.pt")]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("replay evaluate: error:") and "nope.pt: no such model file" in err
+    assert err.startswith("replay evaluate: error:")
+    assert "nope.pt: no such model file" in err
 
 
 def test_missing_shipped_model_says_so(bags, tmp_path, monkeypatch, capsys):
@@ -155,7 +162,8 @@ def test_missing_shipped_model_says_so(bags, tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(config, "share_roots", lambda: (tmp_path,))
     assert main(["evaluate", str(bags)]) == 2
     err = capsys.readouterr().err
-    assert "no shipped model: models/default.pt does not exist" in err and "--model" in err
+    assert "no shipped model: models/default.pt does not exist" in err
+    assert "--model" in err
 
 
 def test_model_whose_dt_differs_from_the_requested_one_is_refused(bags, tmp_path, monkeypatch, capsys):
@@ -174,20 +182,23 @@ def test_model_whose_dt_differs_from_the_requested_one_is_refused(bags, tmp_path
     monkeypatch.setitem(sys.modules, "usv_predictor.models.artifact", fake)
     assert main(["evaluate", str(bags), "--model", str(model_file), "--dt", "0.5"]) == 2
     err = capsys.readouterr().err
-    assert "model m25 has dt=0.25 s" in err and "dt=0.5 s" in err
+    assert "model m25 has dt=0.25 s" in err
+    assert "dt=0.5 s" in err
 
 
 def test_bags_without_the_needed_topics_are_named(tmp_path, capsys):
     t_ns = 1_700_000_000_000_000_000 + np.arange(40, dtype=np.int64) * 100_000_000
     streams = [
-        (TopicSpec("heading", "heading", "std_msgs/msg/Float64"), Signal(t_ns, np.zeros((40, 1)), ROLE_FIELDS["heading"])),
+        (TopicSpec("heading", "heading", "std_msgs/msg/Float64"),
+         Signal(t_ns, np.zeros((40, 1)), ROLE_FIELDS["heading"])),
         (TopicSpec("velocity", "velocity", "geometry_msgs/msg/TwistStamped"),
          Signal(t_ns, np.ones((40, 3)), ROLE_FIELDS["velocity"])),
     ]
     bag = write_bag(tmp_path / "partial", streams)
     assert main(["evaluate", str(bag), "--model", "physics"]) == 2
     err = capsys.readouterr().err
-    assert "partial" in err and "no topic 'imu/data'" in err
+    assert "partial" in err
+    assert "no topic 'imu/data'" in err
 
 
 def test_unknown_reference_is_a_usage_error(bags, capsys):
@@ -216,7 +227,8 @@ def test_shipped_artifact_format_is_evaluated(bags, tmp_path):
             return out.unsqueeze(0)  # (1, B, H, 6)
 
     meta = {"model_type": "constant-velocity test", "feature_set": "F0", "feature_names": [], "state_layout": [],
-            "control_layout": ["delta", "rpm"], "output_layout": [], "dt": 0.5, "horizon_steps": 120, "normalisation": {},
+            "control_layout": ["delta", "rpm"], "output_layout": [], "dt": 0.5, "horizon_steps": 120,
+            "normalisation": {},
             "vessel": "jari_usv", "training_data_sha256": "0" * 64, "ensemble_size": 1, "architecture": {},
             "training": {}, "units": {}}
     path = tmp_path / "cv.pt"
@@ -224,7 +236,8 @@ def test_shipped_artifact_format_is_evaluated(bags, tmp_path):
     out = tmp_path / "eval"
     assert main(["evaluate", str(bags / "zigzag_20_20_stbd_650rpm"), "--model", str(path), "--output", str(out)]) == 0
     data = json.loads((out / "evaluation.json").read_text())
-    assert data["model"]["model_id"] == loaded.model_id and data["model"]["model_type"] == "constant-velocity test"
+    assert data["model"]["model_id"] == loaded.model_id
+    assert data["model"]["model_type"] == "constant-velocity test"
     assert data["recordings"][0]["open_loop"]["position_error_after_10s_m"] > 0.0
     assert main(["evaluate", str(bags), "--model", str(path), "--dt", "0.25"]) == 2
 
@@ -240,4 +253,5 @@ def test_the_evaluation_request_refuses_what_cannot_be_evaluated(capsys):
         EvaluationRequest(reference="radar")
     assert main(["evaluate", "--model", "physics", "--stride", "-5"]) == 2  # refused before any bag is read
     err = capsys.readouterr().err
-    assert err.startswith("replay evaluate: error: argument --stride: '-5' is not a finite number > 0") and "reading" not in err
+    assert err.startswith("replay evaluate: error: argument --stride: '-5' is not a finite number > 0")
+    assert "reading" not in err

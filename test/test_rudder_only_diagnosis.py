@@ -62,7 +62,8 @@ def test_own_bags_are_diagnosed_none_and_predicted_to_the_noise(boat, tmp_path, 
     bags = trial(capsys, tmp_path, boat, seed=int(np.random.default_rng([_SECRET, 0]).integers(0, 2**31)), flags=[])
     result = diagnose(capsys, bags, boat, tmp_path)
     assert result["cause"] == "none", result["message"]
-    assert result["mismatch_reasons"] == [] and result["fit_check"]["verdict"] == "fits"
+    assert result["mismatch_reasons"] == []
+    assert result["fit_check"]["verdict"] == "fits"
     assert result["calm_water_fit"]["heldout_loss"] < 1.0, result["calm_water_fit"]  # noise units (was 1.5e3)
 
     vessel = load_vessel(str(boat))
@@ -75,7 +76,8 @@ def test_own_bags_are_diagnosed_none_and_predicted_to_the_noise(boat, tmp_path, 
     assert all(new < 1.0 for new in errors["approach"]), errors  # (m) its own boat, calm water
     assert all(new < 0.2 * old for new, old in zip(errors["approach"], errors["start"])), errors
     fit = check_fit(approach, recordings, vessel=vessel)
-    assert fit.verdict == "fits" and fit.speed_ratio == pytest.approx(1.0, abs=0.01)
+    assert fit.verdict == "fits"
+    assert fit.speed_ratio == pytest.approx(1.0, abs=0.01)
     assert fit.yaw_rate_ratio == pytest.approx(1.0, abs=0.02)  # held turns at the approach's engine speed
 
 

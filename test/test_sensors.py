@@ -53,7 +53,8 @@ def test_noise_free_sensors_report_the_truth(turn):
     hdg = s["heading"]
     assert np.allclose(wrap_angle(hdg.column("psi") - truth_at(turn, hdg.t_ns, turn.psi_unwrapped)), 0.0, atol=1e-12)
     gnss = s["gnss"]
-    x_n, y_e = LocalTangentPlane(CLEAN.datum_lat_deg, CLEAN.datum_lon_deg).to_ned(gnss.column("lat"), gnss.column("lon"))
+    x_n, y_e = LocalTangentPlane(CLEAN.datum_lat_deg,
+                                 CLEAN.datum_lon_deg).to_ned(gnss.column("lat"), gnss.column("lon"))
     assert np.allclose(x_n, truth_at(turn, gnss.t_ns, turn.eta[:, 0]), atol=1e-6)
     assert np.allclose(y_e, truth_at(turn, gnss.t_ns, turn.eta[:, 1]), atol=1e-6)
 
@@ -94,9 +95,11 @@ def test_noise_levels_match_the_spec(turn):
     residual = s["imu"].column("yaw_rate") - truth_at(turn, s["imu"].t_ns, turn.nu[:, 2])
     assert np.std(residual) == pytest.approx(spec.gyro_noise_std, rel=0.05)
     vel = s["velocity"]
-    assert np.std(vel.column("u") - truth_at(turn, vel.t_ns, turn.nu[:, 0])) == pytest.approx(spec.velocity_noise_std, rel=0.1)
+    assert np.std(vel.column("u")
+                  - truth_at(turn, vel.t_ns, turn.nu[:, 0])) == pytest.approx(spec.velocity_noise_std, rel=0.1)
     # quantised to the LSB: values are exact multiples of it
-    assert np.allclose(s["imu"].column("yaw_rate") / spec.gyro_lsb, np.round(s["imu"].column("yaw_rate") / spec.gyro_lsb))
+    assert np.allclose(s["imu"].column("yaw_rate") / spec.gyro_lsb,
+                       np.round(s["imu"].column("yaw_rate") / spec.gyro_lsb))
 
 
 def test_waves_shake_the_measured_motion_but_not_the_mean(turn):
@@ -127,7 +130,8 @@ def test_a_twin_thruster_boat_reports_its_commands():
     signals = measure(traj, Environment(), SensorSpec(), faults)
     assert set(signals) == {"imu", "velocity", "heading", "thruster_port", "thruster_starboard", "gnss", "odometry"}
     port = signals["thruster_port"]
-    assert port.fields == ("command",) and 1e9 / np.median(np.diff(port.t_ns)) == pytest.approx(10.0)
+    assert port.fields == ("command",)
+    assert 1e9 / np.median(np.diff(port.t_ns)) == pytest.approx(10.0)
     lsb = SensorSpec().command_lsb
     assert np.allclose(port.values / lsb, np.round(port.values / lsb))
     truth = traj.command("port")[np.searchsorted(traj.t_ns, port.t_ns)]

@@ -34,7 +34,8 @@ EXPECTED_TYPES = {
 def specs(layout: ActuatorLayout = DEFAULT_LAYOUT) -> list[TopicSpec]:
     """The config's topics that a boat of this layout uses (the config lists every layout's controls)."""
     cfg = load_predictor_config()
-    return [TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id) for t in input_topics(cfg, include_ground_truth=True)
+    return [TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id)
+            for t in input_topics(cfg, include_ground_truth=True)
             if t.role not in unused_roles(layout)]
 
 
@@ -47,14 +48,17 @@ def simulate(tmp_path: Path, *extra: str) -> tuple[int, dict]:
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
 def test_simulated_bag_opens_with_anyreader_and_round_trips(tmp_path, storage):
     code, result = simulate(tmp_path, "--manoeuvre", "turning-circle", "--rudder", "25", "--duration", "40",
-                            "--storage", storage, "--effect", "current", "--current-speed", "0.4", "--current-to", "135")
+                            "--storage", storage, "--effect", "current", "--current-speed", "0.4", "--current-to",
+                            "135")
     assert code == 0
     bag = Path(result["bags"][0]["bag"])
     with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         types = {c.topic: c.msgtype for c in reader.connections}
         counts = {c.topic: c.msgcount for c in reader.connections}
     assert types == EXPECTED_TYPES
-    assert counts["imu/data"] == 4001 and counts["gps/fix"] == 201 and counts["rudder_angle"] == 401
+    assert counts["imu/data"] == 4001
+    assert counts["gps/fix"] == 201
+    assert counts["rudder_angle"] == 401
     signals = read_bag(bag, specs())
     truth = signals["ground_truth/odometry"]
     # the recorded heading is the true heading plus noise, in the marine convention after the adapters
@@ -72,7 +76,8 @@ def test_same_seed_same_bag_content(tmp_path):
     simulate(tmp_path / "a", *args)
     simulate(tmp_path / "b", *args)
     simulate(tmp_path / "c", *args[:-1], "4")
-    read = lambda d: read_bag(next((d / "bags").iterdir()), specs())
+    def read(d):
+        return read_bag(next((d / "bags").iterdir()), specs())
     a, b, c = read(tmp_path / "a"), read(tmp_path / "b"), read(tmp_path / "c")
     assert all(np.array_equal(a[t].values, b[t].values, equal_nan=True) for t in a)
     assert not np.array_equal(a["imu/data"].values, c["imu/data"].values, equal_nan=True)
@@ -83,9 +88,11 @@ def test_programme_with_calm_twins_and_blind_metadata(tmp_path):
                             "--dt", "0.1")
     assert code == 0
     bags = [Path(b["bag"]) for b in result["bags"]]
-    assert len(bags) == 8 and sum(p.parent.name == "calm" for p in bags) == 4
+    assert len(bags) == 8
+    assert sum(p.parent.name == "calm" for p in bags) == 4
     meta = read_custom_data(bags[0])
-    assert "scenario" not in meta and len(meta["scenario_sha256"]) == 64
+    assert "scenario" not in meta
+    assert len(meta["scenario_sha256"]) == 64
     assert result["scenario"] is None
     sea, calm = read_bag(bags[0], specs()), read_bag(bags[4], specs())
     # the twin shares time, place, seed and manoeuvre, so only the sea makes the tracks differ
@@ -97,7 +104,8 @@ def test_programme_with_calm_twins_and_blind_metadata(tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--effect", "current", "--current-speed", "-0.4"], "current_speed=-0.4 m/s is outside the allowed range [0.0, 3.0]"),
+        (["--effect", "current", "--current-speed", "-0.4"],
+         "current_speed=-0.4 m/s is outside the allowed range [0.0, 3.0]"),
         (["--rudder", "60"], "--rudder 60 deg is outside the preset's range [0, 35] deg"),
         (["--vessel", "titanic"], "unknown vessel preset 'titanic'"),
         (["--current-speed", "0.3"], "--current-speed belongs to effect 'current': add --effect current"),
@@ -113,7 +121,8 @@ def test_bad_input_is_one_line_exit_2_and_no_bag(tmp_path, capsys, args, message
     code = main(["simulate", "--output", str(tmp_path / "bags"), "--duration", "5", *args])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
-    assert err[-1].startswith("replay simulate: error:") and message in err[-1]
+    assert err[-1].startswith("replay simulate: error:")
+    assert message in err[-1]
     assert not (tmp_path / "bags").exists() or not any((tmp_path / "bags").iterdir())
 
 
@@ -133,7 +142,9 @@ def test_existing_output_needs_overwrite_and_unwritable_output_fails(tmp_path, c
 def test_module_entry_point_help():
     done = subprocess.run([sys.executable, "-m", "usv_predictor.replay", "simulate", "--help"],
                           capture_output=True, text=True, timeout=60)
-    assert done.returncode == 0 and "--current-to" in done.stdout and "--calm-twin" in done.stdout
+    assert done.returncode == 0
+    assert "--current-to" in done.stdout
+    assert "--calm-twin" in done.stdout
 
 
 def test_shipped_bags_open_and_say_how_they_were_made():
@@ -163,7 +174,8 @@ def test_the_simulation_request_refuses_bad_values_with_the_commands_messages(tm
     from usv_predictor.replay.simulate import SimulationRequest, manoeuvres
 
     out = tmp_path / "bags"
-    for fields, message in (({"programme": "diagnosis", "manoeuvre": "zigzag"}, "give either --programme or --manoeuvre"),
+    for fields, message in (({"programme": "diagnosis", "manoeuvre": "zigzag"},
+                             "give either --programme or --manoeuvre"),
                             ({"duration_s": 0.5}, "--duration 0.5 s is outside [1, 3600] s"),
                             ({"manoeuvre": "zigzag", "check_deg": 95.0}, "--check 95 deg is outside (0, 90] deg"),
                             ({"manoeuvre": "barrel-roll"}, "--manoeuvre 'barrel-roll': expected one of"),
@@ -240,7 +252,8 @@ def test_rudder_layouts_write_their_own_controls(tmp_path, layout, extra, topics
     controls = {"rudder_angle", "engine_rpm", "throttle", "thrusters/port", "thrusters/starboard"}
     assert written & controls == topics
     expected = {"rudder_throttle": "turning_circle_stbd_15deg_p0.7", "rudder_only": "turning_circle_stbd_15deg_600rpm"}
-    assert bag.name == expected[layout] and result["bags"][0]["final_speed_mps"] > 2.0
+    assert bag.name == expected[layout]
+    assert result["bags"][0]["final_speed_mps"] > 2.0
 
 
 @pytest.mark.parametrize("args, message", [
@@ -258,8 +271,10 @@ def test_rudder_layouts_write_their_own_controls(tmp_path, layout, extra, topics
 def test_options_and_effects_of_another_layout_are_refused(tmp_path, capsys, args, message):
     code = main(["simulate", "--output", str(tmp_path / "bags"), "--duration", "5", *args])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1
-    assert err[-1].startswith("replay simulate: error:") and message in err[-1]
+    assert code == 2
+    assert len(err) == 1
+    assert err[-1].startswith("replay simulate: error:")
+    assert message in err[-1]
     assert not (tmp_path / "bags").exists() or not any((tmp_path / "bags").iterdir())
 
 

@@ -95,7 +95,8 @@ def test_yaw_moment_is_the_thrust_difference_times_half_spacing(k):
 def test_more_port_thrust_turns_to_starboard_and_the_turns_mirror(otter):
     stbd = simulate(otter, CommandTurningCircle("twin_thrusters", 0.4, 0.6, duration_s=60.0))
     port = simulate(otter, CommandTurningCircle("twin_thrusters", 0.4, 0.6, duration_s=60.0, side=-1))
-    assert stbd.command("port")[-1] == pytest.approx(0.8) and stbd.command("starboard")[-1] == pytest.approx(0.4)
+    assert stbd.command("port")[-1] == pytest.approx(0.8)
+    assert stbd.command("starboard")[-1] == pytest.approx(0.4)
     assert stbd.nu[-1, 2] > 0.1  # (rad/s), heading increases
     assert np.allclose(stbd.eta[:, 0], port.eta[:, 0], atol=1e-9)
     assert np.allclose(stbd.eta[:, 1], -port.eta[:, 1], atol=1e-9)
@@ -107,7 +108,9 @@ def test_a_twin_boat_turns_on_the_spot(otter, wamv):
     (the reverse thrust is weaker, so the boat creeps ahead round it), and the mirror to port."""
     for model in (otter, wamv):
         spin = simulate(model, CommandTurningCircle("twin_thrusters", 2.0, 0.0, duration_s=60.0, approach_s=0.0))
-        assert spin.nu[0, 0] == 0.0 and spin.command("port")[-1] == 1.0 and spin.command("starboard")[-1] == -1.0
+        assert spin.nu[0, 0] == 0.0
+        assert spin.command("port")[-1] == 1.0
+        assert spin.command("starboard")[-1] == -1.0
         assert spin.nu[-1, 2] > 0.3  # (rad/s), > 17 deg/s
         assert np.max(np.hypot(spin.eta[:, 0], spin.eta[:, 1])) < 2.0 * model.vessel.geometry.L_pp  # diameter
         mirror = simulate(model, CommandTurningCircle("twin_thrusters", 2.0, 0.0, duration_s=60.0, approach_s=0.0,
@@ -120,7 +123,7 @@ def test_a_twin_boat_turns_on_the_spot(otter, wamv):
 def test_a_twin_boat_follows_its_turn_without_skidding(otter, wamv, turn, throttle):
     """A held differential turn settles with the hull's lateral resistance balancing the centrifugal force m u r
     (Fossen 2021 eq. 6.5, C_RB), at a drift angle atan(-v / u) of a catamaran's 5-17 deg (otter 4.8, 4.5; wamv 15.3,
-    16.5 deg). Until 2026-11-26 the WAM-V preset had VRX's 40 N s/m of linear sway damping alone (yVV = 0: VRX also
+    16.5 deg). The WAM-V preset once had VRX's 40 N s/m of linear sway damping alone (yVV = 0: VRX also
     leaves out C_RB, so its own boat cannot skid): with the Coriolis force the boat slid at 60 and 62 deg (v -1.74 m/s
     for u 0.99 m/s), and 1.5 m beam seas pushed it at ~41 m/s. The floats' cross-flow drag holds it now."""
     for model in (otter, wamv):
@@ -137,7 +140,8 @@ def test_a_thruster_imbalance_pulls_to_the_weaker_side_s_opposite(otter):
     straight = CommandTurningCircle("twin_thrusters", 0.0, 0.6, duration_s=60.0)
     weak_stbd = simulate(otter, straight, faults=ActuatorFaults(thruster_imbalance=0.1))
     weak_port = simulate(otter, straight, faults=ActuatorFaults(thruster_imbalance=-0.1))
-    assert weak_stbd.nu[-1, 2] > 0.02 and weak_port.nu[-1, 2] == pytest.approx(-weak_stbd.nu[-1, 2], abs=1e-12)
+    assert weak_stbd.nu[-1, 2] > 0.02
+    assert weak_port.nu[-1, 2] == pytest.approx(-weak_stbd.nu[-1, 2], abs=1e-12)
     assert np.all(weak_stbd.command("port") == weak_stbd.command("starboard"))  # the log shows equal commands
     model = ManoeuvringModel(otter.vessel, thrust_imbalance=0.1)
     assert model.loads(2.0, 0, 0, 0, 2.0, 0, 0.6, 0.6).propulsion[0] == pytest.approx(
@@ -149,7 +153,8 @@ def test_a_twin_zigzag_reverses_the_differential_at_the_check_heading(otter):
     d = traj.command("port") - traj.command("starboard")
     change = np.degrees(traj.psi_unwrapped - traj.psi_unwrapped[0])
     reversals = np.flatnonzero(np.diff(np.sign(d)) != 0)
-    assert len(reversals) >= 3 and set(np.round(np.abs(d[traj.t_s > 5.0]), 12)) == {0.5}
+    assert len(reversals) >= 3
+    assert set(np.round(np.abs(d[traj.t_s > 5.0]), 12)) == {0.5}
     late = math.degrees(np.max(np.abs(traj.nu[:, 2]))) * 0.05  # one 0.05 s step of yaw
     for k in reversals[1:]:  # the first sign change is the execute from 0
         assert 20.0 <= abs(change[k + 1]) <= 20.0 + late
@@ -175,7 +180,9 @@ def test_cross_flow_drag_in_closed_form(otter):
     g, h = v.geometry, v.small_craft
     q = 0.5 * RHO_WATER * g.d * h.cross_flow_cd  # (kg/m^2)
     x, y, n = otter.hull_loads(0.0, 0.3, 0.0)
-    assert x == 0.0 and y == pytest.approx(h.Y_v * 0.3 - q * g.L_pp * 0.09, rel=1e-12) and n == pytest.approx(0.0, abs=1e-12)
+    assert x == 0.0
+    assert y == pytest.approx(h.Y_v * 0.3 - q * g.L_pp * 0.09, rel=1e-12)
+    assert n == pytest.approx(0.0, abs=1e-12)
     x, y, n = otter.hull_loads(0.0, 0.0, -0.5)
     assert y == pytest.approx(0.0, abs=1e-12)
     expected = h.N_r * -0.5 + h.N_rr * 0.25 * -1.0 + q * 0.25 * g.L_pp**4 / 32.0
@@ -195,7 +202,8 @@ def test_munk_moment_turns_the_hull_broadside(otter):
     _, v_dot, r_dot = otter.accelerations(0.0, u, sway, 0.0, 0.0, 0.0)
     assert r_dot == pytest.approx((m22 * rhs_n - m32 * rhs_y) / (m22 * m33 - m23 * m32), rel=1e-12)
     assert v_dot == pytest.approx((m33 * rhs_y - m23 * rhs_n) / (m22 * m33 - m23 * m32), rel=1e-12)
-    assert (h.Y_vdot - h.X_udot) * u * sway < 0.0 and r_dot < 0.0
+    assert (h.Y_vdot - h.X_udot) * u * sway < 0.0
+    assert r_dot < 0.0
 
 
 def test_the_small_craft_model_is_regular_at_rest(otter):
@@ -228,7 +236,8 @@ def test_thrust_maps():
     assert banded.thrust(0.09) == 0.0 and banded.thrust(-0.1) == 0.0  # the dead band gives no thrust
     assert banded.thrust(0.55) == pytest.approx(50.0) and banded.thrust(-1.0) == -40.0  # rescaled past it
     vrx = load_vessel("wamv").thrusters.starboard
-    assert vrx.thrust(1.0) == pytest.approx(242.67) and vrx.thrust(-1.0) == -100.0
+    assert vrx.thrust(1.0) == pytest.approx(242.67)
+    assert vrx.thrust(-1.0) == -100.0
     assert vrx.thrust(0.0) == pytest.approx(0.0, abs=1e-12)
     assert vrx.thrust(0.45) == pytest.approx(0.5 * (45.59 + 80.6))  # linear between the table's points
     assert all(vrx.thrust(c) <= vrx.thrust(c + 0.01) for c in np.linspace(-1.0, 0.99, 200))
@@ -254,9 +263,11 @@ def test_bad_thrust_maps_are_refused_naming_the_field(change, message):
 
 def test_sections_follow_the_hull_model_and_the_layout():
     jari = load_vessel("jari_usv")
-    assert (jari.layout, jari.hull_model_name, jari.small_craft, jari.thrusters) == ("rudder_propeller", "mmg", None, None)
+    assert (jari.layout, jari.hull_model_name, jari.small_craft,
+            jari.thrusters) == ("rudder_propeller", "mmg", None, None)
     otter = preset("otter")
-    with pytest.raises(ConfigError, match=r"boat.yaml: section\(s\) \['rudder'\] are not used by hull model small_craft "
+    with pytest.raises(ConfigError,
+                       match=r"boat.yaml: section\(s\) \['rudder'\] are not used by hull model small_craft "
                                           r"and actuator layout twin_thrusters"):
         vessel_from_dict({**otter, "rudder": preset("jari_usv")["rudder"]}, source="boat.yaml")
     with pytest.raises(ConfigError, match="missing section 'thrusters' .*actuator layout twin_thrusters need"):
@@ -289,7 +300,8 @@ def test_a_throttle_is_the_engine_speed_of_its_static_thrust():
         assert RHO_WATER * n * n * p.D_P**4 * p.k0 == pytest.approx(model.throttle.thrust(c), rel=1e-12)
     assert model.engine_speed(-0.6) == 0.0 and model.engine_speed(0.04) == 0.0  # astern, dead band: no thrust
     speeds = [model.straight_speed(c) for c in (0.04, 0.3, 0.6, 1.0)]
-    assert speeds[0] == 0.0 and speeds[1] < speeds[2] < speeds[3]
+    assert speeds[0] == 0.0
+    assert speeds[1] < speeds[2] < speeds[3]
     rpm_model = ManoeuvringModel(load_vessel("jari_usv"))
     assert model.straight_speed(0.6) == pytest.approx(rpm_model.straight_speed(model.engine_speed(0.6)), abs=1e-5)
 
@@ -306,8 +318,11 @@ def test_a_model_pickles_and_is_built_once_per_hull_model_and_layout(otter):
     import pickle
 
     copy = pickle.loads(pickle.dumps(ManoeuvringModel(otter.vessel, thrust_imbalance=0.05)))
-    assert type(copy) is type(otter) and copy.thrust_imbalance == 0.05
+    assert type(copy) is type(otter)
+    assert copy.thrust_imbalance == 0.05
     assert copy.derivative([0, 0, 0, 1.0, 0.1, 0.2, 0.5, 0.4], 0.6, 0.3, CALM) == \
-        ManoeuvringModel(otter.vessel, thrust_imbalance=0.05).derivative([0, 0, 0, 1.0, 0.1, 0.2, 0.5, 0.4], 0.6, 0.3, CALM)
+        ManoeuvringModel(otter.vessel, thrust_imbalance=0.05).derivative([0, 0, 0, 1.0, 0.1, 0.2, 0.5, 0.4], 0.6, 0.3,
+                                                                         CALM)
     assert type(ManoeuvringModel(load_vessel("wamv"))) is type(otter)  # the same hull model and layout
-    assert isinstance(otter, ManoeuvringModel) and type(otter).__name__ == "ManoeuvringModel[small_craft, twin_thrusters]"
+    assert isinstance(otter, ManoeuvringModel)
+    assert type(otter).__name__ == "ManoeuvringModel[small_craft, twin_thrusters]"

@@ -51,7 +51,8 @@ def test_smoothed_accelerations_are_accurate_and_beat_finite_differences(zigzag)
     fd = _rms(finite_difference_accelerations(rec) - true)
     assert np.all(err < fd), (err, fd)
     assert err[0] < 0.05 and err[1] < 0.08 and err[2] < 0.004  # m/s^2, m/s^2, rad/s^2
-    assert err[0] < 0.5 * fd[0] and err[1] < 0.6 * fd[1]
+    assert err[0] < 0.5 * fd[0]
+    assert err[1] < 0.6 * fd[1]
     # the reported standard deviations are of the size of the actual errors (within a factor 3)
     ratio = err / smoothed.nu_dot_std[10:-10].mean(axis=0)
     assert np.all((ratio > 1 / 3) & (ratio < 3)), ratio

@@ -56,7 +56,8 @@ def _recipe(**kwargs) -> TrainingConfig:
 def test_samples_pair_each_step_with_the_next(recordings: list[Recording]) -> None:
     samples = samples_from_recordings(recordings[:1], "NTF")
     rec = recordings[0]
-    assert samples.x.shape == (len(rec) - 1, 7) and samples.y.shape == (len(rec) - 1, 3)
+    assert samples.x.shape == (len(rec) - 1, 7)
+    assert samples.y.shape == (len(rec) - 1, 3)
     np.testing.assert_array_equal(samples.x[5, :3], rec.nu[5])
     np.testing.assert_array_equal(samples.y[5], rec.nu[6])
 
@@ -104,9 +105,11 @@ def test_early_stopping_restores_the_best_weights(splits: tuple[Samples, Samples
 
 def test_without_validation_the_training_loss_is_monitored(splits: tuple[Samples, Samples]) -> None:
     result = train_dnn(TINY, splits[0], None, _recipe(epochs=3))
-    assert result.monitor == "train" and result.val_loss is None and result.n_val == 0
+    assert result.monitor == "train"
+    assert result.val_loss is None
+    assert result.n_val == 0
     assert all(m.val_loss is None and all(v is None for _, v in m.history) for m in result.members)
-    assert result.summary()["val_loss"] == [None]  # JSON null, not NaN (issue 12: NaN crashed the JSON writer)
+    assert result.summary()["val_loss"] == [None]  # JSON null, not NaN (a NaN once crashed the JSON writer)
 
 
 def test_learning_rate_decays_stepwise() -> None:
@@ -115,13 +118,15 @@ def test_learning_rate_decays_stepwise() -> None:
     recipe = TrainingConfig()
     assert [_learning_rate(recipe, e) for e in (0, 99, 100, 250)] == pytest.approx([0.005, 0.005, 0.0025, 0.00125])
     cosine = TrainingConfig(lr_schedule="cosine", epochs=11)
-    assert _learning_rate(cosine, 0) == pytest.approx(0.005) and _learning_rate(cosine, 10) == pytest.approx(5e-5)
+    assert _learning_rate(cosine, 0) == pytest.approx(0.005)
+    assert _learning_rate(cosine, 10) == pytest.approx(5e-5)
 
 
 def test_windows_follow_the_recording(recordings: list[Recording]) -> None:
     rec = recordings[0]
     w = windows_from_recordings([rec], 4)
-    assert w.state0.shape == (len(rec) - 4, 4) and w.controls.shape == (len(rec) - 4, 4, 2)
+    assert w.state0.shape == (len(rec) - 4, 4)
+    assert w.controls.shape == (len(rec) - 4, 4, 2)
     np.testing.assert_array_equal(w.state0[3], rec.state()[3])
     np.testing.assert_array_equal(w.controls[3], rec.controls[3:7])
     np.testing.assert_array_equal(w.targets[3], rec.nu[4:8])
@@ -187,10 +192,12 @@ def test_replay_train_end_to_end(dataset_file: Path, tmp_path: Path, capsys: pyt
                      "--json", str(report), "--progress-s", "0"])
     captured = capsys.readouterr()
     assert code == 0, captured.err
-    assert "epoch 3/3" in captured.err and "model_id" in captured.out
+    assert "epoch 3/3" in captured.err
+    assert "model_id" in captured.out
     summary = json.loads(report.read_text())
     artifact = load_artifact(model, expect={"dt": 0.5, "feature_set": "NTF"})
-    assert summary["model_id"] == artifact.model_id and summary["epochs_run"] == [3]
+    assert summary["model_id"] == artifact.model_id
+    assert summary["epochs_run"] == [3]
     assert artifact.metadata["training"]["recipe"]["epochs"] == 3
     assert artifact.metadata["architecture"]["width"] == 8
     assert artifact.embedded_vessel == load_vessel("jari_usv")  # the config's vessel, whole, in the model
@@ -203,7 +210,8 @@ def test_replay_train_other_features_multi_step_ensemble(dataset_file: Path, tmp
                      "--features", "NAF", "--multi-step", "3", "--ensemble", "2", "--activation", "clipped_relu"])
     assert code == 0
     artifact = load_artifact(model)
-    assert artifact.metadata["feature_set"] == "NAF" and artifact.ensemble_size == 2
+    assert artifact.metadata["feature_set"] == "NAF"
+    assert artifact.ensemble_size == 2
     assert artifact.metadata["training"]["recipe"]["multi_step"] == 3
 
 
@@ -213,5 +221,7 @@ def test_replay_train_empty_training_split(recordings: list[Recording], tmp_path
     save_dataset(path, build_dataset(recordings[:1], "NTF", splits={recordings[0].name: "val"}))
     code = cli.main(["train", str(path), "--output", str(tmp_path / "m.pt"), "--epochs", "1"])
     err = capsys.readouterr().err
-    assert code == 2 and "train split has no samples" in err and str(path) in err
+    assert code == 2
+    assert "train split has no samples" in err
+    assert str(path) in err
     assert not (tmp_path / "m.pt").exists()

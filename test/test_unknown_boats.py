@@ -1,4 +1,4 @@
-"""Boats the tool has never seen (issue 11 section 5): the random hulls, the owner's description, and the lean
+"""Boats the tool has never seen: the random hulls, the owner's description, and the lean
 acceptance part of the unknown-boat suite.
 
 The acceptance cases draw a boat (its size class fixed, everything else random) and a hidden effect from a seed this
@@ -6,7 +6,7 @@ module keeps to itself, simulate a calm day and a blind effect day with the boat
 and give the tool only the bags and a `vessel init` description made from the owner's data
 (usv_predictor.replay.unknown_boats.run_unknown_boat). The tool must identify the boat, then name the cause (`none`
 on the clean day) with the tolerances of the hidden-effect suite. The confusion matrix over >= 50 boats is
-benchmarks/bench_unknown_boats.py (README).
+benchmarks/bench_unknown_boats.py (docs/results/unknown_boats.md).
 """
 from __future__ import annotations
 
@@ -78,7 +78,8 @@ def test_a_drawn_boat_is_a_froude_scaled_perturbed_preset(size_class):
 
 def test_the_draw_is_deterministic_and_the_classes_differ():
     a, b = (draw_boat(np.random.default_rng([3, 1])) for _ in range(2))
-    assert a.truth == b.truth and a.owner == b.owner
+    assert a.truth == b.truth
+    assert a.owner == b.owner
     sizes = {draw_boat(np.random.default_rng([3, k])).size_class for k in range(12)}
     assert sizes == set(SIZE_CLASSES)
     with pytest.raises(ValueError, match="unknown size class"):
@@ -133,7 +134,8 @@ def test_an_unknown_boat_is_identified_and_diagnosed(tmp_path, size_class, effec
     description = yaml.safe_load((tmp_path / f"{boat.owner.name}.yaml").read_text())
     assert description["hull"] != boat.truth["hull"]
     commands = [line.split()[2] for line in result["log"]]  # "$ replay COMMAND ..."
-    assert commands[:4] == ["simulate", "simulate", "vessel", "identify"] and commands[-1] == "diagnose"
+    assert commands[:4] == ["simulate", "simulate", "vessel", "identify"]
+    assert commands[-1] == "diagnose"
     assert set(commands[4:-1]) <= {"identify"}  # identified again at most once, as identify recommended
     assert result["cause"] == effect, (truth, result["message"])
     assert result["within_tolerance"], (truth, result["errors"])
@@ -143,7 +145,7 @@ def test_an_unknown_boat_is_identified_and_diagnosed(tmp_path, size_class, effec
 
 @pytest.mark.slow
 def test_the_interaction_factors_are_identified_with_the_hull(tmp_path):
-    """Benchmark boat 2 (seed 2026; README "Unknown boats"), calm day only. Holding its description's interaction
+    """Benchmark boat 2 (seed 2026; docs/results/unknown_boats.md), calm day only. Holding its description's interaction
     factors, identify made Y_vvv -16.1 and N_vvv +15.3 (truth -1.3, -0.04) and a grey box that diverged on its own
     calm day (held-out multi-step error 3e5 noise units). Searched with the hull (fitting/interaction.py), the
     cubic terms are sane, the rudder's force, gamma_R, eta and w_P0 move towards the truth's (the output-error
@@ -192,7 +194,8 @@ def test_the_interaction_factors_are_identified_with_the_hull(tmp_path):
     assert "diverges" in result.interaction["excluded"]["description"]  # its 35 deg turn runs away
     assert result.vessel.rudder.gamma_R_minus == pytest.approx(gamma)  # the model carries the identified rudder
     hull = result.fit.values()
-    assert abs(hull["Y_vvv"]) < 5.0 and abs(hull["N_vvv"]) < 5.0, hull
+    assert abs(hull["Y_vvv"]) < 5.0, hull
+    assert abs(hull["N_vvv"]) < 5.0, hull
     seg = make_segments(recordings, 20.0, 5.0)
     with torch.no_grad():
         out = GreyBoxRollout(result.vessel, 0.2)(seg.state, seg.controls, seg.reference)[0]

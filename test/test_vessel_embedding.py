@@ -1,6 +1,6 @@
-"""The artifact embeds its vessel description (issue 11): written with a digest, used where no vessel is given
+"""The artifact embeds its vessel description: written with a digest, used where no vessel is given
 (evaluate, diagnose --model, the fit check, the node), a given vessel that differs refused in one line naming the
-fields, and artifacts of before (name only, as the shipped models/default.pt was until 2026-11-26) still
+fields, and artifacts of before (name only, as the shipped models/default.pt was before its rebuild) still
 found by their name."""
 from __future__ import annotations
 
@@ -142,8 +142,10 @@ def test_a_model_like_another_carries_its_metadata_with_the_changes_and_its_vess
     source = greybox_artifact(tmp_path / "m.pt", vessel)
     like = export_like(tmp_path / "like.pt", GreyBoxRollout(vessel, dt=DT), source, horizon_steps=7,
                        training_data_sha256="1" * 64)
-    assert like.embedded_vessel == vessel and like.metadata[VESSEL_DIGEST_KEY] == source.metadata[VESSEL_DIGEST_KEY]
-    assert like.metadata["horizon_steps"] == 7 and source.metadata["horizon_steps"] != 7
+    assert like.embedded_vessel == vessel
+    assert like.metadata[VESSEL_DIGEST_KEY] == source.metadata[VESSEL_DIGEST_KEY]
+    assert like.metadata["horizon_steps"] == 7
+    assert source.metadata["horizon_steps"] != 7
     assert like.metadata["training_data_sha256"] == "1" * 64
     unchanged = set(source.metadata) - {"horizon_steps", "training_data_sha256", "model_id", "created_utc"}
     assert {k: like.metadata[k] for k in unchanged} == {k: source.metadata[k] for k in unchanged}
@@ -151,7 +153,7 @@ def test_a_model_like_another_carries_its_metadata_with_the_changes_and_its_vess
 
 
 def as_written_before(source: Path, path: Path) -> Path:
-    """`source` as artifacts were written before the description was embedded (the shipped model until 2026-11-26,
+    """`source` as artifacts were written before the description was embedded (the shipped model before its rebuild,
     81c5143c983762d4): its metadata without vessel_sha256, no vessel.json."""
     extra = {METADATA_FILE: "", VESSEL_FILE: ""}
     module = torch.jit.load(str(source), _extra_files=extra)
@@ -164,11 +166,13 @@ def as_written_before(source: Path, path: Path) -> Path:
 
 
 def test_artifacts_of_before_are_found_by_their_vessel_name(tmp_path):
-    shipped = loading.load_model("")  # models/default.pt, rebuilt 2026-11-26 by `replay train`: it embeds jari_usv
+    shipped = loading.load_model("")  # models/default.pt, rebuilt by `replay train`: it embeds jari_usv
     assert shipped.embedded_vessel == load_vessel("jari_usv")
     before = loading.load_model(str(as_written_before(package_share_path("models", "default.pt"), tmp_path / "b.pt")))
     _, meta = read_metadata(tmp_path / "b.pt")
-    assert VESSEL_DIGEST_KEY not in meta and before.vessel_description is None and before.embedded_vessel is None
+    assert VESSEL_DIGEST_KEY not in meta
+    assert before.vessel_description is None
+    assert before.embedded_vessel is None
     assert loading.model_vessel(before) == load_vessel("jari_usv")
     assert loading.model_vessel(before, "jari_usv") == load_vessel("jari_usv")
     _, vessel = my_boat(tmp_path)
@@ -184,7 +188,8 @@ def test_evaluate_and_the_fit_check_take_the_vessel_from_the_model(tmp_path, cap
     out = tmp_path / "e.json"
     assert main(["evaluate", str(OTTER_BAGS), "--model", str(tmp_path / "m.pt"), "--json", str(out)]) == 0
     check = json.loads(out.read_text())["fit_check"]
-    assert check["verdict"] == "fits" and check["actuator_layout"] == "twin_thrusters"
+    assert check["verdict"] == "fits"
+    assert check["actuator_layout"] == "twin_thrusters"
     assert check["length_m"] == 2.0 and check["top_speed_mps"] == pytest.approx(3.086, abs=0.01)  # the embedded boat's
     assert main(["evaluate", str(OTTER_BAGS), "--model", str(tmp_path / "m.pt"), "--vessel", "my_otter",
                  "--json", str(out)]) == 0  # its name: no preset here, the model's description
@@ -193,7 +198,8 @@ def test_evaluate_and_the_fit_check_take_the_vessel_from_the_model(tmp_path, cap
     other, _ = my_boat(tmp_path, folder="x", L_pp=2.5)
     assert main(["evaluate", str(OTTER_BAGS), "--model", str(tmp_path / "m.pt"), "--vessel", str(other)]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if "error:" in line]
-    assert len(errors) == 1 and errors[0].startswith("replay evaluate: error: model ")
+    assert len(errors) == 1
+    assert errors[0].startswith("replay evaluate: error: model ")
     assert errors[0].endswith("differs: geometry.L_pp: model 2, --vessel 2.5")
 
 
@@ -201,13 +207,15 @@ def test_diagnose_takes_the_calm_water_vessel_from_the_model(tmp_path, capsys):
     path, vessel = my_boat(tmp_path)
     greybox_artifact(tmp_path / "m.pt", vessel)
     calm = calm_water_model(None, tmp_path / "m.pt")
-    assert calm.description == vessel and calm.vessel.small_craft == vessel.small_craft
+    assert calm.description == vessel
+    assert calm.vessel.small_craft == vessel.small_craft
     assert calm.source.startswith("identified (")
     assert calm_water_model(path, tmp_path / "m.pt").description == vessel
     other, _ = my_boat(tmp_path, folder="y", d=0.3)
     assert main(["diagnose", str(OTTER_BAGS), "--model", str(tmp_path / "m.pt"), "--vessel", str(other)]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if "error:" in line]
-    assert len(errors) == 1 and errors[0].endswith("differs: geometry.d: model 0.195122, --vessel 0.3")
+    assert len(errors) == 1
+    assert errors[0].endswith("differs: geometry.d: model 0.195122, --vessel 0.3")
     greybox_artifact(tmp_path / "old.pt", vessel, embed=False)
     assert main(["diagnose", str(OTTER_BAGS), "--model", str(tmp_path / "old.pt")]) == 2
     assert "pass --vessel FILE" in capsys.readouterr().err
@@ -218,7 +226,8 @@ def test_the_node_uses_the_embedded_vessel_when_its_file_is_not_installed(tmp_pa
     greybox_artifact(tmp_path / "m.pt", vessel)
     config = dataclasses.replace(load_predictor_config(), vessel="my_otter", dt=DT, ensemble_size=1)
     rollout, chosen = predictor_node.load_model(str(tmp_path / "m.pt"), config)
-    assert chosen == vessel and chosen.actuator_layout.name == "twin_thrusters"
+    assert chosen == vessel
+    assert chosen.actuator_layout.name == "twin_thrusters"
     assert rollout.artifact.embedded_vessel == vessel
     # a preset of that name that differs from what the model carries: refused, naming the fields
     _, changed = my_boat(tmp_path, folder="z", name="otter", L_pp=2.4)
@@ -240,10 +249,14 @@ def test_a_node_runs_a_boat_whose_vessel_file_is_not_installed(ros_context, tmp_
         Parameter("vessel", value="my_otter"), Parameter("model_path", value=str(tmp_path / "m.pt")),
         Parameter("dt", value=DT), Parameter("ensemble_size", value=1)])
     try:
-        assert node.vessel == vessel and node.layout.name == "twin_thrusters"
-        assert {"thruster_port", "thruster_starboard"} <= set(node.inputs.tracks) and node.inputs.missing == []
-        assert "rudder_angle" in node.ignored and "thruster_port" not in node.ignored
-        assert node.sea.estimator is not None and node.sea.estimator.layout.name == "twin_thrusters"
+        assert node.vessel == vessel
+        assert node.layout.name == "twin_thrusters"
+        assert {"thruster_port", "thruster_starboard"} <= set(node.inputs.tracks)
+        assert node.inputs.missing == []
+        assert "rudder_angle" in node.ignored
+        assert "thruster_port" not in node.ignored
+        assert node.sea.estimator is not None
+        assert node.sea.estimator.layout.name == "twin_thrusters"
         assert node.sea.estimator.model.vessel.small_craft == vessel.small_craft  # the online estimator's boat
     finally:
         node.destroy_node()

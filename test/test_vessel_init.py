@@ -92,7 +92,9 @@ def test_every_value_has_its_provenance_in_the_yaml(kvlcc2) -> None:
         for key in kvlcc2.sections[section]:
             line = next(line for line in text.splitlines() if line.strip().startswith(f"{key}:"))
             assert "#" in line and len(line.split("#", 1)[1].strip()) > 3, line
-    assert "Clarke et al. 1983" in text and "Zhou et al. 1983" in text and "Kijima 1990" in text
+    assert "Clarke et al. 1983" in text
+    assert "Zhou et al. 1983" in text
+    assert "Kijima 1990" in text
 
 
 def test_calibrated_resistance_gives_the_known_speed(tmp_path: Path) -> None:
@@ -134,7 +136,8 @@ def test_otter_like_twin_loads_and_runs_straight_at_the_given_speed(tmp_path: Pa
                      "--thrust=-1:-66.7", "--speed", "2.5", "--at", "0.8", "--engine-time-constant", "0.1",
                      "--output", str(path)]) == 0
     vessel = load_vessel(path)
-    assert vessel.hull_model_name == "small_craft" and vessel.layout == "twin_thrusters"
+    assert vessel.hull_model_name == "small_craft"
+    assert vessel.layout == "twin_thrusters"
     assert vessel.small_craft.Y_vdot == pytest.approx(-1.5 * 80.0)  # Fossen's Otter rule
     assert vessel.small_craft.cross_flow_cd == pytest.approx(1.0042, abs=0.002)  # as the shipped otter preset
     assert vessel.thrusters.port.reverse_N == pytest.approx(66.7)
@@ -155,7 +158,8 @@ def test_a_small_planing_monohull_gets_one_warning_per_range(tmp_path: Path) -> 
                       thrust_unit="throttle", speed_m_s=5.0, speed_command=100.0)
     e = estimate_vessel(owner)
     lines = e.warnings
-    assert sum("L/B" in w for w in lines) == 1 and sum("B/d" in w for w in lines) == 1
+    assert sum("L/B" in w for w in lines) == 1
+    assert sum("B/d" in w for w in lines) == 1
     assert sum("C_b" in w and "outside 0.5-0.85" in w for w in lines) == 1
     assert sum("planing" in w for w in lines) == 1
     assert all("\n" not in w for w in lines)
@@ -181,7 +185,8 @@ BASE = ["vessel", "init", "--name", "b", "--layout", "twin_thrusters", "--lpp", 
     ([a for a in BASE], "required: --mass"),
     ([*BASE[:-2], "--mass", "400"], "needs the datasheet's static thrust"),
     ([*BASE, "--mass", "400", "--speed", "2"], "--speed and --at go together"),
-    ([*BASE, "--mass", "400", "--layout", "rudder_propeller"], "needs --rudder-area, --rudder-span, --propeller-diameter"),
+    ([*BASE, "--mass", "400", "--layout", "rudder_propeller"],
+     "needs --rudder-area, --rudder-span, --propeller-diameter"),
     ([*BASE, "--mass", "5", ], "gives C_b = 0.003"),
     ([*BASE, "--mass", "400", "--thrust-unit", "pwm"], "beyond full command"),
 ])
@@ -189,7 +194,9 @@ def test_refusals_are_one_line_with_exit_2(tmp_path: Path, capsys, argv, fragmen
     out = tmp_path / "v.yaml"
     assert cli.main([*argv, "--output", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("replay vessel: error:") and fragment in err[0], err
+    assert len(err) == 1, err
+    assert err[0].startswith("replay vessel: error:"), err
+    assert fragment in err[0], err
     assert not out.exists()
 
 

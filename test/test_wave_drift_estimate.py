@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from usv_predictor.analysis.diagnosis import loss, make_segments, scripted_rollout, set_terms
+from usv_predictor.analysis.diagnosis import loss, make_segments, compiled_rollout, set_terms
 from usv_predictor.data.recording import recording_from_signals
 from usv_predictor.physics.dynamics import ManoeuvringModel, SeaLoads, fourier, fourier_terms
 from usv_predictor.physics.empirical import (
@@ -52,10 +52,13 @@ def test_rectangle_reproduces_the_closed_forms():
     chi = np.radians([0.0, 90.0, 180.0, -90.0, 45.0, 30.0])
     cx, cy, cn = short_wave_drift(RECTANGLE, L, chi)
     # head seas: the bow (width B) reflects everything: F_X = -0.5 rho g zeta^2 B -> C_X = -B/L; following: +B/L
-    assert cx[0] == pytest.approx(-B / L, abs=1e-9) and cx[2] == pytest.approx(B / L, abs=1e-9)
+    assert cx[0] == pytest.approx(-B / L, abs=1e-9)
+    assert cx[2] == pytest.approx(B / L, abs=1e-9)
     # beam seas from starboard push to port with |C_Y| = 1 (the whole side L reflects), from port to starboard
-    assert cy[1] == pytest.approx(-1.0, abs=1e-9) and cy[3] == pytest.approx(1.0, abs=1e-9)
-    assert cy[0] == pytest.approx(0.0, abs=1e-9) and cx[1] == pytest.approx(0.0, abs=1e-9)
+    assert cy[1] == pytest.approx(-1.0, abs=1e-9)
+    assert cy[3] == pytest.approx(1.0, abs=1e-9)
+    assert cy[0] == pytest.approx(0.0, abs=1e-9)
+    assert cx[1] == pytest.approx(0.0, abs=1e-9)
     # oblique: the bow sees sin^2 of the incidence cos^2 chi, the side sin^2 chi: C_X = -B/L cos^2, C_Y = -sin^2
     for k in (4, 5):
         assert cx[k] == pytest.approx(-B / L * math.cos(chi[k]) ** 2, rel=1e-6)
@@ -70,7 +73,8 @@ def test_rectangle_fourier_projection_is_the_analytic_series():
     a, b = fourier_fit(chi, cx, 3)
     assert a[1] == pytest.approx(-B / L * 8 / (3 * math.pi), rel=2e-3)
     assert a[3] == pytest.approx(-B / L * 8 / (15 * math.pi), rel=2e-2)
-    assert a[0] == pytest.approx(0.0, abs=1e-6) and a[2] == pytest.approx(0.0, abs=1e-6)
+    assert a[0] == pytest.approx(0.0, abs=1e-6)
+    assert a[2] == pytest.approx(0.0, abs=1e-6)
     assert b == pytest.approx((0.0, 0.0, 0.0), abs=1e-6)
 
 
@@ -107,7 +111,7 @@ def test_jari_dimensions_give_the_signs_of_the_preset():
     assert _series(est, "y", 90.0) < 0.0 < _series(est, "y", -90.0)
     # yaw: with a pointed bow the lit bow flank outweighs the side, bow-quarter seas turn the bow away from the
     # waves and quarter seas the stern: toward beam seas (a drifting ship lies beam-on, docs/vessel.md). The preset
-    # agrees since 2026-11-26 (its generic b_n [0, 0.05] turned the bow toward head seas)
+    # agrees (its former generic b_n [0, 0.05] turned the bow toward head seas)
     assert _series(est, "n", 45.0) < 0.0 < _series(est, "n", -45.0)
     assert _series(est, "n", -135.0) < 0.0 < _series(est, "n", 135.0)
     chi = np.radians(np.arange(-180.0, 180.0, 1.0))
@@ -125,7 +129,7 @@ def test_jari_dimensions_give_the_signs_of_the_preset():
 @pytest.mark.parametrize("name", available_vessels())
 def test_every_preset_turns_toward_beam_seas(name):
     """docs/vessel.md, the sign of the yaw moment: bow-quarter seas turn the bow away from the waves, stern-quarter
-    seas the stern (the Otter's b_n [0, 0.01] and the WAM-V's [0, 0.02] of before 2026-11-26 turned them toward head
+    seas the stern (the Otter's former b_n [0, 0.01] and the WAM-V's [0, 0.02] turned them toward head
     seas). A preset without any wave drift force (kvlcc2_model) has no moment either."""
     w = load_vessel(name).wave_drift
 
@@ -152,7 +156,9 @@ def test_twin_hull_presets_yaw_is_the_estimate_times_their_sway_fraction(owner, 
     exact = preset.b_y[0] / est["b_y"].value[0]
     assert exact == pytest.approx(ratio, abs=0.001)
     # the estimate's yaw is mostly sin(2 chi) and toward beam seas, up to ~0.06 (the shadowed inner side)
-    assert est["b_n"].value[1] < -0.05 and abs(est["b_n"].value[0]) < 0.01 and abs(est["b_n"].value[2]) < 0.01
+    assert est["b_n"].value[1] < -0.05
+    assert abs(est["b_n"].value[0]) < 0.01
+    assert abs(est["b_n"].value[2]) < 0.01
     assert _series(est, "n", 45.0) < 0.0 < _series(est, "n", 135.0)
     assert np.allclose(preset.b_n, [exact * b for b in est["b_n"].value], atol=5e-5)  # the preset's 1e-4 rounding
     assert not any(preset.a_n)
@@ -184,7 +190,7 @@ def test_wave_drift_term_moves_the_prediction_of_an_init_vessel():
     seg = make_segments(recordings)
 
     def losses(v) -> tuple[float, float]:
-        rollout = scripted_rollout(v, 0.5)
+        rollout = compiled_rollout(v, 0.5)
         set_terms(rollout, {})
         calm = loss(rollout, seg)
         set_terms(rollout, {"wave_ne": (0.15, 0.15)})  # zeta_a^2 (m^2) from the north-east
@@ -211,4 +217,5 @@ def test_a_fine_hull_is_all_bow_and_still_finite():
                       thruster_spacing=0.9, thrust_points=((1.0, 300.0),))
     section = estimate_vessel(owner).sections["wave_drift"]
     values = [v for k in ("a_x", "b_y", "b_n") for v in section[k].value]
-    assert all(math.isfinite(v) for v in values) and section["b_y"].value[0] < -0.5
+    assert all(math.isfinite(v) for v in values)
+    assert section["b_y"].value[0] < -0.5

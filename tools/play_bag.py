@@ -67,7 +67,8 @@ class BagPlayer:
         self.messages = messages
         self.cursor = 0
         types = {m.topic: m.ros_type for m in messages}
-        self.publishers = {topic: node.create_publisher(make(ros_type), topic, 100) for topic, ros_type in types.items()}
+        self.publishers = {topic: node.create_publisher(make(ros_type), topic, 100) for topic,
+                           ros_type in types.items()}
         self.clock = node.create_publisher(Clock, "/clock", 10)
         self.published = 0
 
@@ -119,7 +120,8 @@ class PathListener:
         span = (stamps[-1] - stamps[0]) / 1e9
         rate = (len(stamps) - 1) / span if span > 0 else float("nan")
         first, last = self.paths[0], self.paths[-1]
-        pose = lambda p, k: f"north {p[2][k, 0]:.1f} m, east {p[2][k, 1]:.1f} m at +{(p[1][k] - p[0]) / 1e9:.2f} s"
+        def pose(p, k):
+            return f"north {p[2][k, 0]:.1f} m, east {p[2][k, 1]:.1f} m at +{(p[1][k] - p[0]) / 1e9:.2f} s"
         return (f"{len(self.paths)} paths of {len(last[1])} poses in frame {last[3]!r}, {rate:.2f} Hz in sim time\n"
                 f"  first path: first pose {pose(first, 0)}, last pose {pose(first, -1)}\n"
                 f"  last path:  first pose {pose(last, 0)}, last pose {pose(last, -1)}")

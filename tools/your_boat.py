@@ -32,7 +32,7 @@ DOC = REPO / "docs" / "your_boat.md"
 PLAY_BAG = REPO / "tools" / "play_bag.py"
 PLAY_BAG_PATH = "bags/otter/sea_trial/calm/turning_circle_stbd_d0.4_p0.6"  # a held turn after a straight approach
 PLAY_SECONDS = 40.0  # (s of the bag) the approach and 30 s of the turn: a steady window for the fit check
-PLAY_RATE = 1.5  # (x real time) a grey-box node at rate_hz 1 keeps up on a loaded 2-core machine
+PLAY_RATE = 1.5  # (x real time) the bag's player and the node keep up on a loaded 2-core machine
 NODE = ("ros2", "run", "usv_predictor", "predictor")
 PLACEHOLDER = re.compile(r"^/path/to/(?P<name>[^/]+\.pt)$")
 

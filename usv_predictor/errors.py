@@ -25,6 +25,11 @@ class ModelError(UsvPredictorError):
     """A model file is missing, corrupt, or does not match the configuration (the message says what differs)."""
 
 
+class KernelUnavailable(ModelError):
+    """A model module the compiled kernel cannot run (models/kernel_rollout.py): its caller keeps the module's own
+    rollout and says why."""
+
+
 class DatasetError(UsvPredictorError):
     """A dataset cannot be built or read (empty split, too-short manoeuvre, wrong format)."""
 

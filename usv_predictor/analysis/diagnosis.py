@@ -31,8 +31,8 @@ the same rule to the measured 30 s open-loop gain and withdraws a cause whose ex
 
 Otherwise the answer is `none` — unless the calm-water model itself does not fit: then it is `model_mismatch`
 (identify the boat first), when nothing is named but the calm-water model leaves a held-out loss above NONE_LOSS
-noise units (not "within the noise"), when the fit check failed (analysis/fit_check.py, the caller passes its reasons), when
-its rollout diverges on the data (diverged_segments), when the best model (the calm-water one with the named
+noise units (not "within the noise"), when the fit check failed (analysis/fit_check.py, the caller passes its reasons),
+when its rollout diverges on the data (diverged_segments), when the best model (the calm-water one with the named
 causes; with a candidate that was not named, with that candidate) leaves a held-out loss above MISMATCH_LOSS noise
 units and more than MISMATCH_SHARE of the calm-water model's, or above FIT_CEILING_LOSS whatever share its causes
 removed, or when a named cause's parameter, fitted on all manoeuvres, lies outside its effect's physical range
@@ -54,7 +54,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-import warnings
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
@@ -66,6 +65,7 @@ from usv_predictor.data.segments import SIGMA, Segments, make_segments  # noqa: 
 from usv_predictor.errors import ConfigError, DiagnosisError
 from usv_predictor.frames import compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
+from usv_predictor.models.kernel_rollout import KernelRollout
 from usv_predictor.physics import effects as fx
 from usv_predictor.physics.effects import Term
 from usv_predictor.physics.vessel import Vessel
@@ -96,7 +96,8 @@ FIT_CEILING_LOSS = 100.0  # held-out loss (noise units) no model that fits leave
 #                           2.9 deg/s in r, 10 m in position, 5.7 deg in heading), an order of magnitude above the
 #                           noise: a cause fitted to such a model absorbs the model's error (an unknown boat's 1.4 m
 #                           wave drift was named as a 28 m/s wind that left 1190 of 2432). The right causes of the 50
-#                           unknown boats of 2026-11-26 left at most 43 (a current, 94 before), waves of 1.1 m 27
+#                           unknown boats (docs/results/unknown_boats.md) left at most 43 (a current, 94 before), waves
+#                           of 1.1 m 27
 NONE_LOSS = 5.0  # held-out loss (noise units) above which the calm-water model is not "within the noise": `none`
 #                 is then model_mismatch (clean presets leave 0.1, the right cause <= 0.5; an identified unknown
 #                 boat that fits 0.3; one that left 17 hid a 0.77 deg/s gyro bias behind a confident `none`)
@@ -114,8 +115,13 @@ HYPOTHESES: Mapping[str, tuple[Term, ...]] = fx.RegistryView(
     lambda: {name: () if name == fx.NONE else fx.EFFECTS[name].terms for name in fx.hypothesis_names()})
 
 
-def residuals(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments) -> torch.Tensor:
-    """Weighted residuals (B, H, 6) of the rollout against the measurements."""
+def residuals(model: GreyBoxRollout | KernelRollout, seg: Segments) -> torch.Tensor:
+    """Weighted residuals (B, H, 6) of the rollout against the measurements (the kernel's in numpy, on the segments'
+    own memory: no tensor operations on the way)."""
+    if isinstance(model, KernelRollout):
+        predicted = model.rollout(seg.state.numpy(), seg.controls.numpy(),
+                                  None if seg.reference is None else seg.reference.numpy())[0]  # (B, H, 6)
+        return torch.from_numpy((predicted - seg.target.numpy()) * seg.weight.numpy())
     with torch.no_grad():
         predicted = model(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
     return (predicted - seg.target) * seg.weight
@@ -144,7 +150,7 @@ def segment_scores(model: GreyBoxRollout, seg: Segments) -> tuple[np.ndarray, np
     return losses, track
 
 
-def diverged_segments(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments) -> int:
+def diverged_segments(model: GreyBoxRollout | KernelRollout, seg: Segments) -> int:
     """How many segments the calm-water model (no hypothesis terms) cannot roll out (non-finite residuals) although
     their measured start and controls are finite: a model that diverges on the data (0: it rolls out everywhere)."""
     set_terms(model, {})
@@ -242,7 +248,7 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
             theta, r, cost = probe, r_probe, cost_probe
     lam, it = 1e-2, 0
     jac = np.zeros((len(r), len(theta)))
-    for it in range(1, max_iter + 1 if len(theta) else 1):
+    for it in range(1, max_iter + 1 if len(theta) else 1):  # noqa: B007 -- the count is returned
         eps = 1e-3
         for j in range(len(theta)):
             step = theta.copy()
@@ -304,11 +310,10 @@ def _probes(terms: Sequence[Term], sizes: Sequence[int], theta: np.ndarray,
     return found
 
 
-def scripted_rollout(vessel: Vessel, dt: float, substeps: int = 1) -> torch.jit.ScriptModule:
-    """The grey box compiled by TorchScript (twice as fast; its parameters are set in place by set_terms)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)  # torch 2.13 steers towards torch.export
-        return torch.jit.script(GreyBoxRollout(vessel, dt=dt, substeps=substeps))
+def compiled_rollout(vessel: Vessel, dt: float, substeps: int = 1) -> KernelRollout:
+    """The grey box on the compiled kernel (models/kernel_rollout.py): called as the module is, its terms the
+    module's, set in place by set_terms and re-read at every call."""
+    return KernelRollout(GreyBoxRollout(vessel, dt=dt, substeps=substeps), live=True)
 
 
 # ---- from grey-box terms to the DESIGN.md vocabulary -------------------------------------------------
@@ -457,7 +462,8 @@ class Contribution:
         """'given wind it adds evidence 0.8 (removes 3 % of the held-out loss, 1 % of the track error)'."""
         given = f"given {'+'.join(self.given)}" if self.given else "over the calm-water model"
         track = f", {self.track_gain * 100:.0f} % of the track error" if math.isfinite(self.track_gain) else ""
-        return f"{given} it adds evidence {self.evidence:.1f} (removes {self.gain * 100:.0f} % of the held-out loss{track})"
+        return (f"{given} it adds evidence {self.evidence:.1f} (removes {self.gain * 100:.0f} % of the held-out "
+                f"loss{track})")
 
 
 @dataclass(frozen=True)
@@ -540,7 +546,8 @@ def select_causes(primary: str, candidates: Sequence[str], score: Callable[[tupl
             break
         chosen.append(name)
         while chosen:
-            weak = [c for c in (contribution(cause, [o for o in chosen if o != cause], score, n_eff) for cause in chosen)
+            weak = [c for c in (contribution(cause, [o for o in chosen if o != cause], score, n_eff)
+                                for cause in chosen)
                     if not c.earns_place]
             if not weak:
                 break
@@ -557,13 +564,13 @@ def select_causes(primary: str, candidates: Sequence[str], score: Callable[[tupl
 def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Sequence[str] | None = None,
              horizon_s: float = 20.0, stride_s: float = 5.0, substeps: int = 1, max_causes: int = 2,
              progress: Callable[[str], None] = lambda _: None, segments: Segments | None = None,
-             rollout: torch.jit.ScriptModule | None = None, fit_mismatch: str = "") -> Diagnosis:
+             rollout: KernelRollout | None = None, fit_mismatch: str = "") -> Diagnosis:
     """Name the cause of what the calm-water grey box gets wrong on these recordings.
 
     After the primary cause, up to max_causes - 1 further ones are added one at a time (forward selection)
     while each passes the same held-out evidence test against the model with the causes before it; after each
     addition a cause that no longer passes it given the others is dropped (backward elimination, select_causes).
-    segments / rollout: make_segments(recordings, horizon_s, stride_s) and scripted_rollout(vessel, dt, substeps)
+    segments / rollout: make_segments(recordings, horizon_s, stride_s) and compiled_rollout(vessel, dt, substeps)
     when the caller has them already (built here otherwise); the rollout's terms are left at the final fit.
     """
     started = time.perf_counter()
@@ -571,7 +578,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     names = list(hypotheses or applicable)
     foreign = [name for name in names if name in HYPOTHESES and name not in applicable]
     if foreign:
-        raise ConfigError(f"hypotheses {foreign} do not apply to vessel {vessel.name} (actuator layout {vessel.layout}); "
+        raise ConfigError(f"hypotheses {foreign} do not apply to vessel {vessel.name} (actuator layout "
+                          f"{vessel.layout}); "
                           f"its hypotheses are {', '.join(applicable)}")
     notes = check_data(recordings)
     unknown = [name for name in dict.fromkeys(names) if name not in HYPOTHESES]
@@ -583,7 +591,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     dt = recordings[0].dt
     seg = segments if segments is not None else make_segments(recordings, horizon_s, stride_s)
     folds = _folds(recordings)
-    model = rollout if rollout is not None else scripted_rollout(vessel, dt, substeps)
+    model = rollout if rollout is not None else compiled_rollout(vessel, dt, substeps)
     diverged = diverged_segments(model, seg)
     if diverged:
         # the calm-water model itself cannot be rolled out over the data: it does not fit them (not an error of the
@@ -602,11 +610,12 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     # every set of causes fitted (the first round's single hypotheses, `none` as the empty set, the selection's
     # sets): its fit order and, per fold k (fitted on fold k, held out on the other), the held-out segment losses,
     # track errors, physical parameters and the fit
-    fitted: dict[frozenset[str], tuple[tuple[str, ...], list[tuple[np.ndarray, np.ndarray, dict[str, float], Fit]]]] = {}
+    FoldResult = tuple[np.ndarray, np.ndarray, dict[str, float], Fit]  # one fold: losses, track errors, parameters, fit
+    fitted: dict[frozenset[str], tuple[tuple[str, ...], list[FoldResult]]] = {}
     nested_checked: set[tuple[frozenset[str], frozenset[str]]] = set()
 
     def fold_fit(causes: tuple[str, ...], k: int,
-                 start: Mapping[str, Sequence[float]] | None = None) -> tuple[np.ndarray, np.ndarray, dict[str, float], Fit]:
+                 start: Mapping[str, Sequence[float]] | None = None) -> FoldResult:
         """The set of causes fitted on fold k, scored on the other: held-out losses, track errors, parameters, fit."""
         hypothesis = causes[0] if len(causes) == 1 else (causes or "none")
         fit = fit_hypothesis(model, fold_segments[k], hypothesis, start=start)
@@ -645,7 +654,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
             refit_nested(key)
         losses, tracks = held_out(key)
         if new and len(key) > 1:
-            progress(f"{'+'.join(causes):30s} held-out loss {losses.mean():9.3f}, track error {_mean_track(tracks):7.2f} m")
+            progress(f"{'+'.join(causes):30s} held-out loss {losses.mean():9.3f}, track error "
+                     f"{_mean_track(tracks):7.2f} m")
         return HeldOut(float(losses.mean()), _mean_track(tracks))
 
     def held_out(key: frozenset[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -710,7 +720,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     elif strong:
         rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error (evidence "
                     f"{top.evidence_vs_none:.1f}) but its extension does not lower the held-out track error after "
-                    f"{horizon_s:g} s ({calm.heldout_track_error_m:.3g} -> {top.heldout_track_error_m:.3g} m): not named")
+                    f"{horizon_s:g} s ({calm.heldout_track_error_m:.3g} -> "
+                    f"{top.heldout_track_error_m:.3g} m): not named")
         message = rejected
     elif (top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CANDIDATE and top.gain_vs_none >= MIN_GAIN
           and lowers_track(top.track_gain_vs_none) and base.mean() <= NONE_LOSS):
@@ -793,7 +804,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                         for reason in fx.EFFECTS[name].outside_range(physical_parameters(name, final.terms)))
     if mismatch:
         final = None
-        message = (f"{MODEL_MISMATCH}: the calm-water model does not fit these bags (held-out loss {calm.heldout_loss:.3g} "
+        message = (f"{MODEL_MISMATCH}: the calm-water model does not fit these bags (held-out loss "
+                   f"{calm.heldout_loss:.3g} "
                    f"noise units, track error {calm.heldout_track_error_m:.3g} m after {horizon_s:g} s before any "
                    f"hypothesis): {'; '.join(mismatch)}"
                    + (f"; the best environmental cause would be {best_environmental}" if best_environmental else "")
@@ -824,7 +836,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                      further_candidate_reason=further_reason if candidate is not None else "")
 
 
-def withdraw_causes(diagnosis: Diagnosis, reason: str, model: GreyBoxRollout | torch.jit.ScriptModule,
+def withdraw_causes(diagnosis: Diagnosis, reason: str, model: GreyBoxRollout | KernelRollout,
                     seg: Segments) -> Diagnosis:
     """The diagnosis with its named causes withdrawn for `reason` (their extension made the held-out prediction
     worse, measure_gain): `inconclusive` with the withdrawn causes as the candidate. A named cause passed the
@@ -840,7 +852,7 @@ def withdraw_causes(diagnosis: Diagnosis, reason: str, model: GreyBoxRollout | t
 
 
 def _inconclusive(diagnosis: Diagnosis, candidate: str, parameters: dict[str, float], reason: str,
-                  model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments) -> Diagnosis:
+                  model: GreyBoxRollout | KernelRollout, seg: Segments) -> Diagnosis:
     """`diagnosis` as the answer `inconclusive`: what was found (candidate, its parameters) and why it is not named."""
     calm = diagnosis.calm_water_fit
     before = (f" (calm-water model: held-out loss {calm.heldout_loss:.3g} noise units, track error "
@@ -856,7 +868,8 @@ def _inconclusive(diagnosis: Diagnosis, candidate: str, parameters: dict[str, fl
 def _folds(recordings: Sequence[Recording]) -> tuple[list[int], list[int]]:
     """Two folds by manoeuvre, alternating in order of the mean turn command so both folds turn both ways."""
     order = sorted(range(len(recordings)),
-                   key=lambda i: float(np.nanmean(recordings[i].actuator_layout.steering_signal(recordings[i].controls))))
+                   key=lambda i: float(np.nanmean(
+                       recordings[i].actuator_layout.steering_signal(recordings[i].controls))))
     return order[0::2], order[1::2]
 
 
@@ -868,7 +881,7 @@ def _physical_uncertainty(cause: str, fit: Fit) -> dict[str, float]:
 
 # ---- what the calm-water model gets wrong, in a naval architect's terms -------------------------------
 
-def discrepancy(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments,
+def discrepancy(model: GreyBoxRollout | KernelRollout, seg: Segments,
                 recordings: Sequence[Recording]) -> dict[str, object]:
     """Structure of the calm-water model's segment errors: track drift, asymmetry, dependence on heading.
 
@@ -905,7 +918,8 @@ def discrepancy(model: GreyBoxRollout | torch.jit.ScriptModule, seg: Segments,
     return {
         "track_drift_speed_mps": float(math.hypot(*drift)),
         "track_drift_direction_to_deg": compass_deg(drift[0], drift[1]),
-        "yaw_rate_error_starboard_turns_deg_s": float(np.degrees(yaw_err[side > 0].mean())) if (side > 0).any() else None,
+        "yaw_rate_error_starboard_turns_deg_s": (float(np.degrees(yaw_err[side > 0].mean())) if (side > 0).any()
+                                                 else None),
         "yaw_rate_error_port_turns_deg_s": float(np.degrees(yaw_err[side < 0].mean())) if (side < 0).any() else None,
         "along_track_error_rate_vs_heading": harmonic(along),
         "cross_track_error_rate_vs_heading": harmonic(cross),
@@ -925,11 +939,11 @@ def extended_rollout(vessel: Vessel, dt: float, terms: dict[str, Sequence[float]
 def measure_gain(recordings: Sequence[Recording], vessel: Vessel, diagnosis: Diagnosis, *,
                  horizons_s: Sequence[float] = (10.0, 30.0, 60.0), stride_s: float = 5.0,
                  horizon_s: float = 20.0, segment_stride_s: float = 5.0, segments: Segments | None = None,
-                 rollout: torch.jit.ScriptModule | None = None) -> dict[str, object]:
+                 rollout: KernelRollout | None = None) -> dict[str, object]:
     """Every evaluation metric of the calm-water and the extended model on manoeuvres held out from the fit.
 
     Each fold's manoeuvres are predicted by the extension fitted on the other fold only. segments / rollout:
-    make_segments(recordings, horizon_s, segment_stride_s) and scripted_rollout(vessel, dt) when the caller has
+    make_segments(recordings, horizon_s, segment_stride_s) and compiled_rollout(vessel, dt) when the caller has
     them already (built here otherwise).
     """
     from usv_predictor.analysis import evaluation
@@ -941,7 +955,7 @@ def measure_gain(recordings: Sequence[Recording], vessel: Vessel, diagnosis: Dia
     names = [r.name for r in recordings]
     before, after = [], []
     seg = segments if segments is not None else make_segments(recordings, horizon_s, segment_stride_s)
-    fitter = rollout if rollout is not None else scripted_rollout(vessel, dt)
+    fitter = rollout if rollout is not None else compiled_rollout(vessel, dt)
     for fit_fold, test_fold in ((0, 1), (1, 0)):
         fit_names, test_names = diagnosis.folds[fit_fold], diagnosis.folds[test_fold]
         fit_idx = [names.index(n) for n in fit_names]
@@ -972,7 +986,8 @@ def export_extended(path, vessel: Vessel, diagnosis: Diagnosis, dt: float, *, da
 
     rollout = extended_rollout(vessel, dt, diagnosis.fit.terms)
     meta = greybox_metadata(vessel, rollout, model_type=f"greybox+{diagnosis.cause}", training_data_sha256=data_digest,
-                            training={"method": "diagnosis (usv_predictor.analysis.diagnosis)", "cause": diagnosis.cause,
+                            training={"method": "diagnosis (usv_predictor.analysis.diagnosis)",
+                                      "cause": diagnosis.cause,
                                       "parameters": diagnosis.parameters,
                                       "additional_causes": [a.cause for a in diagnosis.additional_causes]})
     return export_module(path, rollout, meta, vessel=description or vessel)

@@ -78,7 +78,8 @@ def _track_plots(recordings: Sequence[Recording], vessel: Vessel, fit_terms: dic
             err = np.hypot(*(pred.predicted[:, 3:5] - pred.measured[:, 3:5]).T)
             ax_err.plot(pred.t_s, err, style, lw=1.0, color=f"C{i % 10}",  # one colour per manoeuvre
                         label=(f"{rec.name}" if label != "calm-water model" else None) if n <= 10 else None)
-            row[f"{label.split()[0]}_final_position_error_m"] = float(err[np.isfinite(err)][-1]) if np.isfinite(err).any() else None
+            final = float(err[np.isfinite(err)][-1]) if np.isfinite(err).any() else None
+            row[f"{label.split()[0]}_final_position_error_m"] = final
         ax.set_title(rec.name, fontsize=9)
         ax.set_xlabel("east (m)")
         ax.set_ylabel("north (m)")
@@ -113,7 +114,8 @@ def write_report(directory: Path, out: dict, recordings: Sequence[Recording], ve
         lines += [f"**Confounded with:** {', '.join(out['confounded_with'])}.", ""]
     calm = out.get("calm_water_fit")
     if calm:
-        lines += [f"Calm-water model before any hypothesis: held-out loss {_fmt(calm['heldout_loss'])} (noise units, 1 = "
+        lines += [f"Calm-water model before any hypothesis: held-out loss {_fmt(calm['heldout_loss'])} "
+                  f"(noise units, 1 = "
                   f"errors at the noise scale), track error {_fmt(calm['heldout_track_error_m'])} m after "
                   f"{_fmt(calm['horizon_s'])} s.", ""]
     if out.get("fit_check"):
@@ -163,7 +165,8 @@ def write_report(directory: Path, out: dict, recordings: Sequence[Recording], ve
                   "| metric | calm-water | extended | relative improvement |", "|---|---|---|---|"]
         for key, before in out["baseline"].items():
             if key in out["gain"]:
-                lines.append(f"| {key} | {_fmt(before)} | {_fmt(out['extended'][key])} | {out['gain'][key] * 100:.0f} % |")
+                lines.append(f"| {key} | {_fmt(before)} | {_fmt(out['extended'][key])} | "
+                             f"{out['gain'][key] * 100:.0f} % |")
     found = out.get("unexplained")
     if found:
         lines += ["", "## The extension of last resort: a learned residual (unexplained)", "",

@@ -18,7 +18,8 @@ from typing import Any, NamedTuple
 
 from usv_predictor.analysis import diagnosis as dg
 from usv_predictor.analysis.diagnosis_steps import DiagnosisSteps
-from usv_predictor.analysis.diagnosis_unexplained import REPLACES, export_unexplained, measure_unexplained, unexplained_answer
+from usv_predictor.analysis.diagnosis_unexplained import (REPLACES, export_unexplained, measure_unexplained,
+                                                          unexplained_answer)
 from usv_predictor.atomic import finite_or_none
 from usv_predictor.config import load_predictor_config
 from usv_predictor.data.recording import Recording
@@ -96,7 +97,8 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         raise DatasetError("no usable recording in the bags (see the warnings above)")
     missing = [r.name for r in recordings if vessel.layout == "rudder_propeller" and not (r.controls[:, 1] > 0).any()]
     if missing:
-        raise DatasetError(f"no engine speed in {missing}: the calm-water model needs rudder and rpm; record engine_rpm")
+        raise DatasetError(f"no engine speed in {missing}: the calm-water model needs rudder and rpm; "
+                           f"record engine_rpm")
     progress(f"diagnosing {len(recordings)} manoeuvre(s) against the {source} calm-water model of {vessel.name}")
     if max_causes < 1:
         raise DatasetError(f"--max-causes {max_causes} must be >= 1")
@@ -110,7 +112,7 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     if fit_check:
         require_fit(fitted)
     segments = dg.make_segments(recordings, horizon_s, stride_s)  # built once: diagnose, discrepancy and gain share
-    rollout = dg.scripted_rollout(vessel, dt)  # ... the segments and the compiled grey box
+    rollout = dg.compiled_rollout(vessel, dt)  # ... the segments and the compiled grey box
     result = dg.diagnose(recordings, vessel, hypotheses=hypotheses, horizon_s=horizon_s, stride_s=stride_s,
                          max_causes=max_causes, progress=progress, segments=segments, rollout=rollout,
                          fit_mismatch="; ".join(fitted.reasons))
@@ -128,7 +130,8 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         if before is not None and after is not None and not after < before:
             rejected = {"causes": list(result.hypotheses), "baseline": measured["baseline"],
                         "extended": measured["extended"], "gain": measured["relative_improvement"]}
-            result = dg.withdraw_causes(result, f"the extension with {'+'.join(result.hypotheses)} does not lower the held-out "
+            result = dg.withdraw_causes(result,
+                                        f"the extension with {'+'.join(result.hypotheses)} does not lower the held-out "
                                                 f"open-loop position error after 30 s ({before:.3g} -> {after:.3g} m)",
                                         rollout, segments)
             measured = None

@@ -1,4 +1,4 @@
-"""The extension of last resort (issue 15): when no physical hypothesis explains what the calm-water model gets wrong,
+"""The extension of last resort: when no physical hypothesis explains what the calm-water model gets wrong,
 the learned residual, named as such (`unexplained`) and with its measured gain.
 
 `diagnose` names a physical cause when one lowers the held-out loss and track error (analysis/diagnosis.py). When none
@@ -132,7 +132,7 @@ def measure_unexplained(recordings: Sequence[Recording], vessel: Vessel, diagnos
     from usv_predictor.models.greybox import GreyBoxPredictor, GreyBoxRollout, greybox_metadata
 
     names = [r.name for r in recordings]
-    calm_rollout = dg.scripted_rollout(vessel, dt)  # the diagnosis' calm-water model (one RK4 substep per dt)
+    calm_rollout = dg.compiled_rollout(vessel, dt)  # the diagnosis' calm-water model (one RK4 substep per dt)
     dg.set_terms(calm_rollout, {})
     calm_eval = GreyBoxRollout(vessel, dt=dt, substeps=1)
     calm_predictor = GreyBoxPredictor(calm_eval, {**greybox_metadata(vessel, calm_eval), "model_id": "calm-water"})

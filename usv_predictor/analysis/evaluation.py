@@ -69,7 +69,7 @@ class Predictor(Protocol):
 
 class WithoutReference:
     """`predictor` asked without the approach reference: every prediction holds the engine speed of its own start's
-    water speed (the rule for rudder_only before 2026-11-25; models/greybox.py). The comparison benchmarks and tests
+    water speed (the former rule for rudder_only; models/greybox.py). The comparison benchmarks and tests
     set it beside the reference rule on the same bags."""
 
     def __init__(self, predictor: Predictor) -> None:

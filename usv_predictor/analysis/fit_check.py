@@ -324,14 +324,14 @@ def cause_substeps(vessel: Vessel, dt: float) -> int:
     waves, so a longer boat is spun less). Against 32 substeps on every preset and layout at dt 0.2 and 0.5 s, every
     cause's du and dr is as close as the 2 m boat's own rule gets (the 13.5 m jari_usv at dt 0.5 s: 2 substeps
     instead of 4, 4.7e-4 m/s and 1.2e-3 deg/s of changes up to 2.2 m/s and 7.2 deg/s; the otter at 4: 7.3e-4 m/s
-    and 1.4e-3 deg/s; 2026-11-26); test_fit_check.py holds every preset whose substeps it changes within 1e-3 m/s
+    and 1.4e-3 deg/s); test_fit_check.py holds every preset whose substeps it changes within 1e-3 m/s
     and 2e-3 deg/s of 16 substeps."""
     longest = CAUSE_SUBSTEP_S * math.sqrt(max(vessel.geometry.L_pp, CAUSE_SUBSTEP_L) / CAUSE_SUBSTEP_L)  # (s)
     return max(2, math.ceil(dt / longest - 1e-9))
 
 
 def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: Sequence[Cause], *,
-                  scripted: bool = True, lean: bool = True,
+                  compiled: bool = True, scripted: bool = True, lean: bool = True,
                   substeps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(du, dr), each (N causes, W windows): what each cause changes in the vessel's u (m/s, over ground) and r
     (rad/s, as the gyro reports it) averaged where the window's prediction is, rolled out by the vessel's grey box
@@ -341,6 +341,8 @@ def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: S
     depend on the others in its batch). rudder_only: every row holds the engine speed of its window's reference
     (Rolled.reference, the approach its prediction held; the start state without one).
 
+    compiled: the rollout is the compiled kernel's (models/kernel_rollout.py: the grey box with every row's terms
+    and its straight rows steered, equal to the torch forms below to 1e-9, test_fit_check.py); False: one of them.
     scripted: the module is run as TorchScript without the graph executor's optimisation (the interpreter runs the
     same aten ops in the same order as eager: the same numbers bit for bit, test_fit_check.py; half the time of eager
     here, whose per-op Python overhead is the cost of these small batches, ~0.4 ms per derivative of 45 rows; the
@@ -367,18 +369,29 @@ def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: S
                 values[:, :, j] = np.asarray(cause.terms[name])[:, None]
         terms[name] = torch.as_tensor(values.reshape(values.shape[0], -1))
     free = torch.as_tensor(np.repeat([0.0 if r.window.kind == "straight" else 1.0 for r in rolled], rows))  # (W rows,)
-    if scripted:
-        run, lock = _scripted_causes(vessel, float(dt), substeps, lean)
+    if compiled:
+        kernel, lock = _compiled_causes(vessel, float(dt), substeps)
+        with lock, torch.no_grad():
+            for name, term in fx.grey_box_terms().items():
+                setattr(kernel.module, name, torch.nn.Parameter(
+                    terms[name] if name in terms else torch.zeros(term.size, dtype=torch.float64), requires_grad=False))
+            out = kernel(torch.as_tensor(states), torch.as_tensor(controls), torch.as_tensor(references),
+                         free=free)  # (1, W rows, H, 6)
+        lean = False
     else:
-        run, lock = (_causes_rollout() if lean else _steered_rollout())(vessel, dt, substeps=substeps), threading.Lock()
-        run.register_buffer("free", free)
-    # optimized_execution is thread-local: other threads' TorchScript is unaffected
-    with lock, torch.no_grad(), torch.jit.optimized_execution(False):
-        for name, term in fx.grey_box_terms().items():
-            setattr(run, name, torch.nn.Parameter(terms[name] if name in terms else
-                                                  torch.zeros(term.size, dtype=torch.float64), requires_grad=False))
-        run.free = free
-        out = run(torch.as_tensor(states), torch.as_tensor(controls), torch.as_tensor(references))
+        if scripted:
+            run, lock = _scripted_causes(vessel, float(dt), substeps, lean)
+        else:
+            run, lock = ((_causes_rollout() if lean else _steered_rollout())(vessel, dt, substeps=substeps),
+                         threading.Lock())
+            run.register_buffer("free", free)
+        # optimized_execution is thread-local: other threads' TorchScript is unaffected
+        with lock, torch.no_grad(), torch.jit.optimized_execution(False):
+            for name, term in fx.grey_box_terms().items():
+                setattr(run, name, torch.nn.Parameter(terms[name] if name in terms else
+                                                      torch.zeros(term.size, dtype=torch.float64), requires_grad=False))
+            run.free = free
+            out = run(torch.as_tensor(states), torch.as_tensor(controls), torch.as_tensor(references))
     # (W rows, H, 2) [u, r] of the lean rollout, (1, W rows, H, 6) [u, v, r, x_n, y_e, psi] of the whole one
     out = (out if lean else out[0, :, :, 0:3:2]).numpy().reshape(len(rolled), rows, horizon, 2)
     du, dr = np.zeros((len(causes), len(rolled))), np.zeros((len(causes), len(rolled)))
@@ -387,6 +400,16 @@ def cause_changes(vessel: Vessel, dt: float, rolled: Sequence[Rolled], causes: S
         mean = out[w, :, end - r.averaged:end].mean(axis=1)  # (rows, 2) [u, r]
         du[:, w], dr[:, w] = mean[1:, 0] - mean[0, 0], mean[1:, 1] - mean[0, 1]
     return du, dr
+
+
+@lru_cache(maxsize=8)
+def _compiled_causes(vessel: Vessel, dt: float, substeps: int) -> tuple[Any, threading.Lock]:
+    """The kernel of the vessel's grey box at this step and substeps, kept, and the lock its users hold while they set
+    its terms and run it."""
+    from usv_predictor.models.greybox import GreyBoxRollout
+    from usv_predictor.models.kernel_rollout import KernelRollout
+
+    return KernelRollout(GreyBoxRollout(vessel, dt, substeps=substeps), live=True), threading.Lock()
 
 
 @lru_cache(maxsize=8)
@@ -472,7 +495,8 @@ def _explain(ratio: float, predicted: np.ndarray, changes: np.ndarray, limit: fl
     continuously from 1 (no cause) to its value at the top of the range, so every ratio between 1 and 1/m is a
     right model in some strength of that cause; when m falls below floor / |predicted| (the cause stops the boat
     or its turn) every ratio beyond 1 is, and when it falls below -floor / |predicted| (reverses the turn) every
-    ratio below 1/m too; a cause that raises the value (m > 1) explains the ratios between 1/m and 1. The limits: the calm-water
+    ratio below 1/m too; a cause that raises the value (m > 1) explains the ratios between 1/m and 1. The limits: the
+    calm-water
     allowance [1/limit, limit] or, where wider, what the causes reach (no allowance on top: the allowance already
     covers a model's error with the smaller causes of the sea in which it was measured)."""
     with np.errstate(divide="ignore", invalid="ignore"):  # a model value of 0: no share, the cause is not tried

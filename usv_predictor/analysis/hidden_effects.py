@@ -3,7 +3,7 @@
 draw(rng) picks one effect of the DESIGN.md vocabulary (or `none`) and its parameters from ranges a trial would
 meet; within_tolerance(truth, estimate) says whether a diagnosis got the parameters right. The ranges, the
 comparison of an estimate with the truth and the tolerances are those of the effect's record
-(usv_predictor.physics.effects); they are the contract the README reports against.
+(usv_predictor.physics.effects); they are the contract docs/results/diagnosis_matrices.md reports against.
 """
 from __future__ import annotations
 

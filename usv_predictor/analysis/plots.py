@@ -121,7 +121,8 @@ def rotated_position_figure(prediction: Prediction, title: str, drift_direction_
     axes = fig.subplots(2, 1, sharex=True)
     measured = plane.coordinates(prediction.measured)
     predicted = plane.coordinates(prediction.predicted)
-    labels = plane.labels if plane.direction_deg is not None else ("north from the start (m)", "east from the start (m)")
+    labels = plane.labels if plane.direction_deg is not None else ("north from the start (m)",
+                                                                   "east from the start (m)")
     if plane.direction_deg is None:  # east/north plane: show north first like x_n, y_e
         measured, predicted = measured[::-1], predicted[::-1]
     for k, ax in enumerate(axes):

@@ -63,7 +63,8 @@ def _slug(name: str) -> str:
 def _model_section(data: dict) -> list[str]:
     model = data.get("model", {})
     rows = [[key, f"`{model[key]}`"] for key in ("model_id", "model_type", "feature_set", "dt") if key in model]
-    rows += [[k, f"`{v}`"] for k, v in sorted(model.items()) if k not in ("model_id", "model_type", "feature_set", "dt")]
+    rows += [[k, f"`{v}`"] for k, v in sorted(model.items())
+             if k not in ("model_id", "model_type", "feature_set", "dt")]
     if data.get("model_source"):
         rows.insert(0, ["file", f"`{data['model_source']}`"])
     return ["## Model", ""] + table(["item", "value"], rows)
@@ -411,7 +412,8 @@ def write_report(data: Mapping[str, Any], predictions: Sequence[Prediction] | No
     data["figures"] = {"per_recording": figures, "summary": summary_figures}
     write_json_atomic(out / REPORT_JSON, data)
     write_text_atomic(out / REPORT_MD, render_markdown(data, title, figures, summary_figures))
-    progress(f"wrote {out / REPORT_MD}, {out / REPORT_JSON} and {sum(map(len, figures.values())) + len(summary_figures)} "
+    progress(f"wrote {out / REPORT_MD}, {out / REPORT_JSON} and "
+             f"{sum(map(len, figures.values())) + len(summary_figures)} "
              "figures")
     return {"report": str(out / REPORT_MD), "json": str(out / REPORT_JSON), "figures": data["figures"],
             "summary": data["summary"]}
@@ -433,12 +435,14 @@ def write_identification_report(directory: Path, result: IdentificationResult, o
              "thrust gains in N; 95 % CI)", "", "| name | estimate | 95 % CI | prior | status |",
              "|---|---|---|---|---|"]
     for c in result.coefficients():
-        lines.append(f"| {c.name} | {c.estimate:+.5f} | [{c.ci95[0]:+.5f}, {c.ci95[1]:+.5f}] | {c.prior:+.5f} | {c.status} |")
+        lines.append(f"| {c.name} | {c.estimate:+.5f} | [{c.ci95[0]:+.5f}, {c.ci95[1]:+.5f}] | {c.prior:+.5f} "
+                     f"| {c.status} |")
     used = result.prior_used()
     lines += ["", "Not determined by these manoeuvres; prior used: " + (", ".join(used) if used else "none") + "."]
     ex = result.excitation()
     if ex["beta_deg_p99"] is not None:
-        lines += ["", f"Excitation (99th percentiles): |beta| {ex['beta_deg_p99']:.1f} deg, |v'| {ex['v_prime_p99']:.3f}, "
+        lines += ["",
+                  f"Excitation (99th percentiles): |beta| {ex['beta_deg_p99']:.1f} deg, |v'| {ex['v_prime_p99']:.3f}, "
                       f"|r'| {ex['r_prime_p99']:.3f}: {ex['note']}."]
     lines += ["", "## Collinearity", ""]
     for e in result.fit.equations:
@@ -448,7 +452,8 @@ def write_identification_report(directory: Path, result: IdentificationResult, o
     for cv in result.cross_validation:
         per = ", ".join(f"{k} {v:.4f}" for k, v in cv.per_equation.items())
         lines.append(f"- {cv.structure}: {cv.score:.4f} ({per})")
-    lines += ["", "## Notes", ""] + [f"- {n}" for n in result.notes] + ["", "## Force decomposition (seed 001 Fig. 13)", ""]
+    lines += ["", "## Notes", ""] + [f"- {n}" for n in result.notes] + ["", "## Force decomposition (seed 001 Fig. 13)",
+                                                                        ""]
     for k, d in enumerate(result.data):
         name = f"forces_{k}.png"
         plots.save_figure(plots.force_decomposition_figure(result, k), directory / name)

@@ -1,4 +1,4 @@
-"""Boats the tool has never seen, for the unknown-boat acceptance suite and benchmark (issue 11 section 5).
+"""Boats the tool has never seen, for the unknown-boat acceptance suite and benchmark.
 
 draw_boat(rng) picks a size class (small 3-6 m, large 12-20 m), a length in it and principal dimensions scaled
 from a preset (jari_usv: a single-screw, single-rudder monohull) with a little independent spread, then multiplies
@@ -44,7 +44,7 @@ SIZE_CLASSES: Mapping[str, tuple[float, float]] = {  # L_pp range (m) of each si
     "small": (3.0, 6.0),
     "large": (12.0, 20.0),
 }
-SPREAD = 0.30  # hull derivatives and interaction factors x U(1 - SPREAD, 1 + SPREAD) (-), issue 11 section 5
+SPREAD = 0.30  # hull derivatives and interaction factors x U(1 - SPREAD, 1 + SPREAD) (-)
 SHAPE_SPREAD = 0.10  # B/L, d/L and the block coefficient x U(1 -+ this) around the preset's (-)
 WAVE_DRIFT_EXPONENT = 2.0  # the truth's wave-drift coefficients x min(1, s)^this (-): Froude-similar drift per weight
 DATASHEET_RPM = (600.0, 1000.0, 1400.0)  # engine speeds (rpm) of the static-thrust points handed to vessel init

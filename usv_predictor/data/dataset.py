@@ -13,8 +13,8 @@ see replay.recordings) are one manoeuvre and always share a split.
 File format "usv_predictor.dataset/1" (np.savez_compressed, no pickles):
     metadata        () str: JSON with format, dt, feature_set, feature_names/units, target_names/units,
                     state_names, control_layout (the actuator layout: physics/actuators.py; a file
-                    without it is rudder_propeller), control_names/units (its C columns), recordings [{name, source, t0_ns, length, split,
-                    bag_sha256, datum}], software_version, created_utc, provenance
+                    without it is rudder_propeller), control_names/units (its C columns), recordings [{name, source,
+                    t0_ns, length, split, bag_sha256, datum}], software_version, created_utc, provenance
     seq_t_s (T,) seq_nu (T, 3) seq_psi (T,) seq_controls (T, C) seq_position (T, 2) seq_truth (T, 6)
                     the Recordings concatenated (truth NaN where a recording has none);
     seq_offsets (M + 1,) int64: recording m is rows seq_offsets[m]:seq_offsets[m + 1]
@@ -75,7 +75,8 @@ def _check_steps(recordings: Sequence[Recording]) -> float:
     return recordings[0].dt
 
 
-def make_samples(recordings: Sequence[Recording], feature_set: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def make_samples(recordings: Sequence[Recording], feature_set: str) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                             np.ndarray]:
     """(X (N, F), Y (N, 3), rec_index (N,), step_index (N,)): sample k of recording m pairs step k with k + 1."""
     layout = recording_layout(recordings)
     width = len(feature_names(feature_set, layout))
@@ -312,11 +313,13 @@ def load_dataset(path: str | os.PathLike[str]) -> Dataset:
     try:
         with np.load(path, allow_pickle=False) as npz:
             if "metadata" not in npz.files:
-                raise DatasetError(f"{path}: not a usv_predictor dataset (no 'metadata' array); expected format {FORMAT}")
+                raise DatasetError(f"{path}: not a usv_predictor dataset (no 'metadata' array); expected "
+                                   f"format {FORMAT}")
             metadata = parse_json(str(npz["metadata"]), f"{path}: dataset metadata", DatasetError)
             if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
                 found = metadata.get("format") if isinstance(metadata, dict) else None
-                raise DatasetError(f"{path}: dataset format {found!r}, expected {FORMAT!r}; rebuild it with `replay dataset`")
+                raise DatasetError(f"{path}: dataset format {found!r}, expected {FORMAT!r}; rebuild it with "
+                                   f"`replay dataset`")
             absent = [name for name in ARRAYS if name not in npz.files]
             if absent:
                 raise DatasetError(f"{path}: dataset arrays missing: {absent}")
@@ -366,7 +369,8 @@ FINITE_ARRAYS = ("seq_t_s", "seq_nu", "seq_psi", "seq_controls", "X", "Y")
 
 def _check_finite(ds: Dataset) -> None:
     """DatasetError naming the array, the first bad row, its column and recording when a value is NaN or inf."""
-    columns = {"X": list(ds.metadata.get("feature_names", [])), "Y": list(TARGET_NAMES), "seq_nu": list(STATE_NAMES[:3]),
+    columns = {"X": list(ds.metadata.get("feature_names", [])), "Y": list(TARGET_NAMES),
+               "seq_nu": list(STATE_NAMES[:3]),
                "seq_controls": list(actuator_layout(ds.control_layout).control_names)}
     for name in FINITE_ARRAYS:
         values = np.asarray(ds.arrays[name])

@@ -239,13 +239,15 @@ def recording_from_signals(signals: dict[str, Signal], dt: float, *, name: str, 
     end = min(int(signals[r].t_ns[-1]) for r in roles) - dt_ns // 2
     steps = (end - start) // dt_ns
     if steps < 1:
-        raise RecordingError(f"{source or name}: the signals overlap for {(end - start) / NS_PER_S:.2f} s, less than one step")
+        raise RecordingError(f"{source or name}: the signals overlap for {(end - start) / NS_PER_S:.2f} s, "
+                             f"less than one step")
     grid = start + np.arange(steps + 1, dtype=np.int64) * dt_ns
     limit = dt if max_gap_s is None else max_gap_s
     for role in roles:
         gap, at = largest_gap(signals[role].t_ns, start, int(grid[-1]))
         if gap > limit + 1e-9:
-            raise RecordingError(f"{source or name}: {role} has a {gap:.2f} s gap at t={(at - start) / NS_PER_S:.2f} s, "
+            raise RecordingError(f"{source or name}: {role} has a {gap:.2f} s gap at "
+                                 f"t={(at - start) / NS_PER_S:.2f} s, "
                                  f"longer than {limit:.2f} s")
 
     def resample(role: str, field: str) -> np.ndarray:
@@ -265,7 +267,8 @@ def recording_from_signals(signals: dict[str, Signal], dt: float, *, name: str, 
             datum = datum or (float(lat[0]), float(lon[0]))
             x_n, y_e = LocalTangentPlane(*datum).to_ned(lat, lon)
             t_valid = gnss.t_ns[valid]
-            position = np.column_stack([window_resample(t_valid, x_n, grid, dt_ns), window_resample(t_valid, y_e, grid, dt_ns)])
+            position = np.column_stack([window_resample(t_valid, x_n, grid, dt_ns),
+                                        window_resample(t_valid, y_e, grid, dt_ns)])
             outside = (grid < t_valid[0]) | (grid > t_valid[-1])
             position[outside] = np.nan
     truth = None

@@ -5,7 +5,7 @@
                         the calm-water model extended with the diagnosed causes, e.g. current + wave drift), with its
                         extension terms, checked to roll out exactly as the file does
     train_hybrid        grey box + GeneralisingResidual (an ensemble), trained by a multi-step (rollout) loss with
-                        early stopping on manoeuvres held out whole, and pulled toward zero (issue 15)
+                        early stopping on manoeuvres held out whole, and pulled toward zero
     train_residual      the same on any grey box (train_hybrid's work): on an extended grey box the physics carries
                         the sea (the current moves the boat, the wave drift pushes it) and the residual only what the
                         extension leaves, its bound set from what the extension leaves (step 1)
@@ -118,7 +118,8 @@ class HybridTraining:
     bound_window_s: float = 10.0  # (s) the bound is taken from the one-step residuals averaged over this window
     #                               (step 1: what persists, not the waves' first-order oscillation; 0: per sample)
     val_fraction: float = 0.25  # of the manoeuvres, held out whole for early stopping (none with one manoeuvre)
-    validation: tuple[str, ...] = ()  # glob patterns of manoeuvres held out for early stopping (instead of the fraction)
+    # glob patterns of manoeuvres held out for early stopping (instead of the fraction)
+    validation: tuple[str, ...] = ()
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -331,7 +332,8 @@ def export_identified(path: str, module: ResidualGreyBox, result: Identification
     names, values = hull_coefficients(vessel)
     metadata = {
         "model_type": model_type,
-        "feature_set": f"{vessel.hull_model.label} grey box" + (" + learned residual" if model_type == "hybrid" else ""),
+        "feature_set": f"{vessel.hull_model.label} grey box"
+                + (" + learned residual" if model_type == "hybrid" else ""),
         "feature_names": ["u", "v", "r", *layout.commands],  # the residual's inputs (the state and actuator levels)
         "state_layout": list(STATE_NAMES),
         "control_layout": list(layout.control_names),

@@ -40,7 +40,8 @@ Actuator layouts (physics/actuators.py), each through the actuator levels the fo
                       by a profile over the gain (the propeller thrust is not linear in it: n = sqrt(T0 / rho D^4 k0)),
                       the hull by the regression at each gain; its 95 % CI from the profile (likelihood ratio).
     rudder_only       no propulsion data: the equivalent engine speed of each manoeuvre is the one that holds its
-                      approach speed (data.recording.approach_state) in straight running with the vessel file's resistance
+                      approach speed (data.recording.approach_state) in straight running with the vessel file's
+                      resistance
                       (dynamics.RudderPropellerForces.engine_speed_for), held over the manoeuvre. R0 is then fixed to
                       the vessel file's: it defines that engine speed, the data cannot tell it apart from the thrust.
                       Supports heading and track at a constant engine setting, not speed changes.
@@ -342,7 +343,8 @@ class Collinearity:
         """JSON: a constant regressor has no VIF (listed in `constant_regressors`, null correlations); a singular
         design has condition_number null and `singular` true."""
         return {"equation": self.equation, "condition_number": finite_or_none(self.condition_number),
-                "singular": not math.isfinite(self.condition_number) or any(not math.isfinite(v) for v in self.vif.values()),
+                "singular": not math.isfinite(self.condition_number)
+                or any(not math.isfinite(v) for v in self.vif.values()),
                 "vif": {name: finite_or_none(v) for name, v in self.vif.items()},
                 **({"vif_note": VIF_NOTE} if any(not math.isfinite(v) for v in self.vif.values()) else {}),
                 "constant_regressors": list(self.constant),
@@ -603,7 +605,8 @@ class CrossValidation:
     score: float  # mean over the equations
 
     def to_json(self) -> dict:
-        return {"structure": self.structure, "per_equation_nmse": {k: finite_or_none(v) for k, v in self.per_equation.items()},
+        return {"structure": self.structure,
+                "per_equation_nmse": {k: finite_or_none(v) for k, v in self.per_equation.items()},
                 "score": finite_or_none(self.score)}
 
 
@@ -696,7 +699,7 @@ def determined_by_data(c: Coefficient, not_identifiable: Sequence[str]) -> bool:
 
 def coefficient_flags(c: Coefficient, not_identifiable: Sequence[str], prior_policy: str) -> dict:
     """JSON flags of one coefficient: determined_by_data, and for a coefficient the data do not determine the note
-    "not determined by these manoeuvres; prior used (how)" (issue 15: say which values are the prior's)."""
+    "not determined by these manoeuvres; prior used (how)" (so that a report says which values are the prior's)."""
     determined = determined_by_data(c, not_identifiable)
     how = PRIOR_HOW.get(c.status, f"prior policy {prior_policy}")
     if c.status == SEARCH_BOX:
@@ -725,7 +728,8 @@ def identified_vessel(vessel: Vessel, fit: HullFit) -> Vessel:
     hull = Hull(**{n: values[n] for n in HULL_NAMES})
     return replace(vessel, name=f"{vessel.name}_identified", hull=hull,
                    provenance=f"{vessel.provenance.strip()} Hull derivatives identified by inverse-dynamics regression "
-                              f"(structure {fit.structure}, prior {fit.prior_policy}; usv_predictor.fitting.identification).")
+                              f"(structure {fit.structure}, prior {fit.prior_policy}; "
+                              f"usv_predictor.fitting.identification).")
 
 
 def scaled_thrust_map(m: ThrustMap, forward_N: float, reverse_N: float) -> ThrustMap:
@@ -840,8 +844,8 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     actuator layout decides the levels and what is held (module docstring, "Actuator layouts").
     interaction "identify" (rudder_propeller only): the rudder lift gradient, gamma_R, eta, w_P0 and t_P are searched
     with the hull (fitting/interaction.py) and replace the description's when the held-out simulation says so;
-    "fix" (default): held at the description's values (README "Unknown boats": identify gives more right answers on
-    unknown boats but also confident wrong ones, so it is not the default yet).
+    "fix" (default): held at the description's values (docs/results/unknown_boats.md: identify gives more right answers
+    on unknown boats but also confident wrong ones, so it is not the default yet).
     """
     prior_vessel = vessel  # the vessel file as given (what the exported model embeds); `vessel` may take fitted gains
     if vessel.hull_model_name == "small_craft":
@@ -884,7 +888,8 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
             if prior == "none":
                 raise NotIdentifiableError(
                     f"the throttle map's gain throttle.forward_N is not identifiable from {len(names)} manoeuvre(s) "
-                    f"({', '.join(names)}): 95 % CI [{gain.ci95[0]:.4g}, {gain.ci95[1]:.4g}] N around {gain.estimate:.4g} "
+                    f"({', '.join(names)}): 95 % CI [{gain.ci95[0]:.4g}, {gain.ci95[1]:.4g}] N around "
+                    f"{gain.estimate:.4g} "
                     "N. Options: prior='fix' (--prior fix) or 'ridge' holds it at the vessel file's value; or record "
                     "throttle steps (the accelerations separate thrust from resistance)")
             gain = replace(gain, estimate=gain.prior, status="fixed to prior")

@@ -1,4 +1,4 @@
-"""Identification of the rudder / propeller interaction factors together with the hull (issue 11 section 5).
+"""Identification of the rudder / propeller interaction factors together with the hull.
 
 A vessel description made from an owner's data (`replay vessel init`, physics/empirical.py) holds the MMG
 interaction factors at semi-empirical values: the rudder lift gradient of Fujii's formula, the flow straightening
@@ -19,18 +19,20 @@ hull regression is linear GIVEN them, and the factors are searched outside it (a
     and propulsion forces are recomputed with the trial factors, the hull refitted on all but one manoeuvre and its
     forces predicted on it. It gives the output-error search a start (the force fit cannot split the rudder from
     the hull: the collinearity above);
- 2. output error: the multi-step simulation error of the identified grey box (models/greybox.GreyBoxRollout, the
-    model `diagnose` runs) on the 20 s segments (data/segments.py, SEGMENT_HORIZON_S) of the manoeuvres is minimised
+ 2. output error: the multi-step simulation error of the identified grey box (models/greybox.GreyBoxRollout on the
+    compiled kernel, models/kernel_rollout.py: the model `diagnose` runs) on the 20 s segments (data/segments.py,
+    SEGMENT_HORIZON_S) of the manoeuvres is minimised
     over the log of all five SEARCH_FACTORS (the rudder's lift gradient, gamma_R and eta, the propeller's w_P0 and
     t_P) by Levenberg-Marquardt (finite-difference Jacobian of the residuals, FD_STEP; at most MAX_SEARCH
     candidates), the hull refitted (linear) for each candidate: a variable-projection least squares. It starts from
     the best of the description, the stage-1 optimum, that optimum with the description's propeller and DESIGN_POINTS
     points of a Halton design over the box (where all of the first three diverge the residuals are clamped flat and
-    Levenberg-Marquardt cannot move: README boat 24). Simulation
+    Levenberg-Marquardt cannot move: docs/results/unknown_boats.md, boat 24). Simulation
     error is what separates rudder from hull: a wrong split fits the forces and fails the motion. The search's
     criterion is in sample (the hull fitted on all manoeuvres, all segments in one rollout: insample_residuals);
     the lift gradient, eta and w_P0 lie along one curved valley of it (all three set the rudder's inflow), which a
-    coordinate search crawls along and Levenberg-Marquardt follows (README boat 2: the truth's factors 1 (its
+    coordinate search crawls along and Levenberg-Marquardt follows (docs/results/unknown_boats.md, boat 2: the truth's
+    factors 1 (its
     epsilon 1.15 x), 0.68, 1.73, 0.50, 0.52 of the description's; found 1.19, 0.63, 1.92 (eta 1.0), 0.36, 0.73).
  3. plausibility: every candidate's grey box (hull fitted on all manoeuvres) must pass steady_check: its
     straight-running speed at the recorded engine speed within STRAIGHT_SPEED_RATIO of the measured one, and a
@@ -68,6 +70,7 @@ from usv_predictor.fitting.identification import (
     CHI2_95, SEARCH_BOX, Coefficient, ForceData, _least_squares_rss, cross_validate, fit_hull, identified_vessel,
     with_known_forces)
 from usv_predictor.models.greybox import GreyBoxRollout
+from usv_predictor.models.kernel_rollout import KernelRollout
 from usv_predictor.physics.dynamics import CALM, ManoeuvringModel
 from usv_predictor.physics.vessel import Vessel
 
@@ -243,8 +246,7 @@ def pooled_segments(recordings: Sequence[Recording]) -> list[tuple[float, Segmen
 def _segment_error(model: Vessel, dt: float, seg: Segments) -> tuple[float, int]:
     """(sum over the segments of the normalised squared multi-step error of u, v, r, psi (data/segments.SIGMA
     units; DIVERGED for a diverged segment), number of segments) of the grey box of `model`."""
-    with torch.no_grad():
-        out = GreyBoxRollout(model, dt)(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
+    out = KernelRollout(GreyBoxRollout(model, dt))(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
     error = ((out - seg.target) * seg.weight)[..., [0, 1, 2, 5]]  # (B, H, 4) in noise units
     per = torch.nan_to_num(error.pow(2).mean(dim=(1, 2)), nan=DIVERGED, posinf=DIVERGED).clamp(max=DIVERGED)  # (B,)
     return float(per.sum()), len(per)
@@ -277,8 +279,7 @@ def insample_residuals(model: Vessel, pooled: Sequence[tuple[float, Segments]]) 
     bound = math.sqrt(DIVERGED)
     parts = []
     for dt, seg in pooled:
-        with torch.no_grad():
-            out = GreyBoxRollout(model, dt)(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
+        out = KernelRollout(GreyBoxRollout(model, dt))(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
         error = ((out - seg.target) * seg.weight)[..., [0, 1, 2, 5]]  # (B, H, 4)
         parts.append(torch.nan_to_num(error, nan=bound, posinf=bound, neginf=-bound).clamp(-bound, bound).reshape(-1))
     return torch.cat(parts).numpy() if parts else np.zeros(0)

@@ -141,7 +141,8 @@ class OnlineConfig:
             raise ConfigError("online estimator: covariance_floor must be < 1 and covariance_ceiling > 1 (fractions "
                               "of the prior variance)")
         if self.reset_gap_s <= self.max_gap_s:
-            raise ConfigError(f"online estimator: reset_gap_s={self.reset_gap_s} must exceed max_gap_s={self.max_gap_s}")
+            raise ConfigError(f"online estimator: reset_gap_s={self.reset_gap_s} must exceed "
+                              f"max_gap_s={self.max_gap_s}")
 
     def prior_std(self) -> np.ndarray:
         """(7,) prior standard deviations in STATE_NAMES order."""

@@ -146,7 +146,8 @@ class TrainingResult:
         """Recipe, best epochs and losses: what the artifact keeps under `training`."""
         return {
             "recipe": self.recipe.to_dict(),
-            "loss": "mse_normalised_target" + (f"_rollout_{self.recipe.multi_step}" if self.recipe.multi_step > 1 else ""),
+            "loss": "mse_normalised_target"
+                + (f"_rollout_{self.recipe.multi_step}" if self.recipe.multi_step > 1 else ""),
             "monitor": self.monitor,
             "best_epoch": [m.best_epoch for m in self.members],
             "epochs_run": [m.epochs_run for m in self.members],
@@ -218,7 +219,8 @@ def reproducible(seed: int, threads: int) -> Iterator[None]:
             torch.set_num_threads(old_threads)
 
 
-def rollout_nu(model: DnnModel, feature_set: str, state0: torch.Tensor, controls: torch.Tensor, dt: float) -> torch.Tensor:
+def rollout_nu(model: DnnModel, feature_set: str, state0: torch.Tensor, controls: torch.Tensor,
+               dt: float) -> torch.Tensor:
     """Closed-loop k-step prediction (seed 000 Fig. 3), differentiable: returns nu (N, k, 3).
 
     state0 (N, 4) [u, v, r, psi]; controls (N, k, C) in the model's layout; psi_{j+1} = psi_j + dt/2 (r_j + r_{j+1}).
@@ -241,7 +243,8 @@ def _learning_rate(recipe: TrainingConfig, epoch: int) -> float:
         return recipe.learning_rate * recipe.lr_drop ** (epoch // recipe.lr_step_epochs)
     if recipe.lr_schedule == "cosine":  # from lr to 1 % of lr at the last epoch
         floor = 0.01 * recipe.learning_rate
-        return floor + 0.5 * (recipe.learning_rate - floor) * (1.0 + math.cos(math.pi * epoch / max(recipe.epochs - 1, 1)))
+        return floor + 0.5 * (recipe.learning_rate - floor) * (1.0
+                                                               + math.cos(math.pi * epoch / max(recipe.epochs - 1, 1)))
     return recipe.learning_rate
 
 
@@ -326,7 +329,8 @@ def _train_member(config: DnnConfig, recipe: TrainingConfig, norm: Normalisation
     return model, MemberResult(seed, best[1], len(history), best[2], best[3], tuple(history))
 
 
-def train_dnn(config: DnnConfig, train: Samples, val: Samples | None = None, recipe: TrainingConfig = TrainingConfig(), *,
+def train_dnn(config: DnnConfig, train: Samples, val: Samples | None = None, recipe: TrainingConfig = TrainingConfig(),
+              *,
               train_windows: Windows | None = None, val_windows: Windows | None = None,
               progress: Progress | None = None) -> TrainingResult:
     """Train recipe.ensemble members on `train`, early-stopping on `val`; see the module docstring.

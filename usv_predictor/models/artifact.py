@@ -133,8 +133,8 @@ class ModelArtifact:
             with torch.inference_mode():
                 if reference is None:
                     out = self.runner(torch.from_numpy(state), torch.from_numpy(controls))
-                else:
-                    out = self.module(torch.from_numpy(state), torch.from_numpy(controls), torch.from_numpy(reference))
+                else:  # a grey box's (accepts_reference): its own module or the compiled kernel of it
+                    out = self.runner(torch.from_numpy(state), torch.from_numpy(controls), torch.from_numpy(reference))
             return out.double().numpy()
         except MODEL_RUN_ERRORS as err:
             raise ModelError(f"model {self.path} fails when run: {failure_reason(err)}") from err
@@ -308,7 +308,8 @@ def read_files(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any]
             module = torch.jit.load(str(path), map_location="cpu", _extra_files=extra)
     except (RuntimeError, ValueError, OSError, EOFError) as err:
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        raise ModelError(f"model file {path} is not a readable TorchScript model (corrupt or truncated?): {first}") from err
+        raise ModelError(f"model file {path} is not a readable TorchScript model (corrupt or "
+                         f"truncated?): {first}") from err
     text = extra[METADATA_FILE]
     if not text:
         raise ModelError(f"model file {path} has no {METADATA_FILE} (not a usv_predictor model?)")

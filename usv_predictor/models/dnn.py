@@ -22,8 +22,8 @@ Units are SI (m/s, rad/s, rad) and rpm; the model works in float32 like the pape
 `affine_layers()` goes further (normalisation folded as well) for the TorchScript rollout.
 
 The closed-loop rollout (DnnRollout, the artifact's module) is seed 000 Fig. 3: the predicted [u, v, r] is
-fed back and the features (data/features.py) are recomputed each step from it and the integrated heading. Kinematics (Fossen 2021 eq. 2.40,
-3-DOF) integrated with the trapezoidal rule over each step:
+fed back and the features (data/features.py) are recomputed each step from it and the integrated heading. Kinematics
+(Fossen 2021 eq. 2.40, 3-DOF) integrated with the trapezoidal rule over each step:
 
     psi_{k+1} = psi_k + dt/2 (r_k + r_{k+1})
     [x_n, y_e]_{k+1} = [x_n, y_e]_k + dt/2 (R(psi_k) [u_k, v_k] + R(psi_{k+1}) [u_{k+1}, v_{k+1}]),
@@ -632,12 +632,15 @@ def fused_rollout(artifact: ModelArtifact, members: int | None = None, freeze: b
             if freeze:
                 scripted = torch.jit.freeze(scripted)
         with torch.inference_mode():
-            expected = artifact.module(state.to(dtype), controls.to(dtype))[: module.ensemble_size].double()  # (E, B, H, 6)
+            # (E, B, H, 6)
+            expected = artifact.module(state.to(dtype), controls.to(dtype))[: module.ensemble_size].double()
             got = scripted(state.to(dtype), controls.to(dtype)).double()
     except MODEL_RUN_ERRORS as err:
-        raise ModelError(f"model {artifact.path}: the fused rollout cannot be built or run: {failure_reason(err)}") from err
+        raise ModelError(f"model {artifact.path}: the fused rollout cannot be built or run: "
+                         f"{failure_reason(err)}") from err
     scale = 1.0 + expected.abs().amax(dim=(0, 1, 2))  # (6,)
-    error = ((got - expected).abs().amax(dim=(0, 1, 2)) / scale).max().item() if got.shape == expected.shape else math.inf
+    error = (((got - expected).abs().amax(dim=(0, 1, 2)) / scale).max().item() if got.shape == expected.shape
+             else math.inf)
     if not error <= FUSED_CHECK_RTOL:
         raise ModelError(f"model {artifact.path}: the fused rollout differs from the file's by {error:.3g} of the "
                          f"output's scale (limit {FUSED_CHECK_RTOL:g}): not a DnnRollout of this version?")
@@ -847,7 +850,8 @@ class NumpyDnnRollout:
         steps = zip(rows[:-1], rows[:-1, hw:], rows[:-1, :hw], rows[:-1, :hw].reshape(horizon, e, 1, width),
                     rows[1:, hw: hw + hs], rows[1:, hw + 4 * e: hw + hs])
         with np.errstate(over="ignore", invalid="ignore"):
-            if not self.clipped and len(self.hidden) == 1 and self.trig_mode == 2:  # the usual network: NTF, tanh, depth 2
+            # the usual network: NTF, tanh, depth 2
+            if not self.clipped and len(self.hidden) == 1 and self.trig_mode == 2:
                 tanh, sin = np.tanh, np.sin
                 for row, inputs, h, h_stacked, s_next, columns in steps:
                     dot(inputs, first, out=y)

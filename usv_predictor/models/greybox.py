@@ -49,12 +49,14 @@ import math
 from dataclasses import asdict, fields, replace
 from typing import Any, Dict, List, Mapping, Optional, Tuple
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
 from usv_predictor.data.recording import APPROACH_S
 from usv_predictor.physics import dynamics, effects
 from usv_predictor.physics.dynamics import SPEED_FLOOR, SeaConstants, constants_of
+from usv_predictor.physics.kernel import lag_factors, thrust_map_spec
 from usv_predictor.physics.vessel import RHO_WATER, Hull, Propeller, Rudder, Thrusters, ThrustMap, Vessel
 
 HULL_NAMES = tuple(f.name for f in fields(Hull))  # the MMG hull's coefficients, R0 ... N_rrr (vessel.Hull)
@@ -109,7 +111,8 @@ class MmgHullModule(nn.Module):
                        + h[16] * rp ** 3)
         return [x_h, y_h, n_h]
 
-    def solve(self, h: List[Tensor], x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor) -> List[Tensor]:
+    def solve(self, h: List[Tensor], x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor,
+              r: Tensor) -> List[Tensor]:
         """nu_r_dot = M^-1 (tau - C(nu_r) nu_r) with MMG's Coriolis terms (no Munk moment: it is in N_v)."""
         rhs_x = x + self.m22 * v_r * r + self.x_G * self.m * r * r
         rhs_y = y - self.m11 * u_r * r
@@ -146,7 +149,8 @@ class SmallCraftHullModule(nn.Module):
         n_h = h[self.i_nv] * v_r + h[self.i_nr] * r + h[self.i_nrr] * torch.abs(r) * r + n_cf
         return [x_h, y_h, n_h]
 
-    def solve(self, h: List[Tensor], x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor, r: Tensor) -> List[Tensor]:
+    def solve(self, h: List[Tensor], x: Tensor, y: Tensor, n: Tensor, u_r: Tensor, v_r: Tensor,
+              r: Tensor) -> List[Tensor]:
         """nu_r_dot = M^-1 (tau - C_RB(nu_r) nu_r - C_A(nu_r) nu_r), M with the fitted added mass; the yaw row has
         the Munk moment (Y_vdot - X_udot) u_r v_r."""
         m11 = self.m - h[self.i_xud]
@@ -181,20 +185,6 @@ class CommandLag(nn.Module):
         drift = self.t * (u2 - u0) / self.h  # T dc/dt: how far a lag trails a ramp
         start = y0 - u0 + drift
         return [y0, u1 - drift + start * self.e_half, u2 - drift + start * self.e_full]
-
-
-def lag_factors(time_constants: List[float], tau: float) -> List[float]:
-    """exp(-tau / T) per time constant T (s), 0 for an instantaneous motor (T = 0)."""
-    return [math.exp(-tau / t) if t > 0.0 else 0.0 for t in time_constants]
-
-
-def _thrust_constants(m: ThrustMap) -> Tuple[List[float], List[float], List[float]]:
-    """([forward_N, reverse_N, exponent, dead_band, has table], table commands, table thrusts) of a map for
-    TorchScript (a power-law map carries the placeholder table [-1, 1] -> [0, 0]: lists must not be empty)."""
-    if m.table_command:
-        return ([m.forward_N, m.reverse_N, m.exponent, m.dead_band, 1.0], [float(x) for x in m.table_command],
-                [float(y) for y in m.table_thrust_N])
-    return [m.forward_N, m.reverse_N, m.exponent, m.dead_band, 0.0], [-1.0, 1.0], [0.0, 0.0]
 
 
 def _thrust(level: Tensor, spec: List[float], table_x: List[float], table_y: List[float]) -> Tensor:
@@ -271,7 +261,7 @@ class RudderThrottleModule(RudderPropellerModule):
         super().__init__(vessel, h)
         _set_constants(self, constants_of(vessel, (dynamics.ThrottleConstants,)))
         self.lag = CommandLag([vessel.throttle.time_constant_s], h)
-        self.map, self.table_x, self.table_y = _thrust_constants(vessel.throttle)
+        self.map, self.table_x, self.table_y = thrust_map_spec(vessel.throttle)
 
     def begin(self, u_r0: Tensor, controls: Tensor, resistance: List[Tensor], engine_speed_rpm: Tensor) -> Tensor:
         return controls[:, 0, 1:2]  # (B, 1) the motor at the first reported throttle
@@ -321,8 +311,8 @@ class TwinThrusterModule(nn.Module):
         _set_constants(self, constants_of(vessel, dynamics.TwinThrusterForces.constants))
         t = vessel.thrusters
         self.lag = CommandLag([t.port.time_constant_s, t.starboard.time_constant_s], h)
-        self.port, self.port_x, self.port_y = _thrust_constants(t.port)
-        self.starboard, self.starboard_x, self.starboard_y = _thrust_constants(t.starboard)
+        self.port, self.port_x, self.port_y = thrust_map_spec(t.port)
+        self.starboard, self.starboard_x, self.starboard_y = thrust_map_spec(t.starboard)
 
     def begin(self, u_r0: Tensor, controls: Tensor, resistance: List[Tensor], engine_speed_rpm: Tensor) -> Tensor:
         return controls[:, 0, :]  # (B, 2) the motors at the first reported commands
@@ -530,7 +520,8 @@ class GreyBoxRollout(nn.Module):
         return self.actuator_forces.stage(c0 + a0 * dc, c0 + a1 * dc, c0 + a2 * dc, carry, self.rudder_offset)
 
     def _rollout(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
-        """(B, H, 6) [u, v, r, x_n, y_e, psi] as measured (the module docstring's interface without the ensemble axis)."""
+        """(B, H, 6) [u, v, r, x_n, y_e, psi] as measured (the module docstring's interface without the ensemble
+        axis)."""
         controls, x, carry = self._start(state, controls, reference)
         h = self.dt / self.substeps
         outputs: List[Tensor] = []
@@ -560,16 +551,28 @@ class GreyBoxRollout(nn.Module):
 
 
 class GreyBoxPredictor:
-    """A GreyBoxRollout behind the artifact's predict/metadata interface (numpy in, numpy out)."""
+    """A GreyBoxRollout behind the artifact's predict/metadata interface (numpy in, numpy out), predicting with the
+    compiled kernel (models/kernel_rollout.KernelRollout, which re-reads the rollout's terms at every call), or with
+    the rollout itself where the kernel cannot run it (inference_note says which and why)."""
 
     def __init__(self, rollout: GreyBoxRollout, metadata: Dict[str, object], vessel: Vessel | None = None) -> None:
+        from usv_predictor.models.kernel_rollout import KERNEL_FORM, KernelRollout, KernelUnavailable
+
         self.rollout = rollout
         self.metadata = dict(metadata)
         self.embedded_vessel = vessel  # the vessel it was built from (models/loading.model_vessel)
+        try:
+            self.kernel: Optional[KernelRollout] = KernelRollout(rollout, live=True)
+            self.inference_note = KERNEL_FORM
+        except KernelUnavailable as err:
+            self.kernel, self.inference_note = None, f"the torch rollout ({err})"
 
     accepts_reference = True  # predict takes the reference state of rudder_only's engine speed (module docstring)
 
     def predict(self, state, controls, reference=None):  # (B, 4), (B, H, C), (B, 4) | None -> (1, B, H, 6)
+        if self.kernel is not None:
+            return self.kernel.rollout(np.asarray(state, dtype=np.float64), np.asarray(controls, dtype=np.float64),
+                                       None if reference is None else np.asarray(reference, dtype=np.float64))
         with torch.no_grad():
             return self.rollout(torch.as_tensor(state, dtype=torch.float64),
                                 torch.as_tensor(controls, dtype=torch.float64),
@@ -610,7 +613,8 @@ def greybox_metadata(vessel: Vessel, rollout: GreyBoxRollout, *, model_type: str
         "normalisation": {}, "vessel": vessel.name, "training_data_sha256": training_data_sha256,
         "ensemble_size": 1,
         "architecture": {"structure": vessel.hull_model.structure, "substeps": rollout.substeps,
-                         "hull": dict(zip(rollout.hull_names, rollout.hull.detach().tolist())), "terms": rollout.terms()},
+                         "hull": dict(zip(rollout.hull_names, rollout.hull.detach().tolist())),
+                         "terms": rollout.terms()},
         "training": dict(training or {}), "units": dict(UNITS), **engine_speed_metadata(vessel, rollout),
     }
 
@@ -618,8 +622,8 @@ def greybox_metadata(vessel: Vessel, rollout: GreyBoxRollout, *, model_type: str
 def greybox_predictor(vessel: Vessel, dt: float, substeps: int = 2) -> GreyBoxPredictor:
     """The calm-water grey box of a vessel as a predictor (the physics baseline of evaluations)."""
     rollout = GreyBoxRollout(vessel, dt=dt, substeps=substeps)
-    meta = greybox_metadata(vessel, rollout, model_type=f"physics (calm-water {vessel.hull_model.label} grey box of the "
-                                                        f"preset)")
+    label = f"physics (calm-water {vessel.hull_model.label} grey box of the preset)"
+    meta = greybox_metadata(vessel, rollout, model_type=label)
     meta["model_id"] = f"physics-{vessel.name}"
     return GreyBoxPredictor(rollout, meta, vessel)
 

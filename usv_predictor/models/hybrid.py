@@ -6,7 +6,7 @@ a, b are the actuator levels of the layout (delta rad and rpm for a rudder boat,
 of twins). g is one of
     PolynomialResidual    the Abkowitz-type terms beyond the MMG hull (identification.EXTRA_NAMES), as forces
                           turned into accelerations by M^-1 of the vessel (Yasukawa & Yoshimura 2015 eq. 4);
-    GeneralisingResidual  the hybrid of issue 15: an ensemble of E small MLPs on features that generalise
+    GeneralisingResidual  the generalising hybrid: an ensemble of E small MLPs on features that generalise
                           (GENERALISING_FEATURES: the non-dimensional drift and yaw rate v' = v_r / U, r' = r L / U,
                           the speed U / U_ref, the actuator levels, and sin / cos psi for the sea, as seed 000's NTF
                           features, eq. 25-26), whose output is a non-dimensional acceleration scaled back by U^2 / L
@@ -76,7 +76,8 @@ class GeneralisingResidual(nn.Module):
 
     Per member e and sample: z = (features - in_mean) / in_std (F,), h = tanh(W_k h + b_k) over `layers` hidden
     layers, a' = bound * tanh(W_out h + b_out) * envelope(z) (3,) non-dimensional, and the accelerations
-    [a'_0 U^2 / L, a'_1 U^2 / L, a'_2 U^2 / L^2]. The output layer starts at zero: an untrained residual is the grey box.
+    [a'_0 U^2 / L, a'_1 U^2 / L, a'_2 U^2 / L^2]. The output layer starts at zero: an untrained residual is the grey
+    box.
     The members' weights are stacked (E, ., .) and applied with one batched matmul per layer."""
 
     def __init__(self, L: float, u_ref: float, members: int = 5, hidden: int = 32, layers: int = 2) -> None:
@@ -167,7 +168,8 @@ class ResidualGreyBox(GreyBoxRollout):
             return self._rollout(state, controls, reference).unsqueeze(0)  # (1, B, H, 6)
         if reference is not None:
             reference = reference.repeat(self.members, 1)  # (E B, 4)
-        out = self._rollout(state.repeat(self.members, 1), controls.repeat(self.members, 1, 1), reference)  # (E B, H, 6)
+        out = self._rollout(state.repeat(self.members, 1), controls.repeat(self.members, 1, 1),
+                            reference)  # (E B, H, 6)
         return out.reshape(self.members, rows, out.shape[1], out.shape[2])  # (E, B, H, 6)
 
     def water_velocities(self, psi: Tensor, nu: Tensor) -> Tensor:

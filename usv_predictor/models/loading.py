@@ -163,14 +163,14 @@ def with_fused_rollout(model: ModelArtifact) -> ModelArtifact:
     that the node and `replay evaluate` run the same, faster code: the numpy rollout (models/dnn.numpy_rollout,
     NumpyDnnRollout), else the TorchScript one (models/dnn.fused_rollout, FusedDnnRollout). The file is not changed
     (its format neither): an artifact of any version is fused when loaded. A DNN file whose network cannot be fused,
-    or whose fused rollout differs from its own, keeps its own module (inference_note says why); other families run
-    their own module."""
+    or whose fused rollout differs from its own, keeps its own module (inference_note says why); a grey box or hybrid
+    runs the compiled kernel (with_kernel_rollout)."""
     import dataclasses
 
     from usv_predictor.models.dnn import NUMPY_FORM, fused_rollout, numpy_rollout
 
     if str(model.metadata.get("model_type")) != "dnn":
-        return model
+        return with_kernel_rollout(model)
     try:
         return dataclasses.replace(model, inference=numpy_rollout(model), inference_note=NUMPY_FORM)
     except ModelError as err:
@@ -181,3 +181,23 @@ def with_fused_rollout(model: ModelArtifact) -> ModelArtifact:
         return dataclasses.replace(model, inference_note=f"the file's rollout (not fused: {err}; {numpy_failure})")
     return dataclasses.replace(model, inference=fused,
                                inference_note=f"fused (models/dnn.FusedDnnRollout, frozen; {numpy_failure})")
+
+
+def with_kernel_rollout(model: ModelArtifact) -> ModelArtifact:
+    """A grey-box or hybrid artifact predicting with the compiled kernel (models/kernel_rollout.KernelRollout: its
+    constants rebuilt from the file's module, as a DNN's fused rollout from its buffers), checked equal to the file's
+    own rollout on a probe (kernel_rollout.check_equal); a module the kernel cannot read or that it does not reproduce
+    keeps its own rollout, and inference_note says why (the node reports it on /diagnostics). Other families as
+    they are."""
+    import dataclasses
+
+    from usv_predictor.models.kernel_rollout import KERNEL_FORM, KernelRollout, KernelUnavailable, check_equal
+
+    if not hasattr(model.module, "hull_forces"):  # not a grey box (a learned model of another family)
+        return model
+    try:
+        kernel = KernelRollout(model.module, live=True)  # live: the node's sea estimate sets the module's terms
+        check_equal(kernel, model.module, model.metadata)
+    except KernelUnavailable as err:
+        return dataclasses.replace(model, inference_note=f"the file's rollout (not compiled: {err})")
+    return dataclasses.replace(model, inference=kernel, inference_note=KERNEL_FORM)

@@ -4,8 +4,8 @@ The same check `replay evaluate` and `replay diagnose` run before they answer (a
 
     windows   every fit_check.period_s the node's input buffers become a Recording on the model's step
               (live.InputSet.buffered_recording: the replay tool's box averages, cut at the latest gap longer than
-              MAX_GAP_S), and fit_check.rolled_windows finds its steady windows (held commands, settled u and r) and rolls
-              the model out for each, as for a bag. The buffers hold the latest buffer_capacity samples (20 s of a
+              MAX_GAP_S), and fit_check.rolled_windows finds its steady windows (held commands, settled u and r) and
+              rolls the model out for each, as for a bag. The buffers hold the latest buffer_capacity samples (20 s of a
               100 Hz gyro), so a window is seen while it lasts: a window of a later check that overlaps an earlier
               one in time replaces it (the same held commands, seen longer), the others are kept, the latest
               MAX_WINDOWS of them. The measured |u| of every step seen is kept too (the latest SPEED_SAMPLES) for the
@@ -27,12 +27,13 @@ The same check `replay evaluate` and `replay diagnose` run before they answer (a
               check did before by the window's identity) and windows found again with the same bytes (inputs that
               repeat bit for bit: a simulated or benchmark feed of constant values, in one process). The model's
               rollout of a window found by a check is made anew each time: live, a window found again is new content
-              (its grid moves with the buffers' first samples, its length with their span; over DDS the cache of
-              those rollouts served none of them, 2026-11-26, so it was removed).
+              (its grid moves with the buffers' first samples, its length with their span; over DDS a cache of
+              those rollouts served none of them, so there is none).
 
 Between cycles: the check's own Python (the model's rollouts of its windows, the verdict, compiling the causes'
 rollout) holds the GIL for a few ms at a time, and a cycle that starts meanwhile waits for it (up to the interpreter's
-5 ms switch interval: the node's cycle took 8.5-10 ms at its p99 with the check, 2.6 ms without it, 2026-11-26). So
+5 ms switch interval: the node's cycle took 8.5-10 ms at its p99 with the check, 2.6 ms without it:
+docs/results/node_latency.md). So
 the worker starts those parts in the gap after a cycle (CycleGap: within GAP_SHARE of a period after a cycle ended,
 never waiting longer than WAIT_PERIODS periods: without cycles it does not wait for them); the causes' TorchScript
 rollout itself releases the GIL and runs beside the cycles, in a worker thread that node.py makes FIT_NICE nicer
@@ -268,7 +269,8 @@ class LiveFitCheck:
         values: dict[str, str] = {"enabled": str(self.settings.enabled).lower(),
                                   "refuse": str(self.settings.refuse).lower(),
                                   "period_s": f"{self.settings.period_s:g}", "checks": str(self.runs),
-                                  "limits": f"speed ratio 1/{fc.SPEED_RATIO_LIMIT:g}..{fc.SPEED_RATIO_LIMIT:g}, yaw-rate "
+                                  "limits": f"speed ratio "
+                                            f"1/{fc.SPEED_RATIO_LIMIT:g}..{fc.SPEED_RATIO_LIMIT:g}, yaw-rate "
                                             f"ratio 1/{fc.YAW_RATE_RATIO_LIMIT:g}..{fc.YAW_RATE_RATIO_LIMIT:g} (calm "
                                             "water; widened by the strongest cause the diagnosis knows)"}
         if self.cost_s:

@@ -71,6 +71,7 @@ from usv_predictor.errors import CycleSkipped, InputRejected, ModelError, Record
 from usv_predictor.frames import LocalTangentPlane, angle_difference_deg, body_to_ned, compass_deg, wrap_angle
 from usv_predictor.models.artifact import MODEL_RUN_ERRORS, ModelArtifact, failure_reason
 from usv_predictor.models.dnn import NumpyDnnRollout, fused_rollout, numpy_rollout
+from usv_predictor.models.kernel_rollout import KernelRollout
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
 from usv_predictor.records import NS_PER_S, Signal
 
@@ -521,11 +522,13 @@ class InputSet:
                 if stamp_ns == latest:
                     raise InputRejected("duplicate", f"{role}: header stamp {_stamp_text(stamp_ns)} repeats the "
                                                      f"previous message's")
-                raise InputRejected("backwards", f"{role}: stamp {(latest - stamp_ns) / NS_PER_S:.3f} s before the previous one")
+                raise InputRejected("backwards",
+                                    f"{role}: stamp {(latest - stamp_ns) / NS_PER_S:.3f} s before the previous one")
             ahead = (stamp_ns - now_ns) / NS_PER_S
             if ahead > self.settings.max_future_s:
                 raise InputRejected("future", f"{role}: stamp {ahead:.3f} s ahead of the clock "
-                                              f"(limit {self.settings.max_future_s:g} s; clock or use_sim_time mismatch?)")
+                                              f"(limit {self.settings.max_future_s:g} s; clock or "
+                                              f"use_sim_time mismatch?)")
             if role == POSITION_ROLE:
                 self._check_jump(track, stamp_ns, values)
         except InputRejected as err:
@@ -839,7 +842,8 @@ class Rollout:
 
     It runs `artifact.runner`: for a DNN the rollout fused at load time (models/loading.with_fused_rollout: numpy's
     NumpyDnnRollout, called with numpy arrays directly, or TorchScript's FusedDnnRollout), the code `replay evaluate`
-    runs too; for other families the file's module (whose terms the sea estimate sets). A fused DNN asked for fewer
+    runs too; for a grey box or hybrid the compiled kernel (models/kernel_rollout.KernelRollout, which re-reads the
+    module's terms the sea estimate sets); for other families the file's module. A fused DNN asked for fewer
     members than it has is fused again with those members only (what is not published is not computed); other
     modules compute every member and the output is sliced."""
 
@@ -857,15 +861,16 @@ class Rollout:
                 self.module = fuse_again(artifact, members=self.members)
             except ModelError:  # then every member is computed and the output sliced, as for other modules
                 self.module = artifact.runner
-        # NumpyDnnRollout: numpy in and out, no tensors on the way
-        self._numpy = self.module.rollout if isinstance(self.module, NumpyDnnRollout) else None
+        # NumpyDnnRollout and the grey box's compiled kernel: numpy in and out, no tensors on the way
+        kernel = isinstance(self.module, KernelRollout)
+        self._numpy = self.module.rollout if isinstance(self.module, NumpyDnnRollout) or kernel else None
         self.horizon_steps = int(horizon_steps)
         self.dtype = artifact.module.m_s.dtype if hasattr(artifact.module, "m_s") else torch.float64
         self._state = torch.zeros(1, 4, dtype=self.dtype)
         self.n_controls = len(artifact.metadata["control_layout"])  # C, the model's control columns
         self._controls = torch.zeros(1, self.horizon_steps, self.n_controls, dtype=self.dtype)
         # a rudder_only grey box takes the approach whose engine speed it holds (ApproachTracker); other models do not
-        self.accepts_reference = self.module is artifact.module and artifact.accepts_reference
+        self.accepts_reference = (self.module is artifact.module or kernel) and artifact.accepts_reference
         self._reference = torch.zeros(1, 4, dtype=self.dtype)
         for _ in range(WARM_UP_CALLS):  # TorchScript profiles and optimises its first calls: not in a live cycle
             self(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(self.n_controls))
@@ -878,7 +883,11 @@ class Rollout:
         try:
             if self._numpy is not None:
                 held = np.broadcast_to(np.asarray(controls, dtype=np.float64), (1, self.horizon_steps, self.n_controls))
-                return self._numpy(np.asarray(state, dtype=np.float64).reshape(1, 4), held)[: self.members, 0]
+                start = np.asarray(state, dtype=np.float64).reshape(1, 4)
+                if reference is not None and self.accepts_reference:
+                    return self._numpy(start, held, np.asarray(reference, dtype=np.float64).reshape(1, 4))[
+                        : self.members, 0]
+                return self._numpy(start, held)[: self.members, 0]
             self._state[0].copy_(torch.from_numpy(np.asarray(state, dtype=np.float64)))
             self._controls[0].copy_(torch.from_numpy(np.asarray(controls, dtype=np.float64)))  # (C,) to (H, C)
             with torch.inference_mode():
@@ -900,11 +909,15 @@ class Rollout:
         batch's up to the float rounding of BLAS's blocking for a narrower product (test_dnn_fused.py)."""
         controls = np.asarray(controls, dtype=np.float64)
         if controls.ndim != 3 or controls.shape[1:] != (self.horizon_steps, self.n_controls):
-            raise ModelError(f"controls of shape {controls.shape}, expected (B, {self.horizon_steps}, {self.n_controls})")
+            raise ModelError(f"controls of shape {controls.shape}, expected (B, {self.horizon_steps}, "
+                             f"{self.n_controls})")
         count = controls.shape[0]
         try:
             if self._numpy is not None:
                 states = np.broadcast_to(np.asarray(state, dtype=np.float64), (count, 4))  # (B, 4)
+                if reference is not None and self.accepts_reference:  # the kernel of a rudder_only grey box
+                    references = np.broadcast_to(np.asarray(reference, dtype=np.float64), (count, 4))
+                    return self._numpy(states, controls, references)[: self.members]
                 if helper is not None and count >= 2:
                     half = count // 2
                     first = helper.submit(self._numpy, states[:half], controls[:half])
@@ -914,7 +927,8 @@ class Rollout:
             states = torch.from_numpy(np.asarray(state, dtype=np.float64)).to(self.dtype).expand(count, 4)  # (B, 4)
             with torch.inference_mode():
                 if reference is not None and self.accepts_reference:
-                    references = torch.from_numpy(np.asarray(reference, dtype=np.float64)).to(self.dtype).expand(count, 4)
+                    references = torch.from_numpy(np.asarray(reference, dtype=np.float64))
+                    references = references.to(self.dtype).expand(count, 4)
                     out = self.module(states, torch.from_numpy(controls).to(self.dtype), references)  # (E, B, H, 6)
                 else:
                     out = self.module(states, torch.from_numpy(controls).to(self.dtype))  # (E, B, H, 6)

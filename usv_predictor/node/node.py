@@ -329,7 +329,8 @@ class PredictorNode(Node):
         # control roles of other layouts (the shipped config lists every layout's) are ignored: logged once here,
         # reported on /diagnostics ("ignored inputs")
         ignored_notes = self._layout_inputs(self.layout)
-        self.ignored = {entry.role: entry.topic for entry in self.config.inputs if entry.role in unused_roles(self.layout)}
+        self.ignored = {entry.role: entry.topic for entry in self.config.inputs
+                        if entry.role in unused_roles(self.layout)}
         used = [entry for entry in self.config.inputs if entry.role not in self.ignored]
         self.inputs = live.InputSet(
             {entry.role: msg_adapters.ROLE_FIELDS[entry.role] for entry in used},
@@ -649,7 +650,8 @@ class PredictorNode(Node):
         except (live.CycleSkipped, ModelError, AdapterError, RuntimeError) as err:
             self._no_candidates_answer(err)
             return
-        self._candidates_worker.submit(self._answer_candidates, self.candidate_rollout, batch, prepared, now_ns, started)
+        self._candidates_worker.submit(self._answer_candidates, self.candidate_rollout, batch, prepared, now_ns,
+                                       started)
 
     def _candidates_of(self, rollout: live.Rollout) -> live.Rollout:
         """The model the candidate plans are rolled out with: `rollout` itself, or its first candidates_members
@@ -694,7 +696,8 @@ class PredictorNode(Node):
 
     def _no_candidates_answer(self, err: Exception) -> None:
         self.candidates.skipped = str(err)
-        self.get_logger().warning(f"no prediction for the candidate plans: {err}", throttle_duration_sec=ERROR_LOG_PERIOD_S)
+        self.get_logger().warning(f"no prediction for the candidate plans: {err}",
+                                  throttle_duration_sec=ERROR_LOG_PERIOD_S)
 
     # --------------------------------------------------------------- the cycle
     def _on_timer(self) -> None:
@@ -831,7 +834,8 @@ class PredictorNode(Node):
                 full.append(role)
         if not full:
             return ""
-        return (f"the input buffers hold {span_s:.1f} s ({', '.join(full)}: {self.inputs.tracks[full[0]].buffer.capacity} "
+        return (f"the input buffers hold {span_s:.1f} s ({', '.join(full)}: "
+                f"{self.inputs.tracks[full[0]].buffer.capacity} "
                 f"samples, full), less than the {need_s:g} s a steady window needs: raise buffer_capacity to at least "
                 f"{need_s:g} s of the fastest input")
 
@@ -882,7 +886,8 @@ class PredictorNode(Node):
             "rejected": sum(track.rejected.values()),
             **{f"rejected_{kind}": count for kind, count in sorted(track.rejected.items())},
             "dropped_undecoded": self.dropped[role],
-            "superseded": track.superseded,  # header-less: a newer message at the same clock reading (live.InputSet.add)
+            # header-less: a newer message at the same clock reading (live.InputSet.add)
+            "superseded": track.superseded,
             "rate_hz": f"{track.buffer.rate_hz(now_ns):.1f}",
             "buffer": f"{len(track.buffer)}/{track.buffer.capacity}",
             "max_age_s": f"{track.max_age_s:g}",

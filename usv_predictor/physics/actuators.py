@@ -139,7 +139,8 @@ class ActuatorLayout:
         try:
             return self.control_names.index(name)
         except ValueError:
-            raise ConfigError(f"actuator layout {self.name} has no control {name!r}; it has {self.control_names}") from None
+            raise ConfigError(f"actuator layout {self.name} has no control {name!r}; it has "
+                              f"{self.control_names}") from None
 
     @property
     def reported_commands(self) -> tuple[str, ...]:

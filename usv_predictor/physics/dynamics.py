@@ -34,9 +34,12 @@ tau_wind is seed 000 eq. 12-18 on the apparent wind over ground (the increment o
 drift of seed 000 eq. 19, for every hull model. N > 0 turns the bow to starboard (r > 0): positive rudder angles
 and more port thrust do.
 
-Everything is plain Python float arithmetic: one derivative is a few microseconds, which beats numpy on
-scalars by an order of magnitude (see benchmarks/bench_simulator.py). ManoeuvringModel(vessel) builds the class of
-the vessel's hull model and layout once (a mixin of each) and caches it.
+The forces and accelerations are the compiled kernel's (physics/kernel.py: loads, accelerations, with the constants
+of physics/kernel.vessel_constants), the equations the grey box's rollout integrates too, so the simulator, the grey
+box and its torch twin (models/greybox.py, for autograd and the file format) are one model written twice, not three
+times; what stays here is the state-level model of the simulator: the actuators' rate limits and lags, straight
+running, the turning current's acceleration. ManoeuvringModel(vessel) builds the class of the vessel's hull model and
+layout once (a mixin of each) and caches it.
 """
 from __future__ import annotations
 
@@ -134,7 +137,8 @@ class SeaConstants:
         return cls(
             wind_x=0.5 * RHO_AIR * w.A_F * w.c_x, wind_y=0.5 * RHO_AIR * w.A_L * w.c_y,
             wind_n=0.5 * RHO_AIR * w.A_L * g.L_oa * w.c_n, q_wave=0.5 * RHO_WATER * GRAVITY * g.L_pp,
-            drift_x=fourier_terms(d.a_x, d.b_x), drift_y=fourier_terms(d.a_y, d.b_y), drift_n=fourier_terms(d.a_n, d.b_n),
+            drift_x=fourier_terms(d.a_x, d.b_x), drift_y=fourier_terms(d.a_y, d.b_y),
+            drift_n=fourier_terms(d.a_n, d.b_n),
         )
 
 
@@ -240,7 +244,8 @@ class ThrottleConstants:
     @classmethod
     def of(cls, vessel: Vessel) -> "ThrottleConstants":
         p = vessel.propeller
-        return cls(throttle=vessel.throttle, static_thrust=RHO_WATER * p.D_P**4 * p.k0, rpm_per_rev_s=60.0 * p.gear_ratio)
+        return cls(throttle=vessel.throttle, static_thrust=RHO_WATER * p.D_P**4 * p.k0,
+                   rpm_per_rev_s=60.0 * p.gear_ratio)
 
 
 @dataclass(frozen=True)
@@ -302,8 +307,26 @@ class ManoeuvringModel(metaclass=ABCMeta):
         self.vessel = vessel
         self.propeller_side_force = float(propeller_side_force)
         self.thrust_imbalance = float(thrust_imbalance)
-        for name, value in constants_of(vessel).items():  # attributes: the float hot path reads self.<name>
+        for name, value in constants_of(vessel).items():  # attributes: the state-level equations read self.<name>
             setattr(self, name, value)
+        self._packed: tuple[Any, Any, Any] | None = None  # (kernel module, ki, p): built on first use (numba)
+
+    def _kernel(self) -> tuple[Any, Any, Any]:
+        """The compiled equations of this vessel (physics/kernel.py, the torch twin's kernel) with its force faults:
+        (the kernel module, ki, p)."""
+        if self._packed is None:
+            from usv_predictor.physics import kernel
+
+            ki, p = kernel.vessel_constants(self.vessel)
+            p[kernel.T_SIDE_FORCE] = self.propeller_side_force
+            p[kernel.T_THRUST_IMBALANCE] = self.thrust_imbalance
+            self._packed = (kernel, ki, p)
+        return self._packed
+
+    def _sea(self, sea: SeaLoads, current: bool = True) -> tuple[float, ...]:
+        kernel = self._kernel()[0]
+        return kernel.sea_tuple(self.q_wave, sea.current_n if current else 0.0, sea.current_e if current else 0.0,
+                                sea.wind_speed, sea.wind_from, sea.wave_amplitude, sea.wave_from)
 
     def __reduce__(self) -> tuple:
         """Pickled as the arguments that rebuild it (its class is made per hull model and layout)."""
@@ -316,75 +339,46 @@ class ManoeuvringModel(metaclass=ABCMeta):
         return ManoeuvringModel(self.vessel, propeller_side_force=propeller_side_force,
                                 thrust_imbalance=thrust_imbalance)
 
-    # ---- forces -------------------------------------------------------------------------------------
+    # ---- forces: the compiled kernel's (physics/kernel.py) -----------------------------------------------------
     def loads(self, u_r: float, v_r: float, r: float, psi: float, u: float, v: float,
               a: float, b: float, sea: SeaLoads = CALM) -> Forces:
         """All forces and moments at midship for relative (u_r, v_r) and over-ground (u, v) velocities and the
         actuator levels (a, b) of the layout (delta rad and rpm for rudder_propeller)."""
-        steering, propulsion = self.actuator_loads(u_r, v_r, r, a, b)
+        kernel, ki, p = self._kernel()
+        f = kernel.loads(ki, p, self._sea(CALM), psi, u_r, v_r, r, a, b)
         wind, waves = self.environment_loads(psi, u, v, sea)
-        return Forces(self.hull_loads(u_r, v_r, r), steering, propulsion, wind, waves)
+        return Forces((f[0], f[1], f[2]), (f[3], f[4], f[5]), (f[6], f[7], f[8]), wind, waves)
+
+    def hull_loads(self, u_r: float, v_r: float, r: float) -> tuple[float, float, float]:
+        """(X_H (N), Y_H (N), N_H (N m)) of the hull at midship for the water-relative velocities."""
+        kernel, ki, p = self._kernel()
+        return kernel.loads(ki, p, self._sea(CALM), 0.0, u_r, v_r, r, 0.0, 0.0)[0:3]
+
+    def actuator_loads(self, u_r: float, v_r: float, r: float, a: float, b: float
+                       ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """(steering, propulsion) loads (X (N), Y (N), N (N m)) each, at the actuator levels (a, b)."""
+        kernel, ki, p = self._kernel()
+        f = kernel.loads(ki, p, self._sea(CALM), 0.0, u_r, v_r, r, a, b)
+        return (f[3], f[4], f[5]), (f[6], f[7], f[8])
 
     def environment_loads(self, psi: float, u: float, v: float, sea: SeaLoads
                           ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-        """(wind, waves) loads at heading psi and over-ground velocity (u, v)."""
-        wind = (0.0, 0.0, 0.0)
-        if sea.wind_speed > 0.0:
-            # apparent wind over ground (seed 000 eq. 13-18); the still-air drag of the boat's own motion is
-            # part of the calm-water resistance (as in trial analysis, ITTC 7.5-04-01-01.1), so the load is
-            # the increment over still air: zero without wind, and a current alone still drifts the boat exactly
-            c, s = math.cos(psi), math.sin(psi)
-            w_n, w_e = -sea.wind_speed * math.cos(sea.wind_from), -sea.wind_speed * math.sin(sea.wind_from)
-            wind_now = self._air_load(u - (w_n * c + w_e * s), v - (-w_n * s + w_e * c))
-            still = self._air_load(u, v)
-            wind = (wind_now[0] - still[0], wind_now[1] - still[1], wind_now[2] - still[2])
-        waves = (0.0, 0.0, 0.0)
-        if sea.wave_amplitude > 0.0:
-            chi = sea.wave_from - psi  # 0 = head seas
-            qw = self.q_wave * sea.wave_amplitude**2
-            waves = (qw * fourier(self.drift_x, chi), qw * fourier(self.drift_y, chi),
-                     qw * self.L * fourier(self.drift_n, chi))
-        return wind, waves
-
-    def _air_load(self, u_rw: float, v_rw: float) -> tuple[float, float, float]:
-        """Air load for the apparent wind (u_rw, v_rw) in the body frame (seed 000 eq. 12-14)."""
-        v2 = u_rw * u_rw + v_rw * v_rw
-        gamma = -math.atan2(v_rw, u_rw)
-        return (-self.wind_x * v2 * math.cos(gamma), self.wind_y * v2 * math.sin(gamma),
-                self.wind_n * v2 * math.sin(2.0 * gamma))
+        """(wind, waves) loads at heading psi and over-ground velocity (u, v): the apparent wind over ground (seed 000
+        eq. 13-18) as the increment over still air (the still-air drag of the boat's own motion is part of the
+        calm-water resistance, as in trial analysis, ITTC 7.5-04-01-01.1: zero without wind, and a current alone
+        still drifts the boat exactly), and the mean wave drift (eq. 19)."""
+        kernel, ki, p = self._kernel()
+        f = kernel.loads(ki, p, self._sea(sea, current=False), psi, u, v, 0.0, 0.0, 0.0)
+        return (f[9], f[10], f[11]), (f[12], f[13], f[14])
 
     # ---- equations of motion ------------------------------------------------------------------------
     def accelerations(self, psi: float, u_r: float, v_r: float, r: float, a: float, b: float,
                       sea: SeaLoads = CALM) -> tuple[float, float, float]:
-        """nu_r_dot = M^-1 (tau - C(nu_r) nu_r - M_RB R^T dV_c/dt) at the actuator levels (a, b)."""
-        c, s = math.cos(psi), math.sin(psi)
-        u = u_r + sea.current_n * c + sea.current_e * s
-        v = v_r - sea.current_n * s + sea.current_e * c
-        # the loads as in loads(), summed in Forces.total's order (without building the record: the hot path)
-        h = self.hull_loads(u_r, v_r, r)
-        st, pr = self.actuator_loads(u_r, v_r, r, a, b)
-        w, wv = self.environment_loads(psi, u, v, sea)
-        x = h[0] + st[0] + pr[0] + w[0] + wv[0]
-        y = h[1] + st[1] + pr[1] + w[1] + wv[1]
-        n = h[2] + st[2] + pr[2] + w[2] + wv[2]
-        m, x_g = self.m, self.x_G
-        # Coriolis and centripetal terms (MMG eq. 4; Fossen's C(nu) nu) and the hull model's own (Munk)
-        rhs_x = x + self.m22 * v_r * r + x_g * m * r * r
-        rhs_y = y - self.m11 * u_r * r
-        rhs_n = n - x_g * m * u_r * r
-        if self.munk:  # the small-craft hull's added-mass Coriolis yaw term (Munk moment); MMG has it in N_v
-            rhs_n += self.munk * u_r * v_r
-        if sea.current_accel_n or sea.current_accel_e:
-            # a turning current accelerates the water; the rigid body feels it (Fossen 2021 sec. 10.3)
-            a_u = sea.current_accel_n * c + sea.current_accel_e * s
-            a_v = -sea.current_accel_n * s + sea.current_accel_e * c
-            rhs_x -= m * a_u
-            rhs_y -= m * a_v
-            rhs_n -= m * x_g * a_v
-        u_dot = rhs_x / self.m11
-        v_dot = (self.m33 * rhs_y - self.m23 * rhs_n) / self.det_vr
-        r_dot = (self.m22 * rhs_n - self.m32 * rhs_y) / self.det_vr
-        return u_dot, v_dot, r_dot
+        """nu_r_dot = M^-1 (tau - C(nu_r) nu_r - M_RB R^T dV_c/dt) at the actuator levels (a, b): the kernel's
+        equations (physics/kernel.accelerations), the twin of models/greybox.py's."""
+        kernel, ki, p = self._kernel()
+        return kernel.accelerations(ki, p, self._sea(sea), psi, u_r, v_r, r, a, b, sea.current_accel_n,
+                                    sea.current_accel_e)
 
     def derivative(self, state: list[float], cmd_a: float, cmd_b: float, sea: SeaLoads) -> list[float]:
         """d/dt of [x_n, y_e, psi, u_r, v_r, r, a, b] for the commands (cmd_a, cmd_b) of the layout's `commands`."""
@@ -421,19 +415,10 @@ class ManoeuvringModel(metaclass=ABCMeta):
         with an instantaneous motor overrides it)."""
         return states
 
-    # ---- supplied by the hull model and the actuator force model -----------------------------------------
-    @abstractmethod
-    def hull_loads(self, u_r: float, v_r: float, r: float) -> tuple[float, float, float]:
-        """(X_H (N), Y_H (N), N_H (N m)) of the hull at midship for the water-relative velocities."""
-
+    # ---- supplied by the hull model and the actuator force model (their forces are the kernel's) ---------------
     @abstractmethod
     def resistance_coefficients(self) -> tuple[float, float]:
         """(r1 (N s/m), r2 (N s^2/m^2)) of the straight-running resistance R(u) = r1 u + r2 u^2 of the hull."""
-
-    @abstractmethod
-    def actuator_loads(self, u_r: float, v_r: float, r: float, a: float, b: float
-                       ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-        """(steering, propulsion) loads (X (N), Y (N), N (N m)) each, at the actuator levels (a, b)."""
 
     @abstractmethod
     def actuator_rates(self, a: float, b: float, cmd_a: float, cmd_b: float) -> tuple[float, float]:
@@ -451,22 +436,6 @@ class MmgHullForces:
 
     constants = (HullConstants,)
 
-    def hull_loads(self, u_r: float, v_r: float, r: float) -> tuple[float, float, float]:
-        h = self.hull
-        L = self.L
-        speed = math.sqrt(u_r * u_r + v_r * v_r)
-        U = max(speed, SPEED_FLOOR)
-        vp = v_r / U
-        rp = r * L / U
-        q = self.q_force * U * U
-        x_h = q * (-h.R0 * (u_r * abs(u_r) / (U * U)) + h.X_vv * vp * vp + h.X_vr * vp * rp + h.X_rr * rp * rp
-                   + h.X_vvvv * vp**4)
-        y_h = q * (h.Y_v * vp + h.Y_r * rp + h.Y_vvv * vp**3 + h.Y_vvr * vp * vp * rp + h.Y_vrr * vp * rp * rp
-                   + h.Y_rrr * rp**3)
-        n_h = q * L * (h.N_v * vp + h.N_r * rp + h.N_vvv * vp**3 + h.N_vvr * vp * vp * rp
-                       + h.N_vrr * vp * rp * rp + h.N_rrr * rp**3)
-        return x_h, y_h, n_h
-
     def resistance_coefficients(self) -> tuple[float, float]:
         return 0.0, self.q_force * self.hull.R0  # X_H = -0.5 rho L d R0 u^2 at v = r = 0
 
@@ -475,21 +444,6 @@ class SmallCraftHullForces:
     """Fossen's small-craft hull (vessel.SmallCraftHull): damping derivatives, cross-flow drag, Munk moment."""
 
     constants = (SmallCraftConstants,)
-
-    def hull_loads(self, u_r: float, v_r: float, r: float) -> tuple[float, float, float]:
-        h = self.small_craft
-        y_cf = n_cf = 0.0
-        if self.cross_flow:
-            for x in self.strip_x:  # Fossen's crossFlowDrag: 0.5 rho d C_d |v + x r| (v + x r) per unit length
-                w = v_r + x * r
-                f = abs(w) * w
-                y_cf += f
-                n_cf += x * f
-            y_cf *= -self.cross_flow * self.strip_dx
-            n_cf *= -self.cross_flow * self.strip_dx
-        return ((h.X_u + h.X_uu * abs(u_r)) * u_r,
-                h.Y_v * v_r + h.Y_r * r + y_cf,
-                h.N_v * v_r + h.N_r * r + h.N_rr * abs(r) * r + n_cf)
 
     def resistance_coefficients(self) -> tuple[float, float]:
         h = self.small_craft
@@ -502,40 +456,6 @@ class RudderPropellerForces:
     """MMG propeller (eq. 10-12) and rudder with slipstream (eq. 13-16, 37-43) from (delta rad, engine rpm)."""
 
     constants = (RudderPropellerConstants,)
-
-    def propeller(self, u_r: float, v_r: float, r: float, rpm: float) -> tuple[float, float, float, float]:
-        """Returns (X_P (N), u_P inflow (m/s), K_T (-), n_P (rev/s)); MMG eq. 10-12 with w_P = w_P0 exp(-4 beta_P^2)."""
-        speed = math.sqrt(u_r * u_r + v_r * v_r) + 1e-9
-        beta_p = math.atan2(-v_r, max(u_r, 1e-9)) - self.x_P * r * self.L / speed  # beta - x_P' r'
-        w_p = self.w_P0 * math.exp(-4.0 * beta_p * beta_p)
-        u_p = u_r * (1.0 - w_p)
-        n_p = rpm / 60.0 / self.gear_ratio
-        if n_p <= 1e-6:
-            return 0.0, u_p, 0.0, 0.0
-        j = u_p / (n_p * self.D_P)
-        k_t = self.k0 + self.k1 * j + self.k2 * j * j
-        thrust = RHO_WATER * n_p * n_p * self.D_P**4 * k_t
-        return (1.0 - self.t_P) * thrust, u_p, k_t, n_p
-
-    def actuator_loads(self, u_r: float, v_r: float, r: float, delta: float, rpm: float
-                       ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-        """(rudder, propeller) forces at the rudder angle delta (rad) and the engine speed rpm."""
-        x_p, u_p, k_t, n_p = self.propeller(u_r, v_r, r, rpm)
-        # rudder inflow with propeller slipstream (MMG eq. 38, written without the 1/J^2 singularity)
-        slip = math.sqrt(u_p * u_p + 8.0 * max(k_t, 0.0) * n_p * n_p * self.D_P**2 / math.pi)
-        u_rudder = self.epsilon * math.sqrt(
-            self.eta * (u_p + self.kappa * (slip - u_p)) ** 2 + (1.0 - self.eta) * u_p * u_p
-        )
-        beta_r = -(v_r + self.l_R_m * r)  # U * beta_R (m/s)
-        gamma = self.gamma_R_minus if beta_r < 0.0 else self.gamma_R_plus
-        v_rudder = gamma * beta_r
-        alpha_r = delta - math.atan2(v_rudder, max(u_rudder, 1e-9))
-        f_n = 0.5 * RHO_WATER * self.A_R * (u_rudder * u_rudder + v_rudder * v_rudder) * self.f_alpha * math.sin(alpha_r)
-        x_r = -(1.0 - self.t_R) * f_n * math.sin(delta)
-        y_r = -(1.0 + self.a_H) * f_n * math.cos(delta)
-        n_r = -(self.x_R_m + self.a_H * self.x_H_m) * f_n * math.cos(delta)
-        y_p = self.propeller_side_force * x_p / (1.0 - self.t_P)  # share of the thrust, at the propeller
-        return (x_r, y_r, n_r), (x_p, y_p, y_p * self.x_P * self.L)
 
     def actuator_rates(self, delta: float, rpm: float, delta_cmd: float, rpm_cmd: float) -> tuple[float, float]:
         """Steering gear: first-order servo with rate limit; engine: first-order lag."""
@@ -572,13 +492,10 @@ class RudderThrottleForces(RudderPropellerForces):
     constants = (RudderPropellerConstants, ThrottleConstants)
 
     def engine_speed(self, level: float) -> float:
-        """Engine speed (rpm) whose static thrust rho n^2 D^4 K_T(0) is the throttle map's at `level` (0 astern)."""
+        """Engine speed (rpm) whose static thrust rho n^2 D^4 K_T(0) is the throttle map's at `level` (0 astern): the
+        conversion the kernel's rudder_throttle forces make (physics/kernel._actuator_forces)."""
         thrust = self.throttle.thrust(level)
         return math.sqrt(thrust / self.static_thrust) * self.rpm_per_rev_s if thrust > 0.0 else 0.0
-
-    def actuator_loads(self, u_r: float, v_r: float, r: float, delta: float, level: float
-                       ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-        return RudderPropellerForces.actuator_loads(self, u_r, v_r, r, delta, self.engine_speed(level))
 
     def actuator_rates(self, delta: float, level: float, delta_cmd: float, throttle_cmd: float) -> tuple[float, float]:
         delta_dot, _ = RudderPropellerForces.actuator_rates(self, delta, 0.0, delta_cmd, 0.0)
@@ -602,17 +519,6 @@ class TwinThrusterForces:
     """Two fixed thrusters: X = T_p + T_s, N = (b/2)(T_p - T_s), each thrust its map's at the lagged command."""
 
     constants = (TwinThrusterConstants,)
-
-    def thrusts(self, port: float, starboard: float) -> tuple[float, float]:
-        """(T_port, T_starboard) (N) at the levels, with the thrust imbalance k: (1 + k) port, (1 - k) starboard."""
-        k = self.thrust_imbalance
-        return (1.0 + k) * self.port.thrust(port), (1.0 - k) * self.starboard.thrust(starboard)
-
-    def actuator_loads(self, u_r: float, v_r: float, r: float, port: float, starboard: float
-                       ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-        """(steering, propulsion): the yaw moment of the thrust difference, the surge force of the sum."""
-        t_p, t_s = self.thrusts(port, starboard)
-        return (0.0, 0.0, self.half_spacing * (t_p - t_s)), (t_p + t_s, 0.0, 0.0)
 
     def actuator_rates(self, port: float, starboard: float, cmd_p: float, cmd_s: float) -> tuple[float, float]:
         lag_p, lag_s = self.port.time_constant_s, self.starboard.time_constant_s

@@ -171,7 +171,8 @@ class Readout(Protocol):
 
     def read(self, terms: Mapping[str, Sequence[float]]) -> dict[str, float]: ...
 
-    def uncertainty(self, terms: Mapping[str, Sequence[float]], std: Mapping[str, Sequence[float]]) -> dict[str, float]: ...
+    def uncertainty(self, terms: Mapping[str, Sequence[float]],
+                    std: Mapping[str, Sequence[float]]) -> dict[str, float]: ...
 
     def terms_from_truth(self, parameters: Mapping[str, float]) -> dict[str, tuple[float, ...]]: ...
 
@@ -450,7 +451,8 @@ EFFECTS: Mapping[str, Effect] = _registry(
                                   SimulatorField(SensorSpec, "heading_offset", "rad", multiply=DEG_TO_RAD),
                                   Uniform(2.0, 8.0, random_sign=True))),
     scalar_effect("actuator_delay", "a delay: the hull responds this long after the reported rudder and engine speed",
-                  Term("actuator_delay", 1, 0.1, 0.0, 5.0, (0.2,), "s", settled=False), ("delay_s", 1.0), 0.2,  # tolerance (s)
+                  # tolerance (s)
+                  Term("actuator_delay", 1, 0.1, 0.0, 5.0, (0.2,), "s", settled=False), ("delay_s", 1.0), 0.2,
                   EffectParameter("actuator_delay_s", 0.5, 0.0, 5.0, "s", "response delay of the hull",
                                   SimulatorField(SensorSpec, "actuator_delay_s", "s"), Uniform(0.3, 1.5))),
     scalar_effect("resistance", "a resistance change: fouling, loading or a preset off (relative change of R0)",

@@ -3,7 +3,7 @@
     estimate_vessel(OwnerData(...)) -> Estimate    every section of a vessel YAML, each value with its provenance
     init_vessel(OwnerData(...), path, force)       the same, written (atomically) as a YAML the loader accepts
 
-The formulas are those recommended in the research note behind issue 11 (empirical_formulas.md, checked there
+The formulas are those recommended in the research note on empirical formulas (empirical_formulas.md, checked there
 against the published KVLCC2 values of Yasukawa & Yoshimura 2015); the MMG prime system is that of
 physics/vessel.py (X' = X / (0.5 rho L d U^2), N' = N / (0.5 rho L^2 d U^2), m' = m / (0.5 rho L^2 d),
 J' = J / (0.5 rho L^4 d)):
@@ -147,7 +147,8 @@ class OwnerData:
                                                            "--gear-ratio", "--blade-area-ratio") else "m")
                 raise bad(option, value, f"a finite number > 0 ({unit})")
         for option, value in (("--x-g", self.x_G), ("--rudder-x", self.rudder_x), ("--propeller-x", self.propeller_x),
-                              ("--thruster-x", self.thruster_x), ("--engine-time-constant", self.engine_time_constant_s)):
+                              ("--thruster-x", self.thruster_x),
+                              ("--engine-time-constant", self.engine_time_constant_s)):
             if value is not None and not math.isfinite(value):
                 raise bad(option, value, "a finite number")
         if self.engine_time_constant_s < 0.0:
@@ -171,7 +172,8 @@ class OwnerData:
         if not low < neutral < high:
             raise bad("--pwm-range", list(self.pwm_range), "MIN < NEUTRAL < MAX (us)")
         for command, thrust in self.thrust_points:
-            if not (math.isfinite(command) and math.isfinite(thrust)) or thrust * command < 0.0 or (thrust == 0 and command != 0):
+            if not (math.isfinite(command)
+                    and math.isfinite(thrust)) or thrust * command < 0.0 or (thrust == 0 and command != 0):
                 raise ConfigError(f"--thrust {command:g}:{thrust:g}: a static thrust point must be finite, ahead (+) "
                                   f"at an ahead command and astern (-) at an astern one")
         if (self.speed_m_s is None) != (self.speed_command is None):
@@ -395,7 +397,8 @@ def estimate_vessel(o: OwnerData) -> Estimate:
         "d": Value(d, "(m) given" if o.d is not None else f"(m) {how}"),
         "displacement_kg": Value(o.mass_kg, "(kg) given"),
         "x_G": Value(o.x_G, "(m) given" if o.x_G else "(m) 0: not given"),
-        "k_zz": Value(k_zz, "(-) given" if o.k_zz else "(-) 0.25 L (small vessels; 0.27 L tankers), Fossen MSS clarke83.m"),
+        "k_zz": Value(k_zz, "(-) given" if o.k_zz
+                      else "(-) 0.25 L (small vessels; 0.27 L tankers), Fossen MSS clarke83.m"),
     }
     if o.C_b is None:
         e.notes.append(f"block coefficient {how}")
@@ -612,8 +615,10 @@ def _rudder_and_propeller(e: Estimate, o: OwnerData, d: float, c_b: float, cbbl:
     w = e.warnings
     for what, value, (low, high) in (("blades Z", o.blades, Z_RANGE), ("A_E/A_0", o.blade_area_ratio, AE_RANGE)):
         if not low <= value <= high:
-            w.append(f"{what} = {value:g} is outside {low:g}-{high:g}, the Wageningen B-series range (K_T slope k1, k2)")
-    rpm_points = [(c, t) for c, t in o.thrust_points] if o.thrust_unit == "rpm" and o.layout != "rudder_throttle" else []
+            w.append(f"{what} = {value:g} is outside {low:g}-{high:g}, the Wageningen B-series range "
+                     f"(K_T slope k1, k2)")
+    rpm_points = ([(c, t) for c, t in o.thrust_points] if o.thrust_unit == "rpm" and o.layout != "rudder_throttle"
+                  else [])
     if rpm_points:
         n = np.array([c / 60.0 / o.gear_ratio for c, _ in rpm_points])  # propeller rev/s
         t = np.array([t for _, t in rpm_points])
@@ -630,7 +635,8 @@ def _rudder_and_propeller(e: Estimate, o: OwnerData, d: float, c_b: float, cbbl:
                  f"the Wageningen B-series range (K_T slope k1, k2); a ducted or unusual propeller?")
     b0, k1, k2 = bseries_quadratic(pitch, o.blade_area_ratio, o.blades)
     k0 = b0 if k0 is None else k0
-    slope = f"Wageningen B{o.blades}-{o.blade_area_ratio * 100:.0f} at P/D {pitch:.3f} (quadratic over 0 <= J <= 0.8 J0)"
+    slope = (f"Wageningen B{o.blades}-{o.blade_area_ratio * 100:.0f} at P/D {pitch:.3f} "
+             "(quadratic over 0 <= J <= 0.8 J0)")
     t_p = 0.25014 * (B / L) ** 0.28956 * (math.sqrt(B * d) / D) ** 0.2624 / (
         1 - c_b / 0.98 + 0.0225 * 100.0 * o.x_G / L) ** 0.01762
     e.sections["propeller"] = {
@@ -667,7 +673,8 @@ def _rudder_and_propeller(e: Estimate, o: OwnerData, d: float, c_b: float, cbbl:
         "epsilon": Value(max(eps, 0.3), "(-) Kijima 1990 -156.5(C_bB/L)^2 + 41.6 C_bB/L - 1.76; KVLCC2 -11 %"),
         "kappa": Value(max(kappa, 0.1), "(-) 0.55 - 0.8 C_bB/L (Yoshimura & Masumoto as implemented); KVLCC2 -14 %"),
         "l_R": Value(-0.9, "(-) Yoshimura & Masumoto 2012 -0.9; KVLCC2 -27 %"),
-        "gamma_R_minus": Value(gamma, "(-) 2.06 C_bB/L + 0.14 (Y&M as implemented, both signs); KVLCC2 -14 % of the mean"),
+        "gamma_R_minus": Value(gamma,
+                               "(-) 2.06 C_bB/L + 0.14 (Y&M as implemented, both signs); KVLCC2 -14 % of the mean"),
         "gamma_R_plus": Value(gamma, "(-) as gamma_R_minus"),
         "eta": Value(D / span, "(-) D_P / span"),
     }
@@ -882,7 +889,8 @@ def _calibrate_resistance(e: Estimate, o: OwnerData, d: float, c_b: float) -> No
         how = (f"ITTC-57 C_F at Fn 0.2 ({u:.3g} m/s) x (1 + k) Watanabe (k {k:.3f}) x wetted surface {s:.3g} m^2 "
                f"(textbook regression) x {APPENDAGE_ALLOWANCE:g} appendages; friction only, NOT calibrated (KVLCC2 "
                f"-23 % before the allowance): give --speed and --at")
-        e.warnings.append("no --speed/--at: the resistance is ITTC-57 friction and form drag only (no wave resistance); "
+        e.warnings.append("no --speed/--at: the resistance is ITTC-57 friction and form drag only (no "
+                          "wave resistance); "
                           "the straight-running speed will be high, give a known speed at a known command")
     if mmg:
         e.sections["hull"]["R0"] = Value(value, f"(-) {how}")
@@ -921,8 +929,10 @@ def _froude_checks(e: Estimate, o: OwnerData, d: float) -> None:
         e.warnings.append(f"Fn_vol = {fn_v:.2f} at {top:.3g} m/s: a planing craft (Fn_vol > {FN_VOL_FULL:g}, Radojcic "
                           f"2014); no displacement-hull formula holds: identify this boat from trials")
     elif fn_l > FN_PLANING or fn_v > FN_VOL_PLANING:
-        e.warnings.append(f"Fn_L = {fn_l:.2f}, Fn_vol = {fn_v:.2f} at {top:.3g} m/s: semi-planing (Fn_L > {FN_PLANING:g} or "
-                          f"Fn_vol > {FN_VOL_PLANING:g}, Radojcic 2014); dynamic trim and sinkage: the hull derivatives "
+        e.warnings.append(f"Fn_L = {fn_l:.2f}, Fn_vol = {fn_v:.2f} at {top:.3g} m/s: semi-planing (Fn_L > "
+                          f"{FN_PLANING:g} or "
+                          f"Fn_vol > {FN_VOL_PLANING:g}, Radojcic 2014); dynamic trim and sinkage: the "
+                          f"hull derivatives "
                           f"and the resistance are not valid there")
     elif fn_l > FN_WAVE:
         e.warnings.append(f"Fn_L = {fn_l:.2f} at {top:.3g} m/s is above {FN_WAVE:g}: wave resistance makes the "

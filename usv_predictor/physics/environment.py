@@ -51,7 +51,8 @@ class Environment:
 
     @property
     def is_calm(self) -> bool:
-        return self.current_speed == 0.0 and not self.has_current_step and self.wind_speed == 0.0 and self.wave_height == 0.0 and self.gust_std == 0.0
+        return (self.current_speed == 0.0 and not self.has_current_step and self.wind_speed == 0.0
+                and self.wave_height == 0.0 and self.gust_std == 0.0)
 
     def calm(self) -> "Environment":
         """The calm-water twin: same settings, no current, wind or waves."""

@@ -246,7 +246,8 @@ class CommandTurningCircle:
     @property
     def name(self) -> str:
         a = _inputs(self.layout)
-        return f"turning_circle_{_side(self.side)}_{a.turn_input.tag(self.turn)}_{a.propulsion_input.tag(self.propulsion)}"
+        return (f"turning_circle_{_side(self.side)}_{a.turn_input.tag(self.turn)}_"
+                f"{a.propulsion_input.tag(self.propulsion)}")
 
     def controller(self) -> Controller:
         return _held_turn(self.turn * _inputs(self.layout).turn_input.to_command * self.side, self.propulsion,
@@ -395,7 +396,8 @@ def random_manoeuvre(layout: ActuatorLayout, seed: int, propulsion: float, turn_
 
 def sea_trial_turns(duration_s: float = 180.0) -> list[TurningCircle]:
     """Seed 000 Table 3: starboard turning tests, rudder 15/20/25 deg x engine 650/700 rpm, 3 min each."""
-    return [TurningCircle(rudder, rpm, duration_s=duration_s) for rudder in (15.0, 20.0, 25.0) for rpm in (650.0, 700.0)]
+    return [TurningCircle(rudder, rpm, duration_s=duration_s) for rudder in (15.0, 20.0, 25.0)
+            for rpm in (650.0, 700.0)]
 
 
 def training_runs() -> list:

@@ -104,7 +104,8 @@ def layout_of(vessel: str) -> ActuatorLayout:
     return load_vessel(vessel).actuator_layout
 
 
-def make_scenario(vessel: str, effects: Mapping[str, Mapping[str, float]], sensors: SensorSpec | None = None) -> Scenario:
+def make_scenario(vessel: str, effects: Mapping[str, Mapping[str, float]], sensors: SensorSpec
+                  | None = None) -> Scenario:
     """A checked scenario: every effect known, applicable to the vessel's actuator layout, its parameters in range."""
     layout = layout_of(vessel)
     for name in effects:

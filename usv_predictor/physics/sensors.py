@@ -86,7 +86,8 @@ class SensorSpec:
     def describe(self, layout: ActuatorLayout) -> dict[str, float]:
         """The parameters that shape a recording of a boat of this layout: all but the noise and resolution of
         other layouts' controls (a rudder boat's recording says nothing of thruster commands)."""
-        others = {name for other in ACTUATOR_LAYOUTS.values() for c in other.controls for name in (c.noise, c.resolution)}
+        others = {name for other in ACTUATOR_LAYOUTS.values() for c in other.controls
+                  for name in (c.noise, c.resolution)}
         own = {name for c in layout.controls for name in (c.noise, c.resolution)}
         return {k: v for k, v in asdict(self).items() if k not in others - own}
 
@@ -219,7 +220,8 @@ def measure(traj: Trajectory, env: Environment, spec: SensorSpec = SensorSpec(),
     out["velocity"] = Signal(t, vel, ("u", "v", "r"))
 
     t = _grid(traj, spec.heading_rate_hz)
-    psi = _at(traj, t, traj.psi_unwrapped + waves.psi) + spec.heading_offset + rng.normal(0, spec.heading_noise_std, len(t))
+    psi = _at(traj, t, traj.psi_unwrapped
+              + waves.psi) + spec.heading_offset + rng.normal(0, spec.heading_noise_std, len(t))
     lsb = math.radians(spec.heading_lsb_deg)
     out["heading"] = Signal(t, wrap_angle(_quantise(psi, lsb))[:, None], ("psi",))
 

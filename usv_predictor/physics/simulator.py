@@ -152,7 +152,8 @@ def simulate(model: ManoeuvringModel, manoeuvre: Manoeuvre, env: Environment | N
         x = [a + h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4) for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4)]
         if not all(map(math.isfinite, x)):
             raise ConfigError(f"simulation of {manoeuvre.name} diverged at t={t:.2f} s (state {x})")
-    traj = _dense_output(model, env, np.array(states), np.array(derivs), np.array(commands), dt, output_rate_hz, manoeuvre.duration_s, start_ns)
+    traj = _dense_output(model, env, np.array(states), np.array(derivs), np.array(commands), dt, output_rate_hz,
+                         manoeuvre.duration_s, start_ns)
     traj.info.update(manoeuvre=manoeuvre.name, dt=dt, output_rate_hz=output_rate_hz, seed=seed)
     return traj
 

@@ -198,7 +198,8 @@ class ThrustMap:
 
     def __post_init__(self) -> None:
         if not (self.forward_N > 0.0 and self.reverse_N >= 0.0):
-            raise ConfigError(f"forward_N must be > 0 and reverse_N >= 0 (N), got {self.forward_N:g}, {self.reverse_N:g}")
+            raise ConfigError(f"forward_N must be > 0 and reverse_N >= 0 (N), got {self.forward_N:g}, "
+                              f"{self.reverse_N:g}")
         if not 0.0 < self.exponent <= 4.0:
             raise ConfigError(f"exponent {self.exponent:g} is outside (0, 4]")
         if not 0.0 <= self.dead_band < 0.5:

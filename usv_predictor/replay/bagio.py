@@ -96,7 +96,8 @@ class TopicSpec:
 
 
 def config_topic_specs(cfg: PredictorConfig, include_ground_truth: bool = False) -> dict[str, TopicSpec]:
-    """role -> TopicSpec of the config's input topics, as the tools write them (frame: the entry's, else the base frame)."""
+    """role -> TopicSpec of the config's input topics, as the tools write them (frame: the entry's, else the base
+    frame)."""
     return {t.role: TopicSpec(t.topic, t.role, t.ros_type, t.options, t.frame_id or cfg.base_frame_id)
             for t in input_topics(cfg, include_ground_truth=include_ground_truth)}
 
@@ -487,7 +488,8 @@ def _decode_one_by_one(
             raise BagError(f"{path}: topic {spec.topic!r} ({spec.role}): {err}") from err
         stamps.append(log_time if stamp is None else stamp)
         rows.append(values)
-    return np.asarray(stamps, dtype=np.int64), np.asarray(rows, dtype=np.float64).reshape(len(rows), len(adapter.fields))
+    return np.asarray(stamps, dtype=np.int64), np.asarray(rows,
+                                                          dtype=np.float64).reshape(len(rows), len(adapter.fields))
 
 
 def _decode_in_bulk(

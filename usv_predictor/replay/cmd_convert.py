@@ -27,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--output", type=Path, required=True, help="directory for the bags (one per manoeuvre)")
     parser.add_argument("--format", choices=("auto", "hsva", "marin", "fuzhou", "dalian"), default="auto",
                         help="input format (default auto: from the file names)")
-    parser.add_argument("--storage", choices=("sqlite3", "mcap"), default="sqlite3", help="rosbag2 storage (default sqlite3)")
+    parser.add_argument("--storage", choices=("sqlite3", "mcap"), default="sqlite3",
+                        help="rosbag2 storage (default sqlite3)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing bags")
 
 

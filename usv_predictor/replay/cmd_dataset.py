@@ -32,26 +32,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--output", type=Path, required=True, help="dataset file to write (.npz)")
     parser.add_argument("--dt", type=positive_float, default=None, help="step (s; default: dt of the config, 0.5)")
     parser.add_argument("--features", choices=sorted(FEATURE_SETS), default="NTF",
-                        help="input features (seed 000): F0 [u v r delta rpm], NAF + psi, NTF + sin/cos psi (default NTF)")
+                        help="input features (seed 000): F0 [u v r delta rpm], NAF + psi, NTF + sin/cos "
+                             "psi (default NTF)")
     parser.add_argument("--segment", choices=("bag", "steady"), default="bag",
                         help="one recording per bag, or split bags into manoeuvres at control steps after "
                              "settled holds (default bag)")
     split = parser.add_argument_group("split by manoeuvre")
     split.add_argument("--val", action="append", default=[], metavar="FRACTION|GLOB",
-                       help="validation: a fraction of the unpinned manoeuvres (default 0.2) or name globs (repeatable)")
+                       help="validation: a fraction of the unpinned manoeuvres (default 0.2) or name "
+                            "globs (repeatable)")
     split.add_argument("--test", action="append", default=[], metavar="FRACTION|GLOB",
                        help="test: a fraction (default 0) or name globs (repeatable)")
     split.add_argument("--train", action="append", default=[], metavar="GLOB", help="pin manoeuvres to training")
     split.add_argument("--seed", type=non_negative_int, default=0, help="seed of the random split (default 0)")
     data = parser.add_argument_group("input")
-    data.add_argument("--config", type=Path, default=None, help="predictor parameter file (default config/predictor.yaml)")
+    data.add_argument("--config", type=Path, default=None,
+                      help="predictor parameter file (default config/predictor.yaml)")
     data.add_argument("--vessel", default=None, metavar="PRESET",
                       help="vessel preset whose actuator layout the bags record (which control topics are read; "
                            "stored in the dataset); default: the config's vessel")
     data.add_argument("--topic", action="append", default=[], metavar="ROLE=TOPIC",
                       help="read ROLE from TOPIC instead of the config's (repeatable), e.g. velocity=ins/twist")
     data.add_argument("--include-calm", action="store_true", help="also read calm/ twins found under directories")
-    data.add_argument("--min-duration", type=non_negative_float, default=10.0, help="skip pieces shorter than this (s, default 10)")
+    data.add_argument("--min-duration", type=non_negative_float, default=10.0,
+                      help="skip pieces shorter than this (s, default 10)")
     data.add_argument("--jobs", type=non_negative_int, default=0,
                       help="processes reading bags in parallel (default 0: one per CPU, at most one per bag)")
     data.add_argument("--horizon", type=positive_float, default=None,
@@ -109,7 +113,8 @@ def run(args: argparse.Namespace) -> dict:
         val=_fraction_or_globs(args.val, "--val", 0.2), test=_fraction_or_globs(args.test, "--test", 0.0),
         train=args.train, seed=args.seed, config=args.config, topics=_topics(args.topic),
         include_calm=args.include_calm, min_duration_s=args.min_duration, jobs=args.jobs, horizon_s=args.horizon,
-        provenance=_command_line(args), vessel=args.vessel, warn=lambda message: print(f"replay {NAME}: warning: {message}", file=sys.stderr),
+        provenance=_command_line(args), vessel=args.vessel,
+                               warn=lambda message: print(f"replay {NAME}: warning: {message}", file=sys.stderr),
         progress=log)
     _print_table(result)
     return result

@@ -35,13 +35,15 @@ OUTPUTS = {"export": "file", "report": "dir"}
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from usv_predictor.physics.effects import hypothesis_names
 
-    parser.add_argument("bags", nargs="+", type=Path, metavar="BAG", help="bags or directories of bags (a trial programme)")
+    parser.add_argument("bags", nargs="+", type=Path, metavar="BAG",
+                        help="bags or directories of bags (a trial programme)")
     parser.add_argument("--vessel", default=None,
                         help="vessel preset or YAML file of the calm-water model (default: with --model the vessel the "
                              "model embeds, else the config's vessel); with --model it must be the model's: one that "
                              "differs is refused, naming the fields")
     parser.add_argument("--model", type=Path, default=None, metavar="M",
-                        help="a grey-box model artifact (from `replay identify`) as the calm-water model instead of the preset")
+                        help="a grey-box model artifact (from `replay identify`) as the calm-water model "
+                             "instead of the preset")
     parser.add_argument("--dt", type=positive_float, default=None,
                         help="model step (s; default: what suits the vessel, the largest of 0.5, 0.25, 0.2, 0.1, "
                              "0.05 s that RK4 integrates its fastest hull mode with: 0.5 for jari_usv, 0.25 for otter)")
@@ -52,7 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="name up to this many causes, added one at a time while each passes the evidence test "
                              "(default 2)")
     parser.add_argument("--horizon", type=positive_float, default=None,
-                        help="segment horizon (s; default 40 of the vessel's model steps: 20 for jari_usv, 10 for otter)")
+                        help="segment horizon (s; default 40 of the vessel's model steps: 20 for "
+                             "jari_usv, 10 for otter)")
     parser.add_argument("--stride", type=positive_float, default=None,
                         help="time between segment starts (s; default 10 of the vessel's model steps: 5 for jari_usv, "
                              "2.5 for otter)")

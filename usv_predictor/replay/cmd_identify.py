@@ -2,8 +2,10 @@
 
 EKF/RTS smoother -> inverse dynamics minus the preset's propeller and semi-empirical rudder (prior) -> linear
 regression of each candidate structure -> leave-one-manoeuvre-out CV -> export of the grey box (model_type
-"greybox", or "hybrid" with --hybrid: grey box + a learned residual ensemble) through usv_predictor.models.artifact, with the
-coefficients, their 95 % CIs, the structure and the data digest in the metadata. See usv_predictor.fitting.identification
+"greybox", or "hybrid" with --hybrid: grey box + a learned residual ensemble) through usv_predictor.models.artifact,
+with the
+coefficients, their 95 % CIs, the structure and the data digest in the metadata. See
+usv_predictor.fitting.identification
 and docs/identification.md. Coefficients the data cannot determine are an error naming them unless --prior says
 what to do (fix: hold at the preset's value; ridge: pull towards it). --val GLOB: bags (or directories) whose
 manoeuvres are only evaluated, never fitted. --report DIR: summary.md and force-decomposition plots
@@ -13,8 +15,8 @@ map's gain, a rudder boat without propulsion data (rudder_only) the hull at an e
 --blocks K cuts each recording into K pieces for cross-validation (one long record). --hybrid --base MODEL:
 no identification, the residual is trained on top of MODEL's grey box (`replay diagnose --export`'s extension:
 the physics explains the sea, the residual what it leaves). --scale LAMBDA Froude-scales
-bags of a hull LAMBDA times as long as the vessel file's (full-scale bags, a model-scale vessel) to its size first. The work:
-usv_predictor.replay.identify.
+bags of a hull LAMBDA times as long as the vessel file's (full-scale bags, a model-scale vessel) to its size first. The
+work: usv_predictor.replay.identify.
 """
 from __future__ import annotations
 
@@ -41,13 +43,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="hull model structure: mmg / abkowitz for the MMG hull, diagonal / coupled for the "
                              "small-craft hull (auto: compare the hull model's by cross-validation, default)")
     parser.add_argument("--prior", choices=("none", "fix", "ridge"), default="none",
-                        help="what to do with coefficients the data cannot determine (default none: refuse, naming them)")
+                        help="what to do with coefficients the data cannot determine (default none: "
+                             "refuse, naming them)")
     parser.add_argument("--interaction", choices=("identify", "fix"), default=None,
                         help="rudder_propeller: search the rudder lift gradient, gamma_R, eta, w_P0 and t_P with the "
                              "hull on the multi-step simulation error, candidates with an implausible steady turn "
                              "left out, and keep them when the held-out simulation error drops (identify, default), or "
                              "hold the vessel file's (fix; with --base nothing is identified); "
-                             "usv_predictor/fitting/interaction.py, README 'Unknown boats'")
+                             "usv_predictor/fitting/interaction.py, docs/results/unknown_boats.md")
     parser.add_argument("--hybrid", action="store_true",
                         help="add a learned residual on the accelerations: an ensemble of 5 bounded MLPs on "
                              "non-dimensional features, trained by a multi-step loss with early stopping on held-out "
@@ -61,7 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--export`'s extended model (calm-water hull + the diagnosed current, wave drift, ...) or "
                              "a `replay identify --structure mmg` model; the physics carries what it explains, the "
                              "residual (bounded by what the base leaves) the rest (model_type hybrid+<causes>)")
-    parser.add_argument("--dt", type=positive_float, default=0.2, help="step (s) of the resampled data and the model (default 0.2)")
+    parser.add_argument("--dt", type=positive_float, default=0.2,
+                        help="step (s) of the resampled data and the model (default 0.2)")
     parser.add_argument("--val", default=None, metavar="GLOB", help="bags to validate on only (glob)")
     parser.add_argument("--output", type=Path, required=True, help="model file to write (.pt)")
     parser.add_argument("--report", type=Path, default=None, metavar="DIR", help="write summary.md and plots into DIR")

@@ -57,13 +57,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
             sea.add_argument(p.flag, dest=p.name, type=finite_float, default=None, metavar=unit,
                              help=text.replace("%", "%%"))  # argparse %-formats help texts
     out = parser.add_argument_group("output")
-    out.add_argument("--output", type=Path, default=Path("out/simulated"), help="directory for the bags (default out/simulated)")
-    out.add_argument("--calm-twin", action="store_true", help="also write the calm-water twin of each bag into OUTPUT/calm")
+    out.add_argument("--output", type=Path, default=Path("out/simulated"),
+                     help="directory for the bags (default out/simulated)")
+    out.add_argument("--calm-twin", action="store_true",
+                     help="also write the calm-water twin of each bag into OUTPUT/calm")
     out.add_argument("--storage", choices=STORAGES, default="sqlite3", help="rosbag2 storage (default sqlite3)")
     out.add_argument("--no-compress", action="store_true", help="do not zstd-compress the bags")
     out.add_argument("--overwrite", action="store_true", help="replace existing bags")
     out.add_argument("--blind", action="store_true", help="record only a digest of the scenario in the bag metadata")
-    out.add_argument("--seed", type=non_negative_int, default=0, help="random seed (noise, gusts, waves, random manoeuvre)")
+    out.add_argument("--seed", type=non_negative_int, default=0,
+                     help="random seed (noise, gusts, waves, random manoeuvre)")
     out.add_argument("--dt", type=positive_float, default=0.05, help="integration step (s, default 0.05)")
 
 

@@ -55,7 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="default prediction horizon in steps recorded in the model (default: the config's)")
     parser.add_argument("--dtype", choices=("float32", "float64"), default="float32",
                         help="arithmetic of the exported rollout (default float32)")
-    parser.add_argument("--progress-s", type=non_negative_float, default=2.0, help="seconds between progress lines (default 2)")
+    parser.add_argument("--progress-s", type=non_negative_float, default=2.0,
+                        help="seconds between progress lines (default 2)")
 
 
 class _Throttled:
@@ -125,7 +126,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     result = train_dnn(config, train, val if len(val) else None, recipe,
                        progress=_Throttled(args.progress_s, recipe.epochs), **windows)
     artifact = export(args.output, result.models, config, dt=dataset.dt, vessel=vessel,
-                      training_data_sha256=dataset.digest(), training={**result.summary(), "dataset": str(args.dataset)},
+                      training_data_sha256=dataset.digest(),
+                      training={**result.summary(), "dataset": str(args.dataset)},
                       horizon_steps=args.horizon_steps or round(predictor.horizon_s / dataset.dt), dtype=args.dtype)
     summary = {
         "model": str(args.output), "model_id": artifact.model_id, "feature_set": feature_set,

@@ -43,23 +43,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     hull.add_argument("--lpp", type=positive_float, required=True, help="length between perpendiculars / waterline (m)")
     hull.add_argument("--beam", type=positive_float, required=True, help="beam (m; a catamaran's overall beam)")
     hull.add_argument("--mass", type=positive_float, required=True, help="displacement (kg)")
-    hull.add_argument("--draught", type=positive_float, default=None, help="mean draught (m; or give --block-coefficient)")
+    hull.add_argument("--draught", type=positive_float, default=None,
+                      help="mean draught (m; or give --block-coefficient)")
     hull.add_argument("--block-coefficient", type=positive_float, default=None,
-                      help="C_b (-; of one pontoon for a catamaran); the other of draught and C_b follows from the mass")
+                      help="C_b (-; of one pontoon for a catamaran); the other of draught and C_b "
+                           "follows from the mass")
     hull.add_argument("--length-overall", type=positive_float, default=None, help="length overall (m, default --lpp)")
     hull.add_argument("--x-g", type=finite_float, default=0.0, help="centre of gravity from midship (m, default 0)")
     hull.add_argument("--k-zz", type=positive_float, default=None, help="yaw radius of gyration / L (-, default 0.25)")
     hull.add_argument("--hulls", type=positive_int, choices=(1, 2), default=1, help="1 monohull (default), 2 catamaran")
     hull.add_argument("--demihull-beam", type=positive_float, default=None, help="beam of one pontoon (m, default B/4)")
-    hull.add_argument("--freeboard", type=positive_float, default=None, help="deck height above water (m, default 1.5 d)")
+    hull.add_argument("--freeboard", type=positive_float, default=None,
+                      help="deck height above water (m, default 1.5 d)")
     rudder = parser.add_argument_group("rudder and propeller (rudder layouts)")
     rudder.add_argument("--rudder-area", type=positive_float, default=None, help="rudder area (m^2)")
     rudder.add_argument("--rudder-span", type=positive_float, default=None, help="rudder span (m)")
     rudder.add_argument("--rudder-x", type=finite_float, default=None, help="rudder position (m, default -L/2)")
     rudder.add_argument("--rudder-max", type=positive_float, default=35.0, help="rudder limit (deg, default 35)")
-    rudder.add_argument("--rudder-rate", type=positive_float, default=20.0, help="steering-gear rate (deg/s, default 20)")
+    rudder.add_argument("--rudder-rate", type=positive_float, default=20.0,
+                        help="steering-gear rate (deg/s, default 20)")
     rudder.add_argument("--propeller-diameter", type=positive_float, default=None, help="propeller diameter (m)")
-    rudder.add_argument("--propeller-x", type=finite_float, default=None, help="propeller position (m, default -0.48 L)")
+    rudder.add_argument("--propeller-x", type=finite_float, default=None,
+                        help="propeller position (m, default -0.48 L)")
     rudder.add_argument("--pitch-ratio", type=positive_float, default=None,
                         help="P/D (-, default: from the datasheet's static thrust, else 1.0)")
     rudder.add_argument("--blades", type=positive_int, default=4, help="number of blades (default 4)")
@@ -68,7 +73,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     rudder.add_argument("--rpm-max", type=positive_float, default=None,
                         help="highest engine speed (rpm; default the datasheet's highest)")
     twin = parser.add_argument_group("thrusters (twin_thrusters)")
-    twin.add_argument("--thruster-spacing", type=positive_float, default=None, help="distance between the thrust lines (m)")
+    twin.add_argument("--thruster-spacing", type=positive_float, default=None,
+                      help="distance between the thrust lines (m)")
     twin.add_argument("--thruster-x", type=finite_float, default=None, help="thruster position (m, default -L/2)")
     data = parser.add_argument_group("datasheet and a known speed")
     data.add_argument("--thrust", type=_thrust_point, action="append", default=[], metavar="COMMAND:N",

@@ -404,18 +404,21 @@ def read_marin(path: Path) -> list[Manoeuvre]:
     if kind == "zigzag":
         title = _MARIN_ZIGZAG_ARGS.search(args)
         if title is None:
-            raise DatasetError(f"{path}:2: expected 'Zig-zag manoeuvring for KVLCC2 : A / -A', found {lines[1].strip()!r}")
+            raise DatasetError(f"{path}:2: expected 'Zig-zag manoeuvring for KVLCC2 : A / -A', found "
+                               f"{lines[1].strip()!r}")
     else:
         title = _MARIN_TURN_ARGS.match(args)
         if title is None:
-            raise DatasetError(f"{path}:2: expected the turn's rudder angle like ': 35 (deg)', found {lines[1].strip()!r}")
+            raise DatasetError(f"{path}:2: expected the turn's rudder angle like ': 35 (deg)', found "
+                               f"{lines[1].strip()!r}")
     first_rudder = float(title.group(1))  # file convention: positive to port
     named = _MARIN_NAME.match(path.stem)
     if named and named.group(1).lower() != tag:
         raise DatasetError(f"{path}:2: title says {lines[1].split(' manoeuvring')[0].strip()!r} but the file name says "
                            f"{named.group(1)!r} (zz: zig-zag, tc: turning / pull-out)")
     if named and float(named.group(2)) != first_rudder:
-        raise DatasetError(f"{path}:2: title says first rudder {first_rudder:g} but the file name says {named.group(2)}")
+        raise DatasetError(f"{path}:2: title says first rudder {first_rudder:g} but the file name says "
+                           f"{named.group(2)}")
     a = _parse_table(path, lines[MARIN_HEADER_LINES:], MARIN_HEADER_LINES + 1, MARIN_COLUMNS,
                      lambda line: line.split("\t"), allow_trailing_blank=True)
     first = MARIN_HEADER_LINES + 1
@@ -579,7 +582,8 @@ def read_fuzhou(path: Path) -> Manoeuvre:
         sign_gap = np.abs(col["delta"] + np.radians(col["rudder"]))
         if sign_gap.max() > 1e-3:
             k = int(np.argmax(sign_gap))
-            raise DatasetError(f"{path}:{k + 2}: column 'delta' is not -radians('rudder'); expected delta[rad] = -rudder")
+            raise DatasetError(f"{path}:{k + 2}: column 'delta' is not -radians('rudder'); expected "
+                               f"delta[rad] = -rudder")
     _check_range(path, "rudder", np.abs(col["rudder"]), 0.0, 45.0, "rudder angle in deg")
     # Speed units: SOURCE.txt says m/s; measure the GNSS track to decide between m/s and knots.
     k = 4  # +-2 s
@@ -625,7 +629,8 @@ def read_fuzhou(path: Path) -> Manoeuvre:
 
 DALIAN_REQUIRED = ("DateTime", "t", "Longitude", "Latitude", "x", "y", "Heading", "course", "Speed", "PWM_L", "PWM_R")
 DALIAN_TIME_FORMAT = "%Y-%m-%d %H:%M:%S.%f"
-DALIAN_UTC_OFFSET_H = 8  # DateTime read as China Standard Time (UTC+8): the boat ran near Dalian; the file names no zone
+# DateTime read as China Standard Time (UTC+8): the boat ran near Dalian; the file names no zone
+DALIAN_UTC_OFFSET_H = 8
 PWM_NEUTRAL_US = 1500.0  # (us) thruster command at zero thrust (SOURCE.txt)
 PWM_FULL_SCALE_US = 500.0  # (us) command above neutral that means full ahead (1000-2000 us range)
 PWM_RANGE_US = (1000.0, 2000.0)  # (us) what a hobby ESC accepts
@@ -640,7 +645,8 @@ def _dalian_sheets(path: Path) -> tuple[list[str], list[tuple], dict[str, str]]:
     try:
         import openpyxl  # noqa: PLC0415 (lazy: only this reader needs it; `replay --help` stays light)
     except ImportError as err:
-        raise DatasetError(f"{path}: reading .xlsx needs openpyxl (pip install openpyxl==3.1.5, requirements.txt)") from err
+        raise DatasetError(f"{path}: reading .xlsx needs openpyxl (pip install openpyxl==3.1.5, "
+                           f"requirements.txt)") from err
     try:
         book = openpyxl.load_workbook(path, read_only=True, data_only=True)
     except Exception as err:  # noqa: BLE001 (openpyxl raises zipfile, KeyError, its own InvalidFileException ...)
@@ -661,7 +667,8 @@ def _dalian_sheets(path: Path) -> tuple[list[str], list[tuple], dict[str, str]]:
     header = [str(h).strip() if h is not None else "" for h in rows[0]]
     missing = [c for c in DALIAN_REQUIRED if c not in header]
     if missing:
-        raise DatasetError(f"{path}: Sheet1 row 1: missing column(s) {', '.join(missing)}; header has {', '.join(header)}")
+        raise DatasetError(f"{path}: Sheet1 row 1: missing column(s) {', '.join(missing)}; header has "
+                           f"{', '.join(header)}")
     data = [r for r in rows[1:] if any(c is not None for c in r)]
     if len(data) < MIN_ROWS:
         raise DatasetError(f"{path}: Sheet1 has only {len(data)} data rows, expected at least {MIN_ROWS}")
@@ -733,7 +740,8 @@ def read_dalian(path: Path) -> Manoeuvre:
         outside = np.flatnonzero((col[side] < low) | (col[side] > high))
         if len(outside):
             k = int(outside[0])
-            raise DatasetError(f"{path}: Sheet1 row {k + 2}: column {side!r}: {col[side][k]:g} is outside {low:g}-{high:g}; "
+            raise DatasetError(f"{path}: Sheet1 row {k + 2}: column {side!r}: {col[side][k]:g} is outside "
+                               f"{low:g}-{high:g}; "
                                f"expected a PWM pulse width in microseconds with {PWM_NEUTRAL_US:g} neutral")
     lat, lon = col["Latitude"], col["Longitude"]
     if not (np.all(np.abs(lat) < 90.0) and np.all(np.abs(lon) <= 180.0)):
@@ -816,9 +824,11 @@ def read_dalian(path: Path) -> Manoeuvre:
             "speed": f"column 'Speed' is speed over ground in m/s: smoothed speed / Speed = {speed_ratio:.3f}",
             "thrusters": "PWM_L = port, PWM_R = starboard (the yaw rate correlates "
                          f"{turn_correlation:+.2f} with PWM_L - PWM_R: more port thrust turns to starboard); "
-                         f"c = (PWM - {PWM_NEUTRAL_US:g}) / {PWM_FULL_SCALE_US:g}, written as thruster_port/thruster_starboard, "
+                         f"c = (PWM - {PWM_NEUTRAL_US:g}) / {PWM_FULL_SCALE_US:g}, written as "
+                         f"thruster_port/thruster_starboard, "
                          "each logged command held until the next row (zero-order hold)",
-            "unused": "x, y, t, course, HeadingSet, SpeedSet, w, varsigma_w, Voltage, tracking errors and bounds, x_p, y_p",
+            "unused": "x, y, t, course, HeadingSet, SpeedSet, w, varsigma_w, Voltage, tracking errors and "
+                      "bounds, x_p, y_p",
             "length": "not published (no mass, length, thrusters): L_pp_m nan",
         },
         extra={"path_following": json.dumps(params, sort_keys=True)}, kind="path_following",
@@ -945,7 +955,8 @@ def custom_data(m: Manoeuvre, command: str = "replay convert") -> dict[str, str]
         "full_scale_L_pp_m": repr(m.scale.full_scale_L_pp_m),
         "conventions": ("NED, body FRD, psi clockwise from north, " + (
             "delta > 0 turns to starboard; engine_rpm carries PROPELLER rpm" if m.delta is not None else
-            "thruster commands normalised to [-1, 1] (+ ahead), port = the thruster at body y < 0") + "; no ground truth"),
+            "thruster commands normalised to [-1, 1] (+ ahead), port = the thruster at body y < 0")
+                        + "; no ground truth"),
         "epoch_ns": str(EPOCH_NS[m.source] if m.epoch_ns is None else m.epoch_ns), "gnss": datum,
         "notes": json.dumps(dict(m.notes), sort_keys=True),
     }

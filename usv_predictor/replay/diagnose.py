@@ -8,10 +8,12 @@ from typing import Any
 
 def diagnose_bags(bags: Sequence[Path], *, vessel: str | None = None, model: Path | None = None,
                   dt: float | None = None, hypotheses: Sequence[str] | None = None, max_causes: int = 2,
-                  horizon_s: float | None = None, stride_s: float | None = None, gain: bool = True, export: Path | None = None, report: Path | None = None,
+                  horizon_s: float | None = None, stride_s: float | None = None, gain: bool = True, export: Path
+                  | None = None, report: Path | None = None,
                   include_calm: bool = False, config: Path | None = None, fit_check: bool = True, scale: float = 1.0,
                   unexplained: bool = True, progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
-    """The calm-water model (preset or vessel file `vessel`, or grey-box artifact `model` on the vessel it embeds), the bags' recordings at step dt
+    """The calm-water model (preset or vessel file `vessel`, or grey-box artifact `model` on the vessel it embeds), the
+    bags' recordings at step dt
     (topics of the predictor config `config`), and the diagnosis run on them (run_diagnosis: the arguments).
     dt, horizon_s, stride_s: None = what suits the calm-water vessel (analysis.diagnosis_steps). scale: Froude scale
     L_bags / L_vessel, the bags scaled to the calm-water vessel's size (replay.recordings.load_recordings; 1: none)."""

@@ -42,14 +42,16 @@ class EvaluationRequest:
     stride_s: float = 5.0  # time between open-loop start points (s)
     include_calm: bool = False  # also read calm/ twins under bag directories
     config: Path | None = None  # predictor.yaml with the input topics (None: the shipped one)
-    vessel: str | None = None  # preset or vessel file of the bags' vessel; None: the model's (embedded or its preset), else the config's
+    # preset or vessel file of the bags' vessel; None: the model's (embedded or its preset), else the config's
+    vessel: str | None = None
     adaptive: bool = False  # also run the online estimator and the adaptive open loop (analysis/adaptive.py)
     fit_check: bool = True  # refuse a model that does not fit the bags at all (analysis/fit_check.py)
     scale: float = 1.0  # Froude scale L_bags / L_model: the bags are scaled to the model's size (data/recording.py)
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(x) and x > 0.0 for x in (self.stride_s, *self.horizons_s)):
-            raise EvaluationError(f"--stride {self.stride_s:g} and --horizons {' '.join(f'{h:g}' for h in self.horizons_s)}"
+            raise EvaluationError(f"--stride {self.stride_s:g} and --horizons "
+                                  f"{' '.join(f'{h:g}' for h in self.horizons_s)}"
                                   " must be finite and positive (s)")
         if not self.horizons_s:
             raise EvaluationError("--horizons needs at least one horizon (s)")
@@ -94,7 +96,8 @@ def evaluation_vessel(vessel: str | None, model: Any, source: str) -> Any:
             given = load_vessel(vessel)
         except ConfigError:  # no such preset: perhaps the name of the vessel the model embeds (model_vessel)
             given = None
-        if given is not None and list(given.actuator_layout.control_names) != list(model.metadata.get("control_layout", [])):
+        if given is not None and (list(given.actuator_layout.control_names)
+                                  != list(model.metadata.get("control_layout", []))):
             return given  # another layout altogether: bags_layout says so, naming both
     try:
         return model_vessel(model, vessel, source=f"model {source}")
@@ -207,7 +210,8 @@ def model_fit_check(model, recordings: Sequence, vessel: Any = None) -> Any:
         vessel = evaluation_vessel(None, model, str(meta.get("model_id", "?")))
     physics = str(meta.get("model_type", "")).startswith("physics")
     label = (f"the preset {meta.get('vessel')}" if physics
-             else f"model {meta.get('model_id', '?')} ({meta.get('model_type', '?')}, vessel {meta.get('vessel', '?')})")
+             else f"model {meta.get('model_id', '?')} ({meta.get('model_type', '?')}, vessel "
+                  f"{meta.get('vessel', '?')})")
     return check_fit(model, recordings, vessel=vessel, label=label)
 
 
@@ -253,7 +257,8 @@ def is_evaluation_file(inputs: Sequence[Path]) -> bool:
     return len(inputs) == 1 and Path(inputs[0]).suffix == ".json"
 
 
-def report(request: EvaluationRequest, output: Path, title: str, progress: Callable[[str], None] = lambda _: None) -> dict:
+def report(request: EvaluationRequest, output: Path, title: str,
+           progress: Callable[[str], None] = lambda _: None) -> dict:
     """`replay report`: the report of an evaluation file (request.bags is one .json) or of the bags evaluated as
     `request` says, written into `output`."""
     from usv_predictor.analysis import reports

@@ -34,7 +34,8 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
     except BagError as err:
         if "engine_rpm" in str(err):
             raise DatasetError(f"identification needs the engine speed (engine_rpm): without it the propeller thrust "
-                               f"and the rudder inflow are unknown, so R0 and every speed-dependent hull term cannot be "
+                               f"and the rudder inflow are unknown, so R0 and every speed-dependent hull "
+                               f"term cannot be "
                                f"separated from them ({err}); a vessel file of layout rudder_only identifies what such "
                                "a record supports") from err
         raise
@@ -63,7 +64,7 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, str
     base: with hybrid, a grey-box artifact (`replay diagnose --export`'s extended model, or an earlier `replay
     identify`) whose hull and extension terms are kept, the residual trained on top of them (hybrid_on_base); the
     hull is then not identified again. interaction: identify / fix the rudder_propeller interaction factors
-    (fitting/interaction.py; None: identify, the default since 2026-11-26; with `base` it must stay None). The
+    (fitting/interaction.py; None: identify, the default; with `base` it must stay None). The
     result of `replay identify`."""
     from usv_predictor.analysis.evaluation import evaluate
     from usv_predictor.fitting import hybrid_fit, identification

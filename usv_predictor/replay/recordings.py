@@ -148,7 +148,8 @@ def find_bags(paths: Iterable[str | Path], *, include_calm: bool = False) -> lis
             raise BagError(f"{arg}: no such bag or directory")
         found = [arg] if _is_bag(arg) else _bags_under(arg, include_calm)
         if not found:
-            hint = "" if include_calm else f" (sub-directories named {CALM_DIR!r} are skipped: name them or use --include-calm)"
+            hint = "" if include_calm else (f" (sub-directories named {CALM_DIR!r} are skipped: name them or use "
+                                            "--include-calm)")
             raise BagError(f"{arg}: no rosbag2 bag (directory with metadata.yaml) found under it{hint}")
         bags += [b for b in found if b.resolve() not in {x.resolve() for x in bags}]
     return [BagSource(path, name) for path, name in zip(bags, unique_names(bags))]
@@ -183,7 +184,8 @@ def bag_metadata(path: Path) -> tuple[dict[str, tuple[str, int]], dict[str, str]
     except BagError as err:
         raise BagError(f"{path}: {err}") from err
     except (KeyError, TypeError, ValueError, AttributeError) as err:
-        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata} ({type(err).__name__}: {one_line(err)})") from err
+        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata} ({type(err).__name__}: "
+                       f"{one_line(err)})") from err
     return topics, custom
 
 
@@ -285,7 +287,8 @@ def clean_signal(signal: Signal, *, where: str, role: str, dt: float, t_ref_ns: 
         k = int(np.argmin(steps))
         back = -int(steps[k])
         if back > dt * NS_PER_S:
-            raise BagError(f"{where}: time goes back {back / NS_PER_S:.3f} s at t={(t_ns[k] - t_ref_ns) / NS_PER_S:.3f} s "
+            raise BagError(f"{where}: time goes back {back / NS_PER_S:.3f} s at "
+                           f"t={(t_ns[k] - t_ref_ns) / NS_PER_S:.3f} s "
                            f"(stamp {int(t_ns[k + 1])} ns after {int(t_ns[k])} ns), more than the step {dt:g} s")
         warn(f"{where}: {int((steps < 0).sum())} samples out of order (at most {back / NS_PER_S:.3f} s); sorted")
     order = np.argsort(t_ns, kind="stable")
@@ -295,7 +298,8 @@ def clean_signal(signal: Signal, *, where: str, role: str, dt: float, t_ref_ns: 
         equal = (values[1:] == values[:-1]) | (np.isnan(values[1:]) & np.isnan(values[:-1]))  # NaN == NaN here
         same = repeat & np.concatenate([[False], np.all(equal, axis=1)])
         exact, differing = int(same.sum()), int((repeat & ~same).sum())
-        detail = f"{exact} exact duplicates" + (f", {differing} with other values (kept the first)" if differing else "")
+        detail = f"{exact} exact duplicates" + (f", {differing} with other values (kept the first)" if differing
+                                                else "")
         warn(f"{where}: dropped {int(repeat.sum())} samples with a repeated stamp ({detail})")
         t_ns, values = t_ns[~repeat], values[~repeat]
     return Signal(t_ns, values, signal.fields)
@@ -313,7 +317,8 @@ def gap_cuts(signals: Mapping[str, Signal], dt: float, *, where: str, topic_of: 
         for k in np.flatnonzero(np.diff(t) > dt * NS_PER_S + 1):
             a, b = int(t[k]), int(t[k + 1])
             if b > start and a < end:
-                warn(f"{where}: topic {topic_of[role]!r} has a {(b - a) / NS_PER_S:.2f} s gap at t={(a - t_ref_ns) / NS_PER_S:.2f} s "
+                warn(f"{where}: topic {topic_of[role]!r} has a {(b - a) / NS_PER_S:.2f} s gap at "
+                     f"t={(a - t_ref_ns) / NS_PER_S:.2f} s "
                      f"(longer than the step {dt:g} s); cutting the recording there")
                 holes.append((a, b))
     spans, cursor = [], start
@@ -471,7 +476,8 @@ def _steady_segments(pieces: Sequence[Recording], bag_name: str) -> list[Recordi
     return out
 
 
-def _bag_job(source: BagSource, specs: Sequence[TopicSpec], dt: float, options: Mapping) -> tuple[list[Recording], list[str]]:
+def _bag_job(source: BagSource, specs: Sequence[TopicSpec], dt: float,
+             options: Mapping) -> tuple[list[Recording], list[str]]:
     """One bag in a worker process: its Recordings and its warnings (replayed in bag order by the parent)."""
     messages: list[str] = []
     return recordings_from_bag(source, specs, dt, warn=messages.append, **options), messages
@@ -525,7 +531,8 @@ def load_recordings(bag_paths: Iterable[str | Path], dt: float, *, config_path: 
     minimum duration that become dt, horizon_s and min_duration_s at the model's scale, then scaled.
 
     topics: role -> topic name overrides of the config's input topics. jobs: processes reading bags in
-    parallel (0: default_jobs). layout: the vessel's actuator layout (which roles carry the controls). May return [] when every piece was skipped (each skip has its warning);
+    parallel (0: default_jobs). layout: the vessel's actuator layout (which roles carry the controls). May return []
+    when every piece was skipped (each skip has its warning);
     errors in the input raise BagError naming the bag and topic.
     """
     if not dt > 0.0 or not math.isfinite(dt):

@@ -2,7 +2,8 @@
 
 One bag per manoeuvre, named after it, with the default topics of config/predictor.yaml that the vessel's actuator
 layout reports (rudder_angle and engine_rpm of a rudder_propeller boat, thruster_port and thruster_starboard of twin
-thrusters, ...) plus the ground truth (`ground_truth/odometry`, never used for fitting). The bag's custom_data records how it was made
+thrusters, ...) plus the ground truth (`ground_truth/odometry`, never used for fitting). The bag's custom_data records
+how it was made
 (command, vessel, scenario, seed, software version), or with `blind` only a SHA-256 digest of the scenario so
 that a tool under test cannot read the answer from it. A trial day starts at EPOCH_NS; the manoeuvres of a
 programme follow each other GAP_S apart in time and SPACING_M apart in place, with the approach heading
@@ -107,7 +108,8 @@ def _commands(request: SimulationRequest, vessel: Vessel) -> tuple[float, float]
     if None in inputs:
         raise ConfigError(f"vessel {vessel.name}: actuator layout {layout.name} cannot be simulated")
     own = {i.option for i in inputs}
-    given = [option for option, name in OPTION_FIELDS.items() if getattr(request, name) is not None and option not in own]
+    given = [option for option, name in OPTION_FIELDS.items() if getattr(request, name) is not None
+             and option not in own]
     if given:
         raise ConfigError(f"{' '.join(given)} does not apply to vessel {vessel.name} (actuator layout {layout.name}); "
                           f"it takes {' and '.join(i.option for i in inputs)}")

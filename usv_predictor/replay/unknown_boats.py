@@ -1,4 +1,4 @@
-"""One boat the tool has never seen, through the public commands (issue 11 section 5): the acceptance pipeline that
+"""One boat the tool has never seen, through the public commands: the unknown-boat acceptance pipeline that
 test/test_unknown_boats.py and benchmarks/bench_unknown_boats.py share.
 
     truth (analysis.unknown_boats.draw_boat) --simulate--> a calm day (`training` programme) and an effect day
@@ -58,7 +58,8 @@ def run_unknown_boat(boat: UnknownBoat, truth: Draw, workdir: Path, seed: int, *
     """The pipeline of the module docstring for one boat and one hidden effect, in `workdir` (created).
 
     interaction: `identify --interaction` (identify: the interaction factors searched with the hull, identify's
-    and the benchmark's default; fix: the description's). Returns cause, parameters, within_tolerance, errors, the identification chosen, the fit check, timings and the
+    and the benchmark's default; fix: the description's). Returns cause, parameters, within_tolerance, errors, the
+    identification chosen, the fit check, timings and the
     commands' logs. A failing simulate or vessel init is a RuntimeError (a bug of the suite, not an answer).
     """
     workdir = Path(workdir)

@@ -1,0 +1,223 @@
+"""The compiled kernel (physics/kernel.py) equals its torch twin (models/greybox.GreyBoxRollout, models/hybrid.
+ResidualGreyBox) to 1e-9 in float64: on every preset, hull model and actuator layout, with every extension term, with
+each residual, eager and from a TorchScript file; and it is what loading and the predictors run."""
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from test_greybox import VESSELS
+from usv_predictor.models.greybox import GreyBoxPredictor, GreyBoxRollout, greybox_metadata, greybox_predictor
+from usv_predictor.models.hybrid import (GeneralisingResidual, PolynomialResidual, ResidualGreyBox, SumResidual,
+                                         ZeroResidual)
+from usv_predictor.models.kernel_rollout import KERNEL_FORM, KernelRollout, KernelUnavailable, check_equal
+from usv_predictor.physics import effects
+from usv_predictor.physics.vessel import load_vessel
+
+RTOL = 1e-9  # relative to each output column's scale (float64: the twins differ by rounding only)
+DT = 0.5  # (s)
+PRESETS = {name: load_vessel(name) for name in ("jari_usv", "kvlcc2_model", "otter", "wamv")}
+ALL = {**VESSELS, **{f"preset {n}": v for n, v in PRESETS.items()}}
+
+
+def inputs(vessel, batch: int = 5, steps: int = 40, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Starts (B, 4) round the compass, controls (B, H, C) that sweep the layout's range, references (B, 4)."""
+    rng = np.random.default_rng(seed)
+    speed = 0.3 * math.sqrt(vessel.geometry.L_pp)  # (m/s) a few knots for a small boat, more for a long one
+    state = np.stack([speed * rng.uniform(0.5, 1.5, batch), rng.normal(0, 0.05 * speed, batch),
+                      rng.normal(0, 0.3 * speed / vessel.geometry.L_pp, batch), rng.uniform(-3, 3, batch)], axis=1)
+    t = np.arange(steps)[None, :] * DT
+    phase = rng.uniform(0, 2 * math.pi, (batch, 1))
+    layout = vessel.layout
+    if layout == "twin_thrusters":
+        controls = np.stack([0.6 + 0.35 * np.sin(0.3 * t + phase), 0.5 - 0.4 * np.sin(0.2 * t + phase)], axis=2)
+    else:
+        columns = [math.radians(25.0) * np.sin(0.25 * t + phase)]
+        if layout == "rudder_propeller":
+            columns.append(rng.uniform(400, 800, (batch, 1)) + 50.0 * np.sin(0.1 * t))
+        elif layout == "rudder_throttle":
+            columns.append(0.5 + 0.4 * np.sin(0.15 * t + phase))
+        controls = np.stack(columns, axis=2)
+    reference = state.copy()
+    reference[:, 0] *= 1.1
+    reference[:, 1:3] = 0.0
+    return state, controls, reference
+
+
+TERMS = {  # every extension term, at a strength that changes the prediction
+    "current_ne": (0.3, -0.2), "wind_ne": (-6.0, 4.0), "wave_ne": (0.04, 0.03), "rudder_offset": (0.03,),
+    "yaw_rate_bias": (0.01,), "heading_offset": (0.05,), "actuator_delay": (0.7,), "resistance_change": (0.15,),
+    "propeller_side_force": (0.02,), "thrust_imbalance": (0.08,),
+}
+
+
+def set_terms(module, terms) -> None:
+    with torch.no_grad():
+        for name in effects.grey_box_terms():
+            getattr(module, name).zero_()
+        for name, value in terms.items():
+            getattr(module, name)[:] = torch.as_tensor(value, dtype=torch.float64)
+
+
+def relative_error(got: np.ndarray, expected: np.ndarray) -> float:
+    scale = 1.0 + np.abs(expected).max(axis=(0, 1, 2))  # (6,)
+    return float((np.abs(got - expected).max(axis=(0, 1, 2)) / scale).max())
+
+
+def torch_rollout(module, state, controls, reference=None) -> np.ndarray:
+    with torch.no_grad():
+        return module(torch.from_numpy(state), torch.from_numpy(controls),
+                      None if reference is None else torch.from_numpy(reference)).numpy()
+
+
+def test_the_terms_and_the_kernels_places_are_the_effect_records():
+    assert set(TERMS) == set(effects.grey_box_terms())
+
+
+@pytest.mark.parametrize("name", sorted(ALL))
+@pytest.mark.parametrize("terms", ["calm", "every term", "each term"])
+def test_kernel_equals_the_torch_twin(name, terms):
+    vessel = ALL[name]
+    module = GreyBoxRollout(vessel, dt=DT, substeps=2)
+    kernel = KernelRollout(module, live=True)
+    state, controls, reference = inputs(vessel)
+    cases = {"calm": [{}], "every term": [TERMS], "each term": [{k: v} for k, v in TERMS.items()]}[terms]
+    for case in cases:
+        set_terms(module, case)
+        for ref in (None, reference):
+            expected = torch_rollout(module, state, controls, ref)
+            got = kernel.rollout(state, controls, ref)
+            assert got.shape == expected.shape == (1, 5, 40, 6)
+            assert relative_error(got, expected) < RTOL, (name, case, ref is None)
+
+
+def test_a_term_changes_the_kernels_prediction():
+    """Not a kernel that ignores its terms: each term moves the prediction (so the equality above can fail)."""
+    vessel = VESSELS["jari_usv (mmg, rudder_propeller)"]
+    module = GreyBoxRollout(vessel, dt=DT)
+    kernel = KernelRollout(module, live=True)
+    state, controls, _ = inputs(vessel)
+    calm = kernel.rollout(state, controls)
+    for name, value in TERMS.items():
+        if name == "thrust_imbalance":  # a twin-thruster term: the rudder boat has no thrusters
+            continue
+        set_terms(module, {name: value})
+        assert relative_error(kernel.rollout(state, controls), calm) > 1e-4, name
+    set_terms(module, {})
+    assert relative_error(kernel.rollout(state, controls), calm) == 0.0
+
+
+@pytest.mark.parametrize("substeps", [1, 3])
+def test_kernel_equals_the_twin_at_other_substeps_and_from_a_file(substeps):
+    vessel = PRESETS["otter"]
+    module = GreyBoxRollout(vessel, dt=0.2, substeps=substeps)
+    set_terms(module, TERMS)
+    buffer = io.BytesIO()
+    torch.jit.save(torch.jit.script(module), buffer)
+    buffer.seek(0)
+    loaded = torch.jit.load(buffer)
+    kernel = KernelRollout(loaded)
+    state, controls, _ = inputs(vessel)
+    assert relative_error(kernel.rollout(state, controls), torch_rollout(module, state, controls)) < RTOL
+
+
+def test_terms_set_per_row_and_steered_rows():
+    """The fit check's batches: each row its own terms ((size, B) tensors), and rows whose sway and yaw are held."""
+    vessel = PRESETS["jari_usv"]
+    module = GreyBoxRollout(vessel, dt=DT)
+    state, controls, _ = inputs(vessel, batch=4)
+    rows = np.array([[0.0, 0.2, 0.0, -0.3], [0.0, 0.1, 0.4, 0.0]])  # (2, B) current north, east per row
+    module.current_ne = torch.nn.Parameter(torch.from_numpy(rows), requires_grad=False)
+    kernel = KernelRollout(module, live=True)
+    free = np.array([1.0, 0.0, 1.0, 0.0])
+    got = kernel.rollout(state, controls, free=free)
+    for b in range(4):
+        one = GreyBoxRollout(vessel, dt=DT)
+        set_terms(one, {"current_ne": rows[:, b]})
+        expected = torch_rollout(one, state[b:b + 1], controls[b:b + 1])
+        if free[b]:
+            assert relative_error(got[:, b:b + 1], expected) < RTOL
+        else:  # held: the sway and yaw rate stay at the start's (water-relative) values
+            assert np.allclose(got[0, b, :, 2], state[b, 2])
+            assert relative_error(got[:, b:b + 1], expected) > 1e-3
+
+
+def _randomised(residual: GeneralisingResidual, scale: float, level_b: tuple[float, float]) -> GeneralisingResidual:
+    """Random weights; the features' normalisation about the inputs' (level_b: the second level's mean and std)."""
+    generator = torch.Generator().manual_seed(3)
+    with torch.no_grad():
+        for p in [*residual.weights, *residual.biases, residual.head_weight, residual.head_bias]:
+            p.copy_(torch.randn(p.shape, generator=generator, dtype=torch.float64) * scale)
+        residual.in_mean.copy_(torch.tensor([0.0, 0.0, 1.0, 0.0, level_b[0], 0.0, 0.0]))
+        residual.in_std.copy_(torch.tensor([0.1, 0.2, 0.3, 0.2, level_b[1], 0.7, 0.7]))
+        residual.z_low.copy_(torch.full((7,), -2.0))
+        residual.z_high.copy_(torch.full((7,), 1.5))
+        residual.bound.copy_(torch.tensor([0.02, 0.05, 0.03]))
+    return residual
+
+
+def residual_of(kind: str, vessel):
+    L = vessel.geometry.L_pp
+    if kind == "polynomial":
+        return PolynomialResidual(vessel, {"X_du": 0.01, "Y_0": 0.002, "Y_dur": -0.01, "N_0": -0.001, "N_duv": 0.02},
+                                  u0=3.0), 1
+    level_b = (0.5, 0.3) if vessel.layout == "twin_thrusters" else (600.0, 150.0)  # thruster commands, rpm
+    learned = _randomised(GeneralisingResidual(L, 3.0, members=3, hidden=6, layers=2), 0.7, level_b)
+    if kind == "learned":
+        return learned, 3
+    poly, _ = residual_of("polynomial", vessel)
+    return SumResidual(poly, learned), 3
+
+
+@pytest.mark.parametrize("name", ["jari_usv (mmg, rudder_propeller)", "otter (small_craft, twin_thrusters)",
+                                  "jari_usv (mmg, rudder_only)"])
+@pytest.mark.parametrize("kind", ["zero", "polynomial", "learned", "sum"])
+def test_kernel_equals_the_hybrid(name, kind):
+    vessel = ALL[name]
+    residual, members = (ZeroResidual(), 1) if kind == "zero" else residual_of(kind, vessel)
+    module = ResidualGreyBox(vessel, DT, residual, members=members)
+    set_terms(module, {"current_ne": (0.2, 0.1), "wave_ne": (0.03, -0.02)})
+    state, controls, reference = inputs(vessel)
+    expected = torch_rollout(module, state, controls, reference)
+    kernel = KernelRollout(torch.jit.script(module))
+    got = kernel.rollout(state, controls, reference)
+    assert got.shape == expected.shape == (members, 5, 40, 6)
+    assert relative_error(got, expected) < RTOL
+    if kind != "zero":  # the residual acts: the plain grey box predicts otherwise
+        plain = GreyBoxRollout(vessel, DT)
+        set_terms(plain, {"current_ne": (0.2, 0.1), "wave_ne": (0.03, -0.02)})
+        assert relative_error(got[:1], torch_rollout(plain, state, controls, reference)) > 1e-6
+
+
+def test_an_unknown_module_is_refused_with_a_reason():
+    class Other(torch.nn.Module):
+        def forward(self, state, controls):
+            return torch.zeros(1, state.shape[0], controls.shape[1], 6)
+
+    with pytest.raises(KernelUnavailable, match="cannot read this Other"):
+        KernelRollout(Other())
+
+
+def test_check_equal_catches_a_kernel_that_differs():
+    vessel = PRESETS["jari_usv"]
+    module = GreyBoxRollout(vessel, DT)
+    kernel = KernelRollout(module)
+    meta = greybox_metadata(vessel, module)
+    assert check_equal(kernel, module, meta) < RTOL
+    other = GreyBoxRollout(vessel, DT)
+    set_terms(other, {"current_ne": (0.5, 0.0)})
+    with pytest.raises(KernelUnavailable, match="differs from the module"):
+        check_equal(kernel, other, meta)
+
+
+def test_the_physics_predictor_runs_the_kernel():
+    vessel = PRESETS["otter"]
+    predictor = greybox_predictor(vessel, DT)
+    assert isinstance(predictor, GreyBoxPredictor) and predictor.inference_note == KERNEL_FORM
+    state, controls, _ = inputs(vessel)
+    got = predictor.predict(state, controls)
+    assert relative_error(got, torch_rollout(predictor.rollout, state, controls)) < RTOL

@@ -1,0 +1,276 @@
+"""A grey box or hybrid run on the compiled kernel (physics/kernel.py): what every rollout that is not differentiated
+calls — the node's predictions and candidate plans, `replay evaluate`, diagnosis fits and gains, the fit check.
+
+KernelRollout(module) reads a GreyBoxRollout (models/greybox.py), a ResidualGreyBox (models/hybrid.py, with a
+polynomial, learned or summed residual) or their TorchScript files' modules: the constants from the module's
+attributes (as FusedDnnRollout rebuilds a DNN from its buffers), the hull coefficients, engine speed and extension
+terms from its parameters. It is called like the module:
+
+    kernel(state (B, 4), controls (B, H, C), reference (B, 4) | None) -> (E, B, H, 6) torch tensor
+    kernel.rollout(the same as numpy arrays) -> (E, B, H, 6) numpy array
+
+`live=True` (diagnosis, identification: they set the module's terms and hull in place, diagnosis.set_terms) re-reads
+the parameters at every call (a few microseconds); `live=False` (an artifact's inference) reads them once. Attributes
+it does not have are the module's (model.current_ne is the module's tensor), so the callers' code does not change.
+A module it cannot read (another family, an artifact of a version whose attributes differ) is a KernelUnavailable
+naming what is missing; models/loading.py then keeps the file's module.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+import torch
+
+from usv_predictor.errors import KernelUnavailable
+from usv_predictor.physics import effects
+from usv_predictor.physics import kernel as kn
+
+HULL_KINDS = {"MmgHullModule": kn.MMG, "SmallCraftHullModule": kn.SMALL_CRAFT}  # the torch twin's class -> kind
+LAYOUT_KINDS = {"RudderPropellerModule": kn.RUDDER_PROPELLER, "RudderThrottleModule": kn.RUDDER_THROTTLE,
+                "RudderOnlyModule": kn.RUDDER_ONLY, "TwinThrusterModule": kn.TWIN_THRUSTERS}
+# the small-craft hull module's indices of kernel.SMALL_CRAFT_INDICES' coefficients (greybox.SmallCraftHullModule)
+MODULE_INDICES = ("i_xud", "i_yvd", "i_nrd", "i_xu", "i_xuu", "i_yv", "i_yr", "i_nv", "i_nr", "i_nrr", "i_cd")
+KERNEL_FORM = "compiled kernel (physics/kernel.py, numba)"  # the inference_note of a model running it
+
+
+def _name(module: Any) -> str:
+    """The class name of an eager module or of a TorchScript module's original class."""
+    return str(getattr(module, "original_name", type(module).__name__))
+
+
+def _array(tensor: torch.Tensor | None) -> np.ndarray | None:
+    return None if tensor is None else tensor.detach().to(torch.float64).cpu().numpy()
+
+
+def _floats(value: Any) -> np.ndarray:
+    if isinstance(value, torch.Tensor):
+        return value.detach().to(torch.float64).cpu().numpy().reshape(-1)
+    return np.asarray(value, dtype=np.float64).reshape(-1)
+
+
+class KernelRollout:
+    """The compiled rollout of a grey-box module (module docstring)."""
+
+    accepts_reference = True  # forward's third argument: rudder_only's reference state (models/greybox.py)
+
+    def __init__(self, module: Any, *, live: bool = False) -> None:
+        self.module = module
+        self.live = bool(live)
+        self._read: tuple = ()  # what _refresh read last: (data_ptr, version) per parameter, and the tensors
+        self._held: list = []
+        try:
+            self._pack(module)
+        except (AttributeError, KeyError, TypeError, ValueError, IndexError, RuntimeError) as err:
+            raise KernelUnavailable(f"the kernel cannot read this {_name(module)} ({type(err).__name__}: "
+                                    f"{err})") from err
+        self._refresh()
+
+    # ---- packing ---------------------------------------------------------------------------------------------
+    def _pack(self, m: Any) -> None:
+        hull_kind = HULL_KINDS.get(_name(m.hull_forces))
+        layout = LAYOUT_KINDS.get(_name(m.actuator_forces))
+        if hull_kind is None or layout is None:
+            raise KeyError(f"hull {_name(m.hull_forces)} / actuators {_name(m.actuator_forces)}")
+        term_names = tuple(m.term_names)
+        expected = tuple(dict.fromkeys(kn.T_NAMES))
+        if term_names != expected or tuple(effects.grey_box_terms()) != expected:
+            raise ValueError(f"extension terms {term_names}, the kernel's are {expected}")
+        pk = kn.Packer()
+        ki = pk.ki
+        ki[kn.K_HULL], ki[kn.K_LAYOUT], ki[kn.K_SUBSTEPS] = hull_kind, layout, int(m.substeps)
+        if ki[kn.K_SUBSTEPS] < 1:
+            raise ValueError(f"substeps {m.substeps}")
+        pk.set("dt", m.dt)
+        pk.set("L_sea", m.L)
+        for name in ("wind_x", "wind_y", "wind_n", "q_wave"):
+            pk.set(name, getattr(m, name))
+        hf, af = m.hull_forces, m.actuator_forces
+        for name in kn.MASS_CONSTANTS:
+            pk.set(name, getattr(hf, name))
+        self.n_hull = int(m.hull.numel())
+        pk.append(kn.K_O_HULL, np.zeros(self.n_hull))  # the hull coefficients: _refresh writes them
+        drift = kn.fourier_tables([m.drift_x, m.drift_y, m.drift_n])
+        ki[kn.K_DRIFT_ROWS] = drift.shape[1]
+        pk.append(kn.K_O_DRIFT, drift)
+        strips = np.zeros(0)
+        if hull_kind == kn.MMG:
+            pk.set("q_force", hf.q_force)
+            pk.set("speed_floor", hf.speed_floor)
+        else:
+            for name in ("m33_rigid", "half_rho_d", "strip_dx"):
+                pk.set(name, getattr(hf, name))
+            strips = _floats(hf.strips)
+            for k, name in enumerate(MODULE_INDICES):
+                ki[kn.K_XUD + k] = int(getattr(hf, name))
+        ki[kn.K_N_STRIPS] = len(strips)
+        pk.append(kn.K_O_STRIPS, strips)
+        lags = np.zeros((2, 3))  # [T (s), exp(-h/2T), exp(-h/T)] per lagged column
+        maps: list[tuple[list[float], list[float], list[float]]] = []
+        if layout == kn.TWIN_THRUSTERS:
+            pk.set("half_spacing", af.half_spacing)
+            maps = [(af.port, af.port_x, af.port_y), (af.starboard, af.starboard_x, af.starboard_y)]
+            lags[:, :] = np.stack([_floats(af.lag.t), _floats(af.lag.e_half), _floats(af.lag.e_full)], axis=1)
+        else:
+            for name in ("rho", *kn.RUDDER_CONSTANTS):
+                pk.set(name, getattr(af, name))
+            pk.set("L_act", af.L)
+            if layout == kn.RUDDER_THROTTLE:
+                pk.set("static_thrust", af.static_thrust)
+                pk.set("rpm_per_rev_s", af.rpm_per_rev_s)
+                maps = [(af.map, af.table_x, af.table_y)]
+                lags[0] = [_floats(af.lag.t)[0], _floats(af.lag.e_half)[0], _floats(af.lag.e_full)[0]]
+        flat, ki[kn.K_MAP_WIDTH], (ki[kn.K_MAP_N0], ki[kn.K_MAP_N1]) = kn.thrust_maps(maps)
+        pk.append(kn.K_O_MAPS, flat)
+        pk.append(kn.K_O_LAG, lags)
+        pk.append(kn.K_O_COEF, np.zeros(kn.N_POLY))  # the Abkowitz terms: _refresh writes them
+        self.members = 1
+        self._poly_module = None
+        residual = getattr(m, "residual", None)
+        if residual is not None:
+            self.members = int(m.members)
+            ki[kn.K_RESIDUAL] = self._pack_residual(residual, pk)
+            if self.members != 1 and not ki[kn.K_RESIDUAL] & kn.RESIDUAL_MLP:
+                raise ValueError(f"{self.members} members without a learned residual")
+        ki[kn.K_MEMBERS] = self.members
+        self.n_controls = int(m.n_controls)
+        self.ki, self.p = ki, pk.constants()
+
+    def _pack_residual(self, residual: Any, pk: kn.Packer) -> int:
+        """The residual's kind bits (kernel.RESIDUAL_*), its constants and weights packed."""
+        name = _name(residual)
+        if name == "ZeroResidual":
+            return 0
+        if name == "SumResidual":
+            return self._pack_residual(residual.first, pk) | self._pack_residual(residual.second, pk)
+        if name == "PolynomialResidual":
+            self._poly_module = residual
+            for field in ("u0", "L", "q_force", "m11", "m22", "m23", "m32", "m33"):
+                pk.set(f"poly_{field}", getattr(residual, field))
+            return kn.RESIDUAL_POLYNOMIAL
+        if name == "GeneralisingResidual":
+            as64 = _array
+            params = dict(residual.named_parameters())  # a scripted ParameterList cannot be iterated: by name
+            layers = sum(1 for key in params if key.startswith("weights."))
+            weights = [as64(params[f"weights.{k}"]) for k in range(layers)]  # (E, in, out) each
+            biases = [as64(params[f"biases.{k}"]) for k in range(layers)]  # (E, 1, out) each
+            members, width, hidden = weights[0].shape
+            if width != kn.N_FEATURES or members != self.members or int(residual.members) != self.members:
+                raise ValueError(f"learned residual of {width} features and {members} members")
+            ki = pk.ki
+            ki[kn.K_HIDDEN], ki[kn.K_HIDDEN_LAYERS] = hidden, len(weights) - 1
+            hidden_w = np.stack(weights[1:], axis=1) if len(weights) > 1 else np.zeros((members, 0, hidden, hidden))
+            hidden_b = (np.stack([b[:, 0] for b in biases[1:]], axis=1) if len(biases) > 1
+                        else np.zeros((members, 0, hidden)))
+            norm = np.zeros((5, kn.N_FEATURES))
+            for k, field in enumerate(("in_mean", "in_std", "z_low", "z_high")):
+                norm[k] = _floats(getattr(residual, field))
+            norm[4, :3] = _floats(residual.bound)
+            for key, values in ((kn.K_O_W0, weights[0]), (kn.K_O_B0, biases[0][:, 0]), (kn.K_O_WH, hidden_w),
+                                (kn.K_O_BH, hidden_b), (kn.K_O_WO, as64(residual.head_weight)),
+                                (kn.K_O_BO, as64(residual.head_bias)[:, 0]), (kn.K_O_NORM, norm)):
+                pk.append(key, values)
+            for field in ("L", "u_ref", "speed_floor", "support_width"):
+                pk.set(f"mlp_{field}", getattr(residual, field))
+            return kn.RESIDUAL_MLP
+        raise KeyError(f"residual {name}")
+
+    def _refresh(self) -> None:
+        """Read the module's parameters into p and the terms: hull coefficients, held engine speed, extension terms,
+        Abkowitz terms. Skipped when none changed since the last read: the same tensors (kept here, so a replaced
+        parameter cannot take a freed one's memory) at the same version (torch counts every in-place change)."""
+        m = self.module
+        tensors = [m.hull, m.engine_speed_rpm, *(getattr(m, name) for name in dict.fromkeys(kn.T_NAMES))]
+        if self._poly_module is not None:
+            tensors.append(self._poly_module.coef)
+        key = tuple((t.data_ptr(), t._version) for t in tensors)
+        if key == self._read:
+            return
+        hull = _floats(tensors[0])
+        if len(hull) != self.n_hull:
+            raise ValueError(f"{len(hull)} hull coefficients, packed for {self.n_hull}")
+        o = self.ki[kn.K_O_HULL]
+        self.p[o:o + self.n_hull] = hull
+        self.p[kn.P_ENGINE_SPEED_RPM] = float(_floats(tensors[1])[0])
+        if self._poly_module is not None:
+            o = self.ki[kn.K_O_COEF]
+            self.p[o:o + kn.N_POLY] = _floats(tensors[-1])
+        values = []  # (rows, size) per term: a term set per row is (size, B) in the module (fit_check's batches)
+        for tensor in tensors[2:2 + len(dict.fromkeys(kn.T_NAMES))]:
+            value = tensor.detach().to(torch.float64).cpu().numpy()
+            values.append(value[None, :] if value.ndim == 1 else value.T)
+        rows = max(v.shape[0] for v in values)
+        self.terms = np.ascontiguousarray(np.concatenate([np.broadcast_to(v, (rows, v.shape[1])) for v in values],
+                                                         axis=1))  # (R, NT)
+        self._read, self._held = key, tensors
+
+    # ---- running ---------------------------------------------------------------------------------------------
+    def rollout(self, state: np.ndarray, controls: np.ndarray, reference: np.ndarray | None = None,
+                free: np.ndarray | None = None) -> np.ndarray:
+        """(E, B, H, 6) from (B, 4), (B, H, C) and (B, 4) | None float64 arrays; free (B,): the fit check's steered
+        rows (0: sway and yaw held), all free by default."""
+        if self.live:
+            self._refresh()
+        state = np.ascontiguousarray(state, dtype=np.float64)
+        controls = np.ascontiguousarray(controls, dtype=np.float64)
+        if controls.ndim != 3 or controls.shape[2] != self.n_controls or state.shape != (controls.shape[0], 4):
+            raise ValueError(f"state must be (B, 4) and controls (B, H, {self.n_controls}), the vessel's actuator "
+                             f"layout; got {state.shape} and {controls.shape}")
+        rows, steps = controls.shape[:2]
+        if self.terms.shape[0] not in (1, rows):
+            raise ValueError(f"the terms are set for {self.terms.shape[0]} rows, the batch has {rows}")
+        use_reference = reference is not None
+        reference = state if reference is None else np.ascontiguousarray(reference, dtype=np.float64)
+        free = np.ones(rows) if free is None else np.ascontiguousarray(free, dtype=np.float64)
+        out = np.empty((self.members, rows, steps, 6))
+        if rows and steps:
+            kn.rollout(state, controls, reference, use_reference, self.ki, self.p, self.terms, free, out)
+        return out
+
+    def __call__(self, state: torch.Tensor, controls: torch.Tensor, reference: torch.Tensor | None = None,
+                 free: torch.Tensor | None = None) -> torch.Tensor:
+        return torch.from_numpy(self.rollout(_array(state), _array(controls), _array(reference), _array(free)))
+
+    def __getattr__(self, name: str) -> Any:  # the module's attributes (terms, hull, metadata helpers)
+        if name == "module":
+            raise AttributeError(name)
+        return getattr(self.module, name)
+
+
+def kernel_note(module: Any) -> tuple[KernelRollout | None, str]:
+    """(the kernel of a grey-box module or None, why not): for models/loading.py's inference choice."""
+    try:
+        return KernelRollout(module), KERNEL_FORM
+    except KernelUnavailable as err:
+        return None, str(err)
+
+
+def check_equal(kernel: KernelRollout, module: Any, metadata: Mapping[str, Any], rtol: float = 1e-6) -> float:
+    """The largest difference between the kernel's and the module's predictions on a probe (straight, turning and
+    astern starts at the model's horizon with the controls swept), relative to each output column's scale;
+    KernelUnavailable beyond rtol."""
+    horizon = int(metadata.get("horizon_steps") or 20)
+    width = kernel.n_controls
+    state = np.array([[1.5, 0.0, 0.0, 0.3], [2.0, 0.1, 0.05, -2.0], [0.5, -0.05, -0.02, 3.0]])
+    sweep = np.linspace(-1.0, 1.0, horizon)
+    controls = np.zeros((3, horizon, width))
+    layout = int(kernel.ki[kn.K_LAYOUT])
+    if layout == kn.TWIN_THRUSTERS:
+        controls[:, :, 0], controls[:, :, 1] = 0.6 + 0.3 * sweep, 0.6 - 0.3 * sweep
+    else:
+        controls[:, :, 0] = math.radians(20.0) * sweep
+        if width > 1:
+            controls[:, :, 1] = 0.7 if layout == kn.RUDDER_THROTTLE else 600.0
+    with torch.no_grad():
+        expected = module(torch.from_numpy(state), torch.from_numpy(controls)).double().numpy()
+    got = kernel.rollout(state, controls)
+    if got.shape != expected.shape:
+        raise KernelUnavailable(f"the kernel answers {got.shape}, the module {expected.shape}")
+    scale = 1.0 + np.nanmax(np.abs(expected), axis=(0, 1, 2))
+    with np.errstate(invalid="ignore"):
+        error = float(np.nanmax(np.abs(got - expected).max(axis=(0, 1, 2)) / scale))
+    if not (error <= rtol) or (np.isfinite(expected) != np.isfinite(got)).any():
+        raise KernelUnavailable(f"the kernel differs from the module by {error:.3g} of the output's scale "
+                                f"(limit {rtol:g})")
+    return error

@@ -1,0 +1,746 @@
+"""The compiled grey-box kernel: one machine-code rollout of the 3-DOF manoeuvring model for every hull model, actuator
+layout, sea and sensor term and learned residual, batched over start states.
+
+It integrates exactly the model of models/greybox.py (GreyBoxRollout, its twin in torch for autograd and the
+TorchScript file format; test_kernel.py proves them equal to 1e-9 in float64 on every preset, layout, hull model,
+term and residual), whose equations are those of physics/dynamics.py:
+
+    M nu_r_dot + C(nu_r) nu_r + D(nu_r) nu_r = tau_act + tau_wind + tau_wave (+ M g_residual)    (Fossen 2021 eq. 6.5)
+    eta_dot = R(psi) (nu_r + nu_c)                                                               (Fossen 2021 eq. 2.40)
+
+with the MMG hull (Yasukawa & Yoshimura 2015 eq. 4-8) or Fossen's small-craft hull (2021 ch. 6, cross-flow drag by
+strips), the MMG rudder and propeller (eq. 10-16, 37-43) or twin thrusters with thrust maps and exact first-order
+motor lags, the wind of seed 000 eq. 12-18 and the wave drift of eq. 19, RK4 with `substeps` per step and a
+first-order hold of the reported controls (models/greybox.py's module docstring has the interface and every term).
+
+Why compiled: the torch twin is ~150 tensor operations on (B,) tensors per RK4 stage, each a few microseconds of
+dispatch for a few nanoseconds of arithmetic. Here a stage is ~300 scalar flops (a few hundred more with the
+small-craft hull's cross-flow strips), so one 120-step prediction of one state costs ~10^5 flops: tens of
+microseconds (benchmarks/bench_kernel.py measures it against the TorchScript file and the arithmetic floor).
+
+Everything is numba `@njit(cache=True)`: compiled once per signature, on first use, into numba's cache (beside
+this file in __pycache__ when that is writable, else in the user's cache folder; NUMBA_CACHE_DIR overrides), so a
+second process loads machine code in well under a second. docs/kernel.md says where and what a read-only install
+does.
+
+The packed inputs (models/kernel_rollout.py builds them from a GreyBoxRollout or its TorchScript file): two flat
+arrays, so that a derivative passes two array handles, not twenty (each array argument of a call between compiled
+functions costs a reference count and a struct copy: that was half of a derivative's time):
+    ki  (NK,) int64    the kinds, sizes and offsets into p (K_* below): hull model, layout, substeps, residual,
+                       small-craft coefficient indices, where each table starts in p
+    p   (NP,) float64  the constants in SI units at fixed places (P_* below: the sea, the mass matrix, the hull
+                       model's and layout's), then the extension terms (T_*, effects.grey_box_terms' order, SI), the
+                       hull coefficients (GreyBoxRollout.hull, its hull model's field order), the wave-drift Fourier
+                       tables [[a0/2, 0, 0], [n, a_n, b_n], ...] of X, Y, N, the small-craft strips (m), two thrust
+                       maps ([forward_N, reverse_N, exponent, dead_band, has table], table commands, thrusts N), the
+                       lags ([T (s), exp(-h/2T), exp(-h/T)] per lagged column), the Abkowitz terms and a learned
+                       residual's stacked member weights (K_O_* say where)
+and per call: terms (R, NT) the extension terms per row (R = 1 or B), free (B,) 1 on a free row, 0 where sway and
+yaw are held (the fit check's steered rows).
+"""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from typing import Any
+
+import numba
+import numpy as np
+from numba import njit
+
+
+def _probe() -> int:
+    return 0
+
+
+def _cache_folder() -> bool:
+    """Whether numba can cache this module's machine code, finding it a place if it must: beside this file or in the
+    user's cache folder (numba's own choice; NUMBA_CACHE_DIR overrides both), else a folder of this user's in the
+    temporary directory. False (compiled in every process, no cache) when none is writable: a read-only install
+    under a user without a home (docs/kernel.md)."""
+    try:
+        njit(cache=True)(_probe)
+        return True
+    except RuntimeError:  # numba: "cannot cache function ...: no locator available for file ..."
+        pass
+    folder = os.path.join(tempfile.gettempdir(), f"usv_predictor-numba-{os.getuid()}")
+    try:
+        os.makedirs(folder, mode=0o700, exist_ok=True)
+        numba.config.CACHE_DIR = folder
+        njit(cache=True)(_probe)
+        return True
+    except (OSError, RuntimeError):
+        return False
+
+
+CACHED = _cache_folder()  # whether the compiled kernel is kept on disk between processes
+_compiled = njit(cache=CACHED)
+
+# ---- kinds ------------------------------------------------------------------------------------------------------
+MMG, SMALL_CRAFT = 0, 1  # hull models (physics/hulls.py)
+RUDDER_PROPELLER, RUDDER_THROTTLE, RUDDER_ONLY, TWIN_THRUSTERS = 0, 1, 2, 3  # actuator layouts (physics/actuators.py)
+RESIDUAL_POLYNOMIAL, RESIDUAL_MLP = 1, 2  # bits of K_RESIDUAL (models/hybrid.py): Abkowitz terms, learned members
+
+K_NAMES = (
+    "hull_kind", "layout", "substeps", "residual",
+    "i_xud", "i_yvd", "i_nrd", "i_xu", "i_xuu", "i_yv", "i_yr", "i_nv", "i_nr", "i_nrr", "i_cd",  # small-craft hull
+    "o_hull", "o_drift", "drift_rows", "o_strips", "n_strips",  # where the hull, drift tables and strips start
+    "o_maps", "map_width", "map_n0", "map_n1", "o_lag", "o_coef",  # thrust maps (2 x (5 + 2 width)), lags, Abkowitz
+    "o_w0", "o_b0", "o_wh", "o_bh", "o_wo", "o_bo", "o_norm", "members", "hidden", "hidden_layers",  # learned
+)
+(K_HULL, K_LAYOUT, K_SUBSTEPS, K_RESIDUAL, K_XUD, K_YVD, K_NRD, K_XU, K_XUU, K_YV, K_YR, K_NV, K_NR, K_NRR, K_CD,
+ K_O_HULL, K_O_DRIFT, K_DRIFT_ROWS, K_O_STRIPS, K_N_STRIPS, K_O_MAPS, K_MAP_WIDTH, K_MAP_N0, K_MAP_N1, K_O_LAG,
+ K_O_COEF, K_O_W0, K_O_B0, K_O_WH, K_O_BH, K_O_WO, K_O_BO, K_O_NORM, K_MEMBERS, K_HIDDEN,
+ K_HIDDEN_LAYERS) = range(len(K_NAMES))
+
+# ---- constants (SI): the names of the records of physics/dynamics.py (constants_of), as the torch twin holds them --
+P_NAMES = (
+    "dt",  # step (s)
+    "L_sea",  # wave-drift moment arm L_pp (m)
+    "wind_x", "wind_y", "wind_n",  # 0.5 rho_air A c (kg/m, kg/m, kg)
+    "q_wave",  # 0.5 rho g L (N/m^2)
+    # the hull model: mass matrix about midship and the force scale
+    "L", "m", "x_G", "m11", "m22", "m23", "m32", "m33", "det_vr",  # (m, kg, m, kg ... kg^2 m^2)
+    "q_force",  # MMG: 0.5 rho L d (kg/m)
+    "speed_floor",  # MMG: SPEED_FLOOR (m/s)
+    "m33_rigid", "half_rho_d", "strip_dx",  # small craft: I_z + m x_G^2 (kg m^2), 0.5 rho d (kg/m^2), strip width (m)
+    # the rudder layouts: MMG propeller and rudder
+    "rho", "L_act", "x_P", "w_P0", "gear_ratio", "D_P", "k0", "k1", "k2", "t_P", "epsilon", "eta", "kappa", "l_R_m",
+    "gamma_R_minus", "gamma_R_plus", "A_R", "f_alpha", "t_R", "a_H", "x_R_m", "x_H_m",
+    "static_thrust", "rpm_per_rev_s",  # rudder_throttle: rho D^4 K_T(0) (kg m), 60 gear_ratio (rpm s)
+    "half_spacing",  # twin_thrusters: b/2 (m)
+    "engine_speed_rpm",  # rudder_only: the engine speed held (rpm), 0 = from the reference's straight running
+    # a polynomial residual (models/hybrid.PolynomialResidual): its speed and the vessel's constants
+    "poly_u0", "poly_L", "poly_q_force", "poly_m11", "poly_m22", "poly_m23", "poly_m32", "poly_m33",
+    # a learned residual (models/hybrid.GeneralisingResidual)
+    "mlp_L", "mlp_u_ref", "mlp_speed_floor", "mlp_support_width",
+)
+(P_DT, P_L_SEA, P_WIND_X, P_WIND_Y, P_WIND_N, P_Q_WAVE, P_L, P_M, P_X_G, P_M11, P_M22, P_M23, P_M32, P_M33, P_DET_VR,
+ P_Q_FORCE, P_SPEED_FLOOR, P_M33_RIGID, P_HALF_RHO_D, P_STRIP_DX, P_RHO, P_L_ACT, P_X_P, P_W_P0, P_GEAR_RATIO, P_D_P,
+ P_K0, P_K1, P_K2, P_T_P, P_EPSILON, P_ETA, P_KAPPA, P_L_R_M, P_GAMMA_R_MINUS, P_GAMMA_R_PLUS, P_A_R, P_F_ALPHA, P_T_R,
+ P_A_H, P_X_R_M, P_X_H_M, P_STATIC_THRUST, P_RPM_PER_REV_S, P_HALF_SPACING, P_ENGINE_SPEED_RPM, P_POLY_U0, P_POLY_L,
+ P_POLY_Q_FORCE, P_POLY_M11, P_POLY_M22, P_POLY_M23, P_POLY_M32, P_POLY_M33, P_MLP_L, P_MLP_U_REF, P_MLP_SPEED_FLOOR,
+ P_MLP_SUPPORT_WIDTH) = range(len(P_NAMES))
+
+# ---- extension terms, effects.grey_box_terms' order (models/kernel_rollout.py checks it), right after the constants
+T_NAMES = ("current_ne", "current_ne", "wind_ne", "wind_ne", "wave_ne", "wave_ne", "rudder_offset", "yaw_rate_bias",
+           "heading_offset", "actuator_delay", "resistance_change", "propeller_side_force", "thrust_imbalance")
+T_BASE = len(P_NAMES)
+(T_CURRENT_N, T_CURRENT_E, T_WIND_N, T_WIND_E, T_WAVE_N, T_WAVE_E, T_RUDDER_OFFSET, T_YAW_RATE_BIAS, T_HEADING_OFFSET,
+ T_ACTUATOR_DELAY, T_RESISTANCE_CHANGE, T_SIDE_FORCE, T_THRUST_IMBALANCE) = range(T_BASE, T_BASE + len(T_NAMES))
+N_TERMS = len(T_NAMES)
+N_POLY = 7  # the Abkowitz terms X_du, Y_0, Y_duv, Y_dur, N_0, N_duv, N_dur (models/hybrid.EXTRA_NAMES)
+N_FEATURES = 7  # models/hybrid.GENERALISING_FEATURES
+N_SEA = 7  # _sea_of's tuple
+
+
+# ---- packing ------------------------------------------------------------------------------------------------------
+
+SMALL_CRAFT_INDICES = ("X_udot", "Y_vdot", "N_rdot", "X_u", "X_uu", "Y_v", "Y_r", "N_v", "N_r", "N_rr", "cross_flow_cd")
+RUDDER_CONSTANTS = ("x_P", "w_P0", "gear_ratio", "D_P", "k0", "k1", "k2", "t_P", "epsilon", "eta", "kappa", "l_R_m",
+                    "gamma_R_minus", "gamma_R_plus", "A_R", "f_alpha", "t_R", "a_H", "x_R_m", "x_H_m")
+MASS_CONSTANTS = ("L", "m", "x_G", "m11", "m22", "m23", "m32", "m33", "det_vr")
+
+
+def fourier_tables(tables: list[list[list[float]]]) -> np.ndarray:
+    """(K, N, 3) of K Fourier tables [[a0/2, 0, 0], [n, a_n, b_n], ...], zero rows padding the shorter ones."""
+    rows = max(len(t) for t in tables)
+    out = np.zeros((len(tables), rows, 3))
+    for k, table in enumerate(tables):
+        out[k, :len(table)] = np.asarray(table, dtype=np.float64).reshape(-1, 3)
+    return out
+
+
+def thrust_maps(specs: list[tuple[list[float], list[float], list[float]]]) -> tuple[np.ndarray, int, list[int]]:
+    """(2 x [spec (5), table commands (T), table thrusts (T)] flat, T, the tables' lengths) of up to two thrust maps
+    (models/greybox._thrust_constants)."""
+    width = max([len(x) for _, x, _ in specs] + [2])
+    flat = np.zeros((2, 5 + 2 * width))
+    lengths = [0, 0]
+    for k, (spec, x, y) in enumerate(specs):
+        flat[k, :5] = spec
+        flat[k, 5:5 + len(x)], flat[k, 5 + width:5 + width + len(y)], lengths[k] = x, y, len(x)
+    return flat.reshape(-1), width, lengths
+
+
+class Packer:
+    """The flat constants p after the fixed places (P_NAMES, the terms): each table appended, its offset and sizes
+    recorded in ki (K_*). Two callers fill it: vessel_constants (a Vessel: the float model, physics/dynamics.py) and
+    models/kernel_rollout.py (a GreyBoxRollout or its TorchScript file's module)."""
+
+    def __init__(self) -> None:
+        self.ki = np.zeros(len(K_NAMES), dtype=np.int64)
+        self.fixed = np.zeros(T_BASE + N_TERMS)
+        self.parts: list[np.ndarray] = []
+        self.size = len(self.fixed)
+
+    def set(self, name: str, value: Any) -> None:
+        self.fixed[P_NAMES.index(name)] = float(value)
+
+    def append(self, offset_key: int, values: Any) -> None:
+        values = np.asarray(values, dtype=np.float64).reshape(-1)
+        self.ki[offset_key] = self.size
+        self.parts.append(values)
+        self.size += len(values)
+
+    def constants(self) -> np.ndarray:
+        return np.ascontiguousarray(np.concatenate([self.fixed, *self.parts]))
+
+
+def thrust_map_spec(m) -> tuple[list[float], list[float], list[float]]:
+    """([forward_N, reverse_N, exponent, dead_band, has table], table commands, table thrusts) of a vessel.ThrustMap
+    (a power-law map: the placeholder table [-1, 1] -> [0, 0]), as models/greybox.py holds it."""
+    if m.table_command:
+        return ([m.forward_N, m.reverse_N, m.exponent, m.dead_band, 1.0], [float(x) for x in m.table_command],
+                [float(y) for y in m.table_thrust_N])
+    return [m.forward_N, m.reverse_N, m.exponent, m.dead_band, 0.0], [-1.0, 1.0], [0.0, 0.0]
+
+
+def lag_factors(time_constants, tau: float) -> list[float]:
+    """exp(-tau / T) per time constant T (s), 0 for an instantaneous motor (T = 0)."""
+    return [math.exp(-tau / t) if t > 0.0 else 0.0 for t in time_constants]
+
+
+def vessel_constants(vessel, dt: float = 0.5, substeps: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(ki, p) of a Vessel's calm-water equations (the float model's, physics/dynamics.ManoeuvringModel; the torch
+    twin's module is packed from its attributes by models/kernel_rollout.py, which holds the same values: both come
+    from dynamics.constants_of), every term zero."""
+    from dataclasses import fields
+
+    from usv_predictor.physics import dynamics as dy
+    from usv_predictor.physics.vessel import RHO_WATER
+
+    pk = Packer()
+    ki = pk.ki
+    ki[K_HULL] = {"mmg": MMG, "small_craft": SMALL_CRAFT}[vessel.hull_model_name]
+    layout = {"rudder_propeller": RUDDER_PROPELLER, "rudder_throttle": RUDDER_THROTTLE, "rudder_only": RUDDER_ONLY,
+              "twin_thrusters": TWIN_THRUSTERS}[vessel.layout]
+    ki[K_LAYOUT], ki[K_SUBSTEPS] = layout, int(substeps)
+    sea = dy.SeaConstants.of(vessel)
+    pk.set("dt", dt)
+    pk.set("L_sea", vessel.geometry.L_pp)
+    for name in ("wind_x", "wind_y", "wind_n", "q_wave"):
+        pk.set(name, getattr(sea, name))
+    hull_record = dy.HullConstants if ki[K_HULL] == MMG else dy.SmallCraftConstants
+    hull = hull_record.of(vessel)
+    for name in MASS_CONSTANTS:
+        pk.set(name, getattr(hull, name))
+    section = getattr(vessel, vessel.hull_model.coefficients)
+    names = [f.name for f in fields(section)]
+    pk.append(K_O_HULL, [float(getattr(section, n)) for n in names])
+    tables = [[[half_a0, 0.0, 0.0]] + [[float(n), a, b] for n, a, b in terms]
+              for half_a0, terms in (sea.drift_x, sea.drift_y, sea.drift_n)]
+    drift = fourier_tables(tables)
+    ki[K_DRIFT_ROWS] = drift.shape[1]
+    pk.append(K_O_DRIFT, drift)
+    strips: list[float] = []
+    if ki[K_HULL] == MMG:
+        pk.set("q_force", hull.q_force)
+        pk.set("speed_floor", dy.SPEED_FLOOR)
+    else:
+        for name in ("m33_rigid", "half_rho_d", "strip_dx"):
+            pk.set(name, getattr(hull, name))
+        strips = list(hull.strip_x)
+        for k, name in enumerate(SMALL_CRAFT_INDICES):
+            ki[K_XUD + k] = names.index(name)
+    ki[K_N_STRIPS] = len(strips)
+    pk.append(K_O_STRIPS, strips)
+    h = dt / substeps
+    lags = np.zeros((2, 3))
+    maps = []
+    if layout == TWIN_THRUSTERS:
+        twin = dy.TwinThrusterConstants.of(vessel)
+        pk.set("half_spacing", twin.half_spacing)
+        maps = [thrust_map_spec(twin.port), thrust_map_spec(twin.starboard)]
+        times = [twin.port.time_constant_s, twin.starboard.time_constant_s]
+        lags[:, :] = np.stack([times, lag_factors(times, 0.5 * h), lag_factors(times, h)], axis=1)
+    else:
+        rudder = dy.constants_of(vessel, (dy.RudderPropellerConstants,))
+        for name in RUDDER_CONSTANTS:
+            pk.set(name, rudder[name])
+        pk.set("rho", RHO_WATER)
+        pk.set("L_act", vessel.geometry.L_pp)
+        if layout == RUDDER_THROTTLE:
+            throttle = dy.ThrottleConstants.of(vessel)
+            pk.set("static_thrust", throttle.static_thrust)
+            pk.set("rpm_per_rev_s", throttle.rpm_per_rev_s)
+            maps = [thrust_map_spec(throttle.throttle)]
+            t = throttle.throttle.time_constant_s
+            lags[0] = [t, *lag_factors([t], 0.5 * h), *lag_factors([t], h)]
+    flat, ki[K_MAP_WIDTH], (ki[K_MAP_N0], ki[K_MAP_N1]) = thrust_maps(maps)
+    pk.append(K_O_MAPS, flat)
+    pk.append(K_O_LAG, lags)
+    pk.append(K_O_COEF, np.zeros(N_POLY))
+    ki[K_MEMBERS] = 1
+    return ki, pk.constants()
+
+
+# ---- the sea --------------------------------------------------------------------------------------------------------
+
+@_compiled
+def _fourier(ki, p, k, chi):
+    """Table k's a0/2 + sum a_n cos(n chi) + b_n sin(n chi) (-) at chi (rad) (seed 000 eq. 19)."""
+    o = ki[K_O_DRIFT] + 3 * k * ki[K_DRIFT_ROWS]
+    value = p[o]
+    for i in range(1, ki[K_DRIFT_ROWS]):
+        row = o + 3 * i
+        if p[row + 1] != 0.0:
+            value += p[row + 1] * math.cos(p[row] * chi)
+        if p[row + 2] != 0.0:
+            value += p[row + 2] * math.sin(p[row] * chi)
+    return value
+
+
+@_compiled
+def _air_load(p, u_rw, v_rw):
+    """(X, Y, N) of the apparent wind (u_rw, v_rw) in the body frame (seed 000 eq. 12-14)."""
+    v2 = u_rw * u_rw + v_rw * v_rw
+    gamma = -math.atan2(v_rw, u_rw)
+    return (-p[P_WIND_X] * v2 * math.cos(gamma), p[P_WIND_Y] * v2 * math.sin(gamma),
+            p[P_WIND_N] * v2 * math.sin(2.0 * gamma))
+
+
+@_compiled
+def _sea_loads(ki, p, sea, c, s, psi, u_r, v_r):
+    """(X, Y, N) of the wind over the still-air drag and the mean wave drift at heading psi (c, s its cosine and sine);
+    sea = _sea_of's (current n, e, wind n, e (m/s), q_wave zeta_a^2 (N), wave direction from (rad), waves on (1/0)):
+    GreyBoxRollout._sea_loads_with. Without wind the increment is exactly zero and is not computed; without waves
+    the drift is left out (the torch twin adds a 1e-15 m wave's, the price of a finite gradient at zero there)."""
+    x = y = n = 0.0
+    if sea[2] != 0.0 or sea[3] != 0.0:
+        u_g = u_r + sea[0] * c + sea[1] * s
+        v_g = v_r - sea[0] * s + sea[1] * c
+        wx, wy, wn = _air_load(p, u_g - (sea[2] * c + sea[3] * s), v_g - (-sea[2] * s + sea[3] * c))
+        sx, sy, sn = _air_load(p, u_g, v_g)
+        x, y, n = wx - sx, wy - sy, wn - sn
+    if sea[6] != 0.0:
+        chi = sea[5] - psi
+        qw = sea[4]
+        x += qw * _fourier(ki, p, 0, chi)
+        y += qw * _fourier(ki, p, 1, chi)
+        n += qw * p[P_L_SEA] * _fourier(ki, p, 2, chi)
+    return x, y, n
+
+
+@_compiled
+def _sea_of(p):
+    """The sea terms' values over a rollout (GreyBoxRollout._sea_terms): current, wind, q_wave zeta_a^2, wave from,
+    and whether there are waves."""
+    amp = math.sqrt(p[T_WAVE_N] ** 2 + p[T_WAVE_E] ** 2 + 1e-30)  # as the torch twin (a finite gradient there)
+    waves = 1.0 if p[T_WAVE_N] != 0.0 or p[T_WAVE_E] != 0.0 else 0.0
+    return (p[T_CURRENT_N], p[T_CURRENT_E], p[T_WIND_N], p[T_WIND_E], p[P_Q_WAVE] * amp,
+            math.atan2(p[T_WAVE_E], p[T_WAVE_N]), waves)
+
+
+# ---- hull models ----------------------------------------------------------------------------------------------------
+
+@_compiled
+def _hull_forces(ki, p, u_r, v_r, r):
+    """(X_H, Y_H, N_H) at midship (N, N, N m), with the relative resistance change of the terms."""
+    h = ki[K_O_HULL]
+    change = p[T_RESISTANCE_CHANGE]
+    if ki[K_HULL] == MMG:  # Yasukawa & Yoshimura 2015 eq. 8, regularised below the speed floor
+        L = p[P_L]
+        U = max(math.sqrt(u_r * u_r + v_r * v_r), p[P_SPEED_FLOOR])
+        vp = v_r / U
+        rp = r * L / U
+        q = p[P_Q_FORCE] * U * U
+        vv, rr = vp * vp, rp * rp  # products, not pow(): a power call costs as much as the polynomial
+        x_h = q * (-p[h] * (1.0 + change) * u_r * abs(u_r) / (U * U) + p[h + 1] * vv + p[h + 2] * vp * rp
+                   + p[h + 3] * rr + p[h + 4] * (vv * vv))
+        y_h = q * (p[h + 5] * vp + p[h + 6] * rp + p[h + 7] * (vv * vp) + p[h + 8] * vv * rp + p[h + 9] * vp * rr
+                   + p[h + 10] * (rr * rp))
+        n_h = q * L * (p[h + 11] * vp + p[h + 12] * rp + p[h + 13] * (vv * vp) + p[h + 14] * vv * rp
+                       + p[h + 15] * vp * rr + p[h + 16] * (rr * rp))
+        return x_h, y_h, n_h
+    # small craft: linear + quadratic damping, strip-theory cross-flow drag (Fossen's crossFlowDrag)
+    y_cf = 0.0
+    n_cf = 0.0
+    o = ki[K_O_STRIPS]
+    for k in range(ki[K_N_STRIPS]):
+        x = p[o + k]
+        w = v_r + x * r
+        f = abs(w) * w
+        y_cf += f
+        n_cf += x * f
+    cross = -p[P_HALF_RHO_D] * p[h + ki[K_CD]] * p[P_STRIP_DX]
+    x_h = (1.0 + change) * ((p[h + ki[K_XU]] + p[h + ki[K_XUU]] * abs(u_r)) * u_r)
+    y_h = p[h + ki[K_YV]] * v_r + p[h + ki[K_YR]] * r + cross * y_cf
+    n_h = p[h + ki[K_NV]] * v_r + p[h + ki[K_NR]] * r + p[h + ki[K_NRR]] * abs(r) * r + cross * n_cf
+    return x_h, y_h, n_h
+
+
+@_compiled
+def _solve(ki, p, x, y, n, u_r, v_r, r):
+    """nu_r_dot = M^-1 (tau - C(nu_r) nu_r): MMG eq. 4 (the Munk moment in N_v), or the small-craft hull's with its
+    fitted added mass and the Munk moment (Y_vdot - X_udot) u_r v_r."""
+    m, x_g = p[P_M], p[P_X_G]
+    m23, m32 = p[P_M23], p[P_M32]
+    if ki[K_HULL] == MMG:
+        m11, m22, m33, det = p[P_M11], p[P_M22], p[P_M33], p[P_DET_VR]
+        munk = 0.0
+    else:
+        h = ki[K_O_HULL]
+        x_udot, y_vdot = p[h + ki[K_XUD]], p[h + ki[K_YVD]]
+        m11 = m - x_udot
+        m22 = m - y_vdot
+        m33 = p[P_M33_RIGID] - p[h + ki[K_NRD]]
+        det = m22 * m33 - m23 * m32
+        munk = (y_vdot - x_udot) * u_r * v_r
+    rhs_x = x + m22 * v_r * r + x_g * m * r * r
+    rhs_y = y - m11 * u_r * r
+    rhs_n = n - x_g * m * u_r * r + munk
+    return rhs_x / m11, (m33 * rhs_y - m23 * rhs_n) / det, (m22 * rhs_n - m32 * rhs_y) / det
+
+
+@_compiled
+def _resistance(ki, p):
+    """(r1 (N s/m), r2 (N s^2/m^2)) of the straight-running resistance r1 u + r2 u^2."""
+    h = ki[K_O_HULL]
+    change = p[T_RESISTANCE_CHANGE]
+    if ki[K_HULL] == MMG:
+        return 0.0, p[P_Q_FORCE] * p[h] * (1.0 + change)
+    return -p[h + ki[K_XU]] * (1.0 + change), -p[h + ki[K_XUU]] * (1.0 + change)
+
+
+# ---- actuator force models ------------------------------------------------------------------------------------------
+
+@_compiled
+def _thrust(ki, p, k, level):
+    """Thrust map k's vessel.ThrustMap.thrust (N): dead band, then the power law or the piecewise-linear table."""
+    width = ki[K_MAP_WIDTH]
+    o = ki[K_O_MAPS] + k * (5 + 2 * width)  # [spec (5), table commands (width), table thrusts (width)]
+    c = min(max(level, -1.0), 1.0)
+    a = max(abs(c) - p[o + 3], 0.0) / (1.0 - p[o + 3])
+    e = a if c > 0.0 else -a
+    if p[o + 4] > 0.0:
+        tx, ty = o + 5, o + 5 + width
+        y = p[ty]
+        for i in range(ki[K_MAP_N0 + k] - 1):
+            step = p[tx + i + 1] - p[tx + i]
+            y += (p[ty + i + 1] - p[ty + i]) / step * min(max(e - p[tx + i], 0.0), step)
+        return y
+    if e >= 0.0:
+        return p[o] * max(e, 0.0) ** p[o + 2]
+    return -p[o + 1] * max(-e, 0.0) ** p[o + 2]
+
+
+@_compiled
+def _rudder_propeller(p, u_r, v_r, r, delta, rpm):
+    """(X_R, Y_R, N_R, X_P, Y_P, N_P): the MMG rudder with slipstream (eq. 13-16, 37-43) and propeller (eq. 10-12)."""
+    L = p[P_L_ACT]
+    speed = math.sqrt(u_r * u_r + v_r * v_r) + 1e-9
+    beta_p = math.atan2(-v_r, max(u_r, 1e-9)) - p[P_X_P] * r * L / speed
+    u_p = u_r * (1.0 - p[P_W_P0] * math.exp(-4.0 * beta_p * beta_p))
+    n_raw = rpm / 60.0 / p[P_GEAR_RATIO]
+    n_p = max(n_raw, 1e-6)
+    d_p = p[P_D_P]
+    j = u_p / (n_p * d_p)
+    k_t = p[P_K0] + p[P_K1] * j + p[P_K2] * j * j
+    running = 1.0 if n_raw > 1e-6 else 0.0
+    d2 = d_p * d_p
+    x_p = running * (1.0 - p[P_T_P]) * p[P_RHO] * n_p * n_p * (d2 * d2) * k_t
+    slip = math.sqrt(u_p * u_p + running * 8.0 * max(k_t, 0.0) * n_p * n_p * d2 / math.pi)
+    eta = p[P_ETA]
+    jet = u_p + p[P_KAPPA] * (slip - u_p)
+    u_rud = p[P_EPSILON] * math.sqrt(eta * jet * jet + (1.0 - eta) * u_p * u_p)
+    beta_r = -(v_r + p[P_L_R_M] * r)  # U beta_R (m/s): the inflow angle as U sin(beta) = -v (docs/kernel.md)
+    v_rud = p[P_GAMMA_R_MINUS] * beta_r if beta_r < 0.0 else p[P_GAMMA_R_PLUS] * beta_r
+    alpha = delta - math.atan2(v_rud, max(u_rud, 1e-9))
+    f_n = 0.5 * p[P_RHO] * p[P_A_R] * (u_rud * u_rud + v_rud * v_rud) * p[P_F_ALPHA] * math.sin(alpha)
+    cos_d = math.cos(delta)
+    y_p = p[T_SIDE_FORCE] * x_p / (1.0 - p[P_T_P])
+    return (-(1.0 - p[P_T_R]) * f_n * math.sin(delta), -(1.0 + p[P_A_H]) * f_n * cos_d,
+            -(p[P_X_R_M] + p[P_A_H] * p[P_X_H_M]) * f_n * cos_d, x_p, y_p, y_p * p[P_X_P] * L)
+
+
+@_compiled
+def _actuator_forces(ki, p, u_r, v_r, r, a, b):
+    """(X, Y, N) of steering then of propulsion at the levels (a, b) of the layout."""
+    layout = ki[K_LAYOUT]
+    if layout == TWIN_THRUSTERS:
+        imbalance = p[T_THRUST_IMBALANCE]
+        t_p = (1.0 + imbalance) * _thrust(ki, p, 0, a)
+        t_s = (1.0 - imbalance) * _thrust(ki, p, 1, b)
+        return 0.0, 0.0, p[P_HALF_SPACING] * (t_p - t_s), t_p + t_s, 0.0, 0.0
+    rpm = b
+    if layout == RUDDER_THROTTLE:  # the engine speed whose static thrust is the map's at the level
+        thrust = max(_thrust(ki, p, 0, b), 0.0)
+        rpm = math.sqrt(thrust / p[P_STATIC_THRUST]) * p[P_RPM_PER_REV_S]
+    return _rudder_propeller(p, u_r, v_r, r, a, rpm)
+
+
+@_compiled
+def _lagged(ki, p, k, y0, u0, u1, u2, h):
+    """Exact first-order lag k over a substep for a linear command u0 -> u2: the levels at h/2 and h (CommandLag)."""
+    o = ki[K_O_LAG] + 3 * k  # [T (s), exp(-h/2T), exp(-h/T)]
+    drift = p[o] * (u2 - u0) / h
+    start = y0 - u0 + drift
+    return u1 - drift + start * p[o + 1], u2 - drift + start * p[o + 2]
+
+
+# ---- residuals (models/hybrid.py) -----------------------------------------------------------------------------------
+
+@_compiled
+def _polynomial_residual(ki, p, u, v, r):
+    """The Abkowitz terms beyond the MMG hull as accelerations (PolynomialResidual)."""
+    o = ki[K_O_COEF]
+    U = max(math.sqrt(u * u + v * v), 1e-3)
+    L = p[P_POLY_L]
+    vp, rp, du = v / U, r * L / U, (u - p[P_POLY_U0]) / U
+    q = p[P_POLY_Q_FORCE] * U * U
+    x = q * p[o] * du
+    y = q * (p[o + 1] + p[o + 2] * du * vp + p[o + 3] * du * rp)
+    n = q * L * (p[o + 4] + p[o + 5] * du * vp + p[o + 6] * du * rp)
+    m22, m23, m32, m33 = p[P_POLY_M22], p[P_POLY_M23], p[P_POLY_M32], p[P_POLY_M33]
+    det = m22 * m33 - m23 * m32
+    return x / p[P_POLY_M11], (m33 * y - m23 * n) / det, (m22 * n - m32 * y) / det
+
+
+@_compiled
+def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
+    """Member e's bounded residual accelerations (GeneralisingResidual): features -> z -> tanh layers -> bound tanh,
+    times the support envelope, scaled by U^2 / L (surge, sway) and U^2 / L^2 (yaw). Weights in p, member-major:
+    w0 (E, F, W), b0 (E, W), wh (E, layers, W, W), bh (E, layers, W), wo (E, W, 3), bo (E, 3); norm (5, F): in_mean,
+    in_std, z_low, z_high, the bound (first 3). work (2, W) scratch."""
+    hidden, layers = ki[K_HIDDEN], ki[K_HIDDEN_LAYERS]
+    L = p[P_MLP_L]
+    speed = max(math.sqrt(u * u + v * v), p[P_MLP_SPEED_FLOOR])
+    feats = (v / speed, r * L / speed, speed / p[P_MLP_U_REF], a, b, math.sin(psi), math.cos(psi))
+    width = p[P_MLP_SUPPORT_WIDTH]
+    norm = ki[K_O_NORM]
+    w0 = ki[K_O_W0] + e * N_FEATURES * hidden
+    b0 = ki[K_O_B0] + e * hidden
+    h_in = work[0]
+    for j in range(hidden):
+        h_in[j] = p[b0 + j]
+    beyond2 = 0.0
+    for i in range(N_FEATURES):
+        z = (feats[i] - p[norm + i]) / p[norm + N_FEATURES + i]
+        over = max(z - p[norm + 3 * N_FEATURES + i], 0.0) + max(p[norm + 2 * N_FEATURES + i] - z, 0.0)
+        beyond2 += (over / width) ** 2
+        row = w0 + i * hidden
+        for j in range(hidden):
+            h_in[j] += z * p[row + j]
+    for j in range(hidden):
+        h_in[j] = math.tanh(h_in[j])
+    h_out = work[1]
+    for layer in range(layers):
+        wh = ki[K_O_WH] + (e * layers + layer) * hidden * hidden
+        bh = ki[K_O_BH] + (e * layers + layer) * hidden
+        for j in range(hidden):
+            h_out[j] = p[bh + j]
+        for i in range(hidden):
+            row = wh + i * hidden
+            for j in range(hidden):
+                h_out[j] += h_in[i] * p[row + j]
+        for j in range(hidden):
+            h_in[j] = math.tanh(h_out[j])
+    wo = ki[K_O_WO] + e * hidden * 3
+    bo = ki[K_O_BO] + e * 3
+    out0, out1, out2 = p[bo], p[bo + 1], p[bo + 2]
+    for i in range(hidden):
+        out0 += h_in[i] * p[wo + 3 * i]
+        out1 += h_in[i] * p[wo + 3 * i + 1]
+        out2 += h_in[i] * p[wo + 3 * i + 2]
+    envelope = math.exp(-0.5 * beyond2)
+    q = feats[2] * p[P_MLP_U_REF]
+    q = q * q / L
+    bound = norm + 4 * N_FEATURES
+    return (p[bound] * math.tanh(out0) * envelope * q, p[bound + 1] * math.tanh(out1) * envelope * q,
+            p[bound + 2] * math.tanh(out2) * envelope * q / L)
+
+
+# ---- the float model's entry points (physics/dynamics.ManoeuvringModel) -----------------------------------------
+
+@_compiled
+def loads(ki, p, sea, psi, u_r, v_r, r, a, b):
+    """(hull X, Y, N, steering X, Y, N, propulsion X, Y, N, wind X, Y, N, waves X, Y, N) at midship (N, N m) for the
+    water-relative velocities, the actuator levels (a, b) and sea = sea_tuple's."""
+    c, s = math.cos(psi), math.sin(psi)
+    hx, hy, hn = _hull_forces(ki, p, u_r, v_r, r)
+    ax, ay, an, px, py, pn = _actuator_forces(ki, p, u_r, v_r, r, a, b)
+    calm = (sea[0], sea[1], sea[2], sea[3], 0.0, 0.0, 0.0)
+    wx, wy, wn = _sea_loads(ki, p, calm, c, s, psi, u_r, v_r)
+    waves = (sea[0], sea[1], 0.0, 0.0, sea[4], sea[5], sea[6])
+    vx, vy, vn = _sea_loads(ki, p, waves, c, s, psi, u_r, v_r)
+    return hx, hy, hn, ax, ay, an, px, py, pn, wx, wy, wn, vx, vy, vn
+
+
+@_compiled
+def accelerations(ki, p, sea, psi, u_r, v_r, r, a, b, accel_n, accel_e):
+    """(u_r_dot, v_r_dot, r_dot) = M^-1 (tau - C(nu_r) nu_r - M_RB R^T dV_c/dt): a turning current accelerates the
+    water and the rigid body feels it (Fossen 2021 sec. 10.3); accel_n, accel_e the current's d/dt (m/s^2)."""
+    c, s = math.cos(psi), math.sin(psi)
+    hx, hy, hn = _hull_forces(ki, p, u_r, v_r, r)
+    ax, ay, an, px, py, pn = _actuator_forces(ki, p, u_r, v_r, r, a, b)
+    lx, ly, ln = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
+    x, y, n = hx + ax + px + lx, hy + ay + py + ly, hn + an + pn + ln
+    if accel_n != 0.0 or accel_e != 0.0:
+        m = p[P_M]
+        a_u = accel_n * c + accel_e * s
+        a_v = -accel_n * s + accel_e * c
+        x -= m * a_u
+        y -= m * a_v
+        n -= m * p[P_X_G] * a_v
+    return _solve(ki, p, x, y, n, u_r, v_r, r)
+
+
+def sea_tuple(q_wave: float, current_n: float, current_e: float, wind_speed: float, wind_from: float,
+              wave_amplitude: float, wave_from: float) -> tuple[float, ...]:
+    """The kernel's sea (_sea_of) from the float model's: the wind's velocity TOWARD (north, east) from its speed and
+    the direction it blows FROM, the wave drift's q_wave zeta_a^2 (N) and direction."""
+    return (current_n, current_e, -wind_speed * math.cos(wind_from), -wind_speed * math.sin(wind_from),
+            q_wave * wave_amplitude * wave_amplitude, wave_from, 1.0 if wave_amplitude > 0.0 else 0.0)
+
+
+# ---- the rollout ----------------------------------------------------------------------------------------------------
+
+@_compiled
+def _derivative(ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b):
+    """d/dt of [x_n, y_e, psi, u_r, v_r, r] at the actuator levels (a, b) (GreyBoxRollout._derivative)."""
+    c, s = math.cos(psi), math.sin(psi)
+    hx, hy, hn = _hull_forces(ki, p, u_r, v_r, r)
+    ax, ay, an, px, py, pn = _actuator_forces(ki, p, u_r, v_r, r, a, b)
+    lx, ly, ln = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
+    du, dv, dr = _solve(ki, p, hx + ax + px + lx, hy + ay + py + ly, hn + an + pn + ln, u_r, v_r, r)
+    residual = ki[K_RESIDUAL]
+    if residual != 0:
+        eu = ev = er = 0.0
+        if residual & RESIDUAL_POLYNOMIAL:
+            eu, ev, er = _polynomial_residual(ki, p, u_r, v_r, r)
+        if residual & RESIDUAL_MLP:
+            mu, mv, mr = _mlp_residual(ki, p, e, work, psi, u_r, v_r, r, a, b)
+            eu, ev, er = eu + mu, ev + mv, er + mr
+        du, dv, dr = du + eu, dv + ev, dr + er
+    u = u_r + sea[0] * c + sea[1] * s
+    v = v_r - sea[0] * s + sea[1] * c
+    return u * c - v * s, u * s + v * c, r, du, dv * free, dr * free
+
+
+@_compiled
+def rollout(state, controls, reference, use_reference, ki, constants, terms, free, out):
+    """The grey box's closed-loop rollout into out (E, B, H, 6) [u, v, r, x_n, y_e, psi] as measured, from state
+    (B, 4) [u, v, r, psi] as measured and controls (B, H, C) as reported (models/greybox.py's interface); reference
+    (B, 4) the straight running of rudder_only's engine speed where use_reference; terms (R, NT) each row's extension
+    terms (R = 1: the same for all), free (B,) 0 on a row whose sway and yaw are held. E members of a learned residual
+    (1 without one) share the batch: member e's prediction of row b is out[e, b]."""
+    rows, steps, width = controls.shape
+    members = out.shape[0]
+    p = constants.copy()  # the terms of each row go into their place in it
+    substeps = ki[K_SUBSTEPS]
+    layout = ki[K_LAYOUT]
+    dt = p[P_DT]
+    h_sub = dt / substeps
+    work = np.empty((2, max(ki[K_HIDDEN], 1)))
+    held = np.empty((steps, width))  # the controls as the hull feels them (actuator delay)
+    for e in range(members):
+        for b in range(rows):
+            p[T_BASE:T_BASE + N_TERMS] = terms[min(b, terms.shape[0] - 1)]
+            sea = _sea_of(p)
+            row_free = free[b]
+            # the controls shifted later by actuator_delay (linear interpolation, the first value held before)
+            shift = p[T_ACTUATOR_DELAY] / dt
+            for k in range(steps):
+                if shift != 0.0:
+                    index = min(max(k - shift, 0.0), float(steps - 1))
+                    low = math.floor(index)
+                    frac = index - low
+                    lo = int(low)
+                    hi = min(lo + 1, steps - 1)
+                    for i in range(width):
+                        held[k, i] = controls[b, lo, i] * (1.0 - frac) + controls[b, hi, i] * frac
+                else:
+                    for i in range(width):
+                        held[k, i] = controls[b, k, i]
+            # the start: measured -> water-relative, the sensors' terms removed
+            psi = state[b, 3] - p[T_HEADING_OFFSET]
+            c, s = math.cos(psi), math.sin(psi)
+            x_n = 0.0
+            y_e = 0.0
+            u_r = state[b, 0] - (sea[0] * c + sea[1] * s)
+            v_r = state[b, 1] - (-sea[0] * s + sea[1] * c)
+            r = state[b, 2] - p[T_YAW_RATE_BIAS]
+            # the layout's carry: the lagged motors at the first reported commands; rudder_only's held engine speed
+            carry_a = 0.0
+            carry_b = 0.0
+            if layout == RUDDER_THROTTLE:
+                carry_b = held[0, 1]
+            elif layout == TWIN_THRUSTERS:
+                carry_a = held[0, 0]
+                carry_b = held[0, 1]
+            elif layout == RUDDER_ONLY:
+                speed_held = u_r
+                psi_held = psi
+                if use_reference:
+                    psi_held = reference[b, 3] - p[T_HEADING_OFFSET]
+                    speed_held = reference[b, 0] - (sea[0] * math.cos(psi_held) + sea[1] * math.sin(psi_held))
+                r1, r2 = _resistance(ki, p)
+                sea_x = _sea_loads(ki, p, sea, math.cos(psi_held), math.sin(psi_held), psi_held, speed_held, 0.0)[0]
+                speed = max(speed_held, 0.0)
+                u_p = speed * (1.0 - p[P_W_P0])
+                scale = (1.0 - p[P_T_P]) * p[P_RHO]
+                d_p = p[P_D_P]
+                qa = scale * p[P_K0] * d_p ** 4
+                qb = scale * p[P_K1] * d_p ** 3 * u_p
+                qc = scale * p[P_K2] * d_p ** 2 * u_p * u_p - (r1 * speed + r2 * speed * speed - sea_x)
+                n = (-qb + math.sqrt(max(qb * qb - 4.0 * qa * qc, 0.0))) / (2.0 * qa)
+                carry_b = max(n, 0.0) * 60.0 * p[P_GEAR_RATIO]
+                if p[P_ENGINE_SPEED_RPM] > 0.0:
+                    carry_b = p[P_ENGINE_SPEED_RPM]
+            offset = p[T_RUDDER_OFFSET] if layout != TWIN_THRUSTERS else 0.0
+            for k in range(steps):
+                nxt = min(k + 1, steps - 1)
+                for j in range(substeps):
+                    f0 = j / substeps
+                    f1 = (j + 0.5) / substeps
+                    f2 = (j + 1.0) / substeps
+                    # the reported controls at the substep's start, middle and end (first-order hold)
+                    c0a = held[k, 0] + f0 * (held[nxt, 0] - held[k, 0])
+                    c1a = held[k, 0] + f1 * (held[nxt, 0] - held[k, 0])
+                    c2a = held[k, 0] + f2 * (held[nxt, 0] - held[k, 0])
+                    c0b = c1b = c2b = 0.0
+                    if width > 1:
+                        c0b = held[k, 1] + f0 * (held[nxt, 1] - held[k, 1])
+                        c1b = held[k, 1] + f1 * (held[nxt, 1] - held[k, 1])
+                        c2b = held[k, 1] + f2 * (held[nxt, 1] - held[k, 1])
+                    # the actuator levels there (the layout's stage)
+                    if layout == TWIN_THRUSTERS:
+                        a0, b0 = carry_a, carry_b
+                        a1, a2 = _lagged(ki, p, 0, carry_a, c0a, c1a, c2a, h_sub)
+                        b1, b2 = _lagged(ki, p, 1, carry_b, c0b, c1b, c2b, h_sub)
+                        carry_a, carry_b = a2, b2
+                    else:
+                        a0, a1, a2 = c0a + offset, c1a + offset, c2a + offset
+                        if layout == RUDDER_THROTTLE:
+                            b0 = carry_b
+                            b1, b2 = _lagged(ki, p, 0, carry_b, c0b, c1b, c2b, h_sub)
+                            carry_b = b2
+                        elif layout == RUDDER_ONLY:
+                            b0 = b1 = b2 = carry_b
+                        else:
+                            b0, b1, b2 = c0b, c1b, c2b
+                    hh = 0.5 * h_sub
+                    d1 = _derivative(ki, p, sea, row_free, e, work, psi, u_r, v_r, r, a0, b0)
+                    d2 = _derivative(ki, p, sea, row_free, e, work, psi + hh * d1[2], u_r + hh * d1[3],
+                                     v_r + hh * d1[4], r + hh * d1[5], a1, b1)
+                    d3 = _derivative(ki, p, sea, row_free, e, work, psi + hh * d2[2], u_r + hh * d2[3],
+                                     v_r + hh * d2[4], r + hh * d2[5], a1, b1)
+                    d4 = _derivative(ki, p, sea, row_free, e, work, psi + h_sub * d3[2], u_r + h_sub * d3[3],
+                                     v_r + h_sub * d3[4], r + h_sub * d3[5], a2, b2)
+                    w = h_sub / 6.0
+                    x_n += w * (d1[0] + 2.0 * d2[0] + 2.0 * d3[0] + d4[0])
+                    y_e += w * (d1[1] + 2.0 * d2[1] + 2.0 * d3[1] + d4[1])
+                    psi += w * (d1[2] + 2.0 * d2[2] + 2.0 * d3[2] + d4[2])
+                    u_r += w * (d1[3] + 2.0 * d2[3] + 2.0 * d3[3] + d4[3])
+                    v_r += w * (d1[4] + 2.0 * d2[4] + 2.0 * d3[4] + d4[4])
+                    r += w * (d1[5] + 2.0 * d2[5] + 2.0 * d3[5] + d4[5])
+                c, s = math.cos(psi), math.sin(psi)
+                out[e, b, k, 0] = u_r + sea[0] * c + sea[1] * s
+                out[e, b, k, 1] = v_r - sea[0] * s + sea[1] * c
+                out[e, b, k, 2] = r + p[T_YAW_RATE_BIAS]
+                out[e, b, k, 3] = x_n
+                out[e, b, k, 4] = y_e
+                out[e, b, k, 5] = psi + p[T_HEADING_OFFSET]
+    return out
