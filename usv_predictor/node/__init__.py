@@ -9,28 +9,23 @@ from __future__ import annotations
 import signal
 from typing import Any, Sequence
 
-
-class _StoppedEarly(BaseException):
-    """SIGTERM or SIGHUP while the shell is being imported: unwinds like Ctrl-C."""
-
-
-def _stop_early(signum: int, frame: Any) -> None:
-    raise _StoppedEarly()
+EARLY_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    """The node's entry point: a stop signal at any moment ends it with exit 0 (node.main's handlers take over once
-    it runs; before them, during the imports, these: without them SIGTERM would kill the process as signal 15)."""
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, _stop_early)
+    """The node's entry point: a stop signal at any moment ends it with exit 0. During the imports (rclpy, torch,
+    numba: seconds) a signal is only noted, never raised into them (an exception thrown through torch's or numba's
+    initialisation aborts the process: exit -6); node.main reads the note once its own handlers are installed."""
+    noted: list[int] = []
+
+    def note(signum: int, frame: Any) -> None:
+        noted.append(signum)
+
+    for sig in EARLY_STOP_SIGNALS:
+        signal.signal(sig, note)
     try:
         from usv_predictor.node.node import main as node_main  # rclpy, torch: a second or two
-    except (KeyboardInterrupt, _StoppedEarly):  # before the node's own handlers exist: a normal end, no traceback
-        return 0
-    try:
-        return node_main(args)
-    except _StoppedEarly:  # in the instant before node.main installs its own handlers
-        return 0
+        return node_main(args, stopped_before=noted)
     finally:
-        for sig in (signal.SIGTERM, signal.SIGHUP):
-            signal.signal(sig, signal.SIG_DFL)
+        for sig in EARLY_STOP_SIGNALS:
+            signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)

@@ -1136,7 +1136,7 @@ def _first_line(err: BaseException) -> str:
     return text.splitlines()[0] if text else type(err).__name__
 
 
-def main(args: Sequence[str] | None = None) -> int:
+def main(args: Sequence[str] | None = None, stopped_before: Sequence[int] = ()) -> int:
     """Entry point of `ros2 run usv_predictor predictor`; args is a full argv (program name first).
 
     Exit codes: 0 after SIGINT, SIGTERM or SIGHUP (also while publishing: the signal only sets a flag the spin loop
@@ -1146,6 +1146,8 @@ def main(args: Sequence[str] | None = None) -> int:
     argv = list(sys.argv if args is None else args)
     stop = _StopRequest()
     previous = stop.install()  # before the slow start-up (torch, the model): an early stop is clean too
+    if stopped_before:  # a stop signal that came while this module was imported (usv_predictor.node.main)
+        stop.requested = stopped_before[0]
     node: PredictorNode | None = None
     try:
         options = parse_arguments(argv)  # --help exits here, before ROS starts
