@@ -83,3 +83,26 @@ def write_layout_variant(directory: Path, layout: str, **sections: object) -> Pa
     path = Path(directory) / f"jari_{layout}.yaml"
     path.write_text(yaml.safe_dump({**raw, "name": f"jari_{layout}", "actuator_layout": layout, **sections}))
     return path
+
+
+def write_model_with_metadata(path: Path, source: Path, drop: Iterable[str] = (), **changes: object) -> Path:
+    """A copy of the model file `source` whose metadata.json has `changes` (and lacks the keys `drop`), written with
+    torch.jit.save directly: what a hand-edited or hostile file holds, which export_module would refuse to write.
+    Dropping `vessel_sha256` leaves the embedded vessel.json out too (a model of before, naming its vessel only)."""
+    import json
+
+    import torch
+
+    from usv_predictor.models.artifact import quiet_jit
+
+    extra = {"metadata.json": "", "vessel.json": ""}
+    with quiet_jit():
+        module = torch.jit.load(str(source), map_location="cpu", _extra_files=extra)
+    metadata = {k: v for k, v in json.loads(extra["metadata.json"]).items() if k not in set(drop)}
+    metadata.update(changes)
+    files = {"metadata.json": json.dumps(metadata)}
+    if "vessel_sha256" in metadata:
+        files["vessel.json"] = extra["vessel.json"]
+    with quiet_jit():
+        torch.jit.save(module, str(path), _extra_files=files)
+    return path

@@ -416,6 +416,13 @@ def _targets(inputs: list[Path], kind: str, base: dict[str, Path], tmp_path: Pat
                "a_bag_not_read": (base["turn"], "is the rosbag2 bag|inside the input")}
     if kind == "file":
         targets["an_existing_directory"] = (tmp_path / "a_directory", "is a directory")
+    special = tmp_path / "special"
+    special.mkdir(exist_ok=True)
+    if not (special / "a_link_to_dev_null").is_symlink():
+        os.symlink("/dev/null", special / "a_link_to_dev_null")
+        os.mkfifo(special / "a_fifo")
+    targets["a_link_to_dev_null"] = (special / "a_link_to_dev_null", "is a symbolic link to /dev/null")  # never
+    targets["a_fifo"] = (special / "a_fifo", "is a FIFO")                                      # replaced
     for k, source in enumerate(inputs):
         targets[f"input_{k}"] = (source, "is the input")
         targets[f"inside_input_{k}"] = (source / "metadata.yaml" if source.is_dir() else source / "x",
@@ -426,7 +433,8 @@ def _targets(inputs: list[Path], kind: str, base: dict[str, Path], tmp_path: Pat
 @pytest.mark.parametrize("command", sorted(OUTPUT_CASES))
 def test_outputs_on_top_of_inputs(command: str, base: dict[str, Path], tmp_path: Path, checked: Callable) -> None:
     """The command's output, then its --json, on its inputs, inside them, inside any bag, below a file, on a
-    directory where a file belongs: refused before any work (exit 2, the reason); the inputs never change."""
+    directory where a file belongs, on a special file (a link to /dev/null, a FIFO): refused before any work
+    (exit 2, the reason); the inputs never change."""
     option, kind, args = OUTPUT_CASES[command]
     inputs = [a for a in args(base) if isinstance(a, Path)]
     run = checked()
@@ -683,3 +691,88 @@ def test_file_size_limit(command: str, base: dict[str, Path], tmp_path: Path) ->
     assert "no space left" in done.stderr.strip().splitlines()[-1]
     assert leftovers(tmp_path) == []
     assert digest([base["bags"], base["evaluation"].parent]) == before
+
+
+# ------------------------------------------------------------------ documents beyond bounds
+
+
+def _documents() -> dict[str, Callable[[np.random.Generator, str], str | None]]:
+    """name -> a YAML/JSON text (from the case's generator and the document's own text), or None where the file is
+    made otherwise (_special_document). Each is past one bound of usv_predictor.bounded."""
+    from usv_predictor.bounded import MAX_DEPTH
+
+    def deep(rng: np.random.Generator, text: str) -> str:
+        depth = int(rng.integers(MAX_DEPTH + 1, 200_000))
+        opening, closing = ("[", "]") if rng.random() < 0.5 else ("{a: ", "}")
+        return text.replace("\n", f"\ndeep_{depth}: {opening * depth}1{closing * depth}\n", 1)
+
+    def alias_bomb(rng: np.random.Generator, text: str) -> str:
+        width, levels = int(rng.integers(8, 20)), int(rng.integers(7, 12))
+        lines = [f"b0: &b0 [{', '.join(['x'] * width)}]"]
+        lines += [f"b{i}: &b{i} [{', '.join([f'*b{i - 1}'] * width)}]" for i in range(1, levels)]
+        return "\n".join(lines) + "\n" + text
+
+    def python_tag(rng: np.random.Generator, text: str) -> str:
+        tag = str(rng.choice(["!!python/object/apply:os.system ['true']", "!!python/name:os.system",
+                              "!!python/object/new:dict {}", "!!python/module:os"]))
+        return f"tagged: {tag}\n" + text
+
+    def cycle(rng: np.random.Generator, text: str) -> str:
+        anchor = f"c{int(rng.integers(0, 1000))}"
+        return f"cycle: &{anchor}\n  inner: [*{anchor}]\n" + text
+
+    return {"deep": deep, "alias_bomb": alias_bomb, "python_tag": python_tag, "cycle": cycle,
+            "fifo": lambda rng, text: None, "dev_zero": lambda rng, text: None, "link_loop": lambda rng, text: None,
+            "sparse_200_MB": lambda rng, text: None}
+
+
+DOCUMENTS = _documents()
+DOCUMENT_WORDS = {"deep": "nested deeper than", "alias_bomb": "expands to more than", "python_tag": "for the tag",
+                  "cycle": "refers to a node that holds it", "fifo": "FIFO", "dev_zero": "character device",
+                  "link_loop": "loop of symbolic links", "sparse_200_MB": "more than the"}
+
+
+def _special_document(case: str, path: Path) -> None:
+    path.unlink(missing_ok=True)
+    if case == "fifo":
+        os.mkfifo(path)
+    elif case == "dev_zero":
+        os.symlink("/dev/zero", path)
+    elif case == "link_loop":
+        os.symlink(path.name, path)
+    else:
+        with path.open("wb") as out:
+            out.truncate(200 << 20)  # sparse: no disk, refused by its size before a read
+
+
+@pytest.mark.parametrize("reader", ["bag_metadata", "vessel_file", "predictor_config"])
+@pytest.mark.parametrize("case", sorted(DOCUMENTS))
+def test_documents_beyond_bounds(reader: str, case: str, base: dict[str, Path], tmp_path: Path,
+                                 checked: Callable) -> None:
+    """Every file read as YAML, past each bound (depth, alias expansion, tags, cycles, size, not a regular file): one
+    line naming the file and the bound, exit 2, no hang and no traceback."""
+    rng = rng_for(f"{reader} {case}")
+    if reader == "bag_metadata":
+        target_dir = _copy(base["zigzag"], tmp_path / "in" / "bag")
+        target = target_dir / "metadata.yaml"
+    else:
+        target_dir = tmp_path / "in"
+        target_dir.mkdir()
+        target = target_dir / f"{reader}.yaml"
+        shutil.copy(REPO / "config" / ("vessels/jari_usv.yaml" if reader == "vessel_file" else "predictor.yaml"),
+                    target)
+    text = DOCUMENTS[case](rng, "\n" + target.read_text())  # each goes in at the top level of the document
+    if text is None:
+        _special_document(case, target)
+    else:
+        target.write_text(text)
+    run = checked()
+    out = tmp_path / "out"
+    if reader == "bag_metadata":
+        code, err = run("info", target_dir, allowed=(2,))
+    elif reader == "vessel_file":
+        code, err = run("simulate", "--vessel", target, "--manoeuvre", "zigzag", "--duration", "5", "--output", out,
+                        allowed=(2,))
+    else:
+        code, err = run("dataset", base["zigzag"], "--config", target, "--output", out / "ds.npz", allowed=(2,))
+    assert DOCUMENT_WORDS[case] in err and str(target) in err, err

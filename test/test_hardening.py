@@ -11,15 +11,18 @@ import json
 import math
 import os
 import resource
+import shutil
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+import yaml
 from replay_helpers import assert_one_line, bag_streams, digest, leftovers, replay, write_variant
 
 from msg_adapters import ROLE_FIELDS
@@ -254,7 +257,7 @@ def test_info_on_metadata_that_is_not_utf8(tmp_path, capsys) -> None:
     (bag / "metadata.yaml").write_bytes((ZIGZAG / "metadata.yaml").read_bytes() + b"\n# \xff\xfe \x80\n")
     code, err = replay(capsys, "info", bag)
     assert_one_line(code, err, "info", allowed=(2,))
-    assert f"{bag}: cannot read bag (UnicodeDecodeError" in err
+    assert f"{bag}: cannot read rosbag2 metadata {bag / 'metadata.yaml'}: not UTF-8 text" in err
 
 
 @pytest.fixture(scope="module")
@@ -466,3 +469,343 @@ def test_sigterm_during_a_long_command(one_bag_dataset, tmp_path) -> None:
     assert done.stderr.strip().splitlines()[-1] == "replay train: terminated"
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*"))
     assert leftovers(tmp_path) == []
+
+
+@pytest.mark.slow
+def test_sighup_during_a_long_command(one_bag_dataset, tmp_path) -> None:
+    """Was: SIGHUP (the terminal closed) killed the process as signal 1, leaving the atomic writer's temporary
+    file. Now it unwinds like SIGTERM: `hung up`, exit 129, nothing written."""
+    argv, marker = INTERRUPTED["train"]
+    done = _interrupt_after([a.format(dataset=one_bag_dataset) for a in argv], marker, tmp_path, sig=signal.SIGHUP)
+    assert done.returncode == cli.EXIT_HUNG_UP == 129, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr and done.stderr.strip().splitlines()[-1] == "replay train: hung up"
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*"))
+    assert leftovers(tmp_path) == []
+
+
+# ------------------------------------------------------------------ bounded reading, typed fields, model metadata
+
+def _alias_bomb(levels: int = 9, width: int = 9) -> str:
+    """The "billion laughs": `levels` anchors of `width` aliases of the one before, width**levels nodes expanded."""
+    lines = [f"lol0: &a0 [{', '.join(['lol'] * width)}]"]
+    lines += [f"lol{i}: &a{i} [{', '.join([f'*a{i - 1}'] * width)}]" for i in range(1, levels + 1)]
+    return "\n".join(lines)
+
+
+DEEP = 100_000  # levels of nesting: far past Python's recursion limit
+
+
+@pytest.fixture(scope="module")
+def plain_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One 20 s zig-zag, uncompressed sqlite3 (its message definitions can be edited in place)."""
+    out = tmp_path_factory.mktemp("plain") / "bags"
+    assert cli.main(["simulate", "--manoeuvre", "zigzag", "--duration", "20", "--no-compress", "--output",
+                     str(out)]) == 0
+    return next(out.iterdir())
+
+
+def _recursive_definition(bag: Path) -> None:
+    import sqlite3
+
+    with sqlite3.connect(next(bag.glob("*.db3"))) as db:
+        db.execute("UPDATE message_definitions SET encoded_message_definition = ? WHERE topic_type = ?",
+                   ("sensor_msgs/Imu inner\nfloat64 x\n", "sensor_msgs/msg/Imu"))
+
+
+def _metadata_to_dev_zero(bag: Path) -> None:
+    (bag / "metadata.yaml").unlink()
+    os.symlink("/dev/zero", bag / "metadata.yaml")
+
+
+def _db3_fifo(bag: Path) -> None:
+    db3 = next(bag.glob("*.db3"))
+    db3.unlink()
+    os.mkfifo(db3)
+
+
+def _metadata_edit(extra: str) -> Callable[[Path], None]:
+    def edit(bag: Path) -> None:
+        text = (bag / "metadata.yaml").read_text()
+        (bag / "metadata.yaml").write_text(text.replace("rosbag2_bagfile_information:\n",
+                                                        "rosbag2_bagfile_information:\n" + extra + "\n", 1))
+    return edit
+
+
+BAG_CASES: dict[str, tuple[Callable[[Path], None], str]] = {  # how the bag is broken -> what the one line says
+    "recursive_message_definition": (_recursive_definition, "a message definition it carries refers to itself"),
+    "metadata_is_dev_zero": (_metadata_to_dev_zero, "character device, expected a regular file"),
+    "db3_is_a_fifo": (_db3_fifo, "FIFO (named pipe), expected a regular file"),
+    "deep_custom_data": (_metadata_edit("  custom_data_deep: " + "[" * DEEP + "]" * DEEP), "nested deeper than"),
+    "alias_bomb": (_metadata_edit("\n".join("  " + line for line in _alias_bomb().splitlines())),
+                   "expands to more than"),
+    "python_tag": (_metadata_edit("  x: !!python/object/apply:os.system ['echo never']"), "constructor for the tag"),
+}
+
+
+@pytest.mark.parametrize("command", ["info", "dataset", "evaluate"])
+@pytest.mark.parametrize("case", sorted(BAG_CASES))
+def test_a_bag_that_cannot_be_read_within_bounds_is_one_line(plain_bag, tmp_path, capsys, case, command) -> None:
+    """Was: RecursionError, MemoryError tracebacks, a hang (sqlite opening a FIFO), exit 1. Now one line, exit 2."""
+    bag = tmp_path / "in" / plain_bag.name
+    shutil.copytree(plain_bag, bag)
+    make, expected = BAG_CASES[case]
+    make(bag)
+    before = digest([f for f in bag.iterdir() if f.is_file()])
+    argv = {"info": [bag], "dataset": [bag, "--output", tmp_path / "ds.npz", "--jobs", "1"],
+            "evaluate": [bag, "--output", tmp_path / "eval"]}[command]
+    code, err = replay(capsys, command, *argv)
+    assert_one_line(code, err, command, allowed=(2,))
+    if command == "info" or case not in ("metadata_is_dev_zero",):  # a directory without a readable metadata.yaml
+        assert expected in err, err                                   # is no bag to a command that searches
+    assert digest([f for f in bag.iterdir() if f.is_file()]) == before and leftovers(tmp_path) == []
+
+
+def test_a_bag_tree_with_links_to_itself_is_searched_once(plain_bag, tmp_path, capsys) -> None:
+    """Was: a hang (two links to `.` make the search exponential). Now each directory is searched once."""
+    root = tmp_path / "tree"
+    shutil.copytree(plain_bag, root / plain_bag.name)
+    os.symlink(".", root / "again")
+    os.symlink(".", root / "and_again")
+    os.symlink("..", root / plain_bag.name / "up")
+    code, err = replay(capsys, "dataset", root, "--output", tmp_path / "ds.npz", "--jobs", "1")
+    assert_one_line(code, err, "dataset", allowed=(0,))
+    from usv_predictor.replay.recordings import find_bags
+
+    assert [b.path for b in find_bags([root])] == [root / plain_bag.name]
+
+
+def _vessel_file(tmp_path: Path, file_name: str = "boat.yaml", **changes: object) -> Path:
+    """jari_usv as a vessel file, with `changes` (section.field or top-level key -> value)."""
+    raw = yaml.safe_load((REPO / "config" / "vessels" / "jari_usv.yaml").read_text())
+    for key, value in changes.items():
+        section, _, field = key.partition("__")
+        if field:
+            raw[section][field] = value
+        else:
+            raw[section] = value
+    path = tmp_path / file_name
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def _text_file(text: str) -> Callable[[Path], Path]:
+    def make(tmp_path: Path) -> Path:
+        path = tmp_path / "boat.yaml"
+        path.write_text(text)
+        return path
+    return make
+
+
+def _fifo(tmp_path: Path) -> Path:
+    os.mkfifo(tmp_path / "boat.yaml")
+    return tmp_path / "boat.yaml"
+
+
+def _huge(tmp_path: Path) -> Path:
+    path = tmp_path / "boat.yaml"
+    with path.open("wb") as out:  # 200 MB that take no disk: a sparse file, refused by its size before any read
+        out.truncate(200 << 20)
+    return path
+
+
+def _link_loop(tmp_path: Path) -> Path:
+    os.symlink(tmp_path / "boat.yaml", tmp_path / "boat.yaml")
+    return tmp_path / "boat.yaml"
+
+
+VESSEL_CASES: dict[str, tuple[Callable[[Path], Path], str]] = {
+    "mass_as_a_list": (lambda t: _vessel_file(t, geometry__displacement_kg=[1.0, 2.0]),
+                       "section 'geometry'.displacement_kg must be a finite number, got [1.0, 2.0]"),
+    "coefficients_as_a_number": (lambda t: _vessel_file(t, wave_drift__a_x=0.5), "wave_drift'.a_x must be a list"),
+    "section_as_a_list": (lambda t: _vessel_file(t, geometry=[1, 2]), "missing section 'geometry'"),
+    "layout_as_a_list": (lambda t: _vessel_file(t, actuator_layout=["rudder_propeller"]),
+                         "actuator_layout must be a text"),
+    "name_as_a_path": (lambda t: _vessel_file(t, name="../../etc/boat"), "is not a vessel name"),
+    "deep_nesting": (_text_file("geometry: " + "[" * DEEP + "]" * DEEP), "nested deeper than"),
+    "alias_bomb": (_text_file(_alias_bomb()), "expands to more than"),
+    "python_tag": (_text_file("name: !!python/object/apply:os.system ['echo never']\n"), "constructor for the tag"),
+    "a_cycle": (_text_file("geometry: &g\n  inner: *g\n"), "refers to a node that holds it"),
+    "fifo": (_fifo, "FIFO (named pipe), expected a regular file"),
+    "200_MB": (_huge, "more than the"),
+    "link_loop": (_link_loop, "a loop of symbolic links"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(VESSEL_CASES))
+def test_a_vessel_file_is_type_checked_and_read_within_bounds(tmp_path, capsys, case) -> None:
+    """Was: a TypeError traceback (a mass given as a list), RecursionError (deep nesting), a hang (a FIFO, 200 MB).
+    Now one line naming the file and the field, exit 2, before any work."""
+    make, expected = VESSEL_CASES[case]
+    path = make(tmp_path)
+    out = tmp_path / "out"
+    code, err = replay(capsys, "simulate", "--vessel", path, "--manoeuvre", "zigzag", "--duration", "5",
+                       "--output", out)
+    assert_one_line(code, err, "simulate", allowed=(2,))
+    assert expected in err and str(path) in err, err
+    assert not out.exists() or not any(out.iterdir())
+
+
+PREDICTOR_CASES: dict[str, tuple[str | None, str]] = {
+    "alias_bomb": ("predictor:\n  ros__parameters:\n" + "\n".join("    " + line for line in _alias_bomb().splitlines()),
+                   "expands to more than"),
+    "python_tag": ("predictor:\n  ros__parameters: !!python/object/new:dict {}\n", "constructor for the tag"),
+    "deep_nesting": ("predictor:\n  ros__parameters:\n    inputs: " + "{a: " * DEEP + "1" + "}" * DEEP,
+                     "nested deeper than"),
+    "dev_zero": (None, "character device, expected a regular file"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(PREDICTOR_CASES))
+def test_a_predictor_config_is_read_within_bounds(plain_bag, tmp_path, capsys, case) -> None:
+    """Was: a parser's caret lines, a MemoryError (/dev/zero). Now one line naming the file, exit 2."""
+    text, expected = PREDICTOR_CASES[case]
+    config = Path("/dev/zero") if text is None else tmp_path / "predictor.yaml"
+    if text is not None:
+        config.write_text(text)
+    code, err = replay(capsys, "dataset", plain_bag, "--config", config, "--output", tmp_path / "ds.npz")
+    assert_one_line(code, err, "dataset", allowed=(2,))
+    assert expected in err and f"predictor config {config}" in err, err
+
+
+MODEL_CASES: dict[str, tuple[dict[str, object], tuple[str, ...], str]] = {  # metadata changes, keys dropped, message
+    "control_layout_int": ({"control_layout": 3}, (), "control_layout = 3 must be a non-empty list"),
+    "control_layout_null": ({"control_layout": None}, (), "control_layout = None must be a non-empty list"),
+    "ensemble_size_five": ({"ensemble_size": "five"}, (), "ensemble_size = 'five' must be an integer >= 1"),
+    "dt_as_text": ({"dt": "0.5"}, (), "dt = '0.5' must be a finite number"),
+    "vessel_name_a_path": ({"vessel": "../../../tmp/boat"}, ("vessel_sha256",), "is not a vessel name"),
+    "vessel_name_a_file": ({"vessel": "boat.yaml"}, ("vessel_sha256",), "is not a vessel name"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MODEL_CASES))
+def test_model_metadata_is_checked_field_by_field(tmp_path, capsys, case) -> None:
+    """Was: a TypeError traceback in evaluate (control_layout an int or null), an evaluation through a vessel named
+    by a `../` path. Now one line naming the file and the field, exit 2, nothing written."""
+    from replay_helpers import write_model_with_metadata
+
+    changes, drop, expected = MODEL_CASES[case]
+    model = write_model_with_metadata(tmp_path / "model.pt", DEFAULT_MODEL, drop=drop, **changes)
+    code, err = replay(capsys, "evaluate", ZIGZAG, "--model", model, "--output", tmp_path / "eval")
+    assert_one_line(code, err, "evaluate", allowed=(2,))
+    assert expected in err and str(model) in err, err
+    assert not (tmp_path / "eval").exists()
+
+
+def _device_copy(path: Path) -> Path:
+    """A copy of /dev/null (a character device, made with mknod: root only, skipped otherwise)."""
+    try:
+        os.mknod(path, 0o666 | __import__("stat").S_IFCHR, os.stat("/dev/null").st_rdev)
+    except PermissionError:
+        pytest.skip("mknod needs root")
+    return path
+
+
+SPECIAL_OUTPUTS: dict[str, Callable[[Path], Path]] = {
+    "a_copy_of_dev_null": _device_copy,
+    "a_link_to_stdout": lambda p: (os.symlink("/dev/stdout", p), p)[1],
+    "a_fifo": lambda p: (os.mkfifo(p), p)[1],
+    "a_link_to_a_file": lambda p: (p.with_name("target.json").write_text("{}"), os.symlink("target.json", p), p)[2],
+}
+
+
+@pytest.mark.parametrize("case", sorted(SPECIAL_OUTPUTS))
+def test_an_output_that_is_a_special_file_is_refused_never_replaced(tmp_path, capsys, case) -> None:
+    """Was: `--json /dev/null-copy` (or a link to stdout) replaced by a regular file. Now refused before any work,
+    the special file left as it was; the same for a file written inside an output directory."""
+    target = SPECIAL_OUTPUTS[case](tmp_path / "result.json")
+    before = os.lstat(target)
+    code, err = replay(capsys, "info", ZIGZAG, "--json", target)
+    assert_one_line(code, err, "info", allowed=(2,))
+    assert f"--json {target} is a" in err and "an output replaces only a regular file" in err, err
+    after = os.lstat(target)
+    assert (after.st_mode, after.st_ino, after.st_rdev) == (before.st_mode, before.st_ino, before.st_rdev)
+    out = tmp_path / "eval"
+    out.mkdir()
+    inner = SPECIAL_OUTPUTS[case](out / "evaluation.json")  # what evaluate writes into its output directory
+    code, err = replay(capsys, "evaluate", ZIGZAG, "--output", out)
+    assert_one_line(code, err, "evaluate", allowed=(2,))
+    assert f"{inner} is a" in err and "replaces only a regular file" in err
+    assert os.lstat(inner).st_mode == before.st_mode
+    assert leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_a_hash_in_an_output_path_writes_where_it_says(tmp_path, capsys, storage) -> None:
+    """Was: sqlite read `out#1/...` as the URI `out` with a fragment: its database landed in a file `out` beside the
+    folder, and the bag had none. Now the bag is where the path says, readable; nothing is written beside it."""
+    out = tmp_path / "out#1?x%41"
+    code, err = replay(capsys, "simulate", "--manoeuvre", "zigzag", "--duration", "5", "--storage", storage,
+                       "--no-compress", "--output", out)
+    assert_one_line(code, err, "simulate", allowed=(0,))
+    assert sorted(p.name for p in tmp_path.iterdir()) == [out.name]
+    bag = next(out.iterdir())
+    code, err = replay(capsys, "info", bag, "--json", tmp_path / "info.json")
+    assert_one_line(code, err, "info", allowed=(0,))
+    assert json.loads((tmp_path / "info.json").read_text())["bags"][0]["message_count"] > 900  # 5 s of every topic
+
+
+def test_a_bag_left_half_written_is_never_read_as_a_bag(plain_bag, tmp_path, capsys) -> None:
+    """What a run killed with SIGKILL while installing a bag leaves: the writer's hidden work directory, a complete
+    bag inside. A search of the output folder does not read it (it is hidden), so no half-made run is trained on."""
+    out = tmp_path / "bags"
+    shutil.copytree(plain_bag, out / plain_bag.name)
+    shutil.copytree(plain_bag, out / f".{plain_bag.name}.k2j4x.partial" / plain_bag.name)
+    from usv_predictor.replay.recordings import find_bags
+
+    assert [b.path for b in find_bags([out])] == [out / plain_bag.name]
+
+
+@pytest.mark.slow
+def test_simulate_killed_leaves_no_bag(tmp_path) -> None:
+    """SIGKILL at any moment of `simulate`: what is left is either a whole bag or a hidden work directory that no
+    search reads (every bag is written under a hidden temporary name and renamed when complete)."""
+    out = tmp_path / "bags"
+    argv = [sys.executable, "-m", "usv_predictor.replay", "simulate", "--programme", "training", "--duration", "30",
+            "--no-compress", "--output", str(out)]
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    for line in proc.stderr:  # the first bag is complete: kill during the second
+        if line.startswith("[1/"):
+            break
+    proc.kill()
+    proc.wait(timeout=30)
+    from usv_predictor.replay.recordings import find_bags
+
+    for bag in find_bags([out]) if out.exists() else []:
+        code = cli.main(["info", str(bag.path)])
+        assert code == 0, bag.path  # every bag a search finds is whole
+
+
+def test_train_on_a_dataset_holding_an_object_array(one_bag_dataset, tmp_path, capsys) -> None:
+    """Once seen to leave a file: an object array (pickled, never loaded) is one line, exit 2, nothing written."""
+    with np.load(one_bag_dataset, allow_pickle=False) as npz:
+        arrays = {name: npz[name] for name in npz.files}
+    arrays["X"] = np.array([object(), 1], dtype=object)
+    spoiled = tmp_path / "object.npz"
+    np.savez(spoiled, **arrays)
+    out = tmp_path / "out"
+    code, err = replay(capsys, "train", spoiled, "--epochs", "1", "--output", out / "model.pt")
+    assert_one_line(code, err, "train", allowed=(2,))
+    assert "Object arrays cannot be loaded" in err and not out.exists() and leftovers(tmp_path) == []
+
+
+def test_two_runs_onto_one_output_at_once(tmp_path, capsys) -> None:
+    """Was: two `evaluate` into one folder at once left files of both. Now the second is refused before any work
+    while the first holds the output; the first ends normally."""
+    out = tmp_path / "eval"
+    first = subprocess.Popen([sys.executable, "-m", "usv_predictor.replay", "evaluate", str(ZIGZAG), "--output",
+                              str(out)], stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        for line in first.stderr:  # it holds the output's lock from before it reads
+            if "reading" in line:
+                break
+        code, err = replay(capsys, "evaluate", ZIGZAG, "--output", out)
+        assert_one_line(code, err, "evaluate", allowed=(2,))
+        assert f"--output {out} is being written by another run" in err
+        first.stderr.read()
+        assert first.wait(timeout=300) == 0
+    finally:
+        if first.poll() is None:
+            first.kill()
+    assert (out / "evaluation.json").is_file() and leftovers(tmp_path) == []
+    code, err = replay(capsys, "evaluate", ZIGZAG, "--output", out, "--json", tmp_path / "again.json")
+    assert_one_line(code, err, "evaluate", allowed=(0,))  # the lock went with the first process

@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "usv_predictor"
 # top to bottom; a layer may import itself and the layers before it
 LAYERS = ("ground", "msg_adapters", "physics", "data", "models", "fitting", "analysis", "node", "replay")
-GROUND_FLOOR = {"errors", "frames", "records", "config", "atomic", "__init__"}  # usv_predictor/<name>.py
+GROUND_FLOOR = {"errors", "frames", "records", "config", "atomic", "bounded", "__init__"}  # usv_predictor/<name>.py
 
 
 def layer_of_file(path: Path) -> str:

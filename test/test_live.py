@@ -309,7 +309,8 @@ def test_consistency_checks_need_evidence() -> None:
     """Straight running at rest, or a short turn: no verdict (nothing refused, nothing cleared)."""
     t = np.linspace(0.0, 20.0, 401)
     calm = live.heading_vs_gyro(t, np.full_like(t, 0.01), t, np.full_like(t, 0.3), 0.0, 20.0)
-    assert calm == live.NOT_JUDGED  # 11 deg of turning: not enough to judge
+    assert not calm.judged and not calm.problem  # 11 deg of turning: not enough to judge, and it says so
+    assert calm.why_not == "the gyro turned 11 deg, less than the 60 deg that tell a heading's units"
     turning = live.heading_vs_gyro(t, np.full_like(t, 0.2), t, 0.2 * t, 0.0, 20.0)
     assert turning.judged
     assert turning.problem == ""
@@ -317,7 +318,8 @@ def test_consistency_checks_need_evidence() -> None:
     assert biased.judged and biased.problem == ""  # a 0.5 deg/s gyro bias passes
     slow = live.track_vs_gnss(t, np.full_like(t, 1.0), np.zeros_like(t), t, np.zeros_like(t), t, 1.0 * t,
                               np.zeros_like(t), 0.0, 20.0)
-    assert slow == ("velocity", live.NOT_JUDGED)  # below TRACK_MIN_SPEED over ground
+    assert slow[0] == "velocity" and not slow[1].judged  # below TRACK_MIN_SPEED over ground
+    assert slow[1].why_not == "slower than 2 m/s over ground (GNSS)"
     drift = live.track_vs_gnss(t, np.full_like(t, 5.0), np.zeros_like(t), t, np.zeros_like(t), t, 5.0 * t,
                                1.5 * t, 0.0, 20.0)
     assert drift == ("velocity", live.Consistency(True))  # a current of 30 % of the speed across the track passes
@@ -410,7 +412,8 @@ def test_add_many_equals_add_one_at_a_time(role: str, at_arrival: bool) -> None:
     for batch in range(60):
         count = int(rng.choice([1, 2, 5, 20, 100]))
         stamps = stamp + np.cumsum(rng.integers(1_000_000, 10_000_000, count))
-        values = np.array(base, dtype=float)[None, :] + rng.normal(0.0, 1e-3, (count, width))
+        noise = 1e-7 if role == "gnss" else 1e-3  # deg for GNSS (1 cm): a fix 100 m off in 5 ms is refused as a jump
+        values = np.array(base, dtype=float)[None, :] + rng.normal(0.0, noise, (count, width))
         arrivals = stamps + rng.integers(0, 2_000_000, count)
         if at_arrival:  # the node's clock at each arrival: runs of equal readings, the first maybe the latest's
             stamps = stamp + np.cumsum(rng.integers(0, 3, count)) * 10_000_000  # 10 ms /clock steps
@@ -503,3 +506,69 @@ def test_a_non_finite_position_never_anchors_a_path() -> None:
     with pytest.raises(live.CycleSkipped, match="the anchored path is not finite"):
         live._anchored(out, np.array([np.nan, 1.0]))
     assert np.array_equal(live._anchored(out, np.array([2.0, 1.0]))[0, :, :2], np.tile([2.0, 1.0], (5, 1)))
+
+
+def _straight_run(inputs: live.InputSet, seconds: float, bad_fix_at: dict[int, tuple[float, float]] | None = None,
+                  falling_behind: float = 0.0, turn_rate: float = 0.0) -> list[str]:
+    """Feed `seconds` of a boat at 5 m/s (turning at `turn_rate` rad/s): imu at 100 Hz, velocity and heading at 20 Hz,
+    GNSS at 5 Hz along the track, checking consistency on every IMU sample as the node's timer does. bad_fix_at:
+    GNSS sample index -> (lat, lon) sent instead. falling_behind: s per s the node falls behind its inputs (a loaded
+    machine taking messages slower than they come), the header-less heading getting the late arrival as its stamp.
+    Returns the refusals' reasons seen."""
+    plane = live.LocalTangentPlane(35.38, 119.56)
+    t0, speed, seen = 1_700_000_000 * NS, 5.0, []
+    north = east = 0.0
+    psi = 0.5
+    for k in range(int(seconds * 100)):
+        t = t0 + k * 10_000_000
+        late = t + int(falling_behind * k * 10_000_000)
+        psi += turn_rate * 0.01
+        north, east = north + speed * math.cos(psi) * 0.01, east + speed * math.sin(psi) * 0.01
+        inputs.add("imu", t, (turn_rate, 0.0, 0.0, -9.81, math.nan), late)
+        if k % 5 == 0:
+            inputs.add("velocity", t, (speed, 0.0, turn_rate), late)
+            inputs.add("heading", late, (psi,), late, at_arrival=True)
+            inputs.add("rudder_angle", late, (0.0,), late, at_arrival=True)
+            inputs.add("engine_rpm", late, (650.0,), late, at_arrival=True)
+        if k % 20 == 0:
+            lat, lon = (bad_fix_at or {}).get(k // 20, plane.to_geodetic(north, east))
+            try:
+                inputs.add("gnss", t, (float(lat), float(lon), 0.0), late)
+            except live.InputRejected:
+                pass
+        inputs.check_consistency(late)
+        seen += [why for _, why in inputs.refusals.values()]
+    return seen
+
+
+def test_one_bad_gnss_fix_never_refuses_the_right_heading() -> None:
+    """Was: one fix of null island among right ones entered the track check, which then refused the (right)
+    heading for 20 s ("GNSS 3925324 m toward 180 deg"). Now it is refused as a jump before any check."""
+    inputs = make_inputs()
+    assert _straight_run(inputs, 60.0, bad_fix_at={150: (0.0, 0.0)}) == []
+    assert inputs.tracks["gnss"].rejected == {"jump": 1}
+    assert "fix" in inputs.tracks["gnss"].last_reject and "faster than 40 m/s" in inputs.tracks["gnss"].last_reject
+    assert "track_vs_gnss" not in inputs.unjudged  # judged (and passed) on the right fixes
+
+
+def test_a_wrong_first_fix_is_outvoted() -> None:
+    """A wrong first fix would make every right one a jump: three right ones in a row that agree restart the GNSS
+    buffer (and the automatic datum) from them."""
+    inputs = make_inputs()
+    assert _straight_run(inputs, 30.0, bad_fix_at={0: (0.0, 0.0)}) == []
+    assert inputs.tracks["gnss"].rejected == {"jump": 2}
+    assert abs(inputs.datum[0] - 35.38) < 0.01 and abs(inputs.datum[1] - 119.56) < 0.01
+
+
+def test_a_node_behind_its_inputs_does_not_judge_a_headerless_heading() -> None:
+    """Was: on a loaded machine the heading-vs-gyro check refused the Otter bag's right heading ("it turned 133
+    deg while the imu yaw rate integrates to 234 deg"): the heading has no header, so the node stamps it when it takes
+    it, late. Now a check over an input stamped on arrival does not judge while stamped messages arrive more than
+    CONSISTENCY_LAG_LIMIT_S late; it says so and refuses nothing. On time, the same run is judged and passes."""
+    behind = make_inputs()
+    assert _straight_run(behind, 40.0, falling_behind=0.75, turn_rate=0.2) == []
+    assert "behind its inputs" in behind.unjudged["heading_vs_gyro"] and "heading has no header" in \
+        behind.unjudged["heading_vs_gyro"]
+    on_time = make_inputs()
+    assert _straight_run(on_time, 40.0, turn_rate=0.2) == []
+    assert "heading_vs_gyro" not in on_time.unjudged

@@ -20,8 +20,10 @@ from rosgraph_msgs.msg import Clock
 import msg_adapters
 from usv_predictor.config import package_share_path
 from usv_predictor.errors import ModelError
+from usv_predictor.node import live
 from usv_predictor.node import node as predictor_node
 
+from replay_helpers import write_model_with_metadata
 from ros_helpers import GOOD, Harness, level, localhost_env, statuses, values_of
 
 DEFAULT_MODEL = package_share_path("models", "default.pt")
@@ -247,6 +249,32 @@ def test_a_1khz_imu_burst_keeps_buffers_bounded(harness: Harness) -> None:
     assert harness.paths  # it kept predicting through the burst
 
 
+def test_use_sim_time_cannot_be_switched_by_a_peer(harness: Harness) -> None:
+    """Was: any participant could set use_sim_time and then own the node's clock through /clock. Refused now,
+    the clock left as it was (the wall clock here)."""
+    before = harness.node.get_clock().now().nanoseconds
+    result = harness.node.set_parameters([Parameter("use_sim_time", value=True)])[0]
+    assert not result.successful and "fixed at start-up" in result.reason
+    assert harness.node.get_parameter("use_sim_time").value is False
+    assert harness.node.get_clock().now().nanoseconds >= before  # still the wall clock, not /clock's 0
+
+
+def test_one_bad_gnss_message_never_stops_predictions(harness: Harness) -> None:
+    """Was: one fix of null island entered the heading-vs-GNSS-track check, which refused the (right) heading
+    and stopped the predictions for 20 s. Now it is refused as a jump, counted, and the predictions go on."""
+    harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK, harness.feed)
+    harness.spin(live.MIN_CHECK_SPAN_S, harness.feed)  # the track check has the span it needs to judge
+    harness.publish("gnss", (0.0, 0.0, 0.0))  # alone for a moment: fed at every spin, a queue of depth 10 drops it
+    harness.spin_until(lambda s: values_of(s["gnss"]).get("rejected_jump") == "1",
+                       lambda: harness.feed(skip=("gnss",)))
+    count = len(harness.paths)
+    harness.spin(2.5, harness.feed)  # two consistency checks at least (one a second)
+    found = statuses(harness.latest)
+    assert len(harness.paths) > count and level(found["prediction"]) == predictor_node.OK, found["prediction"].message
+    assert "refused" not in found["heading"].message and "refused" not in found["velocity"].message
+    assert values_of(found["prediction"])["check track_vs_gnss"].startswith("cannot judge: slower than")
+
+
 def test_invalid_parameter_values_are_rejected_with_the_range(harness: Harness) -> None:
     result = harness.node.set_parameters([Parameter("inputs.imu.max_age_s", value=-1.0)])[0]
     assert not result.successful
@@ -256,10 +284,19 @@ def test_invalid_parameter_values_are_rejected_with_the_range(harness: Harness) 
     assert "0 <= state_delay_s <= 5" in descriptor.additional_constraints
 
 
+MALFORMED_METADATA = {  # each was a TypeError traceback at start-up, and killed the node on a swap
+    "ensemble_five": {"ensemble_size": "five"},
+    "control_layout_int": {"control_layout": 3},
+    "control_layout_null": {"control_layout": None},
+}
+
+
 def write_bad_models(tmp_path: Path) -> dict[str, Path]:
     corrupt = tmp_path / "corrupt.pt"
     corrupt.write_bytes(DEFAULT_MODEL.read_bytes()[:5000])  # truncated
-    return {"missing": tmp_path / "absent.pt", "corrupt": corrupt}
+    malformed = {name: write_model_with_metadata(tmp_path / f"{name}.pt", DEFAULT_MODEL, **changes)
+                 for name, changes in MALFORMED_METADATA.items()}
+    return {"missing": tmp_path / "absent.pt", "corrupt": corrupt, **malformed}
 
 
 def test_model_swap_validates_first_and_keeps_the_old_model(harness: Harness, tmp_path: Path) -> None:
@@ -269,6 +306,11 @@ def test_model_swap_validates_first_and_keeps_the_old_model(harness: Harness, tm
         assert not result.successful, name
         assert str(path) in result.reason, name
         assert harness.node.rollout is old
+    # the last refusal is on /diagnostics while the old model keeps predicting
+    found = harness.spin_until(lambda s: level(s["prediction"]) == predictor_node.OK
+                               and level(s["model"]) == predictor_node.WARN, harness.feed)
+    assert values_of(found["model"])["refused_model_path"] == str(path)
+    assert "control_layout = None must be a non-empty list" in found["model"].message
     result = harness.node.set_parameters([Parameter("model_path", value=str(DEFAULT_MODEL))])[0]
     assert result.successful
     assert harness.node.rollout is not old
@@ -296,7 +338,7 @@ def test_a_model_for_other_controls_is_refused_naming_the_layouts(ros_context: C
                                      parameter_overrides=[Parameter("model_path", value=str(path))])
 
 
-@pytest.mark.parametrize("case", ["missing", "corrupt", "vessel"])
+@pytest.mark.parametrize("case", ["missing", "corrupt", "vessel", "ensemble_five", "control_layout_null"])
 def test_a_bad_model_at_start_exits_2_naming_the_file(tmp_path: Path, case: str) -> None:
     models = write_bad_models(tmp_path)
     args = ["-p", f"model_path:={models[case]}"] if case in models else ["-p", "vessel:=kvlcc2_model"]

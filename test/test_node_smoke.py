@@ -204,6 +204,9 @@ def _failing_model(path: Path) -> Path:
     return path
 
 
+ALIAS_BOMB = "".join(f"    lol{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9) if i else ', '.join(['lol'] * 9)}]\n"
+                     for i in range(9))  # the "billion laughs": 9**9 nodes for whoever expands the aliases
+
 STARTUP_CASES = {
     "datum out of range": (["-p", "datum_lat_deg:=999.0", "-p", "datum_lon_deg:=119.5"],
                            "datum_lat_deg=999.0 deg is outside the allowed range [-89.9, 89.9]"),
@@ -224,6 +227,18 @@ STARTUP_CASES = {
     "message type": (["-p", "inputs.heading.type:=std_msgs/msg/String"], "no adapter for role 'heading'"),
     "ensemble": (["-p", "ensemble_size:=8"], "ensemble_size 8 requested"),
     "failing model": (["-p", "model_path:={failing}"], "fails when run: RuntimeError: boom at start-up"),
+    # a parameter of the wrong type, endpoints remapped onto each other, params files past the bounds
+    "use_sim_time not a bool": (["-p", "use_sim_time:=maybe"],
+                                "invalid parameter: Trying to set parameter 'use_sim_time' to 'maybe'"),
+    "input remapped onto /diagnostics": (["-r", "imu/data:=/diagnostics"], "output /diagnostics resolves to "
+                                         "/diagnostics, the topic of its input imu too"),
+    "output remapped onto /diagnostics": (["-r", "predicted_path:=/diagnostics"],
+                                          "output /diagnostics resolves to /diagnostics, the topic of its output "
+                                          "predicted_path too"),
+    "two outputs on one topic": (["-r", "predicted_velocities:=predicted_path"], "output predicted_velocities "
+                                 "resolves to /predicted_path, the topic of its output predicted_path too"),
+    "params file alias bomb": (["--params-file", "{bomb}"], "invalid ROS arguments"),
+    "params file python tag": (["--params-file", "{tagged}"], "parameter rejected"),  # rcl reads no tags: a list
 }
 
 
@@ -235,7 +250,11 @@ def test_a_wrong_start_up_parameter_is_one_line_and_exit_2(case: str, tmp_path: 
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     broken = tmp_path / "broken.yaml"
     broken.write_text("predictor:\n  ros__parameters:\n    rate_hz: [1,\n", encoding="utf-8")
-    paths = {"broken": broken, "missing": tmp_path / "missing.yaml",
+    bomb, tagged = tmp_path / "bomb.yaml", tmp_path / "tagged.yaml"
+    bomb.write_text(f"predictor:\n  ros__parameters:\n{ALIAS_BOMB}", encoding="utf-8")
+    tagged.write_text("predictor:\n  ros__parameters:\n    rate_hz: !!python/object/apply:os.system ['true']\n",
+                      encoding="utf-8")
+    paths = {"broken": broken, "missing": tmp_path / "missing.yaml", "bomb": bomb, "tagged": tagged,
              "failing": _failing_model(tmp_path / "raises.pt") if case == "failing model" else ""}
     args, message = STARTUP_CASES[case]
     code = predictor_node.main(["predictor", "--ros-args", *[a.format(**paths) for a in args]])
@@ -246,6 +265,32 @@ def test_a_wrong_start_up_parameter_is_one_line_and_exit_2(case: str, tmp_path: 
     assert len(lines) == 1, err
     assert lines[0].startswith("predictor: error: "), err
     assert message in lines[0], err
+
+
+CONFIG_CASES = {  # --config files beyond bounds (usv_predictor.bounded), read before ROS starts
+    "dev_zero": (None, "cannot read predictor config /dev/zero: it is a character device, expected a regular file"),
+    "alias_bomb": ("predictor:\n  ros__parameters:\n" + ALIAS_BOMB, "expands to more than"),
+    "python_tag": ("predictor:\n  ros__parameters: !!python/object/new:dict {}\n", "constructor for the tag"),
+    "deep": ("predictor:\n  ros__parameters:\n    inputs: " + "[" * 100_000 + "]" * 100_000 + "\n",
+             "nested deeper than"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CONFIG_CASES))
+def test_a_config_beyond_bounds_is_one_line_and_exit_2(case: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """Was: a MemoryError (/dev/zero), a RecursionError, a parser's caret lines. Now one line, exit 2."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain_id(43)))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    text, message = CONFIG_CASES[case]
+    config = Path("/dev/zero") if text is None else tmp_path / "predictor.yaml"
+    if text is not None:
+        config.write_text(text, encoding="utf-8")
+    code = predictor_node.main(["predictor", "--config", str(config)])
+    err = capsys.readouterr().err
+    lines = [line for line in err.strip().splitlines() if not line.startswith("[")]
+    assert code == 2 and "Traceback" not in err, err
+    assert len(lines) == 1 and lines[0].startswith("predictor: error: ") and message in lines[0], err
 
 
 def test_a_broken_params_file_in_a_process(tmp_path: Path) -> None:
@@ -372,3 +417,33 @@ def test_a_stop_signal_inside_a_publishing_callback_is_clean(monkeypatch: pytest
     assert time.monotonic() - started < 30.0
     assert "Traceback" not in capsys.readouterr().err
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the node's handlers are gone with it
+
+
+START_STOPS = 9  # 3 signals x 3 moments (importing, starting up, running), drawn with a seed
+
+
+@pytest.mark.slow
+def test_every_stop_signal_at_any_moment_of_start_up_exits_0() -> None:
+    """Was: SIGINT at some moments of start-up hung the node, SIGTERM during the imports killed it as signal 15,
+    SIGHUP ended it with 129. Now SIGINT, SIGTERM and SIGHUP at any moment end it with exit 0, no traceback, within
+    a few seconds of the signal (SIGHUP: the terminal went away; a clean stop, as SIGTERM)."""
+    rng = random.Random(28)
+    env = localhost_env(46)
+    for k in range(START_STOPS):
+        sig = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)[k % 3]
+        delay = (rng.uniform(0.05, 0.5), rng.uniform(0.5, 3.0), rng.uniform(3.0, 8.0))[k // 3]
+        process = subprocess.Popen([sys.executable, "-m", "usv_predictor.node"], env=env, stdout=subprocess.PIPE,
+                                   stderr=subprocess.PIPE, text=True)
+        try:
+            time.sleep(delay)
+            sent = time.monotonic()
+            process.send_signal(sig)
+            _, err = process.communicate(timeout=30)
+            took = time.monotonic() - sent
+        finally:
+            if process.poll() is None:
+                process.kill()
+        what = f"{signal.Signals(sig).name} after {delay:.2f} s"
+        assert process.returncode == 0, f"{what}: exit {process.returncode}\n{err[-3000:]}"
+        assert "Traceback" not in err, f"{what}:\n{err[-3000:]}"
+        assert took < 10.0, f"{what}: ended {took:.1f} s after the signal"

@@ -20,6 +20,7 @@ import json
 import math
 import os
 import sqlite3
+import stat
 import tempfile
 from collections.abc import Collection, Iterable, Mapping
 from contextlib import contextmanager
@@ -52,14 +53,36 @@ def write_failure(err: BaseException) -> str:
     return str(err) or type(err).__name__
 
 
+def special_file(path: str | os.PathLike[str]) -> str | None:
+    """What `path` is when it exists and is neither a regular file nor a directory (the link itself is looked at,
+    not what it points to): "a symbolic link to /dev/stdout", "a character device", ...; None otherwise. An output
+    never replaces such a file: renaming a new file onto /dev/null (a copy of it, a link to the terminal) would
+    turn a device into a regular file, and a link into a file that no longer points anywhere."""
+    try:
+        info = os.lstat(path)
+    except OSError:
+        return None
+    if stat.S_ISREG(info.st_mode) or stat.S_ISDIR(info.st_mode):
+        return None
+    if stat.S_ISLNK(info.st_mode):
+        return f"a symbolic link to {os.readlink(path)}"
+    kinds = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+             (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+    return next((name for test, name in kinds if test(info.st_mode)), "not a regular file")
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike[str], error: type[Exception] = UsvPredictorError,
                 what: str = "output") -> Iterator[Path]:
     """Yield a temporary path beside `path`; rename it onto `path` on success, remove it on any failure.
 
-    OSError (directory not creatable, disk full, ...) becomes `error` naming the path: "cannot write X: why".
+    OSError (directory not creatable, disk full, ...) becomes `error` naming the path: "cannot write X: why"; a
+    `path` that is a special file (special_file: a device, a FIFO, a link) is refused and left as it is.
     """
     path = Path(path)
+    special = special_file(path)
+    if special is not None:
+        raise error(f"cannot write {what} {path}: it is {special}, and an output replaces only a regular file")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
@@ -187,6 +210,7 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike[str] | None],
     - is a file output where a directory holding an input is (it would replace that directory);
     - is, or lies inside, a rosbag2 bag (a directory holding metadata.yaml), an input or not;
     - is the same path as another output;
+    - is a special file (a device, a FIFO, a link, but a link to a directory for a directory output);
     - cannot be created (its nearest existing ancestor is not a directory, or no file can be made there).
 
     outputs: option -> path (None: not asked for); inputs: paths (those that do not exist are skipped: reading
@@ -205,6 +229,10 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike[str] | None],
                 raise OutputError(f"{option} {given} is inside the input {source_given}: inputs are only read")
             if option not in directories and _within(source, target):
                 raise OutputError(f"{option} {given} would replace the directory holding the input {source_given}")
+        special = special_file(given)
+        if special is not None and not (option in directories and given.is_dir()):  # a link to a directory is fine
+            raise OutputError(f"{option} {given} is {special}: an output replaces only a regular file (give a new "
+                              "file name)")
         bag = next((d for d in (target, *target.parents) if (d / BAG_METADATA).is_file()), None)
         if bag is not None:
             raise OutputError(f"{option} {given} is {'the' if bag == target else 'inside the'} rosbag2 bag {bag}: "
@@ -213,3 +241,42 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike[str] | None],
             raise OutputError(f"{option} {given} is also {seen[target]}: give each output its own path")
         seen[target] = option
         _probe_writable(option, given, target, option in directories)
+
+
+# ----------------------------------------------------------------------------- one writer per output
+
+LOCK_DIR_NAME = "usv_predictor_output_locks"  # in the system's temporary directory: never inside an output
+
+
+@contextmanager
+def output_locks(outputs: Mapping[str, str | os.PathLike[str] | None]) -> Iterator[None]:
+    """Hold an exclusive lock on every output (option -> path, None: not asked for) while the command runs; an
+    output another process holds is an OutputError naming it, before any work: two `evaluate` into one folder at once
+    mixed their files. The locks are flock()s on files named by the sha256 of each resolved path, in the system's
+    temporary directory (never beside the output: nothing is left there); the kernel drops them when the process
+    ends, however it ends."""
+    import fcntl
+    import hashlib
+
+    held: list[int] = []
+    try:
+        directory = Path(tempfile.gettempdir()) / LOCK_DIR_NAME
+        directory.mkdir(mode=0o1777, exist_ok=True)
+        for option, path in outputs.items():
+            if path is None:
+                continue
+            key = hashlib.sha256(str(_resolved(path)).encode()).hexdigest()[:32]
+            try:
+                fd = os.open(directory / f"{key}.lock", os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o666)
+            except OSError:
+                continue  # no lock to be had (a read-only /tmp): the outputs are still atomic, only not exclusive
+            held.append(fd)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError as err:
+                raise OutputError(f"{option} {path} is being written by another run of this tool right now: wait for "
+                                  "it to end, or give another path") from err
+        yield
+    finally:
+        for fd in held:
+            os.close(fd)  # closing drops the flock

@@ -24,8 +24,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Iterator, Mapping, NamedTuple
 
-import yaml
-
+from usv_predictor.bounded import load_yaml
 from usv_predictor.errors import ConfigError
 
 PACKAGE_NAME = "usv_predictor"
@@ -218,12 +217,7 @@ def vessel_preset_path(name: str) -> Path:
 def read_ros_parameters(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The nested `predictor: ros__parameters:` mapping of a parameter file."""
     path = Path(path)
-    try:
-        document = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except OSError as err:
-        raise ConfigError(f"cannot read predictor config {path}: {err.strerror}") from err
-    except yaml.YAMLError as err:
-        raise ConfigError(f"{path}: not valid YAML: {err}") from err
+    document = load_yaml(path, "predictor config", ConfigError)
     if not isinstance(document, dict) or not isinstance(document.get(NODE_NAME), dict):
         raise ConfigError(f"{path}: expected a top-level '{NODE_NAME}:' mapping (ROS 2 parameter file)")
     params = document[NODE_NAME].get(PARAMS_KEY)

@@ -12,8 +12,8 @@ Numbers come in as JSON (None for undefined) and are printed through `num`.
 from __future__ import annotations
 
 import datetime
-import json
 import math
+import os
 import re
 import zipfile
 from collections.abc import Callable, Mapping, Sequence
@@ -24,6 +24,7 @@ import numpy as np
 
 from usv_predictor.analysis.evaluation import COUNT_KEYS, Prediction, predictions_from_arrays
 from usv_predictor.atomic import jsonable, write_json_atomic, write_text_atomic
+from usv_predictor.bounded import load_json, regular_file
 from usv_predictor.errors import EvaluationError
 
 if TYPE_CHECKING:
@@ -314,6 +315,9 @@ def _check_shape(value: Any, spec: Any, where: str) -> None:
             _check_shape(value[key], item_spec, f"{where}.{key}" if where else key)
 
 
+SERIES_FILE_BYTES = 1 << 40  # bounded by the disk, not by us (bytes)
+
+
 def _no_constant(name: str) -> Any:
     raise ValueError(f"{name} is not a JSON number")
 
@@ -323,10 +327,7 @@ def load_evaluation_file(path: Path, warn: Callable[[str], None] = lambda _: Non
 
     The file is checked against EVALUATION_SCHEMA first (what the report reads): a null section, a string where a
     number belongs, a missing field is an EvaluationError naming the file and the field."""
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"), parse_constant=_no_constant)
-    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:  # ValueError: JSONDecodeError, NaN
-        raise EvaluationError(f"{path}: cannot read the evaluation file ({err})") from err
+    data = load_json(path, "evaluation file", EvaluationError, parse_constant=_no_constant)
     if not isinstance(data, dict) or not isinstance(data.get("recordings"), list) or "summary" not in data:
         raise EvaluationError(f"{path}: not an evaluation file of `replay evaluate` (no 'recordings' and 'summary')")
     try:
@@ -338,6 +339,8 @@ def load_evaluation_file(path: Path, warn: Callable[[str], None] = lambda _: Non
         warn(f"warning: {path} names no series file (written by `replay evaluate --output DIR`); no track figures")
         return data, None
     series_path = path.parent / series
+    if os.path.lexists(series_path):  # a FIFO or a device would block np.load or never end
+        regular_file(series_path, f"the time series of {path}", EvaluationError, SERIES_FILE_BYTES)
     try:
         with np.load(series_path) as arrays:
             loaded = {k: arrays[k] for k in arrays.files}

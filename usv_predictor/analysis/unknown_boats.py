@@ -34,6 +34,8 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
+from usv_predictor.bounded import load_yaml
+from usv_predictor.errors import ConfigError
 from usv_predictor.physics.empirical import OwnerData
 from usv_predictor.physics.vessel import RHO_WATER, WAVE_DRIFT_SECTION, Vessel, vessel_dir, vessel_from_dict
 
@@ -96,7 +98,7 @@ class UnknownBoat:
 
 
 def _preset_raw(name: str) -> dict[str, Any]:
-    return yaml.safe_load((vessel_dir() / f"{name}.yaml").read_text())
+    return load_yaml(vessel_dir() / f"{name}.yaml", "vessel description", ConfigError)
 
 
 def draw_boat(rng: np.random.Generator, size_class: str | None = None, name: str = "unknown_boat") -> UnknownBoat:

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from usv_predictor.atomic import atomic_open
+from usv_predictor.bounded import parse_json, regular_file
 from usv_predictor.data.features import (
     STATE_NAMES,
     STATE_UNITS,
@@ -301,15 +302,20 @@ def save_dataset(path: str | os.PathLike[str], dataset: Dataset) -> Path:
     return path
 
 
+DATASET_FILE_BYTES = 1 << 44  # bounded by the disk, not by us (bytes)
+
+
 def load_dataset(path: str | os.PathLike[str]) -> Dataset:
     """Read a dataset file; DatasetError naming the file when it is missing, corrupt or of another format."""
     path = Path(path)
+    if os.path.lexists(path):  # a FIFO or a device would block np.load or never end
+        regular_file(path, "dataset file", DatasetError, DATASET_FILE_BYTES)
     try:
         with np.load(path, allow_pickle=False) as npz:
             if "metadata" not in npz.files:
                 raise DatasetError(f"{path}: not a usv_predictor dataset (no 'metadata' array); expected "
                                    f"format {FORMAT}")
-            metadata = json.loads(str(npz["metadata"]))
+            metadata = parse_json(str(npz["metadata"]), f"{path}: dataset metadata", DatasetError)
             if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
                 found = metadata.get("format") if isinstance(metadata, dict) else None
                 raise DatasetError(f"{path}: dataset format {found!r}, expected {FORMAT!r}; rebuild it with "

@@ -25,6 +25,7 @@ import hashlib
 import io
 import json
 import math
+import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,11 +37,13 @@ from torch import nn
 
 import usv_predictor
 from usv_predictor.atomic import json_text, write_bytes_atomic
+from usv_predictor.bounded import parse_json, regular_file
 from usv_predictor.errors import ConfigError, ModelError, OutputError
-from usv_predictor.physics.vessel import (Vessel, description_sha256, description_text, vessel_from_dict,
-                                          vessel_to_dict)
+from usv_predictor.physics.vessel import (Vessel, check_vessel_name, description_sha256, description_text,
+                                          vessel_from_dict, vessel_to_dict)
 
 FORMAT = "usv_predictor.model/1"
+MODEL_FILE_BYTES = 1 << 40  # bounded by the disk, not by us (bytes)
 METADATA_FILE = "metadata.json"
 VESSEL_FILE = "vessel.json"  # the embedded vessel description
 VESSEL_DIGEST_KEY = "vessel_sha256"  # metadata key: sha256 of VESSEL_FILE's text
@@ -215,6 +218,7 @@ def export_module(path: str | Path, module: nn.Module, metadata: Mapping[str, An
     missing = [k for k in REQUIRED_KEYS if k not in meta]
     if missing:
         raise ModelError(f"model {path}: metadata lacks {missing}")
+    check_metadata(meta, f"model {path}: metadata")
     with quiet_jit():
         scripted = module if isinstance(module, torch.jit.ScriptModule) else torch.jit.script(module.eval())
     try:
@@ -295,6 +299,8 @@ def read_files(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any]
     of before); ModelError naming the file otherwise."""
     path = Path(path)
     if not path.is_file():
+        if os.path.lexists(path) or path.exists():  # a FIFO (torch would block on it), a device, a link loop
+            regular_file(path, "model file", ModelError, MODEL_FILE_BYTES)
         raise ModelError(f"model file {path} does not exist")
     extra = {METADATA_FILE: "", VESSEL_FILE: ""}
     try:
@@ -307,17 +313,67 @@ def read_files(path: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any]
     text = extra[METADATA_FILE]
     if not text:
         raise ModelError(f"model file {path} has no {METADATA_FILE} (not a usv_predictor model?)")
-    try:
-        metadata = json.loads(text)
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise ModelError(f"model file {path}: {METADATA_FILE} is not valid JSON: {err}") from err
+    metadata = parse_json(text, f"model file {path}: {METADATA_FILE}", ModelError)
     if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
         found = metadata.get("format") if isinstance(metadata, dict) else type(metadata).__name__
         raise ModelError(f"model file {path}: format {found!r}, expected {FORMAT!r}")
     missing = [k for k in REQUIRED_KEYS if k not in metadata]
     if missing:
         raise ModelError(f"model file {path}: {METADATA_FILE} lacks {missing}")
+    check_metadata(metadata, f"model file {path}: {METADATA_FILE}")
     return module, metadata, _embedded_description(path, metadata, extra[VESSEL_FILE])
+
+
+def _texts(value: Any, non_empty: bool = False) -> bool:
+    return isinstance(value, list) and all(isinstance(x, str) for x in value) and (bool(value) or not non_empty) \
+        and len(set(value)) == len(value)
+
+
+def _whole(value: Any, low: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= low
+
+
+def _positive(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+
+
+# metadata key -> (check, what it must be): every key the loaders, the node and the commands read, checked before use
+METADATA_FIELDS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "model_type": (lambda v: isinstance(v, str) and bool(v), "a non-empty text"),
+    "model_id": (lambda v: isinstance(v, str) and bool(v), "a non-empty text"),
+    "feature_set": (lambda v: isinstance(v, str), "a text"),
+    "feature_names": (_texts, "a list of distinct texts"),
+    "state_layout": (_texts, "a list of distinct texts"),  # descriptive: the forward contract fixes both layouts
+    "output_layout": (_texts, "a list of distinct texts"),
+    "control_layout": (lambda v: _texts(v, non_empty=True), "a non-empty list of distinct control names"),
+    "dt": (_positive, "a finite number of seconds > 0"),
+    "horizon_steps": (lambda v: _whole(v, 1), "an integer >= 1"),
+    "ensemble_size": (lambda v: _whole(v, 1), "an integer >= 1"),
+    "normalisation": (lambda v: isinstance(v, dict), "a mapping"),
+    "architecture": (lambda v: isinstance(v, dict), "a mapping"),
+    "training": (lambda v: isinstance(v, dict), "a mapping"),
+    "units": (lambda v: isinstance(v, dict), "a mapping"),
+    "vessel": (lambda v: isinstance(v, str) and bool(v), "a vessel name"),
+    "training_data_sha256": (lambda v: v is None or isinstance(v, str), "a text or null"),
+    "software_version": (lambda v: isinstance(v, str), "a text"),
+    "created_utc": (lambda v: isinstance(v, str), "a text"),
+    "actuator_layout": (lambda v: isinstance(v, str), "a text"),  # optional: artifacts of before have none
+    VESSEL_DIGEST_KEY: (lambda v: isinstance(v, str), "a text"),  # optional likewise
+}
+
+
+def check_metadata(metadata: Mapping[str, Any], source: str) -> None:
+    """Every field of METADATA_FIELDS present in `metadata` has its type (and range), the vessel name is no path;
+    ModelError naming the first field that is not ("SOURCE: ensemble_size = 'five' must be an integer >= 1")."""
+    for key, (valid, expected) in METADATA_FIELDS.items():
+        if key in metadata and not valid(metadata[key]):
+            shown = repr(metadata[key])
+            shown = shown if len(shown) <= 80 else f"{shown[:80]}..."
+            raise ModelError(f"{source}: {key} = {shown} must be {expected}")
+    try:
+        check_vessel_name(metadata.get("vessel"), f"{source}: vessel")
+    except ConfigError as err:
+        raise ModelError(str(err)) from None
 
 
 def _embedded_description(path: Path, metadata: Mapping[str, Any], text: str | bytes) -> dict[str, Any] | None:
@@ -331,9 +387,9 @@ def _embedded_description(path: Path, metadata: Mapping[str, Any], text: str | b
         raise ModelError(f"model file {path}: {VESSEL_FILE} does not match its digest {VESSEL_DIGEST_KEY} "
                          "(modified or corrupt)")
     try:
-        description = json.loads(raw)
+        description = parse_json(raw, f"model file {path}: {VESSEL_FILE}", ConfigError)
         vessel = vessel_from_dict(description, source=f"model file {path} ({VESSEL_FILE})")
-    except (json.JSONDecodeError, UnicodeDecodeError, ConfigError) as err:
+    except ConfigError as err:
         raise ModelError(f"model file {path}: {VESSEL_FILE} is not a vessel description: {err}") from err
     if vessel.name != metadata.get("vessel"):
         raise ModelError(f"model file {path}: {VESSEL_FILE} describes vessel {vessel.name!r}, its metadata names "

@@ -99,8 +99,8 @@ def model_vessel(model: HasMetadata, given: str | Path | Vessel | None = None, *
     description and the given one differs in any field but the free text, ModelError in one line naming the fields
     (`option` says how the caller names the given vessel, `source` the model).
     """
-    from usv_predictor.physics.vessel import (Vessel, description_differences, load_vessel, vessel_preset_exists,
-                                              vessel_to_dict)
+    from usv_predictor.physics.vessel import (Vessel, description_differences, load_preset, load_vessel,
+                                              vessel_preset_exists, vessel_to_dict)
 
     embedded: Vessel | None = getattr(model, "embedded_vessel", None)
     name = str(model.metadata.get("vessel", ""))
@@ -109,7 +109,7 @@ def model_vessel(model: HasMetadata, given: str | Path | Vessel | None = None, *
         if embedded is not None:
             return embedded
         try:
-            return load_vessel(name)
+            return load_preset(name)  # a name from a file: a preset or nothing, never a path
         except ConfigError as err:
             raise ConfigError(f"{label} names vessel {name!r} but embeds no description (made before models carried "
                               f"one) and {err}: pass {option} FILE") from None

@@ -25,8 +25,9 @@ Samples are checked on arrival (reject reasons are counted per input and reporte
 a field the state uses, a stamp not after the previous one (backwards or a repeated header stamp; a header-less
 message arriving at the same clock reading as the previous one supersedes it, InputSet.add), a stamp more than
 max_future_s ahead of the clock, values outside data.recording.PLAUSIBLE or a control's plausible range (wrong units
-configuration, e.g. heading configured as rad but > 2 pi, rudder degrees read as radians, absurd rpm). Buffers are
-fixed-size rings: memory does not grow with the message rate.
+configuration, e.g. heading configured as rad but > 2 pi, rudder degrees read as radians, absurd rpm), a GNSS fix
+farther from the one before than GNSS_MAX_SPEED allows ("jump": one fix of null island, InputSet._check_jump).
+Buffers are fixed-size rings: memory does not grow with the message rate.
 
 Redundant inputs are checked against each other (at most once per CONSISTENCY_PERIOD_S, over the latest
 CONSISTENCY_WINDOW_S), because a unit or sign mistake can give values that are each plausible:
@@ -106,7 +107,13 @@ RADIANS_AS_DEGREES_SPREAD = math.radians(2.0 * math.pi) + 1e-3  # rad: a heading
 TRACK_MIN_SPEED = 2.0  # m/s over ground (GNSS) before the dead-reckoned track is judged
 TRACK_ANGLE_LIMIT_DEG = 60.0  # deg between the dead-reckoned and the GNSS displacement
 TRACK_LENGTH_RATIO = (0.4, 2.5)  # dead-reckoned / GNSS displacement length accepted
-TRACK_END_S = 1.0  # s of GNSS fixes averaged at each end of the window (0.3 m noise per fix)
+TRACK_END_S = 1.0  # s of GNSS fixes at each end of the window, their median taken (0.3 m noise per fix)
+GNSS_MAX_SPEED = 40.0  # m/s between two fixes: above any USV's speed over ground (PLAUSIBLE u: 30 m/s)
+GNSS_JUMP_SLACK_M = 25.0  # m a fix may stray beyond that (noise, multipath, a fix of lower quality)
+GNSS_REANCHOR_FIXES = 3  # consecutive refused fixes that agree with each other: the buffered fixes were the outliers
+CONSISTENCY_LAG_LIMIT_S = 1.0  # s a stamped message may reach the node after its stamp before the checks that
+#                                compare it with an input stamped on arrival (a header-less heading) stop judging
+METRES_PER_DEG = 111_320.0  # m of latitude per degree (an equirectangular distance is enough to tell a jump)
 BULK_ADD_MIN = 16  # samples of one input from which the node buffers a batch with add_many (~18 us a call against ~1 us
 # per sample for add(), warm: benchmarks/bench_node.py's IMU at 200 Hz brings 20 per cycle, at 1 kHz 100)
 STEADY_SPEED_LIMIT = 50.0  # m/s: a predicted speed beyond this is a diverged model, not a prediction
@@ -158,14 +165,27 @@ def _check_values(role: str, fields: Sequence[str], values: Sequence[float], use
                                          f"wrong units or sign configuration?")
 
 
+def _fix_distance_m(a: tuple[int, float, float], b: tuple[int, float, float]) -> float:
+    """Ground distance (m) between two (stamp, lat, lon) fixes, equirectangular: enough to tell a jump."""
+    north = (b[1] - a[1]) * METRES_PER_DEG
+    east = (b[2] - a[2]) * METRES_PER_DEG * math.cos(math.radians(0.5 * (a[1] + b[1])))
+    return math.hypot(north, east)
+
+
 class Consistency(NamedTuple):
-    """The verdict of one consistency check: judged (enough evidence), and what is wrong ("" when nothing)."""
+    """The verdict of one consistency check: judged (enough evidence), and what is wrong ("" when nothing); a check
+    that could not judge says why (`why_not`): it refuses nothing then."""
 
     judged: bool
     problem: str = ""
+    why_not: str = ""
 
 
 NOT_JUDGED = Consistency(False)
+
+
+def not_judged(why: str) -> Consistency:
+    return Consistency(False, "", why)
 
 
 def _cumulative(t_s: np.ndarray, rate: np.ndarray) -> np.ndarray:
@@ -183,13 +203,14 @@ def heading_vs_gyro(t_imu_s: np.ndarray, yaw_rate: np.ndarray, t_heading_s: np.n
     start_s = max(start_s, float(t_imu_s[0]), float(t_heading_s[0]))
     end_s = min(end_s, float(t_imu_s[-1]), float(t_heading_s[-1]))
     if end_s - start_s < MIN_CHECK_SPAN_S or len(t_imu_s) < 2 or len(t_heading_s) < 2:
-        return NOT_JUDGED
+        return not_judged(f"less than {MIN_CHECK_SPAN_S:g} s of imu and heading samples together")
     grid = np.linspace(start_s, end_s, max(2, int((end_s - start_s) / CONSISTENCY_STEP_S) + 1))
     d_theta = np.diff(np.interp(grid, t_imu_s, _cumulative(t_imu_s, yaw_rate)))
     d_psi = np.diff(np.interp(grid, t_heading_s, np.unwrap(psi)))
     turned = float(np.abs(d_theta).sum())
     if turned < math.radians(TURN_EVIDENCE_DEG):
-        return NOT_JUDGED
+        return not_judged(f"the gyro turned {math.degrees(turned):.0f} deg, less than the {TURN_EVIDENCE_DEG:g} deg "
+                          "that tell a heading's units")
     differs = float(np.abs(d_psi - d_theta).sum())
     if differs <= HEADING_DISAGREEMENT * turned:
         return Consistency(True)
@@ -215,7 +236,7 @@ def track_vs_gnss(t_velocity_s: np.ndarray, u: np.ndarray, v: np.ndarray, t_head
                   ) -> tuple[str, Consistency]:
     """(the input to blame, verdict): the velocity rotated by the heading and integrated against the GNSS track.
 
-    Over [start_s, end_s] (s), from the mean GNSS position of the first TRACK_END_S to that of the last, with the
+    Over [start_s, end_s] (s), from the median GNSS position of the first TRACK_END_S to that of the last, with the
     dead-reckoned displacement between the same times (body_to_ned, Fossen eq. 2.40). Judged above
     TRACK_MIN_SPEED over ground; the heading is to blame when the directions differ by more than
     TRACK_ANGLE_LIMIT_DEG, the velocity when the length ratio leaves TRACK_LENGTH_RATIO.
@@ -223,15 +244,15 @@ def track_vs_gnss(t_velocity_s: np.ndarray, u: np.ndarray, v: np.ndarray, t_head
     start_s = max(start_s, float(t_velocity_s[0]), float(t_heading_s[0]), float(t_gnss_s[0]))
     end_s = min(end_s, float(t_velocity_s[-1]), float(t_heading_s[-1]), float(t_gnss_s[-1]))
     if end_s - start_s < MIN_CHECK_SPAN_S or len(t_velocity_s) < 2 or len(t_heading_s) < 2:
-        return "velocity", NOT_JUDGED
+        return "velocity", not_judged(f"less than {MIN_CHECK_SPAN_S:g} s of velocity, heading and GNSS together")
     first = (t_gnss_s >= start_s) & (t_gnss_s <= start_s + TRACK_END_S)
     last = (t_gnss_s >= end_s - TRACK_END_S) & (t_gnss_s <= end_s)
     if not first.any() or not last.any():
-        return "velocity", NOT_JUDGED
-    t0, t1 = float(t_gnss_s[first].mean()), float(t_gnss_s[last].mean())
-    gnss = np.array([x_n[last].mean() - x_n[first].mean(), y_e[last].mean() - y_e[first].mean()])
+        return "velocity", not_judged("no GNSS fix at one end of the window")
+    t0, t1 = float(np.median(t_gnss_s[first])), float(np.median(t_gnss_s[last]))
+    gnss = np.array([np.median(x_n[last]) - np.median(x_n[first]), np.median(y_e[last]) - np.median(y_e[first])])
     if t1 - t0 < MIN_CHECK_SPAN_S or float(np.hypot(*gnss)) < TRACK_MIN_SPEED * (t1 - t0):
-        return "velocity", NOT_JUDGED
+        return "velocity", not_judged(f"slower than {TRACK_MIN_SPEED:g} m/s over ground (GNSS)")
     north, east = body_to_ned(u, v, np.interp(t_velocity_s, t_heading_s, np.unwrap(psi)))
     reckoned = np.array([np.diff(np.interp([t0, t1], t_velocity_s, _cumulative(t_velocity_s, north)))[0],
                          np.diff(np.interp([t0, t1], t_velocity_s, _cumulative(t_velocity_s, east)))[0]])
@@ -468,6 +489,12 @@ class InputSet:
         self._plane = None if self.datum is None else LocalTangentPlane(*self.datum)
         self._last_now_ns: int | None = None
         self.refusals: dict[str, tuple[str, str]] = {}  # check -> (refused role, why), see check_consistency
+        self.unjudged: dict[str, str] = {}  # check -> why it could not judge at its latest run ("" once it did)
+        self._datum_given = settings.datum is not None
+        self._last_fix: tuple[int, float, float] | None = None  # (stamp ns, lat, lon) of the latest buffered fix
+        self._jumps: list[tuple[int, tuple[float, ...]]] = []  # the fixes refused as jumps in a row, as given
+        self._arrival_stamped: set[str] = set()  # inputs without a header: stamped with the clock at arrival
+        self._lag = (0.0, -1)  # (s, clock ns) the latest stamped message that reached the node late, and when
         self._next_check_ns: int | None = None
         # rudder_only: the approach whose engine speed its grey box holds (fed by every assembled state)
         self.approach = None if layout.propulsion else ApproachTracker(layout)
@@ -502,15 +529,56 @@ class InputSet:
                 raise InputRejected("future", f"{role}: stamp {ahead:.3f} s ahead of the clock "
                                               f"(limit {self.settings.max_future_s:g} s; clock or "
                                               f"use_sim_time mismatch?)")
+            if role == POSITION_ROLE:
+                self._check_jump(track, stamp_ns, values)
         except InputRejected as err:
             track.reject(err.kind, str(err), now_ns)
             raise
-        if role == POSITION_ROLE and self.datum is None:
+        self._note_arrival(role, at_arrival, now_ns - stamp_ns, now_ns)
+        if role == POSITION_ROLE:
             fields = track.buffer.fields
-            self.datum = (float(values[fields.index("lat")]), float(values[fields.index("lon")]))
-            self._plane = LocalTangentPlane(*self.datum)
+            self._last_fix = (stamp_ns, float(values[fields.index("lat")]), float(values[fields.index("lon")]))
+            if self.datum is None:
+                self.datum = self._last_fix[1:]
+                self._plane = LocalTangentPlane(*self.datum)
         track.buffer.push(stamp_ns, values)
         track.last_accept_ns = now_ns
+
+    def _check_jump(self, track: InputTrack, stamp_ns: int, values: Sequence[float]) -> None:
+        """A GNSS fix farther from the latest buffered one than GNSS_MAX_SPEED allows in the time between them (plus
+        GNSS_JUMP_SLACK_M) is refused ("jump"): one fix of null island or a stray multipath solution is kilometres
+        off, and in the track check it would refuse the (right) heading. When GNSS_REANCHOR_FIXES fixes in a row are
+        refused so but agree with each other, the buffered fixes were the outliers (a wrong first fix): the buffer
+        restarts from these (and an automatic datum with them), the current one accepted."""
+        fields = track.buffer.fields
+        fix = (stamp_ns, float(values[fields.index("lat")]), float(values[fields.index("lon")]))
+        if self._last_fix is None:
+            return
+        distance, seconds = _fix_distance_m(self._last_fix, fix), (stamp_ns - self._last_fix[0]) / NS_PER_S
+        if distance <= GNSS_MAX_SPEED * seconds + GNSS_JUMP_SLACK_M:
+            self._jumps.clear()
+            return
+        if self._jumps:
+            previous = self._jumps[-1]
+            before = (previous[0], previous[1][fields.index("lat")], previous[1][fields.index("lon")])
+            if _fix_distance_m(before, fix) > GNSS_MAX_SPEED * (stamp_ns - before[0]) / NS_PER_S + GNSS_JUMP_SLACK_M:
+                self._jumps.clear()
+        self._jumps.append((stamp_ns, tuple(values)))
+        if len(self._jumps) >= GNSS_REANCHOR_FIXES:
+            track.buffer.clear()
+            if not self._datum_given:
+                self.datum = None
+            self._last_fix = None
+            for stamp, row in self._jumps[:-1]:  # the current one is buffered by the caller
+                track.buffer.push(stamp, row)
+                self._last_fix = (stamp, float(row[fields.index("lat")]), float(row[fields.index("lon")]))
+                if self.datum is None:
+                    self.datum = self._last_fix[1:]
+                    self._plane = LocalTangentPlane(*self.datum)
+            self._jumps.clear()
+            return
+        raise InputRejected("jump", f"gnss: fix {distance:.0f} m from the previous one {seconds:.2f} s before it "
+                                    f"(faster than {GNSS_MAX_SPEED:g} m/s): an outlier")
 
     def add_many(self, role: str, stamps_ns: np.ndarray, values: np.ndarray, now_ns: np.ndarray,
                  at_arrival: bool = False) -> list[InputRejected]:
@@ -535,7 +603,7 @@ class InputSet:
             ordered = bool((steps >= 0).all()) and (latest is None or int(stamps_ns[0]) >= latest)
         else:
             ordered = bool((steps > 0).all()) and (latest is None or int(stamps_ns[0]) > latest)
-        bulk = (len(stamps_ns) > 0 and bool(np.isfinite(columns).all())
+        bulk = (len(stamps_ns) > 0 and role != POSITION_ROLE and bool(np.isfinite(columns).all())
                 and bool(((columns >= low) & (columns <= high)).all()) and ordered
                 and bool(((stamps_ns - now_ns) / NS_PER_S <= self.settings.max_future_s).all()))
         if not bulk:
@@ -547,9 +615,7 @@ class InputSet:
                     refused.append(err)
             return refused
         track.received += len(stamps_ns)
-        if role == POSITION_ROLE and self.datum is None:
-            self.datum = (float(values[0, fields.index("lat")]), float(values[0, fields.index("lon")]))
-            self._plane = LocalTangentPlane(*self.datum)
+        self._note_arrival(role, at_arrival, int((now_ns - stamps_ns).max()), int(now_ns[-1]))
         if at_arrival:  # the last of each run of equal stamps; a first run at the latest stamp replaces it
             last_of_run = np.append(steps > 0, True)  # (M,)
             track.superseded += len(stamps_ns) - int(last_of_run.sum())
@@ -562,6 +628,24 @@ class InputSet:
         track.last_accept_ns = int(now_ns[-1])
         return []
 
+    def _note_arrival(self, role: str, at_arrival: bool, late_ns: int, now_ns: int) -> None:
+        """Remember which inputs are stamped on arrival, and when a stamped one arrived more than
+        CONSISTENCY_LAG_LIMIT_S after its stamp (the node behind its inputs: a loaded machine)."""
+        if at_arrival:
+            self._arrival_stamped.add(role)
+        elif late_ns > CONSISTENCY_LAG_LIMIT_S * NS_PER_S:
+            self._lag = (late_ns / NS_PER_S, now_ns)
+
+    def _lagging(self, roles: Sequence[str], now_ns: int) -> str:
+        """Why a check over `roles` cannot judge now because the node was behind its inputs within the window (an
+        input stamped on arrival then carries the node's delay, the others do not); "" when it can."""
+        late_s, at_ns = self._lag
+        stamped_on_arrival = sorted(set(roles) & self._arrival_stamped)
+        if not stamped_on_arrival or at_ns < 0 or now_ns - at_ns > CONSISTENCY_WINDOW_S * NS_PER_S:
+            return ""
+        return (f"the node took messages up to {late_s:.1f} s after their stamps (behind its inputs), and "
+                f"{', '.join(stamped_on_arrival)} has no header: stamped on arrival, it would seem late")
+
     def observe_clock(self, now_ns: int) -> bool:
         """Clear every buffer when the clock jumped back (a replay restarted); True if it did."""
         jumped = self._last_now_ns is not None and now_ns < self._last_now_ns
@@ -571,6 +655,8 @@ class InputSet:
                 track.buffer.clear()
             if self.approach is not None:
                 self.approach.clear()
+            self._last_fix, self._jumps, self._lag = None, [], (0.0, -1)
+            self.unjudged = {}
             self._set_refusals({})
             self._next_check_ns = None
         return jumped
@@ -594,26 +680,47 @@ class InputSet:
         if self._next_check_ns is not None and now_ns < self._next_check_ns:
             return
         self._next_check_ns = now_ns + int(CONSISTENCY_PERIOD_S * NS_PER_S)
-        end_s = now_ns / NS_PER_S
-        start_s = end_s - CONSISTENCY_WINDOW_S
         refusals = dict(self.refusals)
         gyro, heading = self._series("imu", "yaw_rate"), self._series("heading", "psi")
         if gyro is not None and heading is not None:
-            verdict = heading_vs_gyro(*gyro, *heading, start_s, end_s)
-            if verdict.judged:
-                refusals.pop("heading_vs_gyro", None)
-                if verdict.problem:
-                    refusals["heading_vs_gyro"] = ("heading", verdict.problem)
+            verdict = self._judge(("imu", "heading"), (gyro[0], heading[0]), now_ns,
+                                  lambda start_s, end_s: heading_vs_gyro(*gyro, *heading, start_s, end_s))
+            self._verdict("heading_vs_gyro", "heading", verdict, refusals)
         surge, sway = self._series("velocity", "u"), self._series("velocity", "v")
         lat, lon = self._series(POSITION_ROLE, "lat"), self._series(POSITION_ROLE, "lon")
         if None not in (surge, sway, heading, lat, lon) and self._plane is not None:
             x_n, y_e = self._plane.to_ned(lat[1], lon[1])
-            role, verdict = track_vs_gnss(surge[0], surge[1], sway[1], *heading, lat[0], x_n, y_e, start_s, end_s)
-            if verdict.judged:
-                refusals.pop("track_vs_gnss", None)
-                if verdict.problem:
-                    refusals["track_vs_gnss"] = (role, verdict.problem)
+            blamed = ["velocity"]
+
+            def track(start_s: float, end_s: float) -> Consistency:
+                role, verdict = track_vs_gnss(surge[0], surge[1], sway[1], *heading, lat[0], x_n, y_e, start_s, end_s)
+                blamed[0] = role
+                return verdict
+
+            verdict = self._judge(("velocity", "heading", POSITION_ROLE), (surge[0], heading[0], lat[0]), now_ns, track)
+            self._verdict("track_vs_gnss", blamed[0], verdict, refusals)
         self._set_refusals(refusals)
+
+    def _judge(self, roles: Sequence[str], times_s: Sequence[np.ndarray], now_ns: int,
+               check: Callable[[float, float], Consistency]) -> Consistency:
+        """Run `check` over the CONSISTENCY_WINDOW_S that ends at the latest stamp all its inputs have (message
+        stamps, not the clock: a node behind its inputs compares the same span); not judged while the node was
+        behind inputs stamped on arrival (_lagging)."""
+        lagging = self._lagging(roles, now_ns)
+        if lagging:
+            return not_judged(lagging)
+        end_s = min(min(float(t[-1]) for t in times_s), now_ns / NS_PER_S)
+        return check(end_s - CONSISTENCY_WINDOW_S, end_s)
+
+    def _verdict(self, name: str, role: str, verdict: Consistency, refusals: dict[str, tuple[str, str]]) -> None:
+        """A judged check replaces its previous verdict; one that cannot judge keeps it and says why (unjudged)."""
+        if verdict.judged:
+            self.unjudged.pop(name, None)
+            refusals.pop(name, None)
+            if verdict.problem:
+                refusals[name] = (role, verdict.problem)
+        else:
+            self.unjudged[name] = verdict.why_not
 
     # --------------------------------------------------------------- the buffered span as a Recording
     def buffered_recording(self, max_gap_s: float, name: str = "inputs") -> Recording:

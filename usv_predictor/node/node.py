@@ -93,7 +93,7 @@ from usv_predictor.config import (
     unflatten_ros_parameters,
 )
 from usv_predictor.data.recording import PLAUSIBLE
-from usv_predictor.errors import AdapterError, ConfigError, ModelError, RecordingError, UsvPredictorError
+from usv_predictor.errors import AdapterError, ConfigError, ModelError, RecordingError, UsvPredictorError, one_line
 from usv_predictor.fitting.online import OnlineConfig
 from usv_predictor.models import loading
 from usv_predictor.models.artifact import metadata_differences
@@ -106,6 +106,7 @@ from usv_predictor.physics.vessel import Vessel, load_vessel, vessel_preset_exis
 from usv_predictor.records import NS_PER_S
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
+USE_SIM_TIME = "use_sim_time"  # rclpy's parameter: fixed once the node runs (_on_set_parameters)
 COVARIANCE_TOPIC = "predicted_path_covariance"
 PLAN_TOPIC = "plan"  # trajectory_msgs/JointTrajectory: controls to predict under (plans.py)
 CANDIDATE_PLANS_TOPIC = "candidate_plans"  # trajectory_msgs/JointTrajectory: N candidates "<name>/<control>"
@@ -357,6 +358,7 @@ class PredictorNode(Node):
         by_topic: dict[str, list[str]] = {}
         for entry in used:
             by_topic.setdefault(self.resolve_topic_name(entry.topic), []).append(entry.role)
+        self._check_topics(by_topic)
         for topic, roles in by_topic.items():
             try:
                 msg_adapters.check_shared(topic, [self._adapters[role] for role in roles])
@@ -398,6 +400,7 @@ class PredictorNode(Node):
         self._cycle_times: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.published = 0
         self.skipped = 0
+        self.model_refused: tuple[str, str] | None = None  # (model_path, why) of the last refused swap
         self.last_skip = ""
         self.last_prediction: live.Prediction | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -411,6 +414,25 @@ class PredictorNode(Node):
             f"{self.rollout.members} member(s)), {len(self._entries)} inputs ({', '.join(self._entries)}), "
             f"{self.config.rate_hz:g} Hz, horizon {self.config.horizon_s:g} s, parameters from {defaults_path}"
         )
+
+    def _check_topics(self, inputs: dict[str, list[str]]) -> None:
+        """Every topic the node publishes or subscribes to, as remapped, is its own: an input or an output remapped
+        onto another (`-r imu/data:=/diagnostics`, `-r predicted_path:=/diagnostics`) is a ConfigError naming both,
+        before DDS refuses the second endpoint with an RCLError (or, of one type, the node hears itself)."""
+        seen = {topic: f"input {', '.join(roles)}" for topic, roles in inputs.items()}
+        outputs = self.config.outputs
+        endpoints = [("output predicted_path", outputs["predicted_path"].topic),
+                     ("output predicted_velocities", outputs["predicted_velocities"].topic),
+                     ("output estimated_current", outputs["estimated_current"].topic),
+                     ("output predicted_path_covariance", COVARIANCE_TOPIC), ("output /diagnostics", DIAGNOSTICS_TOPIC),
+                     ("output candidate_predictions", CANDIDATE_PREDICTIONS_TOPIC), ("input plan", PLAN_TOPIC),
+                     ("input candidate_plans", CANDIDATE_PLANS_TOPIC)]
+        for what, name in endpoints:
+            resolved = self.resolve_topic_name(name)
+            if resolved in seen:
+                raise ConfigError(f"node {self.get_name()}: {what} resolves to {resolved}, the topic of its "
+                                  f"{seen[resolved]} too: remap one of them to a topic of its own")
+            seen[resolved] = what
 
     def destroy_node(self) -> None:
         """The workers end first (a candidate batch or a fit check running finishes: at most a few seconds)."""
@@ -456,7 +478,13 @@ class PredictorNode(Node):
                                    f"{self.config.source}, vessel {self.config.vessel}")
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        """Swap the model (validated first; the old one stays on failure) and apply new staleness limits."""
+        """Swap the model (validated first; the old one stays on failure) and apply new staleness limits.
+
+        use_sim_time is fixed once the node runs: switched on by a peer, the clock would be whoever publishes /clock
+        (this callback runs before rclpy's TimeSource's, which is why refusing here keeps the clock)."""
+        if any(p.name == USE_SIM_TIME for p in parameters):
+            return SetParametersResult(successful=False, reason=f"{USE_SIM_TIME} is fixed at start-up (-p "
+                                       f"{USE_SIM_TIME}:=true): switched by a peer, /clock would own the node's clock")
         swap: live.Rollout | None = None
         online = {p.name: p.value for p in parameters if p.name.startswith(ONLINE_PREFIX)}
         fit_changes = {p.name: p.value for p in parameters if p.name.startswith(FIT_PREFIX)}
@@ -470,10 +498,16 @@ class PredictorNode(Node):
                 try:
                     swap, _ = load_model(str(parameter.value), self.config, self.vessel)
                     candidates = self._candidates_of(swap)
-                except (ModelError, ConfigError) as err:
-                    self.get_logger().error(f"model_path not changed, keeping {self.rollout.artifact.path}: {err}")
-                    return SetParametersResult(successful=False, reason=str(err))
+                except Exception as err:  # noqa: BLE001 - the callback boundary: any file, however made, is refused
+                    # (a ModelError or ConfigError names the culprit; anything else is what the model's own code or
+                    # metadata raised past the checks) and the old model keeps predicting
+                    why = one_line(err) if isinstance(err, (ModelError, ConfigError)) else \
+                        f"model {parameter.value} cannot be used: {type(err).__name__}: {one_line(err)}"
+                    self.model_refused = (str(parameter.value), why)
+                    self.get_logger().error(f"model_path not changed, keeping {self.rollout.artifact.path}: {why}")
+                    return SetParametersResult(successful=False, reason=why)
         if swap is not None:
+            self.model_refused = None
             self.rollout = swap
             self.candidate_rollout = candidates
             self.get_logger().info(f"model swapped to {swap.artifact.path} ({swap.artifact.model_id})")
@@ -904,6 +938,10 @@ class PredictorNode(Node):
             "training_data_sha256": meta.get("training_data_sha256"), "created_utc": meta.get("created_utc"),
             "horizon_s": f"{self.config.horizon_s:g}", "version": __version__,
         }
+        if self.model_refused is not None:  # still predicting with the model above
+            path, why = self.model_refused
+            values.update(refused_model_path=path, refused_because=why)
+            return self._status(WARN, "model", f"loaded {artifact.model_id}; model_path {path} refused: {why}", values)
         return self._status(OK, "model", f"loaded {artifact.model_id}", values)
 
     def _prediction_status(self) -> Status:
@@ -913,6 +951,8 @@ class PredictorNode(Node):
         values.update(_percentiles("cycle_ms", self._cycle_times))  # decode, state, rollout, encode, publish
         values["controls"] = ("held" if self.following is None
                               else f"plan stamped {plans.describe_stamp(self.following.stamp_ns)}")
+        for check, why in sorted(self.inputs.unjudged.items()):  # a check that cannot judge refuses nothing
+            values[f"check {check}"] = f"cannot judge: {why}"
         last = self.last_prediction
         if last is not None:
             values["anchored"] = "gnss" if last.anchored else "relative to (0, 0): no GNSS"
@@ -1044,13 +1084,13 @@ def parse_arguments(argv: Sequence[str]) -> argparse.Namespace:
 EXIT_OK = 0  # stopped by SIGINT or SIGTERM (Ctrl-C, systemd, docker stop, launch): a normal end
 EXIT_ERROR = 2  # a start-up error (parameter, parameter file, ROS arguments, model, vessel): one line on stderr,
                 # the same code as the replay tool's bad input
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # SIGHUP: the terminal went away, a clean stop too
 SPIN_PERIOD_S = 0.1  # longest wait between two looks at the stop flag (s)
 
 
 class _StopRequest:
-    """SIGINT / SIGTERM set a flag the spin loop reads between callbacks: a callback is never interrupted half-way
-    (no publish on a context that is shutting down), and the context is shut down only after the loop ends."""
+    """SIGINT / SIGTERM / SIGHUP set a flag the spin loop reads between callbacks: a callback is never interrupted
+    half-way (no publish on a context that is shutting down), and the context is shut down only after the loop ends."""
 
     def __init__(self) -> None:
         self.requested: int | None = None
@@ -1097,16 +1137,18 @@ def _first_line(err: BaseException) -> str:
     return text.splitlines()[0] if text else type(err).__name__
 
 
-def main(args: Sequence[str] | None = None) -> int:
+def main(args: Sequence[str] | None = None, stopped_before: Sequence[int] = ()) -> int:
     """Entry point of `ros2 run usv_predictor predictor`; args is a full argv (program name first).
 
-    Exit codes: 0 after SIGINT or SIGTERM (also while publishing: the signal only sets a flag the spin loop reads
-    between callbacks), 2 for a start-up error (one line `predictor: error: ...` on stderr: a parameter, the
+    Exit codes: 0 after SIGINT, SIGTERM or SIGHUP (also while publishing: the signal only sets a flag the spin loop
+    reads between callbacks), 2 for a start-up error (one line `predictor: error: ...` on stderr: a parameter, the
     parameter file, the ROS arguments, the model, the vessel or an input adapter).
     """
     argv = list(sys.argv if args is None else args)
     stop = _StopRequest()
     previous = stop.install()  # before the slow start-up (torch, the model): an early stop is clean too
+    if stopped_before:  # a stop signal that came while this module was imported (usv_predictor.node.main)
+        stop.requested = stopped_before[0]
     node: PredictorNode | None = None
     try:
         options = parse_arguments(argv)  # --help exits here, before ROS starts
@@ -1121,8 +1163,14 @@ def main(args: Sequence[str] | None = None) -> int:
     except RCLInvalidROSArgsError as err:  # a broken --params-file, a malformed -p or -r
         print(f"predictor: error: invalid ROS arguments: {_first_line(err)}", file=sys.stderr)
         return EXIT_ERROR
+    except ParameterException as err:  # a ROS parameter of the wrong type (-p use_sim_time:=maybe)
+        print(f"predictor: error: invalid parameter: {_first_line(err)}", file=sys.stderr)
+        return EXIT_ERROR
+    except RCLError as err:  # an endpoint DDS refuses at start-up (a spin ends on its own RCLError: spin())
+        print(f"predictor: error: ROS refused the node: {_first_line(err)}", file=sys.stderr)
+        return EXIT_ERROR
     except UsvPredictorError as err:
-        print(f"predictor: error: {err}", file=sys.stderr)
+        print(f"predictor: error: {one_line(err)}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:  # a SIGINT before our handler was installed
         pass

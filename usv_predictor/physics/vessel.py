@@ -20,12 +20,12 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import re
 from dataclasses import MISSING, asdict, dataclass, fields, is_dataclass
 from pathlib import Path
-from typing import Any, Mapping, get_type_hints
+from typing import Any, Mapping, get_origin, get_type_hints
 
-import yaml
-
+from usv_predictor.bounded import load_yaml
 from usv_predictor.errors import ConfigError
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout, actuator_layout
 from usv_predictor.physics.hulls import DEFAULT_HULL_MODEL, HullModel, hull_model
@@ -366,7 +366,7 @@ def available_vessels() -> list[str]:
 
 def vessel_preset_exists(name: str) -> bool:
     """True when `name` is a preset here (config/vessels/<name>.yaml), not a path."""
-    if Path(name).suffix in (".yaml", ".yml"):
+    if Path(name).suffix in (".yaml", ".yml") or not PRESET_NAME.match(name):
         return False
     try:
         return (vessel_dir() / f"{name}.yaml").is_file()
@@ -374,20 +374,37 @@ def vessel_preset_exists(name: str) -> bool:
         return False
 
 
+PRESET_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")  # a preset's file name without .yaml: never a path
+
+
+def check_vessel_name(name: Any, where: str) -> str:
+    """`name` when it is a text that cannot be read as a path (no separator, no leading dot, not ending in .yaml,
+    printable); ConfigError naming `where` otherwise. A vessel's name travels in model files: it must never lead
+    outside the presets."""
+    if not isinstance(name, str) or not name or name.startswith(".") or any(c in name for c in "/\\\0") \
+            or Path(name).suffix in (".yaml", ".yml") or not name.isprintable():
+        raise ConfigError(f"{where} = {_repr(name)} is not a vessel name (text without path separators, not "
+                          "starting with a dot, not a .yaml file name)")
+    return name
+
+
 def load_vessel(name_or_path: str | Path) -> Vessel:
-    """Load a preset by name (config/vessels/<name>.yaml) or from a YAML path."""
+    """Load a preset by name (config/vessels/<name>.yaml) or from a YAML path (a name ending in .yaml/.yml)."""
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):
-        path = vessel_dir() / f"{name_or_path}.yaml"
-        if not path.is_file():
-            raise ConfigError(
-                f"unknown vessel preset {str(name_or_path)!r}; available: {', '.join(available_vessels())}"
-            )
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as err:
-        raise ConfigError(f"cannot read vessel description {path}: {err}") from err
-    return vessel_from_dict(raw, source=str(path))
+        return load_preset(str(name_or_path))
+    return vessel_from_dict(load_yaml(path, "vessel description", ConfigError), source=str(path))
+
+
+def load_preset(name: str) -> Vessel:
+    """The preset config/vessels/<name>.yaml, never a path: what a name read from a file (a model's metadata) may
+    load; ConfigError for a name that is no preset name (`../x`, `/tmp/x.yaml`) or no preset here."""
+    if not isinstance(name, str) or not PRESET_NAME.match(name) or Path(name).suffix in (".yaml", ".yml"):
+        raise ConfigError(f"vessel {_repr(name)} is not a preset name (letters, digits, '_', '.', '-'; no path)")
+    path = vessel_dir() / f"{name}.yaml"
+    if not path.is_file():
+        raise ConfigError(f"unknown vessel preset {name!r}; available: {', '.join(available_vessels())}")
+    return vessel_from_dict(load_yaml(path, "vessel description", ConfigError), source=str(path))
 
 
 def vessel_to_dict(vessel: Vessel) -> dict[str, Any]:
@@ -481,19 +498,24 @@ def _record(cls: type, raw: Any, where: str) -> Any:
         if is_dataclass(kind):
             values[name] = _record(kind, value, f"{where}.{name}")
             continue
-        if isinstance(value, list):
-            bad = [x for x in value if not _finite(x)]
-            if bad:
-                raise ConfigError(f"{where}.{name} must be a list of finite numbers, got {value!r}")
+        if get_origin(kind) is tuple:  # tuple[float, ...]: a list of numbers, and only that
+            if not isinstance(value, list) or not all(_finite(x) for x in value):
+                raise ConfigError(f"{where}.{name} must be a list of finite numbers, got {_repr(value)}")
             values[name] = tuple(float(x) for x in value)
         elif not _finite(value):
-            raise ConfigError(f"{where}.{name} must be a finite number, got {value!r}")
+            raise ConfigError(f"{where}.{name} must be a finite number, got {_repr(value)}")
         else:
             values[name] = float(value)
     try:
         return cls(**values)
     except ConfigError as err:
         raise ConfigError(f"{where}: {err}") from None
+
+
+def _repr(value: Any, limit: int = 80) -> str:
+    """repr of a value for a message, cut to `limit` characters (a wrong value may be a whole nested document)."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... (a {type(value).__name__})"
 
 
 def _finite(value: Any) -> bool:
@@ -503,6 +525,11 @@ def _finite(value: Any) -> bool:
 def vessel_from_dict(raw: Mapping[str, Any], source: str = "<dict>") -> Vessel:
     if not isinstance(raw, Mapping):
         raise ConfigError(f"{source}: expected a mapping at the top level")
+    for key in TOP_LEVEL_KEYS:
+        if key in raw and not isinstance(raw[key], str):
+            raise ConfigError(f"{source}: {key} must be a text, got {_repr(raw[key])}")
+    if "name" in raw:
+        check_vessel_name(raw["name"], f"{source}: name")
     layout_name = raw.get("actuator_layout", DEFAULT_LAYOUT.name)
     try:
         layout = actuator_layout(layout_name)

@@ -33,7 +33,7 @@ import tempfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePath
 from types import MappingProxyType
 from typing import Any
 
@@ -48,6 +48,7 @@ from rosbags.typesys import Stores, get_typestore
 from msg_adapters import check_shared, columnar_factory, encode_shared, get_adapter, rosbags_factory
 from msg_adapters.cdr import decode_many, has_fast_layout
 from usv_predictor.atomic import NO_SPACE_ERRNOS, write_failure
+from usv_predictor.bounded import load_yaml, regular_file
 from usv_predictor.config import PredictorConfig, input_topics
 from usv_predictor.errors import AdapterError, BagError, one_line
 from usv_predictor.records import Signal
@@ -300,6 +301,35 @@ def prepare_outputs(directory: Path, bags: Sequence[Path], overwrite: bool) -> N
         raise BagError(f"{existing[0]} exists already; use --overwrite to replace it")
 
 
+URI_SPECIAL = frozenset("#?%")  # what a sqlite `file:` URI reads as a fragment, a query or an escape
+
+
+@contextmanager
+def _plain_sqlite_path(path: Path) -> Iterator[Path]:
+    """`path`, or, when its absolute form holds a character a sqlite URI gives a meaning to (URI_SPECIAL), the same
+    directory entry reached through a link in a fresh temporary directory whose path holds none of them.
+
+    rosbags opens sqlite storage as `file:<path>` URIs (the writer) and `file:<path>?immutable=1` (the reader), so a
+    `#` in `--output out#1` cut the path there: the database went to a file `out` beside the intended folder and
+    the bag had none. Through the link, sqlite sees a plain path that leads to the intended place."""
+    absolute = Path(os.path.abspath(path))
+    if not URI_SPECIAL & set(str(absolute)):
+        yield path
+        return
+    if URI_SPECIAL & set(absolute.name):  # its storage files are named after it: no link avoids that
+        raise BagError(f"{path}: a bag's name may not hold {' or '.join(sorted(URI_SPECIAL))} (sqlite would read "
+                       "its storage file's path as a URI); rename it")
+    links = Path(tempfile.mkdtemp(prefix="usv_predictor_sqlite."))
+    try:
+        if URI_SPECIAL & set(str(links)):
+            raise BagError(f"{path}: its path holds one of {''.join(sorted(URI_SPECIAL))}, which sqlite reads as a "
+                           f"URI, and so does the temporary directory {links}")
+        os.symlink(absolute.parent, links / "parent")
+        yield links / "parent" / absolute.name
+    finally:
+        shutil.rmtree(links, ignore_errors=True)
+
+
 def write_bag(
     path: Path,
     streams: Sequence[tuple[TopicSpec, Signal]],
@@ -332,16 +362,18 @@ def write_bag(
     workdir = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
     try:
         built = workdir / path.name
-        writer = Writer(built, version=BAG_VERSION, storage_plugin=STORAGES[storage])
-        if compress:
-            writer.set_compression(COMPRESSION_MODES[storage], CompressionFormat.ZSTD)
-        for key, value in (metadata or {}).items():
-            writer.set_custom_data(str(key), str(value))
-        with writer:
-            connections = [writer.add_connection(spec.topic, spec.ros_type, typestore=typestore) for spec, _ in firsts]
-            for stamp, topic, row in zip(stamps[order].tolist(), topic_index[order].tolist(),
-                                         row_index[order].tolist()):
-                writer.write(connections[topic], stamp, encoded[topic][row])
+        with _plain_sqlite_path(built) as plain:
+            writer = Writer(plain, version=BAG_VERSION, storage_plugin=STORAGES[storage])
+            if compress:
+                writer.set_compression(COMPRESSION_MODES[storage], CompressionFormat.ZSTD)
+            for key, value in (metadata or {}).items():
+                writer.set_custom_data(str(key), str(value))
+            with writer:
+                connections = [writer.add_connection(spec.topic, spec.ros_type, typestore=typestore)
+                               for spec, _ in firsts]
+                for stamp, topic, row in zip(stamps[order].tolist(), topic_index[order].tolist(),
+                                             row_index[order].tolist()):
+                    writer.write(connections[topic], stamp, encoded[topic][row])
         _install(built, path)
     except (WriterError, OSError, sqlite3.Error) as err:
         cause = err.__cause__ if isinstance(err, WriterError) and err.__cause__ is not None else err
@@ -354,13 +386,43 @@ def write_bag(
 # ------------------------------------------------------------------ reading
 
 
+STORAGE_FILE_BYTES = 1 << 50  # a storage file is bounded by the disk, not by us (bytes)
+
+
+def _check_bag_files(path: Path) -> None:
+    """Before any reader opens them: the bag's metadata.yaml read within bounds (bounded.load_yaml) and every
+    storage file it lists, or a single-file bag, a regular file (a FIFO would block sqlite's open for ever, a
+    device never ends); BagError naming the file otherwise."""
+    if not path.is_dir():
+        regular_file(path, "bag file", BagError, STORAGE_FILE_BYTES)
+        return
+    metadata = path / "metadata.yaml"
+    if not os.path.lexists(metadata):
+        return  # the reader names what is missing
+    try:
+        info = load_yaml(metadata, "rosbag2 metadata", BagError)["rosbag2_bagfile_information"]
+        names = [PurePath(str(name)).name for name in info.get("relative_file_paths") or []]
+    except BagError as err:
+        raise BagError(f"{path}: {err}") from err
+    except (KeyError, TypeError, AttributeError) as err:
+        raise BagError(f"{path}: cannot read rosbag2 metadata {metadata}: not a rosbag2 metadata file "
+                       f"({type(err).__name__}: {one_line(err)})") from err
+    for name in names:
+        if os.path.lexists(path / name):  # a missing one: the reader names it
+            try:
+                regular_file(path / name, "storage file", BagError, STORAGE_FILE_BYTES)
+            except BagError as err:
+                raise BagError(f"{path}: {err}") from err
+
+
 @contextmanager
 def _open_reader(path: Path) -> Iterator[AnyReader]:
     """AnyReader over one bag; unreadable bags become BagError naming the path."""
     if not path.exists():
         raise BagError(f"{path}: no such bag")
+    _check_bag_files(path)
     try:
-        with AnyReader([path], default_typestore=jazzy_typestore()) as reader:
+        with _plain_sqlite_path(path) as plain, AnyReader([plain], default_typestore=jazzy_typestore()) as reader:
             yield reader
     except OSError as err:
         if err.errno in NO_SPACE_ERRNOS:  # a compressed bag is decompressed into a temporary file first
@@ -368,6 +430,9 @@ def _open_reader(path: Path) -> Iterator[AnyReader]:
         raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {one_line(err)})") from err
     except _READ_ERRORS as err:
         raise BagError(f"{path}: cannot read bag ({type(err).__name__}: {one_line(err)})") from err
+    except RecursionError as err:  # what rosbags raises on a message definition that contains itself
+        raise BagError(f"{path}: cannot read bag: a message definition it carries refers to itself (a type that "
+                       "contains itself has no end)") from err
 
 
 def absolute_topic(name: str) -> str:
@@ -517,11 +582,13 @@ def read_custom_data(path: Path) -> dict[str, str]:
     """The bag's custom_data (metadata.yaml), e.g. how it was made; {} when it has none."""
     metadata_path = Path(path) / "metadata.yaml"
     try:
-        info = yaml.safe_load(metadata_path.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        info = load_yaml(metadata_path, "rosbag2 metadata", BagError)["rosbag2_bagfile_information"]
         custom = info.get("custom_data") or {}
         if not isinstance(custom, dict):
             raise TypeError(f"custom_data is a {type(custom).__name__}, expected a mapping")
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, AttributeError) as err:
+    except BagError as err:
+        raise BagError(f"{path}: {err}") from err
+    except (KeyError, TypeError, AttributeError) as err:
         raise BagError(f"{path}: cannot read rosbag2 metadata {metadata_path}: {one_line(err)}") from err
     return {str(k): str(v) for k, v in custom.items()}
 

@@ -11,8 +11,9 @@ Before any work, every output (and --json) is checked against every input (usv_p
 never an input, never inside one, never replacing one) and for being writable. Errors (UsvPredictorError, bad
 arguments, an OS error reading or writing a file) print one line `replay <command>: error: <message>` on
 stderr and exit with code 2 (EXIT_ERROR); Ctrl-C (SIGINT) prints `replay <command>: interrupted` and exits with
-130 (EXIT_INTERRUPTED), SIGTERM `replay <command>: terminated` and 143 (EXIT_TERMINATED), leaving no partial
-output (every writer is atomic and removes its temporary file as the exception unwinds).
+130 (EXIT_INTERRUPTED), SIGTERM `replay <command>: terminated` and 143 (EXIT_TERMINATED), SIGHUP `replay
+<command>: hung up` and 129 (EXIT_HUNG_UP), leaving no partial output (every writer is atomic and removes its
+temporary file as the exception unwinds).
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any, NoReturn
 
-from usv_predictor.atomic import check_outputs, write_json_atomic
+from usv_predictor.atomic import check_outputs, output_locks, write_json_atomic
 from usv_predictor.errors import UsvPredictorError, one_line
 
 PROG = "replay"
@@ -44,6 +45,7 @@ COMMANDS: tuple[str, ...] = (
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
 EXIT_TERMINATED = 143  # 128 + SIGTERM
+EXIT_HUNG_UP = 129  # 128 + SIGHUP
 
 
 class _UsageError(Exception):
@@ -92,11 +94,16 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
 
 
 class _Terminated(BaseException):
-    """SIGTERM arrived: unwinds like KeyboardInterrupt, so every atomic writer removes its temporary file."""
+    """SIGTERM (or SIGHUP) arrived: unwinds like KeyboardInterrupt, so every atomic writer removes its temporary
+    file."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__(signum)
+        self.signum = signum
 
 
 def _on_sigterm(signum: int, frame: Any) -> None:
-    raise _Terminated()
+    raise _Terminated(signum)
 
 
 def _path_values(args: argparse.Namespace, name: str) -> list[Path]:
@@ -106,14 +113,16 @@ def _path_values(args: argparse.Namespace, name: str) -> list[Path]:
     return [Path(v) for v in values if v is not None and (isinstance(v, Path) or Path(str(v)).exists())]
 
 
-def check_paths(command: ModuleType, args: argparse.Namespace) -> None:
-    """Outputs (the command's OUTPUTS and --json) apart from its INPUTS and writable (OutputError otherwise)."""
+def check_paths(command: ModuleType, args: argparse.Namespace) -> dict[str, Any]:
+    """Outputs (the command's OUTPUTS and --json) apart from its INPUTS and writable (OutputError otherwise); returns
+    them (option -> path or None)."""
     inputs = [path for name in getattr(command, "INPUTS", ()) for path in _path_values(args, name)]
     kinds: dict[str, str] = dict(getattr(command, "OUTPUTS", {}))
     outputs = {f"--{name.replace('_', '-')}": getattr(args, name, None) for name in kinds}
     outputs["--json"] = args.json
     directories = {f"--{name.replace('_', '-')}" for name, kind in kinds.items() if kind == "dir"}
     check_outputs(outputs, inputs, directories)
+    return outputs
 
 
 def _error_line(err: BaseException) -> str:
@@ -128,7 +137,8 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     prog = PROG
     handles_sigterm = threading.current_thread() is threading.main_thread()  # only there can Python set handlers
-    previous = signal.signal(signal.SIGTERM, _on_sigterm) if handles_sigterm else None
+    stops = (signal.SIGTERM, signal.SIGHUP)  # SIGHUP: the terminal went away; unwound like SIGTERM
+    previous = {sig: signal.signal(sig, _on_sigterm) for sig in stops} if handles_sigterm else {}
     try:
         try:
             args = build_parser(argv).parse_args(argv)
@@ -138,10 +148,10 @@ def main(argv: list[str] | None = None) -> int:
         if command is None:
             raise _UsageError(PROG, "a command is required (see --help)")
         prog = f"{PROG} {command.NAME}"
-        check_paths(command, args)
-        result = command.run(args)
-        if args.json is not None:
-            write_json_atomic(args.json, result)
+        with output_locks(check_paths(command, args)):  # one writer per output
+            result = command.run(args)
+            if args.json is not None:
+                write_json_atomic(args.json, result)
     except _UsageError as err:
         print(f"{err.prog}: error: {err}", file=sys.stderr)
         return EXIT_ERROR
@@ -154,10 +164,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except _Terminated:
+    except _Terminated as stop:
+        if stop.signum == signal.SIGHUP:
+            print(f"{prog}: hung up", file=sys.stderr)
+            return EXIT_HUNG_UP
         print(f"{prog}: terminated", file=sys.stderr)
         return EXIT_TERMINATED
     finally:
-        if handles_sigterm:
-            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
     return 0

@@ -3,8 +3,9 @@
     load_recordings(["bags/training"], dt=0.5) -> [Recording, ...]
 
 Bag arguments: a directory holding metadata.yaml (or a single bag file) is one bag; any other directory is
-searched recursively for bags, in sorted order, skipping sub-directories named `calm` (the calm-water twins of
-`replay simulate --calm-twin`) unless include_calm=True. A calm directory named explicitly is read in full.
+searched recursively for bags, in sorted order, skipping hidden sub-directories and those named `calm` (the
+calm-water twins of `replay simulate --calm-twin`) unless include_calm=True. A calm directory named explicitly is
+read in full.
 Recording names are the shortest trailing part of the bag path that is unique among the bags read
 (`zigzag_10_10_stbd_650rpm`, or `training/zigzag_...` next to `calm/zigzag_...`).
 
@@ -44,8 +45,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from usv_predictor.bounded import load_yaml
 from usv_predictor.config import FLOAT_RANGES, input_topics, load_predictor_config
 from usv_predictor.data.recording import (
     Recording,
@@ -109,12 +110,20 @@ def _is_bag(path: Path) -> bool:
     return path.is_file() or (path / "metadata.yaml").is_file()
 
 
-def _bags_under(root: Path, include_calm: bool) -> list[Path]:
+def _bags_under(root: Path, include_calm: bool, seen: set[tuple[int, int]] | None = None) -> list[Path]:
+    """The bags below `root`, each directory searched once (by device and inode): a link back to `.` or to a
+    parent directory, which would make the search endless, is skipped. Hidden directories are not searched: a
+    writer's work in progress (`.<bag>.<random>.partial`, write_bag) is never read as a bag."""
+    seen = set() if seen is None else seen
+    info = root.stat()
+    if (info.st_dev, info.st_ino) in seen:
+        return []
+    seen.add((info.st_dev, info.st_ino))
     found: list[Path] = []
     for child in sorted(root.iterdir()):
-        if not child.is_dir() or (child.name == CALM_DIR and not include_calm):
+        if not child.is_dir() or child.name.startswith(".") or (child.name == CALM_DIR and not include_calm):
             continue
-        found += [child] if _is_bag(child) else _bags_under(child, include_calm)
+        found += [child] if _is_bag(child) else _bags_under(child, include_calm, seen)
     return found
 
 
@@ -162,20 +171,19 @@ def bag_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml when present: 10x faster on metadata
-
-
 def bag_metadata(path: Path) -> tuple[dict[str, tuple[str, int]], dict[str, str]] | None:
     """(topic -> (type, message count), custom_data) of a rosbag2 metadata.yaml; None for a bag without one."""
     metadata = Path(path) / "metadata.yaml"
     if not metadata.is_file():
         return None
     try:
-        info = yaml.load(metadata.read_text(encoding="utf-8"), Loader=_YAML_LOADER)["rosbag2_bagfile_information"]
+        info = load_yaml(metadata, "rosbag2 metadata", BagError)["rosbag2_bagfile_information"]
         topics = {t["topic_metadata"]["name"]: (t["topic_metadata"]["type"], int(t.get("message_count", 0)))
                   for t in info.get("topics_with_message_count") or []}
         custom = {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError) as err:
+    except BagError as err:
+        raise BagError(f"{path}: {err}") from err
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise BagError(f"{path}: cannot read rosbag2 metadata {metadata} ({type(err).__name__}: "
                        f"{one_line(err)})") from err
     return topics, custom
