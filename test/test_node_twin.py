@@ -195,4 +195,6 @@ def test_a_grey_box_s_candidates_take_turns_with_the_sea_estimate_and_are_answer
     assert turned[0] > 0.2
     assert turned[1] < -0.2
     assert any(name.startswith("candidates") for name in holders)  # the worker's rollout under the lock
-    assert any(name == threading.main_thread().name for name in holders)  # the estimate's writes (the executor)
+    # the estimate's writes (the executor's thread) with the next inputs: the grey box's answer may come before them
+    twin.spin_until(lambda s: any(name == threading.main_thread().name for name in holders), twin.feed)
+    assert any(name == threading.main_thread().name for name in holders)

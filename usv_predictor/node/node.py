@@ -95,7 +95,7 @@ from usv_predictor.config import (
 from usv_predictor.data.recording import PLAUSIBLE
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, RecordingError, UsvPredictorError, one_line
 from usv_predictor.fitting.online import OnlineConfig
-from usv_predictor.models import loading
+from usv_predictor.models import kernel_rollout, loading
 from usv_predictor.models.artifact import metadata_differences
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.node import live, plans, sea
@@ -326,6 +326,9 @@ class PredictorNode(Node):
         # which inputs are read
         self.rollout, self.vessel = load_model(self.config.model_path, self.config)
         self.layout = self.vessel.actuator_layout
+        # the compiled grey-box kernel (the fit check's causes, a grey box's rollout) compiled or loaded now, never in
+        # a cycle or in the fit check's worker (compiling holds the GIL)
+        self.kernel_warm_up_s = kernel_rollout.warm_up(self.vessel, self.config.dt)
         # every control role of the layout configured (ConfigError naming the roles and the layout: fatal); the
         # control roles of other layouts (the shipped config lists every layout's) are ignored: logged once here,
         # reported on /diagnostics ("ignored inputs")
@@ -412,7 +415,8 @@ class PredictorNode(Node):
         self.get_logger().info(
             f"usv_predictor {__version__}: model {self.rollout.artifact.path} ({self.rollout.artifact.model_id}, "
             f"{self.rollout.members} member(s)), {len(self._entries)} inputs ({', '.join(self._entries)}), "
-            f"{self.config.rate_hz:g} Hz, horizon {self.config.horizon_s:g} s, parameters from {defaults_path}"
+            f"{self.config.rate_hz:g} Hz, horizon {self.config.horizon_s:g} s, parameters from {defaults_path}; "
+            f"grey-box kernel ready in {self.kernel_warm_up_s:.1f} s"
         )
 
     def _check_topics(self, inputs: dict[str, list[str]]) -> None:
@@ -934,7 +938,8 @@ class PredictorNode(Node):
             "family": _family_description(meta),
             "feature_set": meta.get("feature_set"), "vessel": meta.get("vessel"), "dt": f"{artifact.dt:g}",
             "ensemble_size": f"{self.rollout.members}/{artifact.ensemble_size}",
-            "rollout": artifact.inference_note,  # fused at load (a DNN) or the file's own, and why
+            "rollout": artifact.inference_note,  # fused (a DNN), the compiled kernel (a grey box) or the file's own
+            "kernel_ready_s": f"{self.kernel_warm_up_s:.2f}",  # the kernel compiled or loaded at start-up
             "training_data_sha256": meta.get("training_data_sha256"), "created_utc": meta.get("created_utc"),
             "horizon_s": f"{self.config.horizon_s:g}", "version": __version__,
         }
