@@ -26,6 +26,19 @@ from usv_predictor.replay.recordings import bag_metadata, topic_specs
 EXIT_CODES = (0, cli.EXIT_ERROR)  # what bad input may end with: a clean run, or one line and exit 2
 
 
+def pinned_tool(name: str) -> str:
+    """The path of a tool requirements.txt pins (colcon, ruff): beside this interpreter (the virtualenv's bin/), else
+    on PATH; the test fails saying how to install it when there is none."""
+    import shutil
+    import sys
+
+    beside_python = Path(sys.executable).parent / name
+    found = str(beside_python) if beside_python.is_file() else shutil.which(name)
+    if found is None:
+        pytest.fail(f"{name} is not installed (it is pinned in requirements.txt; run ./run.sh test)")
+    return found
+
+
 def replay(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str]:
     """Run `replay ARGV...` in this process: (exit code, what it printed on stderr)."""
     capsys.readouterr()

@@ -3,23 +3,17 @@ the message adapters, the tests, the benchmarks, the tools and setup.py, as navi
 from __future__ import annotations
 
 import re
-import shutil
 import subprocess
-import sys
 from pathlib import Path
 
-import pytest
+from replay_helpers import pinned_tool
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CHECKED = ("usv_predictor", "msg_adapters", "test", "benchmarks", "tools", "setup.py")
 
 
 def ruff_executable() -> str:
-    beside_python = Path(sys.executable).parent / "ruff"
-    found = str(beside_python) if beside_python.is_file() else shutil.which("ruff")
-    if found is None:
-        pytest.fail("ruff is not installed (it is pinned in requirements.txt; run ./run.sh test)")
-    return found
+    return pinned_tool("ruff")
 
 
 def test_ruff_is_the_pinned_version() -> None:

@@ -17,6 +17,7 @@ import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import pytest
+from replay_helpers import pinned_tool
 
 import usv_predictor
 
@@ -28,11 +29,7 @@ IGNORED_WITHOUT_GIT = shutil.ignore_patterns(".git", ".venv", "build", "install"
 
 
 def colcon_executable() -> str:
-    beside_python = Path(sys.executable).parent / "colcon"
-    found = str(beside_python) if beside_python.is_file() else shutil.which("colcon")
-    if found is None:
-        pytest.fail("colcon is not installed (it is pinned in requirements.txt; run ./run.sh test)")
-    return found
+    return pinned_tool("colcon")
 
 
 def repo_files() -> list[str]:
