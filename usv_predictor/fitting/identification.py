@@ -211,14 +211,7 @@ def known_forces(vessel: Vessel, nu: np.ndarray, controls: np.ndarray) -> tuple[
     """(steering (T, 3), propulsion (T, 3)) of the vessel's actuator force model at the actuator levels `controls`
     (actuator_levels): the rudder and propeller of the preset's semi-empirical models, or the thrusters' maps
     (calm water, nu through water)."""
-    model = ManoeuvringModel(vessel)
-    rudder = np.empty((len(nu), 3))
-    propeller = np.empty((len(nu), 3))
-    for k, ((u, v, r), (delta, rpm)) in enumerate(zip(nu, controls)):
-        loads = model.loads(float(u), float(v), float(r), 0.0, float(u), float(v), float(delta), float(rpm))
-        rudder[k] = loads.steering
-        propeller[k] = loads.propulsion
-    return rudder, propeller
+    return ManoeuvringModel(vessel).actuator_loads_many(nu, controls)
 
 
 def check_vessel_matches(vessel: Vessel, recording: Recording) -> None:

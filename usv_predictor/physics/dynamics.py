@@ -434,6 +434,16 @@ class ManoeuvringModel(metaclass=ABCMeta):
         f = kernel.loads(ki, p, self._sea(CALM), 0.0, u_r, v_r, r, a, b)
         return (f[3], f[4], f[5]), (f[6], f[7], f[8])
 
+    def actuator_loads_many(self, nu: Any, levels: Any) -> tuple[Any, Any]:
+        """(steering (T, 3), propulsion (T, 3)) loads at the water-relative velocities nu (T, 3) and the actuator
+        levels (T, 2): actuator_loads of every sample in one kernel call."""
+        import numpy as np
+
+        kernel, ki, p = self._kernel()
+        out = kernel.actuator_loads_many(ki, p, np.ascontiguousarray(nu, dtype=np.float64),
+                                         np.ascontiguousarray(levels, dtype=np.float64), np.empty((len(nu), 6)))
+        return out[:, 0:3], out[:, 3:6]
+
     def environment_loads(self, psi: float, u: float, v: float, sea: SeaLoads
                           ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """(wind, waves) loads at heading psi and over-ground velocity (u, v): the apparent wind over ground (seed 000

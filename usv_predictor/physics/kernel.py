@@ -495,6 +495,16 @@ def loads(ki, p, sea, psi, u_r, v_r, r, a, b):
 
 
 @_compiled
+def actuator_loads_many(ki, p, nu, levels, out):
+    """out (T, 6): the steering then propulsion (X, Y, N) of each sample's water-relative nu (T, 3) at its actuator
+    levels (T, 2): one call for a recording (identification's known forces)."""
+    for k in range(nu.shape[0]):
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4], out[k, 5] = _actuator_forces(
+            ki, p, nu[k, 0], nu[k, 1], nu[k, 2], levels[k, 0], levels[k, 1])
+    return out
+
+
+@_compiled
 def accelerations(ki, p, sea, psi, u_r, v_r, r, a, b, accel_n, accel_e):
     """(u_r_dot, v_r_dot, r_dot) = M^-1 (tau - C(nu_r) nu_r - M_RB R^T dV_c/dt): a turning current accelerates the
     water and the rigid body feels it (Fossen 2021 sec. 10.3); accel_n, accel_e the current's d/dt (m/s^2)."""
