@@ -48,6 +48,13 @@ def _array(tensor: torch.Tensor | None) -> np.ndarray | None:
     return None if tensor is None else tensor.detach().to(torch.float64).cpu().numpy()
 
 
+def _plain(array: np.ndarray) -> np.ndarray:
+    """The array as the kernel's one compiled signature takes it: float64, C-contiguous and writable (numba types a
+    read-only array, e.g. a contiguous np.broadcast_to view of a plan's controls, apart: it would compile a second
+    specialisation, seconds holding the GIL, in the middle of a run)."""
+    return np.require(array, dtype=np.float64, requirements=("C", "W"))
+
+
 def _floats(value: Any) -> np.ndarray:
     if isinstance(value, torch.Tensor):
         return value.detach().to(torch.float64).cpu().numpy().reshape(-1)
@@ -239,11 +246,11 @@ class KernelRollout:
     def _run(self, state: np.ndarray, controls: np.ndarray, reference: np.ndarray, use_reference: bool,
              free: np.ndarray, rows: slice) -> np.ndarray:
         """(E, b, H, 6) of the rows `rows` of the batch (their inputs given; the terms cut to them when per row)."""
-        terms = self.terms if self.terms.shape[0] == 1 else np.ascontiguousarray(self.terms[rows])
+        terms = self.terms if self.terms.shape[0] == 1 else _plain(self.terms[rows])
         out = np.empty((self.members, state.shape[0], controls.shape[1], 6))
         if state.shape[0] and controls.shape[1]:
-            kn.rollout(np.ascontiguousarray(state), np.ascontiguousarray(controls), np.ascontiguousarray(reference),
-                       use_reference, self.ki, self.p, terms, np.ascontiguousarray(free), out)
+            kn.rollout(_plain(state), _plain(controls), _plain(reference), use_reference, self.ki, self.p, terms,
+                       _plain(free), out)
         return out
 
     def __call__(self, state: torch.Tensor, controls: torch.Tensor, reference: torch.Tensor | None = None,

@@ -397,9 +397,12 @@ class ManoeuvringModel(metaclass=ABCMeta):
         return self._packed
 
     def _sea(self, sea: SeaLoads, current: bool = True) -> tuple[float, ...]:
+        """The kernel's sea tuple, every element a float: the compiled functions are typed by their arguments, and an
+        int where a float was would compile another specialisation (seconds, holding the GIL) in mid-run."""
         kernel = self._kernel()[0]
-        return kernel.sea_tuple(self.q_wave, sea.current_n if current else 0.0, sea.current_e if current else 0.0,
-                                sea.wind_speed, sea.wind_from, sea.wave_amplitude, sea.wave_from)
+        return kernel.sea_tuple(*map(float, (self.q_wave, sea.current_n if current else 0.0,
+                                             sea.current_e if current else 0.0, sea.wind_speed, sea.wind_from,
+                                             sea.wave_amplitude, sea.wave_from)))
 
     def __reduce__(self) -> tuple:
         """Pickled as the arguments that rebuild it (its class is made per hull model and layout)."""
@@ -418,20 +421,20 @@ class ManoeuvringModel(metaclass=ABCMeta):
         """All forces and moments at midship for relative (u_r, v_r) and over-ground (u, v) velocities and the
         actuator levels (a, b) of the layout (delta rad and rpm for rudder_propeller)."""
         kernel, ki, p = self._kernel()
-        f = kernel.loads(ki, p, self._sea(CALM), psi, u_r, v_r, r, a, b)
+        f = kernel.loads(ki, p, self._sea(CALM), *map(float, (psi, u_r, v_r, r, a, b)))
         wind, waves = self.environment_loads(psi, u, v, sea)
         return Forces((f[0], f[1], f[2]), (f[3], f[4], f[5]), (f[6], f[7], f[8]), wind, waves)
 
     def hull_loads(self, u_r: float, v_r: float, r: float) -> tuple[float, float, float]:
         """(X_H (N), Y_H (N), N_H (N m)) of the hull at midship for the water-relative velocities."""
         kernel, ki, p = self._kernel()
-        return kernel.loads(ki, p, self._sea(CALM), 0.0, u_r, v_r, r, 0.0, 0.0)[0:3]
+        return kernel.loads(ki, p, self._sea(CALM), 0.0, *map(float, (u_r, v_r, r)), 0.0, 0.0)[0:3]
 
     def actuator_loads(self, u_r: float, v_r: float, r: float, a: float, b: float
                        ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """(steering, propulsion) loads (X (N), Y (N), N (N m)) each, at the actuator levels (a, b)."""
         kernel, ki, p = self._kernel()
-        f = kernel.loads(ki, p, self._sea(CALM), 0.0, u_r, v_r, r, a, b)
+        f = kernel.loads(ki, p, self._sea(CALM), 0.0, *map(float, (u_r, v_r, r, a, b)))
         return (f[3], f[4], f[5]), (f[6], f[7], f[8])
 
     def actuator_loads_many(self, nu: Any, levels: Any) -> tuple[Any, Any]:
@@ -440,8 +443,9 @@ class ManoeuvringModel(metaclass=ABCMeta):
         import numpy as np
 
         kernel, ki, p = self._kernel()
-        out = kernel.actuator_loads_many(ki, p, np.ascontiguousarray(nu, dtype=np.float64),
-                                         np.ascontiguousarray(levels, dtype=np.float64), np.empty((len(nu), 6)))
+        plain = ("C", "W")  # float64, C-contiguous, writable: the kernel's one compiled signature
+        out = kernel.actuator_loads_many(ki, p, np.require(nu, np.float64, plain),
+                                         np.require(levels, np.float64, plain), np.empty((len(nu), 6)))
         return out[:, 0:3], out[:, 3:6]
 
     def environment_loads(self, psi: float, u: float, v: float, sea: SeaLoads
@@ -451,7 +455,7 @@ class ManoeuvringModel(metaclass=ABCMeta):
         calm-water resistance, as in trial analysis, ITTC 7.5-04-01-01.1: zero without wind, and a current alone
         still drifts the boat exactly), and the mean wave drift (eq. 19)."""
         kernel, ki, p = self._kernel()
-        f = kernel.loads(ki, p, self._sea(sea, current=False), psi, u, v, 0.0, 0.0, 0.0)
+        f = kernel.loads(ki, p, self._sea(sea, current=False), float(psi), float(u), float(v), 0.0, 0.0, 0.0)
         return (f[9], f[10], f[11]), (f[12], f[13], f[14])
 
     # ---- equations of motion ------------------------------------------------------------------------
@@ -460,8 +464,8 @@ class ManoeuvringModel(metaclass=ABCMeta):
         """nu_r_dot = M^-1 (tau - C(nu_r) nu_r - M_RB R^T dV_c/dt) at the actuator levels (a, b): the kernel's
         equations (physics/kernel.accelerations), the twin of models/greybox.py's."""
         kernel, ki, p = self._kernel()
-        return kernel.accelerations(ki, p, self._sea(sea), psi, u_r, v_r, r, a, b, sea.current_accel_n,
-                                    sea.current_accel_e)
+        return kernel.accelerations(ki, p, self._sea(sea), *map(float, (psi, u_r, v_r, r, a, b, sea.current_accel_n,
+                                                                       sea.current_accel_e)))
 
     def derivative(self, state: list[float], cmd_a: float, cmd_b: float, sea: SeaLoads) -> list[float]:
         """d/dt of [x_n, y_e, psi, u_r, v_r, r, a, b] for the commands (cmd_a, cmd_b) of the layout's `commands`."""
