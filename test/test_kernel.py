@@ -249,3 +249,20 @@ def test_the_float_models_constants_are_the_torch_modules(name):
     ki, p = kernel_constants(vessel, dt=0.2, substeps=3)
     np.testing.assert_array_equal(ki, kernel.ki)
     np.testing.assert_allclose(p, kernel.p, rtol=1e-15, atol=0.0)
+
+
+def test_read_only_and_strided_inputs_reuse_the_one_compiled_rollout():
+    """A read-only contiguous view (np.broadcast_to of a plan's (H, C) controls) or a strided one is passed as the
+    kernel's one signature: numba types a read-only array apart, and compiling a second specialisation in mid-run
+    holds the GIL for seconds (the node's cycles stall)."""
+    from usv_predictor.physics import kernel as kn
+
+    vessel = PRESETS["jari_usv"]
+    kernel = KernelRollout(GreyBoxRollout(vessel, dt=DT))
+    state, controls, reference = inputs(vessel, batch=1)
+    expected = kernel.rollout(state, controls, reference)
+    read_only = np.broadcast_to(controls[0], controls.shape)  # (1, H, C), contiguous, not writable
+    assert read_only.flags.c_contiguous and not read_only.flags.writeable
+    strided = np.repeat(reference, 2, axis=0)[::2]
+    np.testing.assert_array_equal(kernel.rollout(state, read_only, strided), expected)
+    assert len(kn.rollout.signatures) == 1, kn.rollout.signatures
