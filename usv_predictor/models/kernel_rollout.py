@@ -293,14 +293,6 @@ def warm_up(vessel: Any, dt: float) -> float:
     return time.perf_counter() - started
 
 
-def kernel_note(module: Any) -> tuple[KernelRollout | None, str]:
-    """(the kernel of a grey-box module or None, why not): for models/loading.py's inference choice."""
-    try:
-        return KernelRollout(module), KERNEL_FORM
-    except KernelUnavailable as err:
-        return None, str(err)
-
-
 def check_equal(kernel: KernelRollout, module: Any, metadata: Mapping[str, Any], rtol: float = 1e-6) -> float:
     """The largest difference between the kernel's and the module's predictions on a probe (three starts, PROBE_STEPS
     steps with the controls swept through the layout's range), relative to each output column's scale;

@@ -132,7 +132,6 @@ T_BASE = len(P_NAMES)
 N_TERMS = len(T_NAMES)
 N_POLY = 7  # the Abkowitz terms X_du, Y_0, Y_duv, Y_dur, N_0, N_duv, N_dur (models/hybrid.EXTRA_NAMES)
 N_FEATURES = 7  # models/hybrid.GENERALISING_FEATURES
-N_SEA = 7  # _sea_of's tuple
 
 
 # ---- packing ------------------------------------------------------------------------------------------------------
