@@ -3,11 +3,12 @@
     nomoto  the low-order model (models/nomoto.py) fitted by output error to every recording (fitting/nomoto_fit.py)
             and exported, with its coefficients' 95 % intervals and what would determine the loose ones
     auto    each recording cut at its middle; the grey box (replay.identify's identification, the same structure,
-            prior, interaction and blocks) and the low-order model fitted on the first halves, both predicting the
-            held-out second halves open loop (starts every HELD_OUT_STRIDE_S, errors at HELD_OUT_HORIZONS_S); the one
-            with the smaller error at the longest horizon that fits (then the shorter; a model whose rollout is not
-            finite, or that cannot be identified, loses) is identified again on all the data and exported, the
-            errors of both printed with the reason
+            prior, interaction and blocks; a single recording's first half in at least 2 pieces, for its CV) and
+            the low-order model fitted on the first halves, both predicting the held-out second halves open loop
+            (starts every HELD_OUT_STRIDE_S, errors at HELD_OUT_HORIZONS_S); the one with the smaller error at the
+            longest horizon that fits (then the shorter; a model whose rollout is not finite, or that cannot be
+            identified, loses) is identified again on all the data and exported, the errors of both printed with
+            the reason
 """
 from __future__ import annotations
 
@@ -147,21 +148,23 @@ def choose(candidates: dict[str, dict[str, Any]]) -> tuple[str, str]:
     return best, why
 
 
-def _auto(request: LowOrderRequest, vessel: Any, recordings: Sequence[Any],
-          progress: Callable[[str], None]) -> dict[str, Any]:
+def compare_families(request: LowOrderRequest, vessel: Any, recordings: Sequence[Any],
+                     progress: Callable[[str], None] = lambda _: None) -> tuple[str, str, dict[str, dict[str, Any]]]:
+    """(chosen family, why, each candidate's held-out errors or refusal): the grey box and the low-order model fitted
+    on the first halves of `recordings`, scored on the second halves (module docstring)."""
     from usv_predictor.fitting import hybrid_fit, identification
     from usv_predictor.fitting.nomoto_fit import NomotoFitOptions, fit_nomoto
     from usv_predictor.models.artifact import load_artifact
     from usv_predictor.models.loading import with_fused_rollout
     from usv_predictor.models.nomoto import export_nomoto
-    from usv_predictor.replay.identify import identify_bags
 
     first, second = halves(recordings)
     candidates: dict[str, dict[str, Any]] = {}
     with tempfile.TemporaryDirectory(prefix="identify-auto-") as scratch:
         progress("auto: the grey box on the first half of each recording")
         try:
-            result = identification.identify(vessel, _pieces(first, request.blocks), structure=request.structure,
+            blocks = max(request.blocks, 2) if len(first) == 1 else request.blocks  # its CV needs two pieces
+            result = identification.identify(vessel, _pieces(first, blocks), structure=request.structure,
                                              prior=request.prior, interaction=request.interaction or "identify",
                                              progress=progress)
             path = Path(scratch) / "greybox.pt"
@@ -180,6 +183,14 @@ def _auto(request: LowOrderRequest, vessel: Any, recordings: Sequence[Any],
         except (NotIdentifiableError, DatasetError, ModelError) as err:
             candidates["nomoto"] = {"refused": str(err).splitlines()[0]}
     chosen, why = choose(candidates)
+    return chosen, why, candidates
+
+
+def _auto(request: LowOrderRequest, vessel: Any, recordings: Sequence[Any],
+          progress: Callable[[str], None]) -> dict[str, Any]:
+    from usv_predictor.replay.identify import identify_bags
+
+    chosen, why, candidates = compare_families(request, vessel, recordings, progress)
     progress(f"auto: {why}; {chosen} identified again on all the data")
     if chosen == "greybox":
         out = identify_bags(list(request.bags), request.output, vessel=request.vessel, structure=request.structure,
