@@ -229,3 +229,24 @@ def test_auto_keeps_the_family_that_predicts_the_held_out_half_better():
     chosen, why, candidates = compare_families(request, vessel, [mmg_recording(vessel)])
     assert chosen == "greybox", why
     assert candidates["greybox"]["open_loop_m"]["30s"] < candidates["nomoto"]["open_loop_m"]["30s"]
+
+
+def test_the_node_loads_the_low_order_model_for_its_vessel(tmp_path):
+    """node.load_model: the family's compiled rollout, the vessel it embeds, the approach reference taken."""
+    import dataclasses
+
+    from usv_predictor.config import load_predictor_config
+    from usv_predictor.node.node import load_model as node_load_model
+
+    vessel = load_vessel(FUZHOU_VESSEL)
+    fit = fit_nomoto([nomoto_boat(seed=5)], NomotoFitOptions(intervals=False))
+    path = tmp_path / "nomoto.pt"
+    export_nomoto(str(path), fit.coefficients, vessel, DT, training_data_sha256="0" * 64,
+                  identification=fit.to_json())
+    config = dataclasses.replace(load_predictor_config(), model_path=str(path), vessel=vessel.name, dt=DT,
+                                 horizon_s=30.0, ensemble_size=1)
+    rollout, chosen = node_load_model(str(path), config)
+    assert chosen.name == vessel.name and rollout.accepts_reference
+    assert rollout.artifact.inference_note == NUMPY_FORM
+    out = rollout(np.array([1.5, 0.0, 0.05, 0.3]), np.array([0.2]), np.array([1.5, 0.0, 0.0, 0.3]))
+    assert out.shape == (1, 60, 6) and np.all(np.isfinite(out))

@@ -46,6 +46,14 @@ T_975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 
          11: 2.201}  # Student's t, 97.5 % quantile by degrees of freedom (Abramowitz & Stegun 1964 table 26.10)
 
 
+def sigmoid(z: float) -> float:
+    """1 / (1 + exp(-z)) without overflow for any finite z."""
+    if z >= 0.0:
+        return 1.0 / (1.0 + math.exp(-z))
+    e = math.exp(max(z, -700.0))
+    return e / (1.0 + e)
+
+
 def t_975(dof: int) -> float:
     return T_975.get(dof, 1.96 + 2.4 / max(dof, 1))  # beyond the table within 0.01 of it
 
@@ -92,26 +100,28 @@ class Parameterisation:
 
     order: int
     speed_mode: str
+    proportional_offset: bool = False  # the offset is s_p p (a thrust imbalance), not s_0 (a rudder offset)
 
     @property
     def names(self) -> tuple[str, ...]:
         yaw = ("K", "log_T1") if self.order == 1 else ("K", "log_T1", "logit_T2_over_T1", "T3")
         speed = ("u_0", "u_p") if self.speed_mode == "command" else ()
-        return (*yaw, "s_0", "log_T_u", "k_r", "k_v", *speed)
+        return (*yaw, "s_p" if self.proportional_offset else "s_0", "log_T_u", "k_r", "k_v", *speed)
 
     def coefficients(self, x: np.ndarray) -> NomotoCoefficients:
         v = dict(zip(self.names, (float(a) for a in x)))
         t1 = math.exp(min(v["log_T1"], 12.0))
         t2 = t3 = 0.0
         if self.order == 2:
-            t2 = t1 * min(max(1.0 / (1.0 + math.exp(-v["logit_T2_over_T1"])), 1e-4), 1.0 - 1e-4)
+            t2 = t1 * min(max(sigmoid(v["logit_T2_over_T1"]), 1e-4), 1.0 - 1e-4)
             t3 = v["T3"]
-        return NomotoCoefficients(self.order, v["K"], t1, t2, t3, v["s_0"], math.exp(min(v["log_T_u"], 12.0)),
-                                  v["k_r"], v["k_v"], self.speed_mode, v.get("u_0", 0.0), v.get("u_p", 0.0))
+        return NomotoCoefficients(self.order, v["K"], t1, t2, t3, v.get("s_0", 0.0), math.exp(min(v["log_T_u"], 12.0)),
+                                  v["k_r"], v["k_v"], self.speed_mode, v.get("u_0", 0.0), v.get("u_p", 0.0),
+                                  v.get("s_p", 0.0))
 
     def vector(self, c: NomotoCoefficients) -> np.ndarray:
-        values = {"K": c.K, "log_T1": math.log(c.T1), "s_0": c.s_0, "log_T_u": math.log(c.T_u), "k_r": c.k_r,
-                  "k_v": c.k_v, "u_0": c.u_0, "u_p": c.u_p, "T3": c.T3}
+        values = {"K": c.K, "log_T1": math.log(c.T1), "s_0": c.s_0, "s_p": c.s_p, "log_T_u": math.log(c.T_u),
+                  "k_r": c.k_r, "k_v": c.k_v, "u_0": c.u_0, "u_p": c.u_p, "T3": c.T3}
         if self.order == 2:
             ratio = min(max(c.T2 / c.T1, 1e-4), 1.0 - 1e-4) if c.T2 > 0.0 else 0.2
             values["logit_T2_over_T1"] = math.log(ratio / (1.0 - ratio))
@@ -144,18 +154,20 @@ class NomotoFit:
                              np.asarray(state, float), np.asarray(controls, float),
                              None if reference is None else np.asarray(reference, float))
 
-    def turning_circle(self, steering: float, u_c: float) -> dict[str, float]:
-        """The steady turn of a held turn command `steering` at speed set point u_c (m/s) (NomotoCoefficients.
-        steady_turn) with the jackknife 95 % interval of its radius (on log R; G - 1 degrees of freedom)."""
-        nominal = self.coefficients.steady_turn(steering, u_c)
-        form = Parameterisation(self.coefficients.order, self.coefficients.speed_mode)
-        radii = np.array([form.coefficients(x).steady_turn(steering, u_c)["radius_m"] for x in self.jackknife])
+    def turning_circle(self, steering: float, u_c: float, propulsion: float = 0.0) -> dict[str, float]:
+        """The steady turn of a held turn command `steering` at speed set point u_c (m/s) and propulsion level
+        `propulsion` (NomotoCoefficients.steady_turn) with the jackknife 95 % interval of its radius (on log R; G - 1
+        degrees of freedom)."""
+        nominal = self.coefficients.steady_turn(steering, u_c, propulsion)
+        form = Parameterisation(self.coefficients.order, self.coefficients.speed_mode, "s_p" in self.parameter_names)
+        radii = np.array([form.coefficients(x).steady_turn(steering, u_c, propulsion)["radius_m"]
+                          for x in self.jackknife])
         out = dict(nominal)
         if len(radii) >= 2 and np.all(np.isfinite(radii)) and np.all(radii > 0) and math.isfinite(nominal["radius_m"]):
             g = len(radii)
             logs = np.log(radii)
             se = math.sqrt((g - 1) / g * float(np.sum((logs - logs.mean()) ** 2)))
-            half = t_975(g - 1) * se
+            half = min(t_975(g - 1) * se, 700.0)
             out["radius_ci95_m"] = (nominal["radius_m"] * math.exp(-half), nominal["radius_m"] * math.exp(half))
         else:
             out["radius_ci95_m"] = (math.nan, math.nan)
@@ -217,6 +229,12 @@ def fit_windows(recordings: Sequence[Recording], dt: float, horizon_s: float, st
     return out
 
 
+def proportional_offset(layout: Any) -> bool:
+    """Whether the turn command's offset is a thrust imbalance (s_p p): its steering controls are propulsion controls
+    too (a difference of thrusters), not a rudder."""
+    return bool(layout.propulsion) and set(layout.steering) <= set(layout.propulsion)
+
+
 def _speed_mode(recordings: Sequence[Recording], propulsion_w: np.ndarray, asked: str | None) -> tuple[str, str]:
     """(mode, note) of the speed set point (module docstring)."""
     if not np.any(propulsion_w):
@@ -265,6 +283,7 @@ def _start_guess(recordings: Sequence[Recording], steering_w: np.ndarray, propul
     k_ee = a1 * t_ee
     s_0 = a2 / a1 if abs(a1) > 1e-12 else 0.0
     v, r, u, p = (np.concatenate(z) for z in (vs, rs, us, ps))
+    p_typical = float(np.nanmedian(p)) if np.any(np.isfinite(p)) and abs(float(np.nanmedian(p))) > 1e-9 else 1.0
     good = np.isfinite(v) & np.isfinite(r)
     k_v = float(np.dot(v[good], r[good]) / max(np.dot(r[good], r[good]), 1e-12))
     u_0, u_p = float(np.nanmedian(u)), 0.0
@@ -275,8 +294,9 @@ def _start_guess(recordings: Sequence[Recording], steering_w: np.ndarray, propul
     guesses = []
     for t1 in (t_ee, *START_TIME_CONSTANTS_S):
         t2 = 0.2 * t1 if form.order == 2 else 0.0
-        guesses.append(NomotoCoefficients(form.order, k_ee, t1, t2, t2, s_0, 10.0, 0.0,
-                                          k_v, form.speed_mode, u_0, u_p))
+        guesses.append(NomotoCoefficients(form.order, k_ee, t1, t2, t2, 0.0 if form.proportional_offset else s_0,
+                                          10.0, 0.0, k_v, form.speed_mode, u_0, u_p,
+                                          s_0 / p_typical if form.proportional_offset else 0.0))
     return guesses
 
 
@@ -363,7 +383,7 @@ def fit_nomoto(recordings: Sequence[Recording], options: NomotoFitOptions = Nomo
     if not np.nanmax(np.abs(steering - np.nanmedian(steering))) > 0.0:
         raise NotIdentifiableError("the turn command never changes in the data: K and T need a turn or a zig-zag")
     mode, mode_note = _speed_mode(recordings, propulsion_w, options.speed_mode)
-    form = Parameterisation(options.order, mode)
+    form = Parameterisation(options.order, mode, proportional_offset(layout))
     windows = fit_windows(recordings, dt, options.horizon_s, options.stride_s)
     starts = [form.vector(c) for c in _start_guess(recordings, steering_w, propulsion_w, form)]
     if options.order == 2:  # from the first-order fit: T3 = T2 is the first order exactly
@@ -419,7 +439,8 @@ def _jackknife(form: Parameterisation, x: np.ndarray, windows: Sequence[Windows]
     return np.array(out)
 
 
-UNITS = {"K": "1/s per turn-command unit", "T1": "s", "T2": "s", "T3": "s", "s_0": "turn-command unit", "T_u": "s",
+UNITS = {"K": "1/s per turn-command unit", "T1": "s", "T2": "s", "T3": "s", "s_0": "turn-command unit",
+         "s_p": "turn-command unit per propulsion unit", "T_u": "s",
          "k_r": "m/rad^2", "k_v": "m", "u_0": "m/s", "u_p": "m/s per propulsion unit"}
 
 
@@ -438,16 +459,18 @@ def _estimates(form: Parameterisation, x: np.ndarray, jack: np.ndarray) -> tuple
 
     def logged(name: str, value: float) -> tuple[float, float]:
         h = half[by_name[name]]
+        h = min(h, 700.0)
         return (value * math.exp(-h), value * math.exp(h))
 
     out = [Estimate("K", c.K, linear("K", c.K), UNITS["K"]), Estimate("T1", c.T1, logged("log_T1", c.T1), "s")]
     if form.order == 2:
         z = x[by_name["logit_T2_over_T1"]]
         h = half[by_name["logit_T2_over_T1"]]
-        ratio = [1.0 / (1.0 + math.exp(-(z + d))) for d in (-h, h)] if math.isfinite(h) else [math.nan] * 2
+        ratio = [sigmoid(z + d) for d in (-h, h)] if math.isfinite(h) else [math.nan] * 2
         out += [Estimate("T2", c.T2, (c.T1 * ratio[0], c.T1 * ratio[1]), "s"),
                 Estimate("T3", c.T3, linear("T3", c.T3), "s")]
-    out += [Estimate("s_0", c.s_0, linear("s_0", c.s_0), UNITS["s_0"]),
+    offset = "s_p" if form.proportional_offset else "s_0"
+    out += [Estimate(offset, getattr(c, offset), linear(offset, getattr(c, offset)), UNITS[offset]),
             Estimate("T_u", c.T_u, logged("log_T_u", c.T_u), "s"),
             Estimate("k_r", c.k_r, linear("k_r", c.k_r), UNITS["k_r"]),
             Estimate("k_v", c.k_v, linear("k_v", c.k_v), UNITS["k_v"])]
@@ -476,7 +499,7 @@ def _determination_notes(estimates: Sequence[Estimate], form: Parameterisation) 
         if not (math.isfinite(lo) and math.isfinite(hi)):
             notes.append(f"{e.name}: no interval (too few blocks to leave out)")
             continue
-        loose = (lo <= 0.0 <= hi and e.name not in ("s_0", "T3")) or (lo > 0.0 and hi / lo > 10.0)
+        loose = (lo <= 0.0 <= hi and e.name not in ("s_0", "s_p", "T3")) or (lo > 0.0 and hi / lo > 10.0)
         if loose and e.name in WOULD_DETERMINE:
             notes.append(f"{e.name} = {e.estimate:.4g} {e.unit} is barely determined (95 % [{lo:.4g}, {hi:.4g}]): "
                          f"{WOULD_DETERMINE[e.name]} would determine it")

@@ -4,8 +4,12 @@ What a record of one zig-zag at one speed, without propulsion data, can determin
 Fossen 2021 eq. 7.38 and 7.31), on the layout's turn command s (physics/actuators.py `steering`: the rudder angle
 delta of a rudder boat, port - starboard of a twin-thruster boat; + turns to starboard):
 
-    first order   T r_dot + r = K (s - s_0)
-    second order  T1 T2 r_ddot + (T1 + T2) r_dot + r = K (s - s_0 + T3 s_dot),   T1 > T2 > 0
+    first order   T r_dot + r = K (s - s_0 - s_p p)
+    second order  T1 T2 r_ddot + (T1 + T2) r_dot + r = K (s - s_0 - s_p p + T3 s_dot),   T1 > T2 > 0
+
+s_0 + s_p p is the command of no turn: a rudder's offset angle s_0 (s_p = 0), or, where the turn command is a
+difference of the propulsion controls (twin thrusters), a thrust imbalance, which grows with the thrust: s_p p with p
+the propulsion level (s_0 = 0), so a model identified at one speed keeps its offset right at another.
 
 The second order runs as its partial fractions K (1 + T3 p) / ((1 + T1 p)(1 + T2 p)) = A / (1 + T1 p) + B / (1 + T2 p),
 A = K (T1 - T3) / (T1 - T2), B = K (T3 - T2) / (T1 - T2): two first-order modes r = r_1 + r_2, the measured start
@@ -73,6 +77,7 @@ class NomotoCoefficients:
     speed_mode: str  # "reference" or "command"
     u_0: float = 0.0  # (m/s) command: u_c = u_0 + u_p p
     u_p: float = 0.0  # (m/s per propulsion unit) command
+    s_p: float = 0.0  # (turn-command unit per propulsion unit) the offset's share proportional to the propulsion level
 
     def __post_init__(self) -> None:
         if self.order not in ORDERS:
@@ -99,10 +104,10 @@ class NomotoCoefficients:
         shares = np.array([(self.T1 - self.T3) / gap, (self.T3 - self.T2) / gap])
         return np.array([self.T1, self.T2]), self.K * shares, shares
 
-    def steady_turn(self, steering: float, u_c: float) -> dict[str, float]:
-        """The steady turn of a held command: r = K (s - s_0), u = u_c - T_u k_r r^2, v = k_v r; radius U / |r| (m)
-        and drift angle atan2(v, u) (deg)."""
-        r = self.K * (steering - self.s_0)
+    def steady_turn(self, steering: float, u_c: float, propulsion: float = 0.0) -> dict[str, float]:
+        """The steady turn of a held command: r = K (s - s_0 - s_p p), u = u_c - T_u k_r r^2, v = k_v r; radius
+        U / |r| (m) and drift angle atan2(v, u) (deg)."""
+        r = self.K * (steering - self.s_0 - self.s_p * propulsion)
         u = u_c - self.T_u * self.k_r * r * r
         v = self.k_v * r
         speed = math.hypot(u, v)
@@ -137,10 +142,10 @@ def numpy_rollout(c: NomotoCoefficients, steering_w: np.ndarray, propulsion_w: n
     discretisation, the same arithmetic as NomotoRollout.forward (float64), its steps compiled (_steps)."""
     tau, gains, shares = c.modes()  # (M,)
     batch, steps = controls.shape[0], controls.shape[1]
-    s = controls @ steering_w - c.s_0  # (B, H) turn command less its offset
+    p = controls @ propulsion_w  # (B, H) the propulsion level (0 without one)
+    s = controls @ steering_w - c.s_0 - c.s_p * p  # (B, H) turn command less its offset
     nxt = np.concatenate([s[:, 1:], s[:, -1:]], axis=1)  # (B, H) the command at the step's end (last held)
     if c.speed_mode == "command":
-        p = controls @ propulsion_w  # (B, H)
         u_set = c.u_0 + c.u_p * 0.5 * (p + np.concatenate([p[:, 1:], p[:, -1:]], axis=1))  # (B, H) the step's mean
     else:
         ref = state if reference is None else reference
@@ -225,9 +230,9 @@ class NomotoRollout(nn.Module):
         self.register_buffer("shares", torch.tensor(shares, dtype=f64))  # (M,)
         self.register_buffer("steering_w", torch.tensor(steering, dtype=f64))  # (C,)
         self.register_buffer("propulsion_w", torch.tensor(propulsion, dtype=f64))  # (C,)
-        self.register_buffer("constants", torch.tensor(  # s_0, T_u (s), k_r (m/rad^2), k_v (m), u_0 (m/s), u_p
+        self.register_buffer("constants", torch.tensor(  # s_0, T_u (s), k_r (m/rad^2), k_v (m), u_0 (m/s), u_p, s_p
             [coefficients.s_0, coefficients.T_u, coefficients.k_r, coefficients.k_v, coefficients.u_0,
-             coefficients.u_p], dtype=f64))
+             coefficients.u_p, coefficients.s_p], dtype=f64))
         self.command_speed = coefficients.speed_mode == "command"
 
     def forward(self, state: Tensor, controls: Tensor, reference: Optional[Tensor] = None) -> Tensor:
@@ -236,10 +241,10 @@ class NomotoRollout(nn.Module):
         state = state.to(torch.float64)
         controls = controls.to(torch.float64)
         batch, steps = controls.shape[0], controls.shape[1]
-        s = torch.matmul(controls, self.steering_w) - s_0  # (B, H)
+        p = torch.matmul(controls, self.propulsion_w)  # (B, H)
+        s = torch.matmul(controls, self.steering_w) - s_0 - self.constants[6] * p  # (B, H)
         nxt = torch.cat([s[:, 1:], s[:, -1:]], dim=1)  # (B, H)
         if self.command_speed:
-            p = torch.matmul(controls, self.propulsion_w)  # (B, H)
             u_set = self.constants[4] + self.constants[5] * 0.5 * (p + torch.cat([p[:, 1:], p[:, -1:]], dim=1))
         else:
             ref = state if reference is None else reference.to(torch.float64)
@@ -366,7 +371,8 @@ def describe(coefficients: NomotoCoefficients, intervals: Mapping[str, Sequence[
     parts = [part("K", c.K, " 1/s"), part("T1", c.T1, " s")]
     if c.order == 2:
         parts += [part("T2", c.T2, " s"), part("T3", c.T3, " s")]
-    parts += [part("s_0", c.s_0, ""), part("T_u", c.T_u, " s"), part("k_r", c.k_r, " m"), part("k_v", c.k_v, " m")]
+    parts += [part("s_p", c.s_p, "") if c.s_p else part("s_0", c.s_0, ""), part("T_u", c.T_u, " s"),
+              part("k_r", c.k_r, " m"), part("k_v", c.k_v, " m")]
     if c.speed_mode == "command":
         parts += [part("u_0", c.u_0, " m/s"), part("u_p", c.u_p, "")]
     return f"Nomoto order {c.order} (speed set point: {c.speed_mode}): " + ", ".join(parts)
