@@ -402,7 +402,7 @@ def fit_nomoto(recordings: Sequence[Recording], options: NomotoFitOptions = Nomo
     jack = _jackknife(form, x, windows, steering_w, propulsion_w, dt, sigma, options.horizon_s) \
         if options.intervals else np.empty((0, len(x)))
     estimates = _estimates(form, x, jack)
-    notes = [mode_note, *_determination_notes(estimates, form)]
+    notes = [mode_note, *_determination_notes(estimates if options.intervals else (), form, form.coefficients(x))]
     return NomotoFit(form.coefficients(x), estimates, form.names, x, jack, sigma,
                      int(sum(len(w.starts) for w in windows)), float(options.horizon_s), tuple(notes), steering_w,
                      propulsion_w, dt)
@@ -467,6 +467,9 @@ def _estimates(form: Parameterisation, x: np.ndarray, jack: np.ndarray) -> tuple
         z = x[by_name["logit_T2_over_T1"]]
         h = half[by_name["logit_T2_over_T1"]]
         ratio = [sigmoid(z + d) for d in (-h, h)] if math.isfinite(h) else [math.nan] * 2
+        if at_bound(c):  # the time constants' intervals mean nothing there (_determination_notes says why)
+            out[1] = Estimate("T1", c.T1, (math.nan, math.nan), "s")
+            ratio = [math.nan] * 2
         out += [Estimate("T2", c.T2, (c.T1 * ratio[0], c.T1 * ratio[1]), "s"),
                 Estimate("T3", c.T3, linear("T3", c.T3), "s")]
     offset = "s_p" if form.proportional_offset else "s_0"
@@ -492,12 +495,23 @@ WOULD_DETERMINE = {  # what trial would pin a coefficient whose interval spans z
 }
 
 
-def _determination_notes(estimates: Sequence[Estimate], form: Parameterisation) -> list[str]:
+def at_bound(c: NomotoCoefficients) -> bool:
+    """A second order whose T2 / T1 reached the edge of (0, 1) the fit allows: the data support no second pole."""
+    return c.order == 2 and not 2e-4 < c.T2 / c.T1 < 1.0 - 2e-4
+
+
+def _determination_notes(estimates: Sequence[Estimate], form: Parameterisation,
+                         coefficients: NomotoCoefficients) -> list[str]:
     notes = []
+    if at_bound(coefficients):
+        notes.append(f"the second order is not determined: T2 / T1 = {coefficients.T2 / coefficients.T1:.4g} is at "
+                     "the edge of what the fit allows (the data show no second pole; order 1 is the model they "
+                     "support; a zig-zag with steps faster than T1 would determine T2)")
     for e in estimates:
         lo, hi = e.ci95
         if not (math.isfinite(lo) and math.isfinite(hi)):
-            notes.append(f"{e.name}: no interval (too few blocks to leave out)")
+            if len(notes) == 0 or "second order" not in notes[0]:
+                notes.append(f"{e.name}: no interval (too few blocks to leave out)")
             continue
         loose = (lo <= 0.0 <= hi and e.name not in ("s_0", "s_p", "T3")) or (lo > 0.0 and hi / lo > 10.0)
         if loose and e.name in WOULD_DETERMINE:
