@@ -250,3 +250,18 @@ def test_the_node_loads_the_low_order_model_for_its_vessel(tmp_path):
     assert rollout.artifact.inference_note == NUMPY_FORM
     out = rollout(np.array([1.5, 0.0, 0.05, 0.3]), np.array([0.2]), np.array([1.5, 0.0, 0.0, 0.3]))
     assert out.shape == (1, 60, 6) and np.all(np.isfinite(out))
+
+
+def test_auto_s_choice_refuses_what_cannot_be_identified_or_diverges():
+    from usv_predictor.errors import NotIdentifiableError
+    from usv_predictor.replay.low_order import choose
+
+    good = {"open_loop_m": {"10s": 2.0, "30s": 9.0}, "diverged": 0}
+    better_short = {"open_loop_m": {"10s": 1.0, "30s": 9.5}, "diverged": 0}
+    assert choose({"greybox": good, "nomoto": better_short})[0] == "greybox"  # 30 s decides, then 10 s
+    assert choose({"greybox": {"refused": "needs 2 manoeuvres"}, "nomoto": good})[0] == "nomoto"
+    chosen, why = choose({"greybox": {**better_short, "open_loop_m": {"10s": 0.1, "30s": 0.2}, "diverged": 3},
+                          "nomoto": good})
+    assert chosen == "nomoto" and "3 rollouts diverged" in why
+    with pytest.raises(NotIdentifiableError, match="no family predicts"):
+        choose({"greybox": {"refused": "a"}, "nomoto": {"refused": "b"}})
