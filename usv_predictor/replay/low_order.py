@@ -79,8 +79,44 @@ def _export_nomoto(request: LowOrderRequest, vessel: Any, recordings: Sequence[A
     progress(describe(fit.coefficients, fit.intervals()))
     for note in fit.notes:
         progress(f"  {note}")
+    turns = steady_turns(fit, recordings)
+    for side, turn in turns["sides"].items():
+        interval = "" if None in turn["radius_ci95_m"] else " [{:.3g}, {:.3g}]".format(*turn["radius_ci95_m"])
+        radius = "none (no turn)" if turn["radius_m"] is None else f"{turn['radius_m']:.3g} m{interval}"
+        progress(f"  steady turn at the data's {turns['command']:.4g} turn command to {side}: radius {radius}, drift "
+                 f"angle {turn['drift_deg']:.1f} deg (speed set point {turns['speed_set_point_mps']:.3g} m/s)")
     return {"model": str(request.output), "model_id": artifact.model_id, "model_type": "nomoto", "family": "nomoto",
-            "training_data_sha256": digest, "identification": fit.to_json(), "froude_scale": request.scale}
+            "training_data_sha256": digest, "identification": fit.to_json(), "steady_turns": turns,
+            "froude_scale": request.scale}
+
+
+def steady_turns(fit: Any, recordings: Sequence[Any]) -> dict[str, Any]:
+    """The steady turn both ways (NomotoFit.turning_circle, radius with its 95 % interval) at the 95th percentile of
+    the data's |turn command| about its offset, at the data's speed set point (the median approach speed, or u_0 + u_p
+    times the median propulsion level) and median propulsion level: what a turning test at that command would show if
+    the yaw response stayed linear there."""
+    import numpy as np
+
+    from usv_predictor.data.recording import held_reference
+
+    c = fit.coefficients
+    level = float(np.nanmedian(np.concatenate([r.controls @ fit.propulsion_w for r in recordings])))
+    offset = c.s_0 + c.s_p * level
+    steering = np.concatenate([r.controls @ fit.steering_w for r in recordings]) - offset
+    command = float(np.nanpercentile(np.abs(steering), 95))
+    if c.speed_mode == "command":
+        u_c = c.u_0 + c.u_p * level
+    else:
+        approaches = [held_reference(r) for r in recordings]
+        speeds = [a[0] for a in approaches if a is not None] or [float(np.nanmedian(r.nu[:, 0])) for r in recordings]
+        u_c = float(np.median(speeds))
+    sides = {}
+    for side, sign in (("starboard", 1.0), ("port", -1.0)):
+        turn = fit.turning_circle(offset + sign * command, u_c, level)
+        sides[side] = {k: (None if isinstance(v, float) and not math.isfinite(v) else  # JSON: no NaN or inf
+                           [x if math.isfinite(x) else None for x in v] if isinstance(v, tuple) else v)
+                       for k, v in turn.items()}
+    return {"command": command, "speed_set_point_mps": u_c, "propulsion_level": level, "sides": sides}
 
 
 def halves(recordings: Sequence[Any]) -> tuple[list[Any], list[Any]]:
