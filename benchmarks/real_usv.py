@@ -21,6 +21,12 @@ Fuzhou rudder USV (../shared/data/raw/usv_alexandersson2022_fuzhou, a 30 deg zig
   first state, open loop 10 / 30 s) against the naive baselines; the steady turning radius at 22 deg rudder from the
   Nomoto model of the whole record at the speed of its turns, its uncertainty from 400 draws of (a1, a2, a3) from
   their estimated covariance, beside the MMG grey box's (identified, and the vessel file's) simulated radius.
+The low-order family (`--only low_order`, models/nomoto.py, fitting/nomoto_fit.py): Fuzhou, the Nomoto model (first
+  and second order) fitted by output error on the first half, the held-out half predicted (open loop 10 / 30 s,
+  closed-loop heading) beside the grey box (prior fix, two pieces) and the naive baselines; `--family auto`'s choice
+  on the whole record; the turning circle at 22 deg rudder of the model of the whole record at its approach speed,
+  with its jackknife 95 % interval. Dalian, both directions (identify on one run, predict the other): the Nomoto model
+  beside the grey box (prior fix, 4 blocks) and the baselines (open loop 10 / 30 / 60 s) and the circle's radius.
 Run: .venv/bin/python benchmarks/real_usv.py [--raw ../shared/data/raw] [--work /tmp/real_usv] [--json out.json]
 Deterministic (seeded training, no random state elsewhere); ~3 minutes on one core.
 """
@@ -370,6 +376,105 @@ def fuzhou(bags: Path, work: Path) -> dict:
     return out
 
 
+def _nomoto_model(fit, vessel, path: Path, dt: float) -> object:
+    from usv_predictor.models.loading import load_model
+    from usv_predictor.models.nomoto import export_nomoto
+
+    export_nomoto(str(path), fit.coefficients, vessel, dt, training_data_sha256="0" * 64, identification=fit.to_json())
+    return load_model(str(path), dt=dt)
+
+
+def _fit_record(fit) -> dict:
+    return {"coefficients": {e.name: {"estimate": e.estimate, "ci95": list(e.ci95)} for e in fit.estimates},
+            "notes": list(fit.notes), "windows": fit.windows}
+
+
+def low_order(bags: Path, work: Path) -> dict:
+    """The low-order family on both records (module docstring)."""
+    from usv_predictor.analysis.evaluation import evaluate
+    from usv_predictor.data.recording import held_reference
+    from usv_predictor.fitting.nomoto_fit import NomotoFitOptions, fit_nomoto
+    from usv_predictor.models.artifact import load_artifact
+    from usv_predictor.models.nomoto import describe
+    from usv_predictor.physics.vessel import load_vessel
+    from usv_predictor.replay.identify import identify_bags
+    from usv_predictor.replay.low_order import LowOrderRequest, compare_families
+    from usv_predictor.replay.recordings import slice_recording
+
+    out: dict = {"fuzhou": {}, "dalian": {"directions": {}}}
+    vessel = load_vessel(FUZHOU_VESSEL)
+    (whole,) = recordings(bags / "fuzhou_zigzag_30", "rudder_only", FUZHOU_DT)
+    half = len(whole) // 2
+    first = slice_recording(whole, 0, half, "fuzhou_first_half")
+    second = slice_recording(whole, half, len(whole), "fuzhou_second_half")
+    request = LowOrderRequest((bags / "fuzhou_zigzag_30",), work / "unused.pt", str(FUZHOU_VESSEL), family="auto",
+                              dt=FUZHOU_DT, prior="fix", blocks=2)
+    chosen, why, candidates = compare_families(request, vessel, [whole], progress=log)
+    out["fuzhou"]["auto"] = {"chosen": chosen, "why": why, "held_out": candidates}
+    log(f"Fuzhou auto: {why}")
+    models = {}
+    for order in (1, 2):
+        started = time.perf_counter()
+        fit = fit_nomoto([first], NomotoFitOptions(order=order))
+        out["fuzhou"][f"nomoto_{order}_first_half"] = {**_fit_record(fit), "fit_s": time.perf_counter() - started}
+        log(f"Fuzhou first half: {describe(fit.coefficients, fit.intervals())}")
+        models[f"Nomoto order {order} (output error, first half)"] = _nomoto_model(
+            fit, vessel, work / f"fuzhou_nomoto_{order}.pt", FUZHOU_DT)
+    grey = work / "fuzhou_low_order_greybox.pt"
+    pieces = [slice_recording(first, 0, half // 2, "fuzhou_first_half~1"),
+              slice_recording(first, half // 2, half, "fuzhou_first_half~2")]
+    from usv_predictor.fitting import hybrid_fit, identification
+
+    result = identification.identify(vessel, pieces, structure="mmg", prior="fix")
+    hybrid_fit.export_identified(str(grey), hybrid_fit.greybox_module(result, FUZHOU_DT), result, dt=FUZHOU_DT,
+                                 training_data_sha256="0" * 64)
+    models["grey box (prior fix, first half)"] = load_artifact(grey)
+    models["constant velocity"] = ConstantVelocity(FUZHOU_DT)
+    models["constant speed and turn rate"] = ConstantTurn(FUZHOU_DT)
+    out["fuzhou"]["held_out_half"] = {}
+    for label, model in models.items():
+        ev = evaluate(model, [second], "gnss", (10.0, 30.0), 5.0).recordings[0]
+        out["fuzhou"]["held_out_half"][label] = {
+            "open_loop": {f"{h.horizon_s:g}s": {"mean_m": h.mean_m, "p95_m": h.p95_m, "starts": h.count}
+                          for h in ev.open_loop.horizons},
+            "closed_loop_psi_rmse_deg": ev.state_rmse.get("psi_deg"), "diverged": ev.open_loop.diverged}
+        log(f"  {label:50s} open loop 10/30 s: " + " ".join(f"{h.mean_m:6.2f}" for h in ev.open_loop.horizons)
+            + f" m; closed-loop psi rmse {ev.state_rmse.get('psi_deg', math.nan):.1f} deg")
+    fit = fit_nomoto([whole], NomotoFitOptions(order=1))
+    approach = held_reference(whole)
+    out["fuzhou"]["nomoto_1_whole_record"] = _fit_record(fit)
+    circle = {}
+    for side, sign in (("starboard", 1.0), ("port", -1.0)):
+        turn = fit.turning_circle(sign * math.radians(FUZHOU_RUDDER_DEG), float(approach[0]))
+        circle[side] = {**turn, "radius_over_L": turn["radius_m"] / vessel.geometry.L_pp}
+        log(f"Fuzhou turning circle at {FUZHOU_RUDDER_DEG:g} deg {side}: {turn['radius_m']:.2f} m "
+            f"[{turn['radius_ci95_m'][0]:.2f}, {turn['radius_ci95_m'][1]:.2f}], drift {turn['drift_deg']:.1f} deg")
+    out["fuzhou"]["turning_circle_22deg"] = {"approach_speed_mps": float(approach[0]), **circle}
+
+    dalian_vessel = load_vessel(DALIAN_VESSEL)
+    runs = {name: recordings(bags / f"dalian_{name}", "twin_thrusters") for name in ("circle", "sine")}
+    out["dalian"]["measured_circle_radius_m"] = measured_circle(runs["circle"][0])
+    for train, test in (("circle", "sine"), ("sine", "circle")):
+        fit = fit_nomoto(runs[train], NomotoFitOptions(order=1))
+        log(f"Dalian {train}: {describe(fit.coefficients, fit.intervals())}")
+        path = work / f"dalian_low_order_greybox_{train}.pt"
+        identify_bags([bags / f"dalian_{train}"], path, vessel=str(DALIAN_VESSEL), prior="fix", dt=DT, blocks=4)
+        direction = {"nomoto": _fit_record(fit), "open_loop": {}, "circle_radius_m": {}}
+        models = {"Nomoto order 1 (output error)": _nomoto_model(fit, dalian_vessel, work / f"dalian_nomoto_{train}.pt",
+                                                                 DT),
+                  "grey box identified (prior fix, 4 blocks)": load_artifact(path),
+                  "constant velocity": ConstantVelocity(), "constant speed and turn rate": ConstantTurn()}
+        for label, model in models.items():
+            direction["open_loop"][label] = open_loop(model, runs[test])
+            direction["circle_radius_m"][label] = circle_radius(model, runs["circle"][0])
+            e = direction["open_loop"][label]
+            log(f"  {train} -> {test} {label:45s} open loop 10/30/60 s: {e['10s']['mean_m']:6.2f} "
+                f"{e['30s']['mean_m']:6.2f} {e['60s']['mean_m']:6.2f} m   circle radius "
+                f"{direction['circle_radius_m'][label]['radius_m']:.1f} m")
+        out["dalian"]["directions"][f"{train} -> {test}"] = direction
+    return out
+
+
 def _strict(x: object) -> object:
     """JSON-safe copy: non-finite floats as null, numpy scalars as floats, tuples as lists."""
     if isinstance(x, dict):
@@ -388,7 +493,7 @@ def main() -> None:
     parser.add_argument("--raw", type=Path, default=REPO.parent / "shared" / "data" / "raw")
     parser.add_argument("--work", type=Path, default=Path("/tmp/real_usv"))
     parser.add_argument("--json", type=Path, default=None)
-    parser.add_argument("--only", choices=("dalian", "fuzhou"), default=None)
+    parser.add_argument("--only", choices=("dalian", "fuzhou", "low_order"), default=None)
     args = parser.parse_args()
     import torch
 
@@ -401,6 +506,8 @@ def main() -> None:
         result["dalian"] = dalian(bags, args.work)
     if args.only in (None, "fuzhou"):
         result["fuzhou"] = fuzhou(bags, args.work)
+    if args.only in (None, "low_order"):
+        result["low_order"] = low_order(bags, args.work)
     result["seconds"] = time.perf_counter() - started
     text = json.dumps(_strict(result), indent=2)
     if args.json:

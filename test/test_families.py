@@ -12,7 +12,7 @@ from usv_predictor.models.loading import physics_predictor
 
 @pytest.mark.parametrize("model_type, family", [
     ("dnn", "dnn"), ("greybox", "greybox"), ("greybox+current+wave_drift", "greybox"), ("hybrid", "hybrid"),
-    ("physics (calm-water MMG grey box of the preset)", "physics"),
+    ("physics (calm-water MMG grey box of the preset)", "physics"), ("nomoto", "nomoto"),
 ])  # fmt: skip
 def test_a_model_type_names_its_family(model_type, family):
     assert family_of({"model_type": model_type}).name == family
@@ -32,7 +32,7 @@ def test_only_the_grey_box_families_carry_the_physics():
 
 def test_a_foreign_model_type_is_named_with_the_known_families():
     with pytest.raises(ModelError, match=r"m\.pt: model_type 'keras' is not a model family of usv_predictor; "
-                                         r"known: dnn, greybox, hybrid, physics"):
+                                         r"known: dnn, greybox, hybrid, nomoto, physics"):
         family_of({"model_type": "keras"}, where="m.pt")
     with pytest.raises(ModelError, match="model_type None"):
         family_of({})

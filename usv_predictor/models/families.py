@@ -33,6 +33,9 @@ MODEL_FAMILIES: Mapping[str, ModelFamily] = MappingProxyType({
                            True, "the MMG grey box (identified hull; with a diagnosis, its extension terms)"),
     "hybrid": ModelFamily("hybrid", "usv_predictor.models.hybrid", "replay identify --hybrid", False,
                           "the identified grey box plus a learned residual on the accelerations"),
+    "nomoto": ModelFamily("nomoto", "usv_predictor.models.nomoto", "replay identify --family nomoto / auto", False,
+                          "the low-order model: Nomoto yaw (first or second order), a speed equation and a drift "
+                          "proportional to r"),
     "physics": ModelFamily("physics", "usv_predictor.models.greybox", "replay evaluate --model physics", True,
                            "the calm-water grey box of a vessel preset (no file: the physics baseline)"),
 })  # fmt: skip

@@ -164,11 +164,13 @@ def with_fused_rollout(model: ModelArtifact) -> ModelArtifact:
     NumpyDnnRollout), else the TorchScript one (models/dnn.fused_rollout, FusedDnnRollout). The file is not changed
     (its format neither): an artifact of any version is fused when loaded. A DNN file whose network cannot be fused,
     or whose fused rollout differs from its own, keeps its own module (inference_note says why); a grey box or hybrid
-    runs the compiled kernel (with_kernel_rollout)."""
+    runs the compiled kernel (with_kernel_rollout), a low-order model its compiled numpy form (with_nomoto_rollout)."""
     import dataclasses
 
     from usv_predictor.models.dnn import NUMPY_FORM, fused_rollout, numpy_rollout
 
+    if str(model.metadata.get("model_type")) == "nomoto":
+        return with_nomoto_rollout(model)
     if str(model.metadata.get("model_type")) != "dnn":
         return with_kernel_rollout(model)
     try:
@@ -201,3 +203,20 @@ def with_kernel_rollout(model: ModelArtifact) -> ModelArtifact:
     except KernelUnavailable as err:
         return dataclasses.replace(model, inference_note=f"the file's rollout (not compiled: {err})")
     return dataclasses.replace(model, inference=kernel, inference_note=KERNEL_FORM)
+
+
+def with_nomoto_rollout(model: ModelArtifact) -> ModelArtifact:
+    """A low-order (Nomoto) artifact predicting with its compiled numpy form (models/nomoto.NumpyNomotoRollout, rebuilt
+    from the metadata's coefficients), checked equal to the file's rollout within 1e-9 on a probe
+    (nomoto.check_equal); metadata it cannot read, or a form that differs, keeps the file's rollout and
+    inference_note says why."""
+    import dataclasses
+
+    from usv_predictor.models.nomoto import NUMPY_FORM, check_equal, numpy_form
+
+    try:
+        fast = numpy_form(model.metadata, f"model {model.path}")
+        check_equal(fast, model.module)
+    except (ModelError, ConfigError, KeyError, ValueError) as err:
+        return dataclasses.replace(model, inference_note=f"the file's rollout (not compiled: {err})")
+    return dataclasses.replace(model, inference=fast, inference_note=NUMPY_FORM)

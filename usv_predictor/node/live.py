@@ -72,6 +72,7 @@ from usv_predictor.frames import LocalTangentPlane, angle_difference_deg, body_t
 from usv_predictor.models.artifact import MODEL_RUN_ERRORS, ModelArtifact, failure_reason
 from usv_predictor.models.dnn import NumpyDnnRollout, fused_rollout, numpy_rollout
 from usv_predictor.models.kernel_rollout import KernelRollout
+from usv_predictor.models.nomoto import NumpyNomotoRollout
 from usv_predictor.physics.actuators import DEFAULT_LAYOUT, ActuatorLayout
 from usv_predictor.records import NS_PER_S, Signal
 
@@ -843,7 +844,8 @@ class Rollout:
     It runs `artifact.runner`: for a DNN the rollout fused at load time (models/loading.with_fused_rollout: numpy's
     NumpyDnnRollout, called with numpy arrays directly, or TorchScript's FusedDnnRollout), the code `replay evaluate`
     runs too; for a grey box or hybrid the compiled kernel (models/kernel_rollout.KernelRollout, which re-reads the
-    module's terms the sea estimate sets); for other families the file's module. A fused DNN asked for fewer
+    module's terms the sea estimate sets); for a low-order model its compiled numpy form (models/nomoto.
+    NumpyNomotoRollout); for other families the file's module. A fused DNN asked for fewer
     members than it has is fused again with those members only (what is not published is not computed); other
     modules compute every member and the output is sliced."""
 
@@ -862,7 +864,7 @@ class Rollout:
             except ModelError:  # then every member is computed and the output sliced, as for other modules
                 self.module = artifact.runner
         # NumpyDnnRollout and the grey box's compiled kernel: numpy in and out, no tensors on the way
-        kernel = isinstance(self.module, KernelRollout)
+        kernel = isinstance(self.module, (KernelRollout, NumpyNomotoRollout))  # numpy in and out, takes a reference
         self._numpy = self.module.rollout if isinstance(self.module, NumpyDnnRollout) or kernel else None
         self.horizon_steps = int(horizon_steps)
         self.dtype = artifact.module.m_s.dtype if hasattr(artifact.module, "m_s") else torch.float64

@@ -73,6 +73,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--blocks", type=positive_int, default=1, metavar="K",
                         help="cut each recording into K contiguous pieces, each held out in turn by the cross-"
                              "validation (a single long record; default 1)")
+    parser.add_argument("--family", choices=("greybox", "nomoto", "auto"), default="greybox",
+                        help="the model family: greybox (the grey box of the vessel's hull model, default: what "
+                             "`diagnose` and --hybrid build on), nomoto (the low-order model: Nomoto yaw, a speed "
+                             "equation and a drift proportional to r, fitted by output error; what one zig-zag at one "
+                             "speed without propulsion data supports), auto (both fitted on the first half of each "
+                             "recording and the one that predicts the second half better at 30 s, then 10 s, "
+                             "identified on all the data; the errors of both printed); docs/identification.md")
+    parser.add_argument("--order", type=int, choices=(1, 2), default=1,
+                        help="--family nomoto / auto: the yaw equation's order (default 1)")
     add_scale_argument(parser)
     add_config_argument(parser)
 
@@ -80,6 +89,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> dict[str, Any]:
     from usv_predictor.fitting.hybrid_fit import HybridTraining
     from usv_predictor.replay.identify import identify_bags
+
+    if args.family != "greybox":
+        from usv_predictor.errors import DatasetError
+        from usv_predictor.replay.low_order import LowOrderRequest, identify_low_order
+
+        if args.hybrid or args.base is not None or args.val is not None or args.report is not None \
+                or args.vessel is None:
+            raise DatasetError(f"--family {args.family} needs --vessel and takes no --hybrid, --base, --val or "
+                               "--report (grey-box options)")
+        return identify_low_order(LowOrderRequest(
+            tuple(args.bags), args.output, args.vessel, family=args.family, order=args.order, dt=args.dt,
+            structure=args.structure, prior=args.prior, interaction=args.interaction, blocks=args.blocks,
+            config=args.config, scale=args.scale), progress=log)
 
     training = HybridTraining(members=args.hybrid_members, epochs=args.hybrid_epochs) if args.hybrid else None
     return identify_bags(args.bags, args.output, vessel=args.vessel, structure=args.structure, prior=args.prior,
