@@ -23,7 +23,8 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from replay_helpers import assert_one_line, bag_streams, digest, leftovers, replay, write_variant
+from replay_helpers import (assert_one_line, bag_streams, digest, leftovers, never_returning_model, replay,
+                            write_variant)
 
 from msg_adapters import ROLE_FIELDS
 from usv_predictor.atomic import check_outputs, jsonable, write_json_atomic
@@ -325,22 +326,6 @@ def test_evaluate_with_a_model_whose_code_raises(tmp_path, capsys) -> None:
                                             "this model always fails")
 
 
-def _never_returning_model(path: Path) -> Path:
-    """A TorchScript model with the shipped metadata whose forward prints `model: running` (on stdout: the moment a
-    test waits for) and then never returns (a scripted loop: TorchScript releases the GIL, no signal reaches it)."""
-
-    class NeverReturns(torch.nn.Module):
-        def forward(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
-            print("model: running")
-            x = state.sum()
-            while bool(x > -1.0):
-                x = x + 1.0
-            return torch.zeros(1, state.shape[0], controls.shape[1], 6)
-
-    export_like(path, NeverReturns(), load_artifact(DEFAULT_MODEL))
-    return path
-
-
 def test_evaluate_refuses_a_model_slower_than_its_budget(tmp_path, capsys) -> None:
     """A rollout deadline: the model's rollout over the longest horizon is timed at load; slower than
     --rollout-budget is one line with the measured time, exit 2; the default budget takes the shipped model."""
@@ -365,7 +350,7 @@ def test_evaluate_refuses_a_model_that_never_returns(tmp_path) -> None:
     """Was: `evaluate` hung for ever in the model's first rollout. Now the first two-step rollout runs in a guard
     thread with a limit (models/loading.FIRST_CALL_S): one line, exit 2, and the process ends (os._exit: with the
     thread inside torch a normal exit aborts)."""
-    model = _never_returning_model(tmp_path / "never.pt")
+    model = never_returning_model(tmp_path / "never.pt", DEFAULT_MODEL)
     process = _replay_process(["evaluate", str(ZIGZAG), "--model", str(model), "--json", "out.json"], tmp_path)
     out, err = process.communicate(timeout=120)
     assert process.returncode == 2, err[-3000:]
@@ -391,7 +376,7 @@ def test_signals_are_honoured_while_a_model_never_returns(case, tmp_path) -> Non
     while the main thread is inside torch). The model's code runs in a guard thread while the main thread waits
     (here up to the 60 s of --rollout-budget): the signal ends the command within 2 s, 130 / 143, nothing written."""
     command, sig, exit_code, word = NEVER_RETURNS[case]
-    model = _never_returning_model(tmp_path / "never.pt")
+    model = never_returning_model(tmp_path / "never.pt", DEFAULT_MODEL)
     process = _replay_process([command, str(ZIGZAG), "--model", str(model), "--rollout-budget", "60", "--output",
                                "out"], tmp_path)
     try:
