@@ -37,6 +37,8 @@ from typing import TYPE_CHECKING, Any, NoReturn, Protocol, TypeVar
 
 from usv_predictor import config
 from usv_predictor.errors import ConfigError, ModelError
+from usv_predictor.errors import ModelDidNotReturn as DidNotReturn
+from usv_predictor.errors import ModelLoadAbandoned as Abandoned
 
 if TYPE_CHECKING:
     from usv_predictor.models.artifact import ModelArtifact
@@ -54,14 +56,6 @@ TIMED_RUNS = 3  # timed rollouts at most: the best counts (the first may meet a 
 OVERRUN_FACTOR = 4.0  # (-) a timed rollout still running after this many budgets (and FIRST_CALL_S) is given up on
 
 T = TypeVar("T")
-
-
-class Abandoned(ModelError):
-    """A guarded call given up on because the caller is stopping (its `abandon` said so): not the model's fault."""
-
-
-class DidNotReturn(ModelError):
-    """A guarded call into a model's code still running at its limit (the model's code never returned in time)."""
 
 
 @dataclass(frozen=True)
