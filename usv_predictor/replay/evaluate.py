@@ -49,8 +49,8 @@ class EvaluationRequest:
     adaptive: bool = False  # also run the online estimator and the adaptive open loop (analysis/adaptive.py)
     fit_check: bool = True  # refuse a model that does not fit the bags at all (analysis/fit_check.py)
     scale: float = 1.0  # Froude scale L_bags / L_model: the bags are scaled to the model's size (data/recording.py)
-    # (s) the longest a rollout over the longest horizon may take (models/loading.check_deadline); a slower model file
-    # is refused at load with the measured time
+    # (s) the longest a rollout over the longest horizon (or recording, if shorter) may take (models/loading.
+    # check_deadline); a slower model file is refused, with the measured time, once the bags are read
     rollout_budget_s: float = ROLLOUT_BUDGET_S
 
     def __post_init__(self) -> None:
@@ -141,10 +141,6 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
 
     model = loading.load_model(request.model, dt=request.dt)
     dt = loading.model_dt(model)
-    if not loading.is_physics(request.model):  # a model file's code: timed over the longest horizon
-        steps = max(1, math.ceil(max(request.horizons_s) / dt - 1e-9))
-        loading.check_deadline(model, loading.RolloutDeadline(request.rollout_budget_s, steps,
-                                                              "replay evaluate (--rollout-budget)"))
     bags = list(request.bags) or default_bags()
     progress(f"model {model.metadata.get('model_id', '?')} ({model.metadata.get('model_type', '?')}), dt {dt:g} s; "
              f"reading {', '.join(map(str, bags))}")
@@ -156,6 +152,11 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
                                  scale=request.scale)
     if not recordings:
         raise BagError(f"no usable recording in {', '.join(map(str, bags))} (see the warnings above)")
+    if not loading.is_physics(request.model):  # a model file's code: timed over the longest horizon a recording has
+        span_s = min(max(request.horizons_s), max(recording.duration_s for recording in recordings))
+        loading.check_deadline(model, loading.RolloutDeadline(request.rollout_budget_s,
+                                                              max(1, math.ceil(span_s / dt - 1e-9)),
+                                                              "replay evaluate (--rollout-budget)"))
     check = model_fit_check(model, recordings, vessel)
     progress(check.summary())
     if request.fit_check:

@@ -114,7 +114,8 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: the vessel the model embeds or names, else the config's)")
     add_scale_argument(parser)
     parser.add_argument("--rollout-budget", type=positive_float, default=ROLLOUT_BUDGET_S, metavar="S",
-                        help="the longest one rollout of the model over the longest horizon (one start, every member) "
+                        help="the longest one rollout of the model over the longest horizon (or recording, if shorter; one "
+                             "start, every member) "
                              "may take (s): a slower model, or one whose code does not return, is refused at load "
                              f"with the measured time (default {ROLLOUT_BUDGET_S:g})")
     parser.add_argument("--no-fit-check", action="store_true",
