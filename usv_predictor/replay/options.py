@@ -114,10 +114,10 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: the vessel the model embeds or names, else the config's)")
     add_scale_argument(parser)
     parser.add_argument("--rollout-budget", type=positive_float, default=ROLLOUT_BUDGET_S, metavar="S",
-                        help="the longest one rollout of the model over the longest horizon (or recording, if shorter; one "
-                             "start, every member) "
-                             "may take (s): a slower model, or one whose code does not return, is refused at load "
-                             f"with the measured time (default {ROLLOUT_BUDGET_S:g})")
+                        help="the longest one rollout of the model over the longest horizon (or recording, if "
+                             "shorter; one start, every member) may take (s): a slower model, or one whose code does "
+                             "not return, is refused with the measured time (default "
+                             f"{ROLLOUT_BUDGET_S:g})")
     parser.add_argument("--no-fit-check", action="store_true",
                         help="evaluate even when the model does not fit the bags at all (its steady speed or yaw rate "
                              "at the recorded commands, or its length scale, is far off: refused otherwise)")
