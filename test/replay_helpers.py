@@ -119,3 +119,48 @@ def write_model_with_metadata(path: Path, source: Path, drop: Iterable[str] = ()
     with quiet_jit():
         torch.jit.save(module, str(path), _extra_files=files)
     return path
+
+
+def never_returning_model(path: Path, like: Path) -> Path:
+    """A TorchScript model with the metadata and vessel of `like` whose forward prints `model: running` (on stdout:
+    the moment a test waits for) and then never returns (a scripted loop: TorchScript releases the GIL, and no
+    signal reaches it). Only ever loaded in a process of its own: the thread left inside it burns a core."""
+    import torch
+
+    from usv_predictor.models.artifact import export_like, load_artifact
+
+    class NeverReturns(torch.nn.Module):
+        def forward(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
+            print("model: running")
+            x = state.sum()
+            while bool(x > -1.0):
+                x = x + 1.0
+            return torch.zeros(1, state.shape[0], controls.shape[1], 6)
+
+    export_like(path, NeverReturns(), load_artifact(like))
+    return path
+
+
+def slow_model(path: Path, like: Path, loops_per_step: int = 3000) -> Path:
+    """A TorchScript model with the metadata and vessel of `like` that answers zeros (every member) after
+    `loops_per_step` scripted iterations per step: about 0.8 s for 120 steps here, 7 ms for two."""
+    import torch
+
+    from usv_predictor.models.artifact import export_like, load_artifact
+
+    members = int(load_artifact(like).metadata["ensemble_size"])
+
+    class Slow(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.loops_per_step = loops_per_step
+            self.members = members
+
+        def forward(self, state: torch.Tensor, controls: torch.Tensor) -> torch.Tensor:
+            x = state.sum()
+            for _ in range(controls.shape[1] * self.loops_per_step):
+                x = x * 1.0
+            return torch.zeros(self.members, state.shape[0], controls.shape[1], 6) + x * 0.0
+
+    export_like(path, Slow(), load_artifact(like))
+    return path

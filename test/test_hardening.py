@@ -23,7 +23,8 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from replay_helpers import assert_one_line, bag_streams, digest, leftovers, replay, write_variant
+from replay_helpers import (assert_one_line, bag_streams, digest, leftovers, never_returning_model, replay,
+                            write_variant)
 
 from msg_adapters import ROLE_FIELDS
 from usv_predictor.atomic import check_outputs, jsonable, write_json_atomic
@@ -323,6 +324,78 @@ def test_evaluate_with_a_model_whose_code_raises(tmp_path, capsys) -> None:
     assert err.strip().splitlines()[-1] == (f"replay evaluate: error: model {model} fails when run: "
                                             f"RuntimeError: boom: "
                                             "this model always fails")
+
+
+def test_evaluate_refuses_a_model_slower_than_its_budget(tmp_path, capsys) -> None:
+    """A rollout deadline: the model's rollout over the longest horizon is timed at load; slower than
+    --rollout-budget is one line with the measured time, exit 2; the default budget takes the shipped model."""
+    code, err = replay(capsys, "evaluate", ZIGZAG, "--rollout-budget", "1e-9", "--json", tmp_path / "e.json")
+    assert_one_line(code, err, "evaluate", allowed=(2,))
+    line = err.strip().splitlines()[-1]
+    assert line.startswith(f"replay evaluate: error: model {DEFAULT_MODEL} is too slow for replay evaluate "
+                           "(--rollout-budget): a rollout of 120 steps takes "), line  # 60 s at dt 0.5 s
+    assert line.endswith(" s (best of 3), more than its budget of 1e-09 s"), line
+    assert not (tmp_path / "e.json").exists()
+    code, err = replay(capsys, "evaluate", ZIGZAG, "--horizons", "10", "--json", tmp_path / "e.json")
+    assert code == 0, err
+
+
+def _replay_process(argv: list[str], cwd: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "usv_predictor.replay", *argv], cwd=cwd, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "PYTHONPATH": str(REPO)})
+
+
+@pytest.mark.slow
+def test_evaluate_refuses_a_model_that_never_returns(tmp_path) -> None:
+    """Was: `evaluate` hung for ever in the model's first rollout. Now the first two-step rollout runs in a guard
+    thread with a limit (models/loading.FIRST_CALL_S): one line, exit 2, and the process ends (os._exit: with the
+    thread inside torch a normal exit aborts)."""
+    model = never_returning_model(tmp_path / "never.pt", DEFAULT_MODEL)
+    process = _replay_process(["evaluate", str(ZIGZAG), "--model", str(model), "--json", "out.json"], tmp_path)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 2, err[-3000:]
+    assert "Traceback" not in err and "terminate called" not in err, err[-3000:]
+    assert err.strip().splitlines()[-1] == (f"replay evaluate: error: model {model}: its first two-step rollout did "
+                                            "not return within 5 s")
+    assert "model: running" in out
+    assert not (tmp_path / "out.json").exists()
+    assert leftovers(tmp_path) == []
+
+
+NEVER_RETURNS = {  # command, signal, exit code, the last line's word
+    "evaluate_sigint": ("evaluate", signal.SIGINT, cli.EXIT_INTERRUPTED, "interrupted"),
+    "evaluate_sigterm": ("evaluate", signal.SIGTERM, cli.EXIT_TERMINATED, "terminated"),
+    "report_sigint": ("report", signal.SIGINT, cli.EXIT_INTERRUPTED, "interrupted"),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", sorted(NEVER_RETURNS))
+def test_signals_are_honoured_while_a_model_never_returns(case, tmp_path) -> None:
+    """Was: Ctrl-C and SIGTERM were ignored while a model's forward never returned (a Python handler cannot run
+    while the main thread is inside torch). The model's code runs in a guard thread while the main thread waits
+    (here up to the 60 s of --rollout-budget): the signal ends the command within 2 s, 130 / 143, nothing written."""
+    command, sig, exit_code, word = NEVER_RETURNS[case]
+    model = never_returning_model(tmp_path / "never.pt", DEFAULT_MODEL)
+    process = _replay_process([command, str(ZIGZAG), "--model", str(model), "--rollout-budget", "60", "--output",
+                               "out"], tmp_path)
+    try:
+        assert process.stdout is not None
+        assert process.stdout.readline().strip() == "model: running"  # inside the model's loop from now on
+        time.sleep(0.3)
+        sent = time.monotonic()
+        process.send_signal(sig)
+        _, err = process.communicate(timeout=30)
+        took = time.monotonic() - sent
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == exit_code, err[-3000:]
+    assert took < 2.0, f"{case}: ended {took:.2f} s after the signal"
+    assert "Traceback" not in err and "terminate called" not in err, err[-3000:]
+    assert err.strip().splitlines()[-1] == f"replay {command}: {word}"
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*"))
+    assert leftovers(tmp_path) == []
 
 
 # ------------------------------------------------------------------ inputs overwritten

@@ -586,7 +586,7 @@ def test_the_fit_check_worker_runs_nicer_than_the_node(ros_context: Any) -> None
     node = predictor_node.PredictorNode(context=ros_context)
     try:
         own = os.getpriority(os.PRIO_PROCESS, 0)  # this thread's
-        worker = node._fit_worker.submit(os.getpriority, os.PRIO_PROCESS, 0).result()
+        worker = node.workers.fit.submit(os.getpriority, os.PRIO_PROCESS, 0).result()
         assert worker == min(19, own + predictor_node.FIT_NICE)
         assert worker > own
     finally:

@@ -25,6 +25,14 @@ class ModelError(UsvPredictorError):
     """A model file is missing, corrupt, or does not match the configuration (the message says what differs)."""
 
 
+class ModelDidNotReturn(ModelError):
+    """A guarded call into a model's code was still running at its limit (models/loading.call_guarded)."""
+
+
+class ModelLoadAbandoned(ModelError):
+    """A guarded call into a model's code given up on because the caller is stopping: not the model's fault."""
+
+
 class KernelUnavailable(ModelError):
     """A model module the compiled kernel cannot run (models/kernel_rollout.py): its caller keeps the module's own
     rollout and says why."""

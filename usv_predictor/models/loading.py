@@ -12,15 +12,33 @@ names; a given vessel that differs from the embedded one is refused). Every fail
 (or option) and what differs; a model whose code raises when
 called (or answers in another shape, or NaN) is "model X fails when run: ..." (artifact.check_runs). torch is
 imported only when a model is loaded, so command-line help stays light.
+
+The calls into a model file's code at load time run in a guard thread (call_guarded) while the calling thread waits
+with a timeout: a model whose code never returns is refused ("model X did not return within S s") instead of
+hanging the caller, and the caller's main thread stays free to run its signal handlers (TorchScript releases the
+GIL while it runs; a Python handler cannot run while the main thread itself is inside it). A RolloutDeadline adds a
+timed rollout of the caller's horizon: a model slower than its budget (the node's cycle, 1 / rate_hz; `replay
+evaluate --rollout-budget`) is refused with the measured time. A guard thread whose call never returns stays
+alive, parked in the model's code, until the process ends; such a process must end with os._exit (a normal
+interpreter exit aborts with the thread inside torch: "terminate called without an active exception", exit 134):
+stuck_guard_threads() counts them.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+import atexit
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, NoReturn, Protocol, TypeVar
 
 from usv_predictor import config
 from usv_predictor.errors import ConfigError, ModelError
+from usv_predictor.errors import ModelDidNotReturn as DidNotReturn
+from usv_predictor.errors import ModelLoadAbandoned as Abandoned
 
 if TYPE_CHECKING:
     from usv_predictor.models.artifact import ModelArtifact
@@ -30,6 +48,104 @@ if TYPE_CHECKING:
 PHYSICS = "physics"  # the spec of the physics baseline, optionally ":VESSEL"
 DEFAULT_MODEL = ("models", "default.pt")  # the shipped model, relative to the package share
 DT_TOLERANCE_S = 1e-6  # two steps closer than this are the same step (s)
+FIRST_CALL_S = 5.0  # (s) the longest a model's first two-step rollout may take: TorchScript profiles and optimises
+#                     its first calls (the shipped DNN's file: 0.4 s here); a model still inside it is refused
+GUARD_THREAD = "usv_predictor-model-guard"  # name of the threads call_guarded runs a model's code in
+GUARD_POLL_S = 0.05  # (s) how often a guarded wait looks at `abandon` and the clock
+TIMED_RUNS = 3  # timed rollouts at most: the best counts (the first may meet a busy core), stopped once one fits
+OVERRUN_FACTOR = 4.0  # (-) a timed rollout still running after this many budgets (and FIRST_CALL_S) is given up on
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class RolloutDeadline:
+    """How long one rollout of the caller's horizon may take: the model is refused at load when it is slower."""
+
+    budget_s: float  # (s) the longest a rollout of `steps` steps (one start state, every member) may take
+    steps: int  # (-) steps of the timed rollout: the caller's horizon
+    what: str  # what the budget is, in messages ("the node's cycle (1 / rate_hz 10 Hz)")
+
+    def __post_init__(self) -> None:
+        if not (self.budget_s > 0.0 and self.budget_s < float("inf")) or self.steps < 1:
+            raise ModelError(f"rollout deadline {self.budget_s} s over {self.steps} steps: expected a finite budget "
+                             "> 0 s and at least one step")
+
+
+def call_guarded(fn: Callable[[], T], limit_s: float, what: str, abandon: Callable[[], bool] | None = None) -> T:
+    """fn() run in a daemon guard thread while this thread waits, at most `limit_s` (s); its result, or what it raised.
+
+    DidNotReturn "<what> did not return within <limit_s> s" when it runs longer (the thread is left parked in it:
+    stuck_guard_threads), Abandoned as soon as abandon() is true. In the main thread the wait is interruptible:
+    a signal handler that raises (KeyboardInterrupt, the replay tool's SIGTERM) ends it at once."""
+    result: list[Any] = []
+    failure: list[BaseException] = []
+    done = threading.Event()
+
+    def target() -> None:
+        try:
+            result.append(fn())
+        except BaseException as err:  # noqa: BLE001 - handed to the waiting thread, which raises it
+            failure.append(err)
+        finally:
+            done.set()
+
+    started = time.perf_counter()
+    threading.Thread(target=target, name=GUARD_THREAD, daemon=True).start()
+    while not done.wait(GUARD_POLL_S):
+        if abandon is not None and abandon():
+            raise Abandoned(f"{what}: given up, the caller is stopping")
+        if time.perf_counter() - started > limit_s:
+            raise DidNotReturn(f"{what} did not return within {limit_s:g} s")
+    if failure:
+        raise failure[0]
+    return result[0]
+
+
+def stuck_guard_threads() -> int:
+    """Guard threads still inside a model's code (a call that never returned): the process must end with
+    os._exit."""
+    return sum(1 for thread in threading.enumerate() if thread.name == GUARD_THREAD and thread.is_alive())
+
+
+def exit_program(code: int) -> NoReturn:
+    """End the process with `code` the way a normal exit would, without the interpreter's teardown: the standard
+    streams flushed, the atexit handlers run (logging, the thread pools', multiprocessing's, numba's), then os._exit.
+    For a program with a guard thread stuck in a model's code (the teardown aborts with it inside torch, exit 134),
+    and for the node, whose teardown of torch alone takes 1.5 s on a loaded 2-core machine (a stop is due in 2 s)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    atexit._run_exitfuncs()  # what the interpreter runs at exit before its teardown, which os._exit skips
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def check_deadline(model: ModelArtifact, deadline: RolloutDeadline, abandon: Callable[[], bool] | None = None) -> float:
+    """The best of up to TIMED_RUNS rollouts of deadline.steps steps from 1 m/s ahead, controls at zero (s), each
+    guarded; ModelError naming the file, the measured time and the budget when even the best is slower."""
+    import numpy as np
+
+    state = np.array([[1.0, 0.0, 0.0, 0.0]])  # (1, 4) [u, v, r, engine]
+    controls = np.zeros((1, deadline.steps, len(model.metadata["control_layout"])))  # (1, H, C)
+    limit_s = max(FIRST_CALL_S, OVERRUN_FACTOR * deadline.budget_s)
+
+    def timed() -> float:
+        started = time.perf_counter()
+        model.predict(state, controls)
+        return time.perf_counter() - started
+
+    best = float("inf")
+    for _ in range(TIMED_RUNS):
+        try:
+            best = min(best, call_guarded(timed, limit_s, f"model {model.path}: a rollout of {deadline.steps} steps",
+                                          abandon))
+        except DidNotReturn as err:
+            raise DidNotReturn(f"{err}: too slow for {deadline.what} (budget {deadline.budget_s:g} s)") from None
+        if best <= deadline.budget_s:
+            return best
+    raise ModelError(f"model {model.path} is too slow for {deadline.what}: a rollout of {deadline.steps} steps takes "
+                     f"{best:.3g} s (best of {TIMED_RUNS}), more than its budget of {deadline.budget_s:g} s")
 
 
 class HasMetadata(Protocol):
@@ -130,13 +246,17 @@ def model_vessel(model: HasMetadata, given: str | Path | Vessel | None = None, *
 
 def load_model(spec: str | None, *, dt: float | None = None, vessel: str | None = None,
                expect: Mapping[str, Any] | None = None, option: str = "--model", dt_option: str = "--dt",
-               physics: bool = True) -> ModelArtifact | GreyBoxPredictor:
+               physics: bool = True, deadline: RolloutDeadline | None = None,
+               abandon: Callable[[], bool] | None = None) -> ModelArtifact | GreyBoxPredictor:
     """The model a spec names (module docstring), checked; ModelError naming the file and what differs.
 
     dt: the step the data will be resampled at (None: the model's own); for the physics baseline its step
     (None: the config's). vessel: the preset of a bare "physics" (None: the config's). expect: metadata
     fields an artifact must have (usv_predictor.models.artifact.load_artifact). option / dt_option: how the
     caller names the spec and dt in messages (the node: "model_path"). physics=False reads "physics" as a file.
+    deadline: a model file slower than it is refused (check_deadline; the physics baseline is the package's own
+    code and is not timed). abandon: true when the caller is stopping (the guarded waits end with Abandoned).
+    The first call of the file's code (artifact.check_runs) is guarded too, at most max(FIRST_CALL_S, the budget).
     """
     if physics and is_physics(spec):
         assert spec is not None
@@ -154,8 +274,13 @@ def load_model(spec: str | None, *, dt: float | None = None, vessel: str | None 
     model = load_artifact(path, expect=expect)
     if dt is not None:
         check_dt(model, dt, f"{dt_option} for {path}")
-    check_runs(model)  # a model whose code raises is refused here, naming the file, not in the middle of a run
-    return with_fused_rollout(model)
+    first_call_s = max(FIRST_CALL_S, deadline.budget_s if deadline is not None else 0.0)
+    # a model whose code raises (or never returns) is refused here, naming the file, not in the middle of a run
+    call_guarded(lambda: check_runs(model), first_call_s, f"model {path}: its first two-step rollout", abandon)
+    fused = with_fused_rollout(model)
+    if deadline is not None:
+        check_deadline(fused, deadline, abandon)
+    return fused
 
 
 def with_fused_rollout(model: ModelArtifact) -> ModelArtifact:

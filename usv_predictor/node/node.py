@@ -98,7 +98,7 @@ from usv_predictor.fitting.online import OnlineConfig
 from usv_predictor.models import kernel_rollout, loading
 from usv_predictor.models.artifact import metadata_differences
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
-from usv_predictor.node import live, plans, sea
+from usv_predictor.node import EXIT_CODES, EXIT_INTERRUPTED, EXIT_OK, STOP_SIGNALS, live, plans, sea
 from usv_predictor.node.fit import MAX_GAP_S as FIT_MAX_GAP_S
 from usv_predictor.node.fit import PERIOD_RANGE_S, CycleGap, FitCheckSettings, LiveFitCheck
 from usv_predictor.physics.actuators import ActuatorLayout, check_layout_inputs, unused_roles
@@ -268,15 +268,25 @@ def _family_description(metadata: dict[str, Any]) -> str:
     return family.description if family is not None else "not a model family of usv_predictor"
 
 
-def load_model(model_path: str, config: PredictorConfig, vessel: Vessel | None = None) -> tuple[live.Rollout, Vessel]:
+def cycle_deadline(config: PredictorConfig) -> loading.RolloutDeadline:
+    """The budget of a model's rollout in the node: one cycle, 1 / rate_hz (s), over horizon_steps steps."""
+    return loading.RolloutDeadline(1.0 / config.rate_hz, config.horizon_steps,
+                                   f"the node's cycle (1 / rate_hz {config.rate_hz:g} Hz)")
+
+
+def load_model(model_path: str, config: PredictorConfig, vessel: Vessel | None = None,
+               abandon: Callable[[], bool] | None = None) -> tuple[live.Rollout, Vessel]:
     """The model of `model_path` ("" = the shipped one) and its vessel, checked against the configuration: its step,
-    vessel and control columns (the vessel's actuator layout); ModelError naming the file and the mismatch.
+    vessel and control columns (the vessel's actuator layout), its speed (a rollout over the horizon within the
+    cycle, cycle_deadline; a model whose code never returns is given up on: models/loading.call_guarded); ModelError
+    naming the file and the mismatch or the measured time (loading.Abandoned once abandon() is true: stopping).
 
     The vessel is the configured one (`vessel`: a preset, or, when no preset of that name is installed, the
     description the model embeds under that name); a model that embeds a description differing from it is refused
     naming the fields (models/loading.model_vessel). vessel: the node's vessel when a model is swapped (the new
     model must be made for it)."""
-    artifact = loading.load_model(model_path, expect={"dt": config.dt}, option="model_path", physics=False)
+    artifact = loading.load_model(model_path, expect={"dt": config.dt}, option="model_path", physics=False,
+                                  deadline=cycle_deadline(config), abandon=abandon)
     source = f"model {artifact.path}"
     chosen = loading.model_vessel(artifact, vessel or config.vessel, option="vessel", source=source)
     diffs = metadata_differences(artifact.metadata, {"vessel": config.vessel,
@@ -284,6 +294,36 @@ def load_model(model_path: str, config: PredictorConfig, vessel: Vessel | None =
     if diffs:
         raise ModelError(f"{source} does not match the configuration: {'; '.join(diffs)}")
     return live.Rollout(artifact, config.horizon_steps, config.ensemble_size), chosen
+
+
+@dataclass(frozen=True)
+class WorkerPools:
+    """The node's worker threads, owned by the node: made by start() when the node starts, ended by shutdown() in
+    destroy_node.
+
+    fit: the fit check's rollouts (one thread, FIT_NICE nicer than the node: on busy cores the cycle first);
+    candidates: the candidate plans' batched rollout, encoding and publishing, in arrival order, off the executor's
+    thread; candidates_helper: with candidates_threads 2, the thread that rolls out the first half of each batch
+    (live.Rollout.batch), else None."""
+
+    fit: ThreadPoolExecutor
+    candidates: ThreadPoolExecutor
+    candidates_helper: ThreadPoolExecutor | None
+
+    @classmethod
+    def start(cls, candidates_threads: int) -> WorkerPools:
+        return cls(fit=ThreadPoolExecutor(max_workers=1, thread_name_prefix="fit_check", initializer=_lower_priority,
+                                          initargs=(FIT_NICE,)),
+                   candidates=ThreadPoolExecutor(max_workers=1, thread_name_prefix="candidates"),
+                   candidates_helper=(ThreadPoolExecutor(max_workers=1, thread_name_prefix="candidates_helper")
+                                      if candidates_threads > 1 else None))
+
+    def shutdown(self) -> None:
+        """Every pool ends after its running task (a candidate batch or a fit check: at most a few seconds); queued
+        tasks are cancelled."""
+        for pool in (self.candidates, self.candidates_helper, self.fit):
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
 
 
 @dataclass
@@ -316,19 +356,25 @@ class PlanInput:
 class PredictorNode(Node):
     """Subscribes to the configured inputs and the plan topics, predicts at rate_hz, reports on /diagnostics."""
 
-    def __init__(self, config_path: str | Path | None = None, **node_options: Any) -> None:
+    def __init__(self, config_path: str | Path | None = None, stopping: Callable[[], bool] | None = None,
+                 **node_options: Any) -> None:
+        """stopping: true once the process is asked to stop (main's stop flag): a model load waiting on the model's
+        code gives up then (models/loading.call_guarded), at start-up and at a model swap."""
         super().__init__(NODE_NAME, **node_options)
+        self._stopping = stopping
+        self._workers: WorkerPools | None = None
         defaults_path = Path(config_path) if config_path is not None else default_config_path()
         self.config = self._declare_parameters(defaults_path)
         if vessel_preset_exists(self.config.vessel):  # the configuration's own errors before the model's
             self._layout_inputs(load_vessel(self.config.vessel).actuator_layout)
         # the model and its vessel (ModelError, ConfigError: fatal at start-up); the vessel's actuator layout says
         # which inputs are read
-        self.rollout, self.vessel = load_model(self.config.model_path, self.config)
+        self.rollout, self.vessel = load_model(self.config.model_path, self.config, abandon=stopping)
         self.layout = self.vessel.actuator_layout
         # the compiled grey-box kernel (the fit check's causes, a grey box's rollout) compiled or loaded now, never in
         # a cycle or in the fit check's worker (compiling holds the GIL)
         self.kernel_warm_up_s = kernel_rollout.warm_up(self.vessel, self.config.dt)
+        self._check_stopping("after the kernel's warm-up")
         # every control role of the layout configured (ConfigError naming the roles and the layout: fatal); the
         # control roles of other layouts (the shipped config lists every layout's) are ignored: logged once here,
         # reported on /diagnostics ("ignored inputs")
@@ -379,18 +425,14 @@ class PredictorNode(Node):
         self.candidate_rollout = self._candidates_of(self.rollout)  # the candidates' model (candidates_members)
         self.sea = self._make_sea(self.rollout, {})
         self.fit = self._make_fit(self.rollout)
-        self._fit_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fit_check",
-                                              initializer=_lower_priority, initargs=(FIT_NICE,))
+        self._check_stopping("after the fit check's model")
+        self._workers = WorkerPools.start(int(self.get_parameter("candidates_threads").value))
         self._cycle_gap = CycleGap(1.0 / self.config.rate_hz)  # the fit check's GIL-heavy parts run between cycles
         self._fit_running: Future | None = None
         # candidate plans: state and controls on the executor's thread, the batched rollout (13-20 ms for 64), the
-        # answer's encoding and publishing on this worker, in arrival order, so that the 10 Hz cycle is not held up
-        # (numpy releases the GIL inside its products and activations); where the sea estimate writes the model's
-        # terms (sea.py: grey box, hybrid) they and a candidate rollout take turns on _terms_lock (_terms_guard)
-        self._candidates_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="candidates")
-        # candidates_threads 2: the worker's helper, which rolls out the first half of each batch (live.Rollout.batch)
-        self._candidates_helper = (ThreadPoolExecutor(max_workers=1, thread_name_prefix="candidates_helper")
-                                   if int(self.get_parameter("candidates_threads").value) > 1 else None)
+        # answer's encoding and publishing on the candidates' worker, so that the 10 Hz cycle is not held up (numpy
+        # releases the GIL inside its products and activations); where the sea estimate writes the model's terms
+        # (sea.py: grey box, hybrid) they and a candidate rollout take turns on _terms_lock (_terms_guard)
         self._terms_lock = threading.Lock()
         self.plan = PlanInput(PLAN_TOPIC)
         self.candidates = PlanInput(CANDIDATE_PLANS_TOPIC)
@@ -438,12 +480,23 @@ class PredictorNode(Node):
                                   f"{seen[resolved]} too: remap one of them to a topic of its own")
             seen[resolved] = what
 
+    def _check_stopping(self, step: str) -> None:
+        """loading.Abandoned once the process is asked to stop: start-up goes no further (main ends with the stop's
+        code), so that a stop during it is done within 2 s."""
+        if self._stopping is not None and self._stopping():
+            raise loading.Abandoned(f"node {self.get_name()}: stopping during start-up ({step})")
+
+    @property
+    def workers(self) -> WorkerPools:
+        """The node's worker pools (made at start-up, once the model and the inputs are set up)."""
+        if self._workers is None:
+            raise RuntimeError(f"node {self.get_name()}: its worker pools are not started")
+        return self._workers
+
     def destroy_node(self) -> None:
         """The workers end first (a candidate batch or a fit check running finishes: at most a few seconds)."""
-        for name in ("_candidates_worker", "_candidates_helper", "_fit_worker"):
-            worker = getattr(self, name, None)
-            if worker is not None:
-                worker.shutdown(wait=True, cancel_futures=True)
+        if self._workers is not None:
+            self._workers.shutdown()
         super().destroy_node()
 
     # --------------------------------------------------------------- parameters
@@ -500,7 +553,7 @@ class PredictorNode(Node):
         for parameter in parameters:
             if parameter.name == "model_path":
                 try:
-                    swap, _ = load_model(str(parameter.value), self.config, self.vessel)
+                    swap, _ = load_model(str(parameter.value), self.config, self.vessel, self._stopping)
                     candidates = self._candidates_of(swap)
                 except Exception as err:  # noqa: BLE001 - the callback boundary: any file, however made, is refused
                     # (a ModelError or ConfigError names the culprit; anything else is what the model's own code or
@@ -655,7 +708,7 @@ class PredictorNode(Node):
         except (live.CycleSkipped, ModelError, AdapterError, RuntimeError) as err:
             self._no_candidates_answer(err)
             return
-        self._candidates_worker.submit(self._answer_candidates, self.candidate_rollout, batch, prepared, now_ns,
+        self.workers.candidates.submit(self._answer_candidates, self.candidate_rollout, batch, prepared, now_ns,
                                        started)
 
     def _candidates_of(self, rollout: live.Rollout) -> live.Rollout:
@@ -677,7 +730,7 @@ class PredictorNode(Node):
         try:
             try:
                 with self._terms_guard():
-                    result = live.predict_prepared(rollout, prepared, now_ns, self._candidates_helper)
+                    result = live.predict_prepared(rollout, prepared, now_ns, self.workers.candidates_helper)
             except (live.CycleSkipped, ModelError, AdapterError, RuntimeError) as err:  # CycleSkipped: NaN output
                 self._no_candidates_answer(err)
                 return
@@ -794,7 +847,7 @@ class PredictorNode(Node):
         meta = artifact.metadata
         label = (f"the preset {meta.get('vessel')}" if str(meta.get("model_type", "")).startswith("physics")
                  else f"model {artifact.model_id} ({meta.get('model_type', '?')}, vessel {meta.get('vessel')})")
-        copy = loading.load_model(str(artifact.path), physics=False)
+        copy = loading.load_model(str(artifact.path), physics=False, abandon=self._stopping)
         return LiveFitCheck(copy, self.vessel, self.layout, label, settings or self._fit_settings())
 
     def _on_fit_timer(self) -> None:
@@ -823,7 +876,7 @@ class PredictorNode(Node):
         if self.inputs.approach is not None:  # rudder_only: the approach the predictions hold, seen in the buffers too
             self.inputs.approach.observe_recording(recording)
             reference = self.inputs.approach.reference
-        self._fit_running = self._fit_worker.submit(self._run_fit, self.fit, recording, now_ns, reference)
+        self._fit_running = self.workers.fit.submit(self._run_fit, self.fit, recording, now_ns, reference)
 
     def _buffers_too_short(self, span_s: float) -> str:
         """Why no steady window can ever be seen ("" when one can): the span the check reads is shorter than a window
@@ -996,7 +1049,7 @@ class PredictorNode(Node):
         found = self.candidates
         values = self._plan_values(found)
         values.update(answered=found.answered, last_batch=found.batch, max_candidates=plans.MAX_CANDIDATES,
-                      threads=1 if self._candidates_helper is None else 2,
+                      threads=1 if self.workers.candidates_helper is None else 2,
                       members=f"{self.candidate_rollout.members}/{self.rollout.members}")
         values.update(_percentiles("compute_ms", found.compute_s))
         values.update(_percentiles("answer_ms", found.answer_s))  # arrival -> published
@@ -1086,10 +1139,8 @@ def parse_arguments(argv: Sequence[str]) -> argparse.Namespace:
     return parser.parse_args(remove_ros_args(list(argv))[1:])
 
 
-EXIT_OK = 0  # stopped by SIGINT or SIGTERM (Ctrl-C, systemd, docker stop, launch): a normal end
 EXIT_ERROR = 2  # a start-up error (parameter, parameter file, ROS arguments, model, vessel): one line on stderr,
                 # the same code as the replay tool's bad input
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # SIGHUP: the terminal went away, a clean stop too
 SPIN_PERIOD_S = 0.1  # longest wait between two looks at the stop flag (s)
 
 
@@ -1142,18 +1193,28 @@ def _first_line(err: BaseException) -> str:
     return text.splitlines()[0] if text else type(err).__name__
 
 
-def main(args: Sequence[str] | None = None, stopped_before: Sequence[int] = ()) -> int:
-    """Entry point of `ros2 run usv_predictor predictor`; args is a full argv (program name first).
+def main(args: Sequence[str] | None = None) -> int:
+    """Entry point of `ros2 run usv_predictor predictor`; args is a full argv (program name first), None: sys.argv
+    (the program itself).
 
-    Exit codes: 0 after SIGINT, SIGTERM or SIGHUP (also while publishing: the signal only sets a flag the spin loop
-    reads between callbacks), 2 for a start-up error (one line `predictor: error: ...` on stderr: a parameter, the
-    parameter file, the ROS arguments, the model, the vessel or an input adapter).
+    Exit codes (EXIT_CODES): 130 after SIGINT, 143 after SIGTERM, 0 after SIGHUP, at any moment (also while
+    publishing: the signal only sets a flag the spin loop reads between callbacks; during a model load the wait on
+    the model's code gives up); 2 for a start-up error (one line `predictor: error: ...` on stderr: a parameter, the
+    parameter file, the ROS arguments, the model, the vessel or an input adapter). A start-up error after a stop
+    signal is the stop's code, without the line. The program (args None) ends through loading.exit_program: the
+    atexit handlers run, the interpreter's teardown is skipped (torch's alone takes 1.5 s on a loaded machine; with
+    a guard thread still inside a model's code that never returned it aborts).
     """
-    argv = list(sys.argv if args is None else args)
+    code = _run(list(sys.argv if args is None else args))
+    if args is None:  # the program: ended without the interpreter's teardown of torch (1.5 s) or a stuck guard thread
+        loading.exit_program(code)
+    return code
+
+
+def _run(argv: list[str]) -> int:
+    """main without its os._exit: the node's start-up, spin and stop; the exit code."""
     stop = _StopRequest()
-    previous = stop.install()  # before the slow start-up (torch, the model): an early stop is clean too
-    if stopped_before:  # a stop signal that came while this module was imported (usv_predictor.node.main)
-        stop.requested = stopped_before[0]
+    previous = stop.install()  # before the slow start-up (ROS, the model): an early stop is clean too
     node: PredictorNode | None = None
     try:
         options = parse_arguments(argv)  # --help exits here, before ROS starts
@@ -1162,30 +1223,34 @@ def main(args: Sequence[str] | None = None, stopped_before: Sequence[int] = ()) 
         torch.set_num_threads(1)  # one rollout of a tiny network: threads cost more than they give
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)  # our handlers stop the loop
         if stop.requested is None:
-            node = PredictorNode(config_path=options.config)
+            node = PredictorNode(config_path=options.config, stopping=lambda: stop.requested is not None)
         if stop.requested is None:
             spin(node, make_executor(node.context), stop)
-    except RCLInvalidROSArgsError as err:  # a broken --params-file, a malformed -p or -r
-        print(f"predictor: error: invalid ROS arguments: {_first_line(err)}", file=sys.stderr)
-        return EXIT_ERROR
-    except ParameterException as err:  # a ROS parameter of the wrong type (-p use_sim_time:=maybe)
-        print(f"predictor: error: invalid parameter: {_first_line(err)}", file=sys.stderr)
-        return EXIT_ERROR
-    except RCLError as err:  # an endpoint DDS refuses at start-up (a spin ends on its own RCLError: spin())
-        print(f"predictor: error: ROS refused the node: {_first_line(err)}", file=sys.stderr)
-        return EXIT_ERROR
-    except UsvPredictorError as err:
-        print(f"predictor: error: {one_line(err)}", file=sys.stderr)
+    except (RCLInvalidROSArgsError, ParameterException, RCLError, UsvPredictorError) as err:
+        if stop.requested is not None:  # what a stop cut short (a model load given up on): the stop's code
+            return EXIT_CODES[stop.requested]
+        print(f"predictor: error: {_start_up_error(err)}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:  # a SIGINT before our handler was installed
-        pass
+        return EXIT_INTERRUPTED
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-    return EXIT_OK
+    return EXIT_OK if stop.requested is None else EXIT_CODES[stop.requested]
+
+
+def _start_up_error(err: Exception) -> str:
+    """The one line of a start-up error (after `predictor: error: `)."""
+    if isinstance(err, RCLInvalidROSArgsError):  # a broken --params-file, a malformed -p or -r
+        return f"invalid ROS arguments: {_first_line(err)}"
+    if isinstance(err, ParameterException):  # a ROS parameter of the wrong type (-p use_sim_time:=maybe)
+        return f"invalid parameter: {_first_line(err)}"
+    if isinstance(err, RCLError):  # an endpoint DDS refuses at start-up (a spin ends on its own RCLError: spin())
+        return f"ROS refused the node: {_first_line(err)}"
+    return one_line(err)
 
 
 if __name__ == "__main__":

@@ -14,6 +14,11 @@ stderr and exit with code 2 (EXIT_ERROR); Ctrl-C (SIGINT) prints `replay <comman
 130 (EXIT_INTERRUPTED), SIGTERM `replay <command>: terminated` and 143 (EXIT_TERMINATED), SIGHUP `replay
 <command>: hung up` and 129 (EXIT_HUNG_UP), leaving no partial output (every writer is atomic and removes its
 temporary file as the exception unwinds).
+
+A model's code runs at load in a guard thread while the main thread waits with a timeout
+(usv_predictor.models.loading.call_guarded), so these signals are honoured also while a model never returns; such a
+run ends with its code through loading.exit_program (os._exit after the atexit handlers: a normal interpreter exit
+would abort with the thread inside torch), when main is the program (called without argv).
 """
 from __future__ import annotations
 
@@ -133,8 +138,16 @@ def _error_line(err: BaseException) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one replay command; returns the process exit code."""
-    argv = list(sys.argv[1:] if argv is None else argv)
+    """Run one replay command; returns the process exit code. Called as the program (argv None) after a model's
+    code never returned (a guard thread still inside it), the process ends here with os._exit and that code."""
+    code = _run(list(sys.argv[1:] if argv is None else argv))
+    loading = sys.modules.get("usv_predictor.models.loading")  # imported only by the commands that load a model
+    if argv is None and loading is not None and loading.stuck_guard_threads():
+        loading.exit_program(code)
+    return code
+
+
+def _run(argv: list[str]) -> int:
     prog = PROG
     handles_sigterm = threading.current_thread() is threading.main_thread()  # only there can Python set handlers
     stops = (signal.SIGTERM, signal.SIGHUP)  # SIGHUP: the terminal went away; unwound like SIGTERM

@@ -25,6 +25,8 @@ if TYPE_CHECKING:
 
 EVALUATION_FILE = "evaluation.json"
 SERIES_FILE = "evaluation_series.npz"
+ROLLOUT_BUDGET_S = 5.0  # (s) default --rollout-budget: one rollout over the longest open-loop horizon, every member
+#                         (the shipped DNN: ~2 ms; a grey box's unfused TorchScript: ~0.4 s); slower is refused at load
 REFERENCES = ("gnss", "smoothed", "truth")  # the measured GNSS track and states, the same smoothed (EKF + RTS), or
 # the simulator's ground truth (analysis.evaluation.reference_tracks); spelled here so that the CLI's parser does not
 # import the analysis (torch): test_evaluation.py proves it equal to analysis.evaluation.REFERENCES
@@ -47,6 +49,9 @@ class EvaluationRequest:
     adaptive: bool = False  # also run the online estimator and the adaptive open loop (analysis/adaptive.py)
     fit_check: bool = True  # refuse a model that does not fit the bags at all (analysis/fit_check.py)
     scale: float = 1.0  # Froude scale L_bags / L_model: the bags are scaled to the model's size (data/recording.py)
+    # (s) the longest a rollout over the longest horizon (or recording, if shorter) may take (models/loading.
+    # check_deadline); a slower model file is refused, with the measured time, once the bags are read
+    rollout_budget_s: float = ROLLOUT_BUDGET_S
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(x) and x > 0.0 for x in (self.stride_s, *self.horizons_s)):
@@ -57,6 +62,8 @@ class EvaluationRequest:
             raise EvaluationError("--horizons needs at least one horizon (s)")
         if self.dt is not None and not (math.isfinite(self.dt) and self.dt > 0.0):
             raise EvaluationError(f"--dt {self.dt:g} must be finite and positive (s)")
+        if not (math.isfinite(self.rollout_budget_s) and self.rollout_budget_s > 0.0):
+            raise EvaluationError(f"--rollout-budget {self.rollout_budget_s:g} must be finite and positive (s)")
         if not (math.isfinite(self.scale) and self.scale > 0.0):
             raise EvaluationError(f"--scale {self.scale:g} must be finite and positive (L_bags / L_model)")
         if self.reference not in REFERENCES:
@@ -145,6 +152,11 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
                                  scale=request.scale)
     if not recordings:
         raise BagError(f"no usable recording in {', '.join(map(str, bags))} (see the warnings above)")
+    if not loading.is_physics(request.model):  # a model file's code: timed over the longest horizon a recording has
+        span_s = min(max(request.horizons_s), max(recording.duration_s for recording in recordings))
+        loading.check_deadline(model, loading.RolloutDeadline(request.rollout_budget_s,
+                                                              max(1, math.ceil(span_s / dt - 1e-9)),
+                                                              "replay evaluate (--rollout-budget)"))
     check = model_fit_check(model, recordings, vessel)
     progress(check.summary())
     if request.fit_check:

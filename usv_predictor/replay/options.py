@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 from typing import Callable, Sequence
 
-from usv_predictor.replay.evaluate import REFERENCES, EvaluationRequest
+from usv_predictor.replay.evaluate import REFERENCES, ROLLOUT_BUDGET_S, EvaluationRequest
 
 
 def _number(text: str, kind: type, what: str, ok: Callable[[float], bool]) -> float | int:
@@ -113,6 +113,11 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                              "length; a model that embeds a different description is refused, naming the fields "
                              "(default: the vessel the model embeds or names, else the config's)")
     add_scale_argument(parser)
+    parser.add_argument("--rollout-budget", type=positive_float, default=ROLLOUT_BUDGET_S, metavar="S",
+                        help="the longest one rollout of the model over the longest horizon (or recording, if "
+                             "shorter; one start, every member) may take (s): a slower model, or one whose code does "
+                             "not return, is refused with the measured time (default "
+                             f"{ROLLOUT_BUDGET_S:g})")
     parser.add_argument("--no-fit-check", action="store_true",
                         help="evaluate even when the model does not fit the bags at all (its steady speed or yaw rate "
                              "at the recorded commands, or its length scale, is far off: refused otherwise)")
@@ -124,4 +129,4 @@ def evaluation_request(args: argparse.Namespace, bags: Sequence[Path]) -> Evalua
                              horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm,
                              config=args.config, vessel=args.vessel,
                              adaptive=bool(getattr(args, "adaptive", False)), fit_check=not args.no_fit_check,
-                             scale=args.scale)
+                             scale=args.scale, rollout_budget_s=args.rollout_budget)
