@@ -201,3 +201,26 @@ def with_kernel_rollout(model: ModelArtifact) -> ModelArtifact:
     except KernelUnavailable as err:
         return dataclasses.replace(model, inference_note=f"the file's rollout (not compiled: {err})")
     return dataclasses.replace(model, inference=kernel, inference_note=KERNEL_FORM)
+
+
+def warm_up(vessel: Vessel, dt: float) -> float:
+    """Compile (or load from numba's cache) every kernel entry (models/kernel_rollout.py) a process may call for this
+    vessel: the rollout, on a two-step batch of its calm-water grey box, and the float model's forces and
+    accelerations. Returns the seconds it
+    took (~15 s the first time on a 2-core machine, well under one with a warm cache). The node calls it before its
+    first cycle: compiling holds the GIL, and inside a cycle it would stall the node."""
+    import time
+
+    import numpy as np
+
+    from usv_predictor.models.greybox import GreyBoxRollout
+    from usv_predictor.models.kernel_rollout import KernelRollout
+    from usv_predictor.physics.dynamics import ManoeuvringModel
+
+    started = time.perf_counter()
+    kernel = KernelRollout(GreyBoxRollout(vessel, dt))
+    kernel.rollout(np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 2, kernel.n_controls)))
+    model = ManoeuvringModel(vessel)
+    model.accelerations(0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+    model.loads(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+    return time.perf_counter() - started

@@ -95,7 +95,7 @@ from usv_predictor.config import (
 from usv_predictor.data.recording import PLAUSIBLE
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, RecordingError, UsvPredictorError, one_line
 from usv_predictor.fitting.online import OnlineConfig
-from usv_predictor.models import kernel_rollout, loading
+from usv_predictor.models import loading
 from usv_predictor.models.artifact import metadata_differences
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.node import live, plans, sea
@@ -328,7 +328,7 @@ class PredictorNode(Node):
         self.layout = self.vessel.actuator_layout
         # the compiled grey-box kernel (the fit check's causes, a grey box's rollout) compiled or loaded now, never in
         # a cycle or in the fit check's worker (compiling holds the GIL)
-        self.kernel_warm_up_s = kernel_rollout.warm_up(self.vessel, self.config.dt)
+        self.kernel_warm_up_s = loading.warm_up(self.vessel, self.config.dt)
         # every control role of the layout configured (ConfigError naming the roles and the layout: fatal); the
         # control roles of other layouts (the shipped config lists every layout's) are ignored: logged once here,
         # reported on /diagnostics ("ignored inputs")

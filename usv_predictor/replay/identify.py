@@ -67,7 +67,7 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, str
     (fitting/interaction.py; None: identify, the default; with `base` it must stay None). The
     result of `replay identify`."""
     from usv_predictor.analysis.evaluation import evaluate
-    from usv_predictor.fitting import hybrid_fit, identification
+    from usv_predictor.fitting import hull_models, hybrid_fit, identification
     from usv_predictor.physics.vessel import load_vessel
 
     if base is not None:
@@ -86,8 +86,8 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, str
                                            scale=scale)
     if not recordings:
         raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
-    result = identification.identify(preset, recordings, structure=structure, prior=prior,
-                                     interaction=interaction or "identify", progress=progress)
+    result = hull_models.identify(preset, recordings, structure=structure, prior=prior,
+                                  interaction=interaction or "identify", progress=progress)
     from usv_predictor.fitting.candidates import candidate_scores, cv_warning
 
     candidates = candidate_scores(preset, list(result.data), result)
