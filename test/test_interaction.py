@@ -159,5 +159,5 @@ def test_replay_identify_searches_the_interaction_factors_by_default(monkeypatch
                   str(tmp_path / "m.pt"), *argv])
     assert seen["interaction"] == expected
     with pytest.raises(Exception, match="--interaction do not apply"):
-        replay_identify.identify_bags([tmp_path / "bags"], tmp_path / "m.pt", vessel=None, base=tmp_path / "x.pt",
-                                      hybrid=object(), interaction=expected)
+        replay_identify.IdentifyRequest((tmp_path / "bags",), tmp_path / "m.pt", base=tmp_path / "x.pt",
+                                        hybrid=object(), interaction=expected)

@@ -72,20 +72,38 @@ def check_dt(model: HasMetadata, dt: float, what: str) -> None:
                          f"has dt={dt:g} s; resample the data at {expected:g} s or use a model trained at {dt:g} s")
 
 
-def physics_predictor(vessel: str | Vessel, dt: float) -> GreyBoxPredictor:
-    """The calm-water physics baseline: the vessel preset's grey box (usv_predictor.models.greybox), no sea terms.
+def physics_predictor(vessel: Vessel, dt: float) -> GreyBoxPredictor:
+    """The calm-water physics baseline: the vessel's grey box (usv_predictor.models.greybox), no sea terms.
 
     It knows nothing of current, wind or waves, so it is the baseline a learned model must beat at sea. The
     recorded rudder angle and engine speed drive it as the actuator states (they are feedback, not commands).
-    `vessel` is a preset name or a Vessel.
     """
     from usv_predictor.models.greybox import greybox_predictor
-    from usv_predictor.physics.vessel import load_vessel
 
     if not dt > 0.0:
         raise ModelError(f"physics predictor step dt={dt} s must be > 0")
     config.FLOAT_RANGES["dt"].check("dt", dt, "physics predictor step")
-    return greybox_predictor(load_vessel(vessel) if isinstance(vessel, str) else vessel, dt)
+    return greybox_predictor(vessel, dt)
+
+
+def resolve_vessel(given: str | Path | Vessel | None = None, *, model: HasMetadata | None = None,
+                   config_path: str | Path | None = None, option: str = "--vessel",
+                   source: str | None = None) -> Vessel:
+    """The one vessel of a command or of the node, resolved once at its boundary; every library function below
+    takes the Vessel.
+
+    given: a preset name, a vessel YAML file or a Vessel; None: the model's (the description it embeds, else the
+    preset its metadata names) or, without a model, the predictor config's `vessel` (config_path; None: the shipped
+    config/predictor.yaml). With a model, a given vessel that differs from the description it embeds is refused
+    (model_vessel: `option` and `source` name the given vessel and the model in that message).
+    """
+    from usv_predictor.physics.vessel import Vessel, load_vessel
+
+    if model is not None:
+        return model_vessel(model, given, option=option, source=source)
+    if isinstance(given, Vessel):
+        return given
+    return load_vessel(given if given is not None else config.load_predictor_config(config_path).vessel)
 
 
 def model_vessel(model: HasMetadata, given: str | Path | Vessel | None = None, *, option: str = "--vessel",
@@ -141,8 +159,8 @@ def load_model(spec: str | None, *, dt: float | None = None, vessel: str | None 
     if physics and is_physics(spec):
         assert spec is not None
         name = spec.partition(":")[2] or vessel
-        defaults = config.load_predictor_config() if name is None or dt is None else None
-        return physics_predictor(name or defaults.vessel, dt if dt is not None else defaults.dt)
+        step = dt if dt is not None else config.load_predictor_config().dt
+        return physics_predictor(resolve_vessel(name), step)
     path = Path(spec).expanduser() if spec else default_model_path(option, physics)
     if not path.is_file():
         raise ModelError(f"{option} {path}: no such model file")
