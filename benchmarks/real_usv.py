@@ -164,11 +164,12 @@ def measured_circle(circle) -> float:
 
 
 def dalian(bags: Path, work: Path) -> dict:
+    from usv_predictor.analysis.diagnosis_run import calm_water_model
     from usv_predictor.models.artifact import load_artifact
     from usv_predictor.models.greybox import greybox_predictor
     from usv_predictor.physics.vessel import load_vessel
-    from usv_predictor.replay.diagnose import diagnose_bags
-    from usv_predictor.replay.identify import identify_bags
+    from usv_predictor.replay.diagnose import DiagnoseRequest, diagnose_bags
+    from usv_predictor.replay.identify import IdentifyRequest, identify_bags
 
     vessel = load_vessel(DALIAN_VESSEL)
     runs = {name: recordings(bags / f"dalian_{name}", "twin_thrusters") for name in ("circle", "sine")}
@@ -179,8 +180,8 @@ def dalian(bags: Path, work: Path) -> dict:
     for train, test in (("circle", "sine"), ("sine", "circle")):
         log(f"Dalian: identify on the {train}, predict the {test}")
         path = work / f"dalian_greybox_{train}.pt"
-        ident = identify_bags([bags / f"dalian_{train}"], path, vessel=str(DALIAN_VESSEL), prior="fix", dt=DT,
-                              blocks=4, progress=log)
+        ident = identify_bags(IdentifyRequest((bags / f"dalian_{train}",), path, prior="fix", dt=DT, blocks=4),
+                              vessel, progress=log)
         identified[train] = path
         models = {
             "grey box identified": load_artifact(path),
@@ -206,7 +207,8 @@ def dalian(bags: Path, work: Path) -> dict:
     for label, model in (("vessel file", None), ("identified on the circle", identified["circle"]),
                          ("identified on the sine", identified["sine"])):
         log(f"Dalian: diagnose both runs against the {label}")
-        d = diagnose_bags(both, vessel=str(DALIAN_VESSEL), model=model, dt=DT, horizon_s=20.0, stride_s=5.0,
+        d = diagnose_bags(DiagnoseRequest(tuple(both), dt=DT, horizon_s=20.0, stride_s=5.0),
+                          calm_water_model(str(DALIAN_VESSEL), model),
                           progress=log)  # 0.5 s: RK4 unstable in yaw (analysis/diagnosis_steps.py)
         out["diagnose"][label] = {"cause": d["cause"], "parameters": d["parameters"], "message": d["message"],
                                   "additional_causes": d["additional_causes"], "gain": d["gain"],

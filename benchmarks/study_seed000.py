@@ -371,6 +371,7 @@ def main(argv: list[str] | None = None) -> int:
         configs[f"NTF tanh, multi-step {args.multi_step}"] = ("NTF", "tanh", args.multi_step)
     started = time.perf_counter()
     from usv_predictor.analysis import evaluation
+    from usv_predictor.physics.vessel import load_vessel
     from usv_predictor.replay.recordings import load_recordings
 
     out: Path = args.out
@@ -382,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
     recordings = {t: by_name[name] for t, name in TESTS.items()}
 
     log("physics baseline (replay evaluate --model physics)")
-    physics_model = evaluation.physics_predictor("jari_usv", 0.5)
+    physics_model = evaluation.physics_predictor(load_vessel("jari_usv"), 0.5)
     physics_rows = {t: [turning_row(evaluation.evaluate_recording(physics_model, rec, "gnss", (30.0,), 5.0))]
                     for t, rec in recordings.items()}
     commands.append("replay evaluate bags/sea_trial --model physics")

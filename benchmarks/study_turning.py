@@ -49,6 +49,7 @@ sys.path.insert(0, str(REPO))
 
 from usv_predictor.analysis import metrics  # noqa: E402
 from usv_predictor.errors import NotIdentifiableError  # noqa: E402
+from usv_predictor.fitting import hull_models  # noqa: E402
 from usv_predictor.fitting import identification as ident  # noqa: E402
 from usv_predictor.physics.dynamics import ManoeuvringModel  # noqa: E402
 from usv_predictor.physics.empirical import kijima_1990_nonlinear, mmg_hull_estimates  # noqa: E402
@@ -192,8 +193,8 @@ def identify_variants(preset: Vessel, recordings: list, data: list, interaction:
     out["_kijima_used"] = kij_used
     if interaction:
         t0 = time.perf_counter()
-        found = ident.identify(preset, recordings, structure="mmg", prior="fix", data=data, interaction="identify",
-                               progress=log)
+        found = hull_models.identify(preset, recordings, structure="mmg", prior="fix", data=data,
+                                    interaction="identify", progress=log)
         log(f"  --interaction identify: {time.perf_counter() - t0:.0f} s; {found.notes[0] if found.notes else ''}")
         out["fix_interaction"] = replace(found,
                                          vessel=replace(found.vessel, name=f"{preset.name}_identified_interaction"))

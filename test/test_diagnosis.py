@@ -111,7 +111,7 @@ def test_a_diagnosis_run_builds_its_segments_and_grey_box_once_and_shares_them(m
     """diagnose, discrepancy (and the gain) use one set of segments and one scripted grey box; sharing the
     compiled model changes no answer: its discrepancy equals that of a freshly built one."""
     from usv_predictor.analysis import diagnosis as dg
-    from usv_predictor.analysis.diagnosis_run import run_diagnosis
+    from usv_predictor.analysis.diagnosis_run import DiagnosisOptions, run_diagnosis
 
     recordings = trial(env=Environment(current_speed=0.3, current_to_deg=60.0))
     built = {"make_segments": 0, "compiled_rollout": 0}
@@ -122,8 +122,8 @@ def test_a_diagnosis_run_builds_its_segments_and_grey_box_once_and_shares_them(m
             built[_name] += 1
             return _original(*args, **kwargs)
         monkeypatch.setattr(dg, name, counted)
-    out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5, hypotheses=["current", "rudder_offset"], max_causes=1,
-                        gain=False)
+    out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5,
+                        options=DiagnosisOptions(hypotheses=("current", "rudder_offset"), max_causes=1, gain=False))
     assert built == {"make_segments": 1, "compiled_rollout": 1}
     assert out["cause"] == "current"
     assert out["calm_water_model"] == {"vessel": VESSEL.name, "source": "preset"}
@@ -180,15 +180,17 @@ def test_an_undefined_uncertainty_of_a_named_cause_is_written_as_null(monkeypatc
     import json
 
     from usv_predictor.analysis import diagnosis as dg
-    from usv_predictor.analysis.diagnosis_run import run_diagnosis
+    from usv_predictor.analysis.diagnosis_run import DiagnosisOptions, run_diagnosis
     from usv_predictor.atomic import json_text
 
     recordings = trial(runs=diagnosis_runs()[:2])
     at_bound = dg.Fit("resistance", {"resistance_change": (3.0,)}, 1.0, {"resistance_change": (math.inf,)}, 1, 0.0)
-    named = dg.Diagnosis("resistance", {"resistance_change_pct": 300.0}, {"resistance_change_pct": math.inf}, (), (),
-                         at_bound, ((recordings[0].name,), (recordings[1].name,)), "resistance named")
+    named = dg.Diagnosis(cause="resistance", parameters={"resistance_change_pct": 300.0},
+                         uncertainty={"resistance_change_pct": math.inf}, confounded_with=(), evidence=(), fit=at_bound,
+                         folds=((recordings[0].name,), (recordings[1].name,)), message="resistance named")
     monkeypatch.setattr(dg, "diagnose", lambda *args, **kwargs: named)
-    written = json.loads(json_text(run_diagnosis(recordings, VESSEL, "preset", dt=0.5, gain=False)))
+    written = json.loads(json_text(run_diagnosis(recordings, VESSEL, "preset", dt=0.5,
+                                                   options=DiagnosisOptions(gain=False))))
     assert written["cause"] == "resistance"
     assert written["parameters"] == {"resistance_change_pct": 300.0}
     assert written["uncertainty"] == {"resistance_change_pct": None}

@@ -10,7 +10,7 @@ import pytest
 
 from usv_predictor.analysis import diagnosis as dg
 from usv_predictor.analysis import diagnosis_unexplained as dgu
-from usv_predictor.analysis.diagnosis_run import run_diagnosis
+from usv_predictor.analysis.diagnosis_run import DiagnosisOptions, run_diagnosis
 from usv_predictor.atomic import json_text
 from usv_predictor.physics.environment import Environment
 from usv_predictor.physics.manoeuvres import diagnosis_runs
@@ -20,8 +20,9 @@ LEAN = dataclasses.replace(dgu.UNEXPLAINED_TRAINING, members=2, epochs=15, patie
 
 
 def _mismatch() -> dg.Diagnosis:
-    return dg.Diagnosis(dg.MODEL_MISMATCH, {}, {}, (), (), dg.Fit("none", {}, 19.0, {}, 0, 0.0), (("a",), ("b",)),
-                        f"{dg.MODEL_MISMATCH}: no hypothesis explains it",
+    return dg.Diagnosis(cause=dg.MODEL_MISMATCH, parameters={}, uncertainty={}, confounded_with=(), evidence=(),
+                        fit=dg.Fit("none", {}, 19.0, {}, 0, 0.0), folds=(("a",), ("b",)),
+                        message=f"{dg.MODEL_MISMATCH}: no hypothesis explains it",
                         calm_water_fit=dg.CalmWaterFit(19.0, 2.9, 20.0),
                         mismatch_reasons=("no hypothesis explains it",))
 
@@ -59,7 +60,7 @@ def test_run_diagnosis_tries_the_residual_only_without_a_physical_cause_and_unle
     mismatch = dataclasses.replace(_mismatch(), folds=((names[0],), (names[1],)))
     monkeypatch.setattr(dg, "diagnose", lambda *args, **kwargs: mismatch)
     monkeypatch.setattr("usv_predictor.analysis.diagnosis_run.measure_unexplained", _never)
-    out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5, unexplained=False)
+    out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5, options=DiagnosisOptions(unexplained=False))
     assert out["cause"] == dg.MODEL_MISMATCH
     assert out["unexplained"] is None
     monkeypatch.setattr("usv_predictor.analysis.diagnosis_run.measure_unexplained", lambda *a, **k: _found(True))
@@ -76,7 +77,8 @@ def test_a_hidden_physical_cause_is_named_and_the_residual_is_not_tried(monkeypa
     """Physical causes stay preferred: a current is named, the learned residual never trained."""
     monkeypatch.setattr("usv_predictor.analysis.diagnosis_run.measure_unexplained", _never)
     recordings = trial(env=Environment(current_speed=0.3, current_to_deg=60.0))
-    out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5, hypotheses=["current", "rudder_offset"], max_causes=1)
+    out = run_diagnosis(recordings, VESSEL, "preset", dt=0.5,
+                        options=DiagnosisOptions(hypotheses=("current", "rudder_offset"), max_causes=1))
     assert out["cause"] == "current"
     assert out["unexplained"] is None
     assert out["gain"]["mean_position_error_after_30s_m"] > 0.0
@@ -91,8 +93,9 @@ def test_an_effect_outside_the_vocabulary_is_unexplained_with_a_positive_gain(mo
     monkeypatch.setattr(dgu, "UNEXPLAINED_TRAINING", LEAN)
     weak = dataclasses.replace(VESSEL, hull=dataclasses.replace(VESSEL.hull, N_r=VESSEL.hull.N_r * 0.7))
     recordings = trial(vessel=weak)
-    out = json.loads(json_text(run_diagnosis(recordings, VESSEL, "preset", dt=0.5, export=tmp_path / "hybrid.pt",
-                                             report=tmp_path / "report")))
+    out = json.loads(json_text(run_diagnosis(recordings, VESSEL, "preset", dt=0.5,
+                                             options=DiagnosisOptions(export=tmp_path / "hybrid.pt",
+                                                                      report=tmp_path / "report"))))
     assert out["cause"] == dg.UNEXPLAINED
     assert out["parameters"] == {}
     found = out["unexplained"]

@@ -330,7 +330,7 @@ def test_physics_predictor_reproduces_calm_water(vessel_model):
         loop = ev.open_loop(ev.physics_predictor(vessel_model.vessel, dt), rec, reference="truth", horizons_s=(10.0,))
         errors.append(loop.horizons[0].mean_m)
     assert errors[0] < 0.5 and errors[1] < 0.5  # ~50 m run in 10 s
-    assert math.isclose(ev.physics_predictor("jari_usv", 0.25).metadata["dt"], 0.25)
+    assert math.isclose(ev.physics_predictor(load_vessel("jari_usv"), 0.25).metadata["dt"], 0.25)
 
 
 # ------------------------------------------------------------------ the smoothed reference
@@ -369,7 +369,7 @@ def test_smoothed_reference_takes_the_gnss_noise_out_of_eq_27_29(sea_turn):
     np.testing.assert_array_equal(tracks.start, gnss)  # nothing after a start point enters its state
     assert float(np.abs(tracks.measured[:, [ev.X_N, ev.Y_E]] - truth[:, [ev.X_N, ev.Y_E]]).mean()) < 0.5 * float(
         np.abs(gnss[:, [ev.X_N, ev.Y_E]] - truth[:, [ev.X_N, ev.Y_E]]).mean())
-    prediction = ev.closed_loop(ev.physics_predictor("jari_usv", 0.2), sea_turn, "smoothed", tracks)
+    prediction = ev.closed_loop(ev.physics_predictor(load_vessel("jari_usv"), 0.2), sea_turn, "smoothed", tracks)
     np.testing.assert_allclose(prediction.predicted[0], gnss[0])
     np.testing.assert_array_equal(prediction.measured, tracks.measured)
 

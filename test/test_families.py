@@ -8,6 +8,7 @@ from usv_predictor.errors import ModelError
 from usv_predictor.models.artifact import load_artifact
 from usv_predictor.models.families import MODEL_FAMILIES, family_name, family_of
 from usv_predictor.models.loading import physics_predictor
+from usv_predictor.physics.vessel import load_vessel
 
 
 @pytest.mark.parametrize("model_type, family", [
@@ -20,7 +21,7 @@ def test_a_model_type_names_its_family(model_type, family):
 
 def test_the_shipped_model_and_the_physics_baseline_are_known_families():
     assert family_of(load_artifact(package_share_path("models", "default.pt")).metadata).name == "dnn"
-    baseline = family_of(physics_predictor("jari_usv", 0.5).metadata)
+    baseline = family_of(physics_predictor(load_vessel("jari_usv"), 0.5).metadata)
     assert baseline.name == "physics"
     assert baseline.physics
 

@@ -24,6 +24,7 @@ import yaml
 from usv_predictor.data.recording import APPROACH_S, approach_state, recording_from_signals, straight_samples
 from usv_predictor.errors import ConfigError, NotIdentifiableError
 from usv_predictor.fitting import hybrid_fit
+from usv_predictor.fitting import hull_models
 from usv_predictor.fitting import identification as idf
 from usv_predictor.fitting import small_craft_identification as sc
 from usv_predictor.models import loading
@@ -143,7 +144,7 @@ def test_an_mmg_derivative_of_a_sign_no_ship_has_is_flagged():
 
 def test_identify_exports_a_small_craft_grey_box_that_predicts(otter, tmp_path):
     vessel, recordings, data = otter
-    result = idf.identify(vessel, recordings, structure="auto", prior="fix", data=data)
+    result = hull_models.identify(vessel, recordings, structure="auto", prior="fix", data=data)
     assert {cv.structure for cv in result.cross_validation} == {"diagonal", "coupled"}
     assert all(cv.score < 0.2 for cv in result.cross_validation)
     assert result.vessel.small_craft.X_udot == vessel.small_craft.X_udot  # the added mass is the file's
@@ -182,10 +183,10 @@ def test_the_thrust_exponent_is_the_file_s_unless_the_data_determine_it(otter):
     right file they keep it."""
     vessel, recordings, data = otter
     linear = sc.with_exponent(vessel, 1.0)
-    result = idf.identify(linear, recordings, structure="diagonal", prior="fix", data=data)
+    result = hull_models.identify(linear, recordings, structure="diagonal", prior="fix", data=data)
     assert result.vessel.thrusters.port.exponent == 2.0 == result.vessel.thrusters.starboard.exponent
     assert any("the data determine it" in n and "-> 2 instead of the vessel file's 1" in n for n in result.notes)
-    kept = idf.identify(vessel, recordings, structure="diagonal", prior="fix", data=data)
+    kept = hull_models.identify(vessel, recordings, structure="diagonal", prior="fix", data=data)
     assert kept.vessel.thrusters.port.exponent == 2.0
     assert any("the vessel file's 2 kept" in n for n in kept.notes)
 
@@ -193,9 +194,9 @@ def test_the_thrust_exponent_is_the_file_s_unless_the_data_determine_it(otter):
 def test_layouts_and_structures_are_checked(otter):
     vessel, recordings, data = otter
     with pytest.raises(ConfigError, match="unknown model structure 'mmg' for the small-craft hull"):
-        idf.identify(vessel, recordings, structure="mmg", data=data)
+        hull_models.identify(vessel, recordings, structure="mmg", data=data)
     with pytest.raises(ConfigError, match="unknown model structure 'diagonal' for the MMG hull"):
-        idf.identify(load_vessel("jari_usv"), recordings, structure="diagonal")
+        hull_models.identify(load_vessel("jari_usv"), recordings, structure="diagonal")
     with pytest.raises(Exception, match="controls .* are not those of the vessel's actuator layout rudder_propeller"):
         idf.actuator_levels(load_vessel("jari_usv"), dataclasses.replace(recordings[0], controls=np.zeros((3, 1))))
 
@@ -226,7 +227,7 @@ def test_throttle_gain_is_profiled_from_a_wrong_vessel_file():
                           duration_s=150.0))
     recordings = _record(vessel, runs)
     halved = dataclasses.replace(vessel, throttle=dataclasses.replace(vessel.throttle, forward_N=4500.0))
-    result = idf.identify(halved, recordings, structure="mmg", prior="fix")
+    result = hull_models.identify(halved, recordings, structure="mmg", prior="fix")
     (gain,) = result.actuator_coefficients
     assert gain.name == "throttle.forward_N"
     assert gain.status == "identified"
@@ -246,7 +247,7 @@ def test_rudder_only_estimates_the_engine_speed_of_each_manoeuvre(tmp_path):
             TurningCircle(25.0, 650.0, duration_s=80.0), TurningCircle(15.0, 700.0, duration_s=80.0, side=-1))
     recordings = _record(vessel, runs)
     assert recordings[0].controls.shape[1] == 1  # the rudder alone is recorded
-    result = idf.identify(vessel, recordings, structure="mmg", prior="fix")
+    result = hull_models.identify(vessel, recordings, structure="mmg", prior="fix")
     engines = result.to_json()["actuators"]
     for run in runs:
         assert engines[run.name]["engine_speed_rpm"] == pytest.approx(run.rpm, rel=0.01), run.name
@@ -291,7 +292,7 @@ def test_the_cv_candidates_of_a_small_craft_are_its_own_structures(otter):
     from usv_predictor.fitting.candidates import candidate_scores
 
     vessel, recordings, _ = otter
-    result = idf.identify(vessel, recordings, structure="diagonal", prior="fix")
+    result = hull_models.identify(vessel, recordings, structure="diagonal", prior="fix")
     candidates = candidate_scores(vessel, list(result.data), result)
     assert {(c.structure, c.prior) for c in candidates} == {(s, p) for s in ("diagonal", "coupled") for p in idf.PRIORS}
     chosen = [c for c in candidates if c.chosen]
@@ -331,8 +332,8 @@ def test_every_coefficient_identify_can_hold_has_the_trial_that_would_determine_
     assert mmg <= set(idf.WOULD_DETERMINE)
     small = {n for s in sc.STRUCTURES for n in sc.coefficient_names(s)}
     assert small <= set(sc.WOULD_DETERMINE)
-    assert idf.would_determine("N_rr", "small_craft") == "a turn at differential 0.8 both ways"
-    assert idf.would_determine("N_r", "small_craft") == "turns at two differentials both ways"
+    assert hull_models.would_determine("N_rr", "small_craft") == "a turn at differential 0.8 both ways"
+    assert hull_models.would_determine("N_r", "small_craft") == "turns at two differentials both ways"
     assert idf.would_determine("Y_r") == idf.would_determine("N_v") == "zig-zags both ways"
     assert idf.trials_text(["Y_r", "N_rrr", "N_v"]) == ("Y_r, N_v: zig-zags both ways; N_rrr: hard-over turning "
                                                         "circles both ways (large yaw rates)")

@@ -12,6 +12,7 @@ import pytest
 from usv_predictor.analysis.hidden_effects import effect_names
 from usv_predictor.analysis.unknown_boats import SIZE_CLASSES, TRIAL_RPM, draw_boat
 from usv_predictor.data.recording import recording_from_signals
+from usv_predictor.fitting import hull_models
 from usv_predictor.fitting import identification as idf
 from usv_predictor.fitting import interaction as ia
 from usv_predictor.physics.dynamics import ManoeuvringModel
@@ -99,7 +100,7 @@ def test_the_search_moves_wrong_rudder_factors_toward_the_truth():
     model, env = ManoeuvringModel(truth), Environment()
     recordings = [recording_from_signals(measure(simulate(model, m, env, seed=i), env, SensorSpec(), seed=i), DT,
                                          name=m.name) for i, m in enumerate(TRIALS)]
-    result = idf.identify(description, recordings, structure="mmg", prior="fix", interaction="identify")
+    result = hull_models.identify(description, recordings, structure="mmg", prior="fix", interaction="identify")
     searched = result.interaction
     assert searched["accepted"], result.notes
     factors = {c.name: c.estimate for c in result.actuator_coefficients}
@@ -158,5 +159,5 @@ def test_replay_identify_searches_the_interaction_factors_by_default(monkeypatch
                   str(tmp_path / "m.pt"), *argv])
     assert seen["interaction"] == expected
     with pytest.raises(Exception, match="--interaction do not apply"):
-        replay_identify.identify_bags([tmp_path / "bags"], tmp_path / "m.pt", vessel=None, base=tmp_path / "x.pt",
-                                      hybrid=object(), interaction=expected)
+        replay_identify.IdentifyRequest((tmp_path / "bags",), tmp_path / "m.pt", base=tmp_path / "x.pt",
+                                        hybrid=object(), interaction=expected)

@@ -495,7 +495,7 @@ def test_a_model_whose_rollout_diverges_skips_the_cycle_and_says_why() -> None:
         live.predict(inputs, rollout, last)
     from usv_predictor.models.loading import physics_predictor
 
-    stable = physics_predictor("jari_usv", DT)
+    stable = physics_predictor(load_vessel("jari_usv"), DT)
     prediction = live.predict(inputs, lambda s, c, r=None: stable.predict(
         s[None, :], np.repeat(np.asarray(c)[None, None, :], 120, axis=1))[:, 0], last)
     assert np.isfinite(prediction.eta).all() and prediction.eta.shape == (120, 3)

@@ -264,7 +264,7 @@ def test_the_covariance_stays_bounded(turning):
 # ---- adaptive prediction --------------------------------------------------------------------------------
 
 def test_per_start_terms_predict_as_each_start_with_its_own_terms():
-    model = physics_predictor("jari_usv", DT)
+    model = physics_predictor(load_vessel("jari_usv"), DT)
     state = np.array([[5.5, 0.1, 0.02, 0.3], [5.0, -0.1, -0.05, 2.0]])  # (2, 4)
     controls = np.zeros((2, 12, 2))
     controls[..., 1] = 650.0
@@ -283,7 +283,7 @@ def test_per_start_terms_predict_as_each_start_with_its_own_terms():
 
 
 def test_adaptive_prediction_halves_the_error_in_a_changing_sea_and_costs_nothing_in_calm(bags):
-    model = physics_predictor("jari_usv", DT)
+    model = physics_predictor(load_vessel("jari_usv"), DT)
     ratios = {}
     for sea in ("step", "calm"):
         rec = recording(bags, sea)
@@ -300,7 +300,7 @@ def test_adaptive_prediction_halves_the_error_in_a_changing_sea_and_costs_nothin
 def test_adaptive_open_loop_adds_only_the_live_terms(bags, monkeypatch):
     """With every estimate not yet started (live_terms then gives the model's own terms, set per start through
     per_start_terms) adaptive_open_loop is open_loop to the bit: the same windows, starts and errors."""
-    model = physics_predictor("jari_usv", DT)
+    model = physics_predictor(load_vessel("jari_usv"), DT)
     rec = recording(bags, "step")
     started = adaptive.live_terms
     monkeypatch.setattr(adaptive, "live_terms", lambda estimate, original: started(

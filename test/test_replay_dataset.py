@@ -18,6 +18,7 @@ from usv_predictor.records import Signal
 from usv_predictor.replay.bagio import TopicSpec, write_bag
 from usv_predictor.replay.cli import main
 from usv_predictor.replay.recordings import (
+    Pieces,
     bag_sha256,
     clean_signal,
     find_bags,
@@ -75,7 +76,11 @@ def warnings() -> list[str]:
 
 
 def load(paths, warnings, **kwargs):
-    return load_recordings([paths] if isinstance(paths, Path) else paths, 0.5, warn=warnings.append, **kwargs)
+    """load_recordings at 0.5 s, its Pieces (segment, min_duration_s, horizon_s, include_calm) given by keyword."""
+    rules = {name: kwargs.pop(name) for name in ("segment", "min_duration_s", "horizon_s", "include_calm")
+             if name in kwargs}
+    return load_recordings([paths] if isinstance(paths, Path) else paths, 0.5, warn=warnings.append,
+                           pieces=Pieces(**rules), **kwargs)
 
 
 # ------------------------------------------------------------------ good input

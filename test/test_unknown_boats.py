@@ -155,7 +155,7 @@ def test_the_interaction_factors_are_identified_with_the_hull(tmp_path):
 
     from usv_predictor.analysis.hidden_effects import effect_names
     from usv_predictor.data.segments import make_segments
-    from usv_predictor.fitting.identification import identify
+    from usv_predictor.fitting.hull_models import identify
     from usv_predictor.models.greybox import GreyBoxRollout
     from usv_predictor.replay.identify import identification_recordings
 

@@ -31,7 +31,7 @@ from usv_predictor.data.recording import Recording
 from usv_predictor.fitting.online import TERMS, OnlineConfig, OnlineEstimate, OnlineEstimator
 from usv_predictor.models.loading import check_dt
 from usv_predictor.physics import effects
-from usv_predictor.physics.vessel import Vessel, load_vessel
+from usv_predictor.physics.vessel import Vessel
 
 NOT_APPLIED = ("not applied: a learned model has no physical current term; its training sea is in its weights, so "
                "adding the estimate to its track would count the current twice")
@@ -88,20 +88,15 @@ def set_terms(model: Any, terms: Mapping[str, Sequence[float]]) -> None:
             parameter.copy_(torch.tensor(list(values), dtype=parameter.dtype).reshape(parameter.shape))
 
 
-def model_vessel(model: Any, vessel: str | Vessel | None = None) -> Vessel:
-    """The vessel of the model's grey box: `vessel`, else the description the artifact embeds or the preset its
-    metadata names (models/loading.model_vessel), with the hull coefficients the metadata carries (identified or
-    diagnosed), where they are that vessel's hull model's."""
+def model_vessel(model: Any, vessel: Vessel | None = None) -> Vessel:
+    """The vessel of the model's grey box: `vessel`, else the model's own (models/loading.resolve_vessel: the
+    description the artifact embeds or the preset its metadata names; ConfigError when it has neither), with the hull
+    coefficients the metadata carries (identified or diagnosed), where they are that vessel's hull model's."""
     from usv_predictor.models.greybox import hull_from_metadata
-    from usv_predictor.models.loading import model_vessel as described_vessel
+    from usv_predictor.models.loading import resolve_vessel
 
     meta = dict(model.metadata)
-    if isinstance(vessel, Vessel):
-        base = vessel
-    elif vessel is None and (getattr(model, "embedded_vessel", None) is not None or meta.get("vessel")):
-        base = described_vessel(model)
-    else:
-        base = load_vessel(vessel or "jari_usv")
+    base = vessel if vessel is not None else resolve_vessel(model=model)
     hull = hull_from_metadata(meta) if meta.get("feature_set") == "physics" else None
     if not hull:
         return base
@@ -111,22 +106,24 @@ def model_vessel(model: Any, vessel: str | Vessel | None = None) -> Vessel:
     return replace(base, **{section_name: replace(section, **known)})
 
 
-def estimator_for(model: Any, vessel: str | Vessel | None = None, config: OnlineConfig | None = None
+def estimator_for(model: Any, vessel: Vessel | None = None, config: OnlineConfig | None = None
                   ) -> OnlineEstimator:
-    """The online estimator of a model: its grey box's vessel and terms (prior means and fixed terms)."""
+    """The online estimator of a model: its grey box's vessel (model_vessel) and terms (prior means and fixed
+    terms)."""
     return OnlineEstimator(model_vessel(model, vessel), config, model_terms(model) or {})
 
 
 def adaptive_open_loop(model: Any, recording: Recording, reference: str = "gnss",
                        horizons_s: Sequence[float] = evaluation.DEFAULT_HORIZONS_S, stride_s: float = 5.0,
-                       config: OnlineConfig | None = None, vessel: str | Vessel | None = None) -> AdaptiveRecording:
+                       config: OnlineConfig | None = None, vessel: Vessel | None = None) -> AdaptiveRecording:
     """evaluation.open_loop with the live estimate: the same windows and the same held reference (a rudder_only
     layout's approach, evaluation.held_reference, given to every rollout by evaluation.windowed_open_loop); the
     estimator runs causally over the recording (OnlineEstimator.run_recording: its process model holds the engine
     speed of the same approach, of the measured track); before the rollout from sample k the model's terms are set
-    to the estimate after sample k (when the model has them)."""
+    to the estimate after sample k (when the model has them). vessel: the grey box's (model_vessel; None: the
+    model's own)."""
     check_dt(model, recording.dt, f"recording {recording.name}")
-    estimator = estimator_for(model, vessel or recording_vessel(recording, model), config)
+    estimator = estimator_for(model, vessel, config)  # vessel None: the model's own (model_vessel)
     estimates = tuple(estimator.run_recording(recording))
     original = model_terms(model)
 
@@ -172,16 +169,6 @@ def live_terms(estimate: OnlineEstimate, original: Mapping[str, Sequence[float]]
     if all(math.isfinite(x) for x in estimate.state):
         out.update({name: values for name, values in estimate.terms().items() if name in original})
     return out
-
-
-def recording_vessel(recording: Recording, model: Any) -> str | Vessel | None:
-    """The model's vessel (the recording carries only its layout): the description it embeds, else the preset its
-    metadata names."""
-    embedded = getattr(model, "embedded_vessel", None)
-    if embedded is not None:
-        return embedded
-    name = dict(model.metadata).get("vessel")
-    return str(name) if name else None
 
 
 def summarise(adaptive: Sequence[AdaptiveRecording], horizons_s: Sequence[float]) -> dict[str, Any]:

@@ -363,8 +363,10 @@ class CalmWaterFit:
     horizon_s: float  # the segments' length (s)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Diagnosis:
+    """The answer of a diagnosis, built by keyword (about twenty fields)."""
+
     cause: str
     parameters: dict[str, float]
     uncertainty: dict[str, float]
@@ -564,7 +566,7 @@ def select_causes(primary: str, candidates: Sequence[str], score: Callable[[tupl
 
 
 def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Sequence[str] | None = None,
-             horizon_s: float = 20.0, stride_s: float = 5.0, substeps: int = 1, max_causes: int = 2,
+             horizon_s: float = 20.0, stride_s: float = 5.0, max_causes: int = 2,
              progress: Callable[[str], None] = lambda _: None, segments: Segments | None = None,
              rollout: KernelRollout | None = None, fit_mismatch: str = "") -> Diagnosis:
     """Name the cause of what the calm-water grey box gets wrong on these recordings.
@@ -572,7 +574,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     After the primary cause, up to max_causes - 1 further ones are added one at a time (forward selection)
     while each passes the same held-out evidence test against the model with the causes before it; after each
     addition a cause that no longer passes it given the others is dropped (backward elimination, select_causes).
-    segments / rollout: make_segments(recordings, horizon_s, stride_s) and compiled_rollout(vessel, dt, substeps)
+    segments / rollout: make_segments(recordings, horizon_s, stride_s) and compiled_rollout(vessel, dt)
     when the caller has them already (built here otherwise); the rollout's terms are left at the final fit.
     """
     started = time.perf_counter()
@@ -593,7 +595,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     dt = recordings[0].dt
     seg = segments if segments is not None else make_segments(recordings, horizon_s, stride_s)
     folds = _folds(recordings)
-    model = rollout if rollout is not None else compiled_rollout(vessel, dt, substeps)
+    model = rollout if rollout is not None else compiled_rollout(vessel, dt)
     diverged = diverged_segments(model, seg)
     if diverged:
         # the calm-water model itself cannot be rolled out over the data: it does not fit them (not an error of the
@@ -601,10 +603,12 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         reason = (f"the calm-water model's rollout diverges (NaN/inf) on {diverged} of {len(seg)} segments of "
                   f"{horizon_s:g} s at dt {dt:g} s from measured, finite starts and controls")
         names_of = lambda fold: tuple(recordings[i].name for i in fold)  # noqa: E731
-        return Diagnosis(MODEL_MISMATCH, {}, {}, (), (), Fit("none", {}, math.inf, {}, 0, 0.0),
-                         (names_of(folds[0]), names_of(folds[1])), f"{MODEL_MISMATCH}: {reason}: {REMEDY}",
-                         time.perf_counter() - started, tuple(notes), (), CalmWaterFit(math.inf, math.inf, horizon_s),
-                         (reason,), "")
+        return Diagnosis(cause=MODEL_MISMATCH, parameters={}, uncertainty={}, confounded_with=(), evidence=(),
+                         fit=Fit("none", {}, math.inf, {}, 0, 0.0), folds=(names_of(folds[0]), names_of(folds[1])),
+                         message=f"{MODEL_MISMATCH}: {reason}: {REMEDY}", seconds=time.perf_counter() - started,
+                         notes=tuple(notes), additional_causes=(),
+                         calm_water_fit=CalmWaterFit(math.inf, math.inf, horizon_s), mismatch_reasons=(reason,),
+                         best_environmental_cause="")
     per_segment: dict[str, np.ndarray] = {}
     per_track: dict[str, np.ndarray] = {}
     fold_params: dict[str, tuple[dict[str, float], ...]] = {}
@@ -789,9 +793,11 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     if rejected and not mismatch:
         candidate_fit = fit_hypothesis(model, seg, top.hypothesis)
         return _inconclusive(
-            Diagnosis(INCONCLUSIVE, {}, {}, (), tuple(evidence), candidate_fit,
-                      (tuple(recordings[i].name for i in folds[0]), tuple(recordings[i].name for i in folds[1])),
-                      "", time.perf_counter() - started, tuple(notes), (), calm),
+            Diagnosis(cause=INCONCLUSIVE, parameters={}, uncertainty={}, confounded_with=(), evidence=tuple(evidence),
+                      fit=candidate_fit,
+                      folds=(tuple(recordings[i].name for i in folds[0]), tuple(recordings[i].name for i in folds[1])),
+                      message="", seconds=time.perf_counter() - started, notes=tuple(notes), additional_causes=(),
+                      calm_water_fit=calm),
             top.hypothesis, physical_parameters(top.hypothesis, candidate_fit.terms),
             f"{rejected}; with it the calm-water model leaves a held-out loss of {best_loss.mean():.3g} noise units "
             f"(it fits by the loss test)", model, seg)
@@ -831,10 +837,12 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                                _physical_uncertainty(further.cause, further_fit), further.heldout_loss,
                                further.evidence, further.gain, further.track_gain)
         message += "; " + further_reason
-    return Diagnosis(cause, parameters, uncertainty, confounded, tuple(evidence), final,
-                     (tuple(recordings[i].name for i in folds[0]), tuple(recordings[i].name for i in folds[1])),
-                     message, time.perf_counter() - started, tuple(notes), added, calm, tuple(mismatch),
-                     best_environmental, dropped_causes=drops, further_candidate=candidate,
+    return Diagnosis(cause=cause, parameters=parameters, uncertainty=uncertainty, confounded_with=confounded,
+                     evidence=tuple(evidence), fit=final,
+                     folds=(tuple(recordings[i].name for i in folds[0]), tuple(recordings[i].name for i in folds[1])),
+                     message=message, seconds=time.perf_counter() - started, notes=tuple(notes),
+                     additional_causes=added, calm_water_fit=calm, mismatch_reasons=tuple(mismatch),
+                     best_environmental_cause=best_environmental, dropped_causes=drops, further_candidate=candidate,
                      further_candidate_reason=further_reason if candidate is not None else "")
 
 

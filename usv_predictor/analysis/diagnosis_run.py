@@ -21,13 +21,25 @@ from usv_predictor.analysis.diagnosis_steps import DiagnosisSteps
 from usv_predictor.analysis.diagnosis_unexplained import (REPLACES, export_unexplained, measure_unexplained,
                                                           unexplained_answer)
 from usv_predictor.atomic import finite_or_none
-from usv_predictor.config import load_predictor_config
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import DatasetError, ModelError
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.models.greybox import hull_from_metadata, vessel_from_metadata
-from usv_predictor.physics.vessel import Vessel, load_vessel
+from usv_predictor.physics.vessel import Vessel
 
+
+
+@dataclasses.dataclass(frozen=True)
+class DiagnosisOptions:
+    """What a diagnosis run tries and writes (run_diagnosis)."""
+
+    hypotheses: tuple[str, ...] | None = None  # the causes tried (None: every hypothesis of the layout)
+    max_causes: int = 2  # at most this many causes named together (>= 1)
+    gain: bool = True  # measure the extended model on held-out manoeuvres, withdraw a cause that does not help
+    export: Path | None = None  # write the extended model (TorchScript artifact) there; None: no file
+    report: Path | None = None  # write report.md + plots into this directory; None: no report
+    fit_check: bool = True  # refuse a calm-water model that does not fit the bags at all (analysis/fit_check.py)
+    unexplained: bool = True  # with gain: try the learned residual of last resort when no physical cause is named
 
 
 class CalmWater(NamedTuple):
@@ -37,17 +49,19 @@ class CalmWater(NamedTuple):
 
 
 def calm_water_model(vessel: str | Path | None, model: Path | None, config: Path | None = None) -> CalmWater:
-    """The calm-water model of a diagnosis.
+    """The calm-water model of a diagnosis, what `replay diagnose` resolves at its boundary (its vessel by
+    models/loading.resolve_vessel, once).
 
     vessel: a preset name or vessel file (None: the model's vessel, the description it embeds or the preset it names;
     without a model the predictor config's); model: a grey-box artifact whose identified hull replaces the vessel's
     (ModelError when it carries anything else, or when `vessel` differs from the description it embeds).
     """
+    from usv_predictor.models.loading import resolve_vessel
+
     if model is None:
-        preset = load_vessel(vessel or load_predictor_config(config).vessel)
+        preset = resolve_vessel(vessel, config_path=config)
         return CalmWater(preset, "preset", preset)
     from usv_predictor.models.artifact import load_artifact
-    from usv_predictor.models.loading import model_vessel
 
     artifact = load_artifact(model)
     meta = artifact.metadata
@@ -57,7 +71,7 @@ def calm_water_model(vessel: str | Path | None, model: Path | None, config: Path
         raise ModelError(f"model {model}: diagnose needs a grey box without learned or extra terms "
                          f"(`replay identify --structure mmg`, or a small-craft structure), not model_type "
                          f"{meta.get('model_type')!r}; compare other models with `replay evaluate`")
-    preset = model_vessel(artifact, vessel, source=f"model {model}")
+    preset = resolve_vessel(vessel, model=artifact, source=f"model {model}")
     try:
         identified = vessel_from_metadata(meta, preset)
     except ValueError as err:
@@ -72,13 +86,12 @@ def calm_water_vessel(vessel: str | Path | None, model: Path | None, config: Pat
     return calm.vessel, calm.source
 
 
-def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, *, dt: float,
-                  hypotheses: Sequence[str] | None = None, max_causes: int = 2, horizon_s: float = 20.0,
-                  stride_s: float = 5.0, gain: bool = True, export: Path | None = None, report: Path | None = None,
-                  fit_check: bool = True, progress: Callable[[str], None] = lambda _: None,
-                  suited_steps: DiagnosisSteps | None = None, description: Vessel | None = None,
-                  unexplained: bool = True) -> dict[str, Any]:
-    """Diagnose `recordings` (resampled at dt) against the calm-water `vessel` (from `source`).
+def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, *, dt: float, horizon_s: float = 20.0,
+                  stride_s: float = 5.0, options: DiagnosisOptions = DiagnosisOptions(),
+                  progress: Callable[[str], None] = lambda _: None, suited_steps: DiagnosisSteps | None = None,
+                  description: Vessel | None = None) -> dict[str, Any]:
+    """Diagnose `recordings` (resampled at dt) against the calm-water `vessel` (from `source`), in segments of
+    horizon_s every stride_s (s), trying and writing what `options` say (DiagnosisOptions, the fields below).
 
     suited_steps: the steps that suit the vessel (analysis.diagnosis_steps), recorded in the JSON's `steps` with
     the ones used (they differ where the caller gave its own). description: the vessel file the calm-water model
@@ -92,6 +105,9 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     of last resort and answer `unexplained` when it lowers the held-out loss and track error
     (analysis/diagnosis_unexplained.py); --export then writes that hybrid.
     """
+    hypotheses, max_causes, gain, export, report = (options.hypotheses, options.max_causes, options.gain,
+                                                    options.export, options.report)
+    fit_check, unexplained = options.fit_check, options.unexplained
     if not recordings:
         raise DatasetError("no usable recording in the bags (see the warnings above)")
     missing = [r.name for r in recordings if vessel.layout == "rudder_propeller" and not (r.controls[:, 1] > 0).any()]

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -110,7 +110,16 @@ def calm_water_identification(vessel: Vessel, recordings: Sequence[Recording],
     return ident.IdentificationResult(vessel, fit, (), {}, data,
                                       ("calm-water model of `replay diagnose`, not re-identified: the learned residual "
                                        "of last resort (diagnosis `unexplained`) is trained on top of it",),
-                                      prior=description or vessel)
+                                      prior=description or vessel, trials=_trials(vessel))
+
+
+def _trials(vessel: Vessel) -> Mapping[str, str]:
+    """The table of the trials that would determine the coefficients of the vessel's hull model
+    (fitting/hull_models.HULL_FITS; the MMG hull's for a hull model identification does not know)."""
+    from usv_predictor.fitting.hull_models import HULL_FITS
+
+    known = HULL_FITS.get(vessel.hull_model_name)
+    return known.would_determine if known is not None else ident.WOULD_DETERMINE
 
 
 def _train(vessel: Vessel, recordings: Sequence[Recording], dt: float, config: hybrid_fit.HybridTraining,

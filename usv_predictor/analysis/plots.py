@@ -223,7 +223,7 @@ def turning_summary_figure(rows: Sequence[TurningRow], title: str) -> Figure:
 def force_decomposition_figure(result: IdentificationResult, k: int) -> Figure:
     """Seed 001 Fig. 13: hull / rudder / propeller decomposition and measured vs identified total over time,
     for manoeuvre k of an identification (X, Y in N, N in N m; the grey band: the part left out of the fit)."""
-    from usv_predictor.fitting.identification import hull_forces
+    from usv_predictor.fitting.hull_models import hull_forces
 
     d = result.data[k]
     values = result.fit.values()

@@ -455,7 +455,7 @@ def write_identification_report(directory: Path, result: IdentificationResult, o
     if used:
         from usv_predictor.fitting.identification import trials_text
 
-        lines[-1] += f" The trials that would determine them: {trials_text(used, result.vessel.hull_model_name)}."
+        lines[-1] += f" The trials that would determine them: {trials_text(used, result.trials)}."
     ex = result.excitation()
     if ex["beta_deg_p99"] is not None:
         lines += ["",

@@ -17,7 +17,7 @@ h^2/2); the Jacobian F = df/dx is taken numerically (9 columns at once). Process
     for the model error of the position kinematics.
 Measurement: z = [x_n, y_e, psi, u, v, r] (GNSS, compass, INS/DVL, gyro), H a selection; any NaN component of
 z (GNSS drop-out) is left out of that update (NaN-tolerant). A record without velocity or gyro (a GNSS receiver and
-a compass only, e.g. the Dalian USV of replay/convert.py) is smoothed from positions and heading alone: the
+a compass only, e.g. the Dalian USV of replay/convert/dalian.py) is smoothed from positions and heading alone: the
 kinematics [x_n, y_e]' = R(psi) [u, v] make u, v observable from the track and psi' = r makes r observable from the
 heading, so all three velocities come out of the smoother (over ground: a current is not removed).
 

@@ -53,7 +53,7 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import dataclass, field, replace
-from typing import Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -548,24 +548,19 @@ WOULD_DETERMINE: Mapping[str, str] = {
 }
 
 
-def would_determine(name: str, hull_model: str = "mmg") -> str:
-    """The trial that would determine coefficient `name` of a hull model (WOULD_DETERMINE, or the small-craft
-    table), for the message and JSON of a coefficient the data leave undetermined."""
-    if hull_model == "small_craft":
-        from usv_predictor.fitting.small_craft_identification import WOULD_DETERMINE as SMALL_CRAFT
-
-        table = SMALL_CRAFT
-    else:
-        table = WOULD_DETERMINE
+def would_determine(name: str, table: Mapping[str, str] = WOULD_DETERMINE) -> str:
+    """The trial that would determine coefficient `name` by a hull model's `table` (WOULD_DETERMINE, the MMG hull's;
+    each hull model's in fitting/hull_models.HULL_FITS), for the message and JSON of a coefficient the data leave
+    undetermined."""
     return table.get(name, "manoeuvres that excite it")
 
 
-def trials_text(names: Sequence[str], hull_model: str = "mmg") -> str:
+def trials_text(names: Sequence[str], table: Mapping[str, str] = WOULD_DETERMINE) -> str:
     """'N_r: turns ...; Y_r, N_v: zig-zags both ways': the coefficients grouped by the trial that would determine
-    them, in the order first named."""
+    them (by the hull model's `table`, as would_determine), in the order first named."""
     groups: dict[str, list[str]] = {}
     for name in names:
-        groups.setdefault(would_determine(name, hull_model), []).append(name)
+        groups.setdefault(would_determine(name, table), []).append(name)
     return "; ".join(f"{', '.join(held)}: {trial}" for trial, held in groups.items())
 
 
@@ -683,6 +678,8 @@ class IdentificationResult:
     actuator_coefficients: tuple[Coefficient, ...] = ()  # profiled actuator gains (rudder_throttle's map gain)
     prior: Vessel | None = None  # the vessel file identified (what the exported model embeds: models/artifact.py)
     interaction: dict | None = None  # how the interaction factors were searched (fitting/interaction.py), or None
+    trials: Mapping[str, str] = field(default_factory=lambda: WOULD_DETERMINE, repr=False)  # coefficient -> the
+    # trial that would determine it, the hull model's table (fitting/hull_models.HULL_FITS)
 
     @property
     def structure(self) -> str:
@@ -698,10 +695,10 @@ class IdentificationResult:
 
     def held(self) -> list[dict]:
         """Per coefficient these manoeuvres do not determine (prior_used): its name, value, the description's value,
-        how the prior set it and the trial that would determine it (WOULD_DETERMINE)."""
+        how the prior set it and the trial that would determine it (`trials`)."""
         return [{"name": c.name, "value": finite_or_none(c.estimate), "prior": finite_or_none(c.prior),
                  "how": PRIOR_HOW.get(c.status, f"prior policy {self.fit.prior_policy}"),
-                 "would_determine": would_determine(c.name, self.vessel.hull_model_name)}
+                 "would_determine": would_determine(c.name, self.trials)}
                 for c in self.coefficients() if not determined_by_data(c, self.fit.not_identifiable)]
 
     def held_message(self) -> str:
@@ -712,7 +709,7 @@ class IdentificationResult:
             return ""
         return (f"not determined by these manoeuvres, so the vessel file's values ({self.fit.prior_policy}): "
                 f"{', '.join(names)}; the trials that would determine them: "
-                f"{trials_text(names, self.vessel.hull_model_name)}")
+                f"{trials_text(names, self.trials)}")
 
     def excitation(self) -> dict:
         """The range of drift angle and non-dimensional yaw rate the data cover (what the identified terms are fitted
@@ -902,25 +899,25 @@ def profile_throttle_gain(vessel: Vessel, data: Sequence[ForceData], structure: 
 def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str = "auto", prior: str = "none",
              smoother: SmootherConfig = SmootherConfig(), rel_ci_limit: float = REL_CI_LIMIT,
              data: Sequence[ForceData] | None = None, interaction: str = "fix",
-             progress: Callable[[str], None] | None = None) -> IdentificationResult:
+             progress: Callable[[str], None] | None = None,
+             search_interaction: Callable[..., Any] | None = None) -> IdentificationResult:
     """Smoother -> inverse dynamics -> regression of each candidate structure -> CV -> identified vessel.
 
     structure "auto" fits mmg and abkowitz and keeps abkowitz only if its CV error is lower by more than 5 %
-    (the simpler structure wins ties: its coefficients are those the grey box and the preset share). A small-craft
-    hull (twin thrusters) goes to fitting/small_craft_identification.py (structures diagonal / coupled). The
-    actuator layout decides the levels and what is held (module docstring, "Actuator layouts").
+    (the simpler structure wins ties: its coefficients are those the grey box and the preset share). The MMG hull
+    only: fitting/hull_models.identify dispatches by hull model (a small-craft hull, twin thrusters, to
+    fitting/small_craft_identification.py: structures diagonal / coupled). The actuator layout decides the levels and
+    what is held (module docstring, "Actuator layouts").
     interaction "identify" (rudder_propeller only): the rudder lift gradient, gamma_R, eta, w_P0 and t_P are searched
-    with the hull (fitting/interaction.py) and replace the description's when the held-out simulation says so;
+    with the hull by `search_interaction` (fitting/interaction.identify_interaction; fitting/hull_models.identify
+    gives it) and replace the description's when the held-out simulation says so;
     "fix" (default): held at the description's values (docs/results/unknown_boats.md: identify gives more right answers
     on unknown boats but also confident wrong ones, so it is not the default yet).
     """
     prior_vessel = vessel  # the vessel file as given (what the exported model embeds); `vessel` may take fitted gains
-    if vessel.hull_model_name == "small_craft":
-        from usv_predictor.fitting.small_craft_identification import identify_small_craft
-
-        return replace(identify_small_craft(vessel, recordings, structure=structure, prior=prior, smoother=smoother,
-                                            rel_ci_limit=rel_ci_limit, data=data, progress=progress),
-                       prior=prior_vessel)
+    if vessel.hull_model_name != "mmg":
+        raise ConfigError(f"vessel {vessel.name}: identification.identify fits the MMG hull; the "
+                          f"{vessel.hull_model_name} hull is identified through fitting/hull_models.identify")
     if vessel.layout == "twin_thrusters":
         raise ConfigError(f"vessel {vessel.name}: identification of twin thrusters needs the small_craft hull model "
                           "(the MMG hull is singular at the low speeds a twin-thruster boat turns at)")
@@ -967,10 +964,11 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
         gains = (gain,)
     searched = None
     if vessel.layout == "rudder_propeller" and interaction == "identify":
-        from usv_predictor.fitting.interaction import identify_interaction
-
+        if search_interaction is None:
+            raise ConfigError("interaction 'identify' needs the search of the interaction factors "
+                              "(fitting/interaction.identify_interaction, given by fitting/hull_models.identify)")
         u0 = float(np.median(np.concatenate([d.nu[:, 0] for d in forces])))
-        searched = identify_interaction(vessel, forces, recordings, "mmg", "fix", u0, held=held, progress=progress)
+        searched = search_interaction(vessel, forces, recordings, "mmg", "fix", u0, held=held, progress=progress)
         notes.append(searched.note())
         if searched.accepted:
             vessel = searched.vessel
@@ -999,11 +997,10 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
 
 def hull_forces(vessel: Vessel, values: Mapping[str, float], nu: np.ndarray, u0: float,
                 names: Sequence[str] | None = None) -> np.ndarray:
-    """(T, 3) hull [X, Y, N] of coefficient `values` (any structure) at velocities nu (N, N, N m)."""
-    if vessel.hull_model_name == "small_craft":
-        from usv_predictor.fitting.small_craft_identification import hull_forces as small_craft_forces
-
-        return small_craft_forces(vessel, values, nu, names)
+    """(T, 3) MMG hull [X, Y, N] of coefficient `values` (any structure) at velocities nu (N, N, N m)."""
+    if vessel.hull_model_name != "mmg":
+        raise ConfigError(f"vessel {vessel.name}: identification.hull_forces is the MMG hull's; the "
+                          f"{vessel.hull_model_name} hull's forces are fitting/hull_models.hull_forces")
     g = vessel.geometry
     q = 0.5 * 1025.0 * g.L_pp * g.d
     u, v, r = nu[:, 0], nu[:, 1], nu[:, 2]

@@ -331,7 +331,7 @@ def problems(fit: JointFit, rel_ci_limit: float = REL_CI_LIMIT) -> dict[str, str
 
 # The trial that would determine each small-craft coefficient the data may leave undetermined (refused, held at or
 # pulled to the vessel file's value): one record per coefficient, beside the hold decision (fit_small_craft), said in
-# identify's message and JSON (`held[].would_determine`, identification.would_determine). The surge damping and the
+# identify's message and JSON (`held[].would_determine`, IdentificationResult.trials). The surge damping and the
 # ahead gains need two speeds (thrust and damping balance at each), the reverse gains commands astern, the linear
 # sway and yaw terms both signs of v and r (zig-zags both ways), N_r apart from N_rr two yaw rates (two
 # differentials), N_rr and the cross-flow drag high yaw rates (a hard turn).
@@ -352,7 +352,7 @@ WOULD_DETERMINE: Mapping[str, str] = {
 
 def _message(found: Mapping[str, str], fit: JointFit, manoeuvres: Sequence[str]) -> str:
     pairs = [f"{a}~{b} (rho {rho:+.2f})" for e in fit.equations for a, b, rho in e.collinearity.pairs]
-    listed = "; ".join(f"{n}: {why}, would be determined by {would_determine(n, 'small_craft')}"
+    listed = "; ".join(f"{n}: {why}, would be determined by {would_determine(n, WOULD_DETERMINE)}"
                        for n, why in found.items())
     return (f"small-craft coefficients not identifiable from {len(manoeuvres)} manoeuvre(s) ({', '.join(manoeuvres)}): "
             f"{listed} (a 95 % CI wider than {REL_CI_LIMIT:.0%} of their size, no excitation, or the wrong sign)"
@@ -466,7 +466,7 @@ def identify_small_craft(vessel: Vessel, recordings: Sequence[Recording], *, str
                          rel_ci_limit: float = REL_CI_LIMIT, data: Sequence[ForceData] | None = None,
                          progress: Callable[[str], None] | None = None) -> IdentificationResult:
     """Smoother -> inverse dynamics -> the joint regression of each candidate structure -> CV -> identified vessel
-    (identification.identify for a small-craft hull)."""
+    (the small-craft record of fitting/hull_models.HULL_FITS)."""
     _check_layout(vessel)
     if structure not in STRUCTURES + ("auto",):
         raise ConfigError(f"unknown model structure {structure!r} for the small-craft hull of {vessel.name}; use one "
@@ -500,7 +500,7 @@ def identify_small_craft(vessel: Vessel, recordings: Sequence[Recording], *, str
     identified = identified_vessel(vessel, fit)
     forces = [replace(f, rudder=st, propeller=pr)
               for f, (st, pr) in ((f, known_forces(identified, f.nu, f.controls)) for f in forces)]
-    return IdentificationResult(identified, fit, tuple(cvs), {}, tuple(forces), tuple(notes))
+    return IdentificationResult(identified, fit, tuple(cvs), {}, tuple(forces), tuple(notes), trials=WOULD_DETERMINE)
 
 
 def with_exponent(vessel: Vessel, exponent: float) -> Vessel:

@@ -274,25 +274,6 @@ def _pool(threads: int) -> ThreadPoolExecutor:
     return _POOLS[threads]
 
 
-def warm_up(vessel: Any, dt: float) -> float:
-    """Compile (or load from numba's cache) every kernel entry a process may call for this vessel: the rollout, on a
-    two-step batch of its calm-water grey box, and the float model's forces and accelerations. Returns the seconds it
-    took (~15 s the first time on a 2-core machine, well under one with a warm cache). The node calls it before its
-    first cycle: compiling holds the GIL, and inside a cycle it would stall the node."""
-    import time
-
-    from usv_predictor.models.greybox import GreyBoxRollout
-    from usv_predictor.physics.dynamics import ManoeuvringModel
-
-    started = time.perf_counter()
-    kernel = KernelRollout(GreyBoxRollout(vessel, dt))
-    kernel.rollout(np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 2, kernel.n_controls)))
-    model = ManoeuvringModel(vessel)
-    model.accelerations(0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
-    model.loads(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
-    return time.perf_counter() - started
-
-
 def check_equal(kernel: KernelRollout, module: Any, metadata: Mapping[str, Any], rtol: float = 1e-6) -> float:
     """The largest difference between the kernel's and the module's predictions on a probe (three starts, PROBE_STEPS
     steps with the controls swept through the layout's range), relative to each output column's scale;

@@ -188,20 +188,38 @@ def check_dt(model: HasMetadata, dt: float, what: str) -> None:
                          f"has dt={dt:g} s; resample the data at {expected:g} s or use a model trained at {dt:g} s")
 
 
-def physics_predictor(vessel: str | Vessel, dt: float) -> GreyBoxPredictor:
-    """The calm-water physics baseline: the vessel preset's grey box (usv_predictor.models.greybox), no sea terms.
+def physics_predictor(vessel: Vessel, dt: float) -> GreyBoxPredictor:
+    """The calm-water physics baseline: the vessel's grey box (usv_predictor.models.greybox), no sea terms.
 
     It knows nothing of current, wind or waves, so it is the baseline a learned model must beat at sea. The
     recorded rudder angle and engine speed drive it as the actuator states (they are feedback, not commands).
-    `vessel` is a preset name or a Vessel.
     """
     from usv_predictor.models.greybox import greybox_predictor
-    from usv_predictor.physics.vessel import load_vessel
 
     if not dt > 0.0:
         raise ModelError(f"physics predictor step dt={dt} s must be > 0")
     config.FLOAT_RANGES["dt"].check("dt", dt, "physics predictor step")
-    return greybox_predictor(load_vessel(vessel) if isinstance(vessel, str) else vessel, dt)
+    return greybox_predictor(vessel, dt)
+
+
+def resolve_vessel(given: str | Path | Vessel | None = None, *, model: HasMetadata | None = None,
+                   config_path: str | Path | None = None, option: str = "--vessel",
+                   source: str | None = None) -> Vessel:
+    """The one vessel of a command or of the node, resolved once at its boundary; every library function below
+    takes the Vessel.
+
+    given: a preset name, a vessel YAML file or a Vessel; None: the model's (the description it embeds, else the
+    preset its metadata names) or, without a model, the predictor config's `vessel` (config_path; None: the shipped
+    config/predictor.yaml). With a model, a given vessel that differs from the description it embeds is refused
+    (model_vessel: `option` and `source` name the given vessel and the model in that message).
+    """
+    from usv_predictor.physics.vessel import Vessel, load_vessel
+
+    if model is not None:
+        return model_vessel(model, given, option=option, source=source)
+    if isinstance(given, Vessel):
+        return given
+    return load_vessel(given if given is not None else config.load_predictor_config(config_path).vessel)
 
 
 def model_vessel(model: HasMetadata, given: str | Path | Vessel | None = None, *, option: str = "--vessel",
@@ -261,8 +279,8 @@ def load_model(spec: str | None, *, dt: float | None = None, vessel: str | None 
     if physics and is_physics(spec):
         assert spec is not None
         name = spec.partition(":")[2] or vessel
-        defaults = config.load_predictor_config() if name is None or dt is None else None
-        return physics_predictor(name or defaults.vessel, dt if dt is not None else defaults.dt)
+        step = dt if dt is not None else config.load_predictor_config().dt
+        return physics_predictor(resolve_vessel(name), step)
     path = Path(spec).expanduser() if spec else default_model_path(option, physics)
     if not path.is_file():
         raise ModelError(f"{option} {path}: no such model file")
@@ -345,3 +363,26 @@ def with_nomoto_rollout(model: ModelArtifact) -> ModelArtifact:
     except (ModelError, ConfigError, KeyError, ValueError) as err:
         return dataclasses.replace(model, inference_note=f"the file's rollout (not compiled: {err})")
     return dataclasses.replace(model, inference=fast, inference_note=NUMPY_FORM)
+
+
+def warm_up(vessel: Vessel, dt: float) -> float:
+    """Compile (or load from numba's cache) every kernel entry (models/kernel_rollout.py) a process may call for this
+    vessel: the rollout, on a two-step batch of its calm-water grey box, and the float model's forces and
+    accelerations. Returns the seconds it
+    took (~15 s the first time on a 2-core machine, well under one with a warm cache). The node calls it before its
+    first cycle: compiling holds the GIL, and inside a cycle it would stall the node."""
+    import time
+
+    import numpy as np
+
+    from usv_predictor.models.greybox import GreyBoxRollout
+    from usv_predictor.models.kernel_rollout import KernelRollout
+    from usv_predictor.physics.dynamics import ManoeuvringModel
+
+    started = time.perf_counter()
+    kernel = KernelRollout(GreyBoxRollout(vessel, dt))
+    kernel.rollout(np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 2, kernel.n_controls)))
+    model = ManoeuvringModel(vessel)
+    model.accelerations(0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+    model.loads(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+    return time.perf_counter() - started

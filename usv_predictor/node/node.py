@@ -95,14 +95,14 @@ from usv_predictor.config import (
 from usv_predictor.data.recording import PLAUSIBLE
 from usv_predictor.errors import AdapterError, ConfigError, ModelError, RecordingError, UsvPredictorError, one_line
 from usv_predictor.fitting.online import OnlineConfig
-from usv_predictor.models import kernel_rollout, loading
+from usv_predictor.models import loading
 from usv_predictor.models.artifact import metadata_differences
 from usv_predictor.models.families import MODEL_FAMILIES, family_name
 from usv_predictor.node import EXIT_CODES, EXIT_INTERRUPTED, EXIT_OK, STOP_SIGNALS, live, plans, sea
 from usv_predictor.node.fit import MAX_GAP_S as FIT_MAX_GAP_S
 from usv_predictor.node.fit import PERIOD_RANGE_S, CycleGap, FitCheckSettings, LiveFitCheck
 from usv_predictor.physics.actuators import ActuatorLayout, check_layout_inputs, unused_roles
-from usv_predictor.physics.vessel import Vessel, load_vessel, vessel_preset_exists
+from usv_predictor.physics.vessel import Vessel, vessel_preset_exists
 from usv_predictor.records import NS_PER_S
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
@@ -288,7 +288,7 @@ def load_model(model_path: str, config: PredictorConfig, vessel: Vessel | None =
     artifact = loading.load_model(model_path, expect={"dt": config.dt}, option="model_path", physics=False,
                                   deadline=cycle_deadline(config), abandon=abandon)
     source = f"model {artifact.path}"
-    chosen = loading.model_vessel(artifact, vessel or config.vessel, option="vessel", source=source)
+    chosen = loading.resolve_vessel(vessel or config.vessel, model=artifact, option="vessel", source=source)
     diffs = metadata_differences(artifact.metadata, {"vessel": config.vessel,
                                                      "control_layout": list(chosen.actuator_layout.control_names)})
     if diffs:
@@ -365,15 +365,18 @@ class PredictorNode(Node):
         self._workers: WorkerPools | None = None
         defaults_path = Path(config_path) if config_path is not None else default_config_path()
         self.config = self._declare_parameters(defaults_path)
-        if vessel_preset_exists(self.config.vessel):  # the configuration's own errors before the model's
-            self._layout_inputs(load_vessel(self.config.vessel).actuator_layout)
+        # the vessel, resolved once (models/loading.resolve_vessel): the configured preset, else (none installed of
+        # that name) the description the model embeds under that name
+        configured = loading.resolve_vessel(self.config.vessel) if vessel_preset_exists(self.config.vessel) else None
+        if configured is not None:  # the configuration's own errors before the model's
+            self._layout_inputs(configured.actuator_layout)
         # the model and its vessel (ModelError, ConfigError: fatal at start-up); the vessel's actuator layout says
         # which inputs are read
-        self.rollout, self.vessel = load_model(self.config.model_path, self.config, abandon=stopping)
+        self.rollout, self.vessel = load_model(self.config.model_path, self.config, configured, abandon=stopping)
         self.layout = self.vessel.actuator_layout
         # the compiled grey-box kernel (the fit check's causes, a grey box's rollout) compiled or loaded now, never in
         # a cycle or in the fit check's worker (compiling holds the GIL)
-        self.kernel_warm_up_s = kernel_rollout.warm_up(self.vessel, self.config.dt)
+        self.kernel_warm_up_s = loading.warm_up(self.vessel, self.config.dt)
         self._check_stopping("after the kernel's warm-up")
         # every control role of the layout configured (ConfigError naming the roles and the layout: fatal); the
         # control roles of other layouts (the shipped config lists every layout's) are ignored: logged once here,

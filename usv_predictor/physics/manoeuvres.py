@@ -12,12 +12,14 @@ Two families state the commands differently:
       throttle p (twin_thrusters: port = p + d/2, starboard = p - d/2), names like turning_circle_stbd_d0.4_p0.6.
       A zig-zag of a twin boat reverses its differential at the check heading.
 The factories turning_circle(), zigzag(), ... pick the family of a layout; programmes() the trial programmes.
+MANOEUVRE_KINDS is the one record per kind: its data spelling (turning_circle), its `replay simulate --manoeuvre`
+spelling (turning-circle) and how it is built, and whether converted public records have it.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Mapping
 
 import numpy as np
 
@@ -392,6 +394,64 @@ def random_manoeuvre(layout: ActuatorLayout, seed: int, propulsion: float, turn_
     if _legacy(layout):
         return RandomManoeuvre(seed=seed, rpm=propulsion, rudder_max_deg=turn_max, **extra)
     return CommandRandom(layout.name, seed=seed, propulsion=propulsion, turn_max=turn_max, **extra)
+
+
+def _built_turning_circle(layout: ActuatorLayout, turn: float, propulsion: float, side: int, check_deg: float,
+                          seed: int, extra: Mapping[str, float]) -> object:
+    return turning_circle(layout, turn, propulsion, side=side, **extra)
+
+
+def _built_zigzag(layout: ActuatorLayout, turn: float, propulsion: float, side: int, check_deg: float, seed: int,
+                  extra: Mapping[str, float]) -> object:
+    return zigzag(layout, turn, check_deg, propulsion, side=side, **extra)
+
+
+def _built_pullout(layout: ActuatorLayout, turn: float, propulsion: float, side: int, check_deg: float, seed: int,
+                   extra: Mapping[str, float]) -> object:
+    return pullout(layout, turn, propulsion, side=side, **extra)
+
+
+def _built_spiral(layout: ActuatorLayout, turn: float, propulsion: float, side: int, check_deg: float, seed: int,
+                  extra: Mapping[str, float]) -> object:
+    """Steps of 1, 0.6, 0.3, 0.15 and 0 x turn, then back through the negative ones (its own step durations)."""
+    steps = (turn, 0.6 * turn, 0.3 * turn, 0.15 * turn, 0.0)
+    return spiral(layout, steps + tuple(-d for d in reversed(steps[:-1])), propulsion)
+
+
+def _built_random(layout: ActuatorLayout, turn: float, propulsion: float, side: int, check_deg: float, seed: int,
+                  extra: Mapping[str, float]) -> object:
+    return random_manoeuvre(layout, seed, propulsion, turn, **extra)
+
+
+@dataclass(frozen=True)
+class ManoeuvreKind:
+    name: str  # the data spelling: the manoeuvre names' prefix and a bag's custom_data manoeuvre_type
+    option: str | None  # the command-line spelling (`replay simulate --manoeuvre`); None: never simulated
+    # (layout, turn, propulsion, side, check_deg, seed, extra) -> one manoeuvre of the layout's family, turn and
+    # propulsion in the layout's input units, check_deg (deg) a zig-zag's, extra e.g. duration_s; None: not simulated
+    build: Callable[..., object] | None
+    converted: bool  # a record `replay convert` writes from a public data set may be of this kind
+
+
+# One record per manoeuvre kind: `replay simulate --manoeuvre` (option), the converted records' manoeuvre_type (name)
+MANOEUVRE_KINDS: Mapping[str, ManoeuvreKind] = {k.name: k for k in (
+    ManoeuvreKind("turning_circle", "turning-circle", _built_turning_circle, converted=True),
+    ManoeuvreKind("zigzag", "zigzag", _built_zigzag, converted=True),
+    ManoeuvreKind("pullout", "pullout", _built_pullout, converted=True),
+    ManoeuvreKind("spiral", "spiral", _built_spiral, converted=False),
+    ManoeuvreKind("random", "random", _built_random, converted=False),
+    ManoeuvreKind("path_following", None, None, converted=True),  # the Dalian USV's records (replay/convert)
+)}
+SIMULATED_OPTIONS = tuple(k.option for k in MANOEUVRE_KINDS.values() if k.option is not None)  # CLI spellings
+CONVERTED_KINDS = tuple(k.name for k in MANOEUVRE_KINDS.values() if k.converted)  # data spellings
+
+
+def simulated_kind(option: str) -> ManoeuvreKind:
+    """The kind `replay simulate --manoeuvre OPTION` names; ValueError listing SIMULATED_OPTIONS otherwise."""
+    for kind in MANOEUVRE_KINDS.values():
+        if kind.option == option and kind.build is not None:
+            return kind
+    raise ValueError(f"--manoeuvre {option!r}: expected one of {', '.join(SIMULATED_OPTIONS)}")
 
 
 def sea_trial_turns(duration_s: float = 180.0) -> list[TurningCircle]:

@@ -22,10 +22,12 @@ OUTPUTS = {"output": "dir"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from usv_predictor.replay.convert.formats import FORMATS
+
     parser.add_argument("sources", nargs="+", type=Path, metavar="SOURCE_DIR_OR_FILE",
                         help="data directories (e.g. ../shared/data/raw/kvlcc2_hsva_simman2008) or manoeuvre files")
     parser.add_argument("--output", type=Path, required=True, help="directory for the bags (one per manoeuvre)")
-    parser.add_argument("--format", choices=("auto", "hsva", "marin", "fuzhou", "dalian"), default="auto",
+    parser.add_argument("--format", choices=("auto", *FORMATS), default="auto",
                         help="input format (default auto: from the file names)")
     parser.add_argument("--storage", choices=("sqlite3", "mcap"), default="sqlite3",
                         help="rosbag2 storage (default sqlite3)")

@@ -106,16 +106,18 @@ def _command_line(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> dict:
-    from usv_predictor.replay.dataset import dataset_from_bags
+    from usv_predictor.models.loading import resolve_vessel
+    from usv_predictor.replay.dataset import DatasetRequest, dataset_from_bags
 
-    result = dataset_from_bags(
-        args.bags, args.output, features=args.features, dt=args.dt, segment=args.segment,
+    request = DatasetRequest(
+        bags=tuple(args.bags), output=args.output, features=args.features, dt=args.dt, segment=args.segment,
         val=_fraction_or_globs(args.val, "--val", 0.2), test=_fraction_or_globs(args.test, "--test", 0.0),
-        train=args.train, seed=args.seed, config=args.config, topics=_topics(args.topic),
+        train=tuple(args.train), seed=args.seed, config=args.config, topics=_topics(args.topic),
         include_calm=args.include_calm, min_duration_s=args.min_duration, jobs=args.jobs, horizon_s=args.horizon,
-        provenance=_command_line(args), vessel=args.vessel,
+        provenance=_command_line(args))
+    result = dataset_from_bags(request, resolve_vessel(args.vessel, config_path=args.config),
                                warn=lambda message: print(f"replay {NAME}: warning: {message}", file=sys.stderr),
-        progress=log)
+                               progress=log)
     _print_table(result)
     return result
 

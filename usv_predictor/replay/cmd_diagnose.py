@@ -77,10 +77,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict:
-    from usv_predictor.replay.diagnose import diagnose_bags
+    from usv_predictor.analysis.diagnosis_run import DiagnosisOptions, calm_water_model
+    from usv_predictor.replay.diagnose import DiagnoseRequest, diagnose_bags
 
-    return diagnose_bags(args.bags, vessel=args.vessel, model=args.model, dt=args.dt, hypotheses=args.hypotheses,
-                         max_causes=args.max_causes, horizon_s=args.horizon, stride_s=args.stride,
-                         gain=not args.no_gain, export=args.export, report=args.report,
-                         include_calm=args.include_calm, config=args.config, fit_check=not args.no_fit_check,
-                         scale=args.scale, unexplained=not args.no_unexplained, progress=log)
+    options = DiagnosisOptions(hypotheses=None if args.hypotheses is None else tuple(args.hypotheses),
+                               max_causes=args.max_causes, gain=not args.no_gain, export=args.export,
+                               report=args.report, fit_check=not args.no_fit_check,
+                               unexplained=not args.no_unexplained)
+    request = DiagnoseRequest(bags=tuple(args.bags), dt=args.dt, horizon_s=args.horizon, stride_s=args.stride,
+                              include_calm=args.include_calm, config=args.config, scale=args.scale, options=options)
+    return diagnose_bags(request, calm_water_model(args.vessel, args.model, args.config), progress=log)

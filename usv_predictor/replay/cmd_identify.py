@@ -88,7 +88,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     from usv_predictor.fitting.hybrid_fit import HybridTraining
-    from usv_predictor.replay.identify import identify_bags
+    from usv_predictor.replay.identify import IdentifyRequest, identification_vessel, identify_bags
 
     if args.family != "greybox":
         from usv_predictor.errors import DatasetError
@@ -104,7 +104,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             config=args.config, scale=args.scale), progress=log)
 
     training = HybridTraining(members=args.hybrid_members, epochs=args.hybrid_epochs) if args.hybrid else None
-    return identify_bags(args.bags, args.output, vessel=args.vessel, structure=args.structure, prior=args.prior,
-                         interaction=args.interaction,
-                         hybrid=training, dt=args.dt, validation=args.val, report=args.report, blocks=args.blocks,
-                         config=args.config, scale=args.scale, base=args.base, progress=log)
+    request = IdentifyRequest(bags=tuple(args.bags), output=args.output, structure=args.structure, prior=args.prior,
+                              interaction=args.interaction, hybrid=training, dt=args.dt, validation=args.val,
+                              report=args.report, blocks=args.blocks, config=args.config, scale=args.scale,
+                              base=args.base)
+    vessel, base = identification_vessel(request, args.vessel)
+    return identify_bags(request, vessel, base, progress=log)

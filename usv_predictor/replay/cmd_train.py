@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     )  # fmt: skip
     from usv_predictor.models.dnn import DnnConfig, export
     from usv_predictor.physics.actuators import actuator_layout
-    from usv_predictor.physics.vessel import load_vessel
+    from usv_predictor.models.loading import resolve_vessel
 
     dataset = load_dataset(args.dataset)
     feature_set = args.features or dataset.feature_set
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                             lr_schedule=args.lr_schedule, weight_decay=args.l2, patience=args.patience or None,
                             multi_step=args.multi_step, ensemble=args.ensemble, seed=args.seed, threads=args.threads)
     predictor = load_predictor_config()
-    vessel = load_vessel(args.vessel or predictor.vessel)  # embedded in the model
+    vessel = resolve_vessel(args.vessel)  # embedded in the model (None: the predictor config's)
     layout = actuator_layout(dataset.control_layout)  # the bags' layout, stored by `replay dataset`
     if vessel.actuator_layout.name != layout.name:
         raise ConfigError(f"{args.dataset}: the dataset's control layout is {layout.name} {list(layout.control_names)}"

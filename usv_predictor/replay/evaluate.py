@@ -95,19 +95,20 @@ def evaluation_vessel(vessel: str | None, model: Any, source: str) -> Any:
     a vessel file; refused in one line when the model embeds a description that differs), else the description the
     model embeds, else the preset its metadata names; None for a model of before (name only) whose vessel is no
     preset here and no --vessel (the bags are then read with the config's vessel, the fit check has no length)."""
-    from usv_predictor.models.loading import model_vessel
+    from usv_predictor.models.loading import resolve_vessel
     from usv_predictor.physics.vessel import load_vessel
 
+    given = None
     if vessel is not None:
         try:
-            given = load_vessel(vessel)
+            given = load_vessel(vessel)  # read once here, resolved against the model below
         except ConfigError:  # no such preset: perhaps the name of the vessel the model embeds (model_vessel)
             given = None
         if given is not None and (list(given.actuator_layout.control_names)
                                   != list(model.metadata.get("control_layout", []))):
             return given  # another layout altogether: bags_layout says so, naming both
     try:
-        return model_vessel(model, vessel, source=f"model {source}")
+        return resolve_vessel(given if given is not None else vessel, model=model, source=f"model {source}")
     except ConfigError:
         if vessel is not None or getattr(model, "embedded_vessel", None) is not None:
             raise
@@ -117,10 +118,9 @@ def evaluation_vessel(vessel: str | None, model: Any, source: str) -> Any:
 def bags_layout(vessel: Any, metadata: Mapping[str, Any], source: str, config: Path | None = None) -> Any:
     """The actuator layout the bags are read with: of `vessel` (evaluation_vessel), else of the config's vessel;
     EvaluationError (one line naming both) when the model's control_layout is not that layout's."""
-    from usv_predictor.config import load_predictor_config
-    from usv_predictor.physics.vessel import load_vessel
+    from usv_predictor.models.loading import resolve_vessel
 
-    preset = vessel if vessel is not None else load_vessel(load_predictor_config(config).vessel)
+    preset = vessel if vessel is not None else resolve_vessel(config_path=config)
     layout = preset.actuator_layout
     controls = list(metadata.get("control_layout", []))
     if controls != list(layout.control_names):
@@ -137,7 +137,7 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
     from usv_predictor import __version__
     from usv_predictor.analysis import evaluation
     from usv_predictor.models import loading
-    from usv_predictor.replay.recordings import load_recordings
+    from usv_predictor.replay.recordings import Pieces, load_recordings
 
     model = loading.load_model(request.model, dt=request.dt)
     dt = loading.model_dt(model)
@@ -147,9 +147,10 @@ def evaluate_bags(request: EvaluationRequest, progress: Callable[[str], None] = 
     source = request.model or str(loading.default_model_path())
     vessel = evaluation_vessel(request.vessel, model, source)
     layout = bags_layout(vessel, model.metadata, source, config=request.config)
-    recordings = load_recordings(bags, dt, config_path=request.config, include_calm=request.include_calm,
+    recordings = load_recordings(bags, dt, config_path=request.config,
+                                 pieces=Pieces(include_calm=request.include_calm, scale=request.scale),
                                  warn=lambda m: progress(f"warning: {m}"), progress=progress, layout=layout,
-                                 scale=request.scale)
+                                 vessel_name=vessel.name if vessel is not None else "")
     if not recordings:
         raise BagError(f"no usable recording in {', '.join(map(str, bags))} (see the warnings above)")
     if not loading.is_physics(request.model):  # a model file's code: timed over the longest horizon a recording has

@@ -5,6 +5,7 @@ from __future__ import annotations
 import glob
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -13,24 +14,26 @@ from usv_predictor.errors import BagError, DatasetError
 
 if TYPE_CHECKING:
     from usv_predictor.fitting.hybrid_fit import HybridTraining
+    from usv_predictor.physics.vessel import Vessel
 
 
 def identification_recordings(paths: Sequence[Path], dt: float, progress: Callable[[str], None] = lambda _: None,
                                config: Path | None = None, *, layout: Any = None, blocks: int = 1,
-                               scale: float = 1.0) -> list:
+                               scale: float = 1.0, vessel_name: str = "") -> list:
     """The recordings of `paths` at step dt (topics of `config`, default the shipped predictor.yaml), read with the
     vessel's actuator `layout` (physics/actuators.py; None: rudder_propeller); a bag without engine speed is a
     DatasetError saying why it matters. blocks > 1 cuts each recording into that many contiguous pieces of equal
     length, NAME~1, NAME~2, ... (blocked cross-validation of a single long record: each piece is held out in turn).
-    scale: Froude scale L_bags / L_vessel (replay.recordings.load_recordings; 1: none)."""
+    scale: Froude scale L_bags / L_vessel (replay.recordings.load_recordings; 1: none). vessel_name: the vessel they
+    are read as (load_recordings)."""
     from usv_predictor.physics.actuators import DEFAULT_LAYOUT
-    from usv_predictor.replay.recordings import load_recordings, slice_recording
+    from usv_predictor.replay.recordings import Pieces, load_recordings, slice_recording
 
     if blocks < 1:
         raise DatasetError(f"--blocks {blocks}: expected a whole number >= 1")
     try:
         recordings = load_recordings(paths, dt, config_path=config, progress=progress, layout=layout or DEFAULT_LAYOUT,
-                                     scale=scale)
+                                     pieces=Pieces(scale=scale), vessel_name=vessel_name)
     except BagError as err:
         if "engine_rpm" in str(err):
             raise DatasetError(f"identification needs the engine speed (engine_rpm): without it the propeller thrust "
@@ -49,45 +52,77 @@ def identification_recordings(paths: Sequence[Path], dt: float, progress: Callab
     return pieces
 
 
-def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, structure: str = "auto",
-                  prior: str = "none", hybrid: HybridTraining | None = None, dt: float = 0.2,
-                  validation: str | None = None, report: Path | None = None, blocks: int = 1,
-                  config: Path | None = None, scale: float = 1.0, base: Path | None = None,
-                  interaction: str | None = None, progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
-    """Identify the hull (and what the layout lets the data set: thrust gains, engine speeds) of the vessel file
-    `vessel` (a preset name or a YAML path) from `bags`, read with its actuator layout (structure mmg / abkowitz /
-    diagonal / coupled / auto, prior none / fix / ridge), export the grey box (with hybrid, a
-    fitting.hybrid_fit.HybridTraining: plus a learned residual trained so)
-    to `output`; validation: a glob of bags only evaluated; report: a directory for summary.md and the force plots;
-    blocks: pieces per recording for cross-validation; config: the predictor.yaml whose topics are read (default
-    the shipped one); scale: Froude scale L_bags / L_vessel, the bags scaled to the vessel's size (1: none).
-    base: with hybrid, a grey-box artifact (`replay diagnose --export`'s extended model, or an earlier `replay
-    identify`) whose hull and extension terms are kept, the residual trained on top of them (hybrid_on_base); the
-    hull is then not identified again. interaction: identify / fix the rudder_propeller interaction factors
-    (fitting/interaction.py; None: identify, the default; with `base` it must stay None). The
-    result of `replay identify`."""
-    from usv_predictor.analysis.evaluation import evaluate
-    from usv_predictor.fitting import hybrid_fit, identification
-    from usv_predictor.physics.vessel import load_vessel
+@dataclass(frozen=True)
+class IdentifyRequest:
+    """What `replay identify` identifies from which bags, how, and what it writes (option combinations checked)."""
 
+    bags: tuple[Path, ...]  # bag files or directories of bags
+    output: Path  # the grey-box (or hybrid) artifact written
+    structure: str = "auto"  # mmg / abkowitz / diagonal / coupled / auto (fitting/identification.py)
+    prior: str = "none"  # none / fix / ridge: what a coefficient the data leave undetermined becomes
+    hybrid: HybridTraining | None = None  # also train a learned residual so (fitting.hybrid_fit); None: grey box only
+    dt: float = 0.2  # the model's step (s)
+    validation: str | None = None  # a glob of bags only evaluated; None: no validation
+    report: Path | None = None  # a directory for summary.md and the force plots; None: no report
+    blocks: int = 1  # pieces per recording for blocked cross-validation of a single long record
+    config: Path | None = None  # predictor.yaml whose topics are read; None: the shipped one
+    scale: float = 1.0  # Froude scale L_bags / L_vessel, the bags scaled to the vessel's size (1: none)
+    base: Path | None = None  # with hybrid: a grey-box artifact whose hull and terms are kept (hybrid_on_base)
+    interaction: str | None = None  # identify / fix the rudder_propeller interaction factors (None: identify)
+
+    def __post_init__(self) -> None:
+        if self.base is not None:
+            if self.hybrid is None:
+                raise DatasetError("--base MODEL is the grey box a learned residual is added to: it needs --hybrid")
+            if (self.structure != "auto" or self.prior != "none" or self.blocks != 1 or self.report is not None
+                    or self.interaction is not None):
+                raise DatasetError("--base MODEL keeps the base's hull (nothing is identified): --structure, --prior, "
+                                   "--blocks, --report and --interaction do not apply")
+
+
+def identification_vessel(request: IdentifyRequest, vessel: str | Path | None) -> tuple[Vessel, Any]:
+    """(the vessel identified, the base artifact or None): what `replay identify` resolves at its boundary.
+
+    vessel: a preset name or vessel file (models/loading.resolve_vessel); without --base it is required; with
+    --base, None is the vessel the base embeds, and a different one is a ModelError naming the fields. The base is
+    loaded once (its dt checked against the request's)."""
+    from usv_predictor.models.loading import check_dt, load_model, resolve_vessel
+
+    if request.base is None:
+        if vessel is None:
+            raise DatasetError("--vessel is required (the vessel file whose hull is identified), unless --base gives "
+                               "it")
+        return resolve_vessel(vessel), None
+    artifact = load_model(str(request.base), option="--base", physics=False)
+    check_dt(artifact, request.dt, f"--dt for --base {request.base}")
+    return resolve_vessel(vessel, model=artifact, source=f"--base {request.base}"), artifact
+
+
+def identify_bags(request: IdentifyRequest, vessel: Vessel, base: Any = None,
+                  progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+    """Identify the hull (and what the layout lets the data set: thrust gains, engine speeds) of `vessel` from the
+    request's bags, read with its actuator layout, export the grey box (with a hybrid training: plus a learned
+    residual trained so) to the request's output, validate and report on request (IdentifyRequest's fields).
+    base: the loaded base artifact of request.base (identification_vessel), whose hull and extension terms are kept,
+    the residual trained on top of them (hybrid_on_base); the hull is then not identified again. The result of
+    `replay identify`."""
+    from usv_predictor.analysis.evaluation import evaluate
+    from usv_predictor.fitting import hull_models, hybrid_fit, identification
+
+    r = request
+    bags, output, structure, prior, hybrid, dt = r.bags, r.output, r.structure, r.prior, r.hybrid, r.dt
+    validation, report, blocks, config, scale, interaction = (r.validation, r.report, r.blocks, r.config, r.scale,
+                                                              r.interaction)
     if base is not None:
-        if hybrid is None:
-            raise DatasetError("--base MODEL is the grey box a learned residual is added to: it needs --hybrid")
-        if structure != "auto" or prior != "none" or blocks != 1 or report is not None or interaction is not None:
-            raise DatasetError("--base MODEL keeps the base's hull (nothing is identified): --structure, --prior, "
-                               "--blocks, --report and --interaction do not apply")
-        return hybrid_on_base(bags, output, base, hybrid, vessel=vessel, dt=dt, validation=validation, config=config,
-                              scale=scale, progress=progress)
-    if vessel is None:
-        raise DatasetError("--vessel is required (the vessel file whose hull is identified), unless --base gives it")
-    preset = load_vessel(vessel)
+        return hybrid_on_base(request, base, vessel, progress=progress)
+    preset = vessel
     layout = preset.actuator_layout
     recordings = identification_recordings(list(bags), dt, progress, config, layout=layout, blocks=blocks,
-                                           scale=scale)
+                                           scale=scale, vessel_name=preset.name)
     if not recordings:
         raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
-    result = identification.identify(preset, recordings, structure=structure, prior=prior,
-                                     interaction=interaction or "identify", progress=progress)
+    result = hull_models.identify(preset, recordings, structure=structure, prior=prior,
+                                  interaction=interaction or "identify", progress=progress)
     from usv_predictor.fitting.candidates import candidate_scores, cv_warning
 
     candidates = candidate_scores(preset, list(result.data), result)
@@ -116,7 +151,7 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, str
         if not paths:
             raise DatasetError(f"--val {validation!r} matches no bag")
         out["validation"] = evaluate(artifact, identification_recordings(paths, dt, progress, config, layout=layout,
-                                                                         scale=scale),
+                                                                         scale=scale, vessel_name=preset.name),
                                      progress=progress).to_json()
     for c in result.coefficients():
         progress(f"  {c.name:7s} {c.estimate:+.5g}  [{c.ci95[0]:+.5g}, {c.ci95[1]:+.5g}]  prior {c.prior:+.5g}  "
@@ -130,24 +165,23 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, str
     return out
 
 
-def hybrid_on_base(bags: Sequence[Path], output: Path, base: Path, hybrid: HybridTraining, *,
-                   vessel: str | None = None, dt: float = 0.2, validation: str | None = None,
-                   config: Path | None = None, scale: float = 1.0,
+def hybrid_on_base(request: IdentifyRequest, artifact: Any, vessel: Vessel,
                    progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
-    """`replay identify --hybrid --base MODEL`: the grey box of MODEL (fitting.hybrid_fit.base_from_artifact: e.g.
-    `replay diagnose --export`'s calm-water model + current + wave drift) + a learned residual trained on `bags`
-    (fitting.hybrid_fit.train_residual), written to `output` (model_type hybrid[+the base's causes]). vessel: the
-    vessel file (None: the one MODEL embeds; a different one is a ModelError naming the fields); dt must be the
-    base's step. The JSON of `replay identify` with the base's record instead of an identification."""
+    """`replay identify --hybrid --base MODEL`: the grey box of MODEL (`artifact`, loaded from request.base;
+    fitting.hybrid_fit.base_from_artifact: e.g. `replay diagnose --export`'s calm-water model + current + wave drift)
+    + a learned residual trained on `bags` (fitting.hybrid_fit.train_residual), written to `output` (model_type
+    hybrid[+the base's causes]). vessel: the vessel file, checked against the one MODEL embeds
+    (identification_vessel); dt is the base's step. The JSON of `replay identify` with the base's record instead of
+    an identification."""
     from usv_predictor.analysis.evaluation import evaluate
     from usv_predictor.fitting import hybrid_fit, identification
-    from usv_predictor.models.loading import check_dt, load_model, model_vessel
 
-    artifact = load_model(str(base), option="--base", physics=False)
-    check_dt(artifact, dt, f"--dt for --base {base}")
-    preset = model_vessel(artifact, vessel, source=f"--base {base}")
+    bags, output, hybrid, dt, validation = request.bags, request.output, request.hybrid, request.dt, request.validation
+    config, scale, base, preset = request.config, request.scale, request.base, vessel
+    assert hybrid is not None  # IdentifyRequest: --base needs --hybrid
     layout = preset.actuator_layout
-    recordings = identification_recordings(list(bags), dt, progress, config, layout=layout, scale=scale)
+    recordings = identification_recordings(list(bags), dt, progress, config, layout=layout, scale=scale,
+                                           vessel_name=preset.name)
     if not recordings:
         raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
     identified, grey = hybrid_fit.base_from_artifact(artifact, preset, recordings[0], source=f"--base {base}")
@@ -171,6 +205,7 @@ def hybrid_on_base(bags: Sequence[Path], output: Path, base: Path, hybrid: Hybri
         if not paths:
             raise DatasetError(f"--val {validation!r} matches no bag")
         out["validation"] = evaluate(out_artifact, identification_recordings(paths, dt, progress, config,
-                                                                             layout=layout, scale=scale),
+                                                                             layout=layout, scale=scale,
+                                                                             vessel_name=preset.name),
                                      progress=progress).to_json()
     return out

@@ -52,10 +52,10 @@ class LowOrderRequest:
 
 def identify_low_order(request: LowOrderRequest, progress: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
     """The result of `replay identify --family nomoto|auto` (module docstring)."""
-    from usv_predictor.physics.vessel import load_vessel
+    from usv_predictor.models.loading import resolve_vessel
     from usv_predictor.replay.identify import identification_recordings
 
-    vessel = load_vessel(request.vessel)
+    vessel = resolve_vessel(request.vessel, option="--vessel")
     recordings = identification_recordings(list(request.bags), request.dt, progress, request.config,
                                            layout=vessel.actuator_layout, scale=request.scale)
     if not recordings:
@@ -188,7 +188,7 @@ def compare_families(request: LowOrderRequest, vessel: Any, recordings: Sequence
                      progress: Callable[[str], None] = lambda _: None) -> tuple[str, str, dict[str, dict[str, Any]]]:
     """(chosen family, why, each candidate's held-out errors or refusal): the grey box and the low-order model fitted
     on the first halves of `recordings`, scored on the second halves (module docstring)."""
-    from usv_predictor.fitting import hybrid_fit, identification
+    from usv_predictor.fitting import hull_models, hybrid_fit
     from usv_predictor.fitting.nomoto_fit import NomotoFitOptions, fit_nomoto
     from usv_predictor.models.artifact import load_artifact
     from usv_predictor.models.loading import with_fused_rollout
@@ -200,9 +200,9 @@ def compare_families(request: LowOrderRequest, vessel: Any, recordings: Sequence
         progress("auto: the grey box on the first half of each recording")
         try:
             blocks = max(request.blocks, 2) if len(first) == 1 else request.blocks  # its CV needs two pieces
-            result = identification.identify(vessel, _pieces(first, blocks), structure=request.structure,
-                                             prior=request.prior, interaction=request.interaction or "identify",
-                                             progress=progress)
+            result = hull_models.identify(vessel, _pieces(first, blocks), structure=request.structure,
+                                          prior=request.prior, interaction=request.interaction or "identify",
+                                          progress=progress)
             path = Path(scratch) / "greybox.pt"
             hybrid_fit.export_identified(str(path), hybrid_fit.greybox_module(result, request.dt), result,
                                          dt=request.dt, training_data_sha256="")
@@ -224,14 +224,15 @@ def compare_families(request: LowOrderRequest, vessel: Any, recordings: Sequence
 
 def _auto(request: LowOrderRequest, vessel: Any, recordings: Sequence[Any],
           progress: Callable[[str], None]) -> dict[str, Any]:
-    from usv_predictor.replay.identify import identify_bags
+    from usv_predictor.replay.identify import IdentifyRequest, identify_bags
 
     chosen, why, candidates = compare_families(request, vessel, recordings, progress)
     progress(f"auto: {why}; {chosen} identified again on all the data")
     if chosen == "greybox":
-        out = identify_bags(list(request.bags), request.output, vessel=request.vessel, structure=request.structure,
-                            prior=request.prior, dt=request.dt, blocks=request.blocks, config=request.config,
-                            scale=request.scale, interaction=request.interaction, progress=progress)
+        grey = IdentifyRequest(bags=tuple(request.bags), output=Path(request.output), structure=request.structure,
+                               prior=request.prior, dt=request.dt, blocks=request.blocks, config=request.config,
+                               scale=request.scale, interaction=request.interaction)
+        out = identify_bags(grey, vessel, progress=progress)
         out["family"] = "greybox"
     else:
         out = _export_nomoto(request, vessel, recordings, progress)

@@ -34,6 +34,7 @@ included, is the same as with one.
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 import hashlib
 import math
 import multiprocessing
@@ -91,6 +92,17 @@ SEGMENTS = ("bag", "steady")
 CALM_DIR = "calm"
 
 Warn = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Pieces:
+    """Which bags load_recordings reads, how it cuts them into pieces and which pieces it keeps, at what scale."""
+
+    segment: str = "bag"  # one of SEGMENTS: a bag's pieces between gaps, or "steady": one per steady manoeuvre
+    min_duration_s: float = 10.0  # a shorter piece is skipped, with a warning (s, at the model's scale)
+    horizon_s: float | None = None  # a piece too short for this open-loop horizon is skipped (s); None: no check
+    include_calm: bool = False  # also read the calm/ twins under bag directories
+    scale: float = 1.0  # Froude scale L_bags / L_model of the bags (data/recording.froude_scaled); 1: none
 
 
 def warn_stderr(message: str) -> None:
@@ -418,10 +430,12 @@ def _check_recorded_layout(path: Path, vessel: str | None, layout: ActuatorLayou
 
 def recordings_from_bag(source: BagSource, specs: Sequence[TopicSpec], dt: float, *, segment: str = "bag",
                         min_duration_s: float = 10.0, horizon_s: float | None = None,
-                        warn: Warn = warn_stderr, layout: str = DEFAULT_LAYOUT.name) -> list[Recording]:
+                        warn: Warn = warn_stderr, layout: str = DEFAULT_LAYOUT.name,
+                        vessel_name: str = "") -> list[Recording]:
     """The Recordings of one bag (several when it has gaps or, with segment="steady", several manoeuvres).
 
-    layout: the actuator layout's name (physics/actuators.py): which roles carry the controls.
+    layout: the actuator layout's name (physics/actuators.py): which roles carry the controls; vessel_name: the
+    vessel it is read as (load_recordings: a bag that names it is not checked against its preset).
     """
     if segment not in SEGMENTS:
         raise DatasetError(f"unknown segment mode {segment!r}; use one of {list(SEGMENTS)}")
@@ -430,7 +444,9 @@ def recordings_from_bag(source: BagSource, specs: Sequence[TopicSpec], dt: float
     path = source.path
     metadata = bag_metadata(path)
     if metadata is not None:
-        _check_recorded_layout(path, metadata[1].get("vessel"), actuators)
+        recorded = metadata[1].get("vessel")
+        if not (vessel_name and recorded == vessel_name):  # recorded on the vessel it is read as
+            _check_recorded_layout(path, recorded, actuators)
     chosen = _present_specs(path, None if metadata is None else metadata[0], specs, warn, actuators)
     raw = dict(zip((spec.role for spec in chosen), read_signals(path, chosen)))  # role -> Signal (topics may be shared)
     t_ref = min((int(s.t_ns[0]) for s in raw.values() if len(s)), default=0)
@@ -520,13 +536,17 @@ def default_jobs(bags: int) -> int:
 
 
 def load_recordings(bag_paths: Iterable[str | Path], dt: float, *, config_path: str | Path | None = None,
-                    topics: Mapping[str, str] | None = None, segment: str = "bag", min_duration_s: float = 10.0,
-                    horizon_s: float | None = None, include_calm: bool = False, jobs: int = 1,
+                    topics: Mapping[str, str] | None = None, pieces: Pieces = Pieces(), jobs: int = 1,
                     warn: Warn = warn_stderr, progress: Callable[[str], None] | None = None,
-                    layout: ActuatorLayout = DEFAULT_LAYOUT, scale: float = 1.0) -> list[Recording]:
-    """Recordings of the bags (or directories of bags) in `bag_paths`, resampled to step dt.
+                    layout: ActuatorLayout = DEFAULT_LAYOUT, vessel_name: str = "") -> list[Recording]:
+    """Recordings of the bags (or directories of bags) in `bag_paths`, resampled to step dt, the pieces kept by
+    `pieces` (Pieces: how a bag is cut, the shortest piece kept, the calm twins, the scale).
 
-    scale: Froude scaling (data/recording.froude_scaled) of bags recorded on a hull `scale` times as long as the
+    vessel_name: the vessel the bags are read as (with its `layout`): a bag that names it (custom_data vessel) is
+    read so, unchecked; a bag that names another vessel preset is checked against that preset's layout
+    (BagError naming both when they differ); "": every bag that names a preset is checked.
+
+    pieces.scale: Froude scaling (data/recording.froude_scaled) of bags recorded on a hull `scale` times as long as the
     model's (`--scale LAMBDA` of evaluate, identify, diagnose; 1: none): the bags are read at the step, horizon and
     minimum duration that become dt, horizon_s and min_duration_s at the model's scale, then scaled.
 
@@ -538,6 +558,7 @@ def load_recordings(bag_paths: Iterable[str | Path], dt: float, *, config_path: 
     if not dt > 0.0 or not math.isfinite(dt):
         raise DatasetError(f"step dt={dt} s must be a positive number")
     FLOAT_RANGES["dt"].check("dt", dt, "the resampling step")  # 1e-300 s would ask for an astronomical grid
+    scale = pieces.scale
     if not (math.isfinite(scale) and scale > 0.0):
         raise DatasetError(f"--scale {scale!r}: expected a finite number > 0 (L_bags / L_model)")
     if scale != 1.0:  # the bags' own clock: every time in it is sqrt(scale) times the model's
@@ -546,16 +567,17 @@ def load_recordings(bag_paths: Iterable[str | Path], dt: float, *, config_path: 
             progress(f"Froude scale {scale:g}: the bags' vessel is {scale:g} x the model's; read at {dt * root:.4g} s "
                      f"of their clock (= {dt:g} s at the model's scale), lengths / {scale:g}, speeds and times / "
                      f"{root:.4g}, yaw rates and rpm x {root:.4g}")
-        found = load_recordings(bag_paths, dt * root, config_path=config_path, topics=topics, segment=segment,
-                                min_duration_s=min_duration_s * root,
-                                horizon_s=None if horizon_s is None else horizon_s * root, include_calm=include_calm,
-                                jobs=jobs, warn=warn, progress=progress, layout=layout)
+        at_their_scale = dataclasses.replace(pieces, min_duration_s=pieces.min_duration_s * root, scale=1.0,
+                                             horizon_s=None if pieces.horizon_s is None else pieces.horizon_s * root)
+        found = load_recordings(bag_paths, dt * root, config_path=config_path, topics=topics, pieces=at_their_scale,
+                                jobs=jobs, warn=warn, progress=progress, layout=layout, vessel_name=vessel_name)
         return [dataclasses.replace(froude_scaled(rec, scale), dt=dt) for rec in found]
-    if segment not in SEGMENTS:
-        raise DatasetError(f"unknown segment mode {segment!r}; use one of {list(SEGMENTS)}")
+    if pieces.segment not in SEGMENTS:
+        raise DatasetError(f"unknown segment mode {pieces.segment!r}; use one of {list(SEGMENTS)}")
     specs = topic_specs(config_path, topics, layout)
-    sources = find_bags(bag_paths, include_calm=include_calm)
-    options = {"segment": segment, "min_duration_s": min_duration_s, "horizon_s": horizon_s, "layout": layout.name}
+    sources = find_bags(bag_paths, include_calm=pieces.include_calm)
+    options = {"segment": pieces.segment, "min_duration_s": pieces.min_duration_s, "horizon_s": pieces.horizon_s,
+               "layout": layout.name, "vessel_name": vessel_name}
     recordings: list[Recording] = []
     jobs = default_jobs(len(sources)) if jobs == 0 else jobs
     for i, (source, found, messages) in enumerate(_map_bags(sources, specs, dt, options, jobs), start=1):

@@ -21,13 +21,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from usv_predictor.errors import ConfigError
+from usv_predictor.physics.manoeuvres import SIMULATED_OPTIONS
 from usv_predictor.records import NS_PER_S
 
 if TYPE_CHECKING:
     from usv_predictor.physics.scenario import Scenario
     from usv_predictor.physics.vessel import Vessel
 
-KINDS = ("turning-circle", "zigzag", "pullout", "spiral", "random")
+KINDS = SIMULATED_OPTIONS  # --manoeuvre: the command-line spellings of physics/manoeuvres.MANOEUVRE_KINDS
+DEFAULT_MANOEUVRE = "turning-circle"  # neither --programme nor --manoeuvre: one turning circle
 SEAS = ("calm", "rizhao")  # calm water, or the seed 000 trial sea (current + wind + waves)
 MIN_DT_S, MAX_DT_S = 0.001, 0.2  # s: the integration steps `replay simulate` accepts (RK4 is stable below 0.2 s)
 SIDES = ("starboard", "port")
@@ -52,7 +54,7 @@ class SimulationRequest:
     output: Path  # directory for the bags
     vessel: str = "jari_usv"  # vessel preset in config/vessels
     programme: str | None = None  # a trial programme of usv_predictor.physics.manoeuvres.PROGRAMMES ...
-    manoeuvre: str | None = None  # ... or one manoeuvre of KINDS (neither: a turning circle)
+    manoeuvre: str | None = None  # ... or one manoeuvre of KINDS (neither: DEFAULT_MANOEUVRE)
     rudder_deg: float | None = None  # rudder angle (deg; None: 20)
     check_deg: float | None = None  # zig-zag check angle (deg; None: the rudder angle, or 20 for a differential)
     rpm: float | None = None  # engine speed (rpm; None: 650)
@@ -139,17 +141,9 @@ def manoeuvres(request: SimulationRequest, vessel: Vessel) -> list:
         return mv.programme(request.programme, layout)
     side = 1 if request.side == "starboard" else -1
     extra = {} if request.duration_s is None else {"duration_s": request.duration_s}
-    kind = request.manoeuvre or "turning-circle"
-    if kind == "turning-circle":
-        return [mv.turning_circle(layout, turn, propulsion, side=side, **extra)]
-    if kind == "zigzag":
-        return [mv.zigzag(layout, turn, request.check_angle_deg, propulsion, side=side, **extra)]
-    if kind == "pullout":
-        return [mv.pullout(layout, turn, propulsion, side=side, **extra)]
-    if kind == "spiral":
-        steps = (turn, 0.6 * turn, 0.3 * turn, 0.15 * turn, 0.0)
-        return [mv.spiral(layout, steps + tuple(-d for d in reversed(steps[:-1])), propulsion)]
-    return [mv.random_manoeuvre(layout, request.seed, propulsion, turn, **extra)]
+    kind = mv.simulated_kind(request.manoeuvre or DEFAULT_MANOEUVRE)
+    assert kind.build is not None  # simulated_kind returns simulated kinds only
+    return [kind.build(layout, turn, propulsion, side, request.check_angle_deg, request.seed, extra)]
 
 
 def scenario_effects(sea: str, effects: Mapping[str, Mapping[str, float]]) -> dict[str, dict[str, float]]:
