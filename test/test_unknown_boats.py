@@ -276,6 +276,7 @@ def test_an_unknown_boat_of_every_layout_is_identified_and_diagnosed(tmp_path, l
     assert [c[1] for c in commands[1:4]] == ["simulate", "vessel", "identify"]
     assert commands[-1][1] == "diagnose"
     assert {c[1] for c in commands[4:-1]} <= {"identify"}  # identified again at most once, as identify recommended
+    assert not result["identify_failed"], result["log"][-1][-2000:]
     assert all(h["would_determine"] for h in result["identification"]["held"])  # each held term names its trial
     assert result["cause"] in (effect, *REFUSALS), (truth, result["cause"], result["parameters"])  # never wrong
     if result["cause"] == "model_mismatch":
