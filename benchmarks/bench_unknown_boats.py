@@ -135,9 +135,10 @@ def summarise_layout(results: list[dict], layout: str = DEFAULT_LAYOUT) -> str:
               f"model_mismatch: {len(mismatch)} (of which refused by the fit check: {len(refused)}; the rollout of the "
               f"identified model diverges: "
               f"{sum(any('diverges' in m for m in r['mismatch_reasons']) for r in mismatch)})"]
-    for r in mismatch:
+    for r in [r for r in results if r["cause"] in ("model_mismatch", "unexplained")]:  # no cause: say why
         reasons = "; ".join(r["mismatch_reasons"]) or r.get("message", "")
-        lines.append(f"  {r['boat']} ({r['size_class']}, {r['L_pp_m']:.1f} m, {r['truth']}): {reasons[:300]}; "
+        lines.append(f"  {r['boat']} ({r['size_class']}, {r['L_pp_m']:.1f} m, {r['truth']} -> {r['cause']}): "
+                     f"{reasons[:300]}; "
                      f"held terms would be determined by: {', '.join(held_trials(r)) or 'nothing held'}")
     failed = [r for r in results if r.get("identify_failed")]
     if failed:
