@@ -545,6 +545,12 @@ WOULD_DETERMINE: Mapping[str, str] = {
     "N_duv": "zig-zags at two speeds",
     "N_dur": "zig-zags at two speeds",
     "throttle.forward_N": "throttle steps (straight runs at two throttle settings)",
+    "throttle.time_constant_s": "throttle steps at a steady speed (output-error stage)",
+    "rudder.lift_factor": "zig-zags at two rudder angles both ways",
+    "rudder.eta": "zig-zags at two rudder angles both ways",
+    "rudder.gamma_R": "turning circles both ways (the drift in a steady turn)",
+    "propeller.w_P0": "straight runs at two engine speeds",
+    "propeller.t_P": "straight runs at two engine speeds",
 }
 
 
@@ -683,6 +689,7 @@ class IdentificationResult:
     actuator_coefficients: tuple[Coefficient, ...] = ()  # profiled actuator gains (rudder_throttle's map gain)
     prior: Vessel | None = None  # the vessel file identified (what the exported model embeds: models/artifact.py)
     interaction: dict | None = None  # how the interaction factors were searched (fitting/interaction.py), or None
+    output_error: dict | None = None  # the output-error stage and stability check (fitting/output_error.py), or None
 
     @property
     def structure(self) -> str:
@@ -739,6 +746,7 @@ class IdentificationResult:
             "cross_validation": [cv.to_json() for cv in self.cross_validation],
             "extra_terms": self.extra_terms,
             "interaction": self.interaction,
+            "output_error": self.output_error,
             "manoeuvres": [d.name for d in self.data],
             "notes": list(self.notes),
         }
@@ -902,7 +910,7 @@ def profile_throttle_gain(vessel: Vessel, data: Sequence[ForceData], structure: 
 def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str = "auto", prior: str = "none",
              smoother: SmootherConfig = SmootherConfig(), rel_ci_limit: float = REL_CI_LIMIT,
              data: Sequence[ForceData] | None = None, interaction: str = "fix",
-             progress: Callable[[str], None] | None = None) -> IdentificationResult:
+             progress: Callable[[str], None] | None = None, output_error: bool = False) -> IdentificationResult:
     """Smoother -> inverse dynamics -> regression of each candidate structure -> CV -> identified vessel.
 
     structure "auto" fits mmg and abkowitz and keeps abkowitz only if its CV error is lower by more than 5 %
@@ -913,7 +921,15 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     with the hull (fitting/interaction.py) and replace the description's when the held-out simulation says so;
     "fix" (default): held at the description's values (docs/results/unknown_boats.md: identify gives more right answers
     on unknown boats but also confident wrong ones, so it is not the default yet).
+    output_error: after all this, the output-error (multiple-shooting) fit of the whole calm-water model and the
+    stability check over the envelope (fitting/output_error.py), kept when it predicts held-out manoeuvres better.
     """
+    if output_error:
+        from usv_predictor.fitting.output_error import refine
+
+        return refine(identify(vessel, recordings, structure=structure, prior=prior, smoother=smoother,
+                               rel_ci_limit=rel_ci_limit, data=data, interaction=interaction, progress=progress),
+                      recordings, progress=progress)
     prior_vessel = vessel  # the vessel file as given (what the exported model embeds); `vessel` may take fitted gains
     if vessel.hull_model_name == "small_craft":
         from usv_predictor.fitting.small_craft_identification import identify_small_craft

@@ -87,7 +87,8 @@ def identify_bags(bags: Sequence[Path], output: Path, *, vessel: str | None, str
     if not recordings:
         raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
     result = identification.identify(preset, recordings, structure=structure, prior=prior,
-                                     interaction=interaction or "identify", progress=progress)
+                                     interaction=interaction or "identify", progress=progress,
+                                     output_error=True)
     from usv_predictor.fitting.candidates import candidate_scores, cv_warning
 
     candidates = candidate_scores(preset, list(result.data), result)
