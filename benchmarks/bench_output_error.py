@@ -140,6 +140,15 @@ def catamaran(work: Path) -> dict:
                 c = found[name]
                 print(f"  {name:14s} {c.estimate:+10.4g} ({c.status}; truth {getattr(truth.small_craft, name):+.4g}, "
                       f"description {c.prior:+.4g})")
+        lag = found.get(oe.LAG_NAMES["twin_thrusters"])
+        m33, t33 = ManoeuvringModel(result.vessel).m33, ManoeuvringModel(truth).m33  # (kg m^2) yaw inertia + added
+        print(f"  yaw damping / inertia N_r / m33 {found['N_r'].estimate / m33:+.3f} 1/s "
+              f"(truth {truth.small_craft.N_r / t33:+.3f}), "
+              f"N_rr / m33 {found['N_rr'].estimate / m33:+.3f} (truth {truth.small_craft.N_rr / t33:+.3f}); "
+              f"thruster time constant {lag.estimate if lag else result.vessel.thrusters.port.time_constant_s:.3g} s "
+              f"(truth {truth.thrusters.port.time_constant_s:g} s)")
+        out[label]["N_r_per_m33"] = found["N_r"].estimate / m33
+        out[label]["N_rr_per_m33"] = found["N_rr"].estimate / m33
     out["kept"] = new.output_error["kept"]
     out["heldout_simulation_nmse"] = new.output_error["heldout_simulation_nmse"]
     print(f"catamaran: kept {out['kept']}, held-out 20 s error {out['heldout_simulation_nmse']}")

@@ -25,8 +25,9 @@ sigma^2 the mean squared residual of the equation-error start, n the residual co
 errors along one segment are one realisation: the start's error and the model's carry through it). Minimised by
 Levenberg-Marquardt (Marquardt 1963; damping x the diagonal) with a central-difference Jacobian (FD_STEP in z).
 The data's information is F = (n_eff / n) J^T J / sigma^2 (Gauss-Newton); a parameter whose data-only 95 %
-half-width Z95 sqrt([F_free^-1]_ii) exceeds REL_CI_LIMIT (in units of s_i, or of the log) is NOT determined by
-these manoeuvres: held at the description's value, the widest first, one at a time (holding one of a collinear
+half-width Z95 sqrt([F_free^-1]_ii) exceeds REL_CI_LIMIT (in units of s_i, or of the log; x width / PRIOR_WIDTH
+for a parameter whose prior is wider, a time constant: held only when the data do not narrow the description's
+own uncertainty) is NOT determined by these manoeuvres: held at the description's value, the widest first, one at a time (holding one of a collinear
 pair determines the other), and the rest refitted. So the prior's weight follows what the data determine: a
 determined term is the data's (its posterior interval is the data's), an undetermined one is the description's,
 named with the trial that would determine it (identification.would_determine). Reported interval: the posterior's
@@ -479,10 +480,11 @@ def fit(model: Model, params: Sequence[Parameter], start: Mapping[str, float], s
     info = data_weight * jac.T @ jac  # (P, P) the data's information in z
     held: list[str] = []
     if determine:  # hold the widest first until every free parameter is determined
+        limit = np.array([REL_CI_LIMIT * p.width / PRIOR_WIDTH for p in params])  # (P,)
         while free.any():
-            rel = _data_half_width(info, free)
+            rel = _data_half_width(info, free) / limit
             worst = int(np.argmax(np.where(free, rel, -np.inf)))
-            if rel[worst] <= REL_CI_LIMIT:
+            if rel[worst] <= 1.0:
                 break
             free[worst] = False
             held.append(names[worst])
