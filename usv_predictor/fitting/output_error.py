@@ -20,25 +20,25 @@ bounds (the interaction search's box, a gain within PROFILE_SPAN of the descript
 identification.MMG_SIGN, small_craft_identification.SIGN).
 
 Criterion (a maximum a posteriori least squares with the description as a Gaussian prior of width PRIOR_WIDTH):
-    C(z) = (n_eff / n) sum_j e_j^2 / sigma^2 + sum_i (z_i / PRIOR_WIDTH)^2
-sigma^2 the mean squared residual of the equation-error start, n the residual count, n_eff the segment count (the
-errors along one segment are one realisation: the start's error and the model's carry through it). Minimised by
-Levenberg-Marquardt (Marquardt 1963; damping x the diagonal) with a central-difference Jacobian (FD_STEP in z).
-The data's information is F = (n_eff / n) J^T J / sigma^2 (Gauss-Newton); a parameter whose data-only 95 %
-half-width Z95 sqrt([F_free^-1]_ii) exceeds REL_CI_LIMIT (in units of s_i, or of the log; x width / PRIOR_WIDTH
-for a parameter whose prior is wider, a time constant: held only when the data do not narrow the description's
-own uncertainty) is NOT determined by these manoeuvres: held at the description's value, the widest first, one at a time (holding one of a collinear
-pair determines the other), and the rest refitted. So the prior's weight follows what the data determine: a
-determined term is the data's (its posterior interval is the data's), an undetermined one is the description's,
-named with the trial that would determine it (identification.would_determine). Reported interval: the posterior's
+    C(z) = (n_eff / n) sum_j e_j^2 / sigma^2 + sum_i (z_i / width_i)^2     (width_i PRIOR_WIDTH, LAG_PRIOR_WIDTH)
+sigma^2 the mean squared residual of the equation-error start, n the residual count, n_eff the segment count (the errors
+along one segment are one realisation: the start's error and the model's carry through it). Minimised by
+Levenberg-Marquardt (Marquardt 1963; damping x the diagonal) with a central-difference Jacobian (FD_STEP in z). The
+data's information is F = (n_eff / n) J^T J / sigma^2 (Gauss-Newton); a parameter whose data-only 95 % half-width Z95
+sqrt([F_free^-1]_ii) exceeds REL_CI_LIMIT (in units of s_i, or of the log; x width / PRIOR_WIDTH for a parameter whose
+prior is wider, a time constant: held only when the data do not narrow the description's own uncertainty) is NOT
+determined by these manoeuvres: held at the description's value, the widest first, one at a time (holding one of a
+collinear pair determines the other), and the rest refitted. So the prior's weight follows what the data determine: a
+determined term is the data's (its posterior interval is the data's), an undetermined one is the description's, named
+with the trial that would determine it (identification.would_determine). Reported interval: the posterior's
 Z95 sqrt([(F + P)^-1]_ii), mapped through theta(z).
 
-Held out. The output-error model replaces the equation-error one only when it predicts manoeuvres it was not fitted
-on better: FOLDS folds of whole manoeuvres; in each both stages are refitted on the other manoeuvres (the
-equation-error hull by its own regression, the factors and gains of the whole-data start; the output error from
-that fold's start, FOLD_ITERATIONS iterations) and both are scored on the held-out manoeuvres by the mean
-normalised squared error of their 20 s segments (fitting/interaction.manoeuvre_segments, the interaction search's
-held-out score). Kept: the lower; identify's notes and JSON (`output_error`) say which and why.
+Held out. The output-error model replaces the equation-error one only when it predicts manoeuvres it was not fitted on
+better: FOLDS folds of whole manoeuvres; in each both stages are refitted on the other manoeuvres (the equation-error
+hull by its own regression, the factors, gains and any Abkowitz terms of the whole-data start; the output error from
+that fold's start, FOLD_ITERATIONS iterations) and both are scored on the held-out manoeuvres by the mean normalised
+squared error of their 20 s segments (fitting/interaction.manoeuvre_segments, the interaction search's held-out score).
+Kept: the lower; identify's notes and JSON (`output_error`) say which and why.
 
 Stability over the envelope (check_envelope). The kept model is rolled out from start states and with constant
 commands spanning what the trials did and ENVELOPE_MARGIN beyond: speeds (the slowest moving and the fastest), sway
