@@ -31,6 +31,7 @@ from usv_predictor.replay.identify import identification_recordings
 
 ROOT = Path(__file__).resolve().parents[1]
 OTTER_CALM = [ROOT / "bags/otter/training/calm", ROOT / "bags/otter/sea_trial/calm"]
+JARI_SEA = [ROOT / "bags/training"]  # the jari_usv preset (the truth) in the shipped sea: current, wind, waves
 DT = 0.2
 OTTER_INIT = ["vessel", "init", "--name", "my_otter", "--layout", "twin_thrusters", "--lpp", "2.0", "--beam", "1.08",
               "--mass", "80", "--draught", "0.2", "--hulls", "2", "--demihull-beam", "0.25", "--thruster-spacing",
@@ -176,3 +177,24 @@ def test_the_segments_start_from_the_smoothed_state_and_the_motor_where_it_was()
     assert np.allclose(controls[first, 0, 0], level[starts])
     assert np.allclose(controls[first, 1:], shooting.controls[first, 1:])  # only the first sample moves
     assert not np.allclose(controls[first, 0, 0], shooting.controls[first, 0, 0])
+
+
+def test_the_output_error_stage_recovers_the_sway_yaw_coupling_the_equation_error_misses():
+    """jari_usv's shipped training day (four manoeuvres in the sea of bags/README.md; the preset is the truth and
+    the description), MMG hull with the interaction factors searched: the sea's forces, which the force fit takes
+    for hull forces, put Y_r, N_v and N_r 2-5 x off the truth; fitted on the motion they are within 20 % (on the
+    calm twins both stages find them)."""
+    vessel = load_vessel("jari_usv")
+    recordings = identification_recordings(JARI_SEA, DT, layout=vessel.actuator_layout)
+    equation_error = idf.identify(vessel, recordings, prior="fix", interaction="identify")
+    output_error = oe.refine(equation_error, recordings)
+    assert output_error.output_error["kept"] == "output error"
+    before, after = _coefficients(equation_error), _coefficients(output_error)
+    missed = 0
+    for name in ("Y_r", "N_v", "N_r"):
+        truth = getattr(vessel.hull, name)
+        missed += abs(before[name].estimate - truth) > 0.5 * abs(truth)
+        assert after[name].status == "identified", name
+        assert after[name].estimate == pytest.approx(truth, rel=0.2), name
+    assert missed >= 2  # the equation error misses them
+    assert output_error.vessel.hull.N_r == pytest.approx(after["N_r"].estimate)
