@@ -31,11 +31,9 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numba import njit
 
 from usv_predictor.data.recording import Recording
 from usv_predictor.errors import DatasetError
-from usv_predictor.physics.kernel import CACHED
 
 STATE_NAMES = ("x_n", "y_e", "psi", "u", "v", "r", "u_dot", "v_dot", "r_dot")
 MEASURED_NAMES = ("x_n", "y_e", "psi", "u", "v", "r")
@@ -229,139 +227,6 @@ def _forward(z: np.ndarray, dt: float, std: np.ndarray, jerk: np.ndarray, pose: 
     return xf, pf, xp, pp, jac, loglik
 
 
-@njit(cache=CACHED)
-def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a @ b by loops (numba's @ needs scipy's BLAS, which this package does not install)."""
-    n, k, m = a.shape[0], a.shape[1], b.shape[1]
-    out = np.zeros((n, m))
-    for i in range(n):
-        for j in range(m):
-            total = 0.0
-            for t in range(k):
-                total += a[i, t] * b[t, j]
-            out[i, j] = total
-    return out
-
-
-@njit(cache=CACHED)
-def _solve(a: np.ndarray, b: np.ndarray) -> tuple:
-    """(a^-1 b (n, m), log|det a|) by Gaussian elimination with partial pivoting (LAPACK's gesv, by loops)."""
-    n, m = a.shape[0], b.shape[1]
-    lu, x = a.copy(), b.copy()
-    logdet = 0.0
-    for c in range(n):
-        pivot = c
-        for i in range(c + 1, n):
-            if abs(lu[i, c]) > abs(lu[pivot, c]):
-                pivot = i
-        if pivot != c:
-            for j in range(n):
-                lu[c, j], lu[pivot, j] = lu[pivot, j], lu[c, j]
-            for j in range(m):
-                x[c, j], x[pivot, j] = x[pivot, j], x[c, j]
-        logdet += math.log(abs(lu[c, c]))
-        for i in range(c + 1, n):
-            factor = lu[i, c] / lu[c, c]
-            for j in range(c, n):
-                lu[i, j] -= factor * lu[c, j]
-            for j in range(m):
-                x[i, j] -= factor * x[c, j]
-    for c in range(n - 1, -1, -1):
-        for j in range(m):
-            total = x[c, j]
-            for t in range(c + 1, n):
-                total -= lu[c, t] * x[t, j]
-            x[c, j] = total / lu[c, c]
-    return x, logdet
-
-
-@njit(cache=CACHED)
-def _transition_one(x: np.ndarray, h: float) -> np.ndarray:
-    """_transition of one state (9,) (the same operations, scalar)."""
-    psi, u, v, r, au, av, ar = x[2], x[3], x[4], x[5], x[6], x[7], x[8]
-    c, s = math.cos(psi), math.sin(psi)
-    vn, ve = u * c - v * s, u * s + v * c
-    bu, bv = au - r * v, av + r * u
-    an, ae = bu * c - bv * s, bu * s + bv * c
-    out = x.copy()
-    out[0] = x[0] + h * vn + 0.5 * h * h * an
-    out[1] = x[1] + h * ve + 0.5 * h * h * ae
-    out[2] = psi + h * r + 0.5 * h * h * ar
-    out[3] = u + h * au
-    out[4] = v + h * av
-    out[5] = r + h * ar
-    return out
-
-
-@njit(cache=CACHED)
-def _jacobian_one(x: np.ndarray, h: float) -> np.ndarray:
-    """_jacobian (9, 9) by the same central differences."""
-    f = np.empty((9, 9))
-    for j in range(9):
-        eps = 1e-6 * max(1.0, abs(x[j]))
-        plus, minus = x.copy(), x.copy()
-        plus[j] += eps
-        minus[j] -= eps
-        f[:, j] = (_transition_one(plus, h) - _transition_one(minus, h)) / (2.0 * eps)
-    return f
-
-
-@njit(cache=CACHED)
-def _forward_compiled(z: np.ndarray, dt: float, x0: np.ndarray, p0: np.ndarray, q: np.ndarray, r_full: np.ndarray):
-    """_forward's loop compiled: the same EKF step by step (numba), from the initial state and Q made outside."""
-    n = z.shape[0]
-    xf, pf = np.empty((n, 9)), np.empty((n, 9, 9))
-    xp, pp = np.empty((n, 9)), np.empty((n, 9, 9))
-    jac = np.empty((n, 9, 9))
-    loglik = 0.0
-    x, p = x0.copy(), p0.copy()
-    for k in range(n):
-        if k > 0:
-            f = _jacobian_one(xf[k - 1], dt)
-            jac[k - 1] = f
-            x = _transition_one(xf[k - 1], dt)
-            p = _mm(_mm(f, pf[k - 1]), f.T) + q
-        xp[k], pp[k] = x, p
-        seen = np.flatnonzero(np.isfinite(z[k]))
-        m = len(seen)
-        if m:
-            innov = np.empty(m)
-            s = np.empty((m, m))
-            r_seen = np.empty((m, m))
-            p_rows = np.empty((m, 9))
-            for a in range(m):
-                innov[a] = z[k, seen[a]] - x[seen[a]]
-                p_rows[a] = p[seen[a]]
-                for b in range(m):
-                    r_seen[a, b] = r_full[seen[a], seen[b]]
-                    s[a, b] = p[seen[a], seen[b]] + r_seen[a, b]
-            rhs = np.empty((m, 10))  # [P H^T rows | innovation]: one elimination for the gain and S^-1 innov
-            rhs[:, :9] = p_rows
-            rhs[:, 9] = innov
-            solved, logdet = _solve(s, rhs)
-            gain = solved[:, :9].T.copy()  # (9, m) = P H^T S^-1
-            x = x + _mm(gain, innov.reshape(m, 1))[:, 0]
-            ikh = np.eye(9)
-            for a in range(m):
-                ikh[:, seen[a]] -= gain[:, a]
-            p = _mm(_mm(ikh, p), ikh.T) + _mm(_mm(gain, r_seen), gain.T)
-            loglik -= 0.5 * (logdet + np.sum(innov * solved[:, 9]) + m * math.log(2.0 * math.pi))
-        xf[k], pf[k] = x, p
-    return xf, pf, xp, pp, jac, loglik
-
-
-@njit(cache=CACHED)
-def _backward_compiled(xf: np.ndarray, pf: np.ndarray, xp: np.ndarray, pp: np.ndarray, jac: np.ndarray):
-    """_backward's loop compiled (numba)."""
-    n = len(xf)
-    xs, ps = xf.copy(), pf.copy()
-    for k in range(n - 2, -1, -1):
-        g = _solve(pp[k + 1], _mm(pf[k], jac[k].T).T.copy())[0].T.copy()
-        xs[k] = xf[k] + _mm(g, (xs[k + 1] - xp[k + 1]).reshape(9, 1))[:, 0]
-        ps[k] = pf[k] + _mm(_mm(g, ps[k + 1] - pp[k + 1]), g.T)
-    return xs, ps
-
-
 def _backward(xf: np.ndarray, pf: np.ndarray, xp: np.ndarray, pp: np.ndarray, jac: np.ndarray):
     """RTS smoother: G_k = P_k F_k^T P_{k+1|k}^-1; x_k^s = x_k + G_k (x_{k+1}^s - x_{k+1|k})."""
     n = len(xf)
@@ -373,11 +238,8 @@ def _backward(xf: np.ndarray, pf: np.ndarray, xp: np.ndarray, pp: np.ndarray, ja
     return xs, ps
 
 
-def smooth_measurements(z: np.ndarray, dt: float, config: SmootherConfig = SmootherConfig(), *,
-                        compiled: bool = True) -> Smoothed:
-    """EKF + RTS smoother on (T, 6) measurements [x_n, y_e, psi (continuous), u, v, r] at step dt. compiled: the
-    loops of _forward_compiled / _backward_compiled (numba; the same operations as _forward / _backward, equal to
-    rounding: test_smoother.py), else the numpy ones."""
+def smooth_measurements(z: np.ndarray, dt: float, config: SmootherConfig = SmootherConfig()) -> Smoothed:
+    """EKF + RTS smoother on (T, 6) measurements [x_n, y_e, psi (continuous), u, v, r] at step dt."""
     z = np.asarray(z, dtype=float)
     if z.ndim != 2 or z.shape[1] != 6:
         raise DatasetError(f"smoother needs (T, 6) measurements {MEASURED_NAMES}, got shape {z.shape}")
@@ -393,14 +255,8 @@ def smooth_measurements(z: np.ndarray, dt: float, config: SmootherConfig = Smoot
     std = np.asarray(config.measurement_std, dtype=float) if config.measurement_std else estimate_measurement_std(z)
     jerk = np.asarray(config.jerk_psd, dtype=float) if config.jerk_psd else jerk_scale(z, dt)
     pose = np.asarray(config.pose_psd, dtype=float)
-    if compiled:
-        x0, p0 = _initial(z, std, dt)
-        xf, pf, xp, pp, jac, loglik = _forward_compiled(np.ascontiguousarray(z), float(dt), x0, p0,
-                                                        process_noise(dt, jerk, pose), np.diag(std**2))
-        xs, ps = _backward_compiled(xf, pf, xp, pp, jac)
-    else:
-        xf, pf, xp, pp, jac, loglik = _forward(z, dt, std, jerk, pose)
-        xs, ps = _backward(xf, pf, xp, pp, jac)
+    xf, pf, xp, pp, jac, loglik = _forward(z, dt, std, jerk, pose)
+    xs, ps = _backward(xf, pf, xp, pp, jac)
     used = replace(config, measurement_std=tuple(float(s) for s in std), jerk_psd=tuple(float(q) for q in jerk))
     std_states = np.sqrt(np.clip(np.diagonal(ps, axis1=1, axis2=2), 0.0, None))
     return Smoothed(np.arange(len(z)) * dt, xs, std_states, float(loglik), used)
