@@ -66,10 +66,18 @@ def hull_fit(hull_model: str) -> HullModelFit:
                           f"{', '.join(HULL_FITS)}") from None
 
 
-def identify(vessel: Vessel, recordings: Sequence[Recording], **options: Any) -> IdentificationResult:
+def identify(vessel: Vessel, recordings: Sequence[Recording], *, output_error: bool = False,
+             **options: Any) -> IdentificationResult:
     """Identify `vessel`'s hull from `recordings` by its hull model's record (options: those of
-    identification.identify, structure, prior, smoother, rel_ci_limit, data, interaction, progress)."""
-    return hull_fit(vessel.hull_model_name).identify(vessel, recordings, **options)
+    identification.identify, structure, prior, smoother, rel_ci_limit, data, interaction, progress); output_error:
+    then the output-error (multiple-shooting) fit of the whole calm-water model and the stability check over the
+    envelope (fitting/output_error.refine), kept when it predicts held-out manoeuvres better."""
+    result = hull_fit(vessel.hull_model_name).identify(vessel, recordings, **options)
+    if not output_error:
+        return result
+    from usv_predictor.fitting.output_error import refine
+
+    return refine(result, recordings, progress=options.get("progress"))
 
 
 def hull_forces(vessel: Vessel, values: Mapping[str, float], nu: np.ndarray, u0: float,

@@ -545,6 +545,12 @@ WOULD_DETERMINE: Mapping[str, str] = {
     "N_duv": "zig-zags at two speeds",
     "N_dur": "zig-zags at two speeds",
     "throttle.forward_N": "throttle steps (straight runs at two throttle settings)",
+    "throttle.time_constant_s": "throttle steps at a steady speed (output-error stage)",
+    "rudder.lift_factor": "zig-zags at two rudder angles both ways",
+    "rudder.eta": "zig-zags at two rudder angles both ways",
+    "rudder.gamma_R": "turning circles both ways (the drift in a steady turn)",
+    "propeller.w_P0": "straight runs at two engine speeds",
+    "propeller.t_P": "straight runs at two engine speeds",
 }
 
 
@@ -680,6 +686,7 @@ class IdentificationResult:
     interaction: dict | None = None  # how the interaction factors were searched (fitting/interaction.py), or None
     trials: Mapping[str, str] = field(default_factory=lambda: WOULD_DETERMINE, repr=False)  # coefficient -> the
     # trial that would determine it, the hull model's table (fitting/hull_models.HULL_FITS)
+    output_error: dict | None = None  # the output-error stage and stability check (fitting/output_error.py), or None
 
     @property
     def structure(self) -> str:
@@ -736,6 +743,7 @@ class IdentificationResult:
             "cross_validation": [cv.to_json() for cv in self.cross_validation],
             "extra_terms": self.extra_terms,
             "interaction": self.interaction,
+            "output_error": self.output_error,
             "manoeuvres": [d.name for d in self.data],
             "notes": list(self.notes),
         }
@@ -913,6 +921,7 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     gives it) and replace the description's when the held-out simulation says so;
     "fix" (default): held at the description's values (docs/results/unknown_boats.md: identify gives more right answers
     on unknown boats but also confident wrong ones, so it is not the default yet).
+    The output-error stage that may follow (fitting/output_error.refine) is its caller's: fitting/hull_models.identify.
     """
     prior_vessel = vessel  # the vessel file as given (what the exported model embeds); `vessel` may take fitted gains
     if vessel.hull_model_name != "mmg":

@@ -347,6 +347,7 @@ WOULD_DETERMINE: Mapping[str, str] = {
     **{f"thrusters.{side}.forward_N": "straight runs at two speeds" for side in SIDES},
     **{f"thrusters.{side}.reverse_N": "astern commands (each thruster astern: spins both ways, a stop)"
        for side in SIDES},
+    "thrusters.time_constant_s": "thrust steps (a step of both commands at a steady speed; output-error stage)",
 }
 
 

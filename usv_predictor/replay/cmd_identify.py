@@ -52,6 +52,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "left out, and keep them when the held-out simulation error drops (identify, default), or "
                              "hold the vessel file's (fix; with --base nothing is identified); "
                              "usv_predictor/fitting/interaction.py, docs/results/unknown_boats.md")
+    parser.add_argument("--output-error", choices=("on", "off"), default="on",
+                        help="after the force fit, fit the whole calm-water model on its multi-step simulation error "
+                             "over all calm manoeuvres (hull, thrust gains, interaction factors, motor lag; the "
+                             "description as a prior), kept when it predicts held-out manoeuvres better, and check it "
+                             "stable over the trials' envelope (on, default), or stop at the force fit (off: faster); "
+                             "usv_predictor/fitting/output_error.py")
     parser.add_argument("--hybrid", action="store_true",
                         help="add a learned residual on the accelerations: an ensemble of 5 bounded MLPs on "
                              "non-dimensional features, trained by a multi-step loss with early stopping on held-out "
@@ -107,6 +113,6 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     request = IdentifyRequest(bags=tuple(args.bags), output=args.output, structure=args.structure, prior=args.prior,
                               interaction=args.interaction, hybrid=training, dt=args.dt, validation=args.val,
                               report=args.report, blocks=args.blocks, config=args.config, scale=args.scale,
-                              base=args.base)
+                              base=args.base, output_error=args.output_error == "on")
     vessel, base = identification_vessel(request, args.vessel)
     return identify_bags(request, vessel, base, progress=log)

@@ -69,6 +69,7 @@ class IdentifyRequest:
     scale: float = 1.0  # Froude scale L_bags / L_vessel, the bags scaled to the vessel's size (1: none)
     base: Path | None = None  # with hybrid: a grey-box artifact whose hull and terms are kept (hybrid_on_base)
     interaction: str | None = None  # identify / fix the rudder_propeller interaction factors (None: identify)
+    output_error: bool = True  # the output-error fit and stability check after the force fit (fitting/output_error.py)
 
     def __post_init__(self) -> None:
         if self.base is not None:
@@ -122,7 +123,8 @@ def identify_bags(request: IdentifyRequest, vessel: Vessel, base: Any = None,
     if not recordings:
         raise DatasetError(f"no usable recordings in {[str(b) for b in bags]}")
     result = hull_models.identify(preset, recordings, structure=structure, prior=prior,
-                                  interaction=interaction or "identify", progress=progress)
+                                  interaction=interaction or "identify", progress=progress,
+                                  output_error=r.output_error)
     from usv_predictor.fitting.candidates import candidate_scores, cv_warning
 
     candidates = candidate_scores(preset, list(result.data), result)
