@@ -19,6 +19,7 @@ import pytest
 from usv_predictor.data.recording import recording_from_signals
 from usv_predictor.errors import NotIdentifiableError
 from usv_predictor.fitting import identification as idf
+from usv_predictor.fitting import hull_models
 from usv_predictor.fitting import output_error as oe
 from usv_predictor.physics.dynamics import ManoeuvringModel
 from usv_predictor.physics.environment import Environment
@@ -46,7 +47,7 @@ def walkthrough(tmp_path_factory):
     assert cli.main([*OTTER_INIT, "--output", str(path)]) == 0
     vessel = load_vessel(path)
     recordings = identification_recordings(OTTER_CALM, DT, layout=vessel.actuator_layout)
-    equation_error = idf.identify(vessel, recordings, prior="fix")
+    equation_error = hull_models.identify(vessel, recordings, prior="fix")
     return equation_error, oe.refine(equation_error, recordings), recordings
 
 
@@ -186,7 +187,7 @@ def test_the_output_error_stage_recovers_the_sway_yaw_coupling_the_equation_erro
     calm twins both stages find them)."""
     vessel = load_vessel("jari_usv")
     recordings = identification_recordings(JARI_SEA, DT, layout=vessel.actuator_layout)
-    equation_error = idf.identify(vessel, recordings, prior="fix", interaction="identify")
+    equation_error = hull_models.identify(vessel, recordings, prior="fix", interaction="identify")
     output_error = oe.refine(equation_error, recordings)
     assert output_error.output_error["kept"] == "output error"
     before, after = _coefficients(equation_error), _coefficients(output_error)

@@ -69,7 +69,7 @@ class IdentifyRequest:
     scale: float = 1.0  # Froude scale L_bags / L_vessel, the bags scaled to the vessel's size (1: none)
     base: Path | None = None  # with hybrid: a grey-box artifact whose hull and terms are kept (hybrid_on_base)
     interaction: str | None = None  # identify / fix the rudder_propeller interaction factors (None: identify)
-    output_error: bool = True  # the output-error fit and stability check after the force fit (fitting/output_error.py)
+    output_error: bool = False  # the output-error fit and stability check after the force fit (fitting/output_error.py)
 
     def __post_init__(self) -> None:
         if self.base is not None:
