@@ -272,7 +272,10 @@ def test_one_bad_gnss_message_never_stops_predictions(harness: Harness) -> None:
     found = statuses(harness.latest)
     assert len(harness.paths) > count and level(found["prediction"]) == predictor_node.OK, found["prediction"].message
     assert "refused" not in found["heading"].message and "refused" not in found["velocity"].message
-    assert values_of(found["prediction"])["check track_vs_gnss"].startswith("cannot judge: slower than")
+    # the harness's boat is too slow for a GNSS track: the check cannot judge ("slower than ..."), or, when the jump
+    # left its window short of joint samples at that moment, says so ("less than 5 s of ... together"); never refuses
+    check = values_of(found["prediction"])["check track_vs_gnss"]
+    assert check.startswith(("cannot judge: slower than", "cannot judge: less than")), check
 
 
 def test_invalid_parameter_values_are_rejected_with_the_range(harness: Harness) -> None:
