@@ -8,11 +8,10 @@ the lines. `from folder import name` is an edge to folder/name.py when that is a
 """
 from __future__ import annotations
 
-import ast
 from collections.abc import Mapping
 from pathlib import Path
 
-from test_layers import ROOT, source_files
+from test_layers import ROOT, imported_modules, source_files
 
 
 def module_name(path: Path) -> str:
@@ -26,22 +25,10 @@ def folder_of(path: Path) -> str:
 
 
 def imports_in_folder(path: Path, modules: Mapping[str, Path]) -> dict[str, int]:
-    """The modules of the file's own folder that it imports -> the first line importing each."""
-    tree = ast.parse(path.read_text(), filename=str(path))
+    """The modules of the file's own folder that it imports -> the first line importing each (test_layers' reading
+    of the imports: `from X import y` names X and X.y, and only names that are modules count)."""
     own, folder = module_name(path), folder_of(path)
-    package = own if path.name == "__init__.py" else own.rpartition(".")[0]
-    named: list[tuple[int, str]] = []
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            named += [(node.lineno, alias.name) for alias in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
-                base = ".".join(anchor + ([base] if base else []))
-            for alias in node.names:
-                submodule = f"{base}.{alias.name}"
-                named.append((node.lineno, submodule if submodule in modules else base))
+    named = imported_modules(path)
     edges: dict[str, int] = {}
     for line, name in named:
         target = modules.get(name)
