@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import hashlib
 import os
+import subprocess
+import time
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
@@ -164,3 +166,16 @@ def slow_model(path: Path, like: Path, loops_per_step: int = 3000) -> Path:
 
     export_like(path, Slow(), load_artifact(like))
     return path
+
+
+def stop_and_time(process: subprocess.Popen, sig: int, timeout_s: float = 30.0) -> tuple[str, float]:
+    """Send `sig` to a running process and wait for its end: (its stderr, the seconds from the signal to its end);
+    killed if it outlives the wait (the caller's assertions then name the exit code it got)."""
+    try:
+        sent = time.monotonic()
+        process.send_signal(sig)
+        _, err = process.communicate(timeout=timeout_s)
+        return err, time.monotonic() - sent
+    finally:
+        if process.poll() is None:
+            process.kill()

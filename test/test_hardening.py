@@ -24,7 +24,7 @@ import pytest
 import torch
 import yaml
 from replay_helpers import (assert_one_line, bag_streams, digest, leftovers, never_returning_model, replay,
-                            write_variant)
+                            stop_and_time, write_variant)
 
 from msg_adapters import ROLE_FIELDS
 from usv_predictor.atomic import check_outputs, jsonable, write_json_atomic
@@ -383,13 +383,10 @@ def test_signals_are_honoured_while_a_model_never_returns(case, tmp_path) -> Non
         assert process.stdout is not None
         assert process.stdout.readline().strip() == "model: running"  # inside the model's loop from now on
         time.sleep(0.3)
-        sent = time.monotonic()
-        process.send_signal(sig)
-        _, err = process.communicate(timeout=30)
-        took = time.monotonic() - sent
-    finally:
-        if process.poll() is None:
-            process.kill()
+    except BaseException:
+        process.kill()
+        raise
+    err, took = stop_and_time(process, sig)
     assert process.returncode == exit_code, err[-3000:]
     assert took < 2.0, f"{case}: ended {took:.2f} s after the signal"
     assert "Traceback" not in err and "terminate called" not in err, err[-3000:]

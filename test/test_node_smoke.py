@@ -29,7 +29,7 @@ from usv_predictor.errors import ConfigError
 from usv_predictor.node import node as predictor_node
 from usv_predictor.physics.actuators import unused_roles
 
-from replay_helpers import never_returning_model, slow_model
+from replay_helpers import never_returning_model, slow_model, stop_and_time
 from ros_helpers import GOOD, Harness, domain_id, localhost_env, values_of
 
 
@@ -539,13 +539,10 @@ def test_every_stop_signal_at_any_moment_ends_the_node_within_2_s(monkeypatch: p
                 assert process.poll() is None and time.monotonic() < deadline, "no handlers installed"
                 time.sleep(0.01)
             time.sleep(delay)
-            sent = time.monotonic()
-            process.send_signal(sig)
-            _, err = process.communicate(timeout=30)
-            took = time.monotonic() - sent
-        finally:
-            if process.poll() is None:
-                process.kill()
+        except BaseException:
+            process.kill()
+            raise
+        err, took = stop_and_time(process, sig)
         what = f"{signal.Signals(sig).name} {delay:.2f} s after the handlers (a process of its own)"
         assert process.returncode == STOP_CODES[sig], f"{what}: exit {process.returncode}\n{err[-3000:]}"
         assert "Traceback" not in err, f"{what}:\n{err[-3000:]}"
