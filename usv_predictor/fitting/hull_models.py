@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -50,11 +51,11 @@ def _small_craft_forces(vessel: Vessel, values: Mapping[str, float], nu: np.ndar
     return small_craft_identification.hull_forces(vessel, values, nu, names)
 
 
-HULL_FITS: Mapping[str, HullModelFit] = {
+HULL_FITS: Mapping[str, HullModelFit] = MappingProxyType({
     "mmg": HullModelFit(_identify_mmg, identification.hull_forces, identification.WOULD_DETERMINE),
     "small_craft": HullModelFit(_identify_small_craft, _small_craft_forces,
                                 small_craft_identification.WOULD_DETERMINE),
-}
+})
 
 
 def hull_fit(hull_model: str) -> HullModelFit:
