@@ -54,7 +54,7 @@ def test_undefined_coefficient_numbers_are_null() -> None:
 def test_prior_none_refusal_names_the_prior_to_use_and_why() -> None:
     rng = np.random.default_rng(2)
     col = idf.collinearity(_design([rng.normal(size=50), rng.normal(size=50)]))
-    fit = idf.EquationFit("N", (), col, 0.1, 50.0)
+    fit = idf.EquationFit("N", (), lambda: col, 0.1, 50.0)
     message = idf._message(["N_vvr", "N_rrr"], [fit], ["zigzag_a", "zigzag_b"])
     assert "Use --prior fix" in message
     assert "N_vvr, N_rrr" in message

@@ -135,7 +135,7 @@ def test_an_mmg_derivative_of_a_sign_no_ship_has_is_flagged():
     narrow its CI (the Fuzhou zig-zag drives Y_vvv to +0.86 without this rule)."""
     def fit(name: str, value: float) -> idf.EquationFit:
         c = idf.Coefficient(name, value, (value - 0.01, value + 0.01), -1.0, "identified", 0.01)
-        return idf.EquationFit("Y", (c,), None, 0.0, 100.0)
+        return idf.EquationFit("Y", (c,), lambda: None, 0.0, 100.0)
 
     assert idf.not_identifiable(fit("Y_vvv", +0.86)) == ["Y_vvv"]
     assert idf.not_identifiable(fit("Y_vvv", -0.86)) == []

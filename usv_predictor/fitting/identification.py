@@ -50,6 +50,7 @@ Actuator layouts (physics/actuators.py), each through the actuator levels the fo
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 from dataclasses import dataclass, field, replace
@@ -398,10 +399,16 @@ class Coefficient:
 class EquationFit:
     equation: str
     coefficients: tuple[Coefficient, ...]
-    collinearity: Collinearity
+    # () -> the design's collinearity, computed on first use of `collinearity`: only reports read it (the JSON,
+    # identify's messages), and the cross-validation's many fits of one equation never do (an SVD of the design each)
+    collinearity_of: Callable[[], Collinearity] = field(repr=False, compare=False)
     residual_rms: float  # non-dimensional
     effective_samples: float
     ridge_weight: float = 0.0
+
+    @functools.cached_property
+    def collinearity(self) -> Collinearity:
+        return self.collinearity_of()
 
     def values(self) -> dict[str, float]:
         return {c.name: c.estimate for c in self.coefficients}
@@ -469,7 +476,7 @@ def fit_equation(d: Design, prior: Mapping[str, float], *, fixed: Sequence[str] 
         coefficients.append(Coefficient(name, float(theta[k]), (float(theta[k] - half), float(theta[k] + half)),
                                         float(prior_vec[k]), coefficient_status(bool(free[k]), ridge),
                                         half / magnitude))
-    return EquationFit(d.equation, tuple(coefficients), collinearity(d),
+    return EquationFit(d.equation, tuple(coefficients), functools.partial(collinearity, d),
                        float(np.sqrt(np.mean(residual**2))), n_eff, ridge)
 
 

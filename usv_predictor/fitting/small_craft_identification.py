@@ -43,6 +43,7 @@ A structure leaves its other coefficients at the vessel file's values.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, fields, replace
 from typing import Callable, Mapping, Sequence
@@ -289,7 +290,7 @@ def fit_joint(d: JointDesign, priors: Mapping[str, float], *, fixed: Sequence[st
         own = [k for k, n in enumerate(names) if eq in _equations_of(n)]
         sub = Design(eq, tuple(names[k] for k in own), d.matrix[np.ix_(rows, own)], d.target[rows], d.groups[rows],
                      np.ones(int(rows.sum())))
-        per_equation.append(EquationFit(eq, tuple(coefficients[k] for k in own), _collinearity(sub),
+        per_equation.append(EquationFit(eq, tuple(coefficients[k] for k in own), functools.partial(_collinearity, sub),
                                         float(np.sqrt(np.mean(residual[rows] ** 2))) if rows.any() else math.nan,
                                         effective_samples(residual[rows], d.groups[rows]) if rows.any() else 0.0,
                                         ridge))
