@@ -70,7 +70,7 @@ def recording(bags, name):
 
 
 def truth_current(name: str, t_s: float) -> tuple[float, float]:
-    return make_scenario("jari_usv", SEAS[name][1]).environment.current_ned(t_s)
+    return make_scenario(load_vessel("jari_usv"), SEAS[name][1]).environment.current_ned(t_s)
 
 
 # ---- the simulator: a current that steps ---------------------------------------------------------------
@@ -101,7 +101,7 @@ def test_the_simulated_drift_follows_the_step():
     """Over-ground velocity from the integrated positions minus the velocity through the water = the current,
     before and after the step (the simulator integrates the stepped current, deterministically)."""
     model = ManoeuvringModel(load_vessel("jari_usv"))
-    env = dataclasses.replace(make_scenario("jari_usv", STEP).environment, current_step_time_s=60.0)
+    env = dataclasses.replace(make_scenario(load_vessel("jari_usv"), STEP).environment, current_step_time_s=60.0)
     straight = TurningCircle(0.0, 650.0, duration_s=140.0)
     traj = simulate_trajectory(model, straight, env, heading_deg=30.0)
     again = simulate_trajectory(model, straight, env, heading_deg=30.0)
