@@ -124,7 +124,7 @@ run_demo() {
     "$replay" dataset "$REPO"/bags/training "$REPO"/bags/sea_trial --val random_7_675rpm --output "$out/dataset.npz"
     # seed 000's network (NTF, tanh) trained on 10-step rollouts: with the one-step loss of the paper, seed 0 stops at
     # epoch 1 on the re-made bags (the validation run's loss is lowest there) and the fit check refuses that network
-    # (it runs at 3.3 m/s where the boat runs at 5.3); docs/study_seed000.md
+    # (it runs at 3.3 m/s where the boat runs at 5.3); docs/results/study_seed000.md
     "$replay" train "$out/dataset.npz" --features NTF --activation tanh --multi-step 10 --output "$out/model.pt" \
         --json "$out/train.json"
     "$replay" evaluate --model "$out/model.pt" --output "$out/evaluation"

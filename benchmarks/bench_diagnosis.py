@@ -42,7 +42,7 @@ def one_draw(index: int, seed: int, vessel_name: str = "jari_usv") -> dict:
     truth = draw(rng, effects[index % len(effects)], layout.name)  # balanced over the effects
     steps = diagnosis_steps(vessel)  # jari_usv: 0.5 s, 20 s, 5 s
     model = ManoeuvringModel(vessel)
-    scenario = make_scenario(vessel_name, {truth.effect: truth.parameters} if truth.effect != "none" else {})
+    scenario = make_scenario(vessel, {truth.effect: truth.parameters} if truth.effect != "none" else {})
     recordings = []
     heading0 = rng.uniform(0.0, 360.0)
     for k, manoeuvre in enumerate(programme("diagnosis", layout)):

@@ -40,8 +40,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
-    model = ManoeuvringModel(load_vessel("jari_usv"))
-    scenario = make_scenario("jari_usv", RIZHAO_SEA)
+    jari = load_vessel("jari_usv")
+    model = ManoeuvringModel(jari)
+    scenario = make_scenario(jari, RIZHAO_SEA)
     # Gusts are drawn on the integration grid, so they differ between step sizes: compare without them.
     env = dataclasses.replace(scenario.environment, gust_std=0.0)
     print(f"{'manoeuvre (240 s, 100 Hz out)':34s} {'dt=0.05 + Hermite':>18s} {'dt=0.01 reference':>18s} "

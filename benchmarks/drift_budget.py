@@ -66,8 +66,9 @@ def part_one() -> dict:
     from usv_predictor.physics.vessel import load_vessel
     from usv_predictor.replay.simulate import HEADING_STEP_DEG
 
-    model = ManoeuvringModel(load_vessel("jari_usv"))
-    full = make_scenario("jari_usv", {k: dict(v) for k, v in RIZHAO_SEA.items()}).environment
+    jari = load_vessel("jari_usv")
+    model = ManoeuvringModel(jari)
+    full = make_scenario(jari, {k: dict(v) for k, v in RIZHAO_SEA.items()}).environment
     out: dict = {}
     for k, turn in enumerate(mv.sea_trial_turns()):
         for part, env in sea_parts(full).items():
@@ -90,7 +91,10 @@ def part_two(seeds: int) -> dict:
     from usv_predictor.replay.identify import identification_recordings
     from usv_predictor.replay.simulate import SimulationRequest, simulate_bag
 
-    scenario = make_scenario("jari_usv", {k: dict(v) for k, v in RIZHAO_SEA.items()})
+    from usv_predictor.physics.vessel import load_vessel
+
+    jari = load_vessel("jari_usv")
+    scenario = make_scenario(jari, {k: dict(v) for k, v in RIZHAO_SEA.items()})
     rows: dict = {}
     root = Path(tempfile.mkdtemp(prefix="drift_budget_"))
     try:
@@ -98,7 +102,8 @@ def part_two(seeds: int) -> dict:
             for s in range(seeds):
                 seed = PROGRAMME_SEED + SEED_STEP * k + OTHER_SEED_STEP * s
                 path = root / f"{turn.name}_{s}"
-                simulate_bag(path, turn, scenario, SimulationRequest(output=root, seed=seed), seed=seed, index=k)
+                simulate_bag(path, turn, scenario, SimulationRequest(output=root, vessel=jari, seed=seed), seed=seed,
+                             index=k)
                 rec = identification_recordings([path], 0.2)[0]
                 truth = ev.reference_series(rec, "truth")
                 execute = ev.classify(rec).execute_time_s - float(rec.t_s[0])

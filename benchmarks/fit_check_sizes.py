@@ -52,7 +52,7 @@ def one(vessel_name: str, effect_name: str, seed: int) -> dict:
     vessel = load_vessel(vessel_name)
     layout = vessel.actuator_layout
     parameters = {} if effect_name == "none" else strongest(fx.EFFECTS[effect_name], layout.name, rng)
-    scenario = make_scenario(vessel_name, {effect_name: parameters} if parameters else {})
+    scenario = make_scenario(vessel, {effect_name: parameters} if parameters else {})
     dt = diagnosis_steps(vessel).dt
     model = ManoeuvringModel(vessel)
     recordings = []

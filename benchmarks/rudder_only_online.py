@@ -53,8 +53,8 @@ def main() -> None:
         bags = root / f"case{k}"
         effects = {} if current is None else {"current": {"current_speed": current[0], "current_to_deg": current[1]}}
         if not bags.exists():
-            simulate(SimulationRequest(output=bags, vessel=str(vessel_file), manoeuvre=manoeuvre, rudder_deg=20.0,
-                                       rpm=650.0, duration_s=120.0, dt=0.1, effects=effects, seed=5))
+            simulate(SimulationRequest(output=bags, vessel=vessel, vessel_label=str(vessel_file), manoeuvre=manoeuvre,
+                                       rudder_deg=20.0, rpm=650.0, duration_s=120.0, dt=0.1, effects=effects, seed=5))
         (rec,) = load_recordings([bags], DT, layout=actuator_layout("rudder_only"), warn=lambda _: None)
         plain = evaluation.open_loop(model, rec, "gnss", HORIZONS_S, 5.0)
         live = adaptive.adaptive_open_loop(model, rec, "gnss", HORIZONS_S, 5.0, vessel=vessel)

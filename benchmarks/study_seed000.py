@@ -1,6 +1,6 @@
 """Seed 000's study (sec. 3.2-3.4, Tables 6-8) on the shipped sea-trial bags, in two protocols.
 
-    .venv/bin/python benchmarks/study_seed000.py [--out out/study_seed000] [--seeds 3] [--figures docs/study]
+    .venv/bin/python benchmarks/study_seed000.py [--out out/study_seed000] [--seeds 3] [--figures docs/results/study]
         [--multi-step K]
 
 Models (seed 000 Fig. 1, Table 5 recipe, early stopping on the validation manoeuvre, patience 50):
@@ -359,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, default=REPO / "out" / "study_seed000", help="work and result directory")
     parser.add_argument("--seeds", type=int, default=3, help="networks per configuration (seeds 0..S-1, default 3)")
-    parser.add_argument("--figures", type=str, default=str(REPO / "docs" / "study"),
+    parser.add_argument("--figures", type=str, default=str(REPO / "docs" / "results" / "study"),
                         help="PNG directory ('' for none)")
     parser.add_argument("--multi-step", type=int, default=1, metavar="K",
                         help="also NTF tanh trained on closed-loop rollouts of K steps (replay train --multi-step K; "

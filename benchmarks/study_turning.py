@@ -1,5 +1,5 @@
 """Zig-zags -> turning circles: how well a grey box identified from zig-zags alone predicts 35 deg turns, and what
-the zig-zags leave undetermined (issue 15; every table of docs/study_turning.md).
+the zig-zags leave undetermined (issue 15; every table of docs/results/study_turning.md).
 
 KVLCC2 (../shared/data/raw/kvlcc2_hsva_simman2008, 13 HSVA model-scale zig-zags, `replay convert`):
   - the grey box identified on all 13 zig-zags (`replay identify --vessel kvlcc2_model --structure mmg`, dt 0.2 s)

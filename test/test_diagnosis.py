@@ -455,7 +455,7 @@ def test_a_direction_is_probed_all_round_before_the_descent(monkeypatch):
     otter = load_vessel("otter")
     steps = diagnosis_steps(otter)
     truth = {"wave_height": 1.1733, "wave_from_deg": 171.1055, "wave_period_s": 3.0}
-    scenario = make_scenario("otter", {"wave_drift": truth})
+    scenario = make_scenario(otter, {"wave_drift": truth})
     model, recordings = ManoeuvringModel(otter), []
     for k, manoeuvre in enumerate(programme("diagnosis", otter.actuator_layout)):  # as bench_diagnosis.one_draw
         traj = simulate(model, manoeuvre, scenario.environment, heading_deg=166.1164 + 37.0 * k,

@@ -233,7 +233,7 @@ def test_scalar_terms_are_what_the_simulator_is_given():
         if not isinstance(effect.readout, ScalarReadout):
             continue
         truth = hidden_effects.draw(rng, name, layout_for(name))
-        scenario = make_scenario(preset_for(name), {name: truth.parameters})
+        scenario = make_scenario(load_vessel(preset_for(name)), {name: truth.parameters})
         (term, (value,)), = effect.readout.terms_from_truth(truth.parameters).items()
         (parameter,) = effect.parameters
         simulator = {Environment: scenario.environment, ActuatorFaults: scenario.faults,
@@ -247,7 +247,7 @@ def test_vector_conventions():
     """Current TOWARD, wind FROM (its term is the velocity toward), waves FROM (zeta_a^2 = (H_s / 2)^2)."""
     current = EFFECTS["current"].readout.terms_from_truth({"current_speed": 0.3, "current_to_deg": 90.0})
     assert current["current_ne"] == pytest.approx((0.0, 0.3), abs=1e-12)
-    env = make_scenario("jari_usv", {"current": {"current_speed": 0.3, "current_to_deg": 90.0}}).environment
+    env = make_scenario(VESSEL, {"current": {"current_speed": 0.3, "current_to_deg": 90.0}}).environment
     assert env.current_ned(0.0) == pytest.approx(current["current_ne"], abs=1e-12)  # the simulator agrees
     wind = EFFECTS["wind"].readout.terms_from_truth({"wind_speed": 8.0, "wind_from_deg": 90.0})
     assert wind["wind_ne"] == pytest.approx((0.0, -8.0), abs=1e-12)  # from the east = toward the west
@@ -258,7 +258,7 @@ def test_vector_conventions():
     # a thruster imbalance of +8 %: the starboard thruster is weaker; the simulator's fault is the term (k = 0.08)
     assert EFFECTS["thruster_imbalance"].readout.terms_from_truth({"thruster_imbalance_pct": 8.0}) == {
         "thrust_imbalance": pytest.approx((0.08,))}
-    faults = make_scenario("otter", {"thruster_imbalance": {"thruster_imbalance_pct": 8.0}}).faults
+    faults = make_scenario(load_vessel("otter"), {"thruster_imbalance": {"thruster_imbalance_pct": 8.0}}).faults
     assert faults.thruster_imbalance == pytest.approx(0.08)
 
 
@@ -285,7 +285,7 @@ def test_uncertainties_follow_the_readout():
 # ---- the scenario applies any effect from its record -------------------------------------------------
 
 def test_the_scenario_applies_effects_generically():
-    scenario = make_scenario("jari_usv", {"rudder_offset": {"rudder_offset_deg": 2.0},
+    scenario = make_scenario(VESSEL, {"rudder_offset": {"rudder_offset_deg": 2.0},
                                           "heading_offset": {"heading_offset_deg": -3.0},
                                           "current": {"current_speed": 0.4, "current_to_deg": 135.0},
                                           "propeller_asymmetry": {"propeller_side_force_pct": 4.0}})
@@ -298,7 +298,7 @@ def test_the_scenario_applies_effects_generically():
     assert scenario.environment.wind_speed == 0.0
     assert set(scenario.calm_twin().effects) == {"rudder_offset", "heading_offset", "propeller_asymmetry"}
     # a field an effect governs is the effect's value or the field's default, whatever the given sensors say
-    biased = make_scenario("jari_usv", {}, SensorSpec(gyro_bias=0.01, gyro_noise_std=0.1))
+    biased = make_scenario(VESSEL, {}, SensorSpec(gyro_bias=0.01, gyro_noise_std=0.1))
     assert biased.sensor_spec.gyro_bias == 0.0
     assert biased.sensor_spec.gyro_noise_std == 0.1
 
@@ -307,7 +307,7 @@ def test_the_scenario_applies_effects_generically():
 def test_every_parameter_reaches_its_simulator_field(name):
     effect = EFFECTS[name]
     values = {p.name: (p.low + p.high) / 2.0 + 0.1 for p in effect.parameters}  # off every default
-    scenario = make_scenario(preset_for(name), {name: values})
+    scenario = make_scenario(load_vessel(preset_for(name)), {name: values})
     built = {Environment: scenario.environment, ActuatorFaults: scenario.faults, SensorSpec: scenario.sensor_spec}
     for p in effect.parameters:
         assert getattr(built[p.sets.target], p.sets.name) == pytest.approx(p.sets.value(values[p.name])), p.name
@@ -345,7 +345,7 @@ def test_adding_an_effect_touches_one_record(monkeypatch, capsys):
                                                   "1.5"])
     chosen = cmd_simulate._effects(args)
     assert chosen == {"steering_offset": {"steering_offset_deg": 1.5}}
-    assert make_scenario("jari_usv", chosen).faults.rudder_offset_rad == math.radians(1.5)
+    assert make_scenario(VESSEL, chosen).faults.rudder_offset_rad == math.radians(1.5)
     # the acceptance suite's draws and tolerances
     assert hidden_effects.effect_names()[-1] == "steering_offset"
     rng = np.random.default_rng(0)
@@ -408,6 +408,6 @@ def test_effects_apply_to_their_layouts():
     with pytest.raises(ConfigError, match=r"effect 'rudder_offset' does not apply to vessel otter \(actuator layout "
                                           r"twin_thrusters\); it applies to rudder_propeller, "
                                           r"rudder_throttle, rudder_only"):
-        make_scenario("otter", {"rudder_offset": {"rudder_offset_deg": 2.0}})
+        make_scenario(load_vessel("otter"), {"rudder_offset": {"rudder_offset_deg": 2.0}})
     with pytest.raises(ConfigError, match=r"hypotheses \['propeller_asymmetry'\] do not apply to vessel otter"):
         diagnosis.diagnose([], load_vessel("otter"), hypotheses=["current", "propeller_asymmetry"])

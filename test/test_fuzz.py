@@ -6,7 +6,7 @@ reproduces with `-k <case>`. Every run must end with exit 0 or 2 (130 when inter
 error in one line naming the command, the inputs byte-identical (sha256 before and after) and no temporary file
 of an atomic writer left anywhere. Commands run in this process (usv_predictor.replay.cli.main) except where a
 signal or a file-size limit is the point; those cases, and the slower identify/diagnose runs, are marked slow.
-Each test counts its runs (Checked.runs); README.md "What happens on bad input" quotes the totals.
+Each test counts its runs (Checked.runs); README.md "What happens on bad input" and docs/bad_input.md quote the totals.
 """
 from __future__ import annotations
 

@@ -463,9 +463,10 @@ def rudder_throttle_presets(tmp_path_factory: pytest.TempPathFactory) -> tuple[P
     shutil.copytree(vessel_dir(), presets)
     vessel_file = write_vessel(presets, "rudder_throttle")
     assert vessel_file.stem == RUDDER_THROTTLE
-    summary = simulate(SimulationRequest(output=root / "bags", vessel=str(vessel_file), manoeuvre="turning-circle",
-                                         rudder_deg=20.0, throttle=0.6, duration_s=20.0, dt=0.1))
     vessel = load_vessel(vessel_file)
+    summary = simulate(SimulationRequest(output=root / "bags", vessel=vessel, vessel_label=str(vessel_file),
+                                         manoeuvre="turning-circle", rudder_deg=20.0, throttle=0.6, duration_s=20.0,
+                                         dt=0.1))
     rollout = GreyBoxRollout(vessel, dt=DT)
     model = root / "rudder_throttle_greybox.pt"
     export_module(model, rollout, greybox_metadata(vessel, rollout, horizon_steps=int(OTTER_HORIZON_S / DT)))

@@ -18,6 +18,7 @@ from replay_helpers import assert_one_line, replay, write_layout_variant
 
 from usv_predictor.data.dataset import load_dataset
 from usv_predictor.models.artifact import load_artifact
+from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.replay.simulate import SimulationRequest, simulate
 
 # forward_N (N) static thrust at full command, reverse_N (N) astern, exponent (-), dead_band (-), time constant (s)
@@ -42,9 +43,11 @@ def norpm(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFacto
     layout = request.param
     out = tmp_path_factory.mktemp(layout)
     vessel = write_vessel(out, layout)
+    boat = load_vessel(vessel)
     for side in ("starboard", "port"):
-        simulate(SimulationRequest(output=out / "bags" / side, vessel=str(vessel), manoeuvre="turning-circle",
-                                   rudder_deg=RUDDER_DEG, side=side, duration_s=40.0, dt=0.1, **LAYOUTS[layout][1]))
+        simulate(SimulationRequest(output=out / "bags" / side, vessel=boat, vessel_label=str(vessel),
+                                   manoeuvre="turning-circle", rudder_deg=RUDDER_DEG, side=side, duration_s=40.0,
+                                   dt=0.1, **LAYOUTS[layout][1]))
     return layout, vessel, out / "bags"
 
 

@@ -56,10 +56,11 @@ SEAS = {
 def bags(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("online")
     out = {}
+    jari = load_vessel("jari_usv")
     for name, (manoeuvre, effects, rudder) in SEAS.items():
         out[name] = root / name
-        simulate(SimulationRequest(output=out[name], manoeuvre=manoeuvre, duration_s=240.0, effects=effects,
-                                   rudder_deg=rudder, seed=5))
+        simulate(SimulationRequest(output=out[name], vessel=jari, manoeuvre=manoeuvre, duration_s=240.0,
+                                   effects=effects, rudder_deg=rudder, seed=5))
     return out
 
 
@@ -69,7 +70,7 @@ def recording(bags, name):
 
 
 def truth_current(name: str, t_s: float) -> tuple[float, float]:
-    return make_scenario("jari_usv", SEAS[name][1]).environment.current_ned(t_s)
+    return make_scenario(load_vessel("jari_usv"), SEAS[name][1]).environment.current_ned(t_s)
 
 
 # ---- the simulator: a current that steps ---------------------------------------------------------------
@@ -100,7 +101,7 @@ def test_the_simulated_drift_follows_the_step():
     """Over-ground velocity from the integrated positions minus the velocity through the water = the current,
     before and after the step (the simulator integrates the stepped current, deterministically)."""
     model = ManoeuvringModel(load_vessel("jari_usv"))
-    env = dataclasses.replace(make_scenario("jari_usv", STEP).environment, current_step_time_s=60.0)
+    env = dataclasses.replace(make_scenario(load_vessel("jari_usv"), STEP).environment, current_step_time_s=60.0)
     straight = TurningCircle(0.0, 650.0, duration_s=140.0)
     traj = simulate_trajectory(model, straight, env, heading_deg=30.0)
     again = simulate_trajectory(model, straight, env, heading_deg=30.0)
@@ -352,14 +353,16 @@ def rudder_only(tmp_path_factory):
     vessel_file = write_layout_variant(root, "rudder_only")
     speed, toward = RUDDER_ONLY_CURRENT
     recordings = {}
+    vessel = load_vessel(str(vessel_file))
     for name, manoeuvre, effects in (("calm", "turning-circle", {}), ("zigzag", "zigzag", {}),
                                      ("current", "turning-circle",
                                       {"current": {"current_speed": speed, "current_to_deg": toward}})):
-        simulate(SimulationRequest(output=root / name, vessel=str(vessel_file), manoeuvre=manoeuvre,
-                                   rudder_deg=20.0, rpm=650.0, duration_s=90.0, dt=0.1, effects=effects, seed=5))
+        simulate(SimulationRequest(output=root / name, vessel=vessel, vessel_label=str(vessel_file),
+                                   manoeuvre=manoeuvre, rudder_deg=20.0, rpm=650.0, duration_s=90.0, dt=0.1,
+                                   effects=effects, seed=5))
         (recordings[name],) = load_recordings([root / name], DT, warn=lambda _: None,
                                               layout=actuator_layout("rudder_only"))
-    return load_vessel(str(vessel_file)), recordings
+    return vessel, recordings
 
 
 def test_a_rudder_only_boat_gets_no_current_in_calm_water_and_its_current_in_one(rudder_only):

@@ -174,6 +174,7 @@ def test_the_simulation_request_refuses_bad_values_with_the_commands_messages(tm
     from usv_predictor.replay.simulate import SimulationRequest, manoeuvres
 
     out = tmp_path / "bags"
+    vessel = load_vessel("jari_usv")
     for fields, message in (({"programme": "diagnosis", "manoeuvre": "zigzag"},
                              "give either --programme or --manoeuvre"),
                             ({"duration_s": 0.5}, "--duration 0.5 s is outside [1, 3600] s"),
@@ -181,14 +182,15 @@ def test_the_simulation_request_refuses_bad_values_with_the_commands_messages(tm
                             ({"manoeuvre": "barrel-roll"}, "--manoeuvre 'barrel-roll': expected one of"),
                             ({"sea": "stormy"}, "--sea 'stormy': expected one of calm, rizhao")):
         with pytest.raises(ConfigError, match=re.escape(message)):
-            SimulationRequest(output=out, **fields)
-    assert SimulationRequest(output=out, manoeuvre="turning-circle", check_deg=95.0).check_angle_deg == 95.0  # unused
-    vessel = load_vessel("jari_usv")
+            SimulationRequest(output=out, vessel=vessel, **fields)
+    assert SimulationRequest(output=out, vessel=vessel, manoeuvre="turning-circle",
+                             check_deg=95.0).check_angle_deg == 95.0  # unused
     with pytest.raises(ConfigError, match=r"--rudder 60 deg is outside the preset's range \[0, 35\] deg"):
-        manoeuvres(SimulationRequest(output=out, rudder_deg=60.0), vessel)
+        manoeuvres(SimulationRequest(output=out, vessel=vessel, rudder_deg=60.0))
     with pytest.raises(ConfigError, match="--rpm -5 is outside"):
-        manoeuvres(SimulationRequest(output=out, rpm=-5.0), vessel)
-    [zigzag] = manoeuvres(SimulationRequest(output=out, manoeuvre="zigzag", rudder_deg=15.0, side="port"), vessel)
+        manoeuvres(SimulationRequest(output=out, vessel=vessel, rpm=-5.0))
+    [zigzag] = manoeuvres(SimulationRequest(output=out, vessel=vessel, manoeuvre="zigzag", rudder_deg=15.0,
+                                            side="port"))
     assert (zigzag.rudder_deg, zigzag.check_deg, zigzag.side) == (15.0, 15.0, -1)
     assert not out.exists()  # nothing is written before the bags are simulated
 
@@ -221,12 +223,12 @@ def test_a_twin_thruster_programme_is_stated_in_commands(tmp_path):
     from usv_predictor.physics.vessel import load_vessel
     from usv_predictor.replay.simulate import SimulationRequest, manoeuvres
 
-    names = [m.name for m in manoeuvres(SimulationRequest(output=tmp_path, vessel="otter", programme="diagnosis"),
-                                        load_vessel("otter"))]
+    otter = load_vessel("otter")
+    names = [m.name for m in manoeuvres(SimulationRequest(output=tmp_path, vessel=otter, programme="diagnosis"))]
     assert names == ["turning_circle_stbd_d0.4_p0.6", "turning_circle_port_d0.4_p0.6", "zigzag_d0.4_20_stbd_p0.6",
                      "zigzag_d0.4_20_port_p0.6"]
-    [zigzag] = manoeuvres(SimulationRequest(output=tmp_path, vessel="otter", manoeuvre="zigzag", differential=0.3,
-                                            side="port"), load_vessel("otter"))
+    [zigzag] = manoeuvres(SimulationRequest(output=tmp_path, vessel=otter, manoeuvre="zigzag", differential=0.3,
+                                            side="port"))
     assert (zigzag.turn, zigzag.check_deg, zigzag.propulsion, zigzag.side) == (0.3, 20.0, 0.6, -1)
 
 

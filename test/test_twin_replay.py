@@ -10,6 +10,7 @@ import pytest
 from replay_helpers import assert_one_line, replay
 
 from usv_predictor.data.dataset import load_dataset
+from usv_predictor.physics.vessel import load_vessel
 from usv_predictor.replay.simulate import SimulationRequest, simulate
 
 
@@ -17,8 +18,9 @@ from usv_predictor.replay.simulate import SimulationRequest, simulate
 def otter_bags(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Two short otter bags (a turning circle each way, 40 s) at the default topics."""
     out = tmp_path_factory.mktemp("otter")
+    otter = load_vessel("otter")
     for side in ("starboard", "port"):
-        simulate(SimulationRequest(output=out / side, vessel="otter", manoeuvre="turning-circle", differential=0.4,
+        simulate(SimulationRequest(output=out / side, vessel=otter, manoeuvre="turning-circle", differential=0.4,
                                    side=side, duration_s=40.0, dt=0.1))
     return out
 

@@ -1,6 +1,7 @@
 """The vessel is resolved once at each boundary (models/loading.resolve_vessel) and its file read once per command:
 each command's library path is run on the shipped bags with the resolver and the vessel-file reader counted (the
-work after the vessel and the recordings, a training or a fit, is stopped: it reads no vessel)."""
+work after the vessel and the recordings, a training or a fit, is stopped: it reads no vessel; a simulation is run
+whole)."""
 from __future__ import annotations
 
 from collections import Counter
@@ -80,6 +81,41 @@ def test_evaluate_reads_the_vessel_once(counted, monkeypatch):
     monkeypatch.setattr("usv_predictor.analysis.evaluation.evaluate", stop)
     with pytest.raises(Stop):
         cli.main(["evaluate", str(SEA_TRIAL), "--vessel", "jari_usv"])
+    assert counted == {"resolved": 1, "read": 1}
+
+
+def test_evaluate_takes_the_vessel_the_model_embeds_without_reading_a_file(counted, monkeypatch):
+    monkeypatch.setattr("usv_predictor.analysis.evaluation.evaluate", stop)
+    with pytest.raises(Stop):
+        cli.main(["evaluate", str(SEA_TRIAL)])
+    assert counted == {"resolved": 1}
+
+
+def test_evaluate_and_report_read_a_vessel_file_once(counted, monkeypatch, tmp_path):
+    from usv_predictor.physics.vessel import vessel_dir
+
+    boat = tmp_path / "jari.yaml"
+    boat.write_bytes((vessel_dir() / "jari_usv.yaml").read_bytes())
+    monkeypatch.setattr("usv_predictor.analysis.evaluation.evaluate", stop)
+    for command in (["evaluate", str(SEA_TRIAL)], ["report", str(SEA_TRIAL), "--output", str(tmp_path / "r")]):
+        counted.clear()
+        with pytest.raises(Stop):
+            cli.main([*command, "--vessel", str(boat)])
+        assert counted == {"resolved": 1, "read": 1}, command
+
+
+@pytest.mark.parametrize("vessel", ["otter", "file"])
+def test_simulate_reads_the_vessel_once(counted, tmp_path, vessel):
+    """A whole simulation (a sea, a hidden effect, its calm twin): the command resolves the vessel, the scenario, the
+    manoeuvre and the simulator take it."""
+    from usv_predictor.physics.vessel import vessel_dir
+
+    if vessel == "file":
+        vessel = str(tmp_path / "boat.yaml")
+        Path(vessel).write_bytes((vessel_dir() / "otter.yaml").read_bytes())
+    assert cli.main(["simulate", "--vessel", vessel, "--manoeuvre", "turning-circle", "--duration", "12", "--dt",
+                     "0.1", "--sea", "rizhao", "--effect", "thruster_imbalance", "--calm-twin", "--output",
+                     str(tmp_path / "bags")]) == 0
     assert counted == {"resolved": 1, "read": 1}
 
 

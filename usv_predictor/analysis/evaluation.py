@@ -20,7 +20,7 @@ Why "smoothed": eq. 27-29 take a few single GNSS samples per circle (the heading
 the drift), so GNSS noise enters them directly: on the shipped sea trial (0.3 m GNSS noise per axis at 5 Hz plus the
 waves' first-order motion) the TRUE track scored against the raw GNSS track is off by up to 3.1 % in radius (eq. 29
 is biased upward by noise), 1.9 deg in drift angle and 6.1 % in drift distance, against 0.4 %, 1.5 deg and 1.1 %
-against the smoothed one (docs/study_hybrid.md "The metric's own noise").
+against the smoothed one (docs/results/study_hybrid.md "The metric's own noise").
 
 Open loop: the same rollout from many start points (every `stride_s`), position error at 10 / 30 / 60 s
 (metrics.open_loop_errors): what the online predictor is judged on.

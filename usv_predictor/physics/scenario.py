@@ -8,18 +8,19 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass, field, replace
-from functools import lru_cache
-from typing import Mapping, TypeVar
+from typing import TYPE_CHECKING, Mapping, TypeVar
 
 from usv_predictor.config import Range
 from usv_predictor.errors import ConfigError
 from usv_predictor.physics import effects as fx
-from usv_predictor.physics.actuators import ActuatorLayout
+from usv_predictor.physics.actuators import DEFAULT_LAYOUT, actuator_layout
 from usv_predictor.physics.effects import EffectParameter
 from usv_predictor.physics.environment import Environment
 from usv_predictor.physics.sensors import SensorSpec
 from usv_predictor.physics.simulator import ActuatorFaults
-from usv_predictor.physics.vessel import load_vessel
+
+if TYPE_CHECKING:
+    from usv_predictor.physics.vessel import Vessel
 
 __all__ = ["EFFECTS", "RIZHAO_SEA", "EffectParameter", "Scenario", "effect_parameters", "make_scenario"]
 
@@ -42,7 +43,8 @@ T = TypeVar("T", Environment, ActuatorFaults, SensorSpec)
 class Scenario:
     """Everything that shapes a simulated recording except the manoeuvre and the seed."""
 
-    vessel: str = "jari_usv"
+    vessel: str = "jari_usv"  # the vessel as the bags record it: a preset name or the vessel file given
+    layout: str = DEFAULT_LAYOUT.name  # its actuator layout (physics/actuators.py)
     effects: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
     sensors: SensorSpec = field(default_factory=SensorSpec)
 
@@ -77,7 +79,7 @@ class Scenario:
     def describe(self) -> dict:
         """Vessel, effects and the sensor parameters that shape a recording of this vessel (SensorSpec.describe)."""
         return {"vessel": self.vessel, "effects": {k: dict(v) for k, v in self.effects.items()},
-                "sensors": self.sensors.describe(layout_of(self.vessel))}
+                "sensors": self.sensors.describe(actuator_layout(self.layout))}
 
     def digest(self) -> str:
         """SHA-256 of the description: lets a blind bag prove what made it without saying it."""
@@ -98,20 +100,17 @@ def effect_parameters(name: str, given: Mapping[str, float]) -> dict[str, float]
     return values
 
 
-@lru_cache(maxsize=32)
-def layout_of(vessel: str) -> ActuatorLayout:
-    """The actuator layout of a vessel preset (name or YAML path)."""
-    return load_vessel(vessel).actuator_layout
-
-
-def make_scenario(vessel: str, effects: Mapping[str, Mapping[str, float]], sensors: SensorSpec
-                  | None = None) -> Scenario:
-    """A checked scenario: every effect known, applicable to the vessel's actuator layout, its parameters in range."""
-    layout = layout_of(vessel)
-    for name in effects:
-        effect = fx.EFFECTS.get(name)
+def make_scenario(vessel: Vessel, effects: Mapping[str, Mapping[str, float]], sensors: SensorSpec | None = None,
+                  label: str | None = None) -> Scenario:
+    """A checked scenario of a resolved vessel: every effect known, applicable to the vessel's actuator layout, its
+    parameters in range. label: how the bags name the vessel (the preset or the file a command was given; None: its
+    name)."""
+    layout = vessel.actuator_layout
+    name = label if label is not None else vessel.name
+    for effect_name in effects:
+        effect = fx.EFFECTS.get(effect_name)
         if effect is not None and not effect.applies_to(layout.name):
-            raise ConfigError(f"effect {name!r} does not apply to vessel {vessel} (actuator layout {layout.name}); "
-                              f"it applies to {', '.join(effect.layouts or ())}")
-    checked = {name: effect_parameters(name, params) for name, params in effects.items() if name != fx.NONE}
-    return Scenario(vessel=vessel, effects=checked, sensors=sensors or SensorSpec())
+            raise ConfigError(f"effect {effect_name!r} does not apply to vessel {name} (actuator layout "
+                              f"{layout.name}); it applies to {', '.join(effect.layouts or ())}")
+    checked = {key: effect_parameters(key, params) for key, params in effects.items() if key != fx.NONE}
+    return Scenario(vessel=name, layout=layout.name, effects=checked, sensors=sensors or SensorSpec())

@@ -44,7 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     what.add_argument("--side", choices=SIDES, default="starboard", help="first turn to (default starboard)")
     what.add_argument("--duration", type=positive_float, default=None, help="duration (s; default per manoeuvre)")
     what.add_argument("--heading", type=finite_float, default=0.0, help="initial heading (deg clockwise from north)")
-    what.add_argument("--vessel", default="jari_usv", help="vessel preset in config/vessels (default jari_usv)")
+    what.add_argument("--vessel", default="jari_usv",
+                      help="vessel preset in config/vessels or a vessel YAML file (default jari_usv)")
     sea = parser.add_argument_group("sea and hidden effects (DESIGN.md vocabulary)")
     sea.add_argument("--sea", choices=SEAS, default="calm",
                      help="calm water, or the seed 000 trial sea: current + wind + waves (default calm)")
@@ -90,10 +91,12 @@ def _effects(args: argparse.Namespace) -> dict[str, dict[str, float]]:
 
 
 def run(args: argparse.Namespace) -> dict:
+    from usv_predictor.models.loading import resolve_vessel
     from usv_predictor.replay.simulate import simulate
 
     request = SimulationRequest(
-        output=args.output, vessel=args.vessel, programme=args.programme, manoeuvre=args.manoeuvre,
+        output=args.output, vessel=resolve_vessel(args.vessel), vessel_label=args.vessel, programme=args.programme,
+        manoeuvre=args.manoeuvre,
         rudder_deg=args.rudder, check_deg=args.check, rpm=args.rpm, differential=args.differential,
         throttle=args.throttle, side=args.side, duration_s=args.duration,
         heading_deg=args.heading, sea=args.sea, effects=_effects(args), calm_twin=args.calm_twin,

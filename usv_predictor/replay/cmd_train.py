@@ -4,7 +4,7 @@ Trains on the dataset's `train` split, early-stops on its `val` split (without o
 picks the best epoch), and writes one TorchScript file with its metadata (usv_predictor.models.artifact).
 The recipe defaults are seed 000 Table 5 (usv_predictor.fitting.training). Progress (member, epoch, losses) goes
 to stderr at most every --progress-s seconds; the result (losses, best epoch, time, model_id) to stdout
-and --json.
+and --json. The work: usv_predictor.replay.train.
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from usv_predictor.replay.options import non_negative_float, non_negative_int, positive_float, positive_int
+from usv_predictor.replay.options import log, non_negative_float, non_negative_int, positive_float, positive_int
 
 NAME = "train"
 HELP = "train the seed 000 motion network on a dataset and export the TorchScript model artifact"
@@ -77,66 +77,23 @@ class _Throttled:
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     # heavy imports here: `replay --help` must not import torch
-    from usv_predictor.config import load_predictor_config
-    from usv_predictor.data.dataset import load_dataset
-    from usv_predictor.errors import ConfigError, DatasetError
-    from usv_predictor.fitting.training import (
-        Samples,
-        TrainingConfig,
-        samples_from_recordings,
-        train_dnn,
-        windows_from_recordings,
-    )  # fmt: skip
-    from usv_predictor.models.dnn import DnnConfig, export
-    from usv_predictor.physics.actuators import actuator_layout
+    from usv_predictor.errors import ConfigError
+    from usv_predictor.fitting.training import TrainingConfig
     from usv_predictor.models.loading import resolve_vessel
+    from usv_predictor.replay.train import Architecture, TrainRequest, train
 
-    dataset = load_dataset(args.dataset)
-    feature_set = args.features or dataset.feature_set
-    train_split, val_split = dataset.split("train"), dataset.split("val")
-    if len(train_split.X) == 0:
-        raise DatasetError(f"{args.dataset}: the train split has no samples "
-                           f"(splits: {dataset.split_sizes()}); build the dataset with training manoeuvres")
-    if feature_set == dataset.feature_set:
-        train, val = Samples(train_split.X, train_split.Y), Samples(val_split.X, val_split.Y)
-    else:  # the recordings are in the file: recompute the features of the other set
-        train = samples_from_recordings(train_split.recordings(), feature_set)
-        val = samples_from_recordings(val_split.recordings(), feature_set)
     if args.patience < 0:
         raise ConfigError(f"--patience {args.patience}: expected >= 0 (0: never stop early)")
     recipe = TrainingConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr,
                             lr_schedule=args.lr_schedule, weight_decay=args.l2, patience=args.patience or None,
                             multi_step=args.multi_step, ensemble=args.ensemble, seed=args.seed, threads=args.threads)
-    predictor = load_predictor_config()
-    vessel = resolve_vessel(args.vessel)  # embedded in the model (None: the predictor config's)
-    layout = actuator_layout(dataset.control_layout)  # the bags' layout, stored by `replay dataset`
-    if vessel.actuator_layout.name != layout.name:
-        raise ConfigError(f"{args.dataset}: the dataset's control layout is {layout.name} {list(layout.control_names)}"
-                          f" but vessel {vessel.name} is {vessel.actuator_layout.name}: give --vessel of the "
-                          "vessel the bags were recorded on")
-    config = DnnConfig.for_features(feature_set, layout, width=args.width, depth=args.depth,
-                                    activation=args.activation, ceiling=args.ceiling,
-                                    batch_norm=not args.no_batch_norm, predict_increment=not args.absolute_target)
-    windows = {}
-    if recipe.multi_step > 1:
-        windows = {"train_windows": windows_from_recordings(train_split.recordings(), recipe.multi_step),
-                   "val_windows": windows_from_recordings(val_split.recordings(), recipe.multi_step)}
-    print(f"training {config.feature_set} {config.activation} {config.depth}x{config.width} on {len(train)} samples "
-          f"(val {len(val)}), {recipe.epochs} epochs max, ensemble {recipe.ensemble}", file=sys.stderr)
-    result = train_dnn(config, train, val if len(val) else None, recipe,
-                       progress=_Throttled(args.progress_s, recipe.epochs), **windows)
-    artifact = export(args.output, result.models, config, dt=dataset.dt, vessel=vessel,
-                      training_data_sha256=dataset.digest(),
-                      training={**result.summary(), "dataset": str(args.dataset)},
-                      horizon_steps=args.horizon_steps or round(predictor.horizon_s / dataset.dt), dtype=args.dtype)
-    summary = {
-        "model": str(args.output), "model_id": artifact.model_id, "feature_set": feature_set,
-        "dt": dataset.dt, "ensemble_size": recipe.ensemble, "time_s": result.time_s,
-        "best_epoch": [m.best_epoch for m in result.members], "epochs_run": [m.epochs_run for m in result.members],
-        "train_loss": result.train_loss, "val_loss": result.val_loss, "monitor": result.monitor,
-        "n_train": result.n_train, "n_val": result.n_val, "architecture": config.to_dict(), "recipe": recipe.to_dict(),
-    }
-    print(f"wrote {args.output} (model_id {artifact.model_id}): best epoch {summary['best_epoch']}, "
-          f"train loss {result.train_loss:.5g}, {result.monitor} loss "
-          f"{result.val_loss if result.monitor == 'val' else result.train_loss:.5g}, {result.time_s:.1f} s")
+    architecture = Architecture(width=args.width, depth=args.depth, activation=args.activation, ceiling=args.ceiling,
+                                batch_norm=not args.no_batch_norm, predict_increment=not args.absolute_target)
+    request = TrainRequest(dataset=args.dataset, output=args.output, vessel=resolve_vessel(args.vessel),
+                           recipe=recipe, architecture=architecture, features=args.features,
+                           horizon_steps=args.horizon_steps, dtype=args.dtype)
+    summary = train(request, progress=_Throttled(args.progress_s, recipe.epochs), log=log)
+    loss = summary["val_loss"] if summary["monitor"] == "val" else summary["train_loss"]
+    print(f"wrote {args.output} (model_id {summary['model_id']}): best epoch {summary['best_epoch']}, "
+          f"train loss {summary['train_loss']:.5g}, {summary['monitor']} loss {loss:.5g}, {summary['time_s']:.1f} s")
     return summary

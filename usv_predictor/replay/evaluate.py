@@ -22,6 +22,7 @@ from usv_predictor.errors import BagError, ConfigError, EvaluationError
 
 if TYPE_CHECKING:
     from usv_predictor.analysis.evaluation import EvaluationResult
+    from usv_predictor.physics.vessel import Vessel
 
 EVALUATION_FILE = "evaluation.json"
 SERIES_FILE = "evaluation_series.npz"
@@ -44,8 +45,9 @@ class EvaluationRequest:
     stride_s: float = 5.0  # time between open-loop start points (s)
     include_calm: bool = False  # also read calm/ twins under bag directories
     config: Path | None = None  # predictor.yaml with the input topics (None: the shipped one)
-    # preset or vessel file of the bags' vessel; None: the model's (embedded or its preset), else the config's
-    vessel: str | None = None
+    # the bags' vessel, resolved once by the command (given_vessel); None: the model's (embedded or its preset), else
+    # the config's
+    vessel: Vessel | None = None
     adaptive: bool = False  # also run the online estimator and the adaptive open loop (analysis/adaptive.py)
     fit_check: bool = True  # refuse a model that does not fit the bags at all (analysis/fit_check.py)
     scale: float = 1.0  # Froude scale L_bags / L_model: the bags are scaled to the model's size (data/recording.py)
@@ -90,27 +92,44 @@ def _output_apart(request: EvaluationRequest, output: Path | None, writes: Seque
         check_outputs(outputs, [*(request.bags or default_bags()), request.model], {"--output"})
 
 
-def evaluation_vessel(vessel: str | None, model: Any, source: str) -> Any:
-    """The vessel the bags are read and the model is checked with (models/loading.model_vessel): `vessel` (a preset or
-    a vessel file; refused in one line when the model embeds a description that differs), else the description the
-    model embeds, else the preset its metadata names; None for a model of before (name only) whose vessel is no
-    preset here and no --vessel (the bags are then read with the config's vessel, the fit check has no length)."""
-    from usv_predictor.models.loading import resolve_vessel
-    from usv_predictor.physics.vessel import load_vessel
+def given_vessel(vessel: str | None, model: str | None = None) -> Vessel | None:
+    """`--vessel` resolved once at the command boundary (models/loading.resolve_vessel): a preset or a vessel file; a
+    name that is no preset here but the name of the vessel the model file (`model`, None: the shipped one) embeds:
+    that description (a model made for a boat whose file is not here); None when none is given."""
+    from usv_predictor.models import loading
 
-    given = None
-    if vessel is not None:
-        try:
-            given = load_vessel(vessel)  # read once here, resolved against the model below
-        except ConfigError:  # no such preset: perhaps the name of the vessel the model embeds (model_vessel)
-            given = None
-        if given is not None and (list(given.actuator_layout.control_names)
-                                  != list(model.metadata.get("control_layout", []))):
-            return given  # another layout altogether: bags_layout says so, naming both
+    if vessel is None:
+        return None
     try:
-        return resolve_vessel(given if given is not None else vessel, model=model, source=f"model {source}")
+        return loading.resolve_vessel(vessel)
     except ConfigError:
-        if vessel is not None or getattr(model, "embedded_vessel", None) is not None:
+        if Path(vessel).suffix in (".yaml", ".yml") or loading.is_physics(model):
+            raise
+        from usv_predictor.models.artifact import read_files
+        from usv_predictor.physics.vessel import vessel_from_dict
+
+        path = Path(model).expanduser() if model else loading.default_model_path()
+        description = read_files(path)[2] if path.is_file() else None
+        if description is None or description.get("name") != vessel:
+            raise
+        return vessel_from_dict(description, source=f"model file {path}")
+
+
+def evaluation_vessel(vessel: Vessel | None, model: Any, source: str) -> Vessel | None:
+    """The vessel the bags are read and the model is checked with: `vessel` (given_vessel; refused in one line when
+    the model embeds a description that differs: models/loading.model_vessel), else the description the model embeds,
+    else the preset its metadata names; None for a model of before (name only) whose vessel is no preset here and no
+    --vessel (the bags are then read with the config's vessel, the fit check has no length)."""
+    from usv_predictor.models.loading import model_vessel, resolve_vessel
+
+    if vessel is not None:
+        if list(vessel.actuator_layout.control_names) != list(model.metadata.get("control_layout", [])):
+            return vessel  # another layout altogether: bags_layout says so, naming both
+        return model_vessel(model, vessel, source=f"model {source}")  # resolved already: checked against the model
+    try:
+        return resolve_vessel(model=model, source=f"model {source}")
+    except ConfigError:
+        if getattr(model, "embedded_vessel", None) is not None:
             raise
         return None
 

@@ -15,7 +15,8 @@ import sys
 from pathlib import Path
 from typing import Callable, Sequence
 
-from usv_predictor.replay.evaluate import REFERENCES, ROLLOUT_BUDGET_S, EvaluationRequest
+from usv_predictor.replay.evaluate import (REFERENCES, ROLLOUT_BUDGET_S, EvaluationRequest, given_vessel,
+                                           is_evaluation_file)
 
 
 def _number(text: str, kind: type, what: str, ok: Callable[[float], bool]) -> float | int:
@@ -125,8 +126,9 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
 
 def evaluation_request(args: argparse.Namespace, bags: Sequence[Path]) -> EvaluationRequest:
     """The options of add_model_arguments (and the bags) as an EvaluationRequest."""
+    vessel = None if is_evaluation_file(bags) else given_vessel(args.vessel, args.model)  # a file names its own
     return EvaluationRequest(bags=tuple(bags), model=args.model, dt=args.dt, reference=args.reference,
                              horizons_s=tuple(args.horizons), stride_s=args.stride, include_calm=args.include_calm,
-                             config=args.config, vessel=args.vessel,
+                             config=args.config, vessel=vessel,
                              adaptive=bool(getattr(args, "adaptive", False)), fit_check=not args.no_fit_check,
                              scale=args.scale, rollout_budget_s=args.rollout_budget)

@@ -52,7 +52,9 @@ class SimulationRequest:
     --differential and --throttle; None is the layout input's default."""
 
     output: Path  # directory for the bags
-    vessel: str = "jari_usv"  # vessel preset in config/vessels
+    vessel: Vessel  # the vessel, resolved once by the command (models/loading.resolve_vessel)
+    vessel_label: str | None = None  # how the command named it (a preset or a vessel file), recorded in the bags'
+    # custom_data `vessel`; None: the vessel's name
     programme: str | None = None  # a trial programme of usv_predictor.physics.manoeuvres.PROGRAMMES ...
     manoeuvre: str | None = None  # ... or one manoeuvre of KINDS (neither: DEFAULT_MANOEUVRE)
     rudder_deg: float | None = None  # rudder angle (deg; None: 20)
@@ -102,9 +104,10 @@ class SimulationRequest:
         return default if value is None else float(value)
 
 
-def _commands(request: SimulationRequest, vessel: Vessel) -> tuple[float, float]:
-    """The request's (turn, propulsion) in the units of the vessel's layout inputs, checked against its limits;
+def _commands(request: SimulationRequest) -> tuple[float, float]:
+    """The request's (turn, propulsion) in the units of its vessel's layout inputs, checked against its limits;
     an option of another layout is refused naming the vessel's layout."""
+    vessel = request.vessel
     layout = vessel.actuator_layout
     inputs = (layout.turn_input, layout.propulsion_input)
     if None in inputs:
@@ -128,13 +131,13 @@ def _commands(request: SimulationRequest, vessel: Vessel) -> tuple[float, float]
     return values[0], values[1]
 
 
-def manoeuvres(request: SimulationRequest, vessel: Vessel) -> list:
-    """The manoeuvres of the request: its programme, or its one manoeuvre within the vessel's limits, stated in the
+def manoeuvres(request: SimulationRequest) -> list:
+    """The manoeuvres of the request: its programme, or its one manoeuvre within its vessel's limits, stated in the
     units of the vessel's layout (physics/manoeuvres.py: a rudder and rpm, or the layout's own commands)."""
     from usv_predictor.physics import manoeuvres as mv
 
-    layout = vessel.actuator_layout
-    turn, propulsion = _commands(request, vessel)
+    layout = request.vessel.actuator_layout
+    turn, propulsion = _commands(request)
     if request.programme:
         if request.programme not in mv.PROGRAMMES:
             raise ConfigError(f"--programme {request.programme!r}: expected one of {', '.join(sorted(mv.PROGRAMMES))}")
@@ -164,10 +167,9 @@ def simulate_bag(path: Path, manoeuvre: Any, scenario: Scenario, request: Simula
     from usv_predictor.physics.dynamics import ManoeuvringModel
     from usv_predictor.physics.sensors import measure
     from usv_predictor.physics.simulator import simulate as integrate
-    from usv_predictor.physics.vessel import load_vessel
     from usv_predictor.replay.bagio import config_topic_specs, write_bag
 
-    model = model or ManoeuvringModel(load_vessel(scenario.vessel))
+    model = model or ManoeuvringModel(request.vessel)
     start_ns = EPOCH_NS + int(index * (GAP_S + 300.0) * NS_PER_S)
     heading = request.heading_deg + HEADING_STEP_DEG * index  # vary the approach heading across a programme
     traj = integrate(model, manoeuvre, scenario.environment, heading_deg=heading, dt=request.dt,
@@ -199,17 +201,15 @@ def simulate(request: SimulationRequest, progress: Callable[[str], None] = lambd
     """Every bag of the request (and their calm twins); the result of `replay simulate` (bags, scenario, digest)."""
     from usv_predictor.physics.dynamics import ManoeuvringModel
     from usv_predictor.physics.scenario import make_scenario
-    from usv_predictor.physics.vessel import load_vessel
     from usv_predictor.replay.bagio import prepare_outputs
 
-    vessel = load_vessel(request.vessel)
-    chosen = manoeuvres(request, vessel)
-    scenario = make_scenario(request.vessel, scenario_effects(request.sea, request.effects))
+    chosen = manoeuvres(request)
+    scenario = make_scenario(request.vessel, scenario_effects(request.sea, request.effects), label=request.vessel_label)
     jobs = [(request.output / m.name, m, scenario) for m in chosen]
     if request.calm_twin:
         jobs += [(request.output / "calm" / m.name, m, scenario.calm_twin()) for m in chosen]
     prepare_outputs(request.output, [p for p, _, _ in jobs], request.overwrite)
-    model = ManoeuvringModel(vessel)
+    model = ManoeuvringModel(request.vessel)
     results = []
     for k, (path, manoeuvre, scen) in enumerate(jobs):
         index = k % len(chosen)  # a calm twin has the same seed, time and place as its sea bag

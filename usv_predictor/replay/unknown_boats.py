@@ -69,12 +69,13 @@ def _simulate_trials(trials: tuple[CalmTrial, ...], vessel: Path, seed: int, hea
 
     command = (f"replay.simulate.simulate_bag x {len(trials)} ({', '.join(t.bag for t in trials)}) --vessel {vessel} "
                f"--blind --seed {seed} --heading {heading_deg:g} --output {output}")
-    request = SimulationRequest(output=output, vessel=str(vessel), heading_deg=heading_deg, blind=True, seed=seed,
-                                command=command)
-    scenario = make_scenario(str(vessel), {})
+    boat = load_vessel(str(vessel))  # the truth file, read once
+    request = SimulationRequest(output=output, vessel=boat, vessel_label=str(vessel), heading_deg=heading_deg,
+                                blind=True, seed=seed, command=command)
+    scenario = make_scenario(boat, {}, label=str(vessel))
     paths = [output / t.bag for t in trials]
     prepare_outputs(output, paths, overwrite=False)
-    model = ManoeuvringModel(load_vessel(str(vessel)))
+    model = ManoeuvringModel(boat)
     for index, (path, trial) in enumerate(zip(paths, trials)):
         simulate_bag(path, trial.manoeuvre, scenario, request, seed=seed + 1000 * index, index=index, model=model)
     log.append(f"$ {command}\n(exit 0)")
