@@ -78,6 +78,9 @@ MIN_MANOEUVRES = 2  # cross-validation needs at least one manoeuvre to hold out
 SPEED_RATIO_RANGE = (0.6, 1.6)  # measured / preset straight-running speed accepted as "the same vessel and scale"
 RIDGE_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # penalty weights (relative to the data term) tried by CV
 Z95 = 1.959964
+# the layouts whose rudder / propeller interaction factors `interaction="identify"` searches (fitting/interaction.py
+# SEARCHED_FACTORS says which factors each): a rudder behind a propeller, its engine speed measured or not
+INTERACTION_LAYOUTS = ("rudder_propeller", "rudder_only")
 CHI2_95 = 3.841459  # 95 % quantile of chi-square with 1 degree of freedom (profile-likelihood intervals)
 PROFILE_SPAN = 4.0  # a profiled gain is searched within [prior / span, prior * span]
 PROFILE_POINTS = 17  # coarse grid of the profile (log-spaced), refined by golden section
@@ -916,9 +919,10 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     only: fitting/hull_models.identify dispatches by hull model (a small-craft hull, twin thrusters, to
     fitting/small_craft_identification.py: structures diagonal / coupled). The actuator layout decides the levels and
     what is held (module docstring, "Actuator layouts").
-    interaction "identify" (rudder_propeller only): the rudder lift gradient, gamma_R, eta, w_P0 and t_P are searched
-    with the hull by `search_interaction` (fitting/interaction.identify_interaction; fitting/hull_models.identify
-    gives it) and replace the description's when the held-out simulation says so;
+    interaction "identify" (the INTERACTION_LAYOUTS): the rudder lift gradient, gamma_R and eta, and for
+    rudder_propeller w_P0 and t_P, are searched with the hull by `search_interaction`
+    (fitting/interaction.identify_interaction, SEARCHED_FACTORS; fitting/hull_models.identify gives it) and replace
+    the description's when the held-out simulation says so; the other layouts have no such factors;
     "fix" (default): held at the description's values (docs/results/unknown_boats.md: identify gives more right answers
     on unknown boats but also confident wrong ones, so it is not the default yet).
     The output-error stage that may follow (fitting/output_error.refine) is its caller's: fitting/hull_models.identify.
@@ -972,7 +976,7 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
         forces = with_known_forces(vessel, forces)
         gains = (gain,)
     searched = None
-    if vessel.layout == "rudder_propeller" and interaction == "identify":
+    if vessel.layout in INTERACTION_LAYOUTS and interaction == "identify":
         if search_interaction is None:
             raise ConfigError("interaction 'identify' needs the search of the interaction factors "
                               "(fitting/interaction.identify_interaction, given by fitting/hull_models.identify)")
