@@ -108,6 +108,10 @@ ADDED_MASS_TERMS: Mapping[str, str] = {"X_udot": "XYN", "Y_vdot": "XYN", "N_rdot
 # terms is held at the vessel file's values, the added masses (the file's formula) or the thrust gains (the owner's
 # datasheet); identify_small_craft fits both and keeps the one that cross-validates better by more than 5 %
 ANCHORS: Mapping[str, tuple[str, ...]] = {"added_mass": tuple(ADDED_MASS_TERMS), "thrust": GAIN_NAMES}
+MIN_MASS_FRACTION = 0.5  # (-) the thrust anchor's fitted total masses m - X_udot, m - Y_vdot, I_z - N_rdot must be at
+# least this x the rigid body's: an added mass is >= 0 (Fossen 2021 sec. 6.3); the margin is the smoother's bias of
+# the accelerations (a few %) and of the yaw radius the file guessed; below it the fit trades mass for damping (the
+# walkthrough otter: m - X_udot 17 kg of 80, a model that diverges)
 ANCHOR_WHY: Mapping[str, str] = {
     "added_mass": "the vessel file's added masses (X_udot, Y_vdot, N_rdot) with the mass and inertia; the thrust "
                   "gains are the data's",
@@ -579,6 +583,9 @@ def scale_anchored_fit(vessel: Vessel, data: Sequence[ForceData], structure: str
             refused = refused or err
             continue
         scores[anchor] = cross_validate(vessel, data, fits[anchor])
+    implausible = _implausible_masses(vessel, fits["thrust"]) if "thrust" in fits else ""
+    if implausible and len(fits) > 1:
+        del fits["thrust"], scores["thrust"]
     if not fits:
         raise refused  # type: ignore[misc]
     default = "added_mass" if "added_mass" in scores else "thrust"
@@ -586,7 +593,18 @@ def scale_anchored_fit(vessel: Vessel, data: Sequence[ForceData], structure: str
     if "thrust" in scores and scores["thrust"].score < 0.95 * scores[default].score:
         chosen = "thrust"
     listed = ", ".join(f"{a} {cv.score:.4g}" for a, cv in scores.items())
-    return fits[chosen], scores[chosen], f"{structure}: scale anchor by CV error ({listed}) -> {chosen}"
+    out = f" (thrust anchor out: {implausible})" if implausible and "thrust" not in fits else ""
+    return fits[chosen], scores[chosen], f"{structure}: scale anchor by CV error ({listed}){out} -> {chosen}"
+
+
+def _implausible_masses(vessel: Vessel, fit: JointFit) -> str:
+    """Why the fit's total masses are not physical (MIN_MASS_FRACTION of the rigid body's), or ""."""
+    values = fit.values()
+    m, g = vessel.mass, vessel.geometry
+    rigid = {"X_udot": m, "Y_vdot": m, "N_rdot": m * (g.k_zz * g.L_pp) ** 2}  # (kg, kg, kg m^2)
+    low = [f"{n}: total {rigid[n] - values[n]:.3g} of rigid {rigid[n]:.3g}" for n in ADDED_MASS_TERMS
+           if rigid[n] - values[n] < MIN_MASS_FRACTION * rigid[n]]
+    return "; ".join(low)
 
 
 def with_exponent(vessel: Vessel, exponent: float) -> Vessel:
