@@ -12,6 +12,7 @@ import pytest
 from usv_predictor.analysis.hidden_effects import effect_names
 from usv_predictor.analysis.unknown_boats import SIZE_CLASSES, TRIAL_RPM, draw_boat
 from usv_predictor.data.recording import recording_from_signals
+from usv_predictor.errors import ConfigError
 from usv_predictor.fitting import hull_models
 from usv_predictor.fitting import identification as idf
 from usv_predictor.fitting import interaction as ia
@@ -112,6 +113,53 @@ def test_the_search_moves_wrong_rudder_factors_toward_the_truth():
     assert result.vessel.rudder.f_alpha == pytest.approx(factors["rudder.lift_factor"] * description.rudder.f_alpha /
                                                          description.rudder.lift_factor)
     assert not math.isnan(result.fit.values()["N_r"])
+
+
+RUDDER_ONLY_TRIALS = (ZigZag(10.0, 10.0, 650.0, duration_s=80.0), ZigZag(20.0, 20.0, 700.0, duration_s=80.0, side=-1),
+                      TurningCircle(25.0, 650.0, duration_s=80.0), TurningCircle(15.0, 700.0, duration_s=80.0, side=-1))
+
+
+def test_every_layout_with_interaction_factors_has_its_searched_factors():
+    """identification searches the layouts of INTERACTION_LAYOUTS, interaction.py knows the factors of each (and of
+    rudder_only); a rudder_only boat (engine speed not recorded) keeps the propeller's: they set its equivalent engine
+    speed."""
+    assert set(idf.INTERACTION_LAYOUTS) <= set(ia.SEARCHED_FACTORS)
+    for factors in ia.SEARCHED_FACTORS.values():
+        assert set(factors.equation_error) <= set(factors.output_error) <= set(ia.INTERACTION_BOUNDS)
+        assert len(factors.output_error) <= len(ia.HALTON_BASES)
+    assert not any(n.startswith("propeller.") for n in ia.SEARCHED_FACTORS["rudder_only"].output_error)
+    otter = load_vessel("otter")
+    with pytest.raises(ConfigError, match="twin_thrusters"):
+        ia.identify_interaction(otter, [], [], "mmg", "fix", 1.0)
+
+
+@pytest.mark.slow
+def test_the_search_moves_wrong_rudder_factors_toward_the_truth_without_the_engine_speed():
+    """rudder_only (the engine speed not recorded): jari_usv's description, a boat whose rudder lift gradient is 25 %
+    higher and gamma_R 25 % lower: the search varies the rudder's factors (not the propeller's, which define the
+    equivalent engine speed), both closer to the boat's than the description's."""
+    description = dataclasses.replace(load_vessel("jari_usv"), layout="rudder_only")
+    truth = ia.with_factors(description, {"rudder.lift_factor": 1.25, "rudder.gamma_R": 0.75})
+    model, env = ManoeuvringModel(truth), Environment()
+    recordings = [recording_from_signals(measure(simulate(model, m, env, seed=i), env, SensorSpec(), seed=i), DT,
+                                         name=m.name, layout=truth.actuator_layout)
+                  for i, m in enumerate(RUDDER_ONLY_TRIALS)]
+    assert recordings[0].controls.shape[1] == 1
+    data = idf.prepare(description, recordings)
+    u0 = float(np.median(np.concatenate([d.nu[:, 0] for d in data])))
+    fit = ia.identify_interaction(description, data, recordings, "mmg", "fix", u0, held=("R0",))
+    assert fit.accepted, fit.note()
+    factors = {c.name: c.estimate for c in fit.coefficients}
+    assert set(factors) == set(ia.SEARCHED_FACTORS["rudder_only"].output_error)
+    for name in ("rudder.lift_factor", "rudder.gamma_R"):
+        true, prior = ia.factor_value(truth, name), ia.factor_value(description, name)
+        assert abs(factors[name] - true) < 0.5 * abs(prior - true), (name, factors[name], true, prior)
+    assert fit.vessel.propeller == description.propeller
+    assert fit.scale["propeller.w_P0"] == fit.scale["propeller.t_P"] == 1.0
+    assert fit.simulation[fit.chosen] < ia.ACCEPT_RATIO * fit.simulation["description"]
+    # not yet identify's default for rudder_only (identification.INTERACTION_LAYOUTS: a confident wrong answer)
+    assert hull_models.identify(description, recordings, structure="mmg", prior="fix", interaction="identify",
+                                data=data).interaction is None
 
 
 def test_without_a_segment_long_enough_the_description_stays():

@@ -48,8 +48,7 @@ def candidate_scores(vessel: Vessel, data: Sequence[ForceData], result: Identifi
 
     def refit_score(structure: str, prior: str) -> float:  # the hull model's own regression and cross-validation
         if hull_model == "small_craft":
-            return small_craft.cross_validate(vessel, data,
-                                              small_craft.fit_small_craft(vessel, data, structure, prior)).score
+            return small_craft.scale_anchored_fit(vessel, data, structure, prior)[1].score  # as identify fits it
         return cross_validate(vessel, data, fit_hull(vessel, data, structure, prior, u0=result.fit.u0)).score
 
     out = []

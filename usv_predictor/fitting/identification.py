@@ -79,6 +79,11 @@ MIN_MANOEUVRES = 2  # cross-validation needs at least one manoeuvre to hold out
 SPEED_RATIO_RANGE = (0.6, 1.6)  # measured / preset straight-running speed accepted as "the same vessel and scale"
 RIDGE_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # penalty weights (relative to the data term) tried by CV
 Z95 = 1.959964
+# the layouts whose rudder / propeller interaction factors `interaction="identify"` searches (fitting/interaction.py
+# SEARCHED_FACTORS says which factors each layout would have). rudder_only is not among them yet: searched, it
+# answered 6 of 8 unknown boats right against 3 of 8, but the lean suite's secret clean small boat then named an
+# actuator delay of 0.02 s (a confident wrong cause; docs/results/unknown_boats.md, "rudder_only with the search")
+INTERACTION_LAYOUTS = ("rudder_propeller",)
 CHI2_95 = 3.841459  # 95 % quantile of chi-square with 1 degree of freedom (profile-likelihood intervals)
 PROFILE_SPAN = 4.0  # a profiled gain is searched within [prior / span, prior * span]
 PROFILE_POINTS = 17  # coarse grid of the profile (log-spaced), refined by golden section
@@ -923,9 +928,10 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     only: fitting/hull_models.identify dispatches by hull model (a small-craft hull, twin thrusters, to
     fitting/small_craft_identification.py: structures diagonal / coupled). The actuator layout decides the levels and
     what is held (module docstring, "Actuator layouts").
-    interaction "identify" (rudder_propeller only): the rudder lift gradient, gamma_R, eta, w_P0 and t_P are searched
-    with the hull by `search_interaction` (fitting/interaction.identify_interaction; fitting/hull_models.identify
-    gives it) and replace the description's when the held-out simulation says so;
+    interaction "identify" (the INTERACTION_LAYOUTS): the rudder lift gradient, gamma_R, eta, w_P0 and t_P are
+    searched with the hull by `search_interaction`
+    (fitting/interaction.identify_interaction, SEARCHED_FACTORS; fitting/hull_models.identify gives it) and replace
+    the description's when the held-out simulation says so; the other layouts have no such factors;
     "fix" (default): held at the description's values (docs/results/unknown_boats.md: identify gives more right answers
     on unknown boats but also confident wrong ones, so it is not the default yet).
     The output-error stage that may follow (fitting/output_error.refine) is its caller's: fitting/hull_models.identify.
@@ -979,7 +985,7 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
         forces = with_known_forces(vessel, forces)
         gains = (gain,)
     searched = None
-    if vessel.layout == "rudder_propeller" and interaction == "identify":
+    if vessel.layout in INTERACTION_LAYOUTS and interaction == "identify":
         if search_interaction is None:
             raise ConfigError("interaction 'identify' needs the search of the interaction factors "
                               "(fitting/interaction.identify_interaction, given by fitting/hull_models.identify)")

@@ -22,9 +22,11 @@ hull regression is linear GIVEN them, and the factors are searched outside it (a
  2. output error: the multi-step simulation error of the identified grey box (models/greybox.GreyBoxRollout on the
     compiled kernel, models/kernel_rollout.py: the model `diagnose` runs) on the 20 s segments (data/segments.py,
     SEGMENT_HORIZON_S) of the manoeuvres is minimised
-    over the log of all five SEARCH_FACTORS (the rudder's lift gradient, gamma_R and eta, the propeller's w_P0 and
-    t_P) by Levenberg-Marquardt (finite-difference Jacobian of the residuals, FD_STEP; at most MAX_SEARCH
-    candidates), the hull refitted (linear) for each candidate: a variable-projection least squares. It starts from
+    over the log of the layout's factors (SEARCHED_FACTORS: rudder_propeller all five SEARCH_FACTORS, the rudder's
+    lift gradient, gamma_R and eta, the propeller's w_P0 and t_P; rudder_only, whose engine speed is not recorded,
+    the rudder's three: its equivalent engine speed is defined by the description's propeller) by
+    Levenberg-Marquardt (finite-difference Jacobian of the residuals, FD_STEP; at most MAX_SEARCH candidates), the
+    hull refitted (linear) for each candidate: a variable-projection least squares. It starts from
     the best of the description, the stage-1 optimum, that optimum with the description's propeller and DESIGN_POINTS
     points of a Halton design over the box (where all of the first three diverge the residuals are clamped flat and
     Levenberg-Marquardt cannot move: docs/results/unknown_boats.md, boat 24). Simulation
@@ -59,6 +61,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -66,6 +69,7 @@ import torch
 
 from usv_predictor.data.recording import Recording
 from usv_predictor.data.segments import Segments, make_segments
+from usv_predictor.errors import ConfigError
 from usv_predictor.fitting.identification import (
     CHI2_95, SEARCH_BOX, Coefficient, ForceData, _least_squares_rss, cross_validate, fit_hull, identified_vessel,
     with_known_forces)
@@ -90,6 +94,7 @@ INTERACTION_BOUNDS: Mapping[str, tuple[float, float]] = {
 }
 ETA_MAX = 1.0  # (-) eta at most 1: the slipstream covers at most the whole span (MMG eq. 38 weights 1 - eta)
 EQUATION_ERROR_FACTORS = ("rudder.lift_factor", "rudder.gamma_R", "propeller.w_P0", "propeller.t_P")  # stage 1
+RUDDER_FACTORS = ("rudder.lift_factor", "rudder.gamma_R", "rudder.eta")  # the rudder's own factors
 GRID_POINTS = 9  # log-spaced trial values of one factor in a coarse sweep (-)
 INTERVAL_POINTS = 9  # log-spaced trial values of one factor over its box for its interval (-)
 SWEEPS = 1  # coarse coordinate-descent sweeps over all factors, then one fine sweep
@@ -106,6 +111,28 @@ DIVERGED = 1e6  # (-) the normalised squared error counted for a diverged or non
 # simulate (each: one hull fit and one rollout per manoeuvre; the cost the identify budget allows, about the
 # stage-1 search's)
 SEARCH_FACTORS = ("rudder.lift_factor", "rudder.gamma_R", "rudder.eta", "propeller.w_P0", "propeller.t_P")  # stage 2
+
+
+@dataclass(frozen=True)
+class LayoutFactors:
+    """The factors the search varies for one actuator layout (the others stay the description's)."""
+
+    layout: str  # physics/actuators.py ActuatorLayout.name
+    equation_error: tuple[str, ...]  # stage 1's factors
+    output_error: tuple[str, ...]  # stage 2's factors (and those reported as coefficients)
+    why: str  # why these
+
+
+SEARCHED_FACTORS: Mapping[str, LayoutFactors] = MappingProxyType({f.layout: f for f in (
+    LayoutFactors("rudder_propeller", EQUATION_ERROR_FACTORS, SEARCH_FACTORS,
+                  "the engine speed is measured: the propeller's wake and thrust deduction act on the recorded "
+                  "thrust and the rudder's inflow"),
+    LayoutFactors("rudder_only", ("rudder.lift_factor", "rudder.gamma_R"), RUDDER_FACTORS,
+                  "the engine speed is not recorded: each manoeuvre's equivalent engine speed is the one that holds "
+                  "its approach speed with the description's R0, w_P0 and t_P (identification.actuator_levels), so "
+                  "w_P0 and t_P set that speed, not a thrust the data measure; they stay the description's, and the "
+                  "rudder's inflow error is the lift gradient's and eta's"),
+)})
 DESIGN_POINTS = 4  # (-) Halton points over the log box of the five factors, beside the three starts: where the
 #                     description and the force-fit optimum both diverge (flat clamped residuals), a start that does not
 HALTON_BASES = (2, 3, 5, 7, 11)  # (-) one prime per factor of SEARCH_FACTORS
@@ -300,10 +327,12 @@ def straight_reference(vessel: Vessel, data: Sequence[ForceData]) -> tuple[float
     median surge; the median engine speed of all samples and None when fewer than STRAIGHT_MIN_SAMPLES are
     straight."""
     layout = vessel.actuator_layout
-    controls = np.concatenate([d.controls for d in data])  # (T, 2) delta (rad), rpm
+    # (T, 2) the actuator levels delta (rad), rpm (rudder_only: the equivalent engine speed,
+    # identification.actuator_levels), not the recorded controls
+    controls = np.concatenate([d.controls for d in data])
     nu = np.concatenate([d.nu for d in data])  # (T, 3)
     speed = np.maximum(np.hypot(nu[:, 0], nu[:, 1]), 1e-3)
-    straight = (np.abs(layout.steering_signal(controls)) < layout.straight_below) \
+    straight = (np.abs(controls[:, 0]) < layout.straight_below) \
         & (np.abs(nu[:, 2]) * vessel.geometry.L_pp / speed < 0.01)
     if int(straight.sum()) < STRAIGHT_MIN_SAMPLES:
         return float(np.median(controls[:, 1])), None
@@ -399,8 +428,13 @@ def steady_check(vessel: Vessel, rpm: float, measured_speed: float | None) -> st
 def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: Sequence[Recording],
                          structure: str, prior: str, u0: float, *, held: Sequence[str] = (),
                          progress: Callable[[str], None] | None = None) -> InteractionFit:
-    """The two stages of the module docstring for a rudder_propeller vessel description."""
-    names = EQUATION_ERROR_FACTORS
+    """The two stages of the module docstring for a vessel description of a layout of SEARCHED_FACTORS (its
+    factors; the others stay the description's)."""
+    if vessel.layout not in SEARCHED_FACTORS:
+        raise ConfigError(f"vessel {vessel.name}: the interaction factors are searched for the layouts "
+                          f"{sorted(SEARCHED_FACTORS)}, not {vessel.layout!r}")
+    factors = SEARCHED_FACTORS[vessel.layout]
+    names, search = factors.equation_error, factors.output_error
     evaluations = 0
     cache: dict[tuple, float] = {}
 
@@ -470,7 +504,7 @@ def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: 
         return len(searched) >= MAX_SEARCH
 
     if progress is not None:
-        progress(f"interaction factors: output-error search over {', '.join(SEARCH_FACTORS)} (at most "
+        progress(f"interaction factors: output-error search over {', '.join(search)} (at most "
                  f"{MAX_SEARCH} simulated candidates)")
     starts = {"description": description, "equation-error optimum": dict(scale),
               "equation-error optimum, propeller of the description":
@@ -478,28 +512,28 @@ def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: 
     for k in range(1, DESIGN_POINTS + 1):  # a space-filling design over the box: the starts may all have diverged
         starts[f"design {k}"] = {**description, **{
             n: float(math.exp(lo + _halton(k, base) * (hi - lo))) for n, base, lo, hi in zip(
-                SEARCH_FACTORS, HALTON_BASES, np.log([_bounds(vessel, n)[0] for n in SEARCH_FACTORS]),
-                np.log([_bounds(vessel, n)[1] for n in SEARCH_FACTORS]))}}
+                search, HALTON_BASES, np.log([_bounds(vessel, n)[0] for n in search]),
+                np.log([_bounds(vessel, n)[1] for n in search]))}}
     start = min(starts.values(), key=insample)
-    low = np.log([_bounds(vessel, n)[0] for n in SEARCH_FACTORS])  # (5,)
-    high = np.log([_bounds(vessel, n)[1] for n in SEARCH_FACTORS])  # (5,)
+    low = np.log([_bounds(vessel, n)[0] for n in search])  # (k,)
+    high = np.log([_bounds(vessel, n)[1] for n in search])  # (k,)
 
     def at(theta: np.ndarray) -> dict[str, float]:
-        return {**start, **{n: float(math.exp(t)) for n, t in zip(SEARCH_FACTORS, theta)}}
+        return {**start, **{n: float(math.exp(t)) for n, t in zip(search, theta)}}
 
-    theta = np.log([start[n] for n in SEARCH_FACTORS])  # (5,)
+    theta = np.log([start[n] for n in search])  # (k,)
     cost, damping = insample(at(theta)), LM_DAMPING
     while math.isfinite(cost) and not spent():
         r = residual[label_of(at(theta))]  # (N,)
-        jacobian = np.zeros((len(r), len(theta)))  # (N, 5): one-sided differences, inward at a bound
+        jacobian = np.zeros((len(r), len(theta)))  # (N, k): one-sided differences, inward at a bound
         for k in range(len(theta)):
             h = FD_STEP if theta[k] + FD_STEP <= high[k] else -FD_STEP
             step = theta.copy()
             step[k] += h
             if math.isfinite(insample(at(step))):
                 jacobian[:, k] = (residual[label_of(at(step))] - r) / h
-        normal = jacobian.T @ jacobian  # (5, 5)
-        gradient = jacobian.T @ r  # (5,)
+        normal = jacobian.T @ jacobian  # (k, k)
+        gradient = jacobian.T @ r  # (k,)
         scaling = np.diag(np.maximum(np.diag(normal), 1e-12 * max(float(np.max(np.diag(normal))), 1e-300)))
         improved = False
         while not improved and not spent() and damping < LM_DAMPING_MAX:
@@ -540,8 +574,7 @@ def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: 
         heldout[chosen_label] < ACCEPT_RATIO * described or "description" in excluded)
     chosen = scales[chosen_label] if accepted else description
     chosen_vessel = with_factors(vessel, chosen)
-    coefficients = tuple(_interval(vessel, data, structure, u0, chosen, n)
-                         for n in INTERACTION_BOUNDS) if accepted else ()
+    coefficients = tuple(_interval(vessel, data, structure, u0, chosen, n) for n in search) if accepted else ()
     return InteractionFit(chosen_vessel, dict(chosen), coefficients, accepted, cv_description, cv_searched,
                           simulation, evaluations, excluded, chosen_label if accepted else "description", finite)
 

@@ -670,7 +670,7 @@ def _equation_error_vessel(result: IdentificationResult, train: Sequence[ForceDa
             described.thrusters, port=replace(described.thrusters.port, exponent=vessel.thrusters.port.exponent),
             starboard=replace(described.thrusters.starboard, exponent=vessel.thrusters.starboard.exponent)))
         return sc.identified_vessel(vessel, sc.fit_small_craft(base, train, result.fit.structure,
-                                                               result.fit.prior_policy))
+                                                               result.fit.prior_policy, anchor=result.fit.anchor))
     base = replace(vessel, hull=(result.prior or vessel).hull)
     held = ("R0",) if vessel.layout == "rudder_only" else ()
     hull = ident.fit_hull(base, train, result.fit.structure, result.fit.prior_policy, u0=result.fit.u0, held=held)

@@ -20,10 +20,14 @@ units). Coefficient CIs: sigma^2 (A_w^T A_w)^-1 widened by n / n_eff (lag-1 auto
 as identification.effective_samples).
 
 What is fixed, and why:
-  - the mass, yaw inertia, x_G and the added masses X_udot, Y_vdot, N_rdot (so M and the Munk moment): motion data
-    alone cannot set the scale of the forces (M nu_dot + C nu = tau is unchanged when M, the damping and the thrust
-    are all multiplied by the same k), and the added mass is not separable from the rigid body in short trials (every
-    equation sees m + m_A); the vessel file states them (Fossen's rules for the Otter: -0.1 m, -1.5 m, -1.7 I_z);
+  - the mass, yaw inertia and x_G, and one scale anchor (ANCHORS): motion data alone cannot set the scale of the
+    forces (M nu_dot + C nu = tau is unchanged when M, the damping and the thrust are all multiplied by the same k;
+    the added masses X_udot, Y_vdot, N_rdot are regressors, added_mass_basis, exactly collinear with the rigid body),
+    so either the added masses are held at the vessel file's (Fossen's rules for the Otter: -0.1 m, -1.5 m, -1.7 I_z)
+    and the thrust gains fitted, or the thrust gains at the file's (the owner's datasheet) and the added masses
+    fitted (N_rdot then also takes the error of the file's yaw inertia). identify fits both and keeps the datasheet
+    only when it cross-validates better by more than 5 % (scale_anchored_fit): the Otter's rules applied to a boat of
+    another shape (the unknown-boat suite's WAM-V-like catamarans, no added mass) bias every force, the gains 2-4 x;
   - each thrust map's dead band and time constant, and the thruster spacing b: with the gains free they are nearly
     collinear with them over the commands a run uses, so they come from the vessel file (a datasheet or a bollard
     test); the exponent too, unless the data determine it: the fit is repeated at each exponent of EXPONENT_GRID and
@@ -98,7 +102,23 @@ FORCE_FLOOR = 0.02  # a coefficient moving its equation's force by < 1 % of the 
 EXPONENT_GRID = (1.0, 1.5, 2.0)  # thrust ~ command^e tried when the data may determine e (2: shaft-speed command)
 DECISIVE_CV = 0.5  # a CV comparison decides the exponent only below this held-out force NMSE
 FOLD_EXCITATION = 0.1  # a CV fold holds at the prior a coefficient whose training column has < 10 % of its norm
-HELD_BY_FILE = ("X_udot", "Y_vdot", "N_rdot")  # the added masses (module docstring: not separable, set the scale)
+# the added masses (kg, kg, kg m^2), each a regressor of the equations it enters (added_mass_basis): the Fossen 2021
+# eq. 6.43 M_A nu_dot + C_A(nu) nu of the inverse dynamics, linear in them; the rigid-body mass sets the scale
+ADDED_MASS_TERMS: Mapping[str, str] = {"X_udot": "XYN", "Y_vdot": "XYN", "N_rdot": "N"}
+# the scale of every force (module docstring): motion data set the forces only up to a common factor, so one set of
+# terms is held at the vessel file's values, the added masses (the file's formula) or the thrust gains (the owner's
+# datasheet); identify_small_craft fits both and keeps the one that cross-validates better by more than 5 %
+ANCHORS: Mapping[str, tuple[str, ...]] = {"added_mass": tuple(ADDED_MASS_TERMS), "thrust": GAIN_NAMES}
+MIN_MASS_FRACTION = 0.5  # (-) the thrust anchor's fitted total masses m - X_udot, m - Y_vdot, I_z - N_rdot must be at
+# least this x the rigid body's: an added mass is >= 0 (Fossen 2021 sec. 6.3); the margin is the smoother's bias of
+# the accelerations (a few %) and of the yaw radius the file guessed; below it the fit trades mass for damping (the
+# walkthrough otter: m - X_udot 17 kg of 80, a model that diverges)
+ANCHOR_WHY: Mapping[str, str] = {
+    "added_mass": "the vessel file's added masses (X_udot, Y_vdot, N_rdot) with the mass and inertia; the thrust "
+                  "gains are the data's",
+    "thrust": "the vessel file's thrust gains (the datasheet); the added masses are the data's (with the yaw "
+              "inertia's error: N_rdot takes it)",
+}
 
 
 # ------------------------------------------------------------------------------------------ regressors
@@ -143,9 +163,21 @@ def basis(vessel: Vessel, nu: np.ndarray, levels: np.ndarray) -> dict[str, np.nd
     return out
 
 
+def added_mass_basis(nu: np.ndarray, nu_dot: np.ndarray) -> dict[str, np.ndarray]:
+    """name -> (T, 3) [X, Y, N] per unit of each added mass of ADDED_MASS_TERMS: minus the derivative of the
+    inverse dynamics M_A nu_dot + C_A(nu) nu (identification.inverse_dynamics_forces; Fossen 2021 eq. 6.43,
+    X: -X_udot u_dot + Y_vdot v r, Y: -Y_vdot v_dot - X_udot u r, N: -N_rdot r_dot - (Y_vdot - X_udot) u v) by it,
+    so that hull + thrust + sum(added mass x column) is the rigid-body part M_RB nu_dot + C_RB(nu) nu (N, N m)."""
+    u, v, r = nu[:, 0], nu[:, 1], nu[:, 2]
+    zero = np.zeros_like(u)
+    return {"X_udot": np.column_stack([nu_dot[:, 0], u * r, -u * v]),
+            "Y_vdot": np.column_stack([-v * r, nu_dot[:, 1], u * v]),
+            "N_rdot": np.column_stack([zero, zero, nu_dot[:, 2]])}
+
+
 def prior_values(vessel: Vessel) -> dict[str, float]:
-    """The vessel file's value of every hull term and thrust gain."""
-    values = {name: float(getattr(vessel.small_craft, name)) for name in HULL_TERMS}
+    """The vessel file's value of every hull term, added mass and thrust gain."""
+    values = {name: float(getattr(vessel.small_craft, name)) for name in (*HULL_TERMS, *ADDED_MASS_TERMS)}
     for side in SIDES:
         m = getattr(vessel.thrusters, side)
         values[f"thrusters.{side}.forward_N"] = m.forward_N
@@ -157,11 +189,11 @@ def coefficient_names(structure: str) -> tuple[str, ...]:
     if structure not in STRUCTURE_TERMS:
         raise ConfigError(f"unknown model structure {structure!r} for the small-craft hull; use one of "
                           f"{list(STRUCTURES) + ['auto']}")
-    return STRUCTURE_TERMS[structure] + GAIN_NAMES
+    return STRUCTURE_TERMS[structure] + tuple(ADDED_MASS_TERMS) + GAIN_NAMES
 
 
 def _equations_of(name: str) -> str:
-    return HULL_TERMS.get(name, "XN")
+    return HULL_TERMS.get(name) or ADDED_MASS_TERMS.get(name) or "XN"
 
 
 @dataclass(frozen=True)
@@ -173,28 +205,40 @@ class JointDesign:
     target: np.ndarray  # (n,) force minus the parts held at the vessel file's values
     equation: np.ndarray  # (n,) 0, 1, 2 = X, Y, N
     groups: np.ndarray  # (n,) manoeuvre index
+    force: np.ndarray | None = None  # (n,) the inverse-dynamics force with the file's added masses (None: target),
+    #                                   the scale of the first pass and of the CV error, whatever the anchor
 
     def rows(self, eq: int) -> np.ndarray:
         return self.equation == eq
+
+    @property
+    def reference(self) -> np.ndarray:
+        """(n,) the force the regression's scales are taken from (`force`, else `target`)."""
+        return self.target if self.force is None else self.force
 
 
 def joint_design(vessel: Vessel, data: Sequence[ForceData], structure: str) -> JointDesign:
     names = coefficient_names(structure)
     priors = prior_values(vessel)
     held = [n for n in HULL_TERMS if n not in names]
-    blocks, targets, equations, groups = [], [], [], []
+    blocks, targets, equations, groups, totals = [], [], [], [], []
     for g, d in enumerate(data):
-        columns = basis(vessel, d.nu[d.keep], d.controls[d.keep])
-        known = sum((priors[n] * columns[n] for n in held), np.zeros((int(d.keep.sum()), 3)))
+        columns = {**basis(vessel, d.nu[d.keep], d.controls[d.keep]), **added_mass_basis(d.nu[d.keep],
+                                                                                          d.nu_dot[d.keep])}
+        # d.total carries the vessel file's added masses (inverse dynamics): back to the rigid-body part, which
+        # the added masses' columns then explain (added_mass_basis)
+        known = sum((priors[n] * columns[n] for n in held), np.zeros((int(d.keep.sum()), 3))) \
+            - sum(priors[n] * columns[n] for n in ADDED_MASS_TERMS)
         for e in range(3):
             blocks.append(np.column_stack([columns[n][:, e] for n in names]))
             targets.append(d.total[d.keep, e] - known[:, e])
+            totals.append(d.total[d.keep, e])
             equations.append(np.full(int(d.keep.sum()), e))
             groups.append(np.full(int(d.keep.sum()), g))
     if not blocks or sum(len(t) for t in targets) == 0:
         raise DatasetError("no samples left for regression (all below the speed limit or inside the smoother edges)")
     return JointDesign(names, np.vstack(blocks), np.concatenate(targets), np.concatenate(equations),
-                       np.concatenate(groups))
+                       np.concatenate(groups), np.concatenate(totals))
 
 
 # ------------------------------------------------------------------------------------------ regression
@@ -212,6 +256,7 @@ class JointFit:
     all_coefficients: tuple[Coefficient, ...]
     weights: tuple[float, float, float]  # 1 / sigma_e of X, Y, N (1/N, 1/N, 1/(N m))
     ridge_weight: float = 0.0
+    anchor: str = "added_mass"  # the terms of ANCHORS held as the scale of the forces
 
     def coefficients(self) -> list[Coefficient]:
         return list(self.all_coefficients)
@@ -259,7 +304,7 @@ def fit_joint(d: JointDesign, priors: Mapping[str, float], *, fixed: Sequence[st
     prior = np.array([priors[n] for n in names])
     free = np.array([n not in fixed for n in names])
     if weights is None:  # first pass unweighted per equation: sigma of each equation from its own scale
-        scale0 = np.array([max(float(np.std(d.target[d.rows(e)])), 1e-12) for e in range(3)])
+        scale0 = np.array([max(float(np.std(d.reference[d.rows(e)])), 1e-12) for e in range(3)])
         theta0, _ = _solve_joint(d, 1.0 / scale0, prior, free, 0.0, np.ones(len(names)))
         weights = 1.0 / _sigma(d, theta0)
     floors = _floors(d, weights)
@@ -348,7 +393,16 @@ WOULD_DETERMINE: Mapping[str, str] = {
     **{f"thrusters.{side}.forward_N": "straight runs at two speeds" for side in SIDES},
     **{f"thrusters.{side}.reverse_N": "astern commands (each thruster astern: spins both ways, a stop)"
        for side in SIDES},
+    **{n: "accelerations: speed changes, turn entries, zig-zags (with the thrust as the scale)"
+       for n in ADDED_MASS_TERMS},
     "thrusters.time_constant_s": "thrust steps (a step of both commands at a steady speed; output-error stage)",
+}
+# the scale anchor's terms (ANCHORS): what would determine them is a measured force, not another manoeuvre
+ANCHOR_DETERMINE: Mapping[str, Mapping[str, str]] = {
+    "added_mass": {n: "a measured thrust (a bollard pull at two commands) that lets the added masses be fitted "
+                      "instead (the datasheet's gains were the worse scale by the CV)" for n in ADDED_MASS_TERMS},
+    "thrust": {n: "a bollard pull at two commands (the measured thrust is the scale of every force; held at the "
+                  "datasheet's)" for n in GAIN_NAMES},
 }
 
 
@@ -387,18 +441,25 @@ def _cv_errors(d: JointDesign, priors: Mapping[str, float], fixed: Sequence[str]
             rows = d.equation[test] == e
             sq[e] += float(err[rows] @ err[rows])
             count[e] += int(rows.sum())
-    return {eq: float(sq[e] / max(count[e], 1) / max(float(np.var(d.target[d.rows(e)])), 1e-30))
+    return {eq: float(sq[e] / max(count[e], 1) / max(float(np.var(d.reference[d.rows(e)])), 1e-30))
             for e, eq in enumerate(EQUATIONS)}
 
 
 def fit_small_craft(vessel: Vessel, data: Sequence[ForceData], structure: str = "diagonal", prior: str = "none", *,
-                    rel_ci_limit: float = REL_CI_LIMIT) -> JointFit:
-    """The regression with the prior policy of the module docstring."""
+                    rel_ci_limit: float = REL_CI_LIMIT, anchor: str = "added_mass") -> JointFit:
+    """The regression with the prior policy of the module docstring, the terms of ANCHORS[anchor] held."""
     if prior not in PRIORS:
         raise ConfigError(f"unknown prior policy {prior!r}; use one of {list(PRIORS)}")
+    if anchor not in ANCHORS:
+        raise ConfigError(f"unknown scale anchor {anchor!r}; use one of {list(ANCHORS)}")
+    return replace(_fit_small_craft(vessel, data, structure, prior, rel_ci_limit, ANCHORS[anchor]), anchor=anchor)
+
+
+def _fit_small_craft(vessel: Vessel, data: Sequence[ForceData], structure: str, prior: str, rel_ci_limit: float,
+                     anchored: tuple[str, ...]) -> JointFit:
     d = joint_design(vessel, data, structure)
     priors = prior_values(vessel)
-    fit = fit_joint(d, priors, structure=structure, policy=prior)
+    fit = fit_joint(d, priors, fixed=anchored, structure=structure, policy=prior)
     weights = np.array(fit.weights)
     found = problems(fit, rel_ci_limit)
     if found and prior == "none":
@@ -406,7 +467,7 @@ def fit_small_craft(vessel: Vessel, data: Sequence[ForceData], structure: str = 
     if found and prior == "fix":
         # one at a time, the worst first (no excitation, then the widest CI, then the wrong sign): fixing one of a
         # collinear pair often makes the other identifiable
-        fixed: list[str] = []
+        fixed: list[str] = list(anchored)
         current = found
         for _ in range(len(d.names)):
             if not current:
@@ -417,8 +478,9 @@ def fit_small_craft(vessel: Vessel, data: Sequence[ForceData], structure: str = 
             current = problems(fit, rel_ci_limit)
     elif found and prior == "ridge":
         many = len(np.unique(d.groups)) >= 2
-        weight = min(RIDGE_GRID, key=lambda r: sum(_cv_errors(d, priors, (), r, weights).values())) if many else 1e-2
-        fit = fit_joint(d, priors, ridge=weight, weights=weights, structure=structure, policy=prior)
+        weight = min(RIDGE_GRID, key=lambda r: sum(_cv_errors(d, priors, anchored, r, weights).values())) \
+            if many else 1e-2
+        fit = fit_joint(d, priors, fixed=anchored, ridge=weight, weights=weights, structure=structure, policy=prior)
         for _ in range(len(d.names)):  # a ridged estimate of the wrong sign is still held at the prior
             wrong = [c.name for c in fit.all_coefficients if c.status != "fixed to prior"
                      and SIGN.get(c.name, 0) * c.estimate < 0.0]
@@ -479,15 +541,14 @@ def identify_small_craft(vessel: Vessel, recordings: Sequence[Recording], *, str
                            f"for cross-validation); got {len(names)}: {', '.join(names) or 'none'}")
     forces = list(data) if data is not None else prepare(vessel, recordings, smoother=smoother, progress=progress)
     candidates = STRUCTURES if structure == "auto" else (structure,)
-    fits, cvs = {}, []
+    fits, cvs, notes = {}, [], []
     for s in candidates:
         if progress is not None:
             progress(f"fitting structure {s} (prior {prior})")
-        fits[s] = fit_small_craft(vessel, forces, s, prior, rel_ci_limit=rel_ci_limit)
-        cvs.append(cross_validate(vessel, forces, fits[s]))
+        fits[s], cv, note = scale_anchored_fit(vessel, forces, s, prior, rel_ci_limit)
+        cvs.append(cv)
+        notes.append(note)
     chosen = candidates[0]
-    notes = [f"held at the vessel file's values: the mass, inertia and added masses ({', '.join(HELD_BY_FILE)}; they "
-             "set the scale of every force), each thrust map's dead band and time constant, the spacing"]
     if structure == "auto":
         by = {cv.structure: cv.score for cv in cvs}
         chosen = "coupled" if by["coupled"] < 0.95 * by["diagonal"] else "diagonal"
@@ -497,12 +558,54 @@ def identify_small_craft(vessel: Vessel, recordings: Sequence[Recording], *, str
     vessel, fit, note = _thrust_exponent(vessel, forces, fit, score, prior, rel_ci_limit, progress)
     if note:
         notes.append(note)
+    notes.append(f"held at the vessel file's values as the scale of every force: {ANCHOR_WHY[fit.anchor]}; and the "
+                 "mass, inertia, x_G, each thrust map's dead band and time constant, the spacing")
     if fit.not_identifiable:
         notes.append(f"not identifiable without the prior: {', '.join(fit.not_identifiable)} -> {prior}")
     identified = identified_vessel(vessel, fit)
     forces = [replace(f, rudder=st, propeller=pr)
               for f, (st, pr) in ((f, known_forces(identified, f.nu, f.controls)) for f in forces)]
-    return IdentificationResult(identified, fit, tuple(cvs), {}, tuple(forces), tuple(notes), trials=WOULD_DETERMINE)
+    return IdentificationResult(identified, fit, tuple(cvs), {}, tuple(forces), tuple(notes),
+                               trials={**WOULD_DETERMINE, **ANCHOR_DETERMINE[fit.anchor]})
+
+
+def scale_anchored_fit(vessel: Vessel, data: Sequence[ForceData], structure: str, prior: str,
+                       rel_ci_limit: float = REL_CI_LIMIT) -> tuple[JointFit, CrossValidation, str]:
+    """(fit, its cross-validation, a note): fit_small_craft with each scale anchor of ANCHORS; the thrust anchor
+    only when its leave-one-manoeuvre-out force error is lower than the added-mass anchor's by more than 5 % (the
+    added masses of a formula for another boat bias every force of the fit, the datasheet's gains do not; with the
+    file's added masses right both fit alike). A fit refused (prior none) is no candidate."""
+    fits, scores = {}, {}
+    refused: NotIdentifiableError | None = None
+    for anchor in ANCHORS:
+        try:
+            fits[anchor] = fit_small_craft(vessel, data, structure, prior, rel_ci_limit=rel_ci_limit, anchor=anchor)
+        except NotIdentifiableError as err:
+            refused = refused or err
+            continue
+        scores[anchor] = cross_validate(vessel, data, fits[anchor])
+    implausible = _implausible_masses(vessel, fits["thrust"]) if "thrust" in fits else ""
+    if implausible and len(fits) > 1:
+        del fits["thrust"], scores["thrust"]
+    if not fits:
+        raise refused  # type: ignore[misc]
+    default = "added_mass" if "added_mass" in scores else "thrust"
+    chosen = default
+    if "thrust" in scores and scores["thrust"].score < 0.95 * scores[default].score:
+        chosen = "thrust"
+    listed = ", ".join(f"{a} {cv.score:.4g}" for a, cv in scores.items())
+    out = f" (thrust anchor out: {implausible})" if implausible and "thrust" not in fits else ""
+    return fits[chosen], scores[chosen], f"{structure}: scale anchor by CV error ({listed}){out} -> {chosen}"
+
+
+def _implausible_masses(vessel: Vessel, fit: JointFit) -> str:
+    """Why the fit's total masses are not physical (MIN_MASS_FRACTION of the rigid body's), or ""."""
+    values = fit.values()
+    m, g = vessel.mass, vessel.geometry
+    rigid = {"X_udot": m, "Y_vdot": m, "N_rdot": m * (g.k_zz * g.L_pp) ** 2}  # (kg, kg, kg m^2)
+    low = [f"{n}: total {rigid[n] - values[n]:.3g} of rigid {rigid[n]:.3g}" for n in ADDED_MASS_TERMS
+           if rigid[n] - values[n] < MIN_MASS_FRACTION * rigid[n]]
+    return "; ".join(low)
 
 
 def with_exponent(vessel: Vessel, exponent: float) -> Vessel:
@@ -530,7 +633,8 @@ def _thrust_exponent(vessel: Vessel, data: Sequence[ForceData], fit: JointFit, s
             progress(f"thrust map exponent {exponent:g} (the vessel file's: {t.port.exponent:g})")
         trial = with_exponent(vessel, exponent)
         try:
-            fits[exponent] = fit_small_craft(trial, data, fit.structure, prior, rel_ci_limit=rel_ci_limit)
+            fits[exponent] = fit_small_craft(trial, data, fit.structure, prior, rel_ci_limit=rel_ci_limit,
+                                             anchor=fit.anchor)
         except NotIdentifiableError:
             continue  # with prior "none" an exponent whose fit is refused is no candidate
         scores[exponent] = cross_validate(trial, data, fits[exponent]).score

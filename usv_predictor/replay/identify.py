@@ -68,7 +68,7 @@ class IdentifyRequest:
     config: Path | None = None  # predictor.yaml whose topics are read; None: the shipped one
     scale: float = 1.0  # Froude scale L_bags / L_vessel, the bags scaled to the vessel's size (1: none)
     base: Path | None = None  # with hybrid: a grey-box artifact whose hull and terms are kept (hybrid_on_base)
-    interaction: str | None = None  # identify / fix the rudder_propeller interaction factors (None: identify)
+    interaction: str | None = None  # identify / fix a rudder boat's interaction factors (None: identify)
     output_error: bool = False  # the output-error fit and stability check after the force fit (fitting/output_error.py)
 
     def __post_init__(self) -> None:
