@@ -53,7 +53,7 @@ class SimulationRequest:
 
     output: Path  # directory for the bags
     vessel: str = "jari_usv"  # vessel preset in config/vessels
-    programme: str | None = None  # a trial programme of usv_predictor.physics.manoeuvres.PROGRAMMES ...
+    programme: str | None = None  # a trial programme of usv_predictor.physics.manoeuvres.PROGRAMME_NAMES ...
     manoeuvre: str | None = None  # ... or one manoeuvre of KINDS (neither: DEFAULT_MANOEUVRE)
     rudder_deg: float | None = None  # rudder angle (deg; None: 20)
     check_deg: float | None = None  # zig-zag check angle (deg; None: the rudder angle, or 20 for a differential)
@@ -136,9 +136,12 @@ def manoeuvres(request: SimulationRequest, vessel: Vessel) -> list:
     layout = vessel.actuator_layout
     turn, propulsion = _commands(request, vessel)
     if request.programme:
-        if request.programme not in mv.PROGRAMMES:
-            raise ConfigError(f"--programme {request.programme!r}: expected one of {', '.join(sorted(mv.PROGRAMMES))}")
-        return mv.programme(request.programme, layout)
+        if request.programme not in mv.PROGRAMME_NAMES:
+            raise ConfigError(f"--programme {request.programme!r}: expected one of {', '.join(mv.PROGRAMME_NAMES)}")
+        try:
+            return mv.programme(request.programme, layout)
+        except ValueError as err:  # a layout programme of another layout
+            raise ConfigError(f"--programme {request.programme}: vessel {vessel.name}: {err}") from None
     side = 1 if request.side == "starboard" else -1
     extra = {} if request.duration_s is None else {"duration_s": request.duration_s}
     kind = mv.simulated_kind(request.manoeuvre or DEFAULT_MANOEUVRE)
