@@ -31,3 +31,6 @@ otter bags/otter/training 3201 37 --manoeuvre zigzag --differential 0.4 --check 
 otter bags/otter/training 3202 127 --manoeuvre zigzag --differential 0.6 --check 20 --throttle 0.7 --side port --duration 60
 otter bags/otter/training 3203 217 --manoeuvre pullout --differential 0.4 --throttle 0.8 --side port --duration 70
 otter bags/otter/training 3204 307 --manoeuvre random --differential 0.6 --throttle 0.6 --duration 90
+# calm day: the trials docs/your_boat.md "Calm-day trials per layout" lists for twin_thrusters (the `calm_day`
+# programme: turns at two differentials, zig-zags, straight runs at two throttles, spins), in calm water
+"$replay" simulate --vessel otter --programme calm_day --heading 20 --seed 3301 --output bags/otter/calm_day --overwrite

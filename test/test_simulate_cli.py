@@ -149,11 +149,15 @@ def test_module_entry_point_help():
 
 def test_shipped_bags_open_and_say_how_they_were_made():
     from usv_predictor.config import package_share_path
+    from usv_predictor.physics.actuators import actuator_layout
+    from usv_predictor.physics.manoeuvres import twin_calm_day
 
     bags = sorted(p.parent for p in package_share_path("bags").rglob("metadata.yaml"))
     otter = [bag for bag in bags if "otter" in bag.parts]
     assert len(bags) - len(otter) == 20  # jari_usv: 6 turns + 4 training runs, each with its calm twin
-    assert len(otter) == 16  # otter: 4 turns + 4 training runs, each with its calm twin
+    assert len(otter) == 26  # otter: 4 turns + 4 training runs, each with its calm twin, and the 10 of the calm day
+    assert sorted(b.name for b in otter if b.parent.name == "calm_day") == sorted(
+        m.name for m in twin_calm_day(actuator_layout("twin_thrusters")))  # the calm_day programme
     twin_types = {**{k: v for k, v in EXPECTED_TYPES.items() if k not in ("rudder_angle", "engine_rpm")},
                   "thrusters/port": "std_msgs/msg/Float64", "thrusters/starboard": "std_msgs/msg/Float64"}
     for bag in bags:
@@ -162,7 +166,7 @@ def test_shipped_bags_open_and_say_how_they_were_made():
             assert {c.topic: c.msgtype for c in reader.connections} == expected
         meta = read_custom_data(bag)
         effects = json.loads(meta["scenario"])["effects"]
-        assert (set(effects) == {"current", "wind", "wave_drift"}) == (bag.parent.name != "calm")
+        assert (set(effects) == {"current", "wind", "wave_drift"}) == (bag.parent.name not in ("calm", "calm_day"))
 
 
 # ------------------------------------------------------------------ the typed request behind the command
@@ -289,3 +293,19 @@ def test_given_effects_go_on_top_of_the_sea():
     assert set(sea) == set(RIZHAO_SEA) | {"rudder_offset"}
     assert sea["current"] == {**RIZHAO_SEA["current"], "current_speed": 0.9}
     assert RIZHAO_SEA["current"].get("current_speed") != 0.9  # the sea itself is not modified
+
+
+def test_the_calm_day_programme_is_the_twin_layouts_and_refused_for_another(tmp_path):
+    from usv_predictor.errors import ConfigError
+    from usv_predictor.physics.vessel import load_vessel
+    from usv_predictor.replay.simulate import SimulationRequest, manoeuvres
+
+    names = [m.name for m in manoeuvres(SimulationRequest(output=tmp_path, vessel="otter", programme="calm_day"),
+                                        load_vessel("otter"))]
+    assert names[:4] == ["turning_circle_stbd_d0.4_p0.6", "turning_circle_port_d0.4_p0.6",
+                         "turning_circle_stbd_d0.8_p0.6", "turning_circle_port_d0.8_p0.6"]
+    assert names[4:] == ["zigzag_d0.4_20_stbd_p0.6", "zigzag_d0.4_20_port_p0.6", "straight_p0.6", "straight_p0.9",
+                         "spin_stbd_d2", "spin_port_d2"]
+    with pytest.raises(ConfigError, match="--programme calm_day: vessel jari_usv: programme 'calm_day' is for "
+                                          "actuator layout\\(s\\) twin_thrusters, not rudder_propeller"):
+        manoeuvres(SimulationRequest(output=tmp_path, programme="calm_day"), load_vessel("jari_usv"))

@@ -398,17 +398,9 @@ def _rudder_only_trials() -> tuple[CalmTrial, ...]:
 
 
 def _twin_trials() -> tuple[CalmTrial, ...]:
-    """docs/your_boat.md "Calm-day trials per layout", twin_thrusters: turning circles each way at differentials
-    0.4 and 0.8, a zig-zag each way (differential 0.4, 20 deg), straight runs of 60 s at two throttles, and the
-    astern commands: a spin each way (differential 2 at throttle 0: one thruster full ahead, the other full astern)."""
-    layout = actuator_layout("twin_thrusters")
-    p0 = TWIN_TRIAL_COMMAND
-    runs = [mv.turning_circle(layout, d, p0, duration_s=90.0, side=side) for d in (0.4, 0.8) for side in (1, -1)]
-    runs += [mv.zigzag(layout, 0.4, 20.0, p0, duration_s=100.0, side=side) for side in (1, -1)]
-    trials = [CalmTrial(m.name, m) for m in runs]
-    trials += [CalmTrial(f"straight_p{p:g}", _straight("twin_thrusters", p, 60.0)) for p in (p0, 0.9)]
-    spins = [mv.turning_circle(layout, 2.0, 0.0, duration_s=40.0, approach_s=5.0, side=side) for side in (1, -1)]
-    return (*trials, *(CalmTrial(f"spin_{'stbd' if m.side > 0 else 'port'}", m) for m in spins))
+    """docs/your_boat.md "Calm-day trials per layout", twin_thrusters: the `calm_day` programme
+    (physics/manoeuvres.twin_calm_day), each bag named after its manoeuvre."""
+    return tuple(CalmTrial(m.name, m) for m in mv.twin_calm_day(actuator_layout("twin_thrusters")))
 
 
 _RUDDER_CLASSES = {name: SizeClass(PRESET, lengths) for name, lengths in SIZE_CLASSES.items()}

@@ -247,7 +247,13 @@ class CommandTurningCircle:
 
     @property
     def name(self) -> str:
+        """turning_circle_stbd_d0.4_p0.6; a circle of no turn is a straight run (straight_p0.6), one at zero
+        propulsion a spin on the spot (spin_stbd_d2)."""
         a = _inputs(self.layout)
+        if self.turn == 0.0:
+            return f"straight_{a.propulsion_input.tag(self.propulsion)}"
+        if self.propulsion == 0.0:
+            return f"spin_{_side(self.side)}_{a.turn_input.tag(self.turn)}"
         return (f"turning_circle_{_side(self.side)}_{a.turn_input.tag(self.turn)}_"
                 f"{a.propulsion_input.tag(self.propulsion)}")
 
@@ -498,16 +504,47 @@ def _command_programme(name: str, layout: ActuatorLayout) -> list:
             CommandZigZag(layout.name, d0, 20.0, p0, duration_s=100.0, side=-1)]
 
 
+TWIN_CALM_DAY_THROTTLE = 0.6  # (-) the throttle of the twin calm day's turns and zig-zag, the first straight run's
+TWIN_CALM_DAY_HIGH_THROTTLE = 0.9  # (-) the second straight run's throttle (X_u from X_uu)
+
+
+def twin_calm_day(layout: ActuatorLayout) -> list:
+    """docs/your_boat.md "Calm-day trials per layout", twin_thrusters, in this order: turning circles each way at
+    differentials 0.4 and 0.8 (throttle 0.6, 90 s), a zig-zag each way (differential 0.4, 20 deg, 100 s), straight
+    runs of 60 s at throttles 0.6 and 0.9, a spin each way (differential 2 at throttle 0: one thruster full ahead,
+    the other full astern; 40 s after a 5 s approach). The unknown-boat suite's calm day of this layout."""
+    p0, p1 = TWIN_CALM_DAY_THROTTLE, TWIN_CALM_DAY_HIGH_THROTTLE
+    runs: list = [CommandTurningCircle(layout.name, d, p0, duration_s=90.0, side=side)
+                  for d in (0.4, 0.8) for side in (1, -1)]
+    runs += [CommandZigZag(layout.name, 0.4, 20.0, p0, duration_s=100.0, side=side) for side in (1, -1)]
+    runs += [CommandTurningCircle(layout.name, 0.0, p, duration_s=60.0) for p in (p0, p1)]
+    runs += [CommandTurningCircle(layout.name, 2.0, 0.0, duration_s=40.0, approach_s=5.0, side=side)
+             for side in (1, -1)]
+    return runs
+
+
 PROGRAMMES: dict[str, Callable[[], list]] = {  # the rudder-and-rpm programmes (the shipped bags')
     "sea_trial": sea_trial_turns,
     "training": training_runs,
     "diagnosis": diagnosis_runs,
 }
+# Programmes of some layouts only: name -> {layout name: its manoeuvres}
+LAYOUT_PROGRAMMES: Mapping[str, Mapping[str, Callable[[ActuatorLayout], list]]] = {
+    "calm_day": {"twin_thrusters": twin_calm_day},
+}
+PROGRAMME_NAMES = tuple(sorted({*PROGRAMMES, *LAYOUT_PROGRAMMES}))  # `replay simulate --programme`
 
 
 def programme(name: str, layout: ActuatorLayout) -> list:
-    """The manoeuvres of trial programme `name` (a key of PROGRAMMES) for a boat of this layout: the rudder-and-rpm
-    ones (seed 000's settings) or the same programme in the layout's own units."""
+    """The manoeuvres of trial programme `name` (PROGRAMME_NAMES) for a boat of this layout: the rudder-and-rpm
+    ones (seed 000's settings) or the same programme in the layout's own units; a LAYOUT_PROGRAMMES one for its
+    layouts only (ValueError naming them otherwise)."""
+    if name in LAYOUT_PROGRAMMES:
+        of_layout = LAYOUT_PROGRAMMES[name]
+        if layout.name not in of_layout:
+            raise ValueError(f"programme {name!r} is for actuator layout(s) {', '.join(sorted(of_layout))}, "
+                             f"not {layout.name}")
+        return of_layout[layout.name](layout)
     if name not in PROGRAMMES:
-        raise ValueError(f"unknown programme {name!r}; known: {', '.join(sorted(PROGRAMMES))}")
+        raise ValueError(f"unknown programme {name!r}; known: {', '.join(PROGRAMME_NAMES)}")
     return PROGRAMMES[name]() if _legacy(layout) else _command_programme(name, layout)

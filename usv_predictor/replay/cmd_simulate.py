@@ -22,12 +22,13 @@ OUTPUTS = {"output": "dir"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from usv_predictor.physics.manoeuvres import PROGRAMMES
+    from usv_predictor.physics.manoeuvres import PROGRAMME_NAMES
     from usv_predictor.physics.scenario import EFFECTS
 
     what = parser.add_argument_group("what to simulate")
-    what.add_argument("--programme", choices=sorted(PROGRAMMES),
-                      help="a trial programme: sea_trial (seed 000 Table 3 turns), training, diagnosis")
+    what.add_argument("--programme", choices=PROGRAMME_NAMES,
+                      help="a trial programme: sea_trial (seed 000 Table 3 turns), training, diagnosis; calm_day "
+                           "(twin_thrusters: docs/your_boat.md \"Calm-day trials per layout\")")
     what.add_argument("--manoeuvre", choices=KINDS, help="one manoeuvre instead of a programme")
     what.add_argument("--rudder", type=finite_float, default=None,
                       help="rudder angle (deg, default 20; rudder layouts)")

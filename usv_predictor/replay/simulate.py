@@ -55,7 +55,7 @@ class SimulationRequest:
     vessel: Vessel  # the vessel, resolved once by the command (models/loading.resolve_vessel)
     vessel_label: str | None = None  # how the command named it (a preset or a vessel file), recorded in the bags'
     # custom_data `vessel`; None: the vessel's name
-    programme: str | None = None  # a trial programme of usv_predictor.physics.manoeuvres.PROGRAMMES ...
+    programme: str | None = None  # a trial programme of usv_predictor.physics.manoeuvres.PROGRAMME_NAMES ...
     manoeuvre: str | None = None  # ... or one manoeuvre of KINDS (neither: DEFAULT_MANOEUVRE)
     rudder_deg: float | None = None  # rudder angle (deg; None: 20)
     check_deg: float | None = None  # zig-zag check angle (deg; None: the rudder angle, or 20 for a differential)
@@ -139,9 +139,12 @@ def manoeuvres(request: SimulationRequest) -> list:
     layout = request.vessel.actuator_layout
     turn, propulsion = _commands(request)
     if request.programme:
-        if request.programme not in mv.PROGRAMMES:
-            raise ConfigError(f"--programme {request.programme!r}: expected one of {', '.join(sorted(mv.PROGRAMMES))}")
-        return mv.programme(request.programme, layout)
+        if request.programme not in mv.PROGRAMME_NAMES:
+            raise ConfigError(f"--programme {request.programme!r}: expected one of {', '.join(mv.PROGRAMME_NAMES)}")
+        try:
+            return mv.programme(request.programme, layout)
+        except ValueError as err:  # a layout programme of another layout
+            raise ConfigError(f"--programme {request.programme}: vessel {request.vessel.name}: {err}") from None
     side = 1 if request.side == "starboard" else -1
     extra = {} if request.duration_s is None else {"duration_s": request.duration_s}
     kind = mv.simulated_kind(request.manoeuvre or DEFAULT_MANOEUVRE)
