@@ -300,12 +300,12 @@ def test_the_calm_day_programme_is_the_twin_layouts_and_refused_for_another(tmp_
     from usv_predictor.physics.vessel import load_vessel
     from usv_predictor.replay.simulate import SimulationRequest, manoeuvres
 
-    names = [m.name for m in manoeuvres(SimulationRequest(output=tmp_path, vessel="otter", programme="calm_day"),
-                                        load_vessel("otter"))]
+    names = [m.name for m in manoeuvres(SimulationRequest(output=tmp_path, vessel=load_vessel("otter"),
+                                                          programme="calm_day"))]
     assert names[:4] == ["turning_circle_stbd_d0.4_p0.6", "turning_circle_port_d0.4_p0.6",
                          "turning_circle_stbd_d0.8_p0.6", "turning_circle_port_d0.8_p0.6"]
     assert names[4:] == ["zigzag_d0.4_20_stbd_p0.6", "zigzag_d0.4_20_port_p0.6", "straight_p0.6", "straight_p0.9",
                          "spin_stbd_d2", "spin_port_d2"]
     with pytest.raises(ConfigError, match="--programme calm_day: vessel jari_usv: programme 'calm_day' is for "
                                           "actuator layout\\(s\\) twin_thrusters, not rudder_propeller"):
-        manoeuvres(SimulationRequest(output=tmp_path, programme="calm_day"), load_vessel("jari_usv"))
+        manoeuvres(SimulationRequest(output=tmp_path, vessel=load_vessel("jari_usv"), programme="calm_day"))
