@@ -250,15 +250,12 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
             theta, r, cost = probe, r_probe, cost_probe
     lam, it = 1e-2, 0
     jac = np.zeros((len(r), len(theta)))
-    batch = PerturbedBatch(model, seg, len(theta)) if isinstance(model, KernelRollout) and len(theta) else None
     for it in range(1, max_iter + 1 if len(theta) else 1):  # noqa: B007 -- the count is returned
         eps = 1e-3
-        steps_ = [theta + eps * np.eye(len(theta))[j] for j in range(len(theta))]
-        if batch is not None:  # every perturbation a block of rows of one kernel call (the same numbers)
-            jac[:] = ((batch.residuals([unpack(step) for step in steps_]) - r[None]) / eps).T
-        else:
-            for j, step in enumerate(steps_):
-                jac[:, j] = (res(step) - r) / eps
+        for j in range(len(theta)):
+            step = theta.copy()
+            step[j] += eps
+            jac[:, j] = (res(step) - r) / eps
         jac[~np.isfinite(jac)] = 0.0  # a perturbation whose rollout diverged gives no direction
         jtj, jtr = jac.T @ jac, jac.T @ r
         improved = False
@@ -296,42 +293,6 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
             k += n
     set_terms(model, values)
     return Fit(hypothesis, values, cost / count, std, it, time.perf_counter() - started)
-
-
-class PerturbedBatch:
-    """The weighted residuals of several term settings of one KernelRollout in one call: the segments repeated once
-    per setting (rows = settings x segments), each block's terms set per row (the kernel rolls every row out on its
-    own, so a block's residuals are those of a call with its terms alone, bit for bit: test_diagnosis_batched.py).
-    The module's own term tensors are put back after each call."""
-
-    def __init__(self, model: KernelRollout, seg: Segments, blocks: int) -> None:
-        self.model, self.blocks, self.rows = model, blocks, len(seg)
-        self.state = np.tile(seg.state.numpy(), (blocks, 1))  # (P B, 4)
-        self.controls = np.tile(seg.controls.numpy(), (blocks, 1, 1))  # (P B, H, C)
-        self.reference = None if seg.reference is None else np.tile(seg.reference.numpy(), (blocks, 1))  # (P B, 4)
-        self.target, self.weight = seg.target.numpy(), seg.weight.numpy()  # (B, H, 6)
-
-    def residuals(self, settings: Sequence[Mapping[str, Sequence[float]]]) -> np.ndarray:
-        """(P, N) flattened weighted residuals of each setting (SI values of some terms, the others zero)."""
-        if len(settings) != self.blocks:
-            raise ValueError(f"{len(settings)} settings for a batch of {self.blocks}")
-        module = self.model.module
-        own = {name: getattr(module, name) for name in fx.grey_box_terms()}
-        try:
-            with torch.no_grad():
-                for name, term in fx.grey_box_terms().items():
-                    values = np.zeros((term.size, self.blocks, self.rows))
-                    for k, setting in enumerate(settings):
-                        if name in setting:
-                            values[:, k, :] = np.asarray(setting[name], dtype=np.float64)[:, None]
-                    setattr(module, name, torch.nn.Parameter(torch.from_numpy(values.reshape(term.size, -1)),
-                                                             requires_grad=False))
-            predicted = self.model.rollout(self.state, self.controls, self.reference)[0]  # (P B, H, 6)
-        finally:
-            for name, tensor in own.items():
-                setattr(module, name, tensor)
-        shape = (self.blocks, self.rows, *self.target.shape[1:])
-        return ((predicted.reshape(shape) - self.target[None]) * self.weight[None]).reshape(self.blocks, -1)
 
 
 def _probes(terms: Sequence[Term], sizes: Sequence[int], theta: np.ndarray,
