@@ -76,6 +76,10 @@ def _cache_folder() -> bool:
 
 CACHED = _cache_folder()  # whether the compiled kernel is kept on disk between processes
 _compiled = njit(cache=CACHED)
+# the derivative and the small force models it calls every stage, inlined into their callers in numba's IR: a call
+# between compiled functions passes each array as a struct and counts its references (atomic operations), which cost
+# as much as the arithmetic; the rollout calls the derivative from one place, so it holds one copy of it
+_inlined = njit(cache=CACHED, inline="always")
 
 # ---- kinds ------------------------------------------------------------------------------------------------------
 MMG, SMALL_CRAFT = 0, 1  # hull models (physics/hulls.py)
@@ -260,7 +264,7 @@ def _sea_of(p):
 
 # ---- hull models ----------------------------------------------------------------------------------------------------
 
-@_compiled
+@_inlined
 def _hull_forces(ki, p, u_r, v_r, r):
     """(X_H, Y_H, N_H) at midship (N, N, N m), with the relative resistance change of the terms."""
     h = ki[K_O_HULL]
@@ -296,7 +300,7 @@ def _hull_forces(ki, p, u_r, v_r, r):
     return x_h, y_h, n_h
 
 
-@_compiled
+@_inlined
 def _solve(ki, p, x, y, n, u_r, v_r, r):
     """nu_r_dot = M^-1 (tau - C(nu_r) nu_r): MMG eq. 4 (the Munk moment in N_v), or the small-craft hull's with its
     fitted added mass and the Munk moment (Y_vdot - X_udot) u_r v_r."""
@@ -331,7 +335,7 @@ def _resistance(ki, p):
 
 # ---- actuator force models ------------------------------------------------------------------------------------------
 
-@_compiled
+@_inlined
 def _thrust(ki, p, k, level):
     """Thrust map k's vessel.ThrustMap.thrust (N): dead band, then the power law or the piecewise-linear table."""
     width = ki[K_MAP_WIDTH]
@@ -351,7 +355,7 @@ def _thrust(ki, p, k, level):
     return -p[o + 1] * max(-e, 0.0) ** p[o + 2]
 
 
-@_compiled
+@_inlined
 def _rudder_propeller(p, u_r, v_r, r, delta, rpm):
     """(X_R, Y_R, N_R, X_P, Y_P, N_P): the MMG rudder with slipstream (eq. 13-16, 37-43) and propeller (eq. 10-12)."""
     L = p[P_L_ACT]
@@ -380,7 +384,7 @@ def _rudder_propeller(p, u_r, v_r, r, delta, rpm):
             -(p[P_X_R_M] + p[P_A_H] * p[P_X_H_M]) * f_n * cos_d, x_p, y_p, y_p * p[P_X_P] * L)
 
 
-@_compiled
+@_inlined
 def _actuator_forces(ki, p, u_r, v_r, r, a, b):
     """(X, Y, N) of steering then of propulsion at the levels (a, b) of the layout."""
     layout = ki[K_LAYOUT]
@@ -396,7 +400,7 @@ def _actuator_forces(ki, p, u_r, v_r, r, a, b):
     return _rudder_propeller(p, u_r, v_r, r, a, rpm)
 
 
-@_compiled
+@_inlined
 def _lagged(ki, p, k, y0, u0, u1, u2, h):
     """Exact first-order lag k over a substep for a linear command u0 -> u2: the levels at h/2 and h (CommandLag)."""
     o = ki[K_O_LAG] + 3 * k  # [T (s), exp(-h/2T), exp(-h/T)]
@@ -532,13 +536,15 @@ def sea_tuple(q_wave: float, current_n: float, current_e: float, wind_speed: flo
 
 # ---- the rollout ----------------------------------------------------------------------------------------------------
 
-@_compiled
+@_inlined
 def _derivative(ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b):
     """d/dt of [x_n, y_e, psi, u_r, v_r, r] at the actuator levels (a, b) (GreyBoxRollout._derivative)."""
     c, s = math.cos(psi), math.sin(psi)
     hx, hy, hn = _hull_forces(ki, p, u_r, v_r, r)
     ax, ay, an, px, py, pn = _actuator_forces(ki, p, u_r, v_r, r, a, b)
-    lx, ly, ln = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
+    lx = ly = ln = 0.0  # calm water: _sea_loads' zeros, without the call
+    if sea[2] != 0.0 or sea[3] != 0.0 or sea[6] != 0.0:
+        lx, ly, ln = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
     du, dv, dr = _solve(ki, p, hx + ax + px + lx, hy + ay + py + ly, hn + an + pn + ln, u_r, v_r, r)
     residual = ki[K_RESIDUAL]
     if residual != 0:
@@ -656,21 +662,33 @@ def rollout(state, controls, reference, use_reference, ki, constants, terms, fre
                             b0 = b1 = b2 = carry_b
                         else:
                             b0, b1, b2 = c0b, c1b, c2b
+                    # the four RK4 stages from one call site (the derivative is inlined once); the weighted sum
+                    # k1 + 2 k2 + 2 k3 + k4 accumulated in that order
                     hh = 0.5 * h_sub
-                    d1 = _derivative(ki, p, sea, row_free, e, work, psi, u_r, v_r, r, a0, b0)
-                    d2 = _derivative(ki, p, sea, row_free, e, work, psi + hh * d1[2], u_r + hh * d1[3],
-                                     v_r + hh * d1[4], r + hh * d1[5], a1, b1)
-                    d3 = _derivative(ki, p, sea, row_free, e, work, psi + hh * d2[2], u_r + hh * d2[3],
-                                     v_r + hh * d2[4], r + hh * d2[5], a1, b1)
-                    d4 = _derivative(ki, p, sea, row_free, e, work, psi + h_sub * d3[2], u_r + h_sub * d3[3],
-                                     v_r + h_sub * d3[4], r + h_sub * d3[5], a2, b2)
+                    d = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                    s0 = s1 = s2 = s3 = s4 = s5 = 0.0
+                    for stage in range(4):
+                        if stage == 0:
+                            d = _derivative(ki, p, sea, row_free, e, work, psi, u_r, v_r, r, a0, b0)
+                            s0, s1, s2, s3, s4, s5 = d
+                            continue
+                        weight, lev_a, lev_b = (hh, a1, b1) if stage < 3 else (h_sub, a2, b2)
+                        d = _derivative(ki, p, sea, row_free, e, work, psi + weight * d[2], u_r + weight * d[3],
+                                        v_r + weight * d[4], r + weight * d[5], lev_a, lev_b)
+                        twice = 2.0 if stage < 3 else 1.0
+                        s0 += twice * d[0]
+                        s1 += twice * d[1]
+                        s2 += twice * d[2]
+                        s3 += twice * d[3]
+                        s4 += twice * d[4]
+                        s5 += twice * d[5]
                     w = h_sub / 6.0
-                    x_n += w * (d1[0] + 2.0 * d2[0] + 2.0 * d3[0] + d4[0])
-                    y_e += w * (d1[1] + 2.0 * d2[1] + 2.0 * d3[1] + d4[1])
-                    psi += w * (d1[2] + 2.0 * d2[2] + 2.0 * d3[2] + d4[2])
-                    u_r += w * (d1[3] + 2.0 * d2[3] + 2.0 * d3[3] + d4[3])
-                    v_r += w * (d1[4] + 2.0 * d2[4] + 2.0 * d3[4] + d4[4])
-                    r += w * (d1[5] + 2.0 * d2[5] + 2.0 * d3[5] + d4[5])
+                    x_n += w * s0
+                    y_e += w * s1
+                    psi += w * s2
+                    u_r += w * s3
+                    v_r += w * s4
+                    r += w * s5
                 c, s = math.cos(psi), math.sin(psi)
                 out[e, b, k, 0] = u_r + sea[0] * c + sea[1] * s
                 out[e, b, k, 1] = v_r - sea[0] * s + sea[1] * c
