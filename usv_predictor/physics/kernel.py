@@ -427,7 +427,16 @@ def _polynomial_residual(ki, p, u, v, r):
     return x / p[P_POLY_M11], (m33 * y - m23 * n) / det, (m22 * n - m32 * y) / det
 
 
-@_compiled
+@_inlined
+def _tanh(x):
+    """tanh x from one exponential: (1 - t) / (1 + t), t = exp(-2 |x|) in (0, 1] (never overflows), the sign restored.
+    Within 2.3e-16 of tanh x absolutely (relatively near 0 less: 1 - t cancels), at a third of libm's tanh's cost."""
+    t = math.exp(-2.0 * abs(x))
+    y = (1.0 - t) / (1.0 + t)
+    return y if x >= 0.0 else -y
+
+
+@njit(cache=CACHED, fastmath=True)
 def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
     """Member e's bounded residual accelerations (GeneralisingResidual): features -> z -> tanh layers -> bound tanh,
     times the support envelope, scaled by U^2 / L (surge, sway) and U^2 / L^2 (yaw). Weights in p, member-major:
@@ -453,7 +462,7 @@ def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
         for j in range(hidden):
             h_in[j] += z * p[row + j]
     for j in range(hidden):
-        h_in[j] = math.tanh(h_in[j])
+        h_in[j] = _tanh(h_in[j])
     h_out = work[1]
     for layer in range(layers):
         wh = ki[K_O_WH] + (e * layers + layer) * hidden * hidden
@@ -465,7 +474,7 @@ def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
             for j in range(hidden):
                 h_out[j] += h_in[i] * p[row + j]
         for j in range(hidden):
-            h_in[j] = math.tanh(h_out[j])
+            h_in[j] = _tanh(h_out[j])
     wo = ki[K_O_WO] + e * hidden * 3
     bo = ki[K_O_BO] + e * 3
     out0, out1, out2 = p[bo], p[bo + 1], p[bo + 2]
@@ -477,8 +486,8 @@ def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
     q = feats[2] * p[P_MLP_U_REF]
     q = q * q / L
     bound = norm + 4 * N_FEATURES
-    return (p[bound] * math.tanh(out0) * envelope * q, p[bound + 1] * math.tanh(out1) * envelope * q,
-            p[bound + 2] * math.tanh(out2) * envelope * q / L)
+    return (p[bound] * _tanh(out0) * envelope * q, p[bound + 1] * _tanh(out1) * envelope * q,
+            p[bound + 2] * _tanh(out2) * envelope * q / L)
 
 
 # ---- the float model's entry points (physics/dynamics.ManoeuvringModel) -----------------------------------------
