@@ -356,8 +356,9 @@ def _thrust(ki, p, k, level):
 
 
 @_inlined
-def _rudder_propeller(p, u_r, v_r, r, delta, rpm):
-    """(X_R, Y_R, N_R, X_P, Y_P, N_P): the MMG rudder with slipstream (eq. 13-16, 37-43) and propeller (eq. 10-12)."""
+def _rudder_propeller(p, u_r, v_r, r, delta, rpm, cos_d, sin_d):
+    """(X_R, Y_R, N_R, X_P, Y_P, N_P): the MMG rudder with slipstream (eq. 13-16, 37-43) and propeller (eq. 10-12);
+    cos_d, sin_d the rudder angle's (the rollout computes them once per level, not once per stage)."""
     L = p[P_L_ACT]
     speed = math.sqrt(u_r * u_r + v_r * v_r) + 1e-9
     beta_p = math.atan2(-v_r, max(u_r, 1e-9)) - p[P_X_P] * r * L / speed
@@ -378,15 +379,22 @@ def _rudder_propeller(p, u_r, v_r, r, delta, rpm):
     v_rud = p[P_GAMMA_R_MINUS] * beta_r if beta_r < 0.0 else p[P_GAMMA_R_PLUS] * beta_r
     alpha = delta - math.atan2(v_rud, max(u_rud, 1e-9))
     f_n = 0.5 * p[P_RHO] * p[P_A_R] * (u_rud * u_rud + v_rud * v_rud) * p[P_F_ALPHA] * math.sin(alpha)
-    cos_d = math.cos(delta)
     y_p = p[T_SIDE_FORCE] * x_p / (1.0 - p[P_T_P])
-    return (-(1.0 - p[P_T_R]) * f_n * math.sin(delta), -(1.0 + p[P_A_H]) * f_n * cos_d,
+    return (-(1.0 - p[P_T_R]) * f_n * sin_d, -(1.0 + p[P_A_H]) * f_n * cos_d,
             -(p[P_X_R_M] + p[P_A_H] * p[P_X_H_M]) * f_n * cos_d, x_p, y_p, y_p * p[P_X_P] * L)
 
 
 @_inlined
 def _actuator_forces(ki, p, u_r, v_r, r, a, b):
     """(X, Y, N) of steering then of propulsion at the levels (a, b) of the layout."""
+    if ki[K_LAYOUT] == TWIN_THRUSTERS:
+        return _actuator_forces_at(ki, p, u_r, v_r, r, a, b, 0.0, 0.0)
+    return _actuator_forces_at(ki, p, u_r, v_r, r, a, b, math.cos(a), math.sin(a))
+
+
+@_inlined
+def _actuator_forces_at(ki, p, u_r, v_r, r, a, b, cos_a, sin_a):
+    """_actuator_forces with the rudder angle's cosine and sine given (a rudder layout's; unused with thrusters)."""
     layout = ki[K_LAYOUT]
     if layout == TWIN_THRUSTERS:
         imbalance = p[T_THRUST_IMBALANCE]
@@ -397,7 +405,7 @@ def _actuator_forces(ki, p, u_r, v_r, r, a, b):
     if layout == RUDDER_THROTTLE:  # the engine speed whose static thrust is the map's at the level
         thrust = max(_thrust(ki, p, 0, b), 0.0)
         rpm = math.sqrt(thrust / p[P_STATIC_THRUST]) * p[P_RPM_PER_REV_S]
-    return _rudder_propeller(p, u_r, v_r, r, a, rpm)
+    return _rudder_propeller(p, u_r, v_r, r, a, rpm, cos_a, sin_a)
 
 
 @_inlined
@@ -546,11 +554,12 @@ def sea_tuple(q_wave: float, current_n: float, current_e: float, wind_speed: flo
 # ---- the rollout ----------------------------------------------------------------------------------------------------
 
 @_inlined
-def _derivative(ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b):
-    """d/dt of [x_n, y_e, psi, u_r, v_r, r] at the actuator levels (a, b) (GreyBoxRollout._derivative)."""
+def _derivative(ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b, cos_a, sin_a):
+    """d/dt of [x_n, y_e, psi, u_r, v_r, r] at the actuator levels (a, b) (GreyBoxRollout._derivative); cos_a, sin_a:
+    a rudder layout's cos a, sin a."""
     c, s = math.cos(psi), math.sin(psi)
     hx, hy, hn = _hull_forces(ki, p, u_r, v_r, r)
-    ax, ay, an, px, py, pn = _actuator_forces(ki, p, u_r, v_r, r, a, b)
+    ax, ay, an, px, py, pn = _actuator_forces_at(ki, p, u_r, v_r, r, a, b, cos_a, sin_a)
     lx = ly = ln = 0.0  # calm water: _sea_loads' zeros, without the call
     if sea[2] != 0.0 or sea[3] != 0.0 or sea[6] != 0.0:
         lx, ly, ln = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
@@ -640,6 +649,9 @@ def rollout(state, controls, reference, use_reference, ki, constants, terms, fre
                 if p[P_ENGINE_SPEED_RPM] > 0.0:
                     carry_b = p[P_ENGINE_SPEED_RPM]
             offset = p[T_RUDDER_OFFSET] if layout != TWIN_THRUSTERS else 0.0
+            rudder = layout != TWIN_THRUSTERS
+            last_level = math.nan  # equal to no level: the first is computed
+            cos_a = sin_a = 0.0
             for k in range(steps):
                 nxt = min(k + 1, steps - 1)
                 for j in range(substeps):
@@ -677,13 +689,19 @@ def rollout(state, controls, reference, use_reference, ki, constants, terms, fre
                     d = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
                     s0 = s1 = s2 = s3 = s4 = s5 = 0.0
                     for stage in range(4):
+                        # the rudder angle's cosine and sine once per level: the stages' levels are a0, a1, a1, a2,
+                        # and a0 is often the last substep's a2
+                        if rudder and stage != 2:
+                            level = a0 if stage == 0 else (a1 if stage == 1 else a2)
+                            if level != last_level:
+                                last_level, cos_a, sin_a = level, math.cos(level), math.sin(level)
                         if stage == 0:
-                            d = _derivative(ki, p, sea, row_free, e, work, psi, u_r, v_r, r, a0, b0)
+                            d = _derivative(ki, p, sea, row_free, e, work, psi, u_r, v_r, r, a0, b0, cos_a, sin_a)
                             s0, s1, s2, s3, s4, s5 = d
                             continue
                         weight, lev_a, lev_b = (hh, a1, b1) if stage < 3 else (h_sub, a2, b2)
                         d = _derivative(ki, p, sea, row_free, e, work, psi + weight * d[2], u_r + weight * d[3],
-                                        v_r + weight * d[4], r + weight * d[5], lev_a, lev_b)
+                                        v_r + weight * d[4], r + weight * d[5], lev_a, lev_b, cos_a, sin_a)
                         twice = 2.0 if stage < 3 else 1.0
                         s0 += twice * d[0]
                         s1 += twice * d[1]
