@@ -107,6 +107,7 @@ def baseline_modules(rev: str) -> ModuleType:
             target.write_text(text)
         spec = importlib.util.spec_from_file_location(f"baseline_{name}", target)
         modules[name] = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = modules[name]  # importable by name: numba's cached machine code refers to it
         spec.loader.exec_module(modules[name])
     modules["kernel_rollout"].kn = modules["kernel"]  # the old Python side calls the old kernel
     return modules["kernel_rollout"]
