@@ -19,9 +19,10 @@ naming what is missing; models/loading.py then keeps the file's module.
 """
 from __future__ import annotations
 
+import functools
 import math
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import torch
@@ -52,6 +53,9 @@ def _plain(array: np.ndarray) -> np.ndarray:
     """The array as the kernel's one compiled signature takes it: float64, C-contiguous and writable (numba types a
     read-only array, e.g. a contiguous np.broadcast_to view of a plan's controls, apart: it would compile a second
     specialisation, seconds holding the GIL, in the middle of a run)."""
+    if (type(array) is np.ndarray and array.dtype == np.float64 and array.flags.c_contiguous
+            and array.flags.writeable):
+        return array  # the common case, without np.require's ~1 us
     return np.require(array, dtype=np.float64, requirements=("C", "W"))
 
 
@@ -59,6 +63,21 @@ def _floats(value: Any) -> np.ndarray:
     if isinstance(value, torch.Tensor):
         return value.detach().to(torch.float64).cpu().numpy().reshape(-1)
     return np.asarray(value, dtype=np.float64).reshape(-1)
+
+
+def _fetcher(owner: Any, name: str) -> Callable[[], Any]:
+    """A call returning owner.name: a TorchScript module's C++ getattr, an eager module's parameter (its buffer or
+    attribute through getattr when it holds none of that name), else getattr."""
+    script = getattr(owner, "_c", None)
+    if isinstance(owner, torch.jit.ScriptModule) and script is not None:
+        return functools.partial(script.getattr, name)
+    parameters = getattr(owner, "_parameters", None)
+    if isinstance(owner, torch.nn.Module) and isinstance(parameters, dict):
+        def fetch() -> Any:
+            value = parameters.get(name)
+            return getattr(owner, name) if value is None else value
+        return fetch
+    return functools.partial(getattr, owner, name)
 
 
 class KernelRollout:
@@ -72,8 +91,10 @@ class KernelRollout:
         self.threads = max(1, int(threads))  # a batch of at least SPLIT_ROWS rows a thread is split over this many
         self._read: tuple = ()  # what _refresh read last: (data_ptr, version) per parameter, and the tensors
         self._held: list = []
+        self._ones = np.ones(1)
         try:
             self._pack(module)
+            self._fetch = self._fetchers()
             self._refresh()
         except (AttributeError, KeyError, TypeError, ValueError, IndexError, RuntimeError) as err:
             raise KernelUnavailable(f"the kernel cannot read this {_name(module)} ({type(err).__name__}: "
@@ -187,15 +208,25 @@ class KernelRollout:
             return kn.RESIDUAL_MLP
         raise KeyError(f"residual {name}")
 
+    def _fetchers(self) -> list:
+        """One cheap read per parameter the kernel re-reads (hull coefficients, held engine speed, extension terms,
+        Abkowitz terms): a TorchScript module's own C++ getattr, an eager module's parameter dictionary (the module's
+        __getattr__ costs ~1 us a name in Python); whatever replaces a parameter writes the place these read."""
+        owners = [(self.module, name) for name in ("hull", "engine_speed_rpm", *dict.fromkeys(kn.T_NAMES))]
+        if self._poly_module is not None:
+            owners.append((self._poly_module, "coef"))
+        return [_fetcher(owner, name) for owner, name in owners]
+
+    def _tensors(self) -> list:
+        return [fetch() for fetch in self._fetch]
+
     def _refresh(self) -> None:
         """Read the module's parameters into p and the terms: hull coefficients, held engine speed, extension terms,
-        Abkowitz terms. Skipped when none changed since the last read: the same tensors (kept here, so a replaced
-        parameter cannot take a freed one's memory) at the same version (torch counts every in-place change)."""
-        m = self.module
-        tensors = [m.hull, m.engine_speed_rpm, *(getattr(m, name) for name in dict.fromkeys(kn.T_NAMES))]
-        if self._poly_module is not None:
-            tensors.append(self._poly_module.coef)
-        key = tuple((t.data_ptr(), t._version) for t in tensors)
+        Abkowitz terms. Skipped when none changed since the last read: one stamp of the tensors' identities (kept
+        here, so a replaced parameter's id cannot be a freed one's) and versions (torch counts every in-place
+        change)."""
+        tensors = self._tensors()
+        key = (*map(id, tensors), *(t._version for t in tensors))
         if key == self._read:
             return
         hull = _floats(tensors[0])
@@ -223,8 +254,7 @@ class KernelRollout:
         rows (0: sway and yaw held), all free by default."""
         if self.live:
             self._refresh()
-        state = np.ascontiguousarray(state, dtype=np.float64)
-        controls = np.ascontiguousarray(controls, dtype=np.float64)
+        state, controls = _plain(state), _plain(controls)
         if controls.ndim != 3 or controls.shape[2] != self.n_controls or state.shape != (controls.shape[0], 4):
             raise ValueError(f"state must be (B, 4) and controls (B, H, {self.n_controls}), the vessel's actuator "
                              f"layout; got {state.shape} and {controls.shape}")
@@ -232,8 +262,8 @@ class KernelRollout:
         if self.terms.shape[0] not in (1, rows):
             raise ValueError(f"the terms are set for {self.terms.shape[0]} rows, the batch has {rows}")
         use_reference = reference is not None
-        reference = state if reference is None else np.ascontiguousarray(reference, dtype=np.float64)
-        free = np.ones(rows) if free is None else np.ascontiguousarray(free, dtype=np.float64)
+        reference = state if reference is None else _plain(reference)
+        free = self._all_free(rows) if free is None else _plain(free)
         parts = min(self.threads, rows // SPLIT_ROWS)
         if parts > 1 and steps:  # the kernel runs without the GIL: each thread its share of the rows
             bounds = np.linspace(0, rows, parts + 1).astype(int)
@@ -243,14 +273,20 @@ class KernelRollout:
             return np.concatenate(done, axis=1)
         return self._run(state, controls, reference, use_reference, free, slice(0, rows))
 
+    def _all_free(self, rows: int) -> np.ndarray:
+        """(rows,) ones: a view of one array kept for the largest batch yet (the kernel only reads it)."""
+        if self._ones.shape[0] < rows:
+            self._ones = np.ones(rows)
+        return self._ones[:rows]
+
     def _run(self, state: np.ndarray, controls: np.ndarray, reference: np.ndarray, use_reference: bool,
              free: np.ndarray, rows: slice) -> np.ndarray:
-        """(E, b, H, 6) of the rows `rows` of the batch (their inputs given; the terms cut to them when per row)."""
+        """(E, b, H, 6) of the rows `rows` of the batch (their inputs given, C-contiguous float64: a share of rows
+        of such an array is one too; the terms cut to them when per row)."""
         terms = self.terms if self.terms.shape[0] == 1 else _plain(self.terms[rows])
         out = np.empty((self.members, state.shape[0], controls.shape[1], 6))
         if state.shape[0] and controls.shape[1]:
-            kn.rollout(_plain(state), _plain(controls), _plain(reference), use_reference, self.ki, self.p, terms,
-                       _plain(free), out)
+            kn.rollout(state, controls, reference, use_reference, self.ki, self.p, terms, free, out)
         return out
 
     def __call__(self, state: torch.Tensor, controls: torch.Tensor, reference: torch.Tensor | None = None,

@@ -369,7 +369,7 @@ def warm_up(vessel: Vessel, dt: float) -> float:
     """Compile (or load from numba's cache) every kernel entry (models/kernel_rollout.py) a process may call for this
     vessel: the rollout, on a two-step batch of its calm-water grey box, and the float model's forces and
     accelerations. Returns the seconds it
-    took (~15 s the first time on a 2-core machine, well under one with a warm cache). The node calls it before its
+    took (~25 s the first time on a 2-core machine, well under one with a warm cache). The node calls it before its
     first cycle: compiling holds the GIL, and inside a cycle it would stall the node."""
     import time
 

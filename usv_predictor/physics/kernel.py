@@ -76,6 +76,10 @@ def _cache_folder() -> bool:
 
 CACHED = _cache_folder()  # whether the compiled kernel is kept on disk between processes
 _compiled = njit(cache=CACHED)
+# the derivative and the small force models it calls every stage, inlined into their callers in numba's IR: a call
+# between compiled functions passes each array as a struct and counts its references (atomic operations), which cost
+# as much as the arithmetic; the rollout calls the derivative from one place, so it holds one copy of it
+_inlined = njit(cache=CACHED, inline="always")
 
 # ---- kinds ------------------------------------------------------------------------------------------------------
 MMG, SMALL_CRAFT = 0, 1  # hull models (physics/hulls.py)
@@ -260,7 +264,7 @@ def _sea_of(p):
 
 # ---- hull models ----------------------------------------------------------------------------------------------------
 
-@_compiled
+@_inlined
 def _hull_forces(ki, p, u_r, v_r, r):
     """(X_H, Y_H, N_H) at midship (N, N, N m), with the relative resistance change of the terms."""
     h = ki[K_O_HULL]
@@ -296,7 +300,7 @@ def _hull_forces(ki, p, u_r, v_r, r):
     return x_h, y_h, n_h
 
 
-@_compiled
+@_inlined
 def _solve(ki, p, x, y, n, u_r, v_r, r):
     """nu_r_dot = M^-1 (tau - C(nu_r) nu_r): MMG eq. 4 (the Munk moment in N_v), or the small-craft hull's with its
     fitted added mass and the Munk moment (Y_vdot - X_udot) u_r v_r."""
@@ -331,7 +335,7 @@ def _resistance(ki, p):
 
 # ---- actuator force models ------------------------------------------------------------------------------------------
 
-@_compiled
+@_inlined
 def _thrust(ki, p, k, level):
     """Thrust map k's vessel.ThrustMap.thrust (N): dead band, then the power law or the piecewise-linear table."""
     width = ki[K_MAP_WIDTH]
@@ -351,9 +355,10 @@ def _thrust(ki, p, k, level):
     return -p[o + 1] * max(-e, 0.0) ** p[o + 2]
 
 
-@_compiled
-def _rudder_propeller(p, u_r, v_r, r, delta, rpm):
-    """(X_R, Y_R, N_R, X_P, Y_P, N_P): the MMG rudder with slipstream (eq. 13-16, 37-43) and propeller (eq. 10-12)."""
+@_inlined
+def _rudder_propeller(p, u_r, v_r, r, delta, rpm, cos_d, sin_d):
+    """(X_R, Y_R, N_R, X_P, Y_P, N_P): the MMG rudder with slipstream (eq. 13-16, 37-43) and propeller (eq. 10-12);
+    cos_d, sin_d the rudder angle's (the rollout computes them once per level, not once per stage)."""
     L = p[P_L_ACT]
     speed = math.sqrt(u_r * u_r + v_r * v_r) + 1e-9
     beta_p = math.atan2(-v_r, max(u_r, 1e-9)) - p[P_X_P] * r * L / speed
@@ -374,15 +379,22 @@ def _rudder_propeller(p, u_r, v_r, r, delta, rpm):
     v_rud = p[P_GAMMA_R_MINUS] * beta_r if beta_r < 0.0 else p[P_GAMMA_R_PLUS] * beta_r
     alpha = delta - math.atan2(v_rud, max(u_rud, 1e-9))
     f_n = 0.5 * p[P_RHO] * p[P_A_R] * (u_rud * u_rud + v_rud * v_rud) * p[P_F_ALPHA] * math.sin(alpha)
-    cos_d = math.cos(delta)
     y_p = p[T_SIDE_FORCE] * x_p / (1.0 - p[P_T_P])
-    return (-(1.0 - p[P_T_R]) * f_n * math.sin(delta), -(1.0 + p[P_A_H]) * f_n * cos_d,
+    return (-(1.0 - p[P_T_R]) * f_n * sin_d, -(1.0 + p[P_A_H]) * f_n * cos_d,
             -(p[P_X_R_M] + p[P_A_H] * p[P_X_H_M]) * f_n * cos_d, x_p, y_p, y_p * p[P_X_P] * L)
 
 
-@_compiled
+@_inlined
 def _actuator_forces(ki, p, u_r, v_r, r, a, b):
     """(X, Y, N) of steering then of propulsion at the levels (a, b) of the layout."""
+    if ki[K_LAYOUT] == TWIN_THRUSTERS:
+        return _actuator_forces_at(ki, p, u_r, v_r, r, a, b, 0.0, 0.0)
+    return _actuator_forces_at(ki, p, u_r, v_r, r, a, b, math.cos(a), math.sin(a))
+
+
+@_inlined
+def _actuator_forces_at(ki, p, u_r, v_r, r, a, b, cos_a, sin_a):
+    """_actuator_forces with the rudder angle's cosine and sine given (a rudder layout's; unused with thrusters)."""
     layout = ki[K_LAYOUT]
     if layout == TWIN_THRUSTERS:
         imbalance = p[T_THRUST_IMBALANCE]
@@ -393,10 +405,10 @@ def _actuator_forces(ki, p, u_r, v_r, r, a, b):
     if layout == RUDDER_THROTTLE:  # the engine speed whose static thrust is the map's at the level
         thrust = max(_thrust(ki, p, 0, b), 0.0)
         rpm = math.sqrt(thrust / p[P_STATIC_THRUST]) * p[P_RPM_PER_REV_S]
-    return _rudder_propeller(p, u_r, v_r, r, a, rpm)
+    return _rudder_propeller(p, u_r, v_r, r, a, rpm, cos_a, sin_a)
 
 
-@_compiled
+@_inlined
 def _lagged(ki, p, k, y0, u0, u1, u2, h):
     """Exact first-order lag k over a substep for a linear command u0 -> u2: the levels at h/2 and h (CommandLag)."""
     o = ki[K_O_LAG] + 3 * k  # [T (s), exp(-h/2T), exp(-h/T)]
@@ -423,7 +435,16 @@ def _polynomial_residual(ki, p, u, v, r):
     return x / p[P_POLY_M11], (m33 * y - m23 * n) / det, (m22 * n - m32 * y) / det
 
 
-@_compiled
+@_inlined
+def _tanh(x):
+    """tanh x from one exponential: (1 - t) / (1 + t), t = exp(-2 |x|) in (0, 1] (never overflows), the sign restored.
+    Within 2.3e-16 of tanh x absolutely (relatively near 0 less: 1 - t cancels), at a third of libm's tanh's cost."""
+    t = math.exp(-2.0 * abs(x))
+    y = (1.0 - t) / (1.0 + t)
+    return y if x >= 0.0 else -y
+
+
+@njit(cache=CACHED, fastmath=True)
 def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
     """Member e's bounded residual accelerations (GeneralisingResidual): features -> z -> tanh layers -> bound tanh,
     times the support envelope, scaled by U^2 / L (surge, sway) and U^2 / L^2 (yaw). Weights in p, member-major:
@@ -449,7 +470,7 @@ def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
         for j in range(hidden):
             h_in[j] += z * p[row + j]
     for j in range(hidden):
-        h_in[j] = math.tanh(h_in[j])
+        h_in[j] = _tanh(h_in[j])
     h_out = work[1]
     for layer in range(layers):
         wh = ki[K_O_WH] + (e * layers + layer) * hidden * hidden
@@ -461,7 +482,7 @@ def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
             for j in range(hidden):
                 h_out[j] += h_in[i] * p[row + j]
         for j in range(hidden):
-            h_in[j] = math.tanh(h_out[j])
+            h_in[j] = _tanh(h_out[j])
     wo = ki[K_O_WO] + e * hidden * 3
     bo = ki[K_O_BO] + e * 3
     out0, out1, out2 = p[bo], p[bo + 1], p[bo + 2]
@@ -473,8 +494,8 @@ def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
     q = feats[2] * p[P_MLP_U_REF]
     q = q * q / L
     bound = norm + 4 * N_FEATURES
-    return (p[bound] * math.tanh(out0) * envelope * q, p[bound + 1] * math.tanh(out1) * envelope * q,
-            p[bound + 2] * math.tanh(out2) * envelope * q / L)
+    return (p[bound] * _tanh(out0) * envelope * q, p[bound + 1] * _tanh(out1) * envelope * q,
+            p[bound + 2] * _tanh(out2) * envelope * q / L)
 
 
 # ---- the float model's entry points (physics/dynamics.ManoeuvringModel) -----------------------------------------
@@ -532,13 +553,16 @@ def sea_tuple(q_wave: float, current_n: float, current_e: float, wind_speed: flo
 
 # ---- the rollout ----------------------------------------------------------------------------------------------------
 
-@_compiled
-def _derivative(ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b):
-    """d/dt of [x_n, y_e, psi, u_r, v_r, r] at the actuator levels (a, b) (GreyBoxRollout._derivative)."""
+@_inlined
+def _derivative(ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b, cos_a, sin_a):
+    """d/dt of [x_n, y_e, psi, u_r, v_r, r] at the actuator levels (a, b) (GreyBoxRollout._derivative); cos_a, sin_a:
+    a rudder layout's cos a, sin a."""
     c, s = math.cos(psi), math.sin(psi)
     hx, hy, hn = _hull_forces(ki, p, u_r, v_r, r)
-    ax, ay, an, px, py, pn = _actuator_forces(ki, p, u_r, v_r, r, a, b)
-    lx, ly, ln = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
+    ax, ay, an, px, py, pn = _actuator_forces_at(ki, p, u_r, v_r, r, a, b, cos_a, sin_a)
+    lx = ly = ln = 0.0  # calm water: _sea_loads' zeros, without the call
+    if sea[2] != 0.0 or sea[3] != 0.0 or sea[6] != 0.0:
+        lx, ly, ln = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
     du, dv, dr = _solve(ki, p, hx + ax + px + lx, hy + ay + py + ly, hn + an + pn + ln, u_r, v_r, r)
     residual = ki[K_RESIDUAL]
     if residual != 0:
@@ -625,6 +649,9 @@ def rollout(state, controls, reference, use_reference, ki, constants, terms, fre
                 if p[P_ENGINE_SPEED_RPM] > 0.0:
                     carry_b = p[P_ENGINE_SPEED_RPM]
             offset = p[T_RUDDER_OFFSET] if layout != TWIN_THRUSTERS else 0.0
+            rudder = layout != TWIN_THRUSTERS
+            last_level = math.nan  # equal to no level: the first is computed
+            cos_a = sin_a = 0.0
             for k in range(steps):
                 nxt = min(k + 1, steps - 1)
                 for j in range(substeps):
@@ -656,21 +683,39 @@ def rollout(state, controls, reference, use_reference, ki, constants, terms, fre
                             b0 = b1 = b2 = carry_b
                         else:
                             b0, b1, b2 = c0b, c1b, c2b
+                    # the four RK4 stages from one call site (the derivative is inlined once); the weighted sum
+                    # k1 + 2 k2 + 2 k3 + k4 accumulated in that order
                     hh = 0.5 * h_sub
-                    d1 = _derivative(ki, p, sea, row_free, e, work, psi, u_r, v_r, r, a0, b0)
-                    d2 = _derivative(ki, p, sea, row_free, e, work, psi + hh * d1[2], u_r + hh * d1[3],
-                                     v_r + hh * d1[4], r + hh * d1[5], a1, b1)
-                    d3 = _derivative(ki, p, sea, row_free, e, work, psi + hh * d2[2], u_r + hh * d2[3],
-                                     v_r + hh * d2[4], r + hh * d2[5], a1, b1)
-                    d4 = _derivative(ki, p, sea, row_free, e, work, psi + h_sub * d3[2], u_r + h_sub * d3[3],
-                                     v_r + h_sub * d3[4], r + h_sub * d3[5], a2, b2)
+                    d = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                    s0 = s1 = s2 = s3 = s4 = s5 = 0.0
+                    for stage in range(4):
+                        # the rudder angle's cosine and sine once per level: the stages' levels are a0, a1, a1, a2,
+                        # and a0 is often the last substep's a2
+                        if rudder and stage != 2:
+                            level = a0 if stage == 0 else (a1 if stage == 1 else a2)
+                            if level != last_level:
+                                last_level, cos_a, sin_a = level, math.cos(level), math.sin(level)
+                        if stage == 0:
+                            d = _derivative(ki, p, sea, row_free, e, work, psi, u_r, v_r, r, a0, b0, cos_a, sin_a)
+                            s0, s1, s2, s3, s4, s5 = d
+                            continue
+                        weight, lev_a, lev_b = (hh, a1, b1) if stage < 3 else (h_sub, a2, b2)
+                        d = _derivative(ki, p, sea, row_free, e, work, psi + weight * d[2], u_r + weight * d[3],
+                                        v_r + weight * d[4], r + weight * d[5], lev_a, lev_b, cos_a, sin_a)
+                        twice = 2.0 if stage < 3 else 1.0
+                        s0 += twice * d[0]
+                        s1 += twice * d[1]
+                        s2 += twice * d[2]
+                        s3 += twice * d[3]
+                        s4 += twice * d[4]
+                        s5 += twice * d[5]
                     w = h_sub / 6.0
-                    x_n += w * (d1[0] + 2.0 * d2[0] + 2.0 * d3[0] + d4[0])
-                    y_e += w * (d1[1] + 2.0 * d2[1] + 2.0 * d3[1] + d4[1])
-                    psi += w * (d1[2] + 2.0 * d2[2] + 2.0 * d3[2] + d4[2])
-                    u_r += w * (d1[3] + 2.0 * d2[3] + 2.0 * d3[3] + d4[3])
-                    v_r += w * (d1[4] + 2.0 * d2[4] + 2.0 * d3[4] + d4[4])
-                    r += w * (d1[5] + 2.0 * d2[5] + 2.0 * d3[5] + d4[5])
+                    x_n += w * s0
+                    y_e += w * s1
+                    psi += w * s2
+                    u_r += w * s3
+                    v_r += w * s4
+                    r += w * s5
                 c, s = math.cos(psi), math.sin(psi)
                 out[e, b, k, 0] = u_r + sea[0] * c + sea[1] * s
                 out[e, b, k, 1] = v_r - sea[0] * s + sea[1] * c
