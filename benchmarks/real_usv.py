@@ -582,11 +582,14 @@ def circle_radius_study(bags: Path, work: Path) -> dict:
         rec = runs[train]
         fit = fit_nomoto([rec], NomotoFitOptions(order=1))
         path = work / f"dalian_circle_study_greybox_{train}.pt"
-        identify_bags(IdentifyRequest((bags / f"dalian_{train}",), path, prior="fix", dt=DT, blocks=4), vessel,
-                      progress=lambda _: None)
+        ident = identify_bags(IdentifyRequest((bags / f"dalian_{train}",), path, prior="fix", dt=DT, blocks=4),
+                              vessel, progress=lambda _: None)
         steady = fit.turning_circle(record["mean_steering"], fit.coefficients.u_0
                                     + fit.coefficients.u_p * record["mean_propulsion"], record["mean_propulsion"])
-        entry = {"data_drift_per_yaw_rate_m": drift_per_yaw_rate(rec), "models": {}}
+        entry = {"data_drift_per_yaw_rate_m": drift_per_yaw_rate(rec), "models": {},
+                 "yaw_rate_p5_p95_rad_s": np.percentile(rec.nu[:, 2], [5, 95]).tolist(),
+                 "yaw_rate_max_rad_s": float(np.abs(rec.nu[:, 2]).max()),
+                 "greybox_notes": ident["identification"]["notes"]}
         for label, model in (("Nomoto order 1 (output error)", fit), ("grey box identified (prior fix, 4 blocks)",
                                                                        load_artifact(path))):
             entry["models"][label] = {"replay": replay_turn(model, circle), "held": held_command_circle(model, circle)}
