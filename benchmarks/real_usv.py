@@ -404,7 +404,7 @@ def low_order(bags: Path, work: Path) -> dict:
     from usv_predictor.models.artifact import load_artifact
     from usv_predictor.models.nomoto import describe
     from usv_predictor.physics.vessel import load_vessel
-    from usv_predictor.replay.identify import identify_bags
+    from usv_predictor.replay.identify import IdentifyRequest, identify_bags
     from usv_predictor.replay.low_order import LowOrderRequest, compare_families
     from usv_predictor.replay.recordings import slice_recording
 
@@ -465,7 +465,8 @@ def low_order(bags: Path, work: Path) -> dict:
         fit = fit_nomoto(runs[train], NomotoFitOptions(order=1))
         log(f"Dalian {train}: {describe(fit.coefficients, fit.intervals())}")
         path = work / f"dalian_low_order_greybox_{train}.pt"
-        identify_bags([bags / f"dalian_{train}"], path, vessel=str(DALIAN_VESSEL), prior="fix", dt=DT, blocks=4)
+        identify_bags(IdentifyRequest((bags / f"dalian_{train}",), path, prior="fix", dt=DT, blocks=4), dalian_vessel,
+                      progress=lambda _: None)
         direction = {"nomoto": _fit_record(fit), "open_loop": {}, "circle_radius_m": {}}
         models = {"Nomoto order 1 (output error)": _nomoto_model(fit, dalian_vessel, work / f"dalian_nomoto_{train}.pt",
                                                                  DT),
