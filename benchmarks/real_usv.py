@@ -456,7 +456,12 @@ def low_order(bags: Path, work: Path) -> dict:
         circle[side] = {**turn, "radius_over_L": turn["radius_m"] / vessel.geometry.L_pp}
         log(f"Fuzhou turning circle at {FUZHOU_RUDDER_DEG:g} deg {side}: {turn['radius_m']:.2f} m "
             f"[{turn['radius_ci95_m'][0]:.2f}, {turn['radius_ci95_m'][1]:.2f}], drift {turn['drift_deg']:.1f} deg")
-    out["fuzhou"]["turning_circle_22deg"] = {"approach_speed_mps": float(approach[0]), **circle}
+    from usv_predictor.data.smoother import smooth_recording
+
+    rate = np.abs(smooth_recording(whole).nu[:, 2])  # the yaw rates the zig-zag passes through (rad/s)
+    out["fuzhou"]["turning_circle_22deg"] = {"approach_speed_mps": float(approach[0]), **circle,
+                                             "record_yaw_rate_p95_rad_s": float(np.percentile(rate, 95)),
+                                             "record_yaw_rate_max_rad_s": float(rate.max())}
 
     dalian_vessel = load_vessel(DALIAN_VESSEL)
     runs = {name: recordings(bags / f"dalian_{name}", "twin_thrusters") for name in ("circle", "sine")}
