@@ -27,6 +27,11 @@ The low-order family (`--only low_order`, models/nomoto.py, fitting/nomoto_fit.p
   on the whole record; the turning circle at 22 deg rudder of the model of the whole record at its approach speed,
   with its jackknife 95 % interval. Dalian, both directions (identify on one run, predict the other): the Nomoto model
   beside the grey box (prior fix, 4 blocks) and the baselines (open loop 10 / 30 / 60 s) and the circle's radius.
+Why the Dalian models turn the circle as they do (`--only circle`, circle_radius_study): what the circle run shows (its
+  radius, mean turn, a current from its speed over ground, the turn command by heading sector) and, for the Nomoto
+  model and the grey box identified on each run, the circle replayed open loop with its recorded commands against the
+  turn of its mean command held (a turning test's constant command), and the drift v / r each model makes in that
+  turn against the drift of the run it was identified on.
 Run: .venv/bin/python benchmarks/real_usv.py [--raw ../shared/data/raw] [--work /tmp/real_usv] [--json out.json]
 Deterministic (seeded training, no random state elsewhere); ~3 minutes on one core.
 """
@@ -399,7 +404,7 @@ def low_order(bags: Path, work: Path) -> dict:
     from usv_predictor.models.artifact import load_artifact
     from usv_predictor.models.nomoto import describe
     from usv_predictor.physics.vessel import load_vessel
-    from usv_predictor.replay.identify import identify_bags
+    from usv_predictor.replay.identify import IdentifyRequest, identify_bags
     from usv_predictor.replay.low_order import LowOrderRequest, compare_families
     from usv_predictor.replay.recordings import slice_recording
 
@@ -451,7 +456,12 @@ def low_order(bags: Path, work: Path) -> dict:
         circle[side] = {**turn, "radius_over_L": turn["radius_m"] / vessel.geometry.L_pp}
         log(f"Fuzhou turning circle at {FUZHOU_RUDDER_DEG:g} deg {side}: {turn['radius_m']:.2f} m "
             f"[{turn['radius_ci95_m'][0]:.2f}, {turn['radius_ci95_m'][1]:.2f}], drift {turn['drift_deg']:.1f} deg")
-    out["fuzhou"]["turning_circle_22deg"] = {"approach_speed_mps": float(approach[0]), **circle}
+    from usv_predictor.data.smoother import smooth_recording
+
+    rate = np.abs(smooth_recording(whole).nu[:, 2])  # the yaw rates the zig-zag passes through (rad/s)
+    out["fuzhou"]["turning_circle_22deg"] = {"approach_speed_mps": float(approach[0]), **circle,
+                                             "record_yaw_rate_p95_rad_s": float(np.percentile(rate, 95)),
+                                             "record_yaw_rate_max_rad_s": float(rate.max())}
 
     dalian_vessel = load_vessel(DALIAN_VESSEL)
     runs = {name: recordings(bags / f"dalian_{name}", "twin_thrusters") for name in ("circle", "sine")}
@@ -460,7 +470,8 @@ def low_order(bags: Path, work: Path) -> dict:
         fit = fit_nomoto(runs[train], NomotoFitOptions(order=1))
         log(f"Dalian {train}: {describe(fit.coefficients, fit.intervals())}")
         path = work / f"dalian_low_order_greybox_{train}.pt"
-        identify_bags([bags / f"dalian_{train}"], path, vessel=str(DALIAN_VESSEL), prior="fix", dt=DT, blocks=4)
+        identify_bags(IdentifyRequest((bags / f"dalian_{train}",), path, prior="fix", dt=DT, blocks=4), dalian_vessel,
+                      progress=lambda _: None)
         direction = {"nomoto": _fit_record(fit), "open_loop": {}, "circle_radius_m": {}}
         models = {"Nomoto order 1 (output error)": _nomoto_model(fit, dalian_vessel, work / f"dalian_nomoto_{train}.pt",
                                                                  DT),
@@ -474,6 +485,129 @@ def low_order(bags: Path, work: Path) -> dict:
                 f"{e['30s']['mean_m']:6.2f} {e['60s']['mean_m']:6.2f} m   circle radius "
                 f"{direction['circle_radius_m'][label]['radius_m']:.1f} m")
         out["dalian"]["directions"][f"{train} -> {test}"] = direction
+    return out
+
+
+HELD_S = 400.0  # (s) a held command's turn is simulated this long; its circle fitted after 180 deg of heading change
+HEADING_SECTORS = 8  # the circle run's headings in this many sectors (the controller's command by heading)
+
+
+def held_command_circle(model: object, circle) -> dict[str, float]:
+    """The turning circle of the circle run's mean command held (a turning test's definition: a constant command),
+    from the state at t = STEADY_FROM_S: radius (m) of the circle fitted after 180 deg of heading change, and the
+    steady u, v, r at the end."""
+    from usv_predictor.analysis import metrics
+
+    k = int(round(STEADY_FROM_S / circle.dt))
+    command = circle.controls[k:].mean(axis=0)  # (C,)
+    steps = int(round(HELD_S / circle.dt))
+    pred = model.predict(circle.state()[k:k + 1], np.broadcast_to(command, (1, steps, command.size)).copy())
+    x, y, psi = pred[0, 0, :, 3], pred[0, 0, :, 4], np.unwrap(pred[0, 0, :, 5])
+    if np.ptp(psi) < math.radians(360.0):
+        return {"radius_m": math.inf, "u_mps": float(pred[0, 0, -1, 0]), "v_mps": float(pred[0, 0, -1, 1]),
+                "r_rad_s": float(pred[0, 0, -1, 2])}
+    t = circle.dt * np.arange(1, steps + 1)
+    fit = metrics.steady_turning_radius(t, x, y, psi, start_change_deg=180.0, drift_velocity_mps=(0.0, 0.0),
+                                        refine_drift=False)
+    u, v, r = (float(pred[0, 0, -1, j]) for j in range(3))
+    return {"radius_m": fit.radius_m, "u_mps": u, "v_mps": v, "r_rad_s": r, "drift_per_yaw_rate_m": v / r}
+
+
+def replay_turn(model: object, circle) -> dict[str, float]:
+    """The model's open-loop replay of the circle run from t = STEADY_FROM_S with the recorded (closed-loop) commands:
+    the fitted circle's radius, and the mean speed and yaw rate (U / r, m: the radius the mean turn would make)."""
+    k = int(round(STEADY_FROM_S / circle.dt))
+    pred = model.predict(circle.state()[k:k + 1], circle.controls[None, k:-1])
+    u, v, r = pred[0, 0, :, 0], pred[0, 0, :, 1], pred[0, 0, :, 2]
+    quarters = [float(q.mean()) for q in np.array_split(r, 4)]
+    speed = float(np.hypot(u, v).mean())
+    return {"radius_m": circle_radius(model, circle)["radius_m"], "mean_r_rad_s": float(r.mean()),
+            "mean_speed_mps": speed, "speed_over_mean_r_m": speed / float(r.mean()),
+            "mean_r_by_quarter_rad_s": quarters}
+
+
+def circle_record(circle) -> dict:
+    """What the circle run itself shows: the radius, the mean turn, a current (the speed over ground modulated once
+    per revolution: SOG = a + c cos(COG - theta), c the current's speed toward theta), the turn command and yaw rate
+    by heading sector (a yaw moment fixed in the earth frame, a wind's or a sea's, shows as a command that varies with
+    the heading at a constant yaw rate)."""
+    k = int(round(STEADY_FROM_S / circle.dt))
+    t, pos = circle.t_s[k:], circle.position[k:]
+    vel = np.gradient(pos, t, axis=0)  # (T, 2) over ground, NED (m/s)
+    sog, cog = np.hypot(vel[:, 0], vel[:, 1]), np.arctan2(vel[:, 1], vel[:, 0])
+    basis = np.column_stack([np.ones_like(cog), np.cos(cog), np.sin(cog)])
+    (a, c_n, c_e), *_ = np.linalg.lstsq(basis, sog, rcond=None)
+    u, v, r = circle.nu[k:, 0], circle.nu[k:, 1], circle.nu[k:, 2]
+    steering = circle.controls[k:, 0] - circle.controls[k:, 1]  # port - starboard (+ turns to starboard)
+    propulsion = circle.controls[k:].mean(axis=1)
+    heading = np.angle(np.exp(1j * circle.psi[k:]))
+    edges = np.linspace(-math.pi, math.pi, HEADING_SECTORS + 1)
+    sectors = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (heading >= lo) & (heading < hi)
+        sectors.append({"heading_deg": [math.degrees(lo), math.degrees(hi)], "samples": int(m.sum()),
+                        "steering": float(steering[m].mean()), "r_rad_s": float(r[m].mean()),
+                        "u_mps": float(u[m].mean())})
+    return {"radius_m": measured_circle(circle), "mean_r_rad_s": float(r.mean()), "mean_u_mps": float(u.mean()),
+            "speed_over_mean_r_m": float(np.hypot(u, v).mean() / r.mean()),
+            "current_from_sog_mps": math.hypot(c_n, c_e),
+            "current_toward_deg": math.degrees(math.atan2(c_e, c_n)) % 360.0,
+            "mean_steering": float(steering.mean()), "mean_propulsion": float(propulsion.mean()),
+            "steering_p5_p95": np.percentile(steering, [5, 95]).tolist(), "by_heading": sectors}
+
+
+def drift_per_yaw_rate(rec) -> float:
+    """(m) the least-squares slope of v on r of the smoothed run (data/smoother.py), with an intercept."""
+    from usv_predictor.data.smoother import smooth_recording
+
+    nu = smooth_recording(rec).nu
+    basis = np.column_stack([np.ones(len(nu)), nu[:, 2]])
+    (_, slope), *_ = np.linalg.lstsq(basis, nu[:, 1], rcond=None)
+    return float(slope)
+
+
+def circle_radius_study(bags: Path, work: Path) -> dict:
+    """Why the models identified on one Dalian run turn the circle as they do (`--only circle`): the circle run's own
+    record (circle_record), and for the Nomoto model and the grey box identified on each run the open-loop replay of
+    the circle with its recorded commands (the radius of `--only low_order`), the turn of the circle's mean command
+    held (held_command_circle; the Nomoto model's steady turn with its jackknife interval), and the drift each model
+    makes in that turn against the drift of the run it was identified on."""
+    from usv_predictor.fitting.nomoto_fit import NomotoFitOptions, fit_nomoto
+    from usv_predictor.models.artifact import load_artifact
+    from usv_predictor.physics.vessel import load_vessel
+    from usv_predictor.replay.identify import IdentifyRequest, identify_bags
+
+    vessel = load_vessel(DALIAN_VESSEL)
+    runs = {name: recordings(bags / f"dalian_{name}", "twin_thrusters")[0] for name in ("circle", "sine")}
+    circle = runs["circle"]
+    record = circle_record(circle)
+    out: dict = {"circle_run": record, "identified_on": {}}
+    log(f"Dalian circle: {record['radius_m']:.2f} m, mean r {record['mean_r_rad_s']:.4f} rad/s, current from the "
+        f"speed over ground {record['current_from_sog_mps']:.3f} m/s")
+    for train in ("sine", "circle"):
+        rec = runs[train]
+        fit = fit_nomoto([rec], NomotoFitOptions(order=1))
+        path = work / f"dalian_circle_study_greybox_{train}.pt"
+        ident = identify_bags(IdentifyRequest((bags / f"dalian_{train}",), path, prior="fix", dt=DT, blocks=4),
+                              vessel, progress=lambda _: None)
+        steady = fit.turning_circle(record["mean_steering"], fit.coefficients.u_0
+                                    + fit.coefficients.u_p * record["mean_propulsion"], record["mean_propulsion"])
+        entry = {"data_drift_per_yaw_rate_m": drift_per_yaw_rate(rec), "models": {},
+                 "yaw_rate_p5_p95_rad_s": np.percentile(rec.nu[:, 2], [5, 95]).tolist(),
+                 "yaw_rate_max_rad_s": float(np.abs(rec.nu[:, 2]).max()),
+                 "greybox_notes": ident["identification"]["notes"]}
+        for label, model in (("Nomoto order 1 (output error)", fit), ("grey box identified (prior fix, 4 blocks)",
+                                                                       load_artifact(path))):
+            entry["models"][label] = {"replay": replay_turn(model, circle), "held": held_command_circle(model, circle)}
+        entry["models"]["Nomoto order 1 (output error)"]["steady_turn"] = {
+            "radius_m": steady["radius_m"], "radius_ci95_m": list(steady["radius_ci95_m"]),
+            "k_v_m": fit.coefficients.k_v}
+        for label, m in entry["models"].items():
+            log(f"  from the {train}: {label:45s} replay {m['replay']['radius_m']:5.1f} m (U / mean r "
+                f"{m['replay']['speed_over_mean_r_m']:5.1f} m), held command {m['held']['radius_m']:5.1f} m, drift "
+                f"v / r {m['held'].get('drift_per_yaw_rate_m', math.nan):+.2f} m (data "
+                f"{entry['data_drift_per_yaw_rate_m']:+.2f} m)")
+        out["identified_on"][train] = entry
     return out
 
 
@@ -495,7 +629,7 @@ def main() -> None:
     parser.add_argument("--raw", type=Path, default=REPO.parent / "shared" / "data" / "raw")
     parser.add_argument("--work", type=Path, default=Path("/tmp/real_usv"))
     parser.add_argument("--json", type=Path, default=None)
-    parser.add_argument("--only", choices=("dalian", "fuzhou", "low_order"), default=None)
+    parser.add_argument("--only", choices=("dalian", "fuzhou", "low_order", "circle"), default=None)
     args = parser.parse_args()
     import torch
 
@@ -510,6 +644,8 @@ def main() -> None:
         result["fuzhou"] = fuzhou(bags, args.work)
     if args.only in (None, "low_order"):
         result["low_order"] = low_order(bags, args.work)
+    if args.only in (None, "circle"):
+        result["circle"] = circle_radius_study(bags, args.work)
     result["seconds"] = time.perf_counter() - started
     text = json.dumps(_strict(result), indent=2)
     if args.json:
