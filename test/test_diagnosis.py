@@ -524,3 +524,14 @@ def test_a_nearly_diverging_trial_costs_inf_without_a_warning() -> None:
         warnings.simplefilter("error")
         assert _cost(np.array([1e20, 3.0], dtype=np.float32)) == math.inf
         assert _cost(np.array([3.0, 4.0])) == 25.0
+
+
+def test_a_diverged_held_out_loss_is_printed_as_diverged_not_nan() -> None:
+    """The progress line of a hypothesis whose held-out rollout left the finite numbers (the Dalian record's
+    wave_drift against its assumed vessel file) says `diverged`, in the column's width; finite losses keep 3 decimals."""
+    from usv_predictor.analysis.diagnosis import _loss_text
+
+    assert _loss_text(float("nan")) == " diverged"
+    assert _loss_text(float("inf")) == " diverged"
+    assert _loss_text(1049.4110420963377) == " 1049.411"
+    assert len(_loss_text(2.237)) == len(_loss_text(float("nan"))) == 9

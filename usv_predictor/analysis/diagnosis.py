@@ -167,6 +167,12 @@ def _mean_track(track: np.ndarray) -> float:
     return float(finite.mean()) if len(finite) else float("nan")
 
 
+def _loss_text(loss: float) -> str:
+    """A held-out loss for the progress lines, 9 characters wide: a non-finite one (a fit whose rollout left the
+    finite numbers on a held-out segment; its JSON `heldout_loss` is null) says so instead of printing nan."""
+    return f"{loss:9.3f}" if math.isfinite(loss) else f"{'diverged':>9s}"
+
+
 def set_terms(model: GreyBoxRollout, values: dict[str, Sequence[float]]) -> None:
     """Zero every extension term, then set the given ones (SI)."""
     with torch.no_grad():
@@ -660,7 +666,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
             refit_nested(key)
         losses, tracks = held_out(key)
         if new and len(key) > 1:
-            progress(f"{'+'.join(causes):30s} held-out loss {losses.mean():9.3f}, track error "
+            progress(f"{'+'.join(causes):30s} held-out loss {_loss_text(losses.mean())}, track error "
                      f"{_mean_track(tracks):7.2f} m")
         return HeldOut(float(losses.mean()), _mean_track(tracks))
 
@@ -676,7 +682,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     for name in names:
         fit_set(() if name == "none" else (name,))
         first_round(name)
-        progress(f"{name:15s} held-out loss {per_segment[name].mean():9.3f}, track error after {horizon_s:g} s "
+        progress(f"{name:15s} held-out loss {_loss_text(per_segment[name].mean())}, track error after {horizon_s:g} s "
                  f"{_mean_track(per_track[name]):7.2f} m")
     n_eff = effective_segments(len(per_segment["none"]), stride_s, horizon_s)
 
