@@ -459,6 +459,8 @@ def tune(z: np.ndarray, dt: float, config: SmootherConfig = SmootherConfig(),
         for factor in grid:
             trial_jerk = base.copy()
             trial_jerk[axis] *= factor
+            if best is not None and tuple(trial_jerk) == tuple(jerk):
+                continue  # the best so far again (factor 1 of a later axis): the same likelihood, never greater
             trial = smooth_measurements(z, dt, replace(config, measurement_std=std,
                                                        jerk_psd=tuple(float(q) for q in trial_jerk)))
             if best is None or trial.log_likelihood > best.log_likelihood:
