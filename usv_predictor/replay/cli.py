@@ -144,9 +144,11 @@ def _signal_behind(err: SystemError) -> BaseException | None:
     machine code (numba's `_numba_unpickle` when it boxes an array), the wrapper returns its result with the
     exception set and Python reports a SystemError caused by it: the stop the user asked for, not a bug."""
     seen: BaseException | None = err
-    while seen is not None:
+    visited: set[int] = set()
+    while seen is not None and id(seen) not in visited:  # a chain set by hand may loop
         if isinstance(seen, (KeyboardInterrupt, _Terminated)):
             return seen
+        visited.add(id(seen))
         seen = seen.__cause__ or seen.__context__
     return None
 
