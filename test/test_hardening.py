@@ -553,6 +553,38 @@ def test_sighup_during_a_long_command(one_bag_dataset, tmp_path) -> None:
     assert leftovers(tmp_path) == []
 
 
+def _raises_system_error_from(cause: BaseException | None) -> Callable:
+    def run(_args: object) -> dict:
+        if cause is None:
+            raise SystemError("a bug of a compiled function")
+        try:
+            raise cause
+        except BaseException as err:  # what CPython does when a C function returns a result with an exception set
+            raise SystemError("<built-in function> returned a result with an exception set") from err
+    return run
+
+
+@pytest.mark.parametrize("cause, code, word", [(KeyboardInterrupt(), cli.EXIT_INTERRUPTED, "interrupted"),
+                                               (cli._Terminated(signal.SIGTERM), cli.EXIT_TERMINATED, "terminated")])
+def test_a_system_error_caused_by_a_signal_ends_as_that_signal(monkeypatch, capsys, cause, code, word) -> None:
+    """A stop signal raised inside the Python code a compiled function's wrapper runs comes out of the call as a
+    SystemError caused by it: the command ends as the signal does, one line, no traceback."""
+    from usv_predictor.replay import cmd_info
+
+    monkeypatch.setattr(cmd_info, "run", _raises_system_error_from(cause))
+    assert cli.main(["info", str(BAGS / "training")]) == code
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.strip().splitlines() == [f"replay info: {word}"]
+
+
+def test_a_system_error_without_a_signal_stays_a_bug(monkeypatch) -> None:
+    from usv_predictor.replay import cmd_info
+
+    monkeypatch.setattr(cmd_info, "run", _raises_system_error_from(None))
+    with pytest.raises(SystemError, match="a bug of a compiled function"):
+        cli.main(["info", str(BAGS / "training")])
+
+
 # ------------------------------------------------------------------ bounded reading, typed fields, model metadata
 
 def _alias_bomb(levels: int = 9, width: int = 9) -> str:

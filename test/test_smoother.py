@@ -1,4 +1,5 @@
-"""EKF + RTS smoother: accelerations of simulated manoeuvres with KNOWN accelerations (Trajectory.nu_dot).
+"""EKF + RTS smoother: accelerations of simulated manoeuvres with KNOWN accelerations (Trajectory.nu_dot); the
+compiled loops equal the numpy ones.
 
 Measured (INS/GNSS/compass noise of SensorSpec's defaults, resampled at 0.1 s): the smoother's acceleration
 error is a fraction of the finite-difference error of the same noisy signals (measured: u_dot 0.029 vs 0.12,
@@ -6,10 +7,13 @@ v_dot 0.055 vs 0.12 m/s^2, r_dot 0.0027 vs 0.0037 rad/s^2 on a 20/20 zig-zag of 
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from usv_predictor.data.recording import recording_from_signals
+from usv_predictor.data import smoother
 from usv_predictor.data.smoother import (
     finite_difference_accelerations,
     measurements,
@@ -26,6 +30,8 @@ from usv_predictor.physics.simulator import NS, simulate
 from usv_predictor.physics.vessel import load_vessel
 
 DT = 0.1
+BAGS = Path(__file__).resolve().parents[1] / "bags"
+EQUAL = 1e-9  # (-) of each column's largest value: the compiled and numpy loops differ by rounding (measured 1e-14)
 
 
 @pytest.fixture(scope="module")
@@ -97,3 +103,48 @@ def test_required_signals():
         smooth_measurements(z, 0.1)
     with pytest.raises(DatasetError, match=r"\(T, 6\)"):
         smooth_measurements(np.zeros((50, 5)), 0.1)
+
+
+def _equal(a: np.ndarray, b: np.ndarray) -> None:
+    scale = np.maximum(np.max(np.abs(b), axis=0), 1e-12)
+    assert np.all(np.max(np.abs(a - b), axis=0) <= EQUAL * scale), np.max(np.abs(a - b), axis=0) / scale
+
+
+def _assert_twins(z: np.ndarray, dt: float) -> None:
+    config = tune(z, dt).config  # the noise model identification smooths with
+    compiled = smooth_measurements(z, dt, config, compiled=True)
+    plain = smooth_measurements(z, dt, config, compiled=False)
+    _equal(compiled.state, plain.state)
+    _equal(compiled.std, plain.std)
+    assert compiled.log_likelihood == pytest.approx(plain.log_likelihood, rel=EQUAL, abs=0.0)
+    assert compiled.config == plain.config
+
+
+@pytest.mark.parametrize("gaps", [False, True])
+def test_the_compiled_loops_equal_the_numpy_ones(zigzag, gaps):
+    z = measurements(zigzag[0])
+    if gaps:  # GNSS drop-outs and no sway measurement: the NaN-tolerant updates of fewer components
+        z[100:180, 0:2] = np.nan
+        z[:, 4] = np.nan
+    _assert_twins(z, DT)
+
+
+def test_the_compiled_loops_equal_the_numpy_ones_on_the_shipped_recordings():
+    from usv_predictor.replay.identify import identification_recordings
+
+    recordings = identification_recordings([BAGS / "training"], 0.2)
+    assert len(recordings) == 4
+    for recording in recordings:
+        _assert_twins(measurements(recording), recording.dt)
+
+
+def test_the_jacobian_is_the_transitions_derivative():
+    """By hand against central differences of _transition (their truncation and rounding: ~1e-9 here)."""
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        x = rng.normal(size=9) * np.array([50.0, 50.0, 3.0, 2.0, 0.5, 0.3, 0.3, 0.2, 0.05])
+        h = float(rng.uniform(0.05, 0.5))
+        eps = 1e-6 * np.maximum(1.0, np.abs(x))
+        numeric = (smoother._transition(x[:, None] + np.diag(eps), h)
+                   - smoother._transition(x[:, None] - np.diag(eps), h)) / (2.0 * eps)[None, :]
+        assert np.max(np.abs(smoother._jacobian(x, h) - numeric)) < 1e-7

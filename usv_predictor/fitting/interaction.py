@@ -262,12 +262,34 @@ def manoeuvre_segments(recordings: Sequence[Recording]) -> dict[str, tuple[float
             if len(r) * r.dt > SEGMENT_HORIZON_S}
 
 
-def pooled_segments(recordings: Sequence[Recording]) -> list[tuple[float, Segments]]:
-    """(dt, segments) of all manoeuvres longer than a segment, one batch per time step: what insample_residuals
+RESIDUAL_COLUMNS = [0, 1, 2, 5]  # u, v, r, psi of a rollout's (B, H, 6): the multi-step error's columns
+
+
+@dataclass(frozen=True)
+class PooledSegments:
+    """The segments of every manoeuvre of one time step as the kernel takes them (float64 numpy, made once per
+    search): the inputs, and the target and weight of the residual columns only."""
+
+    dt: float  # (s)
+    state: np.ndarray  # (B, 4) measured u, v, r, psi at the segment start
+    controls: np.ndarray  # (B, H, C) measured controls
+    reference: np.ndarray  # (B, 4) the approach state of each segment's manoeuvre (data/segments.Segments)
+    target: np.ndarray  # (B, H, 4) measured u, v, r, psi
+    weight: np.ndarray  # (B, H, 4) 1/sigma where measured, 0 where missing
+
+
+def pooled_segments(recordings: Sequence[Recording]) -> list[PooledSegments]:
+    """The segments of all manoeuvres longer than a segment, one batch per time step: what insample_residuals
     rolls out at once."""
     steps = sorted({r.dt for r in recordings if len(r) * r.dt > SEGMENT_HORIZON_S})
-    return [(dt, make_segments([r for r in recordings if r.dt == dt and len(r) * r.dt > SEGMENT_HORIZON_S],
-                               SEGMENT_HORIZON_S, SEGMENT_STRIDE_S)) for dt in steps]
+    pooled = []
+    for dt in steps:
+        seg = make_segments([r for r in recordings if r.dt == dt and len(r) * r.dt > SEGMENT_HORIZON_S],
+                            SEGMENT_HORIZON_S, SEGMENT_STRIDE_S)
+        columns = (seg.state, seg.controls, seg.reference, seg.target[..., RESIDUAL_COLUMNS],
+                   seg.weight[..., RESIDUAL_COLUMNS])
+        pooled.append(PooledSegments(dt, *(np.ascontiguousarray(t.numpy(), dtype=np.float64) for t in columns)))
+    return pooled
 
 
 def _segment_error(model: Vessel, dt: float, seg: Segments) -> tuple[float, int]:
@@ -297,7 +319,7 @@ def heldout_simulation_error(vessel: Vessel, data: Sequence[ForceData], segments
     return total / count if count else math.nan
 
 
-def insample_residuals(model: Vessel, pooled: Sequence[tuple[float, Segments]]) -> np.ndarray:
+def insample_residuals(model: Vessel, pooled: Sequence[PooledSegments]) -> np.ndarray:
     """(N,) the multi-step errors of u, v, r, psi over all segments (pooled_segments) in noise units
     (data/segments.SIGMA; a diverged value: +-sqrt(DIVERGED)) of the grey box of `model` (its hull fitted on all
     manoeuvres): the search's residuals, one rollout per time step instead of one per manoeuvre
@@ -305,11 +327,16 @@ def insample_residuals(model: Vessel, pooled: Sequence[tuple[float, Segments]]) 
     heldout_simulation_error's per-segment error when the segments share a horizon."""
     bound = math.sqrt(DIVERGED)
     parts = []
-    for dt, seg in pooled:
-        out = KernelRollout(GreyBoxRollout(model, dt))(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
-        error = ((out - seg.target) * seg.weight)[..., [0, 1, 2, 5]]  # (B, H, 4)
-        parts.append(torch.nan_to_num(error, nan=bound, posinf=bound, neginf=-bound).clamp(-bound, bound).reshape(-1))
-    return torch.cat(parts).numpy() if parts else np.zeros(0)
+    for batch in pooled:
+        out = KernelRollout(GreyBoxRollout(model, batch.dt)).rollout(batch.state, batch.controls,
+                                                                      batch.reference)[0]  # (B, H, 6)
+        error = out[..., RESIDUAL_COLUMNS]  # (B, H, 4): a copy, worked on in place
+        np.subtract(error, batch.target, out=error)
+        np.multiply(error, batch.weight, out=error)  # noise units
+        np.nan_to_num(error, copy=False, nan=bound, posinf=bound, neginf=-bound)
+        np.clip(error, -bound, bound, out=error)
+        parts.append(error.reshape(-1))
+    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def _bounds(vessel: Vessel, name: str) -> tuple[float, float]:

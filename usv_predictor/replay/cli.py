@@ -13,7 +13,8 @@ arguments, an OS error reading or writing a file) print one line `replay <comman
 stderr and exit with code 2 (EXIT_ERROR); Ctrl-C (SIGINT) prints `replay <command>: interrupted` and exits with
 130 (EXIT_INTERRUPTED), SIGTERM `replay <command>: terminated` and 143 (EXIT_TERMINATED), SIGHUP `replay
 <command>: hung up` and 129 (EXIT_HUNG_UP), leaving no partial output (every writer is atomic and removes its
-temporary file as the exception unwinds).
+temporary file as the exception unwinds). A SystemError caused by one of these signals (raised inside the Python code
+a compiled function's wrapper runs: _signal_behind) ends the command as that signal does.
 
 A model's code runs at load in a guard thread while the main thread waits with a timeout
 (usv_predictor.models.loading.call_guarded), so these signals are honoured also while a model never returns; such a
@@ -137,6 +138,21 @@ def _error_line(err: BaseException) -> str:
     return str(err) or type(err).__name__
 
 
+def _signal_behind(err: SystemError) -> BaseException | None:
+    """The KeyboardInterrupt (or _Terminated) a SystemError carries, else None. A signal handler that raises runs at
+    the interpreter's next check; when that falls in Python code a compiled (numba) function's wrapper calls after its
+    machine code (numba's `_numba_unpickle` when it boxes an array), the wrapper returns its result with the
+    exception set and Python reports a SystemError caused by it: the stop the user asked for, not a bug."""
+    seen: BaseException | None = err
+    visited: set[int] = set()
+    while seen is not None and id(seen) not in visited:  # a chain set by hand may loop
+        if isinstance(seen, (KeyboardInterrupt, _Terminated)):
+            return seen
+        visited.add(id(seen))
+        seen = seen.__cause__ or seen.__context__
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one replay command; returns the process exit code. Called as the program (argv None) after a model's
     code never returned (a guard thread still inside it), the process ends here with os._exit and that code."""
@@ -161,10 +177,16 @@ def _run(argv: list[str]) -> int:
         if command is None:
             raise _UsageError(PROG, "a command is required (see --help)")
         prog = f"{PROG} {command.NAME}"
-        with output_locks(check_paths(command, args)):  # one writer per output
-            result = command.run(args)
-            if args.json is not None:
-                write_json_atomic(args.json, result)
+        try:
+            with output_locks(check_paths(command, args)):  # one writer per output
+                result = command.run(args)
+                if args.json is not None:
+                    write_json_atomic(args.json, result)
+        except SystemError as err:
+            stop = _signal_behind(err)
+            if stop is None:
+                raise
+            raise stop from None
     except _UsageError as err:
         print(f"{err.prog}: error: {err}", file=sys.stderr)
         return EXIT_ERROR
