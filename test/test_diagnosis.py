@@ -528,7 +528,8 @@ def test_a_nearly_diverging_trial_costs_inf_without_a_warning() -> None:
 
 def test_a_diverged_held_out_loss_is_printed_as_diverged_not_nan() -> None:
     """The progress line of a hypothesis whose held-out rollout left the finite numbers (the Dalian record's
-    wave_drift against its assumed vessel file) says `diverged`, in the column's width; finite losses keep 3 decimals."""
+    wave_drift against its assumed vessel file) says `diverged`, in the column's width; finite losses keep 3
+    decimals."""
     from usv_predictor.analysis.diagnosis import _loss_text
 
     assert _loss_text(float("nan")) == " diverged"
