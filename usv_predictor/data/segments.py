@@ -19,6 +19,7 @@ from usv_predictor.errors import DiagnosisError
 from usv_predictor.records import whole_steps
 
 SIGMA = (0.05, 0.05, 0.005, 1.0, 1.0, 0.01)  # u, v (m/s), r (rad/s), x_n, y_e (m), psi (rad): noise scales
+VELOCITY_HEADING = (0, 1, 2, 5)  # u, v, r, psi of a (B, H, 6) rollout or target: the multi-step fits' columns
 
 
 @dataclass(frozen=True)

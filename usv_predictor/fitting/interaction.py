@@ -68,7 +68,7 @@ import numpy as np
 import torch
 
 from usv_predictor.data.recording import Recording
-from usv_predictor.data.segments import Segments, make_segments
+from usv_predictor.data.segments import VELOCITY_HEADING, Segments, make_segments
 from usv_predictor.errors import ConfigError
 from usv_predictor.fitting.identification import (
     CHI2_95, SEARCH_BOX, Coefficient, ForceData, _least_squares_rss, cross_validate, fit_hull, identified_vessel,
@@ -262,7 +262,7 @@ def manoeuvre_segments(recordings: Sequence[Recording]) -> dict[str, tuple[float
             if len(r) * r.dt > SEGMENT_HORIZON_S}
 
 
-RESIDUAL_COLUMNS = [0, 1, 2, 5]  # u, v, r, psi of a rollout's (B, H, 6): the multi-step error's columns
+RESIDUAL_COLUMNS = list(VELOCITY_HEADING)  # the multi-step error's columns (an index list: a copy when indexed)
 
 
 @dataclass(frozen=True)
@@ -296,7 +296,7 @@ def _segment_error(model: Vessel, dt: float, seg: Segments) -> tuple[float, int]
     """(sum over the segments of the normalised squared multi-step error of u, v, r, psi (data/segments.SIGMA
     units; DIVERGED for a diverged segment), number of segments) of the grey box of `model`."""
     out = KernelRollout(GreyBoxRollout(model, dt))(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
-    error = ((out - seg.target) * seg.weight)[..., [0, 1, 2, 5]]  # (B, H, 4) in noise units
+    error = ((out - seg.target) * seg.weight)[..., RESIDUAL_COLUMNS]  # (B, H, 4) in noise units
     per = torch.nan_to_num(error.pow(2).mean(dim=(1, 2)), nan=DIVERGED, posinf=DIVERGED).clamp(max=DIVERGED)  # (B,)
     return float(per.sum()), len(per)
 

@@ -66,7 +66,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from usv_predictor.data.recording import Recording
-from usv_predictor.data.segments import make_segments
+from usv_predictor.data.segments import VELOCITY_HEADING, make_segments
 from usv_predictor.errors import DatasetError, NotIdentifiableError
 from usv_predictor.fitting import identification as ident
 from usv_predictor.fitting.identification import (
@@ -79,7 +79,7 @@ from usv_predictor.physics.vessel import Vessel
 
 SEGMENT_S = 6.0  # (s) multiple-shooting segment: a few of the small boats' yaw time constants
 STRIDE_S = 6.0  # (s) a segment starts every this (segments do not overlap: n_eff = their count)
-CHANNELS = (0, 1, 2, 5)  # u, v, r, psi of the rollout's [u, v, r, x_n, y_e, psi]
+CHANNELS = VELOCITY_HEADING  # u, v, r, psi of the rollout's [u, v, r, x_n, y_e, psi]
 DIVERGED = 1e6  # (-) squared residual counted for a diverged or non-finite value (interaction.DIVERGED)
 PRIOR_WIDTH = 0.5  # (-) the description's standard deviation: half a coefficient's size, log 1.65 of a factor
 LAG_PRIOR_WIDTH = 1.5  # (-) ... of a motor's time constant (log, a factor 4.5): vessel init writes a default, 1 s
