@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from usv_predictor.data.recording import Recording, held_reference
+from usv_predictor.data.segments import VELOCITY_HEADING
 from usv_predictor.errors import DatasetError, ModelError, NotIdentifiableError
 from usv_predictor.models.nomoto import NomotoCoefficients, layout_weights, numpy_rollout
 
@@ -206,7 +207,7 @@ def fit_windows(recordings: Sequence[Recording], dt: float, horizon_s: float, st
         if abs(rec.dt - dt) > 1e-9:
             raise DatasetError(f"recording {rec.name}: step {rec.dt:g} s, the fit's is {dt:g} s")
         series = np.column_stack([rec.nu, rec.position, rec.psi])  # (T, 6) [u, v, r, x_n, y_e, psi]
-        begin = _start_states(rec) if smoothed_starts else series[:, [0, 1, 2, 5]]  # (T, 4)
+        begin = _start_states(rec) if smoothed_starts else series[:, list(VELOCITY_HEADING)]  # (T, 4)
         steps = min(int(round(horizon_s / dt)), len(rec) - 1)
         stride = max(1, int(round(stride_s / dt)))
         if steps < 2:
