@@ -627,7 +627,23 @@ INTERRUPTS = {
 }
 
 
+@pytest.fixture(scope="module")
+def first_imports_done() -> None:
+    """The modules `report` and `train` import on first use (matplotlib's figure, the sympy that torch's first
+    optimiser step loads) imported before any interrupt. An interrupt inside a first import leaves the module half
+    initialised in sys.modules; a real process then exits, but these runs share one process, and the next run would
+    meet the half module. What is tested is the commands' handling of Ctrl-C, not Python's import machinery."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
+    from matplotlib.figure import Figure  # noqa: F401
+
+    weight = torch.zeros(2, requires_grad=True)
+    optimiser = torch.optim.Adam([weight])
+    (weight ** 2).sum().backward()
+    optimiser.step()
+
+
 @pytest.mark.parametrize("command", sorted(INTERRUPTS))
+@pytest.mark.usefixtures("first_imports_done")
 def test_interrupted_in_the_middle(command: str, base: dict[str, Path], tmp_path: Path, checked: Callable,
                                    capsys: pytest.CaptureFixture[str]) -> None:
     rng = rng_for(f"interrupt {command}")
