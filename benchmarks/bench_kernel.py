@@ -54,7 +54,7 @@ STEPS, DT, SUBSTEPS = 120, 0.5, 2  # the node's horizon: 60 s
 DERIVATIVES = STEPS * SUBSTEPS * 4  # RK4: four a substep
 # the derivative's calls and flops in calm water (physics/kernel.py, counted by hand: _derivative and what it calls)
 OP_COUNTS = {  # layout: (transcendental calls, flops)
-    ("mmg", "rudder_propeller"): (12, 170),  # hull sqrt; rudder 2 atan2, exp, 3 sqrt, 2 sin, cos; psi's cos, sin
+    ("mmg", "rudder_propeller"): (11, 176),  # hull sqrt; rudder atan2, exp, 4 sqrt, sin, cos; psi's cos, sin
     ("small_craft", "twin_thrusters"): (4, 230),  # two thrust pow; psi's cos, sin; 20 cross-flow strips ~ 6 flops each
 }
 

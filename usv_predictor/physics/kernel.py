@@ -356,7 +356,7 @@ def _thrust(ki, p, k, level):
 
 
 @_inlined
-def _rudder_propeller(p, u_r, v_r, r, delta, rpm, cos_d, sin_d):
+def _rudder_propeller(p, u_r, v_r, r, rpm, cos_d, sin_d):
     """(X_R, Y_R, N_R, X_P, Y_P, N_P): the MMG rudder with slipstream (eq. 13-16, 37-43) and propeller (eq. 10-12);
     cos_d, sin_d the rudder angle's (the rollout computes them once per level, not once per stage)."""
     L = p[P_L_ACT]
@@ -377,8 +377,12 @@ def _rudder_propeller(p, u_r, v_r, r, delta, rpm, cos_d, sin_d):
     u_rud = p[P_EPSILON] * math.sqrt(eta * jet * jet + (1.0 - eta) * u_p * u_p)
     beta_r = -(v_r + p[P_L_R_M] * r)  # U beta_R (m/s): the inflow angle as U sin(beta) = -v (docs/kernel.md)
     v_rud = p[P_GAMMA_R_MINUS] * beta_r if beta_r < 0.0 else p[P_GAMMA_R_PLUS] * beta_r
-    alpha = delta - math.atan2(v_rud, max(u_rud, 1e-9))
-    f_n = 0.5 * p[P_RHO] * p[P_A_R] * (u_rud * u_rud + v_rud * v_rud) * p[P_F_ALPHA] * math.sin(alpha)
+    # sin(alpha), alpha = delta - atan2(v_rud, u_c) (eq. 14), by the angle difference: sin delta cos theta -
+    # cos delta sin theta with cos theta = u_c / h, sin theta = v_rud / h: one sqrt instead of an atan2 and a sine
+    u_c = max(u_rud, 1e-9)
+    inflow = math.sqrt(u_c * u_c + v_rud * v_rud)
+    sin_alpha = (sin_d * u_c - cos_d * v_rud) / inflow
+    f_n = 0.5 * p[P_RHO] * p[P_A_R] * (u_rud * u_rud + v_rud * v_rud) * p[P_F_ALPHA] * sin_alpha
     y_p = p[T_SIDE_FORCE] * x_p / (1.0 - p[P_T_P])
     return (-(1.0 - p[P_T_R]) * f_n * sin_d, -(1.0 + p[P_A_H]) * f_n * cos_d,
             -(p[P_X_R_M] + p[P_A_H] * p[P_X_H_M]) * f_n * cos_d, x_p, y_p, y_p * p[P_X_P] * L)
@@ -405,7 +409,7 @@ def _actuator_forces_at(ki, p, u_r, v_r, r, a, b, cos_a, sin_a):
     if layout == RUDDER_THROTTLE:  # the engine speed whose static thrust is the map's at the level
         thrust = max(_thrust(ki, p, 0, b), 0.0)
         rpm = math.sqrt(thrust / p[P_STATIC_THRUST]) * p[P_RPM_PER_REV_S]
-    return _rudder_propeller(p, u_r, v_r, r, a, rpm, cos_a, sin_a)
+    return _rudder_propeller(p, u_r, v_r, r, rpm, cos_a, sin_a)
 
 
 @_inlined
