@@ -62,9 +62,12 @@ def joint_trajectory(harness: Harness, names: list[str], positions: np.ndarray, 
 
 
 def publisher(harness: Harness, topic: str) -> Any:
+    """The peer's publisher on `topic`, returned once the node's subscription has matched it: a message published
+    before discovery has matched the two is dropped (reliable, volatile QoS), and the test would wait for nothing."""
     if topic not in harness.publishers:
-        harness.publishers[topic] = harness.peer.create_publisher(
-            harness.make("trajectory_msgs/msg/JointTrajectory"), topic, 10)
+        created = harness.peer.create_publisher(harness.make("trajectory_msgs/msg/JointTrajectory"), topic, 10)
+        wait_for(harness, lambda: created.get_subscription_count() > 0, f"the node to subscribe to {topic!r}")
+        harness.publishers[topic] = created
     return harness.publishers[topic]
 
 
