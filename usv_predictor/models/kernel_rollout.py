@@ -199,8 +199,8 @@ class KernelRollout:
             for k, field in enumerate(("in_mean", "in_std", "z_low", "z_high")):
                 norm[k] = _floats(getattr(residual, field))
             norm[4, :3] = _floats(residual.bound)
-            # the kernel reads each output's weights contiguously: every weight output-major (swapped in, out)
-            for key, values in ((kn.K_O_W0, weights[0].swapaxes(-1, -2)), (kn.K_O_B0, biases[0][:, 0]),
+            # the kernel reads the hidden and head layers output-major (swapped in, out), the first input-major
+            for key, values in ((kn.K_O_W0, weights[0]), (kn.K_O_B0, biases[0][:, 0]),
                                 (kn.K_O_WH, hidden_w.swapaxes(-1, -2)), (kn.K_O_BH, hidden_b),
                                 (kn.K_O_WO, _array(residual.head_weight).swapaxes(-1, -2)),
                                 (kn.K_O_BO, _array(residual.head_bias)[:, 0]), (kn.K_O_NORM, norm)):

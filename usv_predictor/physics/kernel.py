@@ -439,6 +439,13 @@ def _polynomial_residual(ki, p, u, v, r):
     return x / p[P_POLY_M11], (m33 * y - m23 * n) / det, (m22 * n - m32 * y) / det
 
 
+# The learned residual's loops vectorise (eight lanes with AVX-512) only when: a division does not test its divisor
+# and raise (error_model numpy); sums may be reassociated and multiply-adds fused (fastmath reassoc, contract; not
+# nnan / ninf: NaN and inf keep their meaning); the rows and vectors are sliced views, whose indices are known
+# non-negative (no wraparound select). The network is inlined into the rollout (a call between compiled functions
+# passes each array as a struct and counts its references), so the rollout is compiled with the same flags: VECTOR.
+VECTOR = {"fastmath": {"reassoc", "contract", "nsz"}, "error_model": "numpy"}
+
 # tanh from exp(-2|x|) = exp(-2|x| / 64)^64: the Taylor series of expm1 to r^13 on |r| <= 0.625, then six squarings
 # carried as m = t - 1 ((1 + m)^2 - 1 = m (2 + m)), so that 1 - t = -m and 1 + t = 2 + m never cancel
 _EXPM1_TAYLOR = tuple(1.0 / math.factorial(k) for k in range(2, 14))  # 1/2!, ..., 1/13!
@@ -446,7 +453,7 @@ _C2, _C3, _C4, _C5, _C6, _C7, _C8, _C9, _C10, _C11, _C12, _C13 = _EXPM1_TAYLOR
 TANH_SATURATION = 20.0  # |x| beyond which tanh x is +-1 in float64 (1 - tanh 20 = 8.5e-18)
 
 
-@njit(cache=CACHED, inline="always", fastmath=True, error_model="numpy")
+@njit(cache=CACHED, inline="always", **VECTOR)
 def _tanh(x):
     """tanh x = -m / (2 + m), m = exp(-2 |x|) - 1 (above), the sign restored; NaN stays NaN. Within 4.5e-16 of tanh x
     absolutely and 7e-16 relatively (test_kernel.py), without a call or a branch: a loop of them runs eight lanes
@@ -462,9 +469,7 @@ def _tanh(x):
     return y if x >= 0.0 else -y
 
 
-# error_model numpy: a division does not test its divisor (and raise), so that the layers' loops vectorise; the rows
-# and vectors are sliced views, so that their indices are known non-negative (no wraparound) and the loops vectorise
-@njit(cache=CACHED, inline="always", fastmath=True, error_model="numpy")
+@njit(cache=CACHED, inline="always", **VECTOR)
 def _tanh_layer(p, weights, bias, x, out):
     """out = tanh(W x + b) (one dense layer): W (len(out), len(x)) output-major at p[weights:], b at p[bias:]."""
     n_in = x.size
@@ -478,13 +483,14 @@ def _tanh_layer(p, weights, bias, x, out):
         out[j] = _tanh(out[j])
 
 
-@njit(cache=CACHED, fastmath=True, error_model="numpy")
+@njit(cache=CACHED, inline="always", **VECTOR)
 def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
     """Member e's bounded residual accelerations (GeneralisingResidual): features -> z -> tanh layers -> bound tanh,
-    times the support envelope, scaled by U^2 / L (surge, sway) and U^2 / L^2 (yaw). Weights in p, member-major and
-    output-major (each output's weights contiguous: a layer is one dot product per output, which vectorises):
-    w0 (E, W, F), b0 (E, W), wh (E, layers, W_out, W_in), bh (E, layers, W), wo (E, 3, W), bo (E, 3); norm (5, F):
-    in_mean, in_std, z_low, z_high, the bound (first 3). work (3, max(W, F)) scratch: z, then the layers in turn."""
+    times the support envelope, scaled by U^2 / L (surge, sway) and U^2 / L^2 (yaw). Weights in p, member-major; the
+    first layer's input-major (seven vector updates of the hidden vector), the others output-major (each output's
+    weights contiguous: one dot product per output): w0 (E, F, W), b0 (E, W), wh (E, layers, W_out, W_in),
+    bh (E, layers, W), wo (E, 3, W), bo (E, 3); norm (5, F): in_mean, in_std, z_low, z_high, the bound (first 3).
+    work (3, max(W, F)) scratch: z, then the layers in turn."""
     hidden, layers = ki[K_HIDDEN], ki[K_HIDDEN_LAYERS]
     L = p[P_MLP_L]
     speed = max(math.sqrt(u * u + v * v), p[P_MLP_SPEED_FLOOR])
@@ -500,7 +506,19 @@ def _mlp_residual(ki, p, e, work, psi, u, v, r, a, b):
         z[i] = zi
     h = work[1, :hidden]
     g = work[2, :hidden]
-    _tanh_layer(p, ki[K_O_W0] + e * hidden * N_FEATURES, ki[K_O_B0] + e * hidden, z, h)
+    # seven vector updates of h: seven-long dot products would not vectorise
+    w0 = ki[K_O_W0] + e * N_FEATURES * hidden
+    b0 = ki[K_O_B0] + e * hidden
+    bias = p[b0:b0 + hidden]
+    for j in range(hidden):
+        h[j] = bias[j]
+    for i in range(N_FEATURES):
+        zi = z[i]
+        row = p[w0 + i * hidden:w0 + (i + 1) * hidden]
+        for j in range(hidden):
+            h[j] += zi * row[j]
+    for j in range(hidden):
+        h[j] = _tanh(h[j])
     for layer in range(layers):
         _tanh_layer(p, ki[K_O_WH] + (e * layers + layer) * hidden * hidden, ki[K_O_BH] + (e * layers + layer) * hidden,
                     h, g)
@@ -603,7 +621,8 @@ def _derivative(ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b, cos_a, sin_a)
     return u * c - v * s, u * s + v * c, r, du, dv * free, dr * free
 
 
-@njit(cache=CACHED, nogil=True)  # without the GIL: two threads roll out two halves of a batch at once
+# without the GIL: two threads roll out two halves of a batch at once; VECTOR: the learned residual's flags (above)
+@njit(cache=CACHED, nogil=True, **VECTOR)
 def rollout(state, controls, reference, use_reference, ki, constants, terms, free, out):
     """The grey box's closed-loop rollout into out (E, B, H, 6) [u, v, r, x_n, y_e, psi] as measured, from state
     (B, 4) [u, v, r, psi] as measured and controls (B, H, C) as reported (models/greybox.py's interface); reference
