@@ -19,7 +19,8 @@ from usv_predictor.fitting import hybrid_fit
 from usv_predictor.fitting import identification as idf
 from usv_predictor.models.artifact import load_artifact
 from usv_predictor.models.greybox import GreyBoxRollout
-from usv_predictor.models.hybrid import GENERALISING_FEATURES, GeneralisingResidual, ResidualGreyBox, ZeroResidual
+from usv_predictor.models.hybrid import (GENERALISING_FEATURES, GeneralisingResidual, ResidualGreyBox, SumResidual,
+                                         ZeroResidual)
 from usv_predictor.physics.dynamics import ManoeuvringModel
 from usv_predictor.physics.environment import Environment
 from usv_predictor.physics.manoeuvres import RandomManoeuvre, TurningCircle, ZigZag
@@ -397,8 +398,8 @@ def test_a_residual_that_turns_the_loss_nan_stops_training_at_that_epoch(vessel,
     recordings, data = short_day
     original, calls = hybrid_fit._segment_losses, {"n": 0}
 
-    def losses(module, seg, weights=None):
-        value = original(module, seg, weights)
+    def losses(module, seg, weights=None, predicted=None):
+        value = original(module, seg, weights, predicted)
         if weights is not None:  # the training step's loss (the bootstrap-weighted one)
             calls["n"] += 1
             if calls["n"] >= 2:
@@ -412,3 +413,30 @@ def test_a_residual_that_turns_the_loss_nan_stops_training_at_that_epoch(vessel,
         hybrid_fit.train_residual(ResidualGreyBox(vessel, DT, ZeroResidual(), 2), vessel, data, recordings, DT,
                                   SHORT_TRAINING)
     assert calls["n"] == 2
+
+
+def test_the_early_stopping_monitor_runs_on_the_kernel_and_equals_the_modules_loss(vessel, short_day, monkeypatch):
+    """The loss the training monitors each epoch (hybrid_fit._monitored_losses) is rolled out on the compiled kernel
+    from the module's weights as they are at that moment: equal to the differentiable module's own loss to rounding,
+    changed when the weights change, and made without calling the module (its forward here raises)."""
+    recordings, _ = short_day
+    train, _, _ = hybrid_fit._split_segments(recordings, SHORT_TRAINING)
+    learned = _randomised(GeneralisingResidual(vessel.geometry.L_pp, 3.0, members=2, hidden=8, layers=2), 0.7)
+    module = ResidualGreyBox(vessel, DT, SumResidual(ZeroResidual(), learned), members=2)
+    with torch.no_grad():
+        expected = hybrid_fit._segment_losses(module, train)  # (E,)
+        learned.head_bias.mul_(-1.0)
+        changed = hybrid_fit._segment_losses(module, train)
+        learned.head_bias.mul_(-1.0)
+    assert float((expected - changed).abs().min()) > 1e-6 * float(expected.abs().max())  # the weights matter
+
+    def forward(*_):
+        raise AssertionError("the monitor called the torch module")
+
+    monkeypatch.setattr(ResidualGreyBox, "forward", forward)
+    got = hybrid_fit._monitored_losses(module, train)
+    assert got.shape == (2,)
+    assert torch.allclose(got, expected, rtol=1e-9, atol=0.0)
+    with torch.no_grad():
+        learned.head_bias.mul_(-1.0)
+    assert torch.allclose(hybrid_fit._monitored_losses(module, train), changed, rtol=1e-9, atol=0.0)

@@ -224,15 +224,33 @@ def _split_segments(recordings: Sequence[Recording], config: HybridTraining) -> 
     return parts["train"], parts["val"], split
 
 
-def _segment_losses(module: ResidualGreyBox, seg: Segments, weights: torch.Tensor | None = None) -> torch.Tensor:
+def _segment_losses(module: ResidualGreyBox, seg: Segments, weights: torch.Tensor | None = None,
+                    predicted: torch.Tensor | None = None) -> torch.Tensor:
     """(E,) each member's mean squared weighted residual (noise units, data/segments.SIGMA) of its rollouts over the
-    segments: velocities, track and heading; `weights` (E, N) resample the segments per member."""
-    predicted = module(seg.state, seg.controls, seg.reference)  # (E, N, H, 6)
+    segments: velocities, track and heading; `weights` (E, N) resample the segments per member; `predicted` the
+    rollouts when already made (else the module's own, differentiable)."""
+    if predicted is None:
+        predicted = module(seg.state, seg.controls, seg.reference)  # (E, N, H, 6)
     r = (predicted - seg.target) * seg.weight  # (E, N, H, 6)
     per_segment = (r * r).sum(dim=(2, 3)) / torch.count_nonzero(seg.weight, dim=(1, 2)).clamp(min=1)  # (E, N)
     if weights is None:
         return per_segment.mean(dim=1)
     return (per_segment * weights).sum(dim=1) / weights.sum(dim=1)
+
+
+def _monitored_losses(module: ResidualGreyBox, seg: Segments) -> torch.Tensor:
+    """(E,) _segment_losses without gradients, the rollouts on the compiled kernel (models/kernel_rollout, built from
+    the module's weights as they are now: equal to the module's rollout to rounding, test_kernel.py) where it can run
+    the module, on the module itself otherwise: the early-stopping monitor of every epoch and the scores either side
+    of the training, a third of a training's rollouts."""
+    from usv_predictor.models.kernel_rollout import KernelRollout, KernelUnavailable
+
+    with torch.no_grad():
+        try:
+            predicted = KernelRollout(module)(seg.state, seg.controls, seg.reference)  # (E, N, H, 6)
+        except KernelUnavailable:
+            predicted = None
+        return _segment_losses(module, seg, predicted=predicted)
 
 
 def _diverging_segments(module: ResidualGreyBox, seg: Segments) -> int:
@@ -309,9 +327,9 @@ def train_residual(base: ResidualGreyBox, vessel: Vessel, data: Sequence[ForceDa
         with torch.no_grad():  # epoch 0, the untrained residual (zero: the base itself) is a candidate too, so a
             #                    member keeps no learned term that does not beat its base on the held-out manoeuvres
             zero = ((learned.nondimensional(samples) / learned.bound) ** 2).sum(dim=-1).mean(dim=-1)  # (E,)
-            _check_loss(_segment_losses(module, train), zero, 0, "training", base, train, config)
-            monitor = (_segment_losses(module, val) if val is not None
-                       else _segment_losses(module, train) + config.zero_weight * zero)  # (E,)
+            _check_loss(_monitored_losses(module, train), zero, 0, "training", base, train, config)
+            monitor = (_monitored_losses(module, val) if val is not None
+                       else _monitored_losses(module, train) + config.zero_weight * zero)  # (E,)
             if val is not None:
                 _check_loss(monitor, zero, 0, "validation", base, val, config)
         best = [float(x) for x in monitor]
@@ -327,9 +345,8 @@ def train_residual(base: ResidualGreyBox, vessel: Vessel, data: Sequence[ForceDa
             (fit + config.zero_weight * zero).sum().backward()
             optimiser.step()
             fit = fit.detach()
-            with torch.no_grad():
-                monitor = (_segment_losses(module, val) if val is not None
-                           else _segment_losses(module, train) + config.zero_weight * zero)  # (E,)
+            monitor = (_monitored_losses(module, val) if val is not None
+                       else _monitored_losses(module, train) + config.zero_weight * zero.detach())  # (E,)
             _check_loss(monitor, zero.detach(), epoch, "validation" if val is not None else "training", base,
                         val if val is not None else train, config)
             history.append((fit.tolist(), monitor.tolist()))
@@ -348,7 +365,7 @@ def train_residual(base: ResidualGreyBox, vessel: Vessel, data: Sequence[ForceDa
         with torch.no_grad():
             for keep, p in zip(best_state, trainable):
                 p.copy_(keep)
-            grey = _segment_losses(base, val if val is not None else train)
+            grey = _monitored_losses(base, val if val is not None else train)
     info = {"residual": "GeneralisingResidual", "features": list(GENERALISING_FEATURES), "members": config.members,
             "hidden": config.hidden, "layers": config.layers, "u_ref_mps": learned.u_ref,
             "bound": learned.bound.tolist(), "horizon_s": config.horizon_s, "zero_weight": config.zero_weight,
