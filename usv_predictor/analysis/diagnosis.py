@@ -62,7 +62,8 @@ import numpy as np
 import torch
 
 from usv_predictor.data.recording import Recording
-from usv_predictor.data.segments import SIGMA, Segments, make_segments  # noqa: F401 (diagnosis API)
+from usv_predictor.data.segments import SIGMA, Segments, make_segments, weighted_residuals  # noqa: F401 (API)
+from usv_predictor.data.wave_motion import WaveFilter, wave_filter
 from usv_predictor.errors import ConfigError, DiagnosisError
 from usv_predictor.frames import compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
@@ -117,16 +118,19 @@ HYPOTHESES: Mapping[str, tuple[Term, ...]] = fx.RegistryView(
     lambda: {name: () if name == fx.NONE else fx.EFFECTS[name].terms for name in fx.hypothesis_names()})
 
 
-def residuals(model: GreyBoxRollout | KernelRollout, seg: Segments) -> torch.Tensor:
-    """Weighted residuals (B, H, 6) of the rollout against the measurements (the kernel's in numpy, on the segments'
-    own memory: no tensor operations on the way)."""
+def _predicted(model: GreyBoxRollout | KernelRollout, seg: Segments) -> np.ndarray | torch.Tensor:
+    """(B, H, 6) rollout of the segments (the kernel's in numpy, on the segments' own memory)."""
     if isinstance(model, KernelRollout):
-        predicted = model.rollout(seg.state.numpy(), seg.controls.numpy(),
-                                  None if seg.reference is None else seg.reference.numpy())[0]  # (B, H, 6)
-        return torch.from_numpy((predicted - seg.target.numpy()) * seg.weight.numpy())
+        return model.rollout(seg.state.numpy(), seg.controls.numpy(),
+                             None if seg.reference is None else seg.reference.numpy())[0]
     with torch.no_grad():
-        predicted = model(seg.state, seg.controls, seg.reference)[0]  # (B, H, 6)
-    return (predicted - seg.target) * seg.weight
+        return model(seg.state, seg.controls, seg.reference)[0]
+
+
+def residuals(model: GreyBoxRollout | KernelRollout, seg: Segments) -> torch.Tensor:
+    """Weighted residuals (B, H, 6) of the rollout against the measurements, wave-filtered when the segments are
+    (data.segments.weighted_residuals)."""
+    return torch.as_tensor(weighted_residuals(_predicted(model, seg), seg))
 
 
 def loss(model: GreyBoxRollout, seg: Segments) -> float:
@@ -141,15 +145,25 @@ def segment_losses(model: GreyBoxRollout, seg: Segments) -> np.ndarray:
 
 
 def segment_scores(model: GreyBoxRollout, seg: Segments) -> tuple[np.ndarray, np.ndarray]:
-    """(B,) mean squared weighted residual and (B,) track error (m) of each segment: the distance between the
-    predicted and the GNSS position at the segment's end (NaN without a fix there), from one rollout."""
-    r = residuals(model, seg)  # (B, H, 6)
-    losses = ((r * r).sum(dim=(1, 2)) / torch.count_nonzero(seg.weight, dim=(1, 2)).clamp(min=1)).numpy()
-    end = r[:, -1, 3:5].numpy()  # (B, 2) weighted position residuals at the end
+    """(B,) mean squared weighted residual (wave-filtered when the segments are) and (B,) track error (m) of each
+    segment: the distance between the predicted and the GNSS position at the segment's end (NaN without a fix there;
+    never filtered), from one rollout."""
+    predicted = _predicted(model, seg)
+    r = np.asarray(weighted_residuals(predicted, seg))  # (B, H, 6)
+    losses = (r * r).sum(axis=(1, 2)) / np.maximum(np.count_nonzero(seg.weight.numpy(), axis=(1, 2)), 1)
+    end = np.asarray(weighted_residuals(predicted, seg, filtered=False))[:, -1, 3:5]  # (B, 2) at the end
     weight = seg.weight[:, -1, 3:5].numpy()  # (B, 2) 1/sigma, 0 without a fix
     with np.errstate(divide="ignore", invalid="ignore"):
         track = np.where((weight > 0).all(axis=1), np.hypot(*(end / np.where(weight > 0, weight, 1.0)).T), np.nan)
     return losses, track
+
+
+def diagnosis_segments(recordings: Sequence[Recording], horizon_s: float, stride_s: float,
+                       wave_filter_mode: str = "auto") -> tuple[Segments, WaveFilter]:
+    """The segments a diagnosis fits and scores (make_segments) with the wave filter its detector decides
+    (data/wave_motion.py; `replay diagnose --wave-filter`), and that decision."""
+    decided = wave_filter(recordings, SIGMA, wave_filter_mode)
+    return make_segments(recordings, horizon_s, stride_s, filter_s=decided.sigma_s), decided
 
 
 def diverged_segments(model: GreyBoxRollout | KernelRollout, seg: Segments) -> int:
@@ -599,7 +613,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     if "none" not in names:
         names.insert(0, "none")
     dt = recordings[0].dt
-    seg = segments if segments is not None else make_segments(recordings, horizon_s, stride_s)
+    seg = segments if segments is not None else diagnosis_segments(recordings, horizon_s, stride_s)[0]
     folds = _folds(recordings)
     model = rollout if rollout is not None else compiled_rollout(vessel, dt)
     diverged = diverged_segments(model, seg)

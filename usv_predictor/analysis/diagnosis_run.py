@@ -40,6 +40,8 @@ class DiagnosisOptions:
     report: Path | None = None  # write report.md + plots into this directory; None: no report
     fit_check: bool = True  # refuse a calm-water model that does not fit the bags at all (analysis/fit_check.py)
     unexplained: bool = True  # with gain: try the learned residual of last resort when no physical cause is named
+    wave_filter: str = "auto"  # filter the residuals' wave-frequency motion: by the detector (auto), on, off
+    #                            (data/wave_motion.py)
 
 
 class CalmWater(NamedTuple):
@@ -126,11 +128,15 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
     progress(fitted.summary())
     if fit_check:
         require_fit(fitted)
-    segments = dg.make_segments(recordings, horizon_s, stride_s)  # built once: diagnose, discrepancy and gain share
+    # built once: diagnose, discrepancy and gain share the segments (with the wave filter the detector decides) ...
+    segments, waves = dg.diagnosis_segments(recordings, horizon_s, stride_s, options.wave_filter)
+    progress(waves.describe())
     rollout = dg.compiled_rollout(vessel, dt)  # ... the segments and the compiled grey box
     result = dg.diagnose(recordings, vessel, hypotheses=hypotheses, horizon_s=horizon_s, stride_s=stride_s,
                          max_causes=max_causes, progress=progress, segments=segments, rollout=rollout,
                          fit_mismatch="; ".join(fitted.reasons))
+    if waves.applied:
+        result = dataclasses.replace(result, notes=(*result.notes, waves.describe()))
     calm_fit = result.calm_water_fit
     # a calm-water model that diverges on the data (diagnose: model_mismatch) has no discrepancy to describe
     diverged = calm_fit is not None and not math.isfinite(calm_fit.heldout_loss)
@@ -176,7 +182,8 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
         "evidence": [_undefined_as_null(dataclasses.asdict(e)) for e in result.evidence],
         "folds": [list(f) for f in result.folds], "discrepancy": discrepancy,
         "calm_water_fit": _undefined_as_null(dataclasses.asdict(calm)) if calm is not None else None,
-        "fit_check": fitted.to_json(), "mismatch_reasons": list(result.mismatch_reasons),
+        "fit_check": fitted.to_json(), "wave_filter": waves.to_json(),
+        "mismatch_reasons": list(result.mismatch_reasons),
         "best_environmental_cause": result.best_environmental_cause, "rejected_extension": rejected,
         "inconclusive": ({"candidate": result.candidate, "parameters": result.candidate_parameters,
                           "reasons": list(result.inconclusive_reasons)} if result.cause == dg.INCONCLUSIVE else None),

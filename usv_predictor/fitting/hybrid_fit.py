@@ -48,7 +48,7 @@ from torch import nn
 from usv_predictor.data.dataset import split_by_manoeuvre
 from usv_predictor.data.features import STATE_NAMES
 from usv_predictor.data.recording import Recording
-from usv_predictor.data.segments import Segments, make_segments
+from usv_predictor.data.segments import Segments, make_segments, weighted_residuals
 from usv_predictor.errors import DiagnosisError, ModelError, TrainingDiverged
 from usv_predictor.fitting.identification import ForceData, IdentificationResult
 from usv_predictor.fitting.training import reproducible
@@ -231,7 +231,7 @@ def _segment_losses(module: ResidualGreyBox, seg: Segments, weights: torch.Tenso
     rollouts when already made (else the module's own, differentiable)."""
     if predicted is None:
         predicted = module(seg.state, seg.controls, seg.reference)  # (E, N, H, 6)
-    r = (predicted - seg.target) * seg.weight  # (E, N, H, 6)
+    r = weighted_residuals(predicted, seg)  # (E, N, H, 6)
     per_segment = (r * r).sum(dim=(2, 3)) / torch.count_nonzero(seg.weight, dim=(1, 2)).clamp(min=1)  # (E, N)
     if weights is None:
         return per_segment.mean(dim=1)
@@ -257,7 +257,7 @@ def _diverging_segments(module: ResidualGreyBox, seg: Segments) -> int:
     """How many segments the module's rollout leaves without a finite loss in some member (NaN/inf, or so large
     that its square overflows)."""
     with torch.no_grad():
-        r = (module(seg.state, seg.controls, seg.reference) - seg.target) * seg.weight  # (E, N, H, 6)
+        r = weighted_residuals(module(seg.state, seg.controls, seg.reference), seg)  # (E, N, H, 6)
         per_segment = (r * r).sum(dim=(2, 3))  # (E, N)
     return int((~torch.isfinite(per_segment)).any(dim=0).sum())
 

@@ -8,8 +8,10 @@ evidence alone: evidence between 3 and 5 given the named causes, with the share 
 removes, its parameters fitted with them, and why; null otherwise), evidence (every
 hypothesis: held-out loss, gain, log-likelihood evidence, per-fold parameters), discrepancy (what the calm-water
 model gets wrong), baseline / extended / gain (evaluation metrics on held-out manoeuvres), notes, calm_water_fit (the
-calm-water model's held-out loss and track error before any hypothesis), fit_check (analysis/fit_check.py: a model
-that does not fit the bags at all is refused, exit 2, unless --no-fit-check), mismatch_reasons and
+calm-water model's held-out loss and track error before any hypothesis), wave_filter (the wave-frequency motion
+measured in straight running and whether the residuals were filtered, data/wave_motion.py), fit_check
+(analysis/fit_check.py: a model that does not fit the bags at all is refused, exit 2, unless --no-fit-check),
+mismatch_reasons and
 best_environmental_cause (cause model_mismatch: the calm-water model itself is wrong, identify it first),
 rejected_extension (causes withdrawn because their extension did not lower the held-out 30 s position error),
 inconclusive (cause inconclusive: a candidate that explains the held-out loss of a model that fits, but whose
@@ -64,6 +66,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="when no physical cause is named, do not try the learned residual of last resort (the "
                              "answer `unexplained`: a grey box + learned residual hybrid trained on one fold of the "
                              "manoeuvres and measured on the other, about a minute per fold)")
+    parser.add_argument("--wave-filter", choices=("auto", "on", "off"), default="auto",
+                        help="smooth the residuals over 1.5 s so that the hull's wave-frequency motion, which a "
+                             "manoeuvring model does not predict, does not count as its error: auto (default) when the "
+                             "straight running before the manoeuvres shows it (data/wave_motion.py), on, off")
     parser.add_argument("--export", type=Path, default=None, metavar="PATH",
                         help="write the extended model (TorchScript artifact) for the node; with the answer "
                              "`unexplained`, the hybrid")
@@ -83,7 +89,7 @@ def run(args: argparse.Namespace) -> dict:
     options = DiagnosisOptions(hypotheses=None if args.hypotheses is None else tuple(args.hypotheses),
                                max_causes=args.max_causes, gain=not args.no_gain, export=args.export,
                                report=args.report, fit_check=not args.no_fit_check,
-                               unexplained=not args.no_unexplained)
+                               unexplained=not args.no_unexplained, wave_filter=args.wave_filter)
     request = DiagnoseRequest(bags=tuple(args.bags), dt=args.dt, horizon_s=args.horizon, stride_s=args.stride,
                               include_calm=args.include_calm, config=args.config, scale=args.scale, options=options)
     return diagnose_bags(request, calm_water_model(args.vessel, args.model, args.config), progress=log)
