@@ -109,7 +109,8 @@ def test_fuzhou_rudder_only_refuses_without_a_prior_and_runs_with_one(bags, tmp_
     base = ["identify", str(bags / "all" / "fuzhou_zigzag_30"), "--vessel", str(FUZHOU_VESSEL), "--dt", "0.5",
             "--blocks", "2", "--structure", "mmg"]
     assert cli.main([*base, "--output", str(tmp_path / "none.pt")]) == 2
-    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]  # progress goes to stderr too
+    err = [line for line in capsys.readouterr().err.splitlines()  # progress goes to stderr too
+           if line.startswith("replay identify: error")]
     assert len(err) == 1
     assert "not identifiable" in err[0]
     assert "--prior fix" in err[0]
@@ -144,7 +145,8 @@ def dalian_sine(raw_data_dir: Path, tmp_path_factory) -> Path:
 def test_dalian_twin_thrusters_name_what_one_run_cannot_determine(dalian_sine, tmp_path, capsys):
     base = ["identify", str(dalian_sine), "--vessel", str(DALIAN_VESSEL), "--blocks", "4", "--structure", "diagonal"]
     assert cli.main([*base, "--output", str(tmp_path / "none.pt")]) == 2
-    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]  # progress goes to stderr too
+    err = [line for line in capsys.readouterr().err.splitlines()  # progress goes to stderr too
+           if line.startswith("replay identify: error")]
     assert len(err) == 1
     assert "thrusters.port.reverse_N: no excitation in the data" in err[0]
     assert "--prior fix" in err[0]

@@ -157,8 +157,10 @@ def test_the_search_moves_wrong_rudder_factors_toward_the_truth_without_the_engi
     assert fit.vessel.propeller == description.propeller
     assert fit.scale["propeller.w_P0"] == fit.scale["propeller.t_P"] == 1.0
     assert fit.simulation[fit.chosen] < ia.ACCEPT_RATIO * fit.simulation["description"]
-    # not yet identify's default for rudder_only (identification.INTERACTION_LAYOUTS: a confident wrong answer)
+    # identify's default for rudder_only too (identification.INTERACTION_LAYOUTS), and `fix` holds the description's
     assert hull_models.identify(description, recordings, structure="mmg", prior="fix", interaction="identify",
+                                data=data).interaction is not None
+    assert hull_models.identify(description, recordings, structure="mmg", prior="fix", interaction="fix",
                                 data=data).interaction is None
 
 

@@ -698,6 +698,15 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         first_round(name)
         progress(f"{name:15s} held-out loss {_loss_text(per_segment[name].mean())}, track error after {horizon_s:g} s "
                  f"{_mean_track(per_track[name]):7.2f} m")
+    # a hypothesis whose value both folds fit under what the diagnosis tells from the calm-water model's own error
+    # (Effect.unresolved: a delay under a quarter step) is no candidate, and a note says why
+    for name in [n for n in names if n != "none"]:
+        reasons = [fx.EFFECTS[name].unresolved(found, dt) for found in fold_params[name]]
+        if all(reasons):
+            names.remove(name)
+            notes.append(f"{name} is not a candidate: " + "; ".join(f"fold {k + 1}: {'; '.join(r)}"
+                                                                     for k, r in enumerate(reasons)))
+            progress(notes[-1])
     n_eff = effective_segments(len(per_segment["none"]), stride_s, horizon_s)
 
     def evidence_for(a: str, over: str) -> float:

@@ -80,10 +80,10 @@ SPEED_RATIO_RANGE = (0.6, 1.6)  # measured / preset straight-running speed accep
 RIDGE_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # penalty weights (relative to the data term) tried by CV
 Z95 = 1.959964
 # the layouts whose rudder / propeller interaction factors `interaction="identify"` searches (fitting/interaction.py
-# SEARCHED_FACTORS says which factors each layout would have). rudder_only is not among them yet: searched, it
-# answered 6 of 8 unknown boats right against 3 of 8, but the lean suite's secret clean small boat then named an
-# actuator delay of 0.02 s (a confident wrong cause; docs/results/unknown_boats.md, "rudder_only with the search")
-INTERACTION_LAYOUTS = ("rudder_propeller",)
+# SEARCHED_FACTORS says which factors each layout has). rudder_only searched: 6 of 8 unknown boats right against 3 of 8
+# held; the actuator delay of 0.024 s its searched factors left the lean suite's secret clean small boat with is no
+# candidate since the diagnosis names no delay under a quarter step (physics/effects.py actuator_delay)
+INTERACTION_LAYOUTS = ("rudder_propeller", "rudder_only")
 CHI2_95 = 3.841459  # 95 % quantile of chi-square with 1 degree of freedom (profile-likelihood intervals)
 PROFILE_SPAN = 4.0  # a profiled gain is searched within [prior / span, prior * span]
 PROFILE_POINTS = 17  # coarse grid of the profile (log-spaced), refined by golden section
@@ -932,8 +932,7 @@ def identify(vessel: Vessel, recordings: Sequence[Recording], *, structure: str 
     searched with the hull by `search_interaction`
     (fitting/interaction.identify_interaction, SEARCHED_FACTORS; fitting/hull_models.identify gives it) and replace
     the description's when the held-out simulation says so; the other layouts have no such factors;
-    "fix" (default): held at the description's values (docs/results/unknown_boats.md: identify gives more right answers
-    on unknown boats but also confident wrong ones, so it is not the default yet).
+    "fix": held at the description's values (`replay identify` searches by default: docs/results/unknown_boats.md).
     The output-error stage that may follow (fitting/output_error.refine) is its caller's: fitting/hull_models.identify.
     """
     prior_vessel = vessel  # the vessel file as given (what the exported model embeds); `vessel` may take fitted gains

@@ -48,9 +48,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "refuse, naming them)")
     parser.add_argument("--interaction", choices=("identify", "fix"), default=None,
                         help="rudder_propeller: search the rudder lift gradient, gamma_R, eta, w_P0 and t_P with the "
-                             "hull on the multi-step simulation error, candidates with an implausible steady turn "
-                             "left out, and keep them when the held-out simulation error drops (identify, default), or "
-                             "hold the vessel file's (fix; with --base nothing is identified); "
+                             "hull (rudder_only: the rudder's three) on the multi-step simulation error, candidates "
+                             "with an implausible steady turn left out, and keep them when the held-out simulation "
+                             "error drops (identify, default), or hold the vessel file's (fix; with --base nothing is "
+                             "identified); "
                              "usv_predictor/fitting/interaction.py, docs/results/unknown_boats.md")
     parser.add_argument("--output-error", choices=("on", "off"), default="off",
                         help="after the force fit, fit the whole calm-water model on its multi-step simulation error "
