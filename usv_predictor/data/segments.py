@@ -49,7 +49,8 @@ class Segments:
         return int(self.state.shape[0])
 
 
-def weighted_residuals(predicted, seg: Segments, *, filtered: bool = True):
+def weighted_residuals(predicted: np.ndarray | torch.Tensor, seg: Segments, *,
+                       filtered: bool = True) -> np.ndarray | torch.Tensor:
     """(..., B, H, 6) (predicted - target) * weight of (..., B, H, 6) predictions (numpy or torch, the type of
     `predicted`; torch keeps the gradient). With the segments' wave filter (filtered and filter_steps > 0) the
     difference is smoothed along the horizon over the measured samples only (a normalised convolution with

@@ -80,9 +80,10 @@ SPEED_RATIO_RANGE = (0.6, 1.6)  # measured / preset straight-running speed accep
 RIDGE_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # penalty weights (relative to the data term) tried by CV
 Z95 = 1.959964
 # the layouts whose rudder / propeller interaction factors `interaction="identify"` searches (fitting/interaction.py
-# SEARCHED_FACTORS says which factors each layout has). rudder_only searched: 6 of 8 unknown boats right against 3 of 8
-# held; the actuator delay of 0.024 s its searched factors left the lean suite's secret clean small boat with is no
-# candidate since the diagnosis names no delay under a quarter step (physics/effects.py actuator_delay)
+# SEARCHED_FACTORS says which factors each layout has). rudder_only searched: 20 of 24 unknown boats right against 7
+# of 24 held (docs/results/unknown_boats.md); the actuator delay of 0.024 s its searched factors left the lean suite's
+# secret clean small boat with is no candidate since the diagnosis names no delay under a quarter step
+# (physics/effects.py actuator_delay)
 INTERACTION_LAYOUTS = ("rudder_propeller", "rudder_only")
 CHI2_95 = 3.841459  # 95 % quantile of chi-square with 1 degree of freedom (profile-likelihood intervals)
 PROFILE_SPAN = 4.0  # a profiled gain is searched within [prior / span, prior * span]
