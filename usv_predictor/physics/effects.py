@@ -470,7 +470,7 @@ EFFECTS: Mapping[str, Effect] = _registry(
                                   SimulatorField(SensorSpec, "actuator_delay_s", "s"), Uniform(0.3, 1.5)),
                   # a delay under a quarter step is not named: an identified model's timing errors are that size (a
                   # clean small rudder_only boat with searched rudder factors fitted 0.024 s at a 0.25 s step and
-                  # named it, docs/results/unknown_boats.md); the exact model resolves less (test_diagnosis.py)
+                  # named it, docs/results/unknown_boats.md); an exact model would name smaller ones (test_diagnosis.py)
                   step_resolution=0.25),
     scalar_effect("resistance", "a resistance change: fouling, loading or a preset off (relative change of R0)",
                   Term("resistance_change", 1, 0.05, -0.8, 3.0, (0.0,), "-"), ("resistance_change_pct", 100.0), 0.0,

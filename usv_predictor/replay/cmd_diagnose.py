@@ -35,6 +35,7 @@ OUTPUTS = {"export": "file", "report": "dir"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from usv_predictor.data.wave_motion import FILTER_S, MODES
     from usv_predictor.physics.effects import hypothesis_names
 
     parser.add_argument("bags", nargs="+", type=Path, metavar="BAG",
@@ -66,10 +67,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="when no physical cause is named, do not try the learned residual of last resort (the "
                              "answer `unexplained`: a grey box + learned residual hybrid trained on one fold of the "
                              "manoeuvres and measured on the other, about a minute per fold)")
-    parser.add_argument("--wave-filter", choices=("auto", "on", "off"), default="auto",
-                        help="smooth the residuals over 1.5 s so that the hull's wave-frequency motion, which a "
-                             "manoeuvring model does not predict, does not count as its error: auto (default) when the "
-                             "straight running before the manoeuvres shows it (data/wave_motion.py), on, off")
+    parser.add_argument("--wave-filter", choices=MODES, default=MODES[0],
+                        help=f"smooth the residuals over {FILTER_S:g} s so that the hull's wave-frequency motion, "
+                             "which a manoeuvring model does not predict, does not count as its error: auto (default) "
+                             "when the straight running before the manoeuvres shows it (data/wave_motion.py), on, off")
     parser.add_argument("--export", type=Path, default=None, metavar="PATH",
                         help="write the extended model (TorchScript artifact) for the node; with the answer "
                              "`unexplained`, the hybrid")
