@@ -13,7 +13,7 @@ from usv_predictor.analysis.diagnosis import (NONE_LOSS, compiled_rollout, diagn
                                               set_terms)
 from usv_predictor.data.recording import recording_from_signals
 from usv_predictor.data.segments import SIGMA, Segments, weighted_residuals
-from usv_predictor.data.wave_motion import FILTER_S, MOTION_LEVEL, smoothing_operator, wave_filter
+from usv_predictor.data.wave_motion import FILTER_S, MOTION_LEVEL, gaussian_smooth, smoothing_operator, wave_filter
 from usv_predictor.physics import effects as fx
 from usv_predictor.physics.dynamics import ManoeuvringModel
 from usv_predictor.physics.environment import Environment
@@ -97,6 +97,15 @@ def test_unmeasured_samples_do_not_enter_the_filter_and_torch_agrees_with_numpy(
     assert predicted.grad is not None and torch.isfinite(predicted.grad).all()
     op = smoothing_operator(20, 3.0)
     assert np.allclose(op.sum(axis=1), 1.0) and not op.flags.writeable
+
+
+def test_the_detectors_smoothing_is_the_operator_by_convolution() -> None:
+    """The detector smooths a straight run by convolution: the normalised operator's product to rounding, ends
+    included, and a run of any length without a T x T matrix (200 000 samples: 320 GB as a matrix)."""
+    x = np.random.default_rng(5).normal(size=(37, 2))
+    for sigma in (0.4, 1.5, 3.0, 20.0):  # 20: a kernel longer than the run
+        assert np.allclose(gaussian_smooth(x, sigma), smoothing_operator(37, sigma) @ x, atol=1e-12), sigma
+    assert np.allclose(gaussian_smooth(np.full((200_000, 2), 0.3), 3.0), 0.3)
 
 
 def test_with_the_filter_the_true_model_in_waves_leaves_what_a_model_that_fits_leaves(days) -> None:
