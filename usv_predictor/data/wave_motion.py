@@ -71,13 +71,19 @@ class WaveFilter:
                 "measured_manoeuvres": self.measured, "threshold": MOTION_LEVEL}
 
 
+def _kernel(sigma_steps: float) -> np.ndarray:
+    """(2 h + 1,) Gaussian weights exp(-k^2 / (2 sigma^2)) at the lags k = -h..h, h = floor(4 sigma) (unnormalised)."""
+    half = int(4.0 * max(sigma_steps, 1e-9))
+    lag = np.arange(-half, half + 1) / max(sigma_steps, 1e-9)
+    return np.exp(-0.5 * lag * lag)
+
+
 def gaussian_smooth(x: np.ndarray, sigma_steps: float) -> np.ndarray:
     """(T, k) zero-phase Gaussian smoothing of (T, k) samples along time, truncated at 4 sigma and renormalised at the
     ends (the weighted mean of the samples present under the kernel, no padding): smoothing_operator(T) @ x, by
     convolution (a straight run of any length costs O(T), not a T x T matrix)."""
-    half = int(4.0 * max(sigma_steps, 1e-9))
-    lag = np.arange(-half, half + 1) / max(sigma_steps, 1e-9)
-    kernel = np.exp(-0.5 * lag * lag)  # (2 half + 1,)
+    kernel = _kernel(sigma_steps)
+    half = len(kernel) // 2
     inside = slice(half, half + len(x))  # of the full convolution (T + 2 half,)
     norm = np.convolve(np.ones(len(x)), kernel)[inside]  # (T,) the kernel's weight inside the run
     return np.column_stack([np.convolve(x[:, j], kernel)[inside] / norm for j in range(x.shape[1])])
@@ -85,11 +91,12 @@ def gaussian_smooth(x: np.ndarray, sigma_steps: float) -> np.ndarray:
 
 @functools.lru_cache(maxsize=64)
 def smoothing_operator(steps: int, sigma_steps: float) -> np.ndarray:
-    """(steps, steps) Gaussian weights exp(-(i - j)^2 / (2 sigma^2)), truncated at 4 sigma, rows normalised to 1
+    """(steps, steps) the same Gaussian weights (_kernel) as a matrix, G[i, j] = kernel[j - i], rows normalised to 1
     (read-only: it is cached)."""
-    idx = np.arange(steps)
-    lag = (idx[:, None] - idx[None, :]) / max(sigma_steps, 1e-9)
-    op = np.where(np.abs(lag) <= 4.0, np.exp(-0.5 * lag * lag), 0.0)
+    kernel = _kernel(sigma_steps)
+    half = len(kernel) // 2
+    lag = np.arange(steps)[None, :] - np.arange(steps)[:, None]  # (steps, steps) j - i
+    op = np.where(np.abs(lag) <= half, kernel[np.clip(lag + half, 0, len(kernel) - 1)], 0.0)
     op /= op.sum(axis=1, keepdims=True)
     op.setflags(write=False)
     return op
