@@ -427,6 +427,55 @@ def test_none_is_only_confident_without_a_strong_candidate(after, expected):
         assert result.candidate == ""
 
 
+class _TrackOffRollout(torch.nn.Module):
+    """A calm-water model within the noise: u, v, r off by `floor` noise scales, and a north position error growing
+    linearly to `drift` metres at the segment end (a term seen only in the track, as a compass offset is); the
+    `current` term k = |current_ne| / `full` (<= 1, m/s) removes `removed` x k of that growing error."""
+
+    def __init__(self, seg, floor: float, drift: float, removed: float, full: float = 0.3) -> None:
+        super().__init__()
+        for name, term in fx.grey_box_terms().items():
+            self.register_buffer(name, torch.zeros(term.size, dtype=torch.float64))
+        self.states, self.target, self.full, self.removed = seg.state, seg.target, full, removed
+        horizon = seg.target.shape[1]
+        self.floor = torch.tensor([0.05, 0.05, 0.005, 0.0, 0.0, 0.0], dtype=torch.float64) * floor  # (6,)
+        self.ramp = torch.zeros(horizon, 6, dtype=torch.float64)  # (H, 6): the north position error (m)
+        self.ramp[:, 3] = drift * torch.arange(1, horizon + 1, dtype=torch.float64) / horizon
+
+    def forward(self, state: torch.Tensor, controls: torch.Tensor,
+                reference: torch.Tensor | None = None) -> tuple[torch.Tensor]:  # reference: rudder_only's (unused)
+        index = (state[:, None, :] == self.states[None]).all(-1).to(torch.float64).argmax(1)  # (B,)
+        k = torch.clamp(self.current_ne.norm() / self.full, max=1.0)
+        return (self.target[index] + self.floor + self.ramp * (1.0 - self.removed * k),)
+
+
+@pytest.mark.parametrize("drift, removed, expected", [(1.0, 1.0, "inconclusive"), (2.0, 0.2, "none")])
+def test_none_is_not_confident_while_a_hypothesis_halves_the_track_error(drift, removed, expected):
+    """(An unknown boat's 6 deg compass offset answered `none`: evidence 1.8, 8 % of the loss, 45 % of the track
+    error): two models within the noise where a current removes the same 15 % of the held-out loss with the same
+    evidence ~1.1 (under EVIDENCE_CANDIDATE): one whose track error it removes entirely is `inconclusive` with the
+    current as the candidate (NONE_TRACK_GAIN); one whose track error it lowers by 20 % stays `none`."""
+    from usv_predictor.analysis.diagnosis import EVIDENCE_CANDIDATE, MIN_GAIN, NONE_TRACK_GAIN
+
+    recordings = trial(runs=diagnosis_runs()[:2])
+    seg = make_segments(recordings)
+    result = diagnose(recordings, VESSEL, segments=seg, rollout=_TrackOffRollout(seg, 0.8, drift, removed),
+                      hypotheses=["current"])
+    top = next(e for e in result.evidence if e.hypothesis == "current")
+    assert 0.0 < top.evidence_vs_none < EVIDENCE_CANDIDATE
+    assert top.gain_vs_none == pytest.approx(0.15, abs=0.01) and top.gain_vs_none >= MIN_GAIN
+    assert top.track_gain_vs_none == pytest.approx(removed, abs=0.01)
+    assert result.cause == expected
+    assert result.parameters == {}
+    if expected == "inconclusive":
+        assert top.track_gain_vs_none >= NONE_TRACK_GAIN
+        assert result.candidate == "current"
+        assert "100 % of the held-out track error" in result.inconclusive_reasons[0]
+    else:
+        assert top.track_gain_vs_none < NONE_TRACK_GAIN
+        assert result.candidate == ""
+
+
 def test_a_fit_starts_where_it_is_told():
     """fit_hypothesis(start=...): the values a larger set's fit gives (diagnose refits a nested set of causes from
     them, select_causes); terms not given start at their record's start, a start beyond a bound at the bound."""
