@@ -84,7 +84,7 @@ NONE_TRACK_GAIN = 0.25  # ... nor while a hypothesis with positive evidence that
 #                         loss, so a term seen only in the track (a compass offset rotates the course, not the body
 #                         velocities) can halve the track error at evidence under EVIDENCE_CANDIDATE (an unknown
 #                         boat's 6 deg offset: evidence 1.8, 45 % of the track error; the suite's clean boats' best
-#                         hypotheses remove at most 5 %)
+#                         hypotheses remove at most 5.1 %)
 EVIDENCE_CONFOUND = 2.0  # a winner beating a runner-up cause by less than this is confounded with it
 MIN_TRACK_GAIN = 0.0  # share of the calm-water model's held-out track error (m, at the segment end) a cause must
 #                       remove: a cause whose extension does not lower it is never named

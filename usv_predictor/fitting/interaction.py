@@ -146,7 +146,8 @@ LM_DAMPING = 1e-2  # (-) initial Levenberg-Marquardt damping (x the diagonal of 
 LM_DAMPING_MAX = 1e4  # (-) the search stops when no step this damped lowers the error
 LM_CONVERGED = 1e-3  # (-) the search stops when a step moves no factor by more than this (log)
 MAX_SEARCH = 120  # (-) candidates of stage 2 simulated in sample (a hull fit and a 20 s rollout of all segments at
-#                   once on the compiled kernel: ~30 ms each on the 2-core machine), the starts and Jacobians included
+#                   once on the compiled kernel: ~40 ms each on the 2-core machine, unknown boat 6: identify 3.5 s
+#                   with 32 candidates, 4.2 s with 50), the starts and the Jacobians included
 LM_STARTS = 3  # (-) the best starts (by their in-sample error) Levenberg-Marquardt descends from, one after another
 # steady_check: what a candidate's identified grey box must do in a steady turn and a straight run
 STEADY_TURN_RUDDER_DEG = 35.0  # (deg) the turn's rudder angle (the vessel's limit when smaller)
