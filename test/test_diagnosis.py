@@ -341,11 +341,14 @@ class _PartlyExplainedRollout(torch.nn.Module):
         self.before, self.after = before, after
         self.sigma = torch.tensor([0.05, 0.05, 0.005, 0.0, 0.0, 0.0], dtype=torch.float64)
 
+    def share(self) -> torch.Tensor:
+        """k = |current_ne| / full, at most 1: the share of its error the current explains."""
+        return torch.clamp(self.current_ne.norm() / self.full, max=1.0)
+
     def forward(self, state: torch.Tensor, controls: torch.Tensor,
                 reference: torch.Tensor | None = None) -> tuple[torch.Tensor]:  # reference: rudder_only's (unused)
         index = (state[:, None, :] == self.states[None]).all(-1).to(torch.float64).argmax(1)  # (B,)
-        k = torch.clamp(self.current_ne.norm() / self.full, max=1.0)
-        return (self.target[index] + self.sigma * (self.before - (self.before - self.after) * k),)
+        return (self.target[index] + self.sigma * (self.before - (self.before - self.after) * self.share()),)
 
 
 @pytest.mark.parametrize("after, expected", [(10.0, "current"), (20.0, "model_mismatch")])
@@ -427,26 +430,22 @@ def test_none_is_only_confident_without_a_strong_candidate(after, expected):
         assert result.candidate == ""
 
 
-class _TrackOffRollout(torch.nn.Module):
-    """A calm-water model within the noise: u, v, r off by `floor` noise scales, and a north position error growing
-    linearly to `drift` metres at the segment end (a term seen only in the track, as a compass offset is); the
-    `current` term k = |current_ne| / `full` (<= 1, m/s) removes `removed` x k of that growing error."""
+class _TrackOffRollout(_PartlyExplainedRollout):
+    """A calm-water model within the noise: u, v, r off by `floor` noise scales (which the current does not change),
+    and a north position error growing linearly to `drift` metres at the segment end (a term seen only in the track,
+    as a compass offset is), of which the current removes `removed` x its share()."""
 
-    def __init__(self, seg, floor: float, drift: float, removed: float, full: float = 0.3) -> None:
-        super().__init__()
-        for name, term in fx.grey_box_terms().items():
-            self.register_buffer(name, torch.zeros(term.size, dtype=torch.float64))
-        self.states, self.target, self.full, self.removed = seg.state, seg.target, full, removed
+    def __init__(self, seg, floor: float, drift: float, removed: float) -> None:
+        super().__init__(seg, floor, floor)
+        self.removed = removed
         horizon = seg.target.shape[1]
-        self.floor = torch.tensor([0.05, 0.05, 0.005, 0.0, 0.0, 0.0], dtype=torch.float64) * floor  # (6,)
         self.ramp = torch.zeros(horizon, 6, dtype=torch.float64)  # (H, 6): the north position error (m)
         self.ramp[:, 3] = drift * torch.arange(1, horizon + 1, dtype=torch.float64) / horizon
 
     def forward(self, state: torch.Tensor, controls: torch.Tensor,
-                reference: torch.Tensor | None = None) -> tuple[torch.Tensor]:  # reference: rudder_only's (unused)
-        index = (state[:, None, :] == self.states[None]).all(-1).to(torch.float64).argmax(1)  # (B,)
-        k = torch.clamp(self.current_ne.norm() / self.full, max=1.0)
-        return (self.target[index] + self.floor + self.ramp * (1.0 - self.removed * k),)
+                reference: torch.Tensor | None = None) -> tuple[torch.Tensor]:
+        (off,) = super().forward(state, controls, reference)  # (B, H, 6)
+        return (off + self.ramp * (1.0 - self.removed * self.share()),)
 
 
 @pytest.mark.parametrize("drift, removed, expected", [(1.0, 1.0, "inconclusive"), (2.0, 0.2, "none")])

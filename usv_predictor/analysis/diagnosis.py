@@ -754,9 +754,14 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     rejected = ""  # a candidate not named: the evidence of the loss but its extension does not lower the held-out
     #                track error, or evidence between EVIDENCE_CANDIDATE and EVIDENCE_CAUSE (the answer: inconclusive)
     strong = top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CAUSE and top.gain_vs_none >= MIN_GAIN
-    track_candidate = next((e for e in evidence if e.hypothesis != "none" and e.evidence_vs_none > 0.0
-                            and e.gain_vs_none >= MIN_GAIN and math.isfinite(e.track_gain_vs_none)
-                            and e.track_gain_vs_none >= NONE_TRACK_GAIN), None)  # the lowest held-out loss first
+    # too much for a confident `none`: the best hypothesis by its evidence (EVIDENCE_CANDIDATE), else the first (the
+    # lowest held-out loss) seen in the track (NONE_TRACK_GAIN); a model that fits by the NONE_LOSS test, so the
+    # candidate is no cover for a model that does not
+    by_evidence = (top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CANDIDATE
+                   and top.gain_vs_none >= MIN_GAIN and lowers_track(top.track_gain_vs_none))
+    candidate = top if by_evidence else next(
+        (e for e in evidence if e.hypothesis != "none" and e.evidence_vs_none > 0.0 and e.gain_vs_none >= MIN_GAIN
+         and math.isfinite(e.track_gain_vs_none) and e.track_gain_vs_none >= NONE_TRACK_GAIN), None)
     if strong and lowers_track(top.track_gain_vs_none):
         cause = top.hypothesis
         confounded = confounded_with(cause, (cause,), evidence)
@@ -767,23 +772,15 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                     f"{horizon_s:g} s ({calm.heldout_track_error_m:.3g} -> "
                     f"{top.heldout_track_error_m:.3g} m): not named")
         message = rejected
-    elif (top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CANDIDATE and top.gain_vs_none >= MIN_GAIN
-          and lowers_track(top.track_gain_vs_none) and base.mean() <= NONE_LOSS):
-        # not enough to name, too much for a confident `none` (a model that fits by the NONE_LOSS test, so the
-        # candidate is no cover for a model that does not)
+    elif candidate is not None and base.mean() <= NONE_LOSS:  # not enough to name, too much for a `none`
+        top = candidate  # the candidate of the answer below
         track = (f" and {top.track_gain_vs_none * 100:.0f} % of the held-out track error after {horizon_s:g} s"
                  if math.isfinite(top.track_gain_vs_none) else "")
+        allows = (f"< {EVIDENCE_CANDIDATE:g}" if by_evidence
+                  else f"no hypothesis removing >= {NONE_TRACK_GAIN:.0%} of the track error")
         rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error{track} with "
-                    f"evidence {top.evidence_vs_none:.1f}: more than a `none` allows (< {EVIDENCE_CANDIDATE:g}), "
+                    f"evidence {top.evidence_vs_none:.1f}: more than a `none` allows ({allows}), "
                     f"less than names a cause (>= {EVIDENCE_CAUSE:g})")
-        message = rejected
-    elif track_candidate is not None and base.mean() <= NONE_LOSS:
-        # seen in the track only: too much for a confident `none` (NONE_TRACK_GAIN); it is the candidate below
-        top = track_candidate
-        rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error and "
-                    f"{top.track_gain_vs_none * 100:.0f} % of the held-out track error after {horizon_s:g} s with "
-                    f"evidence {top.evidence_vs_none:.1f}: more than a `none` allows (no hypothesis removing >= "
-                    f"{NONE_TRACK_GAIN:.0%} of the track error), less than names a cause (>= {EVIDENCE_CAUSE:g})")
         message = rejected
     elif top.hypothesis != "none":
         message = (f"best hypothesis {top.hypothesis} removes {top.gain_vs_none * 100:.1f} % of the held-out error "
