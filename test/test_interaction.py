@@ -184,6 +184,20 @@ def test_without_a_segment_long_enough_the_description_stays():
     json.dumps(fit.to_json(), allow_nan=False)
 
 
+def test_a_manoeuvre_no_candidate_predicts_held_out_leaves_the_decision():
+    """A manoeuvre on which every candidate diverges when it is held out tells none from another: it leaves both
+    held-out errors (and is named); one on which only one candidate diverges stays and counts against it."""
+    diverged = ia.Fold(10 * ia.DIVERGED, 10, True)  # 10 segments, every one diverged
+    folds = {"description": {"random": diverged, "turn": ia.Fold(80.0, 20, False), "zigzag": ia.Fold(30.0, 10, False)},
+             "candidate": {"random": diverged, "turn": ia.Fold(20.0, 20, False), "zigzag": diverged}}
+    assert ia.uncovered_manoeuvres(folds) == ("random",)
+    assert ia.heldout_simulation_error(folds["description"], ("random",)) == pytest.approx(110.0 / 30)
+    assert ia.heldout_simulation_error(folds["candidate"], ("random",)) == pytest.approx((20.0 + 10 * ia.DIVERGED) / 30)
+    assert ia.heldout_simulation_error(folds["description"]) == pytest.approx((110.0 + 10 * ia.DIVERGED) / 40)
+    assert ia.uncovered_manoeuvres({"candidate": folds["candidate"]}) == ("random", "zigzag")
+    assert math.isnan(ia.heldout_simulation_error({"random": diverged}, ("random",)))
+
+
 @pytest.mark.parametrize("argv, expected", [([], "identify"), (["--interaction", "fix"], "fix")])
 def test_replay_identify_searches_the_interaction_factors_by_default(monkeypatch, tmp_path, argv, expected):
     """`replay identify` searches the interaction factors unless told `--interaction fix`; with `--base` nothing is
