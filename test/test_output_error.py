@@ -198,3 +198,32 @@ def test_the_output_error_stage_recovers_the_sway_yaw_coupling_the_equation_erro
         assert after[name].estimate == pytest.approx(getattr(vessel.hull, name), rel=0.2), name
     assert before["Y_r"].status == after["Y_r"].status == "fixed to prior"
     assert output_error.vessel.hull.N_r == pytest.approx(after["N_r"].estimate)
+
+
+def test_a_regularised_coefficient_keeps_the_fits_interval_and_names_what_pulled_it(walkthrough):
+    """A model blended towards the description for stability (regularise's alpha < 1) reports the blended estimate
+    with the fit's own interval (which need not contain it) under its own status, not as `identified`, and lists it
+    among the values the prior set, with the reason and the trial that would determine it."""
+    equation_error = walkthrough[0]
+    description = equation_error.prior or equation_error.vessel
+    model = oe.Model(equation_error.vessel, description, equation_error.vessel.hull_model_name,
+                     dict(equation_error.extra_terms), equation_error.fit.u0)
+    params, start = oe.parameters(equation_error, list(equation_error.data))
+    alpha = 0.25
+    blended = {p.name: p.prior + alpha * (start[p.name] - p.prior) for p in params}
+    stage = oe.OutputErrorStage("equation error", "not run", {}, None, {"failure": "diverges (a test's words)"})
+    result = oe._result(equation_error, model.vessel(blended), params, blended, stage, alpha)
+    before, after = _coefficients(equation_error), _coefficients(result)
+    moved = [n for n in after if after[n].estimate != before[n].estimate]
+    assert "N_v" in moved and "N_r" not in moved  # the equation error identified N_v and held N_r (module docstring)
+    for name in moved:
+        assert after[name].status == idf.REGULARISED
+        assert after[name].ci95 == before[name].ci95  # the fit's interval, not one made to contain the blend
+        assert after[name].estimate == pytest.approx(before[name].prior + alpha * (before[name].estimate
+                                                                                   - before[name].prior), rel=1e-9)
+    for name in set(after) - set(moved):
+        assert after[name].status == before[name].status
+    held = {h["name"]: h for h in result.held()}
+    assert set(moved) <= set(held)
+    assert "diverges or does not settle" in held["N_v"]["how"] and held["N_v"]["would_determine"]
+    assert any("regularised towards the description (alpha 0.25)" in n for n in result.notes)

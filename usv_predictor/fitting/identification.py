@@ -391,7 +391,7 @@ class Coefficient:
     estimate: float
     ci95: tuple[float, float]
     prior: float
-    status: str  # "identified" | "fixed to prior" | "ridge towards prior"
+    status: str  # "identified" | "fixed to prior" | "ridge towards prior" | REGULARISED | SEARCH_BOX
     rel_ci: float  # 95 % CI half-width / max(|estimate|, |prior|, floor)
 
     def to_json(self) -> dict:
@@ -763,8 +763,13 @@ class IdentificationResult:
 
 
 NOT_DETERMINED = "not determined by these manoeuvres; prior used"
+# a coefficient whose fitted value makes the model diverge or not settle over its envelope, kept blended towards the
+# description (fitting/output_error.regularise): its interval is still the fit's, its estimate the blend
+REGULARISED = "regularised towards prior"
 PRIOR_HOW = {"fixed to prior": "held at the vessel file's value",
-             "ridge towards prior": "pulled towards the vessel file's value by the ridge"}
+             "ridge towards prior": "pulled towards the vessel file's value by the ridge",
+             REGULARISED: "pulled towards the vessel file's value because the fitted model diverges or does not "
+                          "settle over its envelope (the interval is the fit's; the estimate the blend)"}
 EXCITATION_MIN_SPEED_FRACTION = 0.2  # samples slower than this fraction of the fastest are left out of v', r' (-)
 
 

@@ -70,8 +70,8 @@ from usv_predictor.data.segments import VELOCITY_HEADING, make_segments
 from usv_predictor.errors import DatasetError, NotIdentifiableError
 from usv_predictor.fitting import identification as ident
 from usv_predictor.fitting.identification import (
-    MMG_SIGN, PROFILE_SPAN, REL_CI_LIMIT, Z95, Coefficient, ForceData, IdentificationResult, scaled_thrust_map,
-    with_known_forces)
+    MMG_SIGN, PROFILE_SPAN, REGULARISED, REL_CI_LIMIT, Z95, Coefficient, ForceData, IdentificationResult,
+    scaled_thrust_map, with_known_forces)
 from usv_predictor.models.greybox import HULL_NAMES
 from usv_predictor.models.hybrid import PolynomialResidual, ResidualGreyBox, ZeroResidual
 from usv_predictor.models.kernel_rollout import KernelRollout
@@ -852,13 +852,14 @@ def _result(result: IdentificationResult, vessel: Vessel, params: Sequence[Param
         value = values[c.name]
         estimate = value * ident_factor(description, c.name) if c.name in MULTIPLES else value
         if f is None:
-            return replace(c, estimate=estimate) if alpha < 1.0 else c
+            return replace(c, estimate=estimate, status=REGULARISED) if alpha < 1.0 and estimate != c.estimate else c
         scale = ident_factor(description, c.name) if c.name in MULTIPLES else 1.0
         ci = tuple(x * scale for x in f.ci95[c.name])
         prior = p.prior * scale
         if c.name in f.held:
             return Coefficient(c.name, prior, ci, prior, "fixed to prior", f.rel_ci[c.name])
-        return Coefficient(c.name, estimate, (float(ci[0]), float(ci[1])), prior, "identified", f.rel_ci[c.name])
+        return Coefficient(c.name, estimate, (float(ci[0]), float(ci[1])), prior,
+                           REGULARISED if alpha < 1.0 else "identified", f.rel_ci[c.name])
 
     fit_ = result.fit
     equations = tuple(replace(e, coefficients=tuple(coefficient(c) for c in e.coefficients)) for e in fit_.equations)
