@@ -283,3 +283,21 @@ def test_read_only_and_strided_inputs_reuse_the_one_compiled_rollout():
     strided = np.repeat(reference, 2, axis=0)[::2]
     np.testing.assert_array_equal(kernel.rollout(state, read_only, strided), expected)
     assert len(kn.rollout.signatures) == 1, kn.rollout.signatures
+
+
+def test_a_live_kernel_follows_a_learned_residual_changed_in_place():
+    """A training step changes the network's weights in place: a live kernel predicts what the module now does (the
+    changed network, not the packed one); a kernel that is not live keeps what it read."""
+    vessel = ALL["jari_usv (mmg, rudder_propeller)"]
+    residual, members = residual_of("learned", vessel)
+    module = ResidualGreyBox(vessel, DT, residual, members=members)
+    state, controls, reference = inputs(vessel)
+    live, once = KernelRollout(module, live=True), KernelRollout(module)
+    before = live.rollout(state, controls, reference)
+    with torch.no_grad():
+        residual.head_bias.add_(0.01)  # as an optimiser's step does
+        residual.in_std.mul_(1.5)
+    expected = torch_rollout(module, state, controls, reference)
+    assert relative_error(before, expected) > 1e-6  # the change acts
+    assert relative_error(live.rollout(state, controls, reference), expected) < RTOL
+    assert relative_error(once.rollout(state, controls, reference), before) < RTOL

@@ -11,11 +11,11 @@ terms from its parameters. It is called like the module:
 
 `live=True` re-reads at every call the parameters that changed (torch counts in-place changes: a few microseconds
 when none did): for diagnosis and identification, which set the module's terms in place (diagnosis.set_terms), the
-fit check, which replaces them, and the node, whose sea estimate writes them (node/sea.py). `live=False` reads them
-once. Attributes
-it does not have are the module's (model.current_ne is the module's tensor), so the callers' code does not change.
-A module it cannot read (another family, an artifact of a version whose attributes differ) is a KernelUnavailable
-naming what is missing; models/loading.py then keeps the file's module.
+fit check, which replaces them, and the node, whose sea estimate writes them (node/sea.py); a learned residual's
+weights or normalisation changed in place (a training step) re-pack the network. `live=False` reads them once.
+Attributes it does not have are the module's (model.current_ne is the module's tensor), so the callers' code does
+not change. A module it cannot read (another family, an artifact of a version whose attributes differ) is a
+KernelUnavailable naming what is missing; models/loading.py then keeps the file's module.
 """
 from __future__ import annotations
 
@@ -36,6 +36,7 @@ LAYOUT_KINDS = {"RudderPropellerModule": kn.RUDDER_PROPELLER, "RudderThrottleMod
                 "RudderOnlyModule": kn.RUDDER_ONLY, "TwinThrusterModule": kn.TWIN_THRUSTERS}
 # the small-craft hull module's indices of kernel.SMALL_CRAFT_INDICES' coefficients (greybox.SmallCraftHullModule)
 MODULE_INDICES = ("i_xud", "i_yvd", "i_nrd", "i_xu", "i_xuu", "i_yv", "i_yr", "i_nv", "i_nr", "i_nrr", "i_cd")
+LEARNED_BUFFERS = ("in_mean", "in_std", "z_low", "z_high", "bound")  # GeneralisingResidual's normalisation buffers
 PROBE_STEPS = 24  # steps of check_equal's probe: every constant acts within them (a wrong one moves the first step)
 KERNEL_FORM = "compiled kernel (physics/kernel.py, numba)"  # the inference_note of a model running it
 
@@ -160,6 +161,7 @@ class KernelRollout:
         pk.append(kn.K_O_COEF, np.zeros(kn.N_POLY))  # the Abkowitz terms: _refresh writes them
         self.members = 1
         self._poly_module = None
+        self._learned: list = []  # the learned residual's weights and normalisation (tensors), [] without one
         residual = getattr(m, "residual", None)
         if residual is not None:
             self.members = int(m.members)
@@ -184,6 +186,8 @@ class KernelRollout:
             return kn.RESIDUAL_POLYNOMIAL
         if name == "GeneralisingResidual":
             params = dict(residual.named_parameters())  # a scripted ParameterList cannot be iterated: by name
+            self._learned = [*params.values(), *(getattr(residual, f) for f in LEARNED_BUFFERS)]  # what _refresh
+            #     stamps: a weight changed in place (a training step) re-packs the network
             layers = sum(1 for key in params if key.startswith("weights."))
             weights = [_array(params[f"weights.{k}"]) for k in range(layers)]  # (E, in, out) each
             biases = [_array(params[f"biases.{k}"]) for k in range(layers)]  # (E, 1, out) each
@@ -196,7 +200,7 @@ class KernelRollout:
             hidden_b = (np.stack([b[:, 0] for b in biases[1:]], axis=1) if len(biases) > 1
                         else np.zeros((members, 0, hidden)))
             norm = np.zeros((5, kn.N_FEATURES))
-            for k, field in enumerate(("in_mean", "in_std", "z_low", "z_high")):
+            for k, field in enumerate(LEARNED_BUFFERS[:4]):
                 norm[k] = _floats(getattr(residual, field))
             norm[4, :3] = _floats(residual.bound)
             # the kernel reads the hidden and head layers output-major (swapped in, out), the first input-major
@@ -224,13 +228,15 @@ class KernelRollout:
 
     def _refresh(self) -> None:
         """Read the module's parameters into p and the terms: hull coefficients, held engine speed, extension terms,
-        Abkowitz terms. Skipped when none changed since the last read: one stamp of the tensors' identities (kept
-        here, so a replaced parameter's id cannot be a freed one's) and versions (torch counts every in-place
-        change)."""
+        Abkowitz terms; the learned residual's network re-packed when one of its tensors changed in place. Skipped
+        when none changed since the last read: one stamp of the tensors' identities (kept here, so a replaced
+        parameter's id cannot be a freed one's) and versions (torch counts every in-place change)."""
         tensors = self._tensors()
-        key = (*map(id, tensors), *(t._version for t in tensors))
+        key = (*map(id, tensors), *(t._version for t in (*tensors, *self._learned)))
         if key == self._read:
             return
+        if self._read and key[len(tensors) * 2:] != self._read[len(tensors) * 2:]:  # the network changed in place
+            self._pack(self.module)
         hull = _floats(tensors[0])
         if len(hull) != self.n_hull:
             raise ValueError(f"{len(hull)} hull coefficients, packed for {self.n_hull}")
