@@ -225,3 +225,16 @@ def test_replay_identify_searches_the_interaction_factors_by_default(monkeypatch
     with pytest.raises(Exception, match="--interaction do not apply"):
         replay_identify.IdentifyRequest((tmp_path / "bags",), tmp_path / "m.pt", base=tmp_path / "x.pt",
                                         hybrid=object(), interaction=expected)
+
+
+def test_identify_offers_the_interaction_modes_of_the_search():
+    """`replay identify --interaction` offers what fitting/interaction.py knows (INTERACTION_MODES): the command keeps
+    its own literal list so that parsing it does not import the search (torch), and this proves the two the same."""
+    import argparse
+
+    from usv_predictor.replay import cmd_identify
+
+    parser = argparse.ArgumentParser()
+    cmd_identify.add_arguments(parser)
+    option = next(a for a in parser._actions if "--interaction" in a.option_strings)
+    assert tuple(option.choices) == ia.INTERACTION_MODES
