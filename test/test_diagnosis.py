@@ -647,3 +647,36 @@ def test_a_delay_within_a_quarter_step_is_the_rollouts_timing_not_a_cause() -> N
     assert large.cause == "actuator_delay", large.message
     assert large.parameters["delay_s"] == pytest.approx(0.6, abs=0.2)
     assert not any(n.startswith("actuator_delay is not a candidate") for n in large.notes)
+
+
+def test_a_gyro_bias_moves_only_the_start_and_is_judged_by_the_track_not_raised():
+    """A gyro bias (yaw_rate_bias, Effect.track_neutral) changes what the gyro reports, not where the boat goes: the
+    grey box with a bias b predicts the track (x, y, heading) of the plain model started at the yaw rate r - b, and its
+    reported yaw rate is that model's plus b. So its extension is not asked to lower the held-out track error, only
+    not to raise it by more than TRACK_NEUTRAL; every other cause (a current here) must still lower it."""
+    from usv_predictor.analysis import diagnosis as dg
+    from usv_predictor.models.greybox import GreyBoxRollout
+
+    vessel = load_vessel("jari_usv")
+    biased, plain = GreyBoxRollout(vessel, 0.5), GreyBoxRollout(vessel, 0.5)
+    b = math.radians(0.6)
+    with torch.no_grad():
+        biased.yaw_rate_bias[0] = b
+    state = torch.tensor([[5.0, 0.1, 0.05, 0.3], [4.0, -0.2, -0.1, 2.0]], dtype=torch.float64)
+    controls = torch.stack([torch.full((2, 40), 0.2), torch.full((2, 40), 650.0)], dim=2).to(torch.float64)
+    with torch.no_grad():
+        got = biased(state, controls)[0]  # (B, H, 6)
+        shifted = state.clone()
+        shifted[:, 2] -= b
+        expected = plain(shifted, controls)[0]
+        unshifted = plain(state, controls)[0]
+    assert torch.allclose(got[..., 3:], expected[..., 3:], rtol=0, atol=1e-9)  # x, y, psi
+    assert torch.allclose(got[..., 2], expected[..., 2] + b, rtol=0, atol=1e-12)  # the gyro's r
+    assert float((unshifted[..., 5] - got[..., 5]).abs().max()) > 1e-3  # the start's yaw rate does move the track
+    assert [n for n, e in fx.EFFECTS.items() if e.track_neutral] == ["yaw_rate_bias"]
+    raised = -0.5 * dg.TRACK_NEUTRAL  # its extension raised the track error by half the tolerance
+    assert dg.lowers_track(raised, ("yaw_rate_bias",)) and not dg.lowers_track(raised, ("current",))
+    assert not dg.lowers_track(-2.0 * dg.TRACK_NEUTRAL, ("yaw_rate_bias",))
+    assert not dg.lowers_track(raised, ("yaw_rate_bias", "current")) and not dg.lowers_track(raised, ())
+    assert dg.Contribution("yaw_rate_bias", (), 0.3, 20.0, 0.6, raised).earns_place
+    assert not dg.Contribution("current", (), 0.3, 20.0, 0.6, raised).earns_place

@@ -88,6 +88,9 @@ NONE_TRACK_GAIN = 0.25  # ... nor while a hypothesis with positive evidence that
 EVIDENCE_CONFOUND = 2.0  # a winner beating a runner-up cause by less than this is confounded with it
 MIN_TRACK_GAIN = 0.0  # share of the calm-water model's held-out track error (m, at the segment end) a cause must
 #                       remove: a cause whose extension does not lower it is never named
+TRACK_NEUTRAL = 0.02  # share of that track error (and of the 30 s open-loop error) a set of track-neutral causes
+#                       (physics/effects.py Effect.track_neutral: a gyro bias) may add: their extension moves only
+#                       the start's yaw rate, which the hull's yaw dynamics forget within seconds
 NESTED_REFIT = 1e-3  # a set of causes is refitted from a larger set's fit (select_causes, diagnose) when that fit,
 #                      without the other causes' terms, leaves at least this share less of the fold's loss than the
 #                      set's own fit (smaller differences are the fit's convergence tolerance, not a poorer minimum)
@@ -457,10 +460,17 @@ def log_evidence(n_eff: float, loss: float, over_loss: float) -> float:
 
 # ---- the selection of causes (forward, then backward elimination) -----------------------------------
 
-def lowers_track(track_gain: float) -> bool:
-    """The track rule of naming a cause (MIN_TRACK_GAIN): its extension lowers the held-out track error; without GNSS
-    at the segment ends (NaN) there is no track to judge by."""
-    return not math.isfinite(track_gain) or track_gain > MIN_TRACK_GAIN
+def track_neutral(causes: Sequence[str]) -> bool:
+    """Whether every one of the causes is track-neutral (Effect.track_neutral; `none` and unknown names are not)."""
+    return bool(causes) and all(c in fx.EFFECTS and fx.EFFECTS[c].track_neutral for c in causes)
+
+
+def lowers_track(track_gain: float, causes: Sequence[str] = ()) -> bool:
+    """The track rule of naming the causes (MIN_TRACK_GAIN): their extension lowers the held-out track error, or,
+    for track-neutral causes (track_neutral), raises it by at most TRACK_NEUTRAL; without GNSS at the segment ends
+    (NaN) there is no track to judge by."""
+    floor = -TRACK_NEUTRAL if track_neutral(causes) else MIN_TRACK_GAIN
+    return not math.isfinite(track_gain) or track_gain > floor
 
 
 @dataclass(frozen=True)
@@ -486,7 +496,8 @@ class Contribution:
     def earns_place(self) -> bool:
         """The one rule a cause is named by, first, added or kept: evidence >= EVIDENCE_CAUSE, gain >= MIN_GAIN and
         a lower held-out track error, over the model without it."""
-        return self.evidence >= EVIDENCE_CAUSE and self.gain >= MIN_GAIN and lowers_track(self.track_gain)
+        return (self.evidence >= EVIDENCE_CAUSE and self.gain >= MIN_GAIN
+                and lowers_track(self.track_gain, (self.cause,)))
 
     def describe(self) -> str:
         """'given wind it adds evidence 0.8 (removes 3 % of the held-out loss, 1 % of the track error)'."""
@@ -518,7 +529,8 @@ class Selection:
         c = self.not_added  # given the named causes: the forward step ends where it is tried
         if c is None:
             return None
-        near = EVIDENCE_CANDIDATE <= c.evidence < EVIDENCE_CAUSE and c.gain >= MIN_GAIN and lowers_track(c.track_gain)
+        near = (EVIDENCE_CANDIDATE <= c.evidence < EVIDENCE_CAUSE and c.gain >= MIN_GAIN
+                and lowers_track(c.track_gain, (c.cause,)))
         return c if near else None
 
     def further_candidate_reason(self) -> str:
@@ -735,9 +747,12 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                      for n in ranked)
 
     def named(e: Evidence, confounded: tuple[str, ...]) -> str:
+        track = (f"{e.track_gain_vs_none * 100:.0f} % of its held-out track error after {horizon_s:g} s"
+                 if not math.isfinite(e.track_gain_vs_none) or e.track_gain_vs_none > 0 else
+                 f"leaves its held-out track error after {horizon_s:g} s within {TRACK_NEUTRAL:.0%} "
+                 f"({e.track_gain_vs_none * -100:+.1f} %: a sensor bias, it moves only the start's yaw rate)")
         text = (f"{e.hypothesis} removes {e.gain_vs_none * 100:.0f} % of the calm-water model's held-out error "
-                f"(evidence {e.evidence_vs_none:.1f}) and {e.track_gain_vs_none * 100:.0f} % of its held-out "
-                f"track error after {horizon_s:g} s")
+                f"(evidence {e.evidence_vs_none:.1f}) and {track}")
         if confounded:
             text += f"; {', '.join(confounded)} explain(s) it almost as well: the data cannot tell them apart"
         return text
@@ -758,17 +773,19 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     # lowest held-out loss) seen in the track (NONE_TRACK_GAIN); a model that fits by the NONE_LOSS test, so the
     # candidate is no cover for a model that does not
     by_evidence = (top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CANDIDATE
-                   and top.gain_vs_none >= MIN_GAIN and lowers_track(top.track_gain_vs_none))
+                   and top.gain_vs_none >= MIN_GAIN and lowers_track(top.track_gain_vs_none, (top.hypothesis,)))
     candidate = top if by_evidence else next(
         (e for e in evidence if e.hypothesis != "none" and e.evidence_vs_none > 0.0 and e.gain_vs_none >= MIN_GAIN
          and math.isfinite(e.track_gain_vs_none) and e.track_gain_vs_none >= NONE_TRACK_GAIN), None)
-    if strong and lowers_track(top.track_gain_vs_none):
+    if strong and lowers_track(top.track_gain_vs_none, (top.hypothesis,)):
         cause = top.hypothesis
         confounded = confounded_with(cause, (cause,), evidence)
         message = named(top, confounded)
     elif strong:
+        how = (f"raises the held-out track error by more than {TRACK_NEUTRAL:.0%}" if track_neutral((top.hypothesis,))
+               else "does not lower the held-out track error")
         rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error (evidence "
-                    f"{top.evidence_vs_none:.1f}) but its extension does not lower the held-out track error after "
+                    f"{top.evidence_vs_none:.1f}) but its extension {how} after "
                     f"{horizon_s:g} s ({calm.heldout_track_error_m:.3g} -> "
                     f"{top.heldout_track_error_m:.3g} m): not named")
         message = rejected
