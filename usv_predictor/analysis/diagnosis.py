@@ -27,7 +27,9 @@ end in a poorer minimum: that wind alone left 3.2 noise units, with the wave dri
 A cause is also named only when its extension lowers the held-out TRACK error (the mean distance between the
 predicted and the GNSS position at the end of the held-out segments, MIN_TRACK_GAIN): a term that lowers the
 loss by bending the velocities while the predicted track gets worse is no physical cause (run_diagnosis applies
-the same rule to the measured 30 s open-loop gain and withdraws a cause whose extension raises it).
+the same rule to the measured 30 s open-loop gain and withdraws a cause whose extension raises it). A gyro bias
+(Effect.track_neutral) moves only the start's yaw rate, which the hull forgets within seconds: its extension is
+named when it raises either error by at most TRACK_NEUTRAL.
 
 Otherwise the answer is `none` — unless the calm-water model itself does not fit: then it is `model_mismatch`
 (identify the boat first), when nothing is named but the calm-water model leaves a held-out loss above NONE_LOSS
