@@ -118,6 +118,7 @@ def summarise_layout(results: list[dict], layout: str = DEFAULT_LAYOUT) -> str:
     right = [r for r in results if r["cause"] == r["truth"]]
     hits = [r for r in right if r["truth"] == "none" or r["within_tolerance"]]
     confident_wrong = [r for r in results if r["cause"] != r["truth"] and r["cause"] not in CONFIDENT_CAUSES_EXCLUDED]
+    confounded = [r for r in confident_wrong if r["truth"] in r.get("confounded_with", [])]
     refused = [r for r in results if r.get("refused")]
     mismatch = [r for r in results if r["cause"] == "model_mismatch"]
     wrong_parameters = [r for r in right if r["truth"] != "none" and not r["within_tolerance"]]
@@ -126,8 +127,12 @@ def summarise_layout(results: list[dict], layout: str = DEFAULT_LAYOUT) -> str:
                   f"{sum(r['truth'] != 'none' for r in hits)}/{sum(r['truth'] != 'none' for r in results)})",
               f"confident wrong answers (a cause or `none` that is not the truth): "
               f"{len(confident_wrong)}/{len(results)}"
+              + (f" ({len(confounded)} of them name the truth as confounded: the data cannot tell them apart)"
+                 if confounded else "")
               + "".join(f"\n  {r['boat']} ({r['size_class']}, {r['L_pp_m']:.1f} m): {r['truth']} "
-                        f"{r['truth_parameters']} -> {r['cause']} {r['parameters']}" for r in confident_wrong),
+                        f"{r['truth_parameters']} -> {r['cause']} {r['parameters']}"
+                        + (f", confounded with {', '.join(r['confounded_with'])}" if r.get("confounded_with") else "")
+                        for r in confident_wrong),
               f"right cause, parameters beyond the tolerances: {len(wrong_parameters)}"
               + "".join(f"\n  {r['boat']} ({r['size_class']}, {r['L_pp_m']:.1f} m): {r['truth']} "
                         f"{r['truth_parameters']} "
