@@ -352,8 +352,11 @@ def uncovered_manoeuvres(folds: Mapping[str, Mapping[str, Fold]]) -> tuple[str, 
     """The manoeuvres on which the grey box of every candidate (label -> its heldout_folds), its hull fitted on the
     other manoeuvres, diverges: the other trials do not cover that manoeuvre's envelope (its commands, speeds and
     rates), so its fold tells no candidate from another and is left out of the decision. A manoeuvre on which one
-    candidate diverges and another does not stays: there the first is worse."""
-    names = set.intersection(*(set(f) for f in folds.values())) if folds else set()
+    candidate diverges and another does not stays: there the first is worse. () with fewer than two candidates (a
+    candidate alone cannot show that a manoeuvre is beyond every model)."""
+    if len(folds) < 2:
+        return ()
+    names = set.intersection(*(set(f) for f in folds.values()))
     return tuple(sorted(n for n in names if all(f[n].diverged for f in folds.values())))
 
 
