@@ -450,13 +450,16 @@ class _TrackOffRollout(_PartlyExplainedRollout):
         return (off + self.ramp * (1.0 - self.removed * self.share()),)
 
 
-@pytest.mark.parametrize("drift, removed, expected", [(0.8, 1.0, "inconclusive"), (1.6, 0.15, "none")])
-def test_none_is_not_confident_while_a_hypothesis_halves_the_track_error(drift, removed, expected):
-    """(An unknown boat's 6 deg compass offset answered `none`: 8 % of the loss, 45 % of the track error): two models
-    within the noise where a current removes 9-10 % of the held-out loss with evidence ~0.6-0.7 (under NONE_EVIDENCE):
-    one whose track error it removes entirely is `inconclusive` with the current as the candidate (NONE_TRACK_GAIN);
-    one whose track error it lowers by 15 % stays `none`."""
-    from usv_predictor.analysis.diagnosis import MIN_GAIN, NONE_EVIDENCE, NONE_TRACK_GAIN
+@pytest.mark.parametrize("drift, removed, gain, expected", [(0.8, 1.0, (0.08, 0.11), "inconclusive"),
+                                                             (0.5, 1.0, (0.03, 0.05), "inconclusive"),
+                                                             (1.6, 0.15, (0.08, 0.11), "none")])
+def test_none_is_not_confident_while_a_hypothesis_halves_the_track_error(drift, removed, gain, expected):
+    """(Unknown boats' 6 deg and 2.8 deg compass offsets answered `none`: 8 % and 3.4 % of the loss, 45 % and 41 % of
+    the track error): models within the noise where a current removes 3-11 % of the held-out loss with evidence
+    under NONE_EVIDENCE: where it removes the whole track error the answer is `inconclusive` with the current as the
+    candidate (NONE_TRACK_GAIN), even under MIN_GAIN of the loss; one whose track error it lowers by 15 % stays
+    `none`."""
+    from usv_predictor.analysis.diagnosis import NONE_EVIDENCE, NONE_TRACK_GAIN
 
     recordings = trial(runs=diagnosis_runs()[:2])
     seg = make_segments(recordings)
@@ -464,7 +467,7 @@ def test_none_is_not_confident_while_a_hypothesis_halves_the_track_error(drift, 
                       hypotheses=["current"])
     top = next(e for e in result.evidence if e.hypothesis == "current")
     assert 0.0 < top.evidence_vs_none < NONE_EVIDENCE
-    assert 0.08 <= top.gain_vs_none <= 0.11 and top.gain_vs_none >= MIN_GAIN
+    assert gain[0] <= top.gain_vs_none <= gain[1]
     assert top.track_gain_vs_none == pytest.approx(removed, abs=0.01)
     assert result.cause == expected
     assert result.parameters == {}

@@ -85,12 +85,12 @@ NONE_EVIDENCE = 1.0  # ... and a `none` is only confident while no hypothesis re
 #                      effects a `none` hid: a 2.8 deg compass offset, best hypothesis at evidence 1.6 and 14 % of the
 #                      loss; a 6.4 m/s wind on a 16 m boat, 1.5 and 13 %; the clean boats' best: at most 1.0 with
 #                      4 % of the loss, 0.8 with 8 %, docs/results/unknown_boats.md)
-NONE_TRACK_GAIN = 0.25  # ... nor while a hypothesis with positive evidence that removes MIN_GAIN of the loss
-#                         removes this share of the held-out track error: positions are one channel of six in the
-#                         loss, so a term seen only in the track (a compass offset rotates the course, not the body
-#                         velocities) can halve the track error at evidence under NONE_EVIDENCE (an unknown
-#                         boat's 6 deg offset: evidence 1.8, 45 % of the track error; the suite's clean boats' best
-#                         hypotheses remove at most 5.1 %)
+NONE_TRACK_GAIN = 0.25  # ... nor while a hypothesis with positive evidence removes this share of the held-out
+#                         track error, however little of the loss: positions are two channels of six in the loss, so
+#                         a term seen only in the track (a compass offset rotates the course, not the body
+#                         velocities) can halve the track error at little evidence and under MIN_GAIN of the loss (an
+#                         unknown rudder_only boat's 2.8 deg offset: evidence 0.36, 3.4 % of the loss, 41 % of the
+#                         track error; the suite's clean boats' best hypotheses remove at most 5.1 % of it)
 EVIDENCE_CONFOUND = 2.0  # a winner beating a runner-up cause by less than this is confounded with it
 MIN_TRACK_GAIN = 0.0  # share of the calm-water model's held-out track error (m, at the segment end) a cause must
 #                       remove: a cause whose extension does not lower it is never named
@@ -781,7 +781,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     by_evidence = (top.hypothesis != "none" and top.evidence_vs_none >= NONE_EVIDENCE
                    and top.gain_vs_none >= MIN_GAIN and lowers_track(top.track_gain_vs_none, (top.hypothesis,)))
     candidate = top if by_evidence else next(
-        (e for e in evidence if e.hypothesis != "none" and e.evidence_vs_none > 0.0 and e.gain_vs_none >= MIN_GAIN
+        (e for e in evidence if e.hypothesis != "none" and e.evidence_vs_none > 0.0
          and math.isfinite(e.track_gain_vs_none) and e.track_gain_vs_none >= NONE_TRACK_GAIN), None)
     if strong and lowers_track(top.track_gain_vs_none, (top.hypothesis,)):
         cause = top.hypothesis
