@@ -83,8 +83,9 @@ NONE_EVIDENCE = 1.0  # ... and a `none` is only confident while no hypothesis re
 #                      "positive" on the Kass & Raftery scale): one between it and EVIDENCE_CAUSE that removes MIN_GAIN
 #                      of the loss and lowers the track error is `inconclusive` (the unknown rudder_only boats' weak
 #                      effects a `none` hid: a 2.8 deg compass offset, best hypothesis at evidence 1.6 and 14 % of the
-#                      loss; a 6.4 m/s wind on a 16 m boat, 1.5 and 13 %; the clean boats' best: at most 1.0 with
-#                      4 % of the loss, 0.8 with 8 %, docs/results/unknown_boats.md)
+#                      loss; a 6.4 m/s wind on a 16 m boat, 1.5 and 13 %; the clean rudder boats' best: at most 1.0
+#                      with 4 % of the loss, 0.8 with 8 %; clean twin-thruster boats: 2.2 with 3.6 %, and 1.9 with
+#                      6.4 % whose extension does not lower the track error; docs/results/unknown_boats.md)
 NONE_TRACK_GAIN = 0.25  # ... nor while a hypothesis with positive evidence removes this share of the held-out
 #                         track error, however little of the loss: positions are two channels of six in the loss, so
 #                         a term seen only in the track (a compass offset rotates the course, not the body
