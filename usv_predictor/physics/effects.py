@@ -15,7 +15,10 @@ An Effect holds
   tolerance       the acceptance suite's absolute error bounds, keyed like the readout's errors;
   layouts         the actuator layouts (physics/actuators.py) it applies to, None for all: a rudder offset needs
                   a rudder, a thruster imbalance two thrusters. The simulator refuses an effect for a vessel it does
-                  not apply to; hypothesis_names(layout) and simulated(layout) give the applicable ones.
+                  not apply to; hypothesis_names(layout) and simulated(layout) give the applicable ones;
+  step_resolution the share of the model step below which a fitted time (a delay) is not named;
+  track_neutral   a sensor bias whose extension moves only the start's yaw rate (the gyro's): the diagnosis asks
+                  it not to raise the held-out track error rather than to lower it (analysis/diagnosis.py).
 
 The vocabulary (simulator parameters):
   current              current_speed (m/s), current_to_deg (flows TOWARD), current_turn_rate_deg_s; a change
