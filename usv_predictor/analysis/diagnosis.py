@@ -470,6 +470,11 @@ def track_neutral(causes: Sequence[str]) -> bool:
     return bool(causes) and all(c in fx.EFFECTS and fx.EFFECTS[c].track_neutral for c in causes)
 
 
+def track_rule_failed(causes: Sequence[str]) -> str:
+    """What an extension with these causes did when it fails lowers_track (for the messages)."""
+    return f"raises by more than {TRACK_NEUTRAL:.0%}" if track_neutral(causes) else "does not lower"
+
+
 def lowers_track(track_gain: float, causes: Sequence[str] = ()) -> bool:
     """The track rule of naming the causes (MIN_TRACK_GAIN): their extension lowers the held-out track error, or,
     for track-neutral causes (track_neutral), raises it by at most TRACK_NEUTRAL; without GNSS at the segment ends
@@ -787,10 +792,9 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         confounded = confounded_with(cause, (cause,), evidence)
         message = named(top, confounded)
     elif strong:
-        how = (f"raises the held-out track error by more than {TRACK_NEUTRAL:.0%}" if track_neutral((top.hypothesis,))
-               else "does not lower the held-out track error")
         rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error (evidence "
-                    f"{top.evidence_vs_none:.1f}) but its extension {how} after "
+                    f"{top.evidence_vs_none:.1f}) but its extension {track_rule_failed((top.hypothesis,))} the "
+                    f"held-out track error after "
                     f"{horizon_s:g} s ({calm.heldout_track_error_m:.3g} -> "
                     f"{top.heldout_track_error_m:.3g} m): not named")
         message = rejected

@@ -148,14 +148,15 @@ def run_diagnosis(recordings: Sequence[Recording], vessel: Vessel, source: str, 
                                    segments=segments, rollout=rollout)
         before = measured["baseline"].get(dg.GAIN_METRIC)
         after = measured["extended"].get(dg.GAIN_METRIC)
-        neutral = dg.track_neutral(result.hypotheses)  # a gyro bias: at most TRACK_NEUTRAL more, not less
-        if before is not None and after is not None and not (
-                after <= before * (1.0 + dg.TRACK_NEUTRAL) if neutral else after < before):
+        # the track rule of naming them (diagnosis.lowers_track) on the measured 30 s open-loop error; a gain that is
+        # not finite (an extension that diverges, a zero baseline) withdraws them too
+        gain = None if before is None or after is None else (1.0 - after / before if before > 0.0 else -math.inf)
+        if gain is not None and not (math.isfinite(gain) and dg.lowers_track(gain, result.hypotheses)):
             rejected = {"causes": list(result.hypotheses), "baseline": measured["baseline"],
                         "extended": measured["extended"], "gain": measured["relative_improvement"]}
-            how = f"raises by more than {dg.TRACK_NEUTRAL:.0%}" if neutral else "does not lower"
             result = dg.withdraw_causes(result,
-                                        f"the extension with {'+'.join(result.hypotheses)} {how} the held-out "
+                                        f"the extension with {'+'.join(result.hypotheses)} "
+                                        f"{dg.track_rule_failed(result.hypotheses)} the held-out "
                                         f"open-loop position error after 30 s ({before:.3g} -> {after:.3g} m)",
                                         rollout, segments)
             measured = None

@@ -91,6 +91,7 @@ class KernelRollout:
         self.live = bool(live)
         self.threads = max(1, int(threads))  # a batch of at least SPLIT_ROWS rows a thread is split over this many
         self._read: tuple = ()  # what _refresh read last: (data_ptr, version) per parameter, and the tensors
+        self._learned_read: tuple = ()  # ... and the versions of the learned residual's tensors
         self._held: list = []
         self._ones = np.ones(1)
         try:
@@ -232,11 +233,13 @@ class KernelRollout:
         when none changed since the last read: one stamp of the tensors' identities (kept here, so a replaced
         parameter's id cannot be a freed one's) and versions (torch counts every in-place change)."""
         tensors = self._tensors()
-        key = (*map(id, tensors), *(t._version for t in (*tensors, *self._learned)))
-        if key == self._read:
+        key = (*map(id, tensors), *(t._version for t in tensors))
+        learned = tuple(t._version for t in self._learned)  # the network's tensors, held since the packing
+        if key == self._read and learned == self._learned_read:
             return
-        if self._read and key[len(tensors) * 2:] != self._read[len(tensors) * 2:]:  # the network changed in place
+        if self._read and learned != self._learned_read:  # the network changed in place
             self._pack(self.module)
+        self._learned_read = learned
         hull = _floats(tensors[0])
         if len(hull) != self.n_hull:
             raise ValueError(f"{len(hull)} hull coefficients, packed for {self.n_hull}")
