@@ -196,3 +196,39 @@ def test_a_further_cause_that_is_named_is_no_candidate():
     selection = select_causes("wave_drift", candidates, table(OTTER_SEA_TRIAL), 25.0)
     assert selection.causes == ("wave_drift", "current")
     assert selection.further_candidate is None
+
+
+# boat 42 of the rudder_only suite (seed 2026): a -2.83 deg compass offset. Its extension predicts u, v, r and psi as
+# the calm-water model does (test_effects.py) and removes 57 % of the position channels' held-out loss, 3.4 % of the
+# pooled one; per channel [u, v, r, x_n, y_e, psi] in noise units
+CALM_CHANNELS = (4.35, 4.35, 4.35, 0.55, 0.55, 4.35)
+OFFSET_CHANNELS = (4.35, 4.35, 4.35, 0.237, 0.237, 4.35)
+BOAT_42 = {
+    (): HeldOut(sum(CALM_CHANNELS) / 6, 1.24, CALM_CHANNELS),
+    ("heading_offset",): HeldOut(sum(OFFSET_CHANNELS) / 6, 0.73, OFFSET_CHANNELS),
+    ("current",): HeldOut(3.05, 1.20, (4.3, 4.3, 4.3, 0.55, 0.55, 4.3)),
+    ("current", "heading_offset"): HeldOut(2.95, 0.72, (4.3, 4.3, 4.3, 0.237, 0.237, 4.3)),
+}
+
+
+def test_a_compass_offset_is_measured_on_the_positions_it_alone_moves():
+    """Over the calm-water model the offset's evidence is that of the two position channels (Effect.channels: the
+    others' likelihood is the same with and without it), 8.8 where the pooled loss gives 0.36; given another cause,
+    whose terms the heading turns (a current's body components), the pooled loss again."""
+    n_eff = 21.0
+    alone = contribution("heading_offset", (), table(BOAT_42), n_eff)
+    assert alone.evidence == pytest.approx(log_evidence(n_eff, 0.237, 0.55))
+    assert alone.evidence == pytest.approx(8.84, abs=0.01)
+    assert alone.gain == pytest.approx(1.0 - 0.237 / 0.55)
+    assert alone.earns_place
+    pooled = log_evidence(n_eff, BOAT_42[("heading_offset",)].loss, BOAT_42[()].loss)
+    assert pooled == pytest.approx(0.36, abs=0.01) and pooled < EVIDENCE_CANDIDATE
+    given = contribution("heading_offset", ("current",), table(BOAT_42), n_eff)
+    assert given.evidence == pytest.approx(log_evidence(n_eff, 2.95, 3.05))
+    assert not given.earns_place
+    # a cause measured on every channel keeps the pooled loss, channel losses or not
+    current = contribution("current", (), table(BOAT_42), n_eff)
+    assert current.evidence == pytest.approx(log_evidence(n_eff, 3.05, BOAT_42[()].loss))
+    selection = select_causes("heading_offset", ("current",), table(BOAT_42), n_eff)
+    assert selection.causes == ("heading_offset",)
+    assert selection.not_added is not None and selection.not_added.cause == "current"

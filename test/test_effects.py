@@ -174,6 +174,38 @@ def test_every_grey_box_term_exists_and_acts_where_its_effects_apply(term, layou
     assert (change > 1e-6) == applies, f"{term.name} on {layout}: change {change:g}, applies {applies}"
 
 
+CHANNELED = tuple(n for n, e in EFFECTS.items() if e.channels)
+
+
+def test_a_record_that_declares_channels_exists():
+    """The compass offset is measured on the two positions (analysis/diagnosis.evidence_channels)."""
+    assert EFFECTS["heading_offset"].channels == effects.POSITIONS == (3, 4)
+    assert [effects.CHANNELS[c] for c in effects.POSITIONS] == ["x_n", "y_e"]
+    with pytest.raises(ValueError, match="not distinct indices"):
+        dataclasses.replace(EFFECTS["heading_offset"], channels=(3, 6))
+
+
+@pytest.mark.parametrize("layout", list(PRESET_OF_LAYOUT))
+@pytest.mark.parametrize("name", CHANNELED)
+def test_an_effect_alone_moves_only_the_channels_it_declares(name, layout):
+    """Effect.channels is what the diagnosis measures its evidence on: the rollout with the effect's terms alone
+    predicts every other channel exactly as the calm-water one (the likelihood of those is the same with and without
+    it), and the declared ones not (a compass offset of 0.1 rad moves the positions by metres)."""
+    vessel = load_vessel(PRESET_OF_LAYOUT[layout])
+    rollout = GreyBoxRollout(vessel, dt=0.5)
+    state, controls = rollout_inputs(vessel)
+    with torch.no_grad():
+        calm = rollout(state, controls)[0, 0]  # (H, 6) [u, v, r, x_n, y_e, psi]
+        for term in EFFECTS[name].terms:
+            getattr(rollout, term.name)[:] = min(term.high, 10.0 * term.scale)
+        extended = rollout(state, controls)[0, 0]
+    change = (extended - calm).abs().amax(dim=0)  # (6,) largest change of each channel
+    declared = list(EFFECTS[name].channels)
+    others = [c for c in range(len(effects.CHANNELS)) if c not in declared]
+    assert float(change[others].max()) < 1e-12, f"{name} moves {change.tolist()}"
+    assert float(change[declared].min()) > 0.1, f"{name} moves {change.tolist()}"
+
+
 def test_the_grey_box_terms_are_the_records_terms_in_order():
     rollout = GreyBoxRollout(VESSEL, dt=0.5)
     assert tuple(rollout.terms()) == rollout.term_names == tuple(effects.grey_box_terms()) == (

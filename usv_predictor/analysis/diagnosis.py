@@ -10,7 +10,11 @@ compared on HELD-OUT manoeuvres (two folds by manoeuvre, each fitted on the othe
 log-likelihood ratio of their held-out losses L (mean squared weighted residual):
     evidence(a over b) = n_eff / 2 * ln(L_b / L_a),  n_eff = segments * stride / horizon
 (overlapping segments are not independent, so only one in horizon/stride counts). Held out, no parameter
-penalty is needed. A cause is named only when its evidence over the calm-water model is at least
+penalty is needed. A hypothesis whose extension alone moves only some channels (physics.effects.Effect.channels: a
+compass offset, the two positions) is measured over the calm-water model on those (L the mean of their channel
+losses): the other channels are predicted exactly as without it, so with a variance per channel their likelihood
+ratio is 1, where the pooled loss dilutes it (evidence_channels). A cause is named only when its evidence over the
+calm-water model is at least
 EVIDENCE_CAUSE (5: "strong" on the Kass & Raftery scale, 2 ln B > 10) and it removes at least MIN_GAIN of
 its held-out loss; a runner-up that is itself a cause and that the winner beats by less than
 EVIDENCE_CONFOUND is reported as confounded with it.
@@ -162,14 +166,53 @@ def segment_scores(model: GreyBoxRollout, seg: Segments) -> tuple[np.ndarray, np
     """(B,) mean squared weighted residual (wave-filtered when the segments are) and (B,) track error (m) of each
     segment: the distance between the predicted and the GNSS position at the segment's end (NaN without a fix there;
     never filtered), from one rollout."""
+    return segment_channel_scores(model, seg)[:2]
+
+
+def segment_channel_scores(model: GreyBoxRollout, seg: Segments) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """segment_scores and (B, 6) each channel's mean squared weighted residual per segment (NaN where a channel has
+    no sample), from one rollout."""
     predicted = _predicted(model, seg)
     r = np.asarray(weighted_residuals(predicted, seg))  # (B, H, 6)
-    losses = (r * r).sum(axis=(1, 2)) / np.maximum(np.count_nonzero(seg.weight.numpy(), axis=(1, 2)), 1)
+    counts = np.count_nonzero(seg.weight.numpy(), axis=1)  # (B, 6)
+    squared = (r * r).sum(axis=1)  # (B, 6)
+    losses = squared.sum(axis=1) / np.maximum(counts.sum(axis=1), 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        by_channel = np.where(counts > 0, squared / np.maximum(counts, 1), np.nan)
     end = np.asarray(weighted_residuals(predicted, seg, filtered=False))[:, -1, 3:5]  # (B, 2) at the end
     weight = seg.weight[:, -1, 3:5].numpy()  # (B, 2) 1/sigma, 0 without a fix
     with np.errstate(divide="ignore", invalid="ignore"):
         track = np.where((weight > 0).all(axis=1), np.hypot(*(end / np.where(weight > 0, weight, 1.0)).T), np.nan)
-    return losses, track
+    return losses, track, by_channel
+
+
+def channel_loss(by_channel: np.ndarray | Sequence[float], channels: Sequence[int]) -> float:
+    """The held-out loss on `channels` (Effect.channels): the mean over them of each channel's mean over the segments
+    of (B, 6) segment_channel_scores (or of (6,) such means)."""
+    means = np.asarray(by_channel, dtype=float)
+    if means.ndim == 2:
+        means = np.nanmean(means, axis=0) if len(means) else np.full(means.shape[1], np.nan)
+    return float(np.mean(means[list(channels)]))
+
+
+def _channel_means(by_channel: np.ndarray) -> tuple[float, ...]:
+    """(6,) each channel's mean over the segments of (B, 6) per-segment channel losses (NaN: no sample)."""
+    with np.errstate(invalid="ignore"):
+        if not len(by_channel) or np.isnan(by_channel).all():
+            return ()
+        return tuple(float(x) for x in np.nanmean(by_channel, axis=0))
+
+
+def _channels_text(cause: str) -> str:
+    """' in x_n, y_e' for a cause measured on some channels (evidence_channels), '' for one measured on all."""
+    channels = evidence_channels(cause)
+    return f" in {', '.join(fx.CHANNELS[c] for c in channels)}" if channels else ""
+
+
+def evidence_channels(cause: str) -> tuple[int, ...]:
+    """The channels a cause's evidence over the calm-water model is measured on: its effect's (Effect.channels, the
+    channels its extension alone moves), () for all (the pooled loss)."""
+    return fx.EFFECTS[cause].channels if cause in fx.EFFECTS else ()
 
 
 def diagnosis_segments(recordings: Sequence[Recording], horizon_s: float, stride_s: float,
@@ -373,6 +416,7 @@ class Evidence:
     fold_parameters: tuple[dict[str, float], ...]  # the physical parameters fitted on each fold
     heldout_track_error_m: float = float("nan")  # mean held-out position error at the segment end (m)
     track_gain_vs_none: float = float("nan")  # relative reduction of the calm-water model's held-out track error
+    measured_on: str = ""  # " in x_n, y_e": the channels gain and evidence are measured on (evidence_channels); "": all
 
 
 @dataclass(frozen=True)
@@ -489,6 +533,11 @@ class HeldOut:
 
     loss: float  # mean held-out loss (noise units); inf for a diverged fit
     track_m: float = float("nan")  # mean held-out track error at the segment end (m); NaN without GNSS fixes
+    channel_loss: tuple[float, ...] = ()  # (6,) each channel's mean held-out loss (channel_loss); () not scored
+
+    def on(self, channels: Sequence[int]) -> float:
+        """The loss on these channels (all: `loss`); `loss` when the channels were not scored."""
+        return channel_loss(self.channel_loss, channels) if channels and self.channel_loss else self.loss
 
 
 @dataclass(frozen=True)
@@ -554,16 +603,19 @@ NEEDS = (f"a cause needs evidence >= {EVIDENCE_CAUSE:g}, >= {MIN_GAIN * 100:.0f}
 
 def contribution(cause: str, given: Sequence[str], score: Callable[[tuple[str, ...]], HeldOut],
                  n_eff: float) -> Contribution:
-    """What `cause` adds to the model with `given`: score(given + (cause,)) over score(given) (module docstring)."""
+    """What `cause` adds to the model with `given`: score(given + (cause,)) over score(given) (module docstring);
+    over the calm-water model (no `given`) on the channels its extension alone moves (evidence_channels)."""
     given = tuple(given)
     with_, without = score((*given, cause)), score(given)
+    channels = () if given else evidence_channels(cause)
     if not math.isfinite(with_.loss):  # a diverged fit adds nothing
         evidence, gain = -math.inf, -math.inf
     elif not math.isfinite(without.loss):
         evidence, gain = math.inf, 1.0
     else:
-        evidence = log_evidence(n_eff, with_.loss, without.loss)
-        gain = 1.0 - with_.loss / without.loss if without.loss > 0 else 0.0
+        loss_with, loss_without = with_.on(channels), without.on(channels)
+        evidence = log_evidence(n_eff, loss_with, loss_without)
+        gain = 1.0 - loss_with / loss_without if loss_without > 0 else 0.0
     track_gain = (1.0 - with_.track_m / without.track_m
                   if math.isfinite(with_.track_m) and math.isfinite(without.track_m) and without.track_m > 0
                   else float("nan"))
@@ -659,12 +711,13 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                          best_environmental_cause="")
     per_segment: dict[str, np.ndarray] = {}
     per_track: dict[str, np.ndarray] = {}
+    per_channel: dict[str, np.ndarray] = {}  # (B, 6) each channel's held-out loss per segment
     fold_params: dict[str, tuple[dict[str, float], ...]] = {}
     fold_segments = tuple(seg.select(np.isin(seg.recording, fold)) for fold in folds)
     # every set of causes fitted (the first round's single hypotheses, `none` as the empty set, the selection's
     # sets): its fit order and, per fold k (fitted on fold k, held out on the other), the held-out segment losses,
-    # track errors, physical parameters and the fit
-    FoldResult = tuple[np.ndarray, np.ndarray, dict[str, float], Fit]  # one fold: losses, track errors, parameters, fit
+    # track errors, physical parameters, the fit and the losses per channel
+    FoldResult = tuple[np.ndarray, np.ndarray, dict[str, float], Fit, np.ndarray]  # one fold
     fitted: dict[frozenset[str], tuple[tuple[str, ...], list[FoldResult]]] = {}
     nested_checked: set[tuple[frozenset[str], frozenset[str]]] = set()
 
@@ -673,8 +726,9 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         """The set of causes fitted on fold k, scored on the other: held-out losses, track errors, parameters, fit."""
         hypothesis = causes[0] if len(causes) == 1 else (causes or "none")
         fit = fit_hypothesis(model, fold_segments[k], hypothesis, start=start)
-        loss_, track_ = segment_scores(model, fold_segments[1 - k])
-        return loss_, track_, physical_parameters(hypothesis, fit.terms) if isinstance(hypothesis, str) else {}, fit
+        loss_, track_, by_channel = segment_channel_scores(model, fold_segments[1 - k])
+        parameters = physical_parameters(hypothesis, fit.terms) if isinstance(hypothesis, str) else {}
+        return loss_, track_, parameters, fit, by_channel
 
     def fit_set(causes: tuple[str, ...]) -> None:
         if frozenset(causes) not in fitted:
@@ -706,19 +760,19 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         fit_set(tuple(causes))
         if key:
             refit_nested(key)
-        losses, tracks = held_out(key)
+        losses, tracks, by_channel = held_out(key)
         if new and len(key) > 1:
             progress(f"{'+'.join(causes):30s} held-out loss {_loss_text(losses.mean())}, track error "
                      f"{_mean_track(tracks):7.2f} m")
-        return HeldOut(float(losses.mean()), _mean_track(tracks))
+        return HeldOut(float(losses.mean()), _mean_track(tracks), _channel_means(by_channel))
 
-    def held_out(key: frozenset[str]) -> tuple[np.ndarray, np.ndarray]:
+    def held_out(key: frozenset[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         folds_ = fitted[key][1]
-        return np.concatenate([folds_[0][0], folds_[1][0]]), np.concatenate([folds_[0][1], folds_[1][1]])
+        return tuple(np.concatenate([folds_[0][i], folds_[1][i]]) for i in (0, 1, 4))  # type: ignore[return-value]
 
     def first_round(name: str) -> None:
         key = frozenset() if name == "none" else frozenset({name})
-        per_segment[name], per_track[name] = held_out(key)
+        per_segment[name], per_track[name], per_channel[name] = held_out(key)
         fold_params[name] = tuple(f[2] for f in fitted[key][1])
 
     for name in names:
@@ -740,6 +794,17 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
     def evidence_for(a: str, over: str) -> float:
         return log_evidence(n_eff, per_segment[a].mean(), per_segment[over].mean())
 
+    def over_none(n: str) -> tuple[float, float]:
+        """(evidence, share of the loss removed) of hypothesis n over the calm-water model, on the channels its
+        extension alone moves (evidence_channels; all: the pooled loss)."""
+        channels = evidence_channels(n)
+        if not channels:
+            return evidence_for(n, "none"), float(1.0 - per_segment[n].mean() / base.mean())
+        with_, without = channel_loss(per_channel[n], channels), channel_loss(per_channel["none"], channels)
+        if not (math.isfinite(with_) and math.isfinite(without) and without > 0.0):  # a diverged fit: no evidence
+            return -math.inf, -math.inf
+        return log_evidence(n_eff, with_, without), float(1.0 - with_ / without)
+
     def track_gain(track: np.ndarray, over: np.ndarray) -> float:
         before = _mean_track(over)
         return 1.0 - _mean_track(track) / before if before > 0 else float("nan")
@@ -751,9 +816,9 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         # a hypothesis whose fit diverged (non-finite held-out loss) ranks last, never first (NaN does not sort)
         ranked = sorted(names, key=lambda n: (not math.isfinite(per_segment[n].mean()), per_segment[n].mean()))
         best = ranked[0]
-        return tuple(Evidence(n, float(per_segment[n].mean()), float(1.0 - per_segment[n].mean() / base.mean()),
-                              evidence_for(n, "none"), 0.0 if n == best else evidence_for(best, n),
-                              fold_params[n], _mean_track(per_track[n]), track_gain(per_track[n], per_track["none"]))
+        return tuple(Evidence(n, float(per_segment[n].mean()), over_none(n)[1], over_none(n)[0],
+                              0.0 if n == best else evidence_for(best, n), fold_params[n], _mean_track(per_track[n]),
+                              track_gain(per_track[n], per_track["none"]), _channels_text(n))
                      for n in ranked)
 
     def named(e: Evidence, confounded: tuple[str, ...]) -> str:
@@ -761,8 +826,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                  if not math.isfinite(e.track_gain_vs_none) or e.track_gain_vs_none > 0 else
                  f"leaves its held-out track error after {horizon_s:g} s within {TRACK_NEUTRAL:.0%} "
                  f"({e.track_gain_vs_none * -100:+.1f} %: a sensor bias, it moves only the start's yaw rate)")
-        text = (f"{e.hypothesis} removes {e.gain_vs_none * 100:.0f} % of the calm-water model's held-out error "
-                f"(evidence {e.evidence_vs_none:.1f}) and {track}")
+        text = (f"{e.hypothesis} removes {e.gain_vs_none * 100:.0f} % of the calm-water model's held-out "
+                f"error{e.measured_on} (evidence {e.evidence_vs_none:.1f}) and {track}")
         if confounded:
             text += f"; {', '.join(confounded)} explain(s) it almost as well: the data cannot tell them apart"
         return text
@@ -774,11 +839,20 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                      and e.evidence_vs_none >= EVIDENCE_CAUSE and evidence_for(cause, e.hypothesis) < EVIDENCE_CONFOUND)
 
     evidence = evidence_table()
+
+    def is_strong(e: Evidence) -> bool:
+        return e.hypothesis != "none" and e.evidence_vs_none >= EVIDENCE_CAUSE and e.gain_vs_none >= MIN_GAIN
+
+    # the hypothesis of the lowest held-out loss; where it is not strong, one measured on the channels it alone moves
+    # that is (evidence_channels: a compass offset that halves the position error while a term that bends every
+    # channel a little leaves a lower pooled loss at little evidence)
     top = evidence[0]
+    if not is_strong(top):
+        top = next((e for e in evidence if evidence_channels(e.hypothesis) and is_strong(e)), top)
     cause, confounded, message = "none", (), "the calm-water model explains the held-out data within the noise"
     rejected = ""  # a candidate not named: the evidence of the loss but its extension does not lower the held-out
     #                track error, or evidence between EVIDENCE_CANDIDATE and EVIDENCE_CAUSE (the answer: inconclusive)
-    strong = top.hypothesis != "none" and top.evidence_vs_none >= EVIDENCE_CAUSE and top.gain_vs_none >= MIN_GAIN
+    strong = is_strong(top)
     # too much for a confident `none`: the best hypothesis by its evidence (EVIDENCE_CANDIDATE), else the first (the
     # lowest held-out loss) seen in the track (NONE_TRACK_GAIN); a model that fits by the NONE_LOSS test, so the
     # candidate is no cover for a model that does not
@@ -792,9 +866,9 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         confounded = confounded_with(cause, (cause,), evidence)
         message = named(top, confounded)
     elif strong:
-        rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error (evidence "
-                    f"{top.evidence_vs_none:.1f}) but its extension {track_rule_failed((top.hypothesis,))} the "
-                    f"held-out track error after "
+        rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out "
+                    f"error{top.measured_on} (evidence {top.evidence_vs_none:.1f}) but its extension "
+                    f"{track_rule_failed((top.hypothesis,))} the held-out track error after "
                     f"{horizon_s:g} s ({calm.heldout_track_error_m:.3g} -> "
                     f"{top.heldout_track_error_m:.3g} m): not named")
         message = rejected
@@ -804,14 +878,14 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                  if math.isfinite(top.track_gain_vs_none) else "")
         allows = (f"< {EVIDENCE_CANDIDATE:g}" if by_evidence
                   else f"no hypothesis removing >= {NONE_TRACK_GAIN:.0%} of the track error")
-        rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out error{track} with "
-                    f"evidence {top.evidence_vs_none:.1f}: more than a `none` allows ({allows}), "
-                    f"less than names a cause (>= {EVIDENCE_CAUSE:g})")
+        rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out "
+                    f"error{top.measured_on}{track} with evidence {top.evidence_vs_none:.1f}: more than a `none` "
+                    f"allows ({allows}), less than names a cause (>= {EVIDENCE_CAUSE:g})")
         message = rejected
     elif top.hypothesis != "none":
-        message = (f"best hypothesis {top.hypothesis} removes {top.gain_vs_none * 100:.1f} % of the held-out error "
-                   f"with evidence {top.evidence_vs_none:.1f} (a cause needs >= {EVIDENCE_CAUSE:g} and "
-                   f">= {MIN_GAIN * 100:.0f} %): no cause named")
+        message = (f"best hypothesis {top.hypothesis} removes {top.gain_vs_none * 100:.1f} % of the held-out "
+                   f"error{top.measured_on} with evidence {top.evidence_vs_none:.1f} (a cause needs >= "
+                   f"{EVIDENCE_CAUSE:g} and >= {MIN_GAIN * 100:.0f} %): no cause named")
     # further causes, forward, each followed by the backward check that every chosen cause still earns its place
     # given the others (select_causes); the sets are fitted once, a set nested in a larger one refitted from it
     drops: tuple[str, ...] = ()

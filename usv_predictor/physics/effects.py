@@ -18,7 +18,9 @@ An Effect holds
                   not apply to; hypothesis_names(layout) and simulated(layout) give the applicable ones;
   step_resolution the share of the model step below which a fitted time (a delay) is not named;
   track_neutral   a sensor bias whose extension moves only the start's yaw rate (the gyro's): the diagnosis asks
-                  it not to raise the held-out track error rather than to lower it (analysis/diagnosis.py).
+                  it not to raise the held-out track error rather than to lower it (analysis/diagnosis.py);
+  channels        the diagnosis channels its extension alone moves (a compass offset: the two positions), () for
+                  all: the diagnosis measures its evidence and share of the loss on them (analysis/diagnosis.py).
 
 The vocabulary (simulator parameters):
   current              current_speed (m/s), current_to_deg (flows TOWARD), current_turn_rate_deg_s; a change
@@ -57,6 +59,8 @@ NONE = "none"  # the calm-water model: a hypothesis and a draw of the suite, but
 DEG_TO_RAD = math.pi / 180.0  # (rad/deg), exactly what math.radians multiplies by
 RAD_TO_DEG = 180.0 / math.pi  # (deg/rad), exactly what math.degrees multiplies by
 SIMULATOR_TARGETS = (Environment, ActuatorFaults, SensorSpec)  # the dataclasses an effect parameter can set
+CHANNELS = ("u", "v", "r", "x_n", "y_e", "psi")  # the diagnosis' residual channels, in data/segments.SIGMA's order
+POSITIONS = (3, 4)  # x_n, y_e among them
 
 
 # ---- the simulator side ---------------------------------------------------------------------------------
@@ -331,12 +335,18 @@ class Effect:
     #     extension changes only the start's yaw rate, so it need not lower the held-out track error, only not raise
     #     it by more than analysis/diagnosis.TRACK_NEUTRAL (an unknown boat's -0.488 deg/s gyro bias, found to the
     #     digit with evidence 20: track error 0.465 -> 0.467 m)
+    channels: tuple[int, ...] = ()  # the diagnosis channels (CHANNELS) its extension alone moves, () for all: the
+    #     others are predicted exactly as without it, so their likelihood is the same with and without it and the
+    #     evidence and share of the loss are measured on these (a compass offset rotates the integrated course, not
+    #     the body velocities, the yaw rate or the heading the rollout starts from; test_effects.py proves each)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tolerance", MappingProxyType(dict(self.tolerance)))
         object.__setattr__(self, "step_resolution", MappingProxyType(dict(self.step_resolution)))
         if not self.parameters and not self.not_simulated:
             raise ValueError(f"effect {self.name}: no simulator parameters; say why in not_simulated")
+        if any(c not in range(len(CHANNELS)) for c in self.channels) or len(set(self.channels)) != len(self.channels):
+            raise ValueError(f"effect {self.name}: channels {self.channels} are not distinct indices of {CHANNELS}")
 
     @property
     def simulated(self) -> bool:
@@ -392,15 +402,15 @@ def sea_parameter(name: str, default: float, low: float, high: float, unit: str,
 def scalar_effect(name: str, help: str, term: Term, vocabulary: tuple[str, float], tolerance: float,
                   parameter: EffectParameter | None = None, not_simulated: str = "",
                   layouts: tuple[str, ...] | None = None, step_resolution: float = 0.0,
-                  track_neutral: bool = False) -> Effect:
+                  track_neutral: bool = False, channels: tuple[int, ...] = ()) -> Effect:
     """An effect of one scalar term read as one vocabulary value: vocabulary = (key, factor), see ScalarReadout;
-    step_resolution: Effect.step_resolution of that value (0: none); track_neutral: Effect.track_neutral."""
+    step_resolution: Effect.step_resolution of that value (0: none); track_neutral, channels: Effect's."""
     key, factor = vocabulary
     readout = ScalarReadout(term.name, key, factor, None if parameter is None else parameter.name)
     return Effect(name, help, terms=(term,), readout=readout, parameters=() if parameter is None else (parameter,),
                   tolerance={key: tolerance} if parameter is not None else {}, not_simulated=not_simulated,
                   layouts=layouts, step_resolution={key: step_resolution} if step_resolution else {},
-                  track_neutral=track_neutral)
+                  track_neutral=track_neutral, channels=channels)
 
 
 RUDDER_LAYOUTS = ("rudder_propeller", "rudder_throttle", "rudder_only")  # a rudder behind an MMG propeller
@@ -471,7 +481,7 @@ EFFECTS: Mapping[str, Effect] = _registry(
                   Term("heading_offset", 1, 0.01, -0.6, 0.6, (0.0,), "rad"), ("offset_deg", RAD_TO_DEG), 1.0,  # (deg)
                   EffectParameter("heading_offset_deg", 3.0, -30.0, 30.0, "deg", "compass misalignment",
                                   SimulatorField(SensorSpec, "heading_offset", "rad", multiply=DEG_TO_RAD),
-                                  Uniform(2.0, 8.0, random_sign=True))),
+                                  Uniform(2.0, 8.0, random_sign=True)), channels=POSITIONS),
     scalar_effect("actuator_delay", "a delay: the hull responds this long after the reported rudder and engine speed",
                   # tolerance (s)
                   Term("actuator_delay", 1, 0.1, 0.0, 5.0, (0.2,), "s", settled=False), ("delay_s", 1.0), 0.2,
