@@ -14,6 +14,7 @@ import torch
 
 from usv_predictor.analysis import diagnosis, hidden_effects
 from usv_predictor.analysis.evaluation import angle_error_deg
+from usv_predictor.data import segments
 from usv_predictor.errors import ConfigError
 from usv_predictor.frames import angle_difference_deg, compass_deg
 from usv_predictor.models.greybox import GreyBoxRollout
@@ -181,6 +182,9 @@ def test_a_record_that_declares_channels_exists():
     """The compass offset is measured on the two positions (analysis/diagnosis.evidence_channels)."""
     assert EFFECTS["heading_offset"].channels == effects.POSITIONS == (3, 4)
     assert [effects.CHANNELS[c] for c in effects.POSITIONS] == ["x_n", "y_e"]
+    # the diagnosis' residual channels in data/segments' order (SIGMA; VELOCITY_HEADING the u, v, r, psi among them)
+    assert tuple(effects.CHANNELS.index(c) for c in ("u", "v", "r", "psi")) == segments.VELOCITY_HEADING
+    assert len(effects.CHANNELS) == len(segments.SIGMA)
     with pytest.raises(ValueError, match="not distinct indices"):
         dataclasses.replace(EFFECTS["heading_offset"], channels=(3, 6))
 

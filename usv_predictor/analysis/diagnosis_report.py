@@ -145,7 +145,8 @@ def write_report(directory: Path, out: dict, recordings: Sequence[Recording], ve
               "winner's evidence over it | parameters fitted on fold 1 / fold 2 |", "|---|---|---|---|---|---|"]
     for e in out["evidence"]:
         params = " / ".join(", ".join(f"{k} {_fmt(v, 3)}" for k, v in p.items()) or "—" for p in e["fold_parameters"])
-        share = "— (the fit diverged)" if e["gain_vs_none"] is None else f"{e['gain_vs_none'] * 100:.1f} %"
+        share = ("— (the fit diverged)" if e["gain_vs_none"] is None
+                 else f"{e['gain_vs_none'] * 100:.1f} %{e.get('measured_on', '')}")  # " in x_n, y_e": Effect.channels
         lines.append(f"| {e['hypothesis']} | {_fmt(e['heldout_loss'])} | {share} | "
                      f"{_fmt(e['evidence_vs_none'])} | {_fmt(e['evidence_of_best'])} | {params} |")
     lines += ["", "![evidence](evidence.png)", "", "## What the calm-water model gets wrong", "",
