@@ -44,7 +44,7 @@ what they derive from it is a RegistryView, so a record added to the registry sh
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
 from typing import Callable, Iterator, Mapping, Protocol, Sequence, TypeVar
 
@@ -402,15 +402,15 @@ def sea_parameter(name: str, default: float, low: float, high: float, unit: str,
 def scalar_effect(name: str, help: str, term: Term, vocabulary: tuple[str, float], tolerance: float,
                   parameter: EffectParameter | None = None, not_simulated: str = "",
                   layouts: tuple[str, ...] | None = None, step_resolution: float = 0.0,
-                  track_neutral: bool = False, channels: tuple[int, ...] = ()) -> Effect:
+                  track_neutral: bool = False) -> Effect:
     """An effect of one scalar term read as one vocabulary value: vocabulary = (key, factor), see ScalarReadout;
-    step_resolution: Effect.step_resolution of that value (0: none); track_neutral, channels: Effect's."""
+    step_resolution: Effect.step_resolution of that value (0: none); track_neutral: Effect.track_neutral."""
     key, factor = vocabulary
     readout = ScalarReadout(term.name, key, factor, None if parameter is None else parameter.name)
     return Effect(name, help, terms=(term,), readout=readout, parameters=() if parameter is None else (parameter,),
                   tolerance={key: tolerance} if parameter is not None else {}, not_simulated=not_simulated,
                   layouts=layouts, step_resolution={key: step_resolution} if step_resolution else {},
-                  track_neutral=track_neutral, channels=channels)
+                  track_neutral=track_neutral)
 
 
 RUDDER_LAYOUTS = ("rudder_propeller", "rudder_throttle", "rudder_only")  # a rudder behind an MMG propeller
@@ -477,11 +477,11 @@ EFFECTS: Mapping[str, Effect] = _registry(
                   EffectParameter("yaw_rate_bias_deg_s", 0.5, -5.0, 5.0, "deg/s", "gyro bias",  # tolerance (deg/s)
                                   SimulatorField(SensorSpec, "gyro_bias", "rad/s", multiply=DEG_TO_RAD),
                                   Uniform(0.2, 1.0, random_sign=True)), track_neutral=True),
-    scalar_effect("heading_offset", "a misaligned compass: the reported heading is the true one plus an offset",
+    replace(scalar_effect("heading_offset", "a misaligned compass: the reported heading is the true one plus an offset",
                   Term("heading_offset", 1, 0.01, -0.6, 0.6, (0.0,), "rad"), ("offset_deg", RAD_TO_DEG), 1.0,  # (deg)
                   EffectParameter("heading_offset_deg", 3.0, -30.0, 30.0, "deg", "compass misalignment",
                                   SimulatorField(SensorSpec, "heading_offset", "rad", multiply=DEG_TO_RAD),
-                                  Uniform(2.0, 8.0, random_sign=True)), channels=POSITIONS),
+                                  Uniform(2.0, 8.0, random_sign=True))), channels=POSITIONS),
     scalar_effect("actuator_delay", "a delay: the hull responds this long after the reported rudder and engine speed",
                   # tolerance (s)
                   Term("actuator_delay", 1, 0.1, 0.0, 5.0, (0.2,), "s", settled=False), ("delay_s", 1.0), 0.2,
