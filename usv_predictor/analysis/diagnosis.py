@@ -816,7 +816,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         # a hypothesis whose fit diverged (non-finite held-out loss) ranks last, never first (NaN does not sort)
         ranked = sorted(names, key=lambda n: (not math.isfinite(per_segment[n].mean()), per_segment[n].mean()))
         best = ranked[0]
-        return tuple(Evidence(n, float(per_segment[n].mean()), over_none(n)[1], over_none(n)[0],
+        scores = {n: over_none(n) for n in ranked}  # (evidence, share removed) over the calm-water model
+        return tuple(Evidence(n, float(per_segment[n].mean()), scores[n][1], scores[n][0],
                               0.0 if n == best else evidence_for(best, n), fold_params[n], _mean_track(per_track[n]),
                               track_gain(per_track[n], per_track["none"]), _channels_text(n))
                      for n in ranked)
