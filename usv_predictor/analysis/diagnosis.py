@@ -186,13 +186,10 @@ def segment_channel_scores(model: GreyBoxRollout, seg: Segments) -> tuple[np.nda
     return losses, track, by_channel
 
 
-def channel_loss(by_channel: np.ndarray | Sequence[float], channels: Sequence[int]) -> float:
-    """The held-out loss on `channels` (Effect.channels): the mean over them of each channel's mean over the segments
-    of (B, 6) segment_channel_scores (or of (6,) such means)."""
-    means = np.asarray(by_channel, dtype=float)
-    if means.ndim == 2:
-        means = np.nanmean(means, axis=0) if len(means) else np.full(means.shape[1], np.nan)
-    return float(np.mean(means[list(channels)]))
+def channel_loss(means: Sequence[float], channels: Sequence[int]) -> float:
+    """The held-out loss on `channels` (Effect.channels): the mean over them of the (6,) channel means of
+    _channel_means; NaN when the channels were not scored (no means)."""
+    return float(np.mean([means[c] for c in channels])) if len(means) else math.nan
 
 
 def _channel_means(by_channel: np.ndarray) -> tuple[float, ...]:
@@ -711,7 +708,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                          best_environmental_cause="")
     per_segment: dict[str, np.ndarray] = {}
     per_track: dict[str, np.ndarray] = {}
-    per_channel: dict[str, np.ndarray] = {}  # (B, 6) each channel's held-out loss per segment
+    per_channel: dict[str, tuple[float, ...]] = {}  # (6,) each channel's mean held-out loss (_channel_means)
     fold_params: dict[str, tuple[dict[str, float], ...]] = {}
     fold_segments = tuple(seg.select(np.isin(seg.recording, fold)) for fold in folds)
     # every set of causes fitted (the first round's single hypotheses, `none` as the empty set, the selection's
@@ -772,7 +769,8 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
 
     def first_round(name: str) -> None:
         key = frozenset() if name == "none" else frozenset({name})
-        per_segment[name], per_track[name], per_channel[name] = held_out(key)
+        per_segment[name], per_track[name], by_channel = held_out(key)
+        per_channel[name] = _channel_means(by_channel)
         fold_params[name] = tuple(f[2] for f in fitted[key][1])
 
     for name in names:
