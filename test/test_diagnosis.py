@@ -48,7 +48,9 @@ def test_vectors_become_the_design_vocabulary():
     assert wind["speed_mps"] == pytest.approx(8.0)
     assert wind["direction_from_deg"] == pytest.approx(0.0)
     waves = physical_parameters("wave_drift", {"wave_ne": (0.0, 0.25)})  # zeta_a^2 = 0.25 -> H_s = 1 m from the east
-    assert waves == pytest.approx({"significant_height_m": 1.0, "direction_from_deg": 90.0})
+    assert waves == pytest.approx({"significant_height_m": 1.0, "direction_from_deg": 90.0, "head_sea_resistance": 0.0})
+    waves = physical_parameters("wave_drift", {"wave_ne": (0.0, 0.25), "wave_resistance": (0.4,)})
+    assert waves["head_sea_resistance"] == 0.4  # C_AW (-) as the term holds it
     assert physical_parameters("rudder_offset",
                                {"rudder_offset": (math.radians(2.0),)}) == pytest.approx({"offset_deg": 2.0})
     assert physical_parameters("resistance",
@@ -499,7 +501,8 @@ def test_a_direction_is_probed_all_round_before_the_descent(monkeypatch):
     Levenberg-Marquardt descent, which starts from the lowest loss: the loss over a direction has more than one
     minimum. The Otter's draw 19 of `bench_diagnosis.py --vessel otter` (seed 2026; 1.17 m waves from 171 deg): from
     the record's start alone the descent ended at 0.64 m from 329 deg, a minimum 14 times the truth's loss, and
-    `diagnose` named it with 98 % of the held-out error removed, a confident wrong answer."""
+    `diagnose` named it with 98 % of the held-out error removed, a confident wrong answer (with the head-sea
+    resistance fitted too: 0.60 m from 334 deg, 7.3 times)."""
     from usv_predictor.analysis import diagnosis
     from usv_predictor.analysis.diagnosis_steps import diagnosis_steps
     from usv_predictor.physics.manoeuvres import programme
@@ -529,7 +532,7 @@ def test_a_direction_is_probed_all_round_before_the_descent(monkeypatch):
     monkeypatch.setattr(diagnosis, "PROBE_DIRECTIONS", 0)  # the start alone: the other basin
     height, direction, start_loss = fitted()
     assert abs((direction - truth["wave_from_deg"] + 180.0) % 360.0 - 180.0) > 90.0, direction
-    assert start_loss > 10.0 * found_loss
+    assert start_loss > 5.0 * found_loss
 
 
 @pytest.mark.slow
@@ -685,3 +688,35 @@ def test_a_gyro_bias_moves_only_the_start_and_is_judged_by_the_track_not_raised(
     assert not dg.lowers_track(raised, ("yaw_rate_bias", "current")) and not dg.lowers_track(raised, ())
     assert dg.Contribution("yaw_rate_bias", (), 0.3, 20.0, 0.6, raised).earns_place
     assert not dg.Contribution("current", (), 0.3, 20.0, 0.6, raised).earns_place
+
+
+def test_the_head_sea_resistance_is_found_where_the_description_lacks_it(monkeypatch):
+    """The unknown boats' waves (docs/results/unknown_boats.md): the truth's drift series pushes hard in head seas
+    (jari_usv: C_X(0) = -0.25), the description's short-wave estimate of the same hull (docs/vessel.md) hardly at
+    all (-0.02) and 2.4 times harder abeam. With the waves' height alone the fit trades surge against sway; with the
+    head-sea resistance C_AW it fits the surge the description lacks: in the description's units the truth's head
+    seas are -0.25 / 0.42 (the sway ratio), C_AW about 0.58. A model with the truth's series fits none and the height.
+    Drift only (no first-order motion)."""
+    estimate = dataclasses.replace(VESSEL.wave_drift, a_x=(0.0, -0.138, 0.127, -0.009), b_x=(), a_y=(0.0,),
+                                   b_y=(-0.837, -0.127, 0.149), a_n=(0.0,), b_n=(0.010, -0.023, -0.005))
+    description = dataclasses.replace(VESSEL, wave_drift=estimate)
+    env = Environment(wave_height=1.2, wave_from_deg=30.0, wave_components=0)
+    seg = make_segments(trial(env=env))
+    rollout = compiled_rollout(description, 0.5)
+    full = fit_hypothesis(rollout, seg, "wave_drift")
+    found = physical_parameters("wave_drift", full.terms)
+    assert abs((found["direction_from_deg"] - 30.0 + 180.0) % 360.0 - 180.0) < 10.0, found
+    assert 0.3 < found["head_sea_resistance"] < 0.9, found
+    exact = physical_parameters("wave_drift", fit_hypothesis(compiled_rollout(VESSEL, 0.5), seg, "wave_drift").terms)
+    assert exact["head_sea_resistance"] < 0.05, exact  # the truth's own series needs none ...
+    assert exact["significant_height_m"] == pytest.approx(1.2, abs=0.05), exact  # ... and gives the height
+    waves = fx.EFFECTS["wave_drift"]
+    height_only = dataclasses.replace(waves, terms=waves.terms[:1],
+                                      readout=dataclasses.replace(waves.readout, resistance_term=""))
+    monkeypatch.setattr(fx, "EFFECTS", {**fx.EFFECTS, "wave_drift": height_only})
+    with torch.no_grad():
+        rollout.module.wave_resistance.zero_()  # no longer a term of the records: set_terms leaves it
+    plain = fit_hypothesis(rollout, seg, "wave_drift")
+    assert "wave_resistance" not in plain.terms
+    assert full.loss < 0.5 * plain.loss, (full.loss, plain.loss)
+

@@ -13,7 +13,7 @@ from usv_predictor.physics.dynamics import CALM, ManoeuvringModel, SeaLoads
 from usv_predictor.physics.environment import Environment
 from usv_predictor.physics.manoeuvres import PullOut, RandomManoeuvre, Spiral, TurningCircle, ZigZag, sea_trial_turns
 from usv_predictor.physics.simulator import ActuatorFaults, simulate
-from usv_predictor.physics.vessel import load_vessel, vessel_from_dict
+from usv_predictor.physics.vessel import GRAVITY, RHO_WATER, load_vessel, vessel_from_dict
 
 
 @pytest.fixture(scope="module")
@@ -110,6 +110,20 @@ def test_wave_drift_pushes_away_from_the_waves(model):
     assert traj.nu[-1, 1] < -0.005  # waves from the east push the boat (heading north) west
     head = model.loads(5.0, 0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 650.0, SeaLoads(wave_amplitude=0.5, wave_from=0.0))
     assert head.waves[0] < 0.0 and head.waves[1] == pytest.approx(0.0, abs=1e-9)  # head seas: added resistance
+
+
+@pytest.mark.parametrize("chi_deg, share", [(0.0, 1.0), (60.0, 0.25), (-60.0, 0.25), (90.0, 0.0), (150.0, 0.0)])
+def test_the_head_sea_resistance_is_a_surge_force_over_the_bow_quarter(model, chi_deg, share):
+    """C_AW adds -0.5 rho g zeta_a^2 L C_AW max(cos chi, 0)^2 to the wave surge force and nothing to sway or yaw:
+    all of it in head seas, a quarter 60 deg off the bow on either side, none from abeam or astern."""
+    psi, amplitude, c_aw = 0.7, 0.5, 0.4  # heading (rad), zeta_a (m), C_AW (-)
+    sea = SeaLoads(wave_amplitude=amplitude, wave_from=psi + math.radians(chi_deg))
+    plain = model.loads(5.0, 0.3, 0.02, psi, 5.0, 0.3, 0.0, 650.0, sea).waves
+    added = model.loads(5.0, 0.3, 0.02, psi, 5.0, 0.3, 0.0, 650.0,
+                        dataclasses.replace(sea, wave_resistance=c_aw)).waves
+    q = 0.5 * RHO_WATER * GRAVITY * model.vessel.geometry.L_pp  # (N/m^2)
+    assert added[0] - plain[0] == pytest.approx(-q * amplitude**2 * c_aw * share, rel=1e-12, abs=1e-9)
+    assert added[1:] == plain[1:]
 
 
 def test_rudder_offset_makes_zero_reported_rudder_turn(model):

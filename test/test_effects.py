@@ -160,12 +160,15 @@ def test_the_tolerances_and_draw_ranges_are_the_published_ones():
 def test_every_grey_box_term_exists_and_acts_where_its_effects_apply(term, layout):
     """The attribute exists with the record's size on every rollout, and the equations use it: setting it changes
     the prediction of a boat whose layout its effects apply to, and only there (a rudder offset does nothing to a
-    twin-thruster boat, a thrust imbalance nothing to a rudder boat)."""
+    twin-thruster boat, a thrust imbalance nothing to a rudder boat). A term that scales another of its effect's
+    (the head-sea resistance, the waves') is set with the others at their start."""
     vessel = load_vessel(PRESET_OF_LAYOUT[layout])
     rollout = GreyBoxRollout(vessel, dt=0.5)
     assert tuple(getattr(rollout, term.name).shape) == (term.size,)
     state, controls = rollout_inputs(vessel)
     with torch.no_grad():
+        for sibling in {t for e in EFFECTS.values() if term in e.terms for t in e.terms} - {term}:
+            getattr(rollout, sibling.name)[:] = torch.tensor(sibling.start, dtype=torch.float64)
         calm = rollout(state, controls)  # (1, 1, H, 6)
         value = min(term.high, max(term.low, max(abs(x) for x in term.start) + 5.0 * term.scale))
         getattr(rollout, term.name)[:] = value
@@ -213,8 +216,8 @@ def test_an_effect_alone_moves_only_the_channels_it_declares(name, layout):
 def test_the_grey_box_terms_are_the_records_terms_in_order():
     rollout = GreyBoxRollout(VESSEL, dt=0.5)
     assert tuple(rollout.terms()) == rollout.term_names == tuple(effects.grey_box_terms()) == (
-        "current_ne", "wind_ne", "wave_ne", "rudder_offset", "yaw_rate_bias", "heading_offset", "actuator_delay",
-        "resistance_change", "propeller_side_force", "thrust_imbalance")
+        "current_ne", "wind_ne", "wave_ne", "wave_resistance", "rudder_offset", "yaw_rate_bias", "heading_offset",
+        "actuator_delay", "resistance_change", "propeller_side_force", "thrust_imbalance")
     # the hypothesis and the term keep their own public names; the record links them
     assert [t.name for t in EFFECTS["propeller_asymmetry"].terms] == ["propeller_side_force"]
 
@@ -308,9 +311,11 @@ def test_a_wrong_convention_fails_the_round_trip():
 
 
 def test_uncertainties_follow_the_readout():
-    fit = diagnosis.Fit("wave_drift", {"wave_ne": (0.0, 0.25)}, 1.0, {"wave_ne": (0.01, 0.0)}, 1, 0.0)
+    fit = diagnosis.Fit("wave_drift", {"wave_ne": (0.0, 0.25), "wave_resistance": (0.3,)}, 1.0,
+                        {"wave_ne": (0.01, 0.0), "wave_resistance": (0.05,)}, 1, 0.0)
     sd = diagnosis._physical_uncertainty("wave_drift", fit)
-    assert sd == pytest.approx({"significant_height_m": 0.02, "direction_from_deg": math.degrees(0.04)})
+    assert sd == pytest.approx({"significant_height_m": 0.02, "direction_from_deg": math.degrees(0.04),
+                                "head_sea_resistance": 0.05})
     fit = diagnosis.Fit("rudder_offset", {"rudder_offset": (0.0,)}, 1.0, {"rudder_offset": (0.001,)}, 1, 0.0)
     assert diagnosis._physical_uncertainty("rudder_offset", fit) == pytest.approx({"offset_deg": math.degrees(0.001)})
     fit = diagnosis.Fit("resistance", {"resistance_change": (0.1,)}, 1.0, {"resistance_change": (0.02,)}, 1, 0.0)

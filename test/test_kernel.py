@@ -49,7 +49,8 @@ def inputs(vessel, batch: int = 5, steps: int = 40, seed: int = 0) -> tuple[np.n
 
 
 TERMS = {  # every extension term, at a strength that changes the prediction
-    "current_ne": (0.3, -0.2), "wind_ne": (-6.0, 4.0), "wave_ne": (0.04, 0.03), "rudder_offset": (0.03,),
+    "current_ne": (0.3, -0.2), "wind_ne": (-6.0, 4.0), "wave_ne": (0.04, 0.03), "wave_resistance": (0.6,),
+    "rudder_offset": (0.03,),
     "yaw_rate_bias": (0.01,), "heading_offset": (0.05,), "actuator_delay": (0.7,), "resistance_change": (0.15,),
     "propeller_side_force": (0.02,), "thrust_imbalance": (0.08,),
 }
@@ -102,13 +103,42 @@ def test_a_term_changes_the_kernels_prediction():
     kernel = KernelRollout(module, live=True)
     state, controls, _ = inputs(vessel)
     calm = kernel.rollout(state, controls)
+    set_terms(module, {"wave_ne": TERMS["wave_ne"]})
+    waves = kernel.rollout(state, controls)
     for name, value in TERMS.items():
         if name == "thrust_imbalance":  # a twin-thruster term: the rudder boat has no thrusters
+            continue
+        if name == "wave_resistance":  # the head-sea resistance of waves: against the waves alone
+            set_terms(module, {"wave_ne": TERMS["wave_ne"], name: value})
+            assert relative_error(kernel.rollout(state, controls), waves) > 1e-4, name
             continue
         set_terms(module, {name: value})
         assert relative_error(kernel.rollout(state, controls), calm) > 1e-4, name
     set_terms(module, {})
     assert relative_error(kernel.rollout(state, controls), calm) == 0.0
+
+
+def test_a_file_without_a_later_term_runs_in_the_kernel_without_it():
+    """A grey box saved before a term existed holds the other terms in order: the kernel reads the absent one as
+    zero (the model that file holds has none of it) instead of refusing the file to the slow torch rollout."""
+    vessel = VESSELS["jari_usv (mmg, rudder_propeller)"]
+    module = GreyBoxRollout(vessel, dt=DT)
+    set_terms(module, TERMS)
+    older = GreyBoxRollout(vessel, dt=DT)
+    set_terms(older, {**TERMS, "wave_resistance": (0.0,)})
+    del older.wave_resistance
+    older.term_names = tuple(n for n in older.term_names if n != "wave_resistance")
+    state, controls, reference = inputs(vessel)
+    with torch.no_grad():
+        module.wave_resistance.zero_()
+    same = KernelRollout(module).rollout(state, controls, reference)
+    assert np.array_equal(KernelRollout(older).rollout(state, controls, reference), same)
+    with torch.no_grad():
+        module.wave_resistance[:] = TERMS["wave_resistance"][0]
+    assert relative_error(KernelRollout(module).rollout(state, controls, reference), same) > 1e-4
+    older.term_names = ("wind_ne", "current_ne")  # out of order: not a file of this model
+    with pytest.raises(KernelUnavailable, match="extension terms"):
+        KernelRollout(older)
 
 
 @pytest.mark.parametrize("substeps", [1, 3])

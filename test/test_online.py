@@ -461,3 +461,46 @@ def test_the_filter_holds_the_grey_box_engine_speed_in_wind_current_and_a_resist
     assert estimates[-1].current_ne == pytest.approx(tuple(0.25 * along), abs=1e-4)
     assert estimates[-1].state[K_R] == pytest.approx(0.08, abs=1e-4)
     assert max(e.nis for e in estimates[1:]) < 1e-4
+
+
+def test_the_process_model_takes_every_fixed_term_as_the_grey_box_does():
+    """Twins: the filter's process model (physics/dynamics via the kernel) is the grey box's (models/greybox.py) with
+    the terms the model carries (effects.FIXED_TERMS): their accelerations agree to rounding at a drifting, turning
+    state in every direction of the sea. Each term alone moves them (so the equality can fail)."""
+    import torch
+
+    from usv_predictor.models.greybox import GreyBoxRollout
+    from usv_predictor.physics import effects
+
+    vessel = load_vessel("jari_usv")
+    terms = {"rudder_offset": [0.02], "propeller_side_force": [0.03], "wind_ne": [-6.0, 3.0],
+             "wave_ne": [0.05, -0.04], "wave_resistance": [0.6]}  # SI, every fixed term of a rudder boat
+    assert set(terms) | {"thrust_imbalance"} == set(effects.FIXED_TERMS)
+    grey = GreyBoxRollout(vessel, dt=DT)
+    state = (4.5, 0.3, 0.04, 0.2, 650.0)  # u_r, v_r (m/s), r (rad/s), rudder (rad), rpm
+
+    def both(active: dict) -> tuple[np.ndarray, np.ndarray]:
+        estimator = OnlineEstimator(vessel, None, active)
+        estimator.x = estimator.prior_mean.copy()  # no current: the state the first step starts from
+        with torch.no_grad():
+            for name in effects.grey_box_terms():
+                getattr(grey, name).zero_()
+            for name, value in active.items():
+                getattr(grey, name)[:] = torch.tensor(value, dtype=torch.float64)
+        filtered, twin = [], []
+        for psi in np.radians(np.arange(0.0, 360.0, 45.0)):
+            u, v, r, delta, rpm = state
+            true_rudder = delta + estimator.rudder_offset  # the rollout adds the offset to the reported rudder
+            filtered.append(estimator._accel(psi, u, v, r, true_rudder, rpm, 0.0, estimator._sea()))
+            with torch.no_grad():
+                twin.append([float(x) for x in grey._accelerations(*(torch.tensor([x], dtype=torch.float64)
+                                                                    for x in (psi, u, v, r, true_rudder, rpm)))])
+        return np.array(filtered), np.array(twin)
+
+    calm, _ = both({})
+    filtered, twin = both(terms)
+    assert np.abs(filtered - twin).max() < 1e-9 * (1.0 + np.abs(twin).max())
+    for name, value in terms.items():
+        alone, _ = both({name: value, **({"wave_ne": terms["wave_ne"]} if name == "wave_resistance" else {})})
+        reference = both({"wave_ne": terms["wave_ne"]})[0] if name == "wave_resistance" else calm
+        assert np.abs(alone - reference).max() > 1e-4, name

@@ -86,7 +86,8 @@ U_R, V_R, R, C_N, C_E, B_R, K_R = range(7)
 N_STATE = 7
 NU = slice(0, 3)  # the velocity states
 TERMS = dict(zip(effects.ONLINE_TERMS, ((C_N, C_E), (B_R,), (K_R,))))  # grey-box term -> its states
-RUDDER_OFFSET, SIDE_FORCE, IMBALANCE, WIND, WAVE = effects.FIXED_TERMS  # terms the process model takes as they are
+# the terms the process model takes as they are
+RUDDER_OFFSET, SIDE_FORCE, IMBALANCE, WIND, WAVE, WAVE_RESISTANCE = effects.FIXED_TERMS
 FD_STEP = (1e-4, 1e-4, 1e-5)  # central-difference steps for d(nu_r_dot)/d(u_r, v_r, r) (m/s, m/s, rad/s)
 HELD_FD_STEP = 1e-5  # central-difference step in k_R (-) of the held engine speed (rudder_only)
 
@@ -237,8 +238,8 @@ class OnlineEstimator:
 
     vessel: the grey box's vessel (its hull as identified, if it is); terms: the grey-box terms the model already
     carries (models/greybox.py names, SI: current_ne, yaw_rate_bias, resistance_change are the prior means of the
-    states; rudder_offset, propeller_side_force, thrust_imbalance, wind_ne, wave_ne enter the process model as
-    they are; actuator_delay is not modelled by the filter).
+    states; rudder_offset, propeller_side_force, thrust_imbalance, wind_ne, wave_ne, wave_resistance enter the
+    process model as they are; actuator_delay is not modelled by the filter).
     """
 
     def __init__(self, vessel: Vessel, config: OnlineConfig | None = None,
@@ -253,7 +254,8 @@ class OnlineEstimator:
         wave = terms.get(WAVE, [0.0, 0.0])
         self._wind = (math.hypot(*wind), math.atan2(-wind[1], -wind[0]) if any(wind) else 0.0)  # speed, FROM (rad)
         wave_amp2 = math.hypot(*wave)  # zeta_a^2 (m^2) along the direction FROM
-        self._wave = (math.sqrt(wave_amp2), math.atan2(wave[1], wave[0]) if any(wave) else 0.0)
+        self._wave = (math.sqrt(wave_amp2), math.atan2(wave[1], wave[0]) if any(wave) else 0.0,
+                      _term(terms, WAVE_RESISTANCE))  # zeta_a (m), FROM (rad), C_AW (-)
         self.prior_mean = np.zeros(N_STATE)
         for name, index in TERMS.items():
             if name in terms:
@@ -437,7 +439,8 @@ class OnlineEstimator:
 
     def _sea(self) -> SeaLoads:
         return SeaLoads(current_n=float(self.x[C_N]), current_e=float(self.x[C_E]), wind_speed=self._wind[0],
-                        wind_from=self._wind[1], wave_amplitude=self._wave[0], wave_from=self._wave[1])
+                        wind_from=self._wind[1], wave_amplitude=self._wave[0], wave_from=self._wave[1],
+                        wave_resistance=self._wave[2])
 
     def _accel(self, psi: float, u_r: float, v_r: float, r: float, a: float, b: float, k_r: float,
                sea: SeaLoads) -> tuple[float, float, float]:

@@ -34,7 +34,12 @@ at the same engine setting: the engine speed is not the calm-water one of that s
 Extension terms (all zero for the calm-water model; one attribute per Term of the effect records in
 usv_predictor.physics.effects, which say which diagnosis hypothesis fits them; their equations are here):
     current_ne (2,) current velocity north/east (m/s);     wind_ne (2,) wind velocity (toward) north/east (m/s)
-    wave_ne (2,) zeta_a^2 (m^2) along the direction the waves come FROM; rudder_offset (rad, true - reported)
+    wave_ne (2,) zeta_a^2 (m^2) along the direction the waves come FROM;
+    wave_resistance (1,) C_AW (-), the head-sea added resistance beyond the drift series: a surge force
+        -0.5 rho g zeta_a^2 L C_AW max(cos chi, 0)^2 (chi = wave direction FROM - heading): the short-wave drift of a
+        transverse wall at the bow (Faltinsen 1990 sec. 5, as physics/empirical.short_wave_drift: the force of a lit
+        wall goes with sin^2 of the incidence), the head-sea resistance a description's waterline lacks;
+    rudder_offset (rad, true - reported)
     yaw_rate_bias (rad/s, measured - true); heading_offset (rad, measured - true);
     actuator_delay (s, the hull feels the reported controls this much later);
     resistance_change (-, relative change of the calm-water resistance: R0 of the MMG hull, X_u and X_uu of the
@@ -422,15 +427,16 @@ class GreyBoxRollout(nn.Module):
 
     def _sea_terms(self) -> List[Tensor]:
         """What the sea loads take from the extension terms, the same over a rollout: [current north, east (m/s),
-        wind north, east (m/s), q_wave zeta_a^2 (N), the direction the waves come from (rad)], each 0-dim, or (B,)
-        when the terms are set per row."""
+        wind north, east (m/s), q_wave zeta_a^2 (N), the direction the waves come from (rad), q_wave zeta_a^2 C_AW
+        (N)], each 0-dim, or (B,) when the terms are set per row."""
         amp = torch.sqrt(self.wave_ne[0] ** 2 + self.wave_ne[1] ** 2 + 1e-30)  # finite gradient at zero
-        return [self.current_ne[0], self.current_ne[1], self.wind_ne[0], self.wind_ne[1], self.q_wave * amp,
-                torch.atan2(self.wave_ne[1], self.wave_ne[0])]
+        drift = self.q_wave * amp
+        return [self.current_ne[0], self.current_ne[1], self.wind_ne[0], self.wind_ne[1], drift,
+                torch.atan2(self.wave_ne[1], self.wave_ne[0]), drift * self.wave_resistance[0]]
 
     def _sea_loads(self, psi: Tensor, u_r: Tensor, v_r: Tensor) -> List[Tensor]:
         """[X, Y, N] of the sea terms on (B,) heading psi and water velocity u_r, v_r: the wind over the still-air
-        drag (seed 000 eq. 12-18) and the mean wave drift (eq. 19)."""
+        drag (seed 000 eq. 12-18) and the mean wave drift (eq. 19) with its head-sea added resistance."""
         return self._sea_loads_with(self._sea_terms(), psi, u_r, v_r)
 
     def _sea_loads_with(self, sea: List[Tensor], psi: Tensor, u_r: Tensor, v_r: Tensor) -> List[Tensor]:
@@ -446,7 +452,8 @@ class GreyBoxRollout(nn.Module):
         chi = sea[5] - psi
         qw = sea[4]
         drift = self._drift(chi)
-        x_wv = qw * drift[0]
+        head = torch.clamp(torch.cos(chi), min=0.0)
+        x_wv = qw * drift[0] - sea[6] * head * head
         y_wv = qw * drift[1]
         n_wv = qw * L * drift[2]
         return [x_w + x_wv, y_w + y_wv, n_w + n_wv]

@@ -31,8 +31,9 @@ Actuator force models (physics/actuators.py, one class here per layout, ACTUATOR
                     lagged command; a thrust imbalance k (thruster_imbalance) multiplies port by (1 + k), starboard
                     by (1 - k): k > 0 is a weaker starboard side, the boat pulls to starboard at equal commands.
 tau_wind is seed 000 eq. 12-18 on the apparent wind over ground (the increment over still air), tau_wave the mean
-drift of seed 000 eq. 19, for every hull model. N > 0 turns the bow to starboard (r > 0): positive rudder angles
-and more port thrust do.
+drift of seed 000 eq. 19 (with a head-sea added resistance -0.5 rho g zeta_a^2 L C_AW max(cos chi, 0)^2 in surge when
+a model carries one: the grey box's wave_resistance term), for every hull model. N > 0 turns the bow to starboard
+(r > 0): positive rudder angles and more port thrust do.
 
 The forces and accelerations are the compiled kernel's (physics/kernel.py: loads, accelerations, with the constants
 of kernel_constants), the equations the grey box's rollout integrates too, so the simulator, the grey
@@ -96,6 +97,8 @@ class SeaLoads:
     wind_from: float = 0.0  # direction the wind blows from (rad, clockwise from north)
     wave_amplitude: float = 0.0  # zeta_a for the drift force (m)
     wave_from: float = 0.0  # direction the waves come from (rad)
+    wave_resistance: float = 0.0  # head-sea added-resistance coefficient C_AW beyond the drift series (-): a surge
+    #                               force -0.5 rho g zeta_a^2 L C_AW max(cos chi, 0)^2 (models/greybox.py)
 
 
 CALM = SeaLoads()
@@ -402,7 +405,7 @@ class ManoeuvringModel(metaclass=ABCMeta):
         kernel = self._kernel()[0]
         return kernel.sea_tuple(*map(float, (self.q_wave, sea.current_n if current else 0.0,
                                              sea.current_e if current else 0.0, sea.wind_speed, sea.wind_from,
-                                             sea.wave_amplitude, sea.wave_from)))
+                                             sea.wave_amplitude, sea.wave_from, sea.wave_resistance)))
 
     def __reduce__(self) -> tuple:
         """Pickled as the arguments that rebuild it (its class is made per hull model and layout)."""

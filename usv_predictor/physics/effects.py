@@ -281,19 +281,22 @@ class VelocityReadout(_Compared):
 @dataclass(frozen=True)
 class WaveReadout(_Compared):
     """The wave term zeta_a^2 (m^2) along the direction the waves come FROM, read as H_s = 2 sqrt(|term|) (m,
-    zeta_a = H_s / 2 as in physics/environment.py) and that direction (deg)."""
+    zeta_a = H_s / 2 as in physics/environment.py) and that direction (deg); with a resistance term, also the
+    head-sea added-resistance coefficient C_AW (-) it holds as it is (models/greybox.py)."""
 
     term: str
     height_parameter: str  # H_s (m)
     direction_parameter: str  # waves come FROM (deg)
+    resistance_term: str = ""  # C_AW beyond the drift series (-); "": none
 
     @property
     def terms(self) -> tuple[str, ...]:
-        return (self.term,)
+        return (self.term, self.resistance_term) if self.resistance_term else (self.term,)
 
     @property
     def keys(self) -> tuple[str, ...]:
-        return ("significant_height_m", "direction_from_deg")
+        resistance = ("head_sea_resistance",) if self.resistance_term else ()
+        return ("significant_height_m", "direction_from_deg", *resistance)
 
     @property
     def comparisons(self) -> tuple[Comparison, ...]:
@@ -302,18 +305,26 @@ class WaveReadout(_Compared):
 
     def read(self, terms: Mapping[str, Sequence[float]]) -> dict[str, float]:
         n, e = terms[self.term]
-        return {"significant_height_m": 2.0 * math.sqrt(math.hypot(n, e)), "direction_from_deg": compass_deg(n, e)}
+        out = {"significant_height_m": 2.0 * math.sqrt(math.hypot(n, e)), "direction_from_deg": compass_deg(n, e)}
+        if self.resistance_term:  # a term not given is zero, as the grey box holds it
+            out["head_sea_resistance"] = float(terms.get(self.resistance_term, (0.0,))[0])
+        return out
 
     def uncertainty(self, terms: Mapping[str, Sequence[float]], std: Mapping[str, Sequence[float]]) -> dict[str, float]:
         spread, magnitude = math.hypot(*std[self.term]), math.hypot(*terms[self.term])
         # H_s = 2 sqrt(|w|): dH = d|w| / sqrt(|w|)
-        return {"significant_height_m": spread / max(math.sqrt(magnitude), 1e-9),
-                "direction_from_deg": _direction_sd_deg(spread, magnitude)}
+        out = {"significant_height_m": spread / max(math.sqrt(magnitude), 1e-9),
+               "direction_from_deg": _direction_sd_deg(spread, magnitude)}
+        if self.resistance_term in std:
+            out["head_sea_resistance"] = float(std[self.resistance_term][0])
+        return out
 
     def terms_from_truth(self, parameters: Mapping[str, float]) -> dict[str, tuple[float, ...]]:
+        """The simulator's waves push with its vessel's own drift series: a model of it needs no added resistance."""
         amplitude2 = (parameters[self.height_parameter] / 2.0) ** 2  # zeta_a^2 (m^2)
         direction = math.radians(parameters[self.direction_parameter])
-        return {self.term: (amplitude2 * math.cos(direction), amplitude2 * math.sin(direction))}
+        resistance = {self.resistance_term: (0.0,)} if self.resistance_term else {}
+        return {self.term: (amplitude2 * math.cos(direction), amplitude2 * math.sin(direction)), **resistance}
 
 
 # ---- the record -----------------------------------------------------------------------------------------
@@ -414,6 +425,10 @@ def scalar_effect(name: str, help: str, term: Term, vocabulary: tuple[str, float
 
 
 RUDDER_LAYOUTS = ("rudder_propeller", "rudder_throttle", "rudder_only")  # a rudder behind an MMG propeller
+# the fit's bound of the head-sea added-resistance coefficient C_AW (-, in 0.5 rho g zeta_a^2 L): total reflection on
+# a blunt bow gives B / L (Faltinsen 1990 sec. 5), and measured added resistance peaks at several times its
+# short-wave value where the waves are about as long as the hull
+WAVE_RESISTANCE_MAX = 2.0
 
 
 EFFECTS: Mapping[str, Effect] = _registry(
@@ -454,11 +469,15 @@ EFFECTS: Mapping[str, Effect] = _registry(
     ),
     Effect(
         "wave_drift", "waves: the mean second-order wave drift force and moment",
-        terms=(Term("wave_ne", 2, 0.02, -4.0, 4.0, (0.01, 0.01), "m^2", probe=0.25),),  # zeta_a^2 along the direction
-        #     FROM; probed at 0.25 m^2 (H_s 1 m, within the suite's 0.8-1.5 m): the drift coefficients' harmonics of
-        #     the encounter angle give the loss more than one minimum over the direction (bench_diagnosis.py --vessel
-        #     otter, draw 19: from the start 0.64 m from 329 deg, loss 677; the truth 1.17 m from 171 deg, 47.6)
-        readout=WaveReadout("wave_ne", "wave_height", "wave_from_deg"),
+        terms=(Term("wave_ne", 2, 0.02, -4.0, 4.0, (0.01, 0.01), "m^2", probe=0.25),  # zeta_a^2 along the direction
+               #     FROM; probed at 0.25 m^2 (H_s 1 m, within the suite's 0.8-1.5 m): the drift coefficients'
+               #     harmonics of the encounter angle give the loss more than one minimum over the direction
+               #     (bench_diagnosis.py --vessel otter, draw 19: from the start 0.64 m from 329 deg, loss 677; the
+               #     truth 1.17 m from 171 deg, 47.6)
+               Term("wave_resistance", 1, 0.1, 0.0, WAVE_RESISTANCE_MAX, (0.0,), "-")),  # C_AW beyond the drift
+        #     series (models/greybox.py): a description's short-wave drift (physics/empirical.py) has almost no
+        #     head-sea surge force, the added resistance of a real bow in waves (docs/results/unknown_boats.md)
+        readout=WaveReadout("wave_ne", "wave_height", "wave_from_deg", resistance_term="wave_resistance"),
         parameters=(
             sea_parameter("wave_height", 0.5, 0.0, 4.0, "m", "significant wave height", Uniform(0.8, 1.5)),
             sea_parameter("wave_from_deg", 0.0, 0.0, 360.0, "deg", "direction the waves come from",
@@ -516,8 +535,9 @@ EFFECTS: Mapping[str, Effect] = _registry(
 # The grey-box terms it estimates as states, in its state order (current north/east, gyro bias, resistance change)
 ONLINE_TERMS = ("current_ne", "yaw_rate_bias", "resistance_change")
 # The terms its float process model takes as the model carries them: a rudder offset, the propeller side force, the
-# thrust imbalance, the wind and the wave drift (their equations: physics/dynamics.py, as models/greybox.py's)
-FIXED_TERMS = ("rudder_offset", "propeller_side_force", "thrust_imbalance", "wind_ne", "wave_ne")
+# thrust imbalance, the wind, the wave drift and its head-sea resistance (their equations: physics/dynamics.py, as
+# models/greybox.py's)
+FIXED_TERMS = ("rudder_offset", "propeller_side_force", "thrust_imbalance", "wind_ne", "wave_ne", "wave_resistance")
 
 
 # ---- what consumers derive -------------------------------------------------------------------------------

@@ -10,8 +10,9 @@ term and residual), whose equations are those of physics/dynamics.py:
 
 with the MMG hull (Yasukawa & Yoshimura 2015 eq. 4-8) or Fossen's small-craft hull (2021 ch. 6, cross-flow drag by
 strips), the MMG rudder and propeller (eq. 10-16, 37-43) or twin thrusters with thrust maps and exact first-order
-motor lags, the wind of seed 000 eq. 12-18 and the wave drift of eq. 19, RK4 with `substeps` per step and a
-first-order hold of the reported controls (models/greybox.py's module docstring has the interface and every term).
+motor lags, the wind of seed 000 eq. 12-18 and the wave drift of eq. 19 with its head-sea resistance, RK4 with
+`substeps` per step and a first-order hold of the reported controls (models/greybox.py's module docstring has the
+interface and every term).
 
 Why compiled: the torch twin is ~150 tensor operations on (B,) tensors per RK4 stage, each a few microseconds of
 dispatch for a few nanoseconds of arithmetic. Here a stage is ~300 scalar flops (a few hundred more with the
@@ -128,11 +129,13 @@ P_NAMES = (
  P_MLP_SUPPORT_WIDTH) = range(len(P_NAMES))
 
 # ---- extension terms, effects.grey_box_terms' order (models/kernel_rollout.py checks it), right after the constants
-T_NAMES = ("current_ne", "current_ne", "wind_ne", "wind_ne", "wave_ne", "wave_ne", "rudder_offset", "yaw_rate_bias",
-           "heading_offset", "actuator_delay", "resistance_change", "propeller_side_force", "thrust_imbalance")
+T_NAMES = ("current_ne", "current_ne", "wind_ne", "wind_ne", "wave_ne", "wave_ne", "wave_resistance", "rudder_offset",
+           "yaw_rate_bias", "heading_offset", "actuator_delay", "resistance_change", "propeller_side_force",
+           "thrust_imbalance")
 T_BASE = len(P_NAMES)
-(T_CURRENT_N, T_CURRENT_E, T_WIND_N, T_WIND_E, T_WAVE_N, T_WAVE_E, T_RUDDER_OFFSET, T_YAW_RATE_BIAS, T_HEADING_OFFSET,
- T_ACTUATOR_DELAY, T_RESISTANCE_CHANGE, T_SIDE_FORCE, T_THRUST_IMBALANCE) = range(T_BASE, T_BASE + len(T_NAMES))
+(T_CURRENT_N, T_CURRENT_E, T_WIND_N, T_WIND_E, T_WAVE_N, T_WAVE_E, T_WAVE_RESISTANCE, T_RUDDER_OFFSET, T_YAW_RATE_BIAS,
+ T_HEADING_OFFSET, T_ACTUATOR_DELAY, T_RESISTANCE_CHANGE, T_SIDE_FORCE,
+ T_THRUST_IMBALANCE) = range(T_BASE, T_BASE + len(T_NAMES))
 N_TERMS = len(T_NAMES)
 N_POLY = 7  # the Abkowitz terms X_du, Y_0, Y_duv, Y_dur, N_0, N_duv, N_dur (models/hybrid.EXTRA_NAMES)
 N_FEATURES = 7  # models/hybrid.GENERALISING_FEATURES
@@ -233,9 +236,10 @@ def _air_load(p, u_rw, v_rw):
 @_compiled
 def _sea_loads(ki, p, sea, c, s, psi, u_r, v_r):
     """(X, Y, N) of the wind over the still-air drag and the mean wave drift at heading psi (c, s its cosine and sine);
-    sea = _sea_of's (current n, e, wind n, e (m/s), q_wave zeta_a^2 (N), wave direction from (rad), waves on (1/0)):
-    GreyBoxRollout._sea_loads_with. Without wind the increment is exactly zero and is not computed; without waves
-    the drift is left out (the torch twin adds a 1e-15 m wave's, the price of a finite gradient at zero there)."""
+    sea = _sea_of's (current n, e, wind n, e (m/s), q_wave zeta_a^2 (N), wave direction from (rad), waves on (1/0),
+    q_wave zeta_a^2 C_AW (N): the head-sea added resistance beyond the drift series): GreyBoxRollout._sea_loads_with.
+    Without wind the increment is exactly zero and is not computed; without waves the drift is left out (the torch
+    twin adds a 1e-15 m wave's, the price of a finite gradient at zero there)."""
     x = y = n = 0.0
     if sea[2] != 0.0 or sea[3] != 0.0:
         u_g = u_r + sea[0] * c + sea[1] * s
@@ -249,17 +253,20 @@ def _sea_loads(ki, p, sea, c, s, psi, u_r, v_r):
         x += qw * _fourier(ki, p, 0, chi)
         y += qw * _fourier(ki, p, 1, chi)
         n += qw * p[P_L_SEA] * _fourier(ki, p, 2, chi)
+        if sea[7] != 0.0:
+            head = max(math.cos(chi), 0.0)
+            x -= sea[7] * head * head
     return x, y, n
 
 
 @_compiled
 def _sea_of(p):
     """The sea terms' values over a rollout (GreyBoxRollout._sea_terms): current, wind, q_wave zeta_a^2, wave from,
-    and whether there are waves."""
+    whether there are waves, and q_wave zeta_a^2 C_AW."""
     amp = math.sqrt(p[T_WAVE_N] ** 2 + p[T_WAVE_E] ** 2 + 1e-30)  # as the torch twin (a finite gradient there)
     waves = 1.0 if p[T_WAVE_N] != 0.0 or p[T_WAVE_E] != 0.0 else 0.0
     return (p[T_CURRENT_N], p[T_CURRENT_E], p[T_WIND_N], p[T_WIND_E], p[P_Q_WAVE] * amp,
-            math.atan2(p[T_WAVE_E], p[T_WAVE_N]), waves)
+            math.atan2(p[T_WAVE_E], p[T_WAVE_N]), waves, p[P_Q_WAVE] * amp * p[T_WAVE_RESISTANCE])
 
 
 # ---- hull models ----------------------------------------------------------------------------------------------------
@@ -550,9 +557,9 @@ def loads(ki, p, sea, psi, u_r, v_r, r, a, b):
     c, s = math.cos(psi), math.sin(psi)
     hx, hy, hn = _hull_forces(ki, p, u_r, v_r, r)
     ax, ay, an, px, py, pn = _actuator_forces(ki, p, u_r, v_r, r, a, b)
-    calm = (sea[0], sea[1], sea[2], sea[3], 0.0, 0.0, 0.0)
+    calm = (sea[0], sea[1], sea[2], sea[3], 0.0, 0.0, 0.0, 0.0)
     wx, wy, wn = _sea_loads(ki, p, calm, c, s, psi, u_r, v_r)
-    waves = (sea[0], sea[1], 0.0, 0.0, sea[4], sea[5], sea[6])
+    waves = (sea[0], sea[1], 0.0, 0.0, sea[4], sea[5], sea[6], sea[7])
     vx, vy, vn = _sea_loads(ki, p, waves, c, s, psi, u_r, v_r)
     return hx, hy, hn, ax, ay, an, px, py, pn, wx, wy, wn, vx, vy, vn
 
@@ -587,11 +594,13 @@ def accelerations(ki, p, sea, psi, u_r, v_r, r, a, b, accel_n, accel_e):
 
 
 def sea_tuple(q_wave: float, current_n: float, current_e: float, wind_speed: float, wind_from: float,
-              wave_amplitude: float, wave_from: float) -> tuple[float, ...]:
+              wave_amplitude: float, wave_from: float, wave_resistance: float) -> tuple[float, ...]:
     """The kernel's sea (_sea_of) from the float model's: the wind's velocity TOWARD (north, east) from its speed and
-    the direction it blows FROM, the wave drift's q_wave zeta_a^2 (N) and direction."""
+    the direction it blows FROM, the wave drift's q_wave zeta_a^2 (N) and direction, and its head-sea added
+    resistance q_wave zeta_a^2 C_AW (N)."""
+    drift = q_wave * wave_amplitude * wave_amplitude
     return (current_n, current_e, -wind_speed * math.cos(wind_from), -wind_speed * math.sin(wind_from),
-            q_wave * wave_amplitude * wave_amplitude, wave_from, 1.0 if wave_amplitude > 0.0 else 0.0)
+            drift, wave_from, 1.0 if wave_amplitude > 0.0 else 0.0, drift * wave_resistance)
 
 
 # ---- the rollout ----------------------------------------------------------------------------------------------------
