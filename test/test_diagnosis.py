@@ -720,3 +720,24 @@ def test_the_head_sea_resistance_is_found_where_the_description_lacks_it(monkeyp
     assert "wave_resistance" not in plain.terms
     assert full.loss < 0.5 * plain.loss, (full.loss, plain.loss)
 
+
+def test_a_direction_is_probed_at_its_magnitude_and_at_half_of_it():
+    """_probes: every PROBE_SHARES share of Term.probe toward every PROBE_DIRECTIONS direction, the other terms as the
+    start holds them, a term given a start not probed. Half the magnitude: a wind's load goes with its speed squared,
+    and an unknown boat's 5.4 m/s wind probed at 8 m/s alone (2.2 times its load) ended one fold's descent at
+    1.4 m/s from 307 deg (benchmarks/bench_unknown_boats.py boat 20; named 5.3 m/s from 108 deg with both)."""
+    from usv_predictor.analysis.diagnosis import PROBE_DIRECTIONS, PROBE_SHARES, _probes
+
+    wind, waves = fx.EFFECTS["wind"].terms[0], fx.EFFECTS["wave_drift"].terms
+    terms = (wind, *waves)  # wind_ne (2), wave_ne (2), wave_resistance (1)
+    theta = np.array([0.1, 0.2, 0.3, 0.4, 0.5])
+    probes = _probes(terms, [2, 2, 1], theta, {})
+    assert PROBE_SHARES == (1.0, 0.5) and len(probes) == 2 * len(PROBE_SHARES) * PROBE_DIRECTIONS
+    for term, k, group in ((wind, 0, probes[:16]), (waves[0], 2, probes[16:])):
+        magnitudes = sorted({round(float(np.hypot(*p[k:k + 2])) * term.scale, 12) for p in group})
+        assert magnitudes == [0.5 * term.probe, term.probe], term.name
+        east_of_north = sorted({round(math.degrees(math.atan2(p[k + 1], p[k])) % 360.0, 9) for p in group})
+        assert east_of_north == [45.0 * j for j in range(8)], term.name
+        others = [j for j in range(5) if j not in (k, k + 1)]
+        assert all(np.array_equal(p[others], theta[others]) for p in group), term.name
+    assert len(_probes(terms, [2, 2, 1], theta, {"wind_ne": (1.0, 0.0)})) == len(PROBE_SHARES) * PROBE_DIRECTIONS

@@ -104,7 +104,11 @@ NESTED_REFIT = 1e-3  # a set of causes is refitted from a larger set's fit (sele
 #                      without the other causes' terms, leaves at least this share less of the fold's loss than the
 #                      set's own fit (smaller differences are the fit's convergence tolerance, not a poorer minimum)
 PROBE_DIRECTIONS = 8  # (-) compass directions (every 45 deg) a direction-valued term is probed at before the fit's
-#                       descent (Term.probe, _probes)
+#                       descent (Term.probe, _probes) ...
+PROBE_SHARES = (1.0, 0.5)  # ... at these shares of its probe magnitude (-): a wind's load goes with the square of its
+#                            speed, so a probe of more than twice the truth's load loses to the start near zero and
+#                            the descent ends in another basin (an unknown boat's 5.4 m/s wind probed at 8 m/s alone,
+#                            2.2 times its load: 1.4 m/s from 307 deg on one fold, for 5.4 from 107)
 MISMATCH_LOSS = 25.0  # held-out loss (mean squared error in noise units) the best model may leave ...
 MISMATCH_SHARE = 0.5  # ... unless its causes removed more than half of the calm-water model's: above both, no
 #                       environmental cause explains the data and the answer is model_mismatch (waves of 1.1 m
@@ -372,16 +376,18 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
 def _probes(terms: Sequence[Term], sizes: Sequence[int], theta: np.ndarray,
             given: Mapping[str, Sequence[float]]) -> list[np.ndarray]:
     """fit_hypothesis's other starting points (scaled like theta): each 2-D term with a probe magnitude (Term.probe)
-    and no given start set to that magnitude toward each of PROBE_DIRECTIONS compass directions, the other terms as
-    in theta. One rollout each; the descent starts from the lowest loss of them and theta."""
+    and no given start set to each PROBE_SHARES share of that magnitude toward each of PROBE_DIRECTIONS compass
+    directions, the other terms as in theta. One rollout each; the descent starts from the lowest loss of them and
+    theta."""
     found, k = [], 0
     for term, n in zip(terms, sizes):
         if term.probe > 0.0 and term.name not in given:
-            for j in range(PROBE_DIRECTIONS):
-                angle = 2.0 * math.pi * j / PROBE_DIRECTIONS  # (rad) from north, clockwise (north, east components)
-                probe = theta.copy()
-                probe[k:k + n] = term.probe * np.array([math.cos(angle), math.sin(angle)]) / term.scale
-                found.append(probe)
+            for share in PROBE_SHARES:
+                for j in range(PROBE_DIRECTIONS):
+                    angle = 2.0 * math.pi * j / PROBE_DIRECTIONS  # (rad) from north, clockwise (north, east)
+                    probe = theta.copy()
+                    probe[k:k + n] = share * term.probe * np.array([math.cos(angle), math.sin(angle)]) / term.scale
+                    found.append(probe)
         k += n
     return found
 
