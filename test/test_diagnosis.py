@@ -695,7 +695,8 @@ def test_the_head_sea_resistance_is_found_where_the_description_lacks_it(monkeyp
     (jari_usv: C_X(0) = -0.25), the description's short-wave estimate of the same hull (docs/vessel.md) hardly at
     all (-0.02) and 2.4 times harder abeam. With the waves' height alone the fit trades surge against sway; with the
     head-sea resistance C_AW it fits the surge the description lacks: in the description's units the truth's head
-    seas are -0.25 / 0.42 (the sway ratio), C_AW about 0.58. A model with the truth's series fits none and the height.
+    seas are -0.25 / 0.42 (the sway ratio), C_AW about 0.58, staged (the lower loss of the free descent and of the one
+    freed from the fit with C_AW held at 0). A model with the truth's series fits none and the height.
     Drift only (no first-order motion)."""
     estimate = dataclasses.replace(VESSEL.wave_drift, a_x=(0.0, -0.138, 0.127, -0.009), b_x=(), a_y=(0.0,),
                                    b_y=(-0.837, -0.127, 0.149), a_n=(0.0,), b_n=(0.010, -0.023, -0.005))
@@ -707,6 +708,11 @@ def test_the_head_sea_resistance_is_found_where_the_description_lacks_it(monkeyp
     found = physical_parameters("wave_drift", full.terms)
     assert abs((found["direction_from_deg"] - 30.0 + 180.0) % 360.0 - 180.0) < 10.0, found
     assert 0.3 < found["head_sea_resistance"] < 0.9, found
+    # staged (Term.staged): the lower of the descent with C_AW free and of the one from the fit with it held at 0
+    free = fit_hypothesis(rollout, seg, "wave_drift", hold=frozenset())
+    held = fit_hypothesis(rollout, seg, "wave_drift", hold=frozenset({"wave_resistance"}))
+    assert held.terms["wave_resistance"] == (0.0,) and free.terms["wave_resistance"][0] > 0.3
+    assert full.loss <= min(free.loss, held.loss) and full.loss < 0.9 * held.loss
     exact = physical_parameters("wave_drift", fit_hypothesis(compiled_rollout(VESSEL, 0.5), seg, "wave_drift").terms)
     assert exact["head_sea_resistance"] < 0.05, exact  # the truth's own series needs none ...
     assert exact["significant_height_m"] == pytest.approx(1.2, abs=0.05), exact  # ... and gives the height

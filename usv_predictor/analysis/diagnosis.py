@@ -272,13 +272,16 @@ def _cost(r: np.ndarray) -> float:
 
 
 def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Sequence[str], *, max_iter: int = 12,
-                   start: Mapping[str, Sequence[float]] | None = None) -> Fit:
+                   start: Mapping[str, Sequence[float]] | None = None,
+                   hold: frozenset[str] | None = None) -> Fit:
     """Levenberg-Marquardt on the weighted residuals, finite-difference Jacobian in scaled parameters, from the
     lowest loss of the start and the probes of its directions (_probes: a wind or wave direction toward every 45 deg).
 
     `hypothesis` is one name of HYPOTHESES or several, fitted together (a cause and the ones added to it).
     `start`: initial values (SI) of some of its terms in place of their records' Term.start (cause selection starts a
     set of causes from a larger set's fit, select_causes); a term given a start is not probed.
+    `hold`: terms held at their start in this descent. None: a staged term (Term.staged) not given a start is also
+    descended with held first, then freed from that fit; the lower loss of that and the descent with it free is kept.
 
     Standard errors come from (J^T J)^-1 s^2, inflated by the steps per segment because the residuals of
     one segment are strongly correlated (a conservative effective sample size: one per segment).
@@ -286,14 +289,32 @@ def fit_hypothesis(model: GreyBoxRollout, seg: Segments, hypothesis: str | Seque
     started = time.perf_counter()
     names = (hypothesis,) if isinstance(hypothesis, str) else tuple(hypothesis)
     terms = tuple(term for name in names for term in HYPOTHESES[name])
+    start = start or {}
+    staged = frozenset(t.name for t in terms if t.staged and t.name not in start)
+    if hold is None and staged:
+        free = fit_hypothesis(model, seg, names, max_iter=max_iter, start=start, hold=frozenset())
+        first = fit_hypothesis(model, seg, names, max_iter=max_iter, start=start, hold=staged)
+        fits = [free]
+        if math.isfinite(first.loss):  # every term given a start: no probes from the held fit's optimum
+            fits.append(fit_hypothesis(model, seg, names, max_iter=max_iter, start=first.terms, hold=frozenset()))
+        best = min(fits, key=lambda f: f.loss)
+        set_terms(model, best.terms)
+        return dataclasses.replace(best, iterations=sum(f.iterations for f in (*fits, first)),
+                                   seconds=time.perf_counter() - started)
+    hold = hold or frozenset()
     hypothesis = "+".join(names)
     sizes = [len(t.start) for t in terms]
     scale = np.concatenate([[t.scale] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
-    low = np.concatenate([[t.low] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
-    high = np.concatenate([[t.high] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
-    start = start or {}
     theta = (np.concatenate([np.clip(start.get(t.name, t.start), t.low, t.high) for t in terms]) / scale if terms
              else np.zeros(0))
+    # the bounds (SI); a held term's are its start
+    low = np.concatenate([[t.low] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
+    high = np.concatenate([[t.high] * n for t, n in zip(terms, sizes)]) if terms else np.zeros(0)
+    k = 0
+    for t, n in zip(terms, sizes):
+        if t.name in hold:
+            low[k:k + n] = high[k:k + n] = theta[k:k + n] * scale[k:k + n]
+        k += n
 
     def unpack(p: np.ndarray) -> dict[str, tuple[float, ...]]:
         values, k = {}, 0

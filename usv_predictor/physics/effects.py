@@ -149,6 +149,9 @@ class Term:
     probe: float = 0.0  # a 2-D term's magnitude (SI) at which the fit also tries every compass direction before its
     #                     descent (analysis/diagnosis.fit_hypothesis: the loss over a direction has more than one
     #                     minimum); 0: the start alone
+    staged: bool = False  # a term that refines another's shape (the waves' head-sea resistance): the fit also descends
+    #                       with it held at its start first, then frees it from there, and keeps the lower loss (free
+    #                       from the first step it can pull the descent into a poorer basin of the other's direction)
 
     def __post_init__(self) -> None:
         if len(self.start) != self.size:
@@ -474,9 +477,11 @@ EFFECTS: Mapping[str, Effect] = _registry(
                #     harmonics of the encounter angle give the loss more than one minimum over the direction
                #     (bench_diagnosis.py --vessel otter, draw 19: from the start 0.64 m from 329 deg, loss 677; the
                #     truth 1.17 m from 171 deg, 47.6)
-               Term("wave_resistance", 1, 0.1, 0.0, WAVE_RESISTANCE_MAX, (0.0,), "-")),  # C_AW beyond the drift
-        #     series (models/greybox.py): a description's short-wave drift (physics/empirical.py) has almost no
-        #     head-sea surge force, the added resistance of a real bow in waves (docs/results/unknown_boats.md)
+               Term("wave_resistance", 1, 0.1, 0.0, WAVE_RESISTANCE_MAX, (0.0,), "-", staged=True)),  # C_AW beyond
+        #     the drift series (models/greybox.py): a description's short-wave drift (physics/empirical.py) has almost
+        #     no head-sea surge force, the added resistance of a real bow in waves (docs/results/unknown_boats.md);
+        #     staged: free from the probes, one fold of the walkthrough's sea trial ended at C_AW 2 and waves from 83
+        #     deg (loss 25.3), held at 0 first at 148 deg (12.1)
         readout=WaveReadout("wave_ne", "wave_height", "wave_from_deg", resistance_term="wave_resistance"),
         parameters=(
             sea_parameter("wave_height", 0.5, 0.0, 4.0, "m", "significant wave height", Uniform(0.8, 1.5)),
