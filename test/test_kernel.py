@@ -50,9 +50,8 @@ def inputs(vessel, batch: int = 5, steps: int = 40, seed: int = 0) -> tuple[np.n
 
 TERMS = {  # every extension term, at a strength that changes the prediction
     "current_ne": (0.3, -0.2), "wind_ne": (-6.0, 4.0), "wave_ne": (0.04, 0.03), "wave_resistance": (0.6,),
-    "rudder_offset": (0.03,),
-    "yaw_rate_bias": (0.01,), "heading_offset": (0.05,), "actuator_delay": (0.7,), "resistance_change": (0.15,),
-    "propeller_side_force": (0.02,), "thrust_imbalance": (0.08,),
+    "rudder_offset": (0.03,), "yaw_rate_bias": (0.01,), "heading_offset": (0.05,), "actuator_delay": (0.7,),
+    "resistance_change": (0.15,), "propeller_side_force": (0.02,), "thrust_imbalance": (0.08,),
 }
 
 

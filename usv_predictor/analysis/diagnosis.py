@@ -264,6 +264,15 @@ class Fit:
     seconds: float
 
 
+def evidence_text(value: float) -> str:
+    """An evidence as the messages print it: one decimal, never rounded up to the EVIDENCE_CAUSE a cause needs (the
+    Otter sea trial's further current at 4.996 reads 4.99, not 5.0, beside "a cause needs evidence >= 5")."""
+    text = f"{value:.1f}"
+    if value < EVIDENCE_CAUSE <= float(text):
+        text = f"{math.floor(value * 100.0) / 100.0:.2f}"
+    return text
+
+
 def _cost(r: np.ndarray) -> float:
     """The squared norm r . r of weighted residuals (N,); inf, without numpy's overflow warning, when a trial's rollout
     nearly diverges (residuals beyond ~1e19 in float32): such a trial is never better than the current one."""
@@ -586,8 +595,8 @@ class Contribution:
         """'given wind it adds evidence 0.8 (removes 3 % of the held-out loss, 1 % of the track error)'."""
         given = f"given {'+'.join(self.given)}" if self.given else "over the calm-water model"
         track = f", {self.track_gain * 100:.0f} % of the track error" if math.isfinite(self.track_gain) else ""
-        return (f"{given} it adds evidence {self.evidence:.1f} (removes {self.gain * 100:.0f} % of the held-out "
-                f"loss{track})")
+        return (f"{given} it adds evidence {evidence_text(self.evidence)} (removes {self.gain * 100:.0f} % of the "
+                f"held-out loss{track})")
 
 
 @dataclass(frozen=True)
@@ -853,7 +862,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
                  f"leaves its held-out track error after {horizon_s:g} s within {TRACK_NEUTRAL:.0%} "
                  f"({e.track_gain_vs_none * -100:+.1f} %: a sensor bias, it moves only the start's yaw rate)")
         text = (f"{e.hypothesis} removes {e.gain_vs_none * 100:.0f} % of the calm-water model's held-out "
-                f"error{e.measured_on} (evidence {e.evidence_vs_none:.1f}) and {track}")
+                f"error{e.measured_on} (evidence {evidence_text(e.evidence_vs_none)}) and {track}")
         if confounded:
             text += f"; {', '.join(confounded)} explain(s) it almost as well: the data cannot tell them apart"
         return text
@@ -893,7 +902,7 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         message = named(top, confounded)
     elif strong:
         rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out "
-                    f"error{top.measured_on} (evidence {top.evidence_vs_none:.1f}) but its extension "
+                    f"error{top.measured_on} (evidence {evidence_text(top.evidence_vs_none)}) but its extension "
                     f"{track_rule_failed((top.hypothesis,))} the held-out track error after "
                     f"{horizon_s:g} s ({calm.heldout_track_error_m:.3g} -> "
                     f"{top.heldout_track_error_m:.3g} m): not named")
@@ -905,12 +914,12 @@ def diagnose(recordings: Sequence[Recording], vessel: Vessel, *, hypotheses: Seq
         allows = (f"< {EVIDENCE_CANDIDATE:g}" if by_evidence
                   else f"no hypothesis removing >= {NONE_TRACK_GAIN:.0%} of the track error")
         rejected = (f"{top.hypothesis} removes {top.gain_vs_none * 100:.0f} % of the held-out "
-                    f"error{top.measured_on}{track} with evidence {top.evidence_vs_none:.1f}: more than a `none` "
-                    f"allows ({allows}), less than names a cause (>= {EVIDENCE_CAUSE:g})")
+                    f"error{top.measured_on}{track} with evidence {evidence_text(top.evidence_vs_none)}: more than "
+                    f"a `none` allows ({allows}), less than names a cause (>= {EVIDENCE_CAUSE:g})")
         message = rejected
     elif top.hypothesis != "none":
         message = (f"best hypothesis {top.hypothesis} removes {top.gain_vs_none * 100:.1f} % of the held-out "
-                   f"error{top.measured_on} with evidence {top.evidence_vs_none:.1f} (a cause needs >= "
+                   f"error{top.measured_on} with evidence {evidence_text(top.evidence_vs_none)} (a cause needs >= "
                    f"{EVIDENCE_CAUSE:g} and >= {MIN_GAIN * 100:.0f} %): no cause named")
     # further causes, forward, each followed by the backward check that every chosen cause still earns its place
     # given the others (select_causes); the sets are fitted once, a set nested in a larger one refitted from it
