@@ -469,6 +469,7 @@ def test_the_process_model_takes_every_fixed_term_as_the_grey_box_does():
     state in every direction of the sea. Each term alone moves them (so the equality can fail)."""
     import torch
 
+    from usv_predictor.analysis.diagnosis import set_terms
     from usv_predictor.models.greybox import GreyBoxRollout
     from usv_predictor.physics import effects
 
@@ -482,11 +483,7 @@ def test_the_process_model_takes_every_fixed_term_as_the_grey_box_does():
     def both(active: dict) -> tuple[np.ndarray, np.ndarray]:
         estimator = OnlineEstimator(vessel, None, active)
         estimator.x = estimator.prior_mean.copy()  # no current: the state the first step starts from
-        with torch.no_grad():
-            for name in effects.grey_box_terms():
-                getattr(grey, name).zero_()
-            for name, value in active.items():
-                getattr(grey, name)[:] = torch.tensor(value, dtype=torch.float64)
+        set_terms(grey, active)  # every other term zero
         filtered, twin = [], []
         for psi in np.radians(np.arange(0.0, 360.0, 45.0)):
             u, v, r, delta, rpm = state
