@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from test_greybox import VESSELS
+from usv_predictor.analysis.diagnosis import set_terms
 from usv_predictor.models.greybox import GreyBoxPredictor, GreyBoxRollout, greybox_metadata, greybox_predictor
 from usv_predictor.models.hybrid import (GeneralisingResidual, PolynomialResidual, ResidualGreyBox, SumResidual,
                                          ZeroResidual)
@@ -53,14 +54,6 @@ TERMS = {  # every extension term, at a strength that changes the prediction
     "rudder_offset": (0.03,), "yaw_rate_bias": (0.01,), "heading_offset": (0.05,), "actuator_delay": (0.7,),
     "resistance_change": (0.15,), "propeller_side_force": (0.02,), "thrust_imbalance": (0.08,),
 }
-
-
-def set_terms(module, terms) -> None:
-    with torch.no_grad():
-        for name in effects.grey_box_terms():
-            getattr(module, name).zero_()
-        for name, value in terms.items():
-            getattr(module, name)[:] = torch.as_tensor(value, dtype=torch.float64)
 
 
 def relative_error(got: np.ndarray, expected: np.ndarray) -> float:
