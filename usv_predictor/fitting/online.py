@@ -252,10 +252,12 @@ class OnlineEstimator:
         self.rudder_offset = _term(terms, RUDDER_OFFSET)  # (rad), added to a reported rudder
         wind = terms.get(WIND, [0.0, 0.0])  # wind velocity (toward) north/east (m/s)
         wave = terms.get(WAVE, [0.0, 0.0])
-        self._wind = (math.hypot(*wind), math.atan2(-wind[1], -wind[0]) if any(wind) else 0.0)  # speed, FROM (rad)
         wave_amp2 = math.hypot(*wave)  # zeta_a^2 (m^2) along the direction FROM
-        self._wave = (math.sqrt(wave_amp2), math.atan2(wave[1], wave[0]) if any(wave) else 0.0,
-                      _term(terms, WAVE_RESISTANCE))  # zeta_a (m), FROM (rad), C_AW (-)
+        # the wind and waves the model carries, fixed; the current is the filter's state (_sea)
+        self._fixed_sea = SeaLoads(
+            wind_speed=math.hypot(*wind), wind_from=math.atan2(-wind[1], -wind[0]) if any(wind) else 0.0,
+            wave_amplitude=math.sqrt(wave_amp2), wave_from=math.atan2(wave[1], wave[0]) if any(wave) else 0.0,
+            wave_resistance=_term(terms, WAVE_RESISTANCE))
         self.prior_mean = np.zeros(N_STATE)
         for name, index in TERMS.items():
             if name in terms:
@@ -438,9 +440,7 @@ class OnlineEstimator:
         return out[0], out[1]
 
     def _sea(self) -> SeaLoads:
-        return SeaLoads(current_n=float(self.x[C_N]), current_e=float(self.x[C_E]), wind_speed=self._wind[0],
-                        wind_from=self._wind[1], wave_amplitude=self._wave[0], wave_from=self._wave[1],
-                        wave_resistance=self._wave[2])
+        return replace(self._fixed_sea, current_n=float(self.x[C_N]), current_e=float(self.x[C_E]))
 
     def _accel(self, psi: float, u_r: float, v_r: float, r: float, a: float, b: float, k_r: float,
                sea: SeaLoads) -> tuple[float, float, float]:
