@@ -304,6 +304,9 @@ def test_read_only_and_strided_inputs_reuse_the_one_compiled_rollout():
     assert read_only.flags.c_contiguous and not read_only.flags.writeable
     strided = np.repeat(reference, 2, axis=0)[::2]
     np.testing.assert_array_equal(kernel.rollout(state, read_only, strided), expected)
+    assert kernel.engine is not kn.rollout  # this model's rows side by side: that engine's one signature
+    assert len(kernel.engine.signatures) == 1, kernel.engine.signatures
+    kernel.warm_up()  # and the one-row-at-a-time rollout's
     assert len(kn.rollout.signatures) == 1, kn.rollout.signatures
 
 
@@ -323,3 +326,123 @@ def test_a_live_kernel_follows_a_learned_residual_changed_in_place():
     assert relative_error(before, expected) > 1e-6  # the change acts
     assert relative_error(live.rollout(state, controls, reference), expected) < RTOL
     assert relative_error(once.rollout(state, controls, reference), before) < RTOL
+
+
+# ---- several rows side by side (kernel.rollout_lanes_for) -----------------------------------------------------------
+
+SEA_TERMS = ("wind_ne", "wave_ne", "wave_resistance")  # the terms whose loads run one row at a time
+LANE_VESSELS = ("jari_usv (mmg, rudder_propeller)", "jari_usv (mmg, rudder_only)", "preset kvlcc2_model")
+
+
+def one_row_at_a_time(kernel, state, controls, reference, free):
+    """kernel.rollout's rows by physics/kernel.rollout, the one-row-at-a-time rollout every model has."""
+    from usv_predictor.physics import kernel as kn
+
+    out = np.empty((kernel.members, state.shape[0], controls.shape[1], 6))
+    use = reference is not None
+    kn.rollout(state, controls, reference if use else state, use, kernel.ki, kernel.p, kernel.terms, free, out)
+    return out
+
+
+@pytest.mark.parametrize("name", LANE_VESSELS)
+@pytest.mark.parametrize("batch", [1, 9, 70])  # one row; a vector's 8 and a remainder; LANES (64) and a second group
+def test_rows_side_by_side_are_the_rollout_one_row_at_a_time(name, batch):
+    """The MMG hull's rudder layouts roll their rows out LANES at a time, the derivative one loop over the rows
+    (eight wide): the same model as one row at a time with every term but the wind's and the waves' (those run
+    one row at a time), held rows and rudder_only's reference, to rounding."""
+    from usv_predictor.physics import kernel as kn
+
+    vessel = ALL[name]
+    module = GreyBoxRollout(vessel, dt=DT, substeps=2)
+    kernel = KernelRollout(module, live=True)
+    state, controls, reference = inputs(vessel, batch=batch, seed=batch)
+    free = (np.arange(batch) % 4 != 1).astype(float)
+    lane_terms = {k: v for k, v in TERMS.items() if k not in SEA_TERMS}
+    for case in ({}, lane_terms, *({k: v} for k, v in lane_terms.items())):
+        set_terms(module, case)
+        for ref in (None, reference):
+            got = kernel.rollout(state, controls, ref, free=free)
+            assert kernel.engine is not kn.rollout, case  # this model and these terms run side by side
+            assert relative_error(got, one_row_at_a_time(kernel, state, controls, ref, free)) < 1e-12, case
+            assert relative_error(kernel.rollout(state, controls, ref), torch_rollout(module, state, controls, ref)) \
+                < RTOL, case
+
+
+def test_the_rows_side_by_side_differ_where_their_inputs_do():
+    """Not lanes that copy one row into the others: every row of a batch of 70 is its own prediction (equal to it
+    rolled out alone), and a held row keeps its yaw rate."""
+    vessel = ALL["jari_usv (mmg, rudder_propeller)"]
+    kernel = KernelRollout(GreyBoxRollout(vessel, dt=DT), live=True)
+    state, controls, reference = inputs(vessel, batch=70, seed=3)
+    free = (np.arange(70) % 5 != 0).astype(float)
+    got = kernel.rollout(state, controls, free=free)
+    for b in (0, 7, 8, 63, 64, 69):  # the first, a vector's edges, the first group's last, the second group
+        alone = kernel.rollout(state[b:b + 1], controls[b:b + 1], free=free[b:b + 1])
+        assert relative_error(got[:, b:b + 1], alone) < 1e-12, b
+    assert np.allclose(got[0, ::5, :, 2], state[::5, 2:3])  # held rows: r stays the start's
+    assert np.abs(got[0, :, -1, 3:5] - got[0, :1, -1, 3:5]).max() > 1.0
+
+
+@pytest.mark.parametrize("why", ["wind", "waves", "a term per row", "small craft", "rudder_throttle", "residual"])
+def test_rows_run_one_at_a_time_where_the_lanes_cannot(why):
+    """A wind or waves (their loads loop over Fourier tables and call libm), terms set per row, a hull or layout
+    with a loop in its derivative (strips, thrust tables), a learned or polynomial residual: one row at a time,
+    equal to the torch twin (the equality above, for each)."""
+    from usv_predictor.physics import kernel as kn
+
+    name = {"small craft": "otter hull (small_craft, rudder_propeller)",
+            "rudder_throttle": "jari_usv (mmg, rudder_throttle)"}.get(why, "jari_usv (mmg, rudder_propeller)")
+    vessel = ALL[name]
+    if why == "residual":
+        residual, members = residual_of("polynomial", vessel)
+        module = ResidualGreyBox(vessel, DT, residual, members=members)
+    else:
+        module = GreyBoxRollout(vessel, dt=DT)
+    state, controls, _ = inputs(vessel, batch=3)
+    term = {"wind": "wind_ne", "waves": "wave_ne"}.get(why)
+    if term is not None:
+        set_terms(module, {term: TERMS[term]})
+    elif why == "a term per row":
+        rows = np.array([[0.3, 0.0, -0.2], [0.0, 0.1, 0.2]])  # (2, B) a current per row
+        module.current_ne = torch.nn.Parameter(torch.from_numpy(rows), requires_grad=False)
+    kernel = KernelRollout(module, live=True)
+    got = kernel.rollout(state, controls)
+    assert kernel.engine is kn.rollout, why
+    assert relative_error(got, torch_rollout(module, state, controls)) < RTOL, why
+    lanes = GreyBoxRollout(ALL["jari_usv (mmg, rudder_propeller)"], dt=DT)
+    assert KernelRollout(lanes).engine is not kn.rollout  # the same call without that runs side by side
+
+
+def test_the_elementary_functions_are_libms_to_a_few_ulp():
+    """The derivative's cos, sin, atan2, exp (polynomials without a call or a branch, so that a loop of them runs
+    eight wide) and sqrt (the instruction), compiled with the rollout's flags, against numpy's libm."""
+    from numba import njit
+
+    from usv_predictor.physics import kernel as kn
+
+    @njit(**kn.VECTOR)
+    def evaluate(x, y):  # (N,), (N,) -> (N, 5): cos x, sin x, atan2(y, x), exp(-|x|), sqrt |y|
+        out = np.empty((x.size, 5))
+        for i in range(x.size):
+            out[i, 0], out[i, 1] = kn._cos_sin(x[i])
+            out[i, 2] = kn._atan2(y[i], x[i])
+            out[i, 3] = kn._exp_neg(-abs(x[i]))
+            out[i, 4] = kn._sqrt(abs(y[i]))
+        return out
+
+    rng = np.random.default_rng(7)
+    x = np.concatenate([rng.uniform(-30.0, 30.0, 20000), rng.uniform(-1e-3, 1e-3, 2000), [0.0, -0.0, math.pi, 1e-300],
+                        np.arange(-8, 9) * (math.pi / 4)])
+    y = np.concatenate([rng.uniform(-30.0, 30.0, 20000), rng.uniform(-1e-3, 1e-3, 2000), [0.0, 1.0, -0.0, 0.0],
+                        np.linspace(-2.0, 2.0, 17)])
+    got = evaluate(x, y)
+    # the flags' reassociation folds pi/2's three parts into one double: ~4e-17 |x| (|x| <= 30 here)
+    assert np.abs(got[:, 0] - np.cos(x)).max() < 1.5e-15 and np.abs(got[:, 1] - np.sin(x)).max() < 1.5e-15
+    small = np.abs(x) < 3.2
+    assert np.abs(got[small, 0] - np.cos(x[small])).max() < 3e-16
+    assert np.abs(got[:, 2] - np.arctan2(y, x)).max() < 5e-16
+    exp = np.exp(-np.abs(x))  # ln 2's two parts folded the same way: ~2.3e-17 m relatively (m <= 44 here)
+    assert (np.abs(got[:, 3] - exp) / exp).max() < 1.5e-15
+    np.testing.assert_array_equal(got[:, 4], np.sqrt(np.abs(y)))  # the instruction: correctly rounded
+    assert kn._exp_neg(-1e3) == pytest.approx(math.exp(kn.EXP_FLOOR), rel=1e-13)  # floored: 4e-18 for ~0
+    assert all(math.isnan(v) for v in (*kn._cos_sin(math.nan), *kn._cos_sin(math.inf), kn._sqrt(-1.0)))

@@ -173,6 +173,7 @@ IMPORT_DEPENDENCIES: dict[str, tuple[str, str]] = {
     "backports": ("pip", "rosbags"),  # backports.zstd, rosbags' own dependency before Python 3.14
     "openpyxl": ("pip", "openpyxl"),
     "numba": ("pip", "numba"),
+    "llvmlite": ("pip", "llvmlite"),  # numba's own, imported by the kernel for the sqrt instruction (physics/kernel.py)
     "compression": ("stdlib", "Python 3.14"),
 }
 # Message packages named in type strings ("sensor_msgs/msg/Imu") of the code and of config/predictor.yaml.

@@ -261,6 +261,8 @@ class KernelRollout:
         rows = max(v.shape[0] for v in values)
         self.terms = np.ascontiguousarray(np.concatenate([np.broadcast_to(v, (rows, v.shape[1])) for v in values],
                                                          axis=1))  # (R, NT)
+        # several rows side by side where the model and its terms allow it (physics/kernel.rollout_lanes_for)
+        self.engine = kn.rollout_lanes_for(self.ki, self.terms, self.members) or kn.rollout
         self._read, self._held = key, tensors
 
     # ---- running ---------------------------------------------------------------------------------------------
@@ -289,6 +291,16 @@ class KernelRollout:
             return np.concatenate(done, axis=1)
         return self._run(state, controls, reference, use_reference, free, slice(0, rows))
 
+    def warm_up(self, side_by_side: bool = True) -> None:
+        """Compile (or load from numba's cache) the engines this model may run, on a one-row two-step batch: one
+        row at a time (kernel.rollout: terms per row, wind, waves) and, with side_by_side, its rows side by side
+        where it allows that (self.engine). Compiling holds the GIL: the node does it before its first cycle."""
+        state = np.array([[1.0, 0.0, 0.0, 0.0]])
+        controls = np.zeros((1, 2, self.n_controls))
+        out = np.empty((self.members, 1, 2, 6))
+        for engine in dict.fromkeys((kn.rollout, self.engine if side_by_side else kn.rollout)):
+            engine(state, controls, state, False, self.ki, self.p, self.terms[:1], self._all_free(1), out)
+
     def _all_free(self, rows: int) -> np.ndarray:
         """(rows,) ones: a view of one array kept for the largest batch yet (the kernel only reads it)."""
         if self._ones.shape[0] < rows:
@@ -302,7 +314,7 @@ class KernelRollout:
         terms = self.terms if self.terms.shape[0] == 1 else _plain(self.terms[rows])
         out = np.empty((self.members, state.shape[0], controls.shape[1], 6))
         if state.shape[0] and controls.shape[1]:
-            kn.rollout(state, controls, reference, use_reference, self.ki, self.p, terms, free, out)
+            self.engine(state, controls, reference, use_reference, self.ki, self.p, terms, free, out)
         return out
 
     def __call__(self, state: torch.Tensor, controls: torch.Tensor, reference: torch.Tensor | None = None,

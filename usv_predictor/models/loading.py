@@ -366,14 +366,13 @@ def with_nomoto_rollout(model: ModelArtifact) -> ModelArtifact:
 
 
 def warm_up(vessel: Vessel, dt: float) -> float:
-    """Compile (or load from numba's cache) every kernel entry (models/kernel_rollout.py) a process may call for this
-    vessel: the rollout, on a two-step batch of its calm-water grey box, and the float model's forces and
-    accelerations. Returns the seconds it
-    took (~25 s the first time on a 2-core machine, well under one with a warm cache). The node calls it before its
-    first cycle: compiling holds the GIL, and inside a cycle it would stall the node."""
+    """Compile (or load from numba's cache) the kernel entries (models/kernel_rollout.py) a process may call for this
+    vessel whatever its model: the one-row-at-a-time rollout (the fit check's causes, terms per row) of its
+    calm-water grey box, and the float model's forces and accelerations (the online estimator). Returns the seconds
+    it took (~25 s the first time on a 2-core machine, well under one with a warm cache). The node calls it before
+    its first cycle: compiling holds the GIL, and inside a cycle it would stall the node. A grey box's rows side by
+    side (an MMG rudder boat's: ~25 s more the first time) are compiled by the node's model check, which predicts."""
     import time
-
-    import numpy as np
 
     from usv_predictor.models.greybox import GreyBoxRollout
     from usv_predictor.models.kernel_rollout import KernelRollout
@@ -381,7 +380,7 @@ def warm_up(vessel: Vessel, dt: float) -> float:
 
     started = time.perf_counter()
     kernel = KernelRollout(GreyBoxRollout(vessel, dt))
-    kernel.rollout(np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 2, kernel.n_controls)))
+    kernel.warm_up(side_by_side=False)
     model = ManoeuvringModel(vessel)
     model.accelerations(0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
     model.loads(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)

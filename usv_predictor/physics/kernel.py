@@ -48,7 +48,11 @@ from typing import Any
 
 import numba
 import numpy as np
+from llvmlite import ir as llvm_ir
 from numba import njit
+from numba.core import cgutils, types
+from numba.extending import intrinsic
+from numba.np.unsafe.ndarray import to_fixed_tuple
 
 
 def _probe() -> int:
@@ -82,6 +86,13 @@ _compiled = njit(cache=CACHED)
 # as much as the arithmetic; the rollout calls the derivative from one place, so it holds one copy of it
 _inlined = njit(cache=CACHED, inline="always")
 
+# The learned residual's loops vectorise (eight lanes with AVX-512) only when: a division does not test its divisor
+# and raise (error_model numpy); sums may be reassociated and multiply-adds fused (fastmath reassoc, contract; not
+# nnan / ninf: NaN and inf keep their meaning); the rows and vectors are sliced views, whose indices are known
+# non-negative (no wraparound select). The network is inlined into the rollout (a call between compiled functions
+# passes each array as a struct and counts its references), so the rollout is compiled with the same flags: VECTOR.
+VECTOR = {"fastmath": {"reassoc", "contract", "nsz"}, "error_model": "numpy"}
+
 # ---- kinds ------------------------------------------------------------------------------------------------------
 MMG, SMALL_CRAFT = 0, 1  # hull models (physics/hulls.py)
 RUDDER_PROPELLER, RUDDER_THROTTLE, RUDDER_ONLY, TWIN_THRUSTERS = 0, 1, 2, 3  # actuator layouts (physics/actuators.py)
@@ -98,6 +109,7 @@ K_NAMES = (
  K_O_HULL, K_O_DRIFT, K_DRIFT_ROWS, K_O_STRIPS, K_N_STRIPS, K_O_MAPS, K_MAP_WIDTH, K_MAP_N0, K_MAP_N1, K_O_LAG,
  K_O_COEF, K_O_W0, K_O_B0, K_O_WH, K_O_BH, K_O_WO, K_O_BO, K_O_NORM, K_MEMBERS, K_HIDDEN,
  K_HIDDEN_LAYERS) = range(len(K_NAMES))
+N_KINDS = len(K_NAMES)
 
 # ---- constants (SI): the names of the records of physics/dynamics.py (constants_of), as the torch twin holds them --
 P_NAMES = (
@@ -208,6 +220,150 @@ def lag_factors(time_constants, tau: float) -> list[float]:
     return [math.exp(-tau / t) if t > 0.0 else 0.0 for t in time_constants]
 
 
+# ---- elementary functions without a call or a branch ---------------------------------------------------------------
+# libm's sin, cos, atan2 and exp are calls, and a loop that calls cannot run its lanes side by side (the PyPI llvmlite
+# has no vector maths library): rollout_lanes' derivative uses these instead (_cos_sin_of & co. choose), so that its
+# lanes run eight wide with AVX-512; one row at a time libm's calls are cheaper. Each is within a few ulp of libm
+# (test_kernel.py measures them compiled as the rollout is, with its fastmath flags).
+_TWO_OVER_PI = 0.63661977236758134308  # 2 / pi
+_PIO2_1, _PIO2_2, _PIO2_3 = 1.57079632673412561417e+00, 6.07710050630396597660e-11, 2.02226624871116645580e-21
+# pi / 2 in three parts (fdlibm's rem_pio2), and fdlibm's __kernel_sin, __kernel_cos minimax coefficients on |r| <= pi/4
+_S1, _S2, _S3, _S4, _S5, _S6 = (-1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04,
+                                2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10)
+_K1, _K2, _K3, _K4, _K5, _K6 = (4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05,
+                                -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.13596475577881948265e-11)
+# fdlibm's atan minimax coefficients on |t| <= 7/16, and pi/4, pi/2, pi as a double and the rest
+_A0, _A1, _A2, _A3, _A4, _A5, _A6, _A7, _A8, _A9, _A10 = (
+    3.33333333333329318027e-01, -1.99999999998764832476e-01, 1.42857142725034663711e-01, -1.11111104054623557880e-01,
+    9.09088713343650656196e-02, -7.69187620504482999495e-02, 6.66107313738753120669e-02, -5.83357013379057348645e-02,
+    4.97687799461593236017e-02, -3.65315727442169155270e-02, 1.62858201153657823623e-02)
+_TAN_PI_8 = 0.41421356237309504880
+_PI_4, _PI_4_LO = 7.85398163397448278999e-01, 3.06161699786838301793e-17
+_PI_2, _PI_2_LO = 1.57079632679489655800e+00, 6.12323399573676603587e-17
+_PI, _PI_LO = 3.14159265358979311600e+00, 1.22464679914735317720e-16
+EXP_FLOOR = -40.0  # _exp_neg's lowest argument: exp(-40) = 4.2e-18
+_INV_LN2 = 1.44269504088896338700  # 1 / ln 2
+_LN2_HI, _LN2_LO = 6.93147180369123816490e-01, 1.90821492927058770002e-10  # ln 2 in two parts (fdlibm)
+# 1/2!, ..., 1/13!: the Taylor series of expm1 to r^13 (_exp_neg's, and _tanh's below)
+_EXPM1_TAYLOR = tuple(1.0 / math.factorial(k) for k in range(2, 14))
+_C2, _C3, _C4, _C5, _C6, _C7, _C8, _C9, _C10, _C11, _C12, _C13 = _EXPM1_TAYLOR
+
+
+@intrinsic
+def _sqrt_intrinsic(typingctx, x):
+    """LLVM's sqrt instruction (NaN below 0, as libm's): numba calls libm's sqrt, which LLVM turns into the
+    instruction only where it proves the argument non-negative, and a call keeps a loop one lane wide."""
+    def codegen(context, builder, signature, args):
+        double = llvm_ir.DoubleType()
+        function = cgutils.get_or_insert_function(builder.module, llvm_ir.FunctionType(double, [double]),
+                                                  "llvm.sqrt.f64")
+        return builder.call(function, args)
+    return types.float64(types.float64), codegen
+
+
+@intrinsic
+def _data(typingctx, array):
+    """A pointer to an array's first element (it indexes as the array does, p[i]), which carries no reference count:
+    an array handed to an inlined function is counted in and out, and those calls keep a loop one lane wide."""
+    def codegen(context, builder, signature, args):
+        return context.make_array(signature.args[0])(context, builder, args[0]).data
+    return types.CPointer(array.dtype)(array), codegen
+
+
+@njit(cache=CACHED, inline="always", **VECTOR)
+def _sqrt(x):
+    """sqrt x (the instruction; NaN below 0)."""
+    return _sqrt_intrinsic(x)
+
+
+@njit(cache=CACHED, inline="always", **VECTOR)
+def _cos_sin(x):
+    """(cos x, sin x): x - k pi/2 in three parts (Cody & Waite), the minimax polynomials on |r| <= pi/4, the
+    quadrant by selects. NaN and inf give NaN. Within 1 ulp compiled alone; in the rollout, whose flags let the
+    compiler fold the three parts into one double, within ~4e-17 |x| (1.2e-15 at |x| = 30)."""
+    k = math.floor(x * _TWO_OVER_PI + 0.5)
+    r = ((x - k * _PIO2_1) - k * _PIO2_2) - k * _PIO2_3
+    z = r * r
+    s = r + r * z * (_S1 + z * (_S2 + z * (_S3 + z * (_S4 + z * (_S5 + z * _S6)))))
+    hz = 0.5 * z
+    w = 1.0 - hz
+    c = w + (((1.0 - w) - hz) + z * z * (_K1 + z * (_K2 + z * (_K3 + z * (_K4 + z * (_K5 + z * _K6))))))
+    q = k - 4.0 * math.floor(0.25 * k)  # the quadrant 0, 1, 2, 3
+    odd = q == 1.0 or q == 3.0
+    sin_x = c if odd else s
+    cos_x = s if odd else c
+    sin_x = -sin_x if q >= 2.0 else sin_x
+    cos_x = -cos_x if (q == 1.0 or q == 2.0) else cos_x
+    finite = abs(x) < math.inf  # inf - inf may fold away: NaN said outright
+    return (cos_x if finite else math.nan), (sin_x if finite else math.nan)
+
+
+@njit(cache=CACHED, inline="always", **VECTOR)
+def _atan2(y, x):
+    """atan2(y, x) (rad): t = min / max of |x|, |y| in [0, 1], reduced to |t| <= tan(pi/8) by (t - 1) / (t + 1)
+    (+ pi/4), the minimax polynomial, then the octant and the quadrant by selects; atan2(0, 0) = 0."""
+    ax, ay = abs(x), abs(y)
+    big = max(ax, ay)
+    t = min(ax, ay) / max(big, 1e-300)
+    reduced = t > _TAN_PI_8
+    t_reduced = (t - 1.0) / (t + 1.0)  # both values of each choice computed first: selects, not branches
+    t = t_reduced if reduced else t
+    z = t * t
+    w = z * z
+    odd = z * (_A0 + w * (_A2 + w * (_A4 + w * (_A6 + w * (_A8 + w * _A10)))))
+    even = w * (_A1 + w * (_A3 + w * (_A5 + w * (_A7 + w * _A9))))
+    a = t - t * (odd + even)
+    a = _PI_4 + (a + _PI_4_LO) if reduced else a
+    a = (_PI_2 - a) + _PI_2_LO if ay > ax else a
+    a = (_PI - a) + _PI_LO if x < 0.0 else a
+    return -a if y < 0.0 else a
+
+
+@njit(cache=CACHED, inline="always", **VECTOR)
+def _exp_neg(x):
+    """exp x for x <= 0 (below EXP_FLOOR as at it): x = -m ln 2 + r with |r| <= ln 2 / 2, exp r from the Taylor
+    series to r^13 (the rest below 4e-18), times 2^-m from m's six bits (exact: powers of two). Within 2 ulp alone;
+    in the rollout, whose flags fold ln 2's two parts into one double, within ~2.3e-17 m relatively (1.3e-15 at the
+    floor)."""
+    x = max(x, EXP_FLOOR)
+    m = math.floor(0.5 - x * _INV_LN2)  # 0 ... 58
+    r = (x + m * _LN2_HI) + m * _LN2_LO
+    e = 1.0 + r * (1.0 + r * (_C2 + r * (_C3 + r * (_C4 + r * (_C5 + r * (_C6 + r * (_C7 + r * (_C8 + r * (
+        _C9 + r * (_C10 + r * (_C11 + r * (_C12 + r * _C13))))))))))))
+    half = math.floor(0.5 * m)
+    e = e * (0.5 if m - 2.0 * half > 0.0 else 1.0)
+    m, half = half, math.floor(0.25 * m)
+    e = e * (0.25 if m - 2.0 * half > 0.0 else 1.0)
+    m, half = half, math.floor(0.5 * half)
+    e = e * (0.0625 if m - 2.0 * half > 0.0 else 1.0)
+    m, half = half, math.floor(0.5 * half)
+    e = e * (2.0 ** -8 if m - 2.0 * half > 0.0 else 1.0)
+    m, half = half, math.floor(0.5 * half)
+    e = e * (2.0 ** -16 if m - 2.0 * half > 0.0 else 1.0)
+    return e * (2.0 ** -32 if half > 0.0 else 1.0)
+
+
+
+@njit(cache=CACHED, inline="always", **VECTOR)
+def _cos_sin_of(vector, x):
+    """(cos x, sin x): _cos_sin's where `vector` (a constant of rollout_lanes: its lanes run side by side), libm's
+    elsewhere (a call is cheaper one row at a time)."""
+    if vector:
+        return _cos_sin(x)
+    return math.cos(x), math.sin(x)
+
+
+@njit(cache=CACHED, inline="always", **VECTOR)
+def _atan2_of(vector, y, x):
+    """atan2(y, x): _atan2's where `vector`, libm's elsewhere (_cos_sin_of)."""
+    return _atan2(y, x) if vector else math.atan2(y, x)
+
+
+@njit(cache=CACHED, inline="always", **VECTOR)
+def _exp_of(vector, x):
+    """exp x (x <= 0): _exp_neg's where `vector`, libm's elsewhere (_cos_sin_of)."""
+    return _exp_neg(x) if vector else math.exp(x)
+
 # ---- the sea --------------------------------------------------------------------------------------------------------
 
 @_compiled
@@ -272,13 +428,14 @@ def _sea_of(p):
 # ---- hull models ----------------------------------------------------------------------------------------------------
 
 @_inlined
-def _hull_forces(ki, p, u_r, v_r, r):
-    """(X_H, Y_H, N_H) at midship (N, N, N m), with the relative resistance change of the terms."""
+def _hull_forces(hull, ki, p, u_r, v_r, r):
+    """(X_H, Y_H, N_H) at midship (N, N, N m) of the hull model `hull`, with the relative resistance change of the
+    terms."""
     h = ki[K_O_HULL]
     change = p[T_RESISTANCE_CHANGE]
-    if ki[K_HULL] == MMG:  # Yasukawa & Yoshimura 2015 eq. 8, regularised below the speed floor
+    if hull == MMG:  # Yasukawa & Yoshimura 2015 eq. 8, regularised below the speed floor
         L = p[P_L]
-        U = max(math.sqrt(u_r * u_r + v_r * v_r), p[P_SPEED_FLOOR])
+        U = max(_sqrt(u_r * u_r + v_r * v_r), p[P_SPEED_FLOOR])
         vp = v_r / U
         rp = r * L / U
         q = p[P_Q_FORCE] * U * U
@@ -308,12 +465,12 @@ def _hull_forces(ki, p, u_r, v_r, r):
 
 
 @_inlined
-def _solve(ki, p, x, y, n, u_r, v_r, r):
+def _solve(hull, ki, p, x, y, n, u_r, v_r, r):
     """nu_r_dot = M^-1 (tau - C(nu_r) nu_r): MMG eq. 4 (the Munk moment in N_v), or the small-craft hull's with its
     fitted added mass and the Munk moment (Y_vdot - X_udot) u_r v_r."""
     m, x_g = p[P_M], p[P_X_G]
     m23, m32 = p[P_M23], p[P_M32]
-    if ki[K_HULL] == MMG:
+    if hull == MMG:
         m11, m22, m33, det = p[P_M11], p[P_M22], p[P_M33], p[P_DET_VR]
         munk = 0.0
     else:
@@ -363,13 +520,13 @@ def _thrust(ki, p, k, level):
 
 
 @_inlined
-def _rudder_propeller(p, u_r, v_r, r, rpm, cos_d, sin_d):
+def _rudder_propeller(p, u_r, v_r, r, rpm, cos_d, sin_d, vector):
     """(X_R, Y_R, N_R, X_P, Y_P, N_P): the MMG rudder with slipstream (eq. 13-16, 37-43) and propeller (eq. 10-12);
     cos_d, sin_d the rudder angle's (the rollout computes them once per level, not once per stage)."""
     L = p[P_L_ACT]
-    speed = math.sqrt(u_r * u_r + v_r * v_r) + 1e-9
-    beta_p = math.atan2(-v_r, max(u_r, 1e-9)) - p[P_X_P] * r * L / speed
-    u_p = u_r * (1.0 - p[P_W_P0] * math.exp(-4.0 * beta_p * beta_p))
+    speed = _sqrt(u_r * u_r + v_r * v_r) + 1e-9
+    beta_p = _atan2_of(vector, -v_r, max(u_r, 1e-9)) - p[P_X_P] * r * L / speed
+    u_p = u_r * (1.0 - p[P_W_P0] * _exp_of(vector, -4.0 * beta_p * beta_p))
     n_raw = rpm / 60.0 / p[P_GEAR_RATIO]
     n_p = max(n_raw, 1e-6)
     d_p = p[P_D_P]
@@ -378,16 +535,18 @@ def _rudder_propeller(p, u_r, v_r, r, rpm, cos_d, sin_d):
     running = 1.0 if n_raw > 1e-6 else 0.0
     d2 = d_p * d_p
     x_p = running * (1.0 - p[P_T_P]) * p[P_RHO] * n_p * n_p * (d2 * d2) * k_t
-    slip = math.sqrt(u_p * u_p + running * 8.0 * max(k_t, 0.0) * n_p * n_p * d2 / math.pi)
+    slip = _sqrt(u_p * u_p + running * 8.0 * max(k_t, 0.0) * n_p * n_p * d2 / math.pi)
     eta = p[P_ETA]
     jet = u_p + p[P_KAPPA] * (slip - u_p)
-    u_rud = p[P_EPSILON] * math.sqrt(eta * jet * jet + (1.0 - eta) * u_p * u_p)
+    u_rud = p[P_EPSILON] * _sqrt(eta * jet * jet + (1.0 - eta) * u_p * u_p)
     beta_r = -(v_r + p[P_L_R_M] * r)  # U beta_R (m/s): the inflow angle as U sin(beta) = -v (docs/kernel.md)
-    v_rud = p[P_GAMMA_R_MINUS] * beta_r if beta_r < 0.0 else p[P_GAMMA_R_PLUS] * beta_r
+    gamma_minus, gamma_plus = p[P_GAMMA_R_MINUS], p[P_GAMMA_R_PLUS]
+    gamma_r = gamma_minus if beta_r < 0.0 else gamma_plus
+    v_rud = gamma_r * beta_r
     # sin(alpha), alpha = delta - atan2(v_rud, u_c) (eq. 14), by the angle difference: sin delta cos theta -
     # cos delta sin theta with cos theta = u_c / h, sin theta = v_rud / h: one sqrt instead of an atan2 and a sine
     u_c = max(u_rud, 1e-9)
-    inflow = math.sqrt(u_c * u_c + v_rud * v_rud)
+    inflow = _sqrt(u_c * u_c + v_rud * v_rud)
     sin_alpha = (sin_d * u_c - cos_d * v_rud) / inflow
     f_n = 0.5 * p[P_RHO] * p[P_A_R] * (u_rud * u_rud + v_rud * v_rud) * p[P_F_ALPHA] * sin_alpha
     y_p = p[T_SIDE_FORCE] * x_p / (1.0 - p[P_T_P])
@@ -396,17 +555,16 @@ def _rudder_propeller(p, u_r, v_r, r, rpm, cos_d, sin_d):
 
 
 @_inlined
-def _actuator_forces(ki, p, u_r, v_r, r, a, b):
+def _actuator_forces(layout, ki, p, u_r, v_r, r, a, b):
     """(X, Y, N) of steering then of propulsion at the levels (a, b) of the layout."""
-    if ki[K_LAYOUT] == TWIN_THRUSTERS:
-        return _actuator_forces_at(ki, p, u_r, v_r, r, a, b, 0.0, 0.0)
-    return _actuator_forces_at(ki, p, u_r, v_r, r, a, b, math.cos(a), math.sin(a))
+    if layout == TWIN_THRUSTERS:
+        return _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, 0.0, 0.0, 0)
+    return _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, math.cos(a), math.sin(a), 0)
 
 
 @_inlined
-def _actuator_forces_at(ki, p, u_r, v_r, r, a, b, cos_a, sin_a):
+def _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, cos_a, sin_a, vector):
     """_actuator_forces with the rudder angle's cosine and sine given (a rudder layout's; unused with thrusters)."""
-    layout = ki[K_LAYOUT]
     if layout == TWIN_THRUSTERS:
         imbalance = p[T_THRUST_IMBALANCE]
         t_p = (1.0 + imbalance) * _thrust(ki, p, 0, a)
@@ -415,8 +573,8 @@ def _actuator_forces_at(ki, p, u_r, v_r, r, a, b, cos_a, sin_a):
     rpm = b
     if layout == RUDDER_THROTTLE:  # the engine speed whose static thrust is the map's at the level
         thrust = max(_thrust(ki, p, 0, b), 0.0)
-        rpm = math.sqrt(thrust / p[P_STATIC_THRUST]) * p[P_RPM_PER_REV_S]
-    return _rudder_propeller(p, u_r, v_r, r, rpm, cos_a, sin_a)
+        rpm = _sqrt(thrust / p[P_STATIC_THRUST]) * p[P_RPM_PER_REV_S]
+    return _rudder_propeller(p, u_r, v_r, r, rpm, cos_a, sin_a, vector)
 
 
 @_inlined
@@ -446,17 +604,9 @@ def _polynomial_residual(ki, p, u, v, r):
     return x / p[P_POLY_M11], (m33 * y - m23 * n) / det, (m22 * n - m32 * y) / det
 
 
-# The learned residual's loops vectorise (eight lanes with AVX-512) only when: a division does not test its divisor
-# and raise (error_model numpy); sums may be reassociated and multiply-adds fused (fastmath reassoc, contract; not
-# nnan / ninf: NaN and inf keep their meaning); the rows and vectors are sliced views, whose indices are known
-# non-negative (no wraparound select). The network is inlined into the rollout (a call between compiled functions
-# passes each array as a struct and counts its references), so the rollout is compiled with the same flags: VECTOR.
-VECTOR = {"fastmath": {"reassoc", "contract", "nsz"}, "error_model": "numpy"}
 
 # tanh from exp(-2|x|) = exp(-2|x| / 64)^64: the Taylor series of expm1 to r^13 on |r| <= 0.625, then six squarings
 # carried as m = t - 1 ((1 + m)^2 - 1 = m (2 + m)), so that 1 - t = -m and 1 + t = 2 + m never cancel
-_EXPM1_TAYLOR = tuple(1.0 / math.factorial(k) for k in range(2, 14))  # 1/2!, ..., 1/13!
-_C2, _C3, _C4, _C5, _C6, _C7, _C8, _C9, _C10, _C11, _C12, _C13 = _EXPM1_TAYLOR
 TANH_SATURATION = 20.0  # |x| beyond which tanh x is +-1 in float64 (1 - tanh 20 = 8.5e-18)
 
 
@@ -555,8 +705,8 @@ def loads(ki, p, sea, psi, u_r, v_r, r, a, b):
     """(hull X, Y, N, steering X, Y, N, propulsion X, Y, N, wind X, Y, N, waves X, Y, N) at midship (N, N m) for the
     water-relative velocities, the actuator levels (a, b) and sea = sea_tuple's."""
     c, s = math.cos(psi), math.sin(psi)
-    hx, hy, hn = _hull_forces(ki, p, u_r, v_r, r)
-    ax, ay, an, px, py, pn = _actuator_forces(ki, p, u_r, v_r, r, a, b)
+    hx, hy, hn = _hull_forces(ki[K_HULL], ki, p, u_r, v_r, r)
+    ax, ay, an, px, py, pn = _actuator_forces(ki[K_LAYOUT], ki, p, u_r, v_r, r, a, b)
     calm = (sea[0], sea[1], sea[2], sea[3], 0.0, 0.0, 0.0, 0.0)
     wx, wy, wn = _sea_loads(ki, p, calm, c, s, psi, u_r, v_r)
     waves = (sea[0], sea[1], 0.0, 0.0, sea[4], sea[5], sea[6], sea[7])
@@ -570,7 +720,7 @@ def actuator_loads_many(ki, p, nu, levels, out):
     levels (T, 2): one call for a recording (identification's known forces)."""
     for k in range(nu.shape[0]):
         out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4], out[k, 5] = _actuator_forces(
-            ki, p, nu[k, 0], nu[k, 1], nu[k, 2], levels[k, 0], levels[k, 1])
+            ki[K_LAYOUT], ki, p, nu[k, 0], nu[k, 1], nu[k, 2], levels[k, 0], levels[k, 1])
     return out
 
 
@@ -579,8 +729,8 @@ def accelerations(ki, p, sea, psi, u_r, v_r, r, a, b, accel_n, accel_e):
     """(u_r_dot, v_r_dot, r_dot) = M^-1 (tau - C(nu_r) nu_r - M_RB R^T dV_c/dt): a turning current accelerates the
     water and the rigid body feels it (Fossen 2021 sec. 10.3); accel_n, accel_e the current's d/dt (m/s^2)."""
     c, s = math.cos(psi), math.sin(psi)
-    hx, hy, hn = _hull_forces(ki, p, u_r, v_r, r)
-    ax, ay, an, px, py, pn = _actuator_forces(ki, p, u_r, v_r, r, a, b)
+    hx, hy, hn = _hull_forces(ki[K_HULL], ki, p, u_r, v_r, r)
+    ax, ay, an, px, py, pn = _actuator_forces(ki[K_LAYOUT], ki, p, u_r, v_r, r, a, b)
     lx, ly, ln = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
     x, y, n = hx + ax + px + lx, hy + ay + py + ly, hn + an + pn + ln
     if accel_n != 0.0 or accel_e != 0.0:
@@ -590,7 +740,7 @@ def accelerations(ki, p, sea, psi, u_r, v_r, r, a, b, accel_n, accel_e):
         x -= m * a_u
         y -= m * a_v
         n -= m * p[P_X_G] * a_v
-    return _solve(ki, p, x, y, n, u_r, v_r, r)
+    return _solve(ki[K_HULL], ki, p, x, y, n, u_r, v_r, r)
 
 
 def sea_tuple(q_wave: float, current_n: float, current_e: float, wind_speed: float, wind_from: float,
@@ -606,17 +756,32 @@ def sea_tuple(q_wave: float, current_n: float, current_e: float, wind_speed: flo
 # ---- the rollout ----------------------------------------------------------------------------------------------------
 
 @_inlined
-def _derivative(ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b, cos_a, sin_a):
-    """d/dt of [x_n, y_e, psi, u_r, v_r, r] at the actuator levels (a, b) (GreyBoxRollout._derivative); cos_a, sin_a:
-    a rudder layout's cos a, sin a."""
-    c, s = math.cos(psi), math.sin(psi)
-    hx, hy, hn = _hull_forces(ki, p, u_r, v_r, r)
-    ax, ay, an, px, py, pn = _actuator_forces_at(ki, p, u_r, v_r, r, a, b, cos_a, sin_a)
+def _motion(kind, ki, p, sea, psi, u_r, v_r, r, a, b, cos_a, sin_a):
+    """(x_n_dot, y_e_dot, u_r_dot, v_r_dot, r_dot) of the grey box without a learned residual at the actuator levels
+    (a, b); cos_a, sin_a a rudder layout's cos a, sin a. kind (hull, layout, loaded, vector): the hull model, the
+    layout, whether sea's wind or waves load the hull, and whether the elementary functions are the ones without a call
+    (rollout passes ki's, 1 and 0; rollout_lanes constants, which fold its branches away, with ki as a tuple and p
+    as a pointer, which carry no reference count: its lanes then run side by side)."""
+    hull, layout, loaded, vector = kind
+    c, s = _cos_sin_of(vector, psi)
+    hx, hy, hn = _hull_forces(hull, ki, p, u_r, v_r, r)
+    ax, ay, an, px, py, pn = _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, cos_a, sin_a, vector)
     lx = ly = ln = 0.0  # calm water: _sea_loads' zeros, without the call
-    if sea[2] != 0.0 or sea[3] != 0.0 or sea[6] != 0.0:
+    if loaded and (sea[2] != 0.0 or sea[3] != 0.0 or sea[6] != 0.0):
         lx, ly, ln = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
-    du, dv, dr = _solve(ki, p, hx + ax + px + lx, hy + ay + py + ly, hn + an + pn + ln, u_r, v_r, r)
-    residual = ki[K_RESIDUAL]
+    du, dv, dr = _solve(hull, ki, p, hx + ax + px + lx, hy + ay + py + ly, hn + an + pn + ln, u_r, v_r, r)
+    u = u_r + sea[0] * c + sea[1] * s
+    v = v_r - sea[0] * s + sea[1] * c
+    return u * c - v * s, u * s + v * c, du, dv, dr
+
+
+@_inlined
+def _derivative(kind, ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b, cos_a, sin_a):
+    """d/dt of [x_n, y_e, psi, u_r, v_r, r] at the actuator levels (a, b) (GreyBoxRollout._derivative): _motion
+    with member e's learned residual (kind (hull, layout, residual, loaded): K_RESIDUAL's bits third), sway and yaw
+    times free (0: held)."""
+    hull, layout, residual, loaded = kind
+    x_dot, y_dot, du, dv, dr = _motion((hull, layout, loaded, 0), ki, p, sea, psi, u_r, v_r, r, a, b, cos_a, sin_a)
     if residual != 0:
         eu = ev = er = 0.0
         if residual & RESIDUAL_POLYNOMIAL:
@@ -625,10 +790,116 @@ def _derivative(ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b, cos_a, sin_a)
             mu, mv, mr = _mlp_residual(ki, p, e, work, psi, u_r, v_r, r, a, b)
             eu, ev, er = eu + mu, ev + mv, er + mr
         du, dv, dr = du + eu, dv + ev, dr + er
-    u = u_r + sea[0] * c + sea[1] * s
-    v = v_r - sea[0] * s + sea[1] * c
-    return u * c - v * s, u * s + v * c, r, du, dv * free, dr * free
+    return x_dot, y_dot, r, du, dv * free, dr * free
 
+
+# ---- the rollout's parts, shared by rollout and rollout_lanes ----------------------------------------------------
+
+@_inlined
+def _held_controls(p, controls, b, held):
+    """held (H, C) = row b's controls as the hull feels them: shifted later by actuator_delay (linear interpolation,
+    the first value held before)."""
+    steps, width = held.shape
+    shift = p[T_ACTUATOR_DELAY] / p[P_DT]
+    for k in range(steps):
+        if shift != 0.0:
+            index = min(max(k - shift, 0.0), float(steps - 1))
+            low = math.floor(index)
+            frac = index - low
+            lo = int(low)
+            hi = min(lo + 1, steps - 1)
+            for i in range(width):
+                held[k, i] = controls[b, lo, i] * (1.0 - frac) + controls[b, hi, i] * frac
+        else:
+            for i in range(width):
+                held[k, i] = controls[b, k, i]
+
+
+@_inlined
+def _start(layout, ki, p, sea, state, reference, use_reference, held, b):
+    """Row b's start: (psi, u_r, v_r, r) water-relative with the sensors' terms removed, from the measured state, and
+    the layout's carry (a, b): the lagged motors at the first reported commands; rudder_only's held engine speed
+    (the engine speed whose thrust holds the reference's straight running, or the one given)."""
+    psi = state[b, 3] - p[T_HEADING_OFFSET]
+    c, s = math.cos(psi), math.sin(psi)
+    u_r = state[b, 0] - (sea[0] * c + sea[1] * s)
+    v_r = state[b, 1] - (-sea[0] * s + sea[1] * c)
+    r = state[b, 2] - p[T_YAW_RATE_BIAS]
+    carry_a = 0.0
+    carry_b = 0.0
+    if layout == RUDDER_THROTTLE:
+        carry_b = held[0, 1]
+    elif layout == TWIN_THRUSTERS:
+        carry_a = held[0, 0]
+        carry_b = held[0, 1]
+    elif layout == RUDDER_ONLY:
+        psi_held = reference[b, 3] - p[T_HEADING_OFFSET] if use_reference else psi
+        c_held, s_held = math.cos(psi_held), math.sin(psi_held)
+        speed_held = reference[b, 0] - (sea[0] * c_held + sea[1] * s_held) if use_reference else u_r
+        r1, r2 = _resistance(ki, p)
+        sea_x = _sea_loads(ki, p, sea, c_held, s_held, psi_held, speed_held, 0.0)[0]
+        speed = max(speed_held, 0.0)
+        u_p = speed * (1.0 - p[P_W_P0])
+        scale = (1.0 - p[P_T_P]) * p[P_RHO]
+        d_p = p[P_D_P]
+        qa = scale * p[P_K0] * d_p ** 4
+        qb = scale * p[P_K1] * d_p ** 3 * u_p
+        qc = scale * p[P_K2] * d_p ** 2 * u_p * u_p - (r1 * speed + r2 * speed * speed - sea_x)
+        n = (-qb + math.sqrt(max(qb * qb - 4.0 * qa * qc, 0.0))) / (2.0 * qa)
+        carry_b = max(n, 0.0) * 60.0 * p[P_GEAR_RATIO]
+        if p[P_ENGINE_SPEED_RPM] > 0.0:
+            carry_b = p[P_ENGINE_SPEED_RPM]
+    return psi, u_r, v_r, r, carry_a, carry_b
+
+
+@_inlined
+def _levels(layout, ki, p, held, k, j, carry_a, carry_b):
+    """The actuator levels at substep j of step k's start, middle and end (a0, a1, a2, b0, b1, b2) from the reported
+    controls' first-order hold (the layout's stage: lagged motors, rudder offset, rudder_only's held engine speed),
+    and the carry after it."""
+    steps, width = held.shape
+    substeps = ki[K_SUBSTEPS]
+    nxt = min(k + 1, steps - 1)
+    f0 = j / substeps
+    f1 = (j + 0.5) / substeps
+    f2 = (j + 1.0) / substeps
+    c0a = held[k, 0] + f0 * (held[nxt, 0] - held[k, 0])
+    c1a = held[k, 0] + f1 * (held[nxt, 0] - held[k, 0])
+    c2a = held[k, 0] + f2 * (held[nxt, 0] - held[k, 0])
+    c0b = c1b = c2b = 0.0
+    if width > 1:
+        c0b = held[k, 1] + f0 * (held[nxt, 1] - held[k, 1])
+        c1b = held[k, 1] + f1 * (held[nxt, 1] - held[k, 1])
+        c2b = held[k, 1] + f2 * (held[nxt, 1] - held[k, 1])
+    h_sub = p[P_DT] / substeps
+    if layout == TWIN_THRUSTERS:
+        a0, b0 = carry_a, carry_b
+        a1, a2 = _lagged(ki, p, 0, carry_a, c0a, c1a, c2a, h_sub)
+        b1, b2 = _lagged(ki, p, 1, carry_b, c0b, c1b, c2b, h_sub)
+        return a0, a1, a2, b0, b1, b2, a2, b2
+    offset = p[T_RUDDER_OFFSET]
+    a0, a1, a2 = c0a + offset, c1a + offset, c2a + offset
+    if layout == RUDDER_THROTTLE:
+        b1, b2 = _lagged(ki, p, 0, carry_b, c0b, c1b, c2b, h_sub)
+        return a0, a1, a2, carry_b, b1, b2, carry_a, b2
+    if layout == RUDDER_ONLY:
+        return a0, a1, a2, carry_b, carry_b, carry_b, carry_a, carry_b
+    return a0, a1, a2, c0b, c1b, c2b, carry_a, carry_b
+
+
+@_inlined
+def _measured(p, sea, out, e, b, k, psi, u_r, v_r, r, x_n, y_e):
+    """out[e, b, k] = [u, v, r, x_n, y_e, psi] as measured: over ground, with the sensors' terms."""
+    c, s = math.cos(psi), math.sin(psi)
+    out[e, b, k, 0] = u_r + sea[0] * c + sea[1] * s
+    out[e, b, k, 1] = v_r - sea[0] * s + sea[1] * c
+    out[e, b, k, 2] = r + p[T_YAW_RATE_BIAS]
+    out[e, b, k, 3] = x_n
+    out[e, b, k, 4] = y_e
+    out[e, b, k, 5] = psi + p[T_HEADING_OFFSET]
+
+
+# ---- the rollout ----------------------------------------------------------------------------------------------------
 
 # without the GIL: two threads roll out two halves of a batch at once; VECTOR: the learned residual's flags (above)
 @njit(cache=CACHED, nogil=True, **VECTOR)
@@ -637,105 +908,32 @@ def rollout(state, controls, reference, use_reference, ki, constants, terms, fre
     (B, 4) [u, v, r, psi] as measured and controls (B, H, C) as reported (models/greybox.py's interface); reference
     (B, 4) the straight running of rudder_only's engine speed where use_reference; terms (R, NT) each row's extension
     terms (R = 1: the same for all), free (B,) 0 on a row whose sway and yaw are held. E members of a learned residual
-    (1 without one) share the batch: member e's prediction of row b is out[e, b]."""
+    (1 without one) share the batch: member e's prediction of row b is out[e, b]. One row at a time; rollout_lanes
+    runs the same model several rows side by side where it can."""
     rows, steps, width = controls.shape
     members = out.shape[0]
     p = constants.copy()  # the terms of each row go into their place in it
     substeps = ki[K_SUBSTEPS]
     layout = ki[K_LAYOUT]
-    dt = p[P_DT]
-    h_sub = dt / substeps
+    kind = (ki[K_HULL], layout, ki[K_RESIDUAL], 1)
+    h_sub = p[P_DT] / substeps
     work = np.empty((3, max(ki[K_HIDDEN], N_FEATURES)))  # _mlp_residual's scratch
     held = np.empty((steps, width))  # the controls as the hull feels them (actuator delay)
+    rudder = layout != TWIN_THRUSTERS
     for e in range(members):
         for b in range(rows):
             p[T_BASE:T_BASE + N_TERMS] = terms[min(b, terms.shape[0] - 1)]
             sea = _sea_of(p)
             row_free = free[b]
-            # the controls shifted later by actuator_delay (linear interpolation, the first value held before)
-            shift = p[T_ACTUATOR_DELAY] / dt
-            for k in range(steps):
-                if shift != 0.0:
-                    index = min(max(k - shift, 0.0), float(steps - 1))
-                    low = math.floor(index)
-                    frac = index - low
-                    lo = int(low)
-                    hi = min(lo + 1, steps - 1)
-                    for i in range(width):
-                        held[k, i] = controls[b, lo, i] * (1.0 - frac) + controls[b, hi, i] * frac
-                else:
-                    for i in range(width):
-                        held[k, i] = controls[b, k, i]
-            # the start: measured -> water-relative, the sensors' terms removed
-            psi = state[b, 3] - p[T_HEADING_OFFSET]
-            c, s = math.cos(psi), math.sin(psi)
+            _held_controls(p, controls, b, held)
+            psi, u_r, v_r, r, carry_a, carry_b = _start(layout, ki, p, sea, state, reference, use_reference, held, b)
             x_n = 0.0
             y_e = 0.0
-            u_r = state[b, 0] - (sea[0] * c + sea[1] * s)
-            v_r = state[b, 1] - (-sea[0] * s + sea[1] * c)
-            r = state[b, 2] - p[T_YAW_RATE_BIAS]
-            # the layout's carry: the lagged motors at the first reported commands; rudder_only's held engine speed
-            carry_a = 0.0
-            carry_b = 0.0
-            if layout == RUDDER_THROTTLE:
-                carry_b = held[0, 1]
-            elif layout == TWIN_THRUSTERS:
-                carry_a = held[0, 0]
-                carry_b = held[0, 1]
-            elif layout == RUDDER_ONLY:
-                speed_held = u_r
-                psi_held = psi
-                if use_reference:
-                    psi_held = reference[b, 3] - p[T_HEADING_OFFSET]
-                    speed_held = reference[b, 0] - (sea[0] * math.cos(psi_held) + sea[1] * math.sin(psi_held))
-                r1, r2 = _resistance(ki, p)
-                sea_x = _sea_loads(ki, p, sea, math.cos(psi_held), math.sin(psi_held), psi_held, speed_held, 0.0)[0]
-                speed = max(speed_held, 0.0)
-                u_p = speed * (1.0 - p[P_W_P0])
-                scale = (1.0 - p[P_T_P]) * p[P_RHO]
-                d_p = p[P_D_P]
-                qa = scale * p[P_K0] * d_p ** 4
-                qb = scale * p[P_K1] * d_p ** 3 * u_p
-                qc = scale * p[P_K2] * d_p ** 2 * u_p * u_p - (r1 * speed + r2 * speed * speed - sea_x)
-                n = (-qb + math.sqrt(max(qb * qb - 4.0 * qa * qc, 0.0))) / (2.0 * qa)
-                carry_b = max(n, 0.0) * 60.0 * p[P_GEAR_RATIO]
-                if p[P_ENGINE_SPEED_RPM] > 0.0:
-                    carry_b = p[P_ENGINE_SPEED_RPM]
-            offset = p[T_RUDDER_OFFSET] if layout != TWIN_THRUSTERS else 0.0
-            rudder = layout != TWIN_THRUSTERS
             last_level = math.nan  # equal to no level: the first is computed
             cos_a = sin_a = 0.0
             for k in range(steps):
-                nxt = min(k + 1, steps - 1)
                 for j in range(substeps):
-                    f0 = j / substeps
-                    f1 = (j + 0.5) / substeps
-                    f2 = (j + 1.0) / substeps
-                    # the reported controls at the substep's start, middle and end (first-order hold)
-                    c0a = held[k, 0] + f0 * (held[nxt, 0] - held[k, 0])
-                    c1a = held[k, 0] + f1 * (held[nxt, 0] - held[k, 0])
-                    c2a = held[k, 0] + f2 * (held[nxt, 0] - held[k, 0])
-                    c0b = c1b = c2b = 0.0
-                    if width > 1:
-                        c0b = held[k, 1] + f0 * (held[nxt, 1] - held[k, 1])
-                        c1b = held[k, 1] + f1 * (held[nxt, 1] - held[k, 1])
-                        c2b = held[k, 1] + f2 * (held[nxt, 1] - held[k, 1])
-                    # the actuator levels there (the layout's stage)
-                    if layout == TWIN_THRUSTERS:
-                        a0, b0 = carry_a, carry_b
-                        a1, a2 = _lagged(ki, p, 0, carry_a, c0a, c1a, c2a, h_sub)
-                        b1, b2 = _lagged(ki, p, 1, carry_b, c0b, c1b, c2b, h_sub)
-                        carry_a, carry_b = a2, b2
-                    else:
-                        a0, a1, a2 = c0a + offset, c1a + offset, c2a + offset
-                        if layout == RUDDER_THROTTLE:
-                            b0 = carry_b
-                            b1, b2 = _lagged(ki, p, 0, carry_b, c0b, c1b, c2b, h_sub)
-                            carry_b = b2
-                        elif layout == RUDDER_ONLY:
-                            b0 = b1 = b2 = carry_b
-                        else:
-                            b0, b1, b2 = c0b, c1b, c2b
+                    a0, a1, a2, b0, b1, b2, carry_a, carry_b = _levels(layout, ki, p, held, k, j, carry_a, carry_b)
                     # the four RK4 stages from one call site (the derivative is inlined once); the weighted sum
                     # k1 + 2 k2 + 2 k3 + k4 accumulated in that order
                     hh = 0.5 * h_sub
@@ -747,13 +945,15 @@ def rollout(state, controls, reference, use_reference, ki, constants, terms, fre
                         if rudder and stage != 2:
                             level = a0 if stage == 0 else (a1 if stage == 1 else a2)
                             if level != last_level:
-                                last_level, cos_a, sin_a = level, math.cos(level), math.sin(level)
+                                cos_a, sin_a = math.cos(level), math.sin(level)
+                                last_level = level
                         if stage == 0:
-                            d = _derivative(ki, p, sea, row_free, e, work, psi, u_r, v_r, r, a0, b0, cos_a, sin_a)
+                            d = _derivative(kind, ki, p, sea, row_free, e, work, psi, u_r, v_r, r, a0, b0, cos_a,
+                                            sin_a)
                             s0, s1, s2, s3, s4, s5 = d
                             continue
                         weight, lev_a, lev_b = (hh, a1, b1) if stage < 3 else (h_sub, a2, b2)
-                        d = _derivative(ki, p, sea, row_free, e, work, psi + weight * d[2], u_r + weight * d[3],
+                        d = _derivative(kind, ki, p, sea, row_free, e, work, psi + weight * d[2], u_r + weight * d[3],
                                         v_r + weight * d[4], r + weight * d[5], lev_a, lev_b, cos_a, sin_a)
                         twice = 2.0 if stage < 3 else 1.0
                         s0 += twice * d[0]
@@ -769,11 +969,117 @@ def rollout(state, controls, reference, use_reference, ki, constants, terms, fre
                     u_r += w * s3
                     v_r += w * s4
                     r += w * s5
-                c, s = math.cos(psi), math.sin(psi)
-                out[e, b, k, 0] = u_r + sea[0] * c + sea[1] * s
-                out[e, b, k, 1] = v_r - sea[0] * s + sea[1] * c
-                out[e, b, k, 2] = r + p[T_YAW_RATE_BIAS]
-                out[e, b, k, 3] = x_n
-                out[e, b, k, 4] = y_e
-                out[e, b, k, 5] = psi + p[T_HEADING_OFFSET]
+                _measured(p, sea, out, e, b, k, psi, u_r, v_r, r, x_n, y_e)
     return out
+
+
+# ---- several rows side by side --------------------------------------------------------------------------------------
+
+LANES = 64  # rows rolled out side by side: their derivative is one loop over them, eight wide (AVX-512)
+LANE_KINDS = ((MMG, RUDDER_PROPELLER), (MMG, RUDDER_ONLY))  # (hull, layout) whose derivative has no loop or call
+# the rows of _rollout_lanes' one (N_LANE_ROWS, LANES) array: one array, and rows a constant LANES apart, so that the
+# compiler knows that no two of them overlap (separate arrays would each need a run-time overlap check)
+(L_PSI, L_U, L_V, L_R, L_X, L_Y,  # the state
+ L_DPSI, L_DU, L_DV, L_DR,  # the last stage's derivative (the next stage starts from it)
+ L_SX, L_SY, L_SPSI, L_SU, L_SV, L_SR,  # the RK4 sums k1 + 2 k2 + 2 k3 + k4
+ L_A0, L_A1, L_A2, L_B0, L_B1, L_B2,  # the substep's levels at its start, middle and end
+ L_FREE, L_CARRY_A, L_CARRY_B) = range(25)
+N_LANE_ROWS = 25
+
+
+@_inlined
+def _rollout_lanes(hull, layout, state, controls, reference, use_reference, ki, constants, terms, free, out):
+    """rollout's model, LANES rows at a time, with the stage's derivative one loop over the rows (`hull`, `layout`
+    constants of the caller: the derivative's branches fold away). The terms the same for every row (R = 1), without
+    wind, waves or a residual (rollout_lanes_for says which calls qualify)."""
+    rows, steps, width = controls.shape
+    p = constants.copy()
+    p[T_BASE:T_BASE + N_TERMS] = terms[0]
+    sea = _sea_of(p)
+    substeps = ki[K_SUBSTEPS]
+    h_sub = p[P_DT] / substeps
+    kind = (hull, layout, 0, 1)
+    # no reference counts in the lanes' loop: the kinds as a tuple (values the loop keeps in registers), the
+    # constants through a pointer
+    kp, pp = to_fixed_tuple(ki, N_KINDS), _data(p)
+    held = np.empty((min(rows, LANES), steps, width))
+    x = np.zeros((N_LANE_ROWS, LANES))
+    for g in range(0, rows, LANES):
+        n = min(LANES, rows - g)
+        for i in range(n):
+            _held_controls(p, controls, g + i, held[i])
+            (x[L_PSI, i], x[L_U, i], x[L_V, i], x[L_R, i], x[L_CARRY_A, i], x[L_CARRY_B, i]) = _start(
+                layout, ki, p, sea, state, reference, use_reference, held[i], g + i)
+            x[L_X, i] = 0.0
+            x[L_Y, i] = 0.0
+            x[L_FREE, i] = free[g + i]
+        for k in range(steps):
+            for j in range(substeps):
+                for i in range(n):
+                    (x[L_A0, i], x[L_A1, i], x[L_A2, i], x[L_B0, i], x[L_B1, i], x[L_B2, i], x[L_CARRY_A, i],
+                     x[L_CARRY_B, i]) = _levels(layout, ki, p, held[i], k, j, x[L_CARRY_A, i], x[L_CARRY_B, i])
+                for i in range(n):
+                    x[L_DPSI, i] = x[L_DU, i] = x[L_DV, i] = x[L_DR, i] = 0.0
+                    x[L_SX, i] = x[L_SY, i] = x[L_SPSI, i] = x[L_SU, i] = x[L_SV, i] = x[L_SR, i] = 0.0
+                for stage in range(4):
+                    weight = 0.0 if stage == 0 else (0.5 * h_sub if stage < 3 else h_sub)
+                    twice = 2.0 if stage == 1 or stage == 2 else 1.0
+                    level = 0 if stage == 0 else (1 if stage < 3 else 2)
+                    for i in range(n):  # the lanes: no call, no branch (selects), eight wide
+                        lev_a = x[L_A0 + level, i]
+                        lev_b = x[L_B0 + level, i]
+                        cos_a, sin_a = _cos_sin(lev_a)
+                        r_i = x[L_R, i] + weight * x[L_DR, i]
+                        x_dot, y_dot, du, dv, dr = _motion(kind, kp, pp, sea, x[L_PSI, i] + weight * x[L_DPSI, i],
+                                                           x[L_U, i] + weight * x[L_DU, i],
+                                                           x[L_V, i] + weight * x[L_DV, i], r_i, lev_a, lev_b, cos_a,
+                                                           sin_a)
+                        free_i = x[L_FREE, i]
+                        d = (x_dot, y_dot, r_i, du, dv * free_i, dr * free_i)
+                        x[L_DPSI, i], x[L_DU, i], x[L_DV, i], x[L_DR, i] = d[2], d[3], d[4], d[5]
+                        x[L_SX, i] += twice * d[0]
+                        x[L_SY, i] += twice * d[1]
+                        x[L_SPSI, i] += twice * d[2]
+                        x[L_SU, i] += twice * d[3]
+                        x[L_SV, i] += twice * d[4]
+                        x[L_SR, i] += twice * d[5]
+                w = h_sub / 6.0
+                for i in range(n):
+                    x[L_X, i] += w * x[L_SX, i]
+                    x[L_Y, i] += w * x[L_SY, i]
+                    x[L_PSI, i] += w * x[L_SPSI, i]
+                    x[L_U, i] += w * x[L_SU, i]
+                    x[L_V, i] += w * x[L_SV, i]
+                    x[L_R, i] += w * x[L_SR, i]
+            for i in range(n):
+                _measured(p, sea, out, 0, g + i, k, x[L_PSI, i], x[L_U, i], x[L_V, i], x[L_R, i], x[L_X, i],
+                          x[L_Y, i])
+    return out
+
+
+@njit(cache=CACHED, nogil=True, **VECTOR)
+def _lanes_mmg_rudder_propeller(state, controls, reference, use_reference, ki, constants, terms, free, out):
+    return _rollout_lanes(MMG, RUDDER_PROPELLER, state, controls, reference, use_reference, ki, constants, terms,
+                          free, out)
+
+
+@njit(cache=CACHED, nogil=True, **VECTOR)
+def _lanes_mmg_rudder_only(state, controls, reference, use_reference, ki, constants, terms, free, out):
+    return _rollout_lanes(MMG, RUDDER_ONLY, state, controls, reference, use_reference, ki, constants, terms, free,
+                          out)
+
+
+_LANE_ROLLOUTS = {(MMG, RUDDER_PROPELLER): _lanes_mmg_rudder_propeller, (MMG, RUDDER_ONLY): _lanes_mmg_rudder_only}
+assert tuple(_LANE_ROLLOUTS) == LANE_KINDS
+
+
+def rollout_lanes_for(ki: np.ndarray, terms: np.ndarray, members: int):
+    """The compiled rollout_lanes of this model (the signature of rollout), or None when it must run one row at a
+    time: a hull and layout without a lanes version, a residual, several members, terms per row, wind or waves."""
+    if members != 1 or int(ki[K_RESIDUAL]) != 0 or terms.shape[0] != 1:
+        return None
+    t = terms[0]
+    if t[T_WIND_N - T_BASE] != 0.0 or t[T_WIND_E - T_BASE] != 0.0 or t[T_WAVE_N - T_BASE] != 0.0 or \
+            t[T_WAVE_E - T_BASE] != 0.0:
+        return None
+    return _LANE_ROLLOUTS.get((int(ki[K_HULL]), int(ki[K_LAYOUT])))
