@@ -298,7 +298,7 @@ class KernelRollout:
         state = np.array([[1.0, 0.0, 0.0, 0.0]])
         controls = np.zeros((1, 2, self.n_controls))
         out = np.empty((self.members, 1, 2, 6))
-        for engine in dict.fromkeys((kn.rollout, self.engine if side_by_side else kn.rollout)):
+        for engine in dict.fromkeys((kn.rollout, self.engine) if side_by_side else (kn.rollout,)):
             engine(state, controls, state, False, self.ki, self.p, self.terms[:1], self._all_free(1), out)
 
     def _all_free(self, rows: int) -> np.ndarray:

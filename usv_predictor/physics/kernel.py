@@ -332,7 +332,7 @@ def _exp_neg(x):
         _C9 + r * (_C10 + r * (_C11 + r * (_C12 + r * _C13))))))))))))
     half = math.floor(0.5 * m)
     e = e * (0.5 if m - 2.0 * half > 0.0 else 1.0)
-    m, half = half, math.floor(0.25 * m)
+    m, half = half, math.floor(0.5 * half)
     e = e * (0.25 if m - 2.0 * half > 0.0 else 1.0)
     m, half = half, math.floor(0.5 * half)
     e = e * (0.0625 if m - 2.0 * half > 0.0 else 1.0)
@@ -758,11 +758,12 @@ def sea_tuple(q_wave: float, current_n: float, current_e: float, wind_speed: flo
 @_inlined
 def _motion(kind, ki, p, sea, psi, u_r, v_r, r, a, b, cos_a, sin_a):
     """(x_n_dot, y_e_dot, u_r_dot, v_r_dot, r_dot) of the grey box without a learned residual at the actuator levels
-    (a, b); cos_a, sin_a a rudder layout's cos a, sin a. kind (hull, layout, loaded, vector): the hull model, the
-    layout, whether sea's wind or waves load the hull, and whether the elementary functions are the ones without a call
-    (rollout passes ki's, 1 and 0; rollout_lanes constants, which fold its branches away, with ki as a tuple and p
-    as a pointer, which carry no reference count: its lanes then run side by side)."""
-    hull, layout, loaded, vector = kind
+    (a, b); cos_a, sin_a a rudder layout's cos a, sin a. kind (hull, layout, residual, loaded, vector): the hull
+    model, the layout, K_RESIDUAL's bits (_derivative's), whether sea's wind or waves load the hull, and whether the
+    elementary functions are the ones without a call (rollout passes ki's, 1 and 0; rollout_lanes constants, which
+    fold its branches away, with ki as a tuple and p as a pointer, which carry no reference count: its lanes then
+    run side by side)."""
+    hull, layout, _, loaded, vector = kind
     c, s = _cos_sin_of(vector, psi)
     hx, hy, hn = _hull_forces(hull, ki, p, u_r, v_r, r)
     ax, ay, an, px, py, pn = _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, cos_a, sin_a, vector)
@@ -778,10 +779,9 @@ def _motion(kind, ki, p, sea, psi, u_r, v_r, r, a, b, cos_a, sin_a):
 @_inlined
 def _derivative(kind, ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b, cos_a, sin_a):
     """d/dt of [x_n, y_e, psi, u_r, v_r, r] at the actuator levels (a, b) (GreyBoxRollout._derivative): _motion
-    with member e's learned residual (kind (hull, layout, residual, loaded): K_RESIDUAL's bits third), sway and yaw
-    times free (0: held)."""
-    hull, layout, residual, loaded = kind
-    x_dot, y_dot, du, dv, dr = _motion((hull, layout, loaded, 0), ki, p, sea, psi, u_r, v_r, r, a, b, cos_a, sin_a)
+    with member e's learned residual (kind: _motion's), sway and yaw times free (0: held)."""
+    residual = kind[2]
+    x_dot, y_dot, du, dv, dr = _motion(kind, ki, p, sea, psi, u_r, v_r, r, a, b, cos_a, sin_a)
     if residual != 0:
         eu = ev = er = 0.0
         if residual & RESIDUAL_POLYNOMIAL:
@@ -915,7 +915,7 @@ def rollout(state, controls, reference, use_reference, ki, constants, terms, fre
     p = constants.copy()  # the terms of each row go into their place in it
     substeps = ki[K_SUBSTEPS]
     layout = ki[K_LAYOUT]
-    kind = (ki[K_HULL], layout, ki[K_RESIDUAL], 1)
+    kind = (ki[K_HULL], layout, ki[K_RESIDUAL], 1, 0)
     h_sub = p[P_DT] / substeps
     work = np.empty((3, max(ki[K_HIDDEN], N_FEATURES)))  # _mlp_residual's scratch
     held = np.empty((steps, width))  # the controls as the hull feels them (actuator delay)
@@ -977,14 +977,14 @@ def rollout(state, controls, reference, use_reference, ki, constants, terms, fre
 
 LANES = 64  # rows rolled out side by side: their derivative is one loop over them, eight wide (AVX-512)
 LANE_KINDS = ((MMG, RUDDER_PROPELLER), (MMG, RUDDER_ONLY))  # (hull, layout) whose derivative has no loop or call
+N_LANE_ROWS = 25
 # the rows of _rollout_lanes' one (N_LANE_ROWS, LANES) array: one array, and rows a constant LANES apart, so that the
 # compiler knows that no two of them overlap (separate arrays would each need a run-time overlap check)
 (L_PSI, L_U, L_V, L_R, L_X, L_Y,  # the state
  L_DPSI, L_DU, L_DV, L_DR,  # the last stage's derivative (the next stage starts from it)
  L_SX, L_SY, L_SPSI, L_SU, L_SV, L_SR,  # the RK4 sums k1 + 2 k2 + 2 k3 + k4
  L_A0, L_A1, L_A2, L_B0, L_B1, L_B2,  # the substep's levels at its start, middle and end
- L_FREE, L_CARRY_A, L_CARRY_B) = range(25)
-N_LANE_ROWS = 25
+ L_FREE, L_CARRY_A, L_CARRY_B) = range(N_LANE_ROWS)
 
 
 @_inlined
@@ -998,7 +998,7 @@ def _rollout_lanes(hull, layout, state, controls, reference, use_reference, ki, 
     sea = _sea_of(p)
     substeps = ki[K_SUBSTEPS]
     h_sub = p[P_DT] / substeps
-    kind = (hull, layout, 0, 1)
+    kind = (hull, layout, 0, 0, 1)
     # no reference counts in the lanes' loop: the kinds as a tuple (values the loop keeps in registers), the
     # constants through a pointer
     kp, pp = to_fixed_tuple(ki, N_KINDS), _data(p)
