@@ -84,7 +84,7 @@ def _derivatives(n: int, ki, p) -> float:
     acc = 0.0
     for i in range(n):
         delta = 0.1 + 1e-9 * i  # (rad) its cosine and sine in every call: the derivative's whole cost
-        kind = (ki[kn.K_HULL], ki[kn.K_LAYOUT], ki[kn.K_RESIDUAL], 1, 0)  # rollout's: one row at a time
+        kind = (ki[kn.K_HULL], ki[kn.K_LAYOUT], ki[kn.K_RESIDUAL], 1)  # rollout's: one row at a time
         d = kn._derivative(kind, ki, p, sea, 1.0, 0, work, 0.3 + 1e-9 * i, 2.0 + 1e-9 * i, 0.05, 0.02, delta, 600.0,
                            math.cos(delta), math.sin(delta))
         acc += d[3]

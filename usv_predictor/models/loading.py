@@ -369,9 +369,9 @@ def warm_up(vessel: Vessel, dt: float) -> float:
     """Compile (or load from numba's cache) the kernel entries (models/kernel_rollout.py) a process may call for this
     vessel whatever its model: the one-row-at-a-time rollout (the fit check's causes, terms per row) of its
     calm-water grey box, and the float model's forces and accelerations (the online estimator). Returns the seconds
-    it took (~25 s the first time on a 2-core machine, well under one with a warm cache). The node calls it before
+    it took (~36 s the first time on a 2-core machine, well under one with a warm cache). The node calls it before
     its first cycle: compiling holds the GIL, and inside a cycle it would stall the node. A grey box's rows side by
-    side (an MMG rudder boat's: ~25 s more the first time) are compiled by the node's model check, which predicts."""
+    side (an MMG rudder boat's: ~12 s more the first time) are compiled by the node's model check, which predicts."""
     import time
 
     from usv_predictor.models.greybox import GreyBoxRollout

@@ -51,7 +51,7 @@ import numpy as np
 from llvmlite import ir as llvm_ir
 from numba import njit
 from numba.core import cgutils, types
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 from numba.np.unsafe.ndarray import to_fixed_tuple
 
 
@@ -344,25 +344,43 @@ def _exp_neg(x):
 
 
 
-@njit(cache=CACHED, inline="always", **VECTOR)
-def _cos_sin_of(vector, x):
-    """(cos x, sin x): _cos_sin's where `vector` (a constant of rollout_lanes: its lanes run side by side), libm's
-    elsewhere (a call is cheaper one row at a time)."""
-    if vector:
-        return _cos_sin(x)
+def _cos_sin_of(p, x):
+    """(cos x, sin x): _cos_sin's where p is a pointer (_data: rollout_lanes', whose lanes run side by side), libm's
+    where p is an array (one row at a time a call is cheaper). Chosen by p's type as the caller is compiled, so that
+    the caller holds only the one it uses (the other would cost its compile time, not its run time)."""
     return math.cos(x), math.sin(x)
 
 
-@njit(cache=CACHED, inline="always", **VECTOR)
-def _atan2_of(vector, y, x):
-    """atan2(y, x): _atan2's where `vector`, libm's elsewhere (_cos_sin_of)."""
-    return _atan2(y, x) if vector else math.atan2(y, x)
+def _atan2_of(p, y, x):
+    """atan2(y, x): _atan2's where p is a pointer, libm's where it is an array (_cos_sin_of)."""
+    return math.atan2(y, x)
 
 
-@njit(cache=CACHED, inline="always", **VECTOR)
-def _exp_of(vector, x):
-    """exp x (x <= 0): _exp_neg's where `vector`, libm's elsewhere (_cos_sin_of)."""
-    return _exp_neg(x) if vector else math.exp(x)
+def _exp_of(p, x):
+    """exp x (x <= 0): _exp_neg's where p is a pointer, libm's where it is an array (_cos_sin_of)."""
+    return math.exp(x)
+
+
+@overload(_cos_sin_of, inline="always", jit_options=VECTOR)
+def _cos_sin_by_type(p, x):
+    if isinstance(p, types.CPointer):
+        return lambda p, x: _cos_sin(x)
+    return lambda p, x: (math.cos(x), math.sin(x))
+
+
+@overload(_atan2_of, inline="always", jit_options=VECTOR)
+def _atan2_by_type(p, y, x):
+    if isinstance(p, types.CPointer):
+        return lambda p, y, x: _atan2(y, x)
+    return lambda p, y, x: math.atan2(y, x)
+
+
+@overload(_exp_of, inline="always", jit_options=VECTOR)
+def _exp_by_type(p, x):
+    if isinstance(p, types.CPointer):
+        return lambda p, x: _exp_neg(x)
+    return lambda p, x: math.exp(x)
+
 
 # ---- the sea --------------------------------------------------------------------------------------------------------
 
@@ -520,13 +538,13 @@ def _thrust(ki, p, k, level):
 
 
 @_inlined
-def _rudder_propeller(p, u_r, v_r, r, rpm, cos_d, sin_d, vector):
+def _rudder_propeller(p, u_r, v_r, r, rpm, cos_d, sin_d):
     """(X_R, Y_R, N_R, X_P, Y_P, N_P): the MMG rudder with slipstream (eq. 13-16, 37-43) and propeller (eq. 10-12);
     cos_d, sin_d the rudder angle's (the rollout computes them once per level, not once per stage)."""
     L = p[P_L_ACT]
     speed = _sqrt(u_r * u_r + v_r * v_r) + 1e-9
-    beta_p = _atan2_of(vector, -v_r, max(u_r, 1e-9)) - p[P_X_P] * r * L / speed
-    u_p = u_r * (1.0 - p[P_W_P0] * _exp_of(vector, -4.0 * beta_p * beta_p))
+    beta_p = _atan2_of(p, -v_r, max(u_r, 1e-9)) - p[P_X_P] * r * L / speed
+    u_p = u_r * (1.0 - p[P_W_P0] * _exp_of(p, -4.0 * beta_p * beta_p))
     n_raw = rpm / 60.0 / p[P_GEAR_RATIO]
     n_p = max(n_raw, 1e-6)
     d_p = p[P_D_P]
@@ -558,12 +576,12 @@ def _rudder_propeller(p, u_r, v_r, r, rpm, cos_d, sin_d, vector):
 def _actuator_forces(layout, ki, p, u_r, v_r, r, a, b):
     """(X, Y, N) of steering then of propulsion at the levels (a, b) of the layout."""
     if layout == TWIN_THRUSTERS:
-        return _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, 0.0, 0.0, 0)
-    return _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, math.cos(a), math.sin(a), 0)
+        return _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, 0.0, 0.0)
+    return _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, math.cos(a), math.sin(a))
 
 
 @_inlined
-def _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, cos_a, sin_a, vector):
+def _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, cos_a, sin_a):
     """_actuator_forces with the rudder angle's cosine and sine given (a rudder layout's; unused with thrusters)."""
     if layout == TWIN_THRUSTERS:
         imbalance = p[T_THRUST_IMBALANCE]
@@ -574,7 +592,7 @@ def _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, cos_a, sin_a, vector):
     if layout == RUDDER_THROTTLE:  # the engine speed whose static thrust is the map's at the level
         thrust = max(_thrust(ki, p, 0, b), 0.0)
         rpm = _sqrt(thrust / p[P_STATIC_THRUST]) * p[P_RPM_PER_REV_S]
-    return _rudder_propeller(p, u_r, v_r, r, rpm, cos_a, sin_a, vector)
+    return _rudder_propeller(p, u_r, v_r, r, rpm, cos_a, sin_a)
 
 
 @_inlined
@@ -758,15 +776,15 @@ def sea_tuple(q_wave: float, current_n: float, current_e: float, wind_speed: flo
 @_inlined
 def _motion(kind, ki, p, sea, psi, u_r, v_r, r, a, b, cos_a, sin_a):
     """(x_n_dot, y_e_dot, u_r_dot, v_r_dot, r_dot) of the grey box without a learned residual at the actuator levels
-    (a, b); cos_a, sin_a a rudder layout's cos a, sin a. kind (hull, layout, residual, loaded, vector): the hull
-    model, the layout, K_RESIDUAL's bits (_derivative's), whether sea's wind or waves load the hull, and whether the
-    elementary functions are the ones without a call (rollout passes ki's, 1 and 0; rollout_lanes constants, which
-    fold its branches away, with ki as a tuple and p as a pointer, which carry no reference count: its lanes then
-    run side by side)."""
-    hull, layout, _, loaded, vector = kind
-    c, s = _cos_sin_of(vector, psi)
+    (a, b); cos_a, sin_a a rudder layout's cos a, sin a. kind (hull, layout, residual, loaded): the hull model, the
+    layout, K_RESIDUAL's bits (_derivative's) and whether sea's wind or waves load the hull (rollout passes ki's and
+    1; rollout_lanes constants, which fold its branches away, with ki as a tuple and p as a pointer, which carry no
+    reference count, and p's type picks the elementary functions without a call, _cos_sin_of: its lanes then run
+    side by side)."""
+    hull, layout, _, loaded = kind
+    c, s = _cos_sin_of(p, psi)
     hx, hy, hn = _hull_forces(hull, ki, p, u_r, v_r, r)
-    ax, ay, an, px, py, pn = _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, cos_a, sin_a, vector)
+    ax, ay, an, px, py, pn = _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, cos_a, sin_a)
     lx = ly = ln = 0.0  # calm water: _sea_loads' zeros, without the call
     if loaded and (sea[2] != 0.0 or sea[3] != 0.0 or sea[6] != 0.0):
         lx, ly, ln = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
@@ -794,8 +812,10 @@ def _derivative(kind, ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b, cos_a, 
 
 
 # ---- the rollout's parts, shared by rollout and rollout_lanes ----------------------------------------------------
+# a row's start (_held_controls, _start) is called once per row: compiled once and called, not inlined into every
+# rollout (inlined, it cost each of them ~5 s of compile time); the per-substep parts are inlined
 
-@_inlined
+@_compiled
 def _held_controls(p, controls, b, held):
     """held (H, C) = row b's controls as the hull feels them: shifted later by actuator_delay (linear interpolation,
     the first value held before)."""
@@ -815,7 +835,7 @@ def _held_controls(p, controls, b, held):
                 held[k, i] = controls[b, k, i]
 
 
-@_inlined
+@_compiled
 def _start(layout, ki, p, sea, state, reference, use_reference, held, b):
     """Row b's start: (psi, u_r, v_r, r) water-relative with the sensors' terms removed, from the measured state, and
     the layout's carry (a, b): the lagged motors at the first reported commands; rudder_only's held engine speed
@@ -915,7 +935,7 @@ def rollout(state, controls, reference, use_reference, ki, constants, terms, fre
     p = constants.copy()  # the terms of each row go into their place in it
     substeps = ki[K_SUBSTEPS]
     layout = ki[K_LAYOUT]
-    kind = (ki[K_HULL], layout, ki[K_RESIDUAL], 1, 0)
+    kind = (ki[K_HULL], layout, ki[K_RESIDUAL], 1)
     h_sub = p[P_DT] / substeps
     work = np.empty((3, max(ki[K_HIDDEN], N_FEATURES)))  # _mlp_residual's scratch
     held = np.empty((steps, width))  # the controls as the hull feels them (actuator delay)
@@ -998,7 +1018,7 @@ def _rollout_lanes(hull, layout, state, controls, reference, use_reference, ki, 
     sea = _sea_of(p)
     substeps = ki[K_SUBSTEPS]
     h_sub = p[P_DT] / substeps
-    kind = (hull, layout, 0, 0, 1)
+    kind = (hull, layout, 0, 0)
     # no reference counts in the lanes' loop: the kinds as a tuple (values the loop keeps in registers), the
     # constants through a pointer
     kp, pp = to_fixed_tuple(ki, N_KINDS), _data(p)
