@@ -553,6 +553,26 @@ def test_sighup_during_a_long_command(one_bag_dataset, tmp_path) -> None:
     assert leftovers(tmp_path) == []
 
 
+def test_ctrl_c_inside_exec_still_ends_with_130(tmp_path) -> None:
+    """Was: exit by SIGINT (returncode -2) although `interrupted` was printed, when Ctrl-C fell inside exec() (torch
+    importing makes its dataclasses with exec: test_fuzz's SIGINT at a random moment found it). CPython marks the
+    interpreter when a KeyboardInterrupt leaves exec's code, and a program run with -m then ends itself with SIGINT,
+    caught or not. The program's main now ends a Ctrl-C'd run with os._exit(130) after the atexit handlers. Here the
+    command raises the interrupt inside exec(), deterministically, in a program run as `python -m` is."""
+    (tmp_path / "replay_interrupted_in_exec.py").write_text(
+        "import sys\n"
+        "from usv_predictor.replay import cli, cmd_info\n"
+        "def run(_args):\n"
+        "    exec('raise KeyboardInterrupt')\n"
+        "cmd_info.run = run\n"
+        "sys.exit(cli.main())\n")
+    done = subprocess.run([sys.executable, "-m", "replay_interrupted_in_exec", "info", str(BAGS / "training")],
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(tmp_path)])})
+    assert done.returncode == cli.EXIT_INTERRUPTED, (done.returncode, done.stderr[-3000:])
+    assert done.stderr.strip().splitlines() == ["replay info: interrupted"]
+
+
 def _raises_system_error_from(cause: BaseException | None) -> Callable:
     def run(_args: object) -> dict:
         if cause is None:

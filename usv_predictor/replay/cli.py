@@ -19,7 +19,8 @@ a compiled function's wrapper runs: _signal_behind) ends the command as that sig
 A model's code runs at load in a guard thread while the main thread waits with a timeout
 (usv_predictor.models.loading.call_guarded), so these signals are honoured also while a model never returns; such a
 run ends with its code through loading.exit_program (os._exit after the atexit handlers: a normal interpreter exit
-would abort with the thread inside torch), when main is the program (called without argv).
+would abort with the thread inside torch), when main is the program (called without argv); so does a run ended by
+Ctrl-C, whose code 130 the interpreter's own exit could turn into a death by SIGINT (main).
 """
 from __future__ import annotations
 
@@ -154,12 +155,17 @@ def _signal_behind(err: SystemError) -> BaseException | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one replay command; returns the process exit code. Called as the program (argv None) after a model's
-    code never returned (a guard thread still inside it), the process ends here with os._exit and that code."""
+    """Run one replay command; returns the process exit code. Called as the program (argv None), the process ends
+    here with os._exit and that code (loading.exit_program) after a model's code never returned (a guard thread
+    still inside it) and after Ctrl-C: a KeyboardInterrupt raised inside exec() (a dataclass or a namedtuple being
+    made while a library imports) marks the interpreter, which then ends itself with SIGINT at exit (CPython 3.11:
+    run_eval_code_obj's _Py_UnhandledKeyboardInterrupt) although the interrupt was caught here: not code 130."""
     code = _run(list(sys.argv[1:] if argv is None else argv))
-    loading = sys.modules.get("usv_predictor.models.loading")  # imported only by the commands that load a model
-    if argv is None and loading is not None and loading.stuck_guard_threads():
-        loading.exit_program(code)
+    if argv is None:
+        from usv_predictor.models import loading
+
+        if code == EXIT_INTERRUPTED or loading.stuck_guard_threads():
+            loading.exit_program(code)
     return code
 
 
