@@ -774,9 +774,10 @@ def sea_tuple(q_wave: float, current_n: float, current_e: float, wind_speed: flo
 # ---- the rollout ----------------------------------------------------------------------------------------------------
 
 @_inlined
-def _motion(kind, ki, p, sea, psi, u_r, v_r, r, a, b, cos_a, sin_a):
+def _motion(kind, ki, p, sea, psi, u_r, v_r, r, a, b, cos_a, sin_a, lx, ly, ln):
     """(x_n_dot, y_e_dot, u_r_dot, v_r_dot, r_dot) of the grey box without a learned residual at the actuator levels
-    (a, b); cos_a, sin_a a rudder layout's cos a, sin a. kind (hull, layout, residual, loaded): the hull model, the
+    (a, b); cos_a, sin_a a rudder layout's cos a, sin a; (lx, ly, ln) sea loads the caller computed (rollout_lanes'
+    wave drift: 0 elsewhere). kind (hull, layout, residual, loaded): the hull model, the
     layout, K_RESIDUAL's bits (_derivative's) and whether sea's wind or waves load the hull (rollout passes ki's and
     1; rollout_lanes constants, which fold its branches away, with ki as a tuple and p as a pointer, which carry no
     reference count, and p's type picks the elementary functions without a call, _cos_sin_of: its lanes then run
@@ -785,9 +786,9 @@ def _motion(kind, ki, p, sea, psi, u_r, v_r, r, a, b, cos_a, sin_a):
     c, s = _cos_sin_of(p, psi)
     hx, hy, hn = _hull_forces(hull, ki, p, u_r, v_r, r)
     ax, ay, an, px, py, pn = _actuator_forces_at(layout, ki, p, u_r, v_r, r, a, b, cos_a, sin_a)
-    lx = ly = ln = 0.0  # calm water: _sea_loads' zeros, without the call
-    if loaded and (sea[2] != 0.0 or sea[3] != 0.0 or sea[6] != 0.0):
-        lx, ly, ln = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
+    if loaded and (sea[2] != 0.0 or sea[3] != 0.0 or sea[6] != 0.0):  # calm water: _sea_loads' zeros, no call
+        sx, sy, sn = _sea_loads(ki, p, sea, c, s, psi, u_r, v_r)
+        lx, ly, ln = lx + sx, ly + sy, ln + sn
     du, dv, dr = _solve(hull, ki, p, hx + ax + px + lx, hy + ay + py + ly, hn + an + pn + ln, u_r, v_r, r)
     u = u_r + sea[0] * c + sea[1] * s
     v = v_r - sea[0] * s + sea[1] * c
@@ -799,7 +800,7 @@ def _derivative(kind, ki, p, sea, free, e, work, psi, u_r, v_r, r, a, b, cos_a, 
     """d/dt of [x_n, y_e, psi, u_r, v_r, r] at the actuator levels (a, b) (GreyBoxRollout._derivative): _motion
     with member e's learned residual (kind: _motion's), sway and yaw times free (0: held)."""
     residual = kind[2]
-    x_dot, y_dot, du, dv, dr = _motion(kind, ki, p, sea, psi, u_r, v_r, r, a, b, cos_a, sin_a)
+    x_dot, y_dot, du, dv, dr = _motion(kind, ki, p, sea, psi, u_r, v_r, r, a, b, cos_a, sin_a, 0.0, 0.0, 0.0)
     if residual != 0:
         eu = ev = er = 0.0
         if residual & RESIDUAL_POLYNOMIAL:
@@ -997,21 +998,49 @@ def rollout(state, controls, reference, use_reference, ki, constants, terms, fre
 
 LANES = 64  # rows rolled out side by side: their derivative is one loop over them, eight wide (AVX-512)
 LANE_KINDS = ((MMG, RUDDER_PROPELLER), (MMG, RUDDER_ONLY))  # (hull, layout) whose derivative has no loop or call
-N_LANE_ROWS = 25
+N_LANE_ROWS = 29
 # the rows of _rollout_lanes' one (N_LANE_ROWS, LANES) array: one array, and rows a constant LANES apart, so that the
 # compiler knows that no two of them overlap (separate arrays would each need a run-time overlap check)
 (L_PSI, L_U, L_V, L_R, L_X, L_Y,  # the state
  L_DPSI, L_DU, L_DV, L_DR,  # the last stage's derivative (the next stage starts from it)
  L_SX, L_SY, L_SPSI, L_SU, L_SV, L_SR,  # the RK4 sums k1 + 2 k2 + 2 k3 + k4
  L_A0, L_A1, L_A2, L_B0, L_B1, L_B2,  # the substep's levels at its start, middle and end
- L_FREE, L_CARRY_A, L_CARRY_B) = range(N_LANE_ROWS)
+ L_FREE, L_CARRY_A, L_CARRY_B,
+ L_CHI, L_WX, L_WY, L_WN) = range(N_LANE_ROWS)  # the stage's wave direction off the bow and its drift (X, Y, N)
+
+
+@_inlined
+def _lanes_wave_drift(ki, p, sea, x, n, weight):
+    """The mean wave drift (X, Y, N) of _sea_loads (_fourier's tables, the head-sea resistance) into rows L_WX, L_WY,
+    L_WN of lanes 0..n-1 at their stage's heading psi + weight psi_dot: each table row's harmonic one loop over the
+    lanes (a coefficient of zero adds an exact zero, where _fourier skips it)."""
+    rows = ki[K_DRIFT_ROWS]
+    for i in range(n):
+        x[L_CHI, i] = sea[5] - (x[L_PSI, i] + weight * x[L_DPSI, i])
+        x[L_WX, i] = p[ki[K_O_DRIFT]]
+        x[L_WY, i] = p[ki[K_O_DRIFT] + 3 * rows]
+        x[L_WN, i] = p[ki[K_O_DRIFT] + 6 * rows]
+    for k in range(3):
+        for j in range(1, rows):
+            row = ki[K_O_DRIFT] + 3 * k * rows + 3 * j
+            order, cos_part, sin_part = p[row], p[row + 1], p[row + 2]
+            for i in range(n):  # eight wide
+                c, s = _cos_sin(order * x[L_CHI, i])
+                x[L_WX + k, i] = (x[L_WX + k, i] + cos_part * c) + sin_part * s
+    qw, head_sea, arm = sea[4], sea[7], sea[4] * p[P_L_SEA]
+    for i in range(n):
+        head = max(_cos_sin(x[L_CHI, i])[0], 0.0)
+        x[L_WX, i] = qw * x[L_WX, i] - head_sea * head * head
+        x[L_WY, i] = qw * x[L_WY, i]
+        x[L_WN, i] = arm * x[L_WN, i]
 
 
 @_inlined
 def _rollout_lanes(hull, layout, state, controls, reference, use_reference, ki, constants, terms, free, out):
     """rollout's model, LANES rows at a time, with the stage's derivative one loop over the rows (`hull`, `layout`
     constants of the caller: the derivative's branches fold away). The terms the same for every row (R = 1), without
-    wind, waves or a residual (rollout_lanes_for says which calls qualify)."""
+    wind or a residual (rollout_lanes_for says which calls qualify); waves' drift is summed before each stage's
+    derivative, the Fourier tables' rows outside the loop over the lanes (_lanes_wave_drift)."""
     rows, steps, width = controls.shape
     p = constants.copy()
     p[T_BASE:T_BASE + N_TERMS] = terms[0]
@@ -1023,7 +1052,8 @@ def _rollout_lanes(hull, layout, state, controls, reference, use_reference, ki, 
     # constants through a pointer
     kp, pp = to_fixed_tuple(ki, N_KINDS), _data(p)
     held = np.empty((min(rows, LANES), steps, width))
-    x = np.zeros((N_LANE_ROWS, LANES))
+    x = np.zeros((N_LANE_ROWS, LANES))  # the drift's rows stay zero without waves
+    waves = sea[6] != 0.0
     for g in range(0, rows, LANES):
         n = min(LANES, rows - g)
         for i in range(n):
@@ -1045,6 +1075,8 @@ def _rollout_lanes(hull, layout, state, controls, reference, use_reference, ki, 
                     weight = 0.0 if stage == 0 else (0.5 * h_sub if stage < 3 else h_sub)
                     twice = 2.0 if stage == 1 or stage == 2 else 1.0
                     level = 0 if stage == 0 else (1 if stage < 3 else 2)
+                    if waves:
+                        _lanes_wave_drift(kp, pp, sea, x, n, weight)
                     for i in range(n):  # the lanes: no call, no branch (selects), eight wide
                         lev_a = x[L_A0 + level, i]
                         lev_b = x[L_B0 + level, i]
@@ -1053,7 +1085,7 @@ def _rollout_lanes(hull, layout, state, controls, reference, use_reference, ki, 
                         x_dot, y_dot, du, dv, dr = _motion(kind, kp, pp, sea, x[L_PSI, i] + weight * x[L_DPSI, i],
                                                            x[L_U, i] + weight * x[L_DU, i],
                                                            x[L_V, i] + weight * x[L_DV, i], r_i, lev_a, lev_b, cos_a,
-                                                           sin_a)
+                                                           sin_a, x[L_WX, i], x[L_WY, i], x[L_WN, i])
                         free_i = x[L_FREE, i]
                         d = (x_dot, y_dot, r_i, du, dv * free_i, dr * free_i)
                         x[L_DPSI, i], x[L_DU, i], x[L_DV, i], x[L_DR, i] = d[2], d[3], d[4], d[5]
@@ -1095,11 +1127,10 @@ assert tuple(_LANE_ROLLOUTS) == LANE_KINDS
 
 def rollout_lanes_for(ki: np.ndarray, terms: np.ndarray, members: int):
     """The compiled rollout_lanes of this model (the signature of rollout), or None when it must run one row at a
-    time: a hull and layout without a lanes version, a residual, several members, terms per row, wind or waves."""
+    time: a hull and layout without a lanes version, a residual, several members, terms per row or wind."""
     if members != 1 or int(ki[K_RESIDUAL]) != 0 or terms.shape[0] != 1:
         return None
     t = terms[0]
-    if t[T_WIND_N - T_BASE] != 0.0 or t[T_WIND_E - T_BASE] != 0.0 or t[T_WAVE_N - T_BASE] != 0.0 or \
-            t[T_WAVE_E - T_BASE] != 0.0:
+    if t[T_WIND_N - T_BASE] != 0.0 or t[T_WIND_E - T_BASE] != 0.0:
         return None
     return _LANE_ROLLOUTS.get((int(ki[K_HULL]), int(ki[K_LAYOUT])))
