@@ -68,8 +68,8 @@ def weighted_residuals(predicted: np.ndarray | torch.Tensor, seg: Segments, *,
         den = torch.einsum("jh,...hc->...jc", op_t, mask)
         safe = torch.where(den > 0, den, torch.ones_like(den))
         return torch.where(den > 0, num / safe, torch.zeros_like(den)) * weight
-    num = np.einsum("jh,...hc->...jc", op, (predicted - target) * mask)
-    den = np.einsum("jh,...hc->...jc", op, mask)
+    num = op @ ((predicted - target) * mask)  # (H, H) @ (..., H, 6): "jh,...hc->...jc", by BLAS (einsum's loop
+    den = op @ mask  # without optimize is ~100x slower here)
     return np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0) * weight
 
 
