@@ -162,10 +162,11 @@ def main(argv: list[str] | None = None) -> int:
     run_eval_code_obj's _Py_UnhandledKeyboardInterrupt) although the interrupt was caught here: not code 130."""
     code = _run(list(sys.argv[1:] if argv is None else argv))
     if argv is None:
-        from usv_predictor.models import loading
+        loading = sys.modules.get("usv_predictor.models.loading")  # imported only by the commands that load a model
+        if code == EXIT_INTERRUPTED or (loading is not None and loading.stuck_guard_threads()):
+            from usv_predictor.models.loading import exit_program
 
-        if code == EXIT_INTERRUPTED or loading.stuck_guard_threads():
-            loading.exit_program(code)
+            exit_program(code)
     return code
 
 
