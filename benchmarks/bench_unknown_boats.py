@@ -48,7 +48,7 @@ def boat_generator(seed: int, index: int, layout: str) -> np.random.Generator:
 
 
 def one_boat(index: int, seed: int, workroot: Path, interaction: str = "identify",
-             layout: str = DEFAULT_LAYOUT) -> dict:
+             layout: str = DEFAULT_LAYOUT, output_error: str | None = None) -> dict:
     import torch
 
     from usv_predictor.analysis.hidden_effects import draw
@@ -67,12 +67,13 @@ def one_boat(index: int, seed: int, workroot: Path, interaction: str = "identify
     work = workroot / boat.name
     started = time.perf_counter()
     try:
-        result = run_unknown_boat(boat, truth, work, sim_seed, interaction=interaction)
+        result = run_unknown_boat(boat, truth, work, sim_seed, interaction=interaction, output_error=output_error)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     result["index"] = index
     result["layout"] = layout
     result["interaction_mode"] = interaction
+    result["output_error_mode"] = output_error
     result["wall_s"] = time.perf_counter() - started
     result["factors"] = boat.factors
     result.pop("log", None)
@@ -177,8 +178,8 @@ def _line(r: dict, done: int, total: int) -> str:
 
 
 def _one_job(job: tuple[str, int, int, str, str]) -> dict:
-    layout, index, seed, root, interaction = job
-    return one_boat(index, seed, Path(root), interaction, layout)
+    layout, index, seed, root, interaction, output_error = job
+    return one_boat(index, seed, Path(root), interaction, layout, output_error)
 
 
 def main() -> None:
@@ -195,6 +196,8 @@ def main() -> None:
     parser.add_argument("--interaction", choices=("identify", "fix"), default="identify",
                         help="identify --interaction of the rudder layouts: the factors searched with the hull "
                              "(default) or the description's (fix: the suite before the search, for comparison)")
+    parser.add_argument("--output-error", choices=("on", "off"), default=None,
+                        help="identify --output-error for every boat (default: identify's own default per layout)")
     parser.add_argument("--jsonl", type=Path, default=None, help="append one JSON line per boat here")
     parser.add_argument("--summarise", type=Path, nargs="+", default=None, metavar="JSONL",
                         help="only print the tables of a run (several files: the boats of processes run in parallel "
@@ -219,7 +222,7 @@ def main() -> None:
     started = time.perf_counter()
     results: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="unknown_boats_") as root:
-        jobs = [(layout, index, args.seed, root, args.interaction) for layout in layouts
+        jobs = [(layout, index, args.seed, root, args.interaction, args.output_error) for layout in layouts
                 for index in range(args.first, args.first + args.boats)]
 
         def record(r: dict) -> None:

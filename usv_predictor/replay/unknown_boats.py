@@ -82,11 +82,12 @@ def _simulate_trials(trials: tuple[CalmTrial, ...], vessel: Path, seed: int, hea
 
 
 def run_unknown_boat(boat: UnknownBoat, truth: Draw, workdir: Path, seed: int, *, gain: bool = True,
-                     interaction: str = "identify") -> dict[str, Any]:
+                     interaction: str = "identify", output_error: str | None = None) -> dict[str, Any]:
     """The pipeline of the module docstring for one boat and one hidden effect, in `workdir` (created).
 
     interaction: `identify --interaction` of a layout with a rudder behind a propeller (identify: the interaction
-    factors searched with the hull, identify's and the benchmark's default; fix: the description's). Returns cause,
+    factors searched with the hull, identify's and the benchmark's default; fix: the description's). output_error:
+    `identify --output-error` (on / off), or None for identify's default. Returns cause,
     parameters, within_tolerance, errors, the identification chosen (with the terms held and the trial that would
     determine each), the fit check, timings and the commands' logs. A failing simulate or vessel init is a
     RuntimeError (a bug of the suite, not an answer).
@@ -123,6 +124,7 @@ def run_unknown_boat(boat: UnknownBoat, truth: Draw, workdir: Path, seed: int, *
     for attempt in range(2):
         argv = ["identify", str(workdir / "calm"), "--vessel", str(description), "--structure", layout.structure,
                 "--prior", prior, *(("--interaction", interaction) if layout.interaction else ()),
+                *(("--output-error", output_error) if output_error else ()),
                 "--output", str(model), "--json", str(identify_json)]
         if _replay(argv, log) != 0:
             out.update(identify_failed=True, cause="identify_failed", parameters={}, within_tolerance=False,
