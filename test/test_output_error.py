@@ -136,6 +136,45 @@ def test_a_diverging_model_is_regularised_towards_the_description_with_its_reaso
         assert p.prior <= kept[name] <= wrong[name] or wrong[name] <= kept[name] <= p.prior
 
 
+class _GivenRollout:
+    """A model whose rollout is the given (B, H, 6) output, whatever the vessel and inputs (check_envelope's input)."""
+
+    def __init__(self, out: np.ndarray) -> None:
+        self.out = out
+
+    def rollout(self, *args):  # Model.rollout(vessel, dt) -> runner; runner.rollout(state, controls, reference)
+        return self if len(args) == 2 else (self.out,)
+
+
+def test_sternway_is_held_to_settle_only_when_the_trials_went_astern():
+    vessel = load_vessel("otter")
+    steps = 40
+    wobble = 0.3 * np.sin(np.arange(steps) * 0.7)  # (H,) peak-to-peak 0.6 m/s: 60 % of the envelope's speed
+    out = np.zeros((2, steps, 6))
+    out[0, :, 0] = 1.0  # row 0: a settled straight run ahead
+    out[1, :, 0] = -0.5 + wobble  # row 1: sternway that does not settle
+    out[1, :, 1] = wobble
+    env = oe.Envelope(np.array([[1.0, 0, 0, 0], [1.0, 0, 0, 0]]), np.array([[1.0, 1.0], [-1.0, -1.0]]),
+                      np.zeros((2, 4)), 1.0, 0.1, 0.5, steps, astern=False)
+    assert oe.check_envelope(_GivenRollout(out), vessel, env) is None
+    assert "unstable (does not settle" in oe.check_envelope(_GivenRollout(out), vessel,
+                                                            dataclasses.replace(env, astern=True))
+    ahead = out.copy()
+    ahead[1, :, 0] = 1.0 + wobble  # the same wobble ahead is judged without astern trials too
+    assert "unstable (does not settle" in oe.check_envelope(_GivenRollout(ahead), vessel, env)
+    diverged = out.copy()
+    diverged[1, -1, 0] = np.nan  # sternway still has to stay finite
+    assert "diverges" in oe.check_envelope(_GivenRollout(diverged), vessel, env)
+
+
+def test_the_envelope_knows_whether_the_trials_went_astern():
+    vessel = load_vessel("otter")
+    runs = _otter_runs(vessel, seconds=20.0)
+    assert not oe.envelope(vessel, runs).astern
+    backwards = [dataclasses.replace(runs[0], nu=runs[0].nu * np.array([-1.0, 1.0, 1.0]))]
+    assert oe.envelope(vessel, [*runs, *backwards]).astern
+
+
 def test_a_model_whose_description_diverges_too_is_refused():
     vessel = load_vessel("otter")
     env = oe.envelope(vessel, _otter_runs(vessel))

@@ -55,7 +55,10 @@ output-error model is refitted with the description's weight x PRIOR_STEPS; fail
 model), it is regularised towards the description: theta = prior + alpha (theta - prior) (z scaled by alpha) for
 alpha in REGULARISE_STEPS, the largest alpha that passes kept. A course instability the description has too is
 tolerated; when the description diverges or does not settle, identify refuses (NotIdentifiableError naming the
-row). No coefficient that is not finite leaves this stage.
+row). A row whose held commands drive the boat astern (both thrusters astern: the columns' extremes combined) is held
+only to stay finite and within DIVERGE_FACTOR, not to settle or hold its course, unless the trials themselves went
+astern: ahead-running trials do not identify sternway, which is course-unstable on most hulls. No coefficient that is
+not finite leaves this stage.
 """
 from __future__ import annotations
 
@@ -535,6 +538,7 @@ class Envelope:
     yaw_rate: float  # (rad/s) the envelope's largest yaw rate
     dt: float  # (s)
     steps: int
+    astern: bool = False  # the trials moved astern (a moving sample with u < 0): sternway rows are held to settle
 
 
 def envelope(vessel: Vessel, recordings: Sequence[Recording]) -> Envelope:
@@ -573,7 +577,7 @@ def envelope(vessel: Vessel, recordings: Sequence[Recording]) -> Envelope:
     length_s = max(ENVELOPE_MIN_S, ENVELOPE_LENGTHS * vessel.geometry.L_pp / max(u_fast, 1e-3))
     reference = np.column_stack([np.hypot(state[:, 0], state[:, 1]), np.zeros((len(state), 3))])
     return Envelope(state, np.array(rows_controls), reference, u_fast, max(r_max, 1e-3), dt,
-                    int(math.ceil(length_s / dt)))
+                    int(math.ceil(length_s / dt)), astern=bool(np.any(nu[moving, 0] < 0.0)))
 
 
 def check_envelope(model: Model, vessel: Vessel, env: Envelope) -> str | None:
@@ -587,13 +591,18 @@ def check_envelope(model: Model, vessel: Vessel, env: Envelope) -> str | None:
         beyond = finite & ((np.nanmax(speed, axis=1) > DIVERGE_FACTOR * env.speed)
                            | (np.nanmax(np.abs(r), axis=1) > DIVERGE_FACTOR * env.yaw_rate))
         tail = slice(int(0.75 * env.steps), env.steps)
-        unsettled = finite & ~beyond & ((np.ptp(u[:, tail], axis=1) > SETTLE_SHARE * env.speed)
-                                        | (np.ptp(v[:, tail], axis=1) > SETTLE_SHARE * env.speed)
-                                        | (np.ptp(r[:, tail], axis=1) > SETTLE_SHARE * env.yaw_rate))
+        # a row the held commands drive astern (the last quarter's mean u < 0: both thrusters astern together, a
+        # combination of the columns' extremes) is beyond what ahead-running trials identify, and sternway is
+        # course-unstable on most hulls: held only to stay finite and bounded, unless the trials went astern
+        judged = np.full(len(u), True) if env.astern else np.mean(u[:, tail], axis=1) >= 0.0
+        unsettled = finite & ~beyond & judged & ((np.ptp(u[:, tail], axis=1) > SETTLE_SHARE * env.speed)
+                                                 | (np.ptp(v[:, tail], axis=1) > SETTLE_SHARE * env.speed)
+                                                 | (np.ptp(r[:, tail], axis=1) > SETTLE_SHARE * env.yaw_rate))
         layout = vessel.actuator_layout
         neutral = ((np.abs(layout.steering_signal(env.controls)) < 1e-9)  # (B,) steering neutral, started straight
                    & (env.state[:, 1] == 0.0) & (np.abs(env.state[:, 2]) < 0.5 * env.yaw_rate))
-        turning = finite & ~beyond & ~unsettled & neutral & (np.abs(r[:, -1]) > SETTLE_SHARE * env.yaw_rate)
+        turning = (finite & ~beyond & ~unsettled & judged & neutral
+                   & (np.abs(r[:, -1]) > SETTLE_SHARE * env.yaw_rate))
     names = layout.control_names
 
     def row(k: int) -> str:
