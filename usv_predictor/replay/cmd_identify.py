@@ -58,8 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "over all calm manoeuvres (hull, thrust gains, interaction factors, motor lag; the "
                              "description as a prior), kept when it predicts held-out manoeuvres better, and check it "
                              "stable over the trials' envelope (on), or stop at the force fit (off, default: on the "
-                             "unknown-boat suite it does not yet give more right causes; docs/results/"
-                             "unknown_boats.md); usv_predictor/fitting/output_error.py")
+                             "unknown-boat suite it names more right causes on twin-thruster boats, 30 against 25 of "
+                             "50, but more wrong ones confidently, 5 against 2; docs/results/unknown_boats.md); "
+                             "usv_predictor/fitting/output_error.py")
     parser.add_argument("--hybrid", action="store_true",
                         help="add a learned residual on the accelerations: an ensemble of 5 bounded MLPs on "
                              "non-dimensional features, trained by a multi-step loss with early stopping on held-out "
