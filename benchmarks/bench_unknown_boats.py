@@ -177,7 +177,7 @@ def _line(r: dict, done: int, total: int) -> str:
             f"{r['truth']:20s} -> {r['cause']:20s} {ok} {r['errors']} ({r['wall_s']:.0f} s)")
 
 
-def _one_job(job: tuple[str, int, int, str, str]) -> dict:
+def _one_job(job: tuple[str, int, int, str, str, str | None]) -> dict:
     layout, index, seed, root, interaction, output_error = job
     return one_boat(index, seed, Path(root), interaction, layout, output_error)
 

@@ -55,10 +55,10 @@ output-error model is refitted with the description's weight x PRIOR_STEPS; fail
 model), it is regularised towards the description: theta = prior + alpha (theta - prior) (z scaled by alpha) for
 alpha in REGULARISE_STEPS, the largest alpha that passes kept. A course instability the description has too is
 tolerated; when the description diverges or does not settle, identify refuses (NotIdentifiableError naming the
-row). A row whose held commands drive the boat astern (both thrusters astern: the columns' extremes combined) is held
-only to stay finite and within DIVERGE_FACTOR, not to settle or hold its course, unless the trials themselves went
-astern: ahead-running trials do not identify sternway, which is course-unstable on most hulls. No coefficient that is
-not finite leaves this stage.
+row). A row whose held commands drive the boat astern (e.g. both thrusters astern: the columns' extremes combined)
+is held only to stay finite and within DIVERGE_FACTOR, not to settle or hold its course, unless the trials
+themselves went astern: ahead-running trials do not identify sternway, which is course-unstable on most hulls. No
+coefficient that is not finite leaves this stage.
 """
 from __future__ import annotations
 
@@ -538,7 +538,7 @@ class Envelope:
     yaw_rate: float  # (rad/s) the envelope's largest yaw rate
     dt: float  # (s)
     steps: int
-    astern: bool = False  # the trials moved astern (a moving sample with u < 0): sternway rows are held to settle
+    astern: bool  # the trials moved astern (a moving sample with u < 0): sternway rows are held to settle too
 
 
 def envelope(vessel: Vessel, recordings: Sequence[Recording]) -> Envelope:
