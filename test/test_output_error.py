@@ -137,13 +137,21 @@ def test_a_diverging_model_is_regularised_towards_the_description_with_its_reaso
 
 
 class _GivenRollout:
-    """A model whose rollout is the given (B, H, 6) output, whatever the vessel and inputs (check_envelope's input)."""
+    """check_envelope's model whose rollout is the given (B, H, 6) output, whatever the vessel and inputs."""
 
     def __init__(self, out: np.ndarray) -> None:
         self.out = out
 
-    def rollout(self, *args):  # Model.rollout(vessel, dt) -> runner; runner.rollout(state, controls, reference)
-        return self if len(args) == 2 else (self.out,)
+    def rollout(self, vessel, dt):  # Model.rollout: the runner of the vessel's grey box
+        return _GivenRunner(self.out)
+
+
+class _GivenRunner:
+    def __init__(self, out: np.ndarray) -> None:
+        self.out = out
+
+    def rollout(self, state, controls, reference):  # (outputs, ...) as KernelRollout.rollout
+        return (self.out,)
 
 
 def test_sternway_is_held_to_settle_only_when_the_trials_went_astern():
