@@ -407,6 +407,15 @@ def _air_load(p, u_rw, v_rw):
             p[P_WIND_N] * v2 * math.sin(2.0 * gamma))
 
 
+@_inlined
+def _drift_load(p, sea, fx, fy, fn, cos_chi):
+    """(X, Y, N) of the mean wave drift from its tables' values (fx, fy, fn) at chi, cos_chi = cos chi: q_wave
+    zeta_a^2 times them (N: times L as well), less the head-sea added resistance q_wave zeta_a^2 C_AW max(cos chi,
+    0)^2 (GreyBoxRollout._sea_loads_with). _sea_loads and _lanes_wave_drift both finish their sums here."""
+    head = max(cos_chi, 0.0)
+    return sea[4] * fx - sea[7] * head * head, sea[4] * fy, sea[4] * p[P_L_SEA] * fn
+
+
 @_compiled
 def _sea_loads(ki, p, sea, c, s, psi, u_r, v_r):
     """(X, Y, N) of the wind over the still-air drag and the mean wave drift at heading psi (c, s its cosine and sine);
@@ -423,13 +432,9 @@ def _sea_loads(ki, p, sea, c, s, psi, u_r, v_r):
         x, y, n = wx - sx, wy - sy, wn - sn
     if sea[6] != 0.0:
         chi = sea[5] - psi
-        qw = sea[4]
-        x += qw * _fourier(ki, p, 0, chi)
-        y += qw * _fourier(ki, p, 1, chi)
-        n += qw * p[P_L_SEA] * _fourier(ki, p, 2, chi)
-        if sea[7] != 0.0:
-            head = max(math.cos(chi), 0.0)
-            x -= sea[7] * head * head
+        dx, dy, dn = _drift_load(p, sea, _fourier(ki, p, 0, chi), _fourier(ki, p, 1, chi), _fourier(ki, p, 2, chi),
+                                 math.cos(chi))
+        x, y, n = x + dx, y + dy, n + dn
     return x, y, n
 
 
@@ -1011,9 +1016,9 @@ N_LANE_ROWS = 29
 
 @_inlined
 def _lanes_wave_drift(ki, p, sea, x, n, weight):
-    """The mean wave drift (X, Y, N) of _sea_loads (_fourier's tables, the head-sea resistance) into rows L_WX, L_WY,
-    L_WN of lanes 0..n-1 at their stage's heading psi + weight psi_dot: each table row's harmonic one loop over the
-    lanes (a coefficient of zero adds an exact zero, where _fourier skips it)."""
+    """The mean wave drift (X, Y, N) of _sea_loads (_fourier's tables, then _drift_load) into rows L_WX, L_WY, L_WN
+    of lanes 0..n-1 at their stage's heading psi + weight psi_dot: each table row's harmonic one loop over the lanes
+    (a coefficient of zero adds an exact zero, where _fourier skips it)."""
     rows = ki[K_DRIFT_ROWS]
     for i in range(n):
         x[L_CHI, i] = sea[5] - (x[L_PSI, i] + weight * x[L_DPSI, i])
@@ -1027,12 +1032,9 @@ def _lanes_wave_drift(ki, p, sea, x, n, weight):
             for i in range(n):  # eight wide
                 c, s = _cos_sin(order * x[L_CHI, i])
                 x[L_WX + k, i] = (x[L_WX + k, i] + cos_part * c) + sin_part * s
-    qw, head_sea, arm = sea[4], sea[7], sea[4] * p[P_L_SEA]
     for i in range(n):
-        head = max(_cos_sin(x[L_CHI, i])[0], 0.0)
-        x[L_WX, i] = qw * x[L_WX, i] - head_sea * head * head
-        x[L_WY, i] = qw * x[L_WY, i]
-        x[L_WN, i] = arm * x[L_WN, i]
+        x[L_WX, i], x[L_WY, i], x[L_WN, i] = _drift_load(p, sea, x[L_WX, i], x[L_WY, i], x[L_WN, i],
+                                                         _cos_sin(x[L_CHI, i])[0])
 
 
 @_inlined
