@@ -573,6 +573,25 @@ def test_ctrl_c_inside_exec_still_ends_with_130(tmp_path) -> None:
     assert done.stderr.strip().splitlines() == ["replay info: interrupted"]
 
 
+@pytest.mark.slow
+def test_ctrl_c_while_the_command_unwinds_ends_with_130(tmp_path) -> None:
+    """Was: exit by SIGINT (returncode -2, test_fuzz's Ctrl-C to `dataset` as it finished) when Ctrl-C fell after the
+    command's end, while replay's _run unwound (its finally restoring the signal handlers): the interrupt left main
+    uncaught. Here _run itself raises it, in a program run as `python -m` is."""
+    (tmp_path / "replay_late_interrupt.py").write_text(
+        "import sys\n"
+        "from usv_predictor.replay import cli\n"
+        "def _run(argv):\n"
+        "    raise KeyboardInterrupt\n"
+        "cli._run = _run\n"
+        "sys.exit(cli.main())\n")
+    done = subprocess.run([sys.executable, "-m", "replay_late_interrupt", "info", str(BAGS / "training")],
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(tmp_path)])})
+    assert done.returncode == cli.EXIT_INTERRUPTED, (done.returncode, done.stderr[-3000:])
+    assert done.stderr.strip().splitlines() == ["replay: interrupted"]
+
+
 def _raises_system_error_from(cause: BaseException | None) -> Callable:
     def run(_args: object) -> dict:
         if cause is None:

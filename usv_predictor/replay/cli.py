@@ -159,9 +159,16 @@ def main(argv: list[str] | None = None) -> int:
     here with os._exit and that code (loading.exit_program) after a model's code never returned (a guard thread
     still inside it) and after Ctrl-C: a KeyboardInterrupt raised inside exec() (a dataclass or a namedtuple being
     made while a library imports) marks the interpreter, which then ends itself with SIGINT at exit (CPython 3.11:
-    run_eval_code_obj's _Py_UnhandledKeyboardInterrupt) although the interrupt was caught here: not code 130."""
-    code = _run(list(sys.argv[1:] if argv is None else argv))
+    run_eval_code_obj's _Py_UnhandledKeyboardInterrupt) although the interrupt was caught here: not code 130.
+    A Ctrl-C after the command's end (while _run unwinds, or in the exit handlers that join worker pools) leaves its
+    exit code as it is: the command is over and its outputs are written."""
+    try:
+        code = _run(list(sys.argv[1:] if argv is None else argv))
+    except KeyboardInterrupt:  # between the command's end and _run's return (its finally restoring handlers)
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        code = EXIT_INTERRUPTED
     if argv is None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # the exit handlers cannot end the process by SIGINT now
         loading = sys.modules.get("usv_predictor.models.loading")  # imported only by the commands that load a model
         if code == EXIT_INTERRUPTED or (loading is not None and loading.stuck_guard_threads()):
             from usv_predictor.models.loading import exit_program
